@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# Idempotent stand-alone set-up: system library check, .venv, pinned Python dependencies, the
+# package itself (editable). A second run with unchanged requirements takes a second or two.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PYTHON=${PYTHON:-python3}
+VENV=${VENV:-.venv}
+
+"$PYTHON" - <<'PY' || { echo "setup: Python 3.10-3.12 is required (PYTHON=$PYTHON)" >&2; exit 1; }
+import sys
+sys.exit(0 if (3, 10) <= sys.version_info[:2] <= (3, 12) else 1)
+PY
+
+# Open3D's wheel links against libusb-1.0 (librealsense inside it); Debian/Ubuntu ship it apart.
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+        echo "setup: installing libusb-1.0-0 (needed by open3d and pyrealsense2)"
+        (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0) \
+            >/dev/null
+    else
+        echo "setup: libusb-1.0 is missing; run:  sudo apt-get install -y libusb-1.0-0" >&2
+        exit 1
+    fi
+fi
+
+[ -x "$VENV/bin/python" ] || "$PYTHON" -m venv "$VENV"
+
+stamp_file="$VENV/.tlessbot-setup-stamp"
+stamp=$(cat constraints.txt requirements/*.txt setup.py setup.cfg package.xml | sha256sum | cut -d' ' -f1)
+if [ -f "$stamp_file" ] && [ "$(cat "$stamp_file")" = "$stamp" ]; then
+    echo "setup: $VENV is up to date"
+    exit 0
+fi
+
+echo "setup: installing pinned dependencies into $VENV (first run takes a few minutes)"
+# Some machines' pip configuration names local package folders that may not exist; pip then
+# prints one warning per package. Filter those lines, keep everything else.
+quiet_pip() {
+    "$VENV/bin/python" -m pip "$@" 2>&1 | { grep -v "^WARNING: Location 'file://" || true; }
+    return "${PIPESTATUS[0]}"
+}
+quiet_pip install -q -c constraints.txt \
+    -r requirements/ros-pypi.txt -r requirements/dev.txt -e '.[realsense]'
+echo "$stamp" > "$stamp_file"
+echo "setup: done"

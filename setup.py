@@ -1,0 +1,68 @@
+"""ament_python / setuptools build for tlessbot_ros.
+
+The PyPI ROS 2 wheels are *not* install requirements: in a ROS 2 Jazzy workspace rclpy and the
+message packages come from the distribution (see README, "colcon path"). The stand-alone set-up
+installs them from requirements/ros-pypi.txt instead.
+"""
+from glob import glob
+import os
+
+from setuptools import find_packages, setup
+
+package_name = 'tlessbot_ros'
+
+# Node executables: `ros2 run tlessbot_ros <name>`. Each module is tlessbot_ros.nodes.<name>.
+NODE_NAMES = []
+
+
+def _node_entry_points():
+    return [f'{name} = {package_name}.nodes.{name}:main' for name in NODE_NAMES]
+
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    package_data={package_name: ['data/*', 'data/**/*']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+        (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
+        (os.path.join('share', package_name, 'bags'), glob('bags/*.md')),
+    ],
+    python_requires='>=3.10',
+    install_requires=[
+        'numpy>=1.24',
+        'scipy>=1.10',
+        'opencv-python-headless>=4.8,<5',  # 5.x moved HOGDescriptor to contrib
+        'scikit-image>=0.22',
+        'scikit-learn>=1.4',
+        'open3d>=0.18',
+        'trimesh>=4.0',
+        'rosbags>=0.10',
+        'pyyaml>=6',
+        'tqdm>=4.60',
+        'matplotlib>=3.7',
+    ],
+    extras_require={
+        'realsense': ['pyrealsense2>=2.54'],
+        'ros-pypi': [
+            'ros-jazzy-rclpy',
+            'ros-jazzy-common-interfaces',
+            'ros-jazzy-rmw-fastrtps-cpp',
+        ],
+        'test': ['pytest>=8', 'pytest-timeout>=2.2', 'ruff>=0.5'],
+    },
+    zip_safe=True,
+    maintainer='tlessbot_ros team',
+    maintainer_email='team@tlessbot.invalid',
+    description='Two-view RGB-D perception for textureless T-LESS parts, as a ROS 2 node graph.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'tlessbot = tlessbot_ros.tools.cli:main',
+            *_node_entry_points(),
+        ],
+    },
+)

@@ -1,0 +1,53 @@
+"""Packaging invariants: layering, rclpy-free core, lint."""
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_core_and_conversions_import_without_rclpy(tmp_path):
+    # A meta-path hook makes every ROS import fail, as in an environment without rclpy.
+    code = (
+        'import sys\n'
+        'class Block:\n'
+        '    def find_spec(self, name, path=None, target=None):\n'
+        "        if name.split('.')[0] in ('rclpy', 'sensor_msgs', 'geometry_msgs', 'std_msgs'):\n"
+        "            raise ImportError('blocked: ' + name)\n"
+        'sys.meta_path.insert(0, Block())\n'
+        'import tlessbot_ros.core, tlessbot_ros.conversions, tlessbot_ros.core.geometry\n'
+        "print('ok')\n"
+    )
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                            cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == 'ok'
+
+
+def test_core_never_imports_ros_or_upper_layers():
+    forbidden = ('rclpy', 'tlessbot_ros.nodes', 'tlessbot_ros.tools', 'tlessbot_ros.conversions',
+                 'tlessbot_ros.sim', 'tlessbot_ros.sensors', 'sensor_msgs', 'geometry_msgs')
+    offenders = []
+    for path in (REPO / 'tlessbot_ros' / 'core').rglob('*.py'):
+        for line in path.read_text().splitlines():
+            stripped = line.strip()
+            if stripped.startswith(('import ', 'from ')) and any(
+                    f' {name}' in stripped for name in forbidden):
+                offenders.append(f'{path.name}: {stripped}')
+    assert not offenders
+
+
+def test_ruff_is_clean():
+    ruff = shutil.which('ruff', path=str(Path(sys.executable).parent)) or shutil.which('ruff')
+    assert ruff, 'ruff is part of the test tools (requirements/dev.txt)'
+    result = subprocess.run([ruff, 'check', 'tlessbot_ros', 'test'], cwd=REPO,
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_cli_lists_commands():
+    result = subprocess.run([sys.executable, '-m', 'tlessbot_ros.tools.cli', '--help'],
+                            capture_output=True, text=True)
+    assert result.returncode == 0
+    assert 'usage: tlessbot <command>' in result.stdout

@@ -1,0 +1,141 @@
+"""sensor_msgs/Image <-> numpy arrays.
+
+Supported encodings (sensor_msgs/image_encodings.hpp): rgb8, bgr8, rgba8, bgra8, mono8, mono16,
+8UC1, 16UC1 (depth in millimetres, 0 = invalid, realsense-ros) and 32FC1 (depth in metres,
+NaN = invalid, REP-118). Row padding in ``step`` and ``is_bigendian`` are honoured.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from tlessbot_ros.conversions.messages import (
+    MessageFactory,
+    default_factory,
+    make_header,
+    message_bytes,
+)
+
+# encoding -> (numpy base dtype, channels)
+ENCODINGS: dict[str, tuple[np.dtype, int]] = {
+    'rgb8': (np.dtype(np.uint8), 3),
+    'bgr8': (np.dtype(np.uint8), 3),
+    'rgba8': (np.dtype(np.uint8), 4),
+    'bgra8': (np.dtype(np.uint8), 4),
+    'mono8': (np.dtype(np.uint8), 1),
+    '8UC1': (np.dtype(np.uint8), 1),
+    'mono16': (np.dtype(np.uint16), 1),
+    '16UC1': (np.dtype(np.uint16), 1),
+    '32FC1': (np.dtype(np.float32), 1),
+}
+
+
+def _check_encoding(encoding: str) -> tuple[np.dtype, int]:
+    try:
+        return ENCODINGS[encoding]
+    except KeyError:
+        raise ValueError(
+            f'unsupported image encoding {encoding!r}; expected one of {sorted(ENCODINGS)}'
+        ) from None
+
+
+def image_to_array(msg: Any, *, copy: bool = False) -> np.ndarray:
+    """Decode a sensor_msgs/Image.
+
+    Returns:
+        (H, W, C) for multi-channel encodings, (H, W) for single-channel ones, in the encoding's
+        own channel order and dtype (uint8, uint16 or float32) and native byte order. The array
+        is a read-only view of the message buffer unless ``copy`` is True.
+
+    Raises:
+        ValueError: unknown encoding, zero size, ``step`` too small, or a data length that does
+            not equal ``height * step``.
+    """
+    dtype, channels = _check_encoding(msg.encoding)
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if height == 0 or width == 0:
+        raise ValueError(f'image has zero size ({width}x{height})')
+    row_bytes = width * channels * dtype.itemsize
+    if step < row_bytes:
+        raise ValueError(f'step {step} is smaller than width*channels*bytes = {row_bytes}')
+    buffer = message_bytes(msg.data)
+    if buffer.size != height * step:
+        raise ValueError(
+            f'image data has {buffer.size} bytes, expected height*step = {height}*{step}'
+            f' = {height * step}'
+        )
+    typed = dtype.newbyteorder('>' if msg.is_bigendian else '<')
+    # Drop the row padding, then reinterpret the bytes; a view unless a copy is unavoidable.
+    rows = buffer.reshape(height, step)[:, :row_bytes]
+    array = rows.view(typed).reshape(height, width, channels)
+    if not typed.isnative:
+        array = array.astype(dtype)
+    if channels == 1:
+        array = array[:, :, 0]
+    return array.copy() if copy else array
+
+
+def array_to_image(
+    array: np.ndarray,
+    encoding: str,
+    *,
+    frame_id: str = '',
+    stamp_ns: int = 0,
+    factory: MessageFactory | None = None,
+) -> Any:
+    """Encode an array as a sensor_msgs/Image (little-endian, no row padding).
+
+    Args:
+        array: (H, W) or (H, W, C) array whose dtype and channel count match ``encoding``.
+        encoding: one of :data:`ENCODINGS`.
+        frame_id, stamp_ns: header contents.
+        factory: message implementation (rclpy by default).
+    """
+    dtype, channels = _check_encoding(encoding)
+    array = np.asarray(array)
+    if array.ndim == 2:
+        array = array[:, :, None]
+    if array.ndim != 3 or array.shape[2] != channels:
+        raise ValueError(
+            f'encoding {encoding} needs {channels} channel(s), got shape {array.shape}')
+    if array.dtype != dtype:
+        raise ValueError(f'encoding {encoding} needs dtype {dtype}, got {array.dtype}')
+    height, width = array.shape[:2]
+    if height == 0 or width == 0:
+        raise ValueError(f'image has zero size ({width}x{height})')
+    data = np.ascontiguousarray(array, dtype=dtype.newbyteorder('<'))
+    factory = factory or default_factory()
+    return factory.new(
+        'sensor_msgs/msg/Image',
+        header=make_header(frame_id, stamp_ns, factory),
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=width * channels * dtype.itemsize,
+        data=factory.uint8_array(data),
+    )
+
+
+def depth_image_to_metres(msg: Any) -> np.ndarray:
+    """Depth image (16UC1/mono16 in mm, or 32FC1 in m) as (H, W) float32 metres, NaN = invalid."""
+    if msg.encoding in ('16UC1', 'mono16'):
+        depth_mm = image_to_array(msg)
+        depth = depth_mm.astype(np.float32) * np.float32(0.001)
+        depth[depth_mm == 0] = np.nan
+        return depth
+    if msg.encoding == '32FC1':
+        depth = image_to_array(msg, copy=True).astype(np.float32, copy=False)
+        depth[~np.isfinite(depth) | (depth <= 0)] = np.nan
+        return depth
+    raise ValueError(f'depth images must be 16UC1, mono16 or 32FC1, got {msg.encoding!r}')
+
+
+def metres_to_depth_mm(depth_m: np.ndarray) -> np.ndarray:
+    """(H, W) float metres (NaN/<=0 invalid) to uint16 millimetres with 0 = invalid, rounded."""
+    depth_m = np.asarray(depth_m, dtype=np.float64)
+    valid = np.isfinite(depth_m) & (depth_m > 0)
+    depth_mm = np.zeros(depth_m.shape, dtype=np.uint16)
+    depth_mm[valid] = np.clip(np.rint(depth_m[valid] * 1000.0), 0, 65535).astype(np.uint16)
+    return depth_mm

@@ -1,0 +1,57 @@
+"""geometry_msgs/PoseStamped <-> (4, 4) transform + frame + stamp."""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from tlessbot_ros.conversions.messages import (
+    MessageFactory,
+    default_factory,
+    make_header,
+    stamp_to_ns,
+)
+from tlessbot_ros.core.geometry import (
+    make_transform,
+    matrix_from_quaternion,
+    quaternion_from_matrix,
+)
+
+
+def pose_stamped_to_transform(msg: Any) -> tuple[np.ndarray, str, int]:
+    """Returns (T_frame_object (4, 4) float64, frame_id, stamp in ns).
+
+    Raises:
+        ValueError: a zero-length or non-finite quaternion, or a non-finite position.
+    """
+    p, q = msg.pose.position, msg.pose.orientation
+    quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+    position = np.array([p.x, p.y, p.z], dtype=np.float64)
+    if not (np.isfinite(quat).all() and np.isfinite(position).all()):
+        raise ValueError('PoseStamped has non-finite values')
+    if np.linalg.norm(quat) < 1e-9:
+        raise ValueError('PoseStamped orientation is a zero quaternion')
+    T = make_transform(matrix_from_quaternion(quat), position)
+    return T, str(msg.header.frame_id), stamp_to_ns(msg.header.stamp)
+
+
+def transform_to_pose_stamped(
+    T: np.ndarray, *, frame_id: str, stamp_ns: int, factory: MessageFactory | None = None
+) -> Any:
+    """PoseStamped of a rigid (4, 4) transform (object pose in ``frame_id``)."""
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise ValueError(f'T must be a finite 4x4 transform, got shape {T.shape}')
+    factory = factory or default_factory()
+    x, y, z, w = quaternion_from_matrix(T[:3, :3])
+    tx, ty, tz = (float(v) for v in T[:3, 3])
+    return factory.new(
+        'geometry_msgs/msg/PoseStamped',
+        header=make_header(frame_id, stamp_ns, factory),
+        pose=factory.new(
+            'geometry_msgs/msg/Pose',
+            position=factory.new('geometry_msgs/msg/Point', x=tx, y=ty, z=tz),
+            orientation=factory.new('geometry_msgs/msg/Quaternion', x=float(x), y=float(y),
+                                    z=float(z), w=float(w)),
+        ),
+    )

@@ -1,0 +1,1 @@
+"""Reading and writing files: CAD models, BOP datasets, model and template archives."""

@@ -1,0 +1,1 @@
+"""rclpy nodes, one Node class per module, each with ``main()``."""

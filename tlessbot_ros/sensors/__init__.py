@@ -1,0 +1,1 @@
+"""Camera access: pyrealsense2 (imported lazily) and a device-free frame path."""

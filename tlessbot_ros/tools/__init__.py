@@ -1,0 +1,1 @@
+"""Command-line tools, all behind one ``tlessbot`` executable (see :mod:`.cli`)."""
