@@ -1,0 +1,1 @@
+"""Benchmarks run by ``tlessbot bench <name>``; each module defines add_arguments() and run()."""
