@@ -1,0 +1,394 @@
+"""CAD models of the parts: loading (STL / PLY / OBJ, mm on disk -> m in memory) and resting poses.
+
+Two folder layouts are read:
+
+* a plain folder of ``obj_NN.stl|ply|obj`` files (the T-LESS CAD STLs), and
+* a BOP ``models/`` folder with ``obj_0000NN.ply`` and ``models_info.json`` (its symmetries are
+  kept; BOP stores them in mm and as flattened 4x4 matrices, see
+  https://github.com/thodan/bop_toolkit/blob/master/docs/bop_datasets_format.md).
+
+The object id is the integer in the file name. Duplicate vertices (every STL triangle stores its
+own corners) are merged so the mesh is indexed.
+"""
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tlessbot_ros.errors import ModelFileError
+
+MODEL_SUFFIXES = ('.stl', '.ply', '.obj')
+_NAME = re.compile(r'^obj_(\d+)$')
+
+
+@dataclass
+class ObjectModel:
+    """One rigid part.
+
+    Attributes:
+        obj_id: T-LESS / BOP object id (shown as ``obj_05``).
+        vertices: (V, 3) float64 vertex positions in metres, model frame.
+        faces: (F, 3) int32 vertex indices per triangle.
+        normals: (V, 3) float64 unit vertex normals, or None.
+        diameter_m: largest distance between two vertices (BOP's object diameter).
+        extent_m: (3,) size of the axis-aligned bounding box in metres.
+        symmetries_discrete: 4x4 transforms (translation in metres) mapping the model onto
+            itself, from ``models_info.json``; empty when none are listed; None when unknown
+            (no info file).
+        symmetries_continuous: ``{'axis': (3,) array, 'offset_m': (3,) array}`` per continuous
+            symmetry axis; same None/empty convention.
+        source: the file the mesh came from.
+    """
+
+    obj_id: int
+    vertices: np.ndarray
+    faces: np.ndarray
+    diameter_m: float
+    extent_m: np.ndarray
+    normals: np.ndarray | None = None
+    symmetries_discrete: list[np.ndarray] | None = None
+    symmetries_continuous: list[dict[str, np.ndarray]] | None = None
+    source: Path | None = None
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def name(self) -> str:
+        return f'obj_{self.obj_id:02d}'
+
+
+@dataclass
+class StablePose:
+    """A resting pose on a horizontal plane.
+
+    ``T_table_object`` (4x4, metres) puts the object on the plane z = 0 (lowest point at z = 0,
+    centre of mass above the table origin); any yaw about z and shift in x, y is also a resting
+    pose.
+    ``probability`` is the estimated share of random drops that end in this pose.
+    """
+
+    T_table_object: np.ndarray
+    probability: float
+
+
+def object_id_from_path(path: Path) -> int | None:
+    """``obj_05.stl`` / ``obj_000005.ply`` -> 5; None for other names."""
+    match = _NAME.match(path.stem)
+    return int(match.group(1)) if match else None
+
+
+def _model_files(folder: Path) -> dict[int, Path]:
+    files: dict[int, Path] = {}
+    for path in sorted(folder.iterdir()):
+        if path.suffix.lower() not in MODEL_SUFFIXES:
+            continue
+        obj_id = object_id_from_path(path)
+        if obj_id is None:
+            continue
+        # Prefer .ply (BOP) over .stl over .obj when one id has several files.
+        if obj_id in files:
+            rank = {'.ply': 0, '.stl': 1, '.obj': 2}
+            if rank[path.suffix.lower()] >= rank[files[obj_id].suffix.lower()]:
+                continue
+        files[obj_id] = path
+    return files
+
+
+def _read_mesh_mm(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    import open3d as o3d
+
+    try:
+        mesh = o3d.io.read_triangle_mesh(str(path))
+    except Exception as error:  # Open3D raises RuntimeError on some corrupt files
+        raise ModelFileError(f'cannot read model {path}: {error}') from None
+    mesh.remove_duplicated_vertices()
+    mesh.remove_unreferenced_vertices()
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.triangles, dtype=np.int32)
+    if len(vertices) < 4 or len(faces) < 4:
+        raise ModelFileError(f'model {path} is empty or unreadable ({len(faces)} triangles)')
+    if not np.all(np.isfinite(vertices)):
+        raise ModelFileError(f'model {path} has non-finite vertex coordinates')
+    return vertices, faces
+
+
+def _hull_points(vertices: np.ndarray) -> np.ndarray:
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        return vertices[ConvexHull(vertices).vertices]
+    except (QhullError, ValueError):
+        return vertices
+
+
+def diameter(vertices: np.ndarray) -> float:
+    """Largest distance between two of the (N, 3) points (computed on the convex hull)."""
+    hull = _hull_points(np.asarray(vertices, dtype=np.float64))
+    best = 0.0
+    for start in range(0, len(hull), 1024):
+        block = hull[start:start + 1024]
+        d2 = np.sum((block[:, None, :] - hull[None, :, :]) ** 2, axis=-1)
+        best = max(best, float(d2.max()))
+    return float(np.sqrt(best))
+
+
+def _symmetries(entry: dict) -> tuple[list[np.ndarray], list[dict[str, np.ndarray]]]:
+    discrete = []
+    for flat in entry.get('symmetries_discrete', []) or []:
+        T = np.asarray(flat, dtype=np.float64).reshape(4, 4).copy()
+        T[:3, 3] /= 1000.0
+        discrete.append(T)
+    continuous = []
+    for sym in entry.get('symmetries_continuous', []) or []:
+        axis = np.asarray(sym['axis'], dtype=np.float64)
+        continuous.append({'axis': axis / np.linalg.norm(axis),
+                           'offset_m': np.asarray(sym.get('offset', [0, 0, 0]), float) / 1000.0})
+    return discrete, continuous
+
+
+def load_model(path: str | Path, obj_id: int | None = None,
+               info: dict | None = None) -> ObjectModel:
+    """One model file in millimetres -> :class:`ObjectModel` in metres."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelFileError(f'model file not found: {path}')
+    if obj_id is None:
+        obj_id = object_id_from_path(path)
+        if obj_id is None:
+            raise ModelFileError(f'cannot read an object id from {path.name} (want obj_NN.*)')
+    vertices_mm, faces = _read_mesh_mm(path)
+    vertices = vertices_mm / 1000.0
+    discrete = continuous = None
+    if info is not None:
+        discrete, continuous = _symmetries(info)
+    return ObjectModel(obj_id=obj_id, vertices=vertices, faces=faces,
+                       diameter_m=diameter(vertices), extent_m=np.ptp(vertices, axis=0),
+                       symmetries_discrete=discrete, symmetries_continuous=continuous,
+                       source=path)
+
+
+def load_models(folder: str | Path, ids: list[int] | None = None, *,
+                progress: bool = False) -> dict[int, ObjectModel]:
+    """All models of a folder (or only ``ids``), keyed by object id, in metres.
+
+    Raises:
+        ModelFileError: folder missing, no ``obj_NN.*`` model in it, a requested id missing, or
+            an unreadable / empty mesh.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ModelFileError(f'model folder not found: {folder}')
+    files = _model_files(folder)
+    if not files:
+        raise ModelFileError(f'no obj_NN.stl|ply|obj model files in {folder}')
+    if ids is not None:
+        missing = sorted(set(int(i) for i in ids) - set(files))
+        if missing:
+            raise ModelFileError(f'{folder} has no model for object id(s) {missing}; '
+                                 f'available: {sorted(files)}')
+        files = {int(i): files[int(i)] for i in ids}
+    infos: dict[str, dict] = {}
+    info_path = folder / 'models_info.json'
+    if info_path.is_file():
+        try:
+            infos = json.loads(info_path.read_text(encoding='utf-8'))
+        except (OSError, ValueError) as error:
+            raise ModelFileError(f'cannot read {info_path}: {error}') from None
+    items = sorted(files.items())
+    if progress:
+        from tqdm import tqdm
+
+        items = tqdm(items, desc='models', unit='model')
+    models = {}
+    for obj_id, path in items:
+        info = infos.get(str(obj_id)) if info_path.is_file() else None
+        if info_path.is_file() and info is None:
+            info = {}
+        models[obj_id] = load_model(path, obj_id, info)
+    return models
+
+
+# --- resting poses ---------------------------------------------------------------------------
+
+def centre_of_mass(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(3,) centre of mass of a closed mesh of uniform density (signed tetrahedra); falls back to
+    the centroid of the convex hull's volume if the mesh is not closed enough to give a volume."""
+    v = np.asarray(vertices, dtype=np.float64)
+    tri = v[np.asarray(faces)]
+    vol6 = np.einsum('ij,ij->i', tri[:, 0], np.cross(tri[:, 1], tri[:, 2]))
+    total = vol6.sum()
+    hull_volume = _hull_volume(v)
+    if total != 0 and 0.05 * hull_volume < abs(total) / 6.0 <= 1.01 * hull_volume:
+        return (vol6[:, None] * tri.sum(axis=1)).sum(axis=0) / (4.0 * total)
+    from scipy.spatial import ConvexHull
+
+    hull = ConvexHull(v)
+    tri = hull.points[hull.simplices]
+    ref = hull.points[hull.vertices].mean(axis=0)
+    rel = tri - ref
+    vol6 = np.abs(np.einsum('ij,ij->i', rel[:, 0], np.cross(rel[:, 1], rel[:, 2])))
+    return ref + (vol6[:, None] * rel.sum(axis=1)).sum(axis=0) / (4.0 * vol6.sum())
+
+
+def _hull_volume(v: np.ndarray) -> float:
+    from scipy.spatial import ConvexHull
+
+    return float(ConvexHull(v).volume)
+
+
+def _solid_angle(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Solid angles (sr) of triangles (N, 3 each) seen from the origin (Van Oosterom-Strackee)."""
+    la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+    numer = np.abs(np.einsum('ij,ij->i', a, np.cross(b, c)))
+    denom = (la * lb * lc + np.einsum('ij,ij->i', a, b) * lc + np.einsum('ij,ij->i', a, c) * lb
+             + np.einsum('ij,ij->i', b, c) * la)
+    return 2.0 * np.arctan2(numer, denom)
+
+
+def _rotation_to_minus_z(n: np.ndarray) -> np.ndarray:
+    """Rotation R with R @ n = (0, 0, -1)."""
+    target = np.array([0.0, 0.0, -1.0])
+    axis = np.cross(n, target)
+    s, c = np.linalg.norm(axis), float(np.dot(n, target))
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    axis /= s
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + s * K + (1 - c) * K @ K
+
+
+def _facets(hull) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Coplanar hull triangles grouped: (facet index per triangle, triangles per facet)."""
+    eq = hull.equations
+    scale = max(float(np.ptp(hull.points, axis=0).max()), 1e-9)
+    key = np.round(np.c_[eq[:, :3] * 1e4, eq[:, 3] / scale * 1e4]).astype(np.int64)
+    _, label = np.unique(key, axis=0, return_inverse=True)
+    label = label.ravel()
+    groups = [np.flatnonzero(label == k) for k in range(label.max() + 1)]
+    return label, groups
+
+
+def _inside_facet(p: np.ndarray, tris: np.ndarray, normal: np.ndarray, margin: float) -> bool:
+    """Is point ``p`` (on the facet plane) inside one of the facet's (T, 3, 3) triangles?"""
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+    for e0, e1 in ((a, b), (b, c), (c, a)):
+        side = np.einsum('ij,j->i', np.cross(e1 - e0, p - e0), normal)
+        edge = np.linalg.norm(e1 - e0, axis=1)
+        ok = side >= margin * edge
+        if e0 is a:
+            inside = ok
+        else:
+            inside &= ok
+    return bool(inside.any())
+
+
+def _closest_point_on_triangles(p: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """Closest point to ``p`` over the (T, 3, 3) coplanar triangles (p lies in their plane)."""
+    best, best_d = None, np.inf
+    for tri in tris:
+        for i in range(3):
+            a, b = tri[i], tri[(i + 1) % 3]
+            ab = b - a
+            t = np.clip(np.dot(p - a, ab) / max(np.dot(ab, ab), 1e-30), 0.0, 1.0)
+            q = a + t * ab
+            d = np.linalg.norm(p - q)
+            if d < best_d:
+                best, best_d = q, d
+    return best
+
+
+def stable_poses(model: ObjectModel, *, min_probability: float = 0.0) -> list[StablePose]:
+    """Resting poses of ``model`` on a horizontal plane, most probable first.
+
+    Quasi-static drop model: the part rests on a face of its convex hull; a face is stable when
+    the centre of mass projects inside it. Every hull face is reached with a probability equal
+    to its solid angle seen from the centre of mass (a random orientation of the gravity vector);
+    an unstable face tips over the edge nearest to the projected centre of mass onto the
+    neighbouring face, until a stable face is reached, and passes its share on. Curved parts get
+    one pose per hull facet of their rolling surface (each with a small probability).
+
+    Results are cached on the model per ``min_probability``.
+
+    Returns:
+        list of :class:`StablePose` with probability >= ``min_probability`` (renormalised to
+        sum to 1).
+    """
+    key = ('stable_poses', float(min_probability))
+    if key in model._cache:
+        return model._cache[key]
+    from scipy.spatial import ConvexHull
+
+    com = centre_of_mass(model.vertices, model.faces)
+    hull = ConvexHull(model.vertices)
+    label, groups = _facets(hull)
+    points = hull.points
+    tri_pts = points[hull.simplices]
+    omega = _solid_angle(tri_pts[:, 0] - com, tri_pts[:, 1] - com, tri_pts[:, 2] - com)
+    facet_omega = np.bincount(label, weights=omega, minlength=len(groups))
+    normals = np.array([hull.equations[g[0], :3] for g in groups])
+    offsets = np.array([hull.equations[g[0], 3] for g in groups])
+    # Edge -> facets, to find the neighbour across a tipping edge.
+    edge_facets: dict[tuple[int, int], set[int]] = {}
+    for t, simplex in enumerate(hull.simplices):
+        for i in range(3):
+            e = tuple(sorted((int(simplex[i]), int(simplex[(i + 1) % 3]))))
+            edge_facets.setdefault(e, set()).add(int(label[t]))
+    margin = 1e-6 * model.diameter_m
+    next_facet = np.arange(len(groups))
+    for f, g in enumerate(groups):
+        n = normals[f]
+        p = com - (np.dot(n, com) + offsets[f]) * n
+        tris = points[hull.simplices[g]]
+        if _inside_facet(p, tris, n, margin):
+            continue
+        q = _closest_point_on_triangles(p, tris)
+        # The pivot edge holds q; the next facet is the neighbour across it whose plane the
+        # centre of mass falls towards (the one whose normal is closest to the tipping direction).
+        tip = (p - q) / max(np.linalg.norm(p - q), 1e-30)
+        best, best_score = f, -np.inf
+        for simplex in hull.simplices[g]:
+            for i in range(3):
+                a, b = points[simplex[i]], points[simplex[(i + 1) % 3]]
+                ab = b - a
+                t = np.clip(np.dot(q - a, ab) / max(np.dot(ab, ab), 1e-30), 0.0, 1.0)
+                if np.linalg.norm(a + t * ab - q) > 1e-9:
+                    continue
+                e = tuple(sorted((int(simplex[i]), int(simplex[(i + 1) % 3]))))
+                for other in edge_facets.get(e, ()):
+                    if other == f:
+                        continue
+                    score = float(np.dot(normals[other], tip))
+                    if score > best_score:
+                        best, best_score = other, score
+        next_facet[f] = best
+    # Follow the tipping chains (the centre of mass drops at each step, so they end).
+    final = np.arange(len(groups))
+    for f in range(len(groups)):
+        seen, cur = set(), f
+        while next_facet[cur] != cur and cur not in seen:
+            seen.add(cur)
+            cur = next_facet[cur]
+        final[f] = cur
+    share = np.bincount(final, weights=facet_omega, minlength=len(groups)) / (4.0 * np.pi)
+    stable = [f for f in range(len(groups)) if next_facet[f] == f and share[f] > 0]
+    total = sum(share[f] for f in stable)
+    poses = []
+    for f in sorted(stable, key=lambda f: -share[f]):
+        prob = share[f] / total
+        if prob < min_probability:
+            continue
+        R = _rotation_to_minus_z(normals[f])
+        moved = model.vertices @ R.T
+        c = R @ com
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = [-c[0], -c[1], -moved[:, 2].min()]
+        poses.append(StablePose(T, float(prob)))
+    kept = sum(p.probability for p in poses)
+    for pose in poses:
+        pose.probability /= kept
+    model._cache[key] = poses
+    return poses
