@@ -1,0 +1,39 @@
+import pytest
+
+from tlessbot_ros.core.sync import StampSynchroniser
+
+MS = 1_000_000
+
+
+def test_sets_form_within_slop_in_any_arrival_order():
+    sync = StampSynchroniser(['color', 'depth', 'info'], slop_ns=5 * MS, queue_size=5)
+    assert sync.add('depth', 100 * MS, 'd1') is None
+    assert sync.add('info', 101 * MS, 'i1') is None
+    assert sync.add('color', 99 * MS, 'c1') == {'color': 'c1', 'depth': 'd1', 'info': 'i1'}
+    assert sync.pending() == {'color': 0, 'depth': 0, 'info': 0}
+    assert (sync.emitted, sync.dropped) == (1, 0)
+
+
+def test_stale_items_are_dropped_not_kept():
+    sync = StampSynchroniser(['a', 'b'], slop_ns=1 * MS, queue_size=3)
+    for i in range(10):  # 'a' frames whose partners never come
+        sync.add('a', i * 33 * MS, i)
+    assert sync.pending()['a'] == 3 and sync.dropped == 7
+    # A partner for the newest 'a' emits it and discards the older 'a' items still queued.
+    assert sync.add('b', 9 * 33 * MS, 'b9') == {'a': 9, 'b': 'b9'}
+    assert sync.pending() == {'a': 0, 'b': 0}
+    assert sync.dropped == 9
+
+
+def test_outside_slop_does_not_pair():
+    sync = StampSynchroniser(['top', 'side'], slop_ns=50 * MS, queue_size=2)
+    assert sync.add('top', 0, 't0') is None
+    assert sync.add('side', 51 * MS, 's0') is None
+    assert sync.add('top', 60 * MS, 't1') == {'top': 't1', 'side': 's0'}
+
+
+def test_bad_arguments_raise():
+    with pytest.raises(ValueError):
+        StampSynchroniser(['a', 'a'], slop_ns=0, queue_size=1)
+    with pytest.raises(KeyError, match='unknown stream'):
+        StampSynchroniser(['a'], slop_ns=0, queue_size=1).add('b', 0, None)

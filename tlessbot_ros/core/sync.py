@@ -1,0 +1,82 @@
+"""Bounded stamp synchronisation of several message streams (message_filters' job, in pure
+Python so it can be unit-tested and needs no ROS).
+
+A :class:`StampSynchroniser` holds at most ``queue_size`` items per stream. When an item
+arrives, it looks in every other stream for the item nearest in stamp; if all lie within
+``slop_ns`` of it, the set is emitted and every item older than the set is dropped (counted in
+:attr:`dropped`). Old frames are dropped, never queued without bound.
+"""
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+Item = TypeVar('Item')
+
+
+@dataclass(frozen=True)
+class SyncParams:
+    """Synchronisation thresholds shared by the nodes.
+
+    Attributes:
+        slop_s: largest stamp difference within one camera's colour / depth / camera_info set.
+            realsense-ros stamps aligned depth with the colour frame's stamp, so a small slop
+            suffices.
+        queue_size: items kept per stream while waiting for partners.
+        max_age_s: largest stamp difference between the top and the side camera sets that are
+            fused into one two-view frame.
+    """
+
+    slop_s: float = 0.010
+    queue_size: int = 5
+    max_age_s: float = 0.050
+
+
+class StampSynchroniser(Generic[Item]):
+    """Pairs items of named streams by stamp (nanoseconds); bounded memory."""
+
+    def __init__(self, streams: Sequence[str], *, slop_ns: int, queue_size: int) -> None:
+        if len(set(streams)) != len(streams) or not streams:
+            raise ValueError(f'streams must be distinct names, got {list(streams)}')
+        if queue_size < 1 or slop_ns < 0:
+            raise ValueError('queue_size must be >= 1 and slop_ns >= 0')
+        self.streams = tuple(streams)
+        self.slop_ns = int(slop_ns)
+        self._queues: dict[str, deque[tuple[int, Item]]] = {
+            name: deque() for name in self.streams}
+        self._queue_size = queue_size
+        self.dropped = 0
+        self.emitted = 0
+
+    def add(self, stream: str, stamp_ns: int, item: Item) -> dict[str, Item] | None:
+        """Queue ``item``; returns ``{stream: item}`` when a complete set forms, else None."""
+        queue = self._queues.get(stream)
+        if queue is None:
+            raise KeyError(f'unknown stream {stream!r}; expected one of {self.streams}')
+        if len(queue) >= self._queue_size:
+            queue.popleft()
+            self.dropped += 1
+        queue.append((int(stamp_ns), item))
+        chosen: dict[str, tuple[int, Item]] = {stream: (int(stamp_ns), item)}
+        for other in self.streams:
+            if other == stream:
+                continue
+            nearest = min(self._queues[other], key=lambda entry: abs(entry[0] - stamp_ns),
+                          default=None)
+            if nearest is None or abs(nearest[0] - stamp_ns) > self.slop_ns:
+                return None
+            chosen[other] = nearest
+        for name, (stamp, _) in chosen.items():
+            queue = self._queues[name]
+            while queue and queue[0][0] <= stamp:
+                entry = queue.popleft()
+                if entry[0] != stamp:
+                    self.dropped += 1
+        self.emitted += 1
+        return {name: entry[1] for name, entry in chosen.items()}
+
+    def pending(self) -> dict[str, int]:
+        """Items waiting per stream."""
+        return {name: len(queue) for name, queue in self._queues.items()}

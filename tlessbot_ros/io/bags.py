@@ -1,0 +1,81 @@
+"""Reading rosbag2 bags (mcap or sqlite3) with rosbags, with errors a user can act on."""
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tlessbot_ros.errors import BagError
+
+
+@dataclass(frozen=True)
+class BagMessage:
+    """One raw message: topic, ROS type name, receive time (ns) and its CDR bytes."""
+
+    topic: str
+    msgtype: str
+    log_time_ns: int
+    raw: bytes
+
+
+def _open_reader(path: Path) -> Any:
+    from rosbags.highlevel import AnyReader
+
+    if not path.exists():
+        raise BagError(f'bag not found: {path}')
+    try:
+        reader = AnyReader([path])
+        reader.open()
+    except Exception as error:  # rosbags raises several unrelated types for bad files
+        raise BagError(f'cannot open bag {path}: {error}') from None
+    return reader
+
+
+def bag_topics(path: str | Path) -> dict[str, str]:
+    """Topic -> ROS type name of a bag."""
+    reader = _open_reader(Path(path))
+    try:
+        return {c.topic: c.msgtype for c in reader.connections}
+    finally:
+        reader.close()
+
+
+def read_bag(path: str | Path, topics: Sequence[str] | None = None) -> Iterator[BagMessage]:
+    """Raw messages of ``topics`` (all when None) in log-time order.
+
+    Raises:
+        BagError: missing, unreadable, corrupt or truncated bag, or a requested topic that the
+            bag does not have.
+    """
+    path = Path(path)
+    reader = _open_reader(path)
+    try:
+        available = {c.topic for c in reader.connections}
+        if topics:
+            missing = sorted(set(topics) - available)
+            if missing:
+                raise BagError(f'bag {path} has no topic(s) {missing}; it has {sorted(available)}')
+        connections = [c for c in reader.connections if not topics or c.topic in topics]
+        try:
+            for connection, log_time_ns, raw in reader.messages(connections=connections):
+                yield BagMessage(connection.topic, connection.msgtype, int(log_time_ns),
+                                 bytes(raw))
+        except BagError:
+            raise
+        except Exception as error:
+            raise BagError(f'bag {path} is corrupt or truncated: {error}') from None
+    finally:
+        reader.close()
+
+
+def deserialize(message: BagMessage, typestore: Any | None = None) -> Any:
+    """The rosbags dataclass of a raw message (ROS 2 CDR)."""
+    if typestore is None:
+        from rosbags.typesys import Stores, get_typestore
+
+        typestore = get_typestore(Stores.ROS2_JAZZY)
+    try:
+        return typestore.deserialize_cdr(message.raw, message.msgtype)
+    except Exception as error:
+        raise BagError(f'cannot decode a {message.msgtype} on {message.topic}: {error}') from None

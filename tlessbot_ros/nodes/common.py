@@ -1,0 +1,91 @@
+"""Small rclpy helpers shared by the nodes and the ROS-facing tools.
+
+- QoS profiles: sensor data in (best effort, shallow), results out (reliable, depth 10).
+- Parameter declaration from a core ``*Params`` dataclass, so code and YAML share one truth.
+- Message classes by ROS type name, and rosbags <-> rclpy type-name mapping.
+"""
+from __future__ import annotations
+
+import dataclasses
+import importlib
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+SENSOR_QOS = qos_profile_sensor_data
+RESULT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
+                        history=HistoryPolicy.KEEP_LAST, depth=10)
+
+
+def message_class(type_name: str) -> type:
+    """rclpy message class of 'pkg/msg/Name' (also accepts 'pkg/Name')."""
+    parts = type_name.split('/')
+    if len(parts) == 2:
+        parts = [parts[0], 'msg', parts[1]]
+    if len(parts) != 3:
+        raise ValueError(f"message type must look like 'pkg/msg/Name', got {type_name!r}")
+    package, kind, name = parts
+    try:
+        return getattr(importlib.import_module(f'{package}.{kind}'), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f'message type {type_name!r} is not available in this environment') \
+            from None
+
+
+def declare_from_dataclass(node: Node, params: Any, *, prefix: str = '',
+                           descriptions: dict[str, str] | None = None,
+                           ranges: dict[str, tuple[float, float]] | None = None) -> dict[str, Any]:
+    """Declare one ROS parameter per field of a frozen ``*Params`` dataclass instance.
+
+    Field docs come from ``descriptions`` (field name -> text), falling back to the dataclass
+    docstring. Returns the declared values as a dict of field name -> value (after overrides
+    from YAML / command line), ready for ``dataclasses.replace(params, **values)``.
+    """
+    descriptions = descriptions or {}
+    ranges = ranges or {}
+    values = {}
+    for field in dataclasses.fields(params):
+        default = getattr(params, field.name)
+        if isinstance(default, tuple):
+            default = list(default)
+        descriptor = ParameterDescriptor(
+            description=descriptions.get(field.name, f'{type(params).__name__}.{field.name}'))
+        if field.name in ranges:
+            low, high = ranges[field.name]
+            if isinstance(default, int) and not isinstance(default, bool):
+                descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high),
+                                                         step=0)]
+            elif isinstance(default, float):
+                descriptor.floating_point_range = [FloatingPointRange(
+                    from_value=float(low), to_value=float(high), step=0.0)]
+        name = f'{prefix}{field.name}'
+        value = node.declare_parameter(name, default, descriptor).value
+        values[field.name] = tuple(value) if isinstance(getattr(params, field.name), tuple) \
+            else value
+    return values
+
+
+def format_message(msg: Any, *, max_array: int = 16, indent: int = 0) -> str:
+    """A YAML-like multi-line rendering of an rclpy message; long arrays are summarised."""
+    lines = []
+    pad = '  ' * indent
+    for name in msg.get_fields_and_field_types():
+        value = getattr(msg, name)
+        if hasattr(value, 'get_fields_and_field_types'):
+            lines.append(f'{pad}{name}:')
+            lines.append(format_message(value, max_array=max_array, indent=indent + 1))
+            continue
+        if hasattr(value, '__len__') and not isinstance(value, str):
+            if len(value) > max_array:
+                lines.append(f'{pad}{name}: <{len(value)} elements>')
+                continue
+            items = [v if not hasattr(v, 'get_fields_and_field_types') else
+                     '{' + format_message(v, max_array=max_array).replace('\n', ', ') + '}'
+                     for v in value]
+            lines.append(f'{pad}{name}: [{", ".join(str(v) for v in items)}]')
+            continue
+        lines.append(f'{pad}{name}: {value!r}' if isinstance(value, str) else
+                     f'{pad}{name}: {value}')
+    return '\n'.join(lines)

@@ -1,0 +1,138 @@
+"""Print messages of a topic (like `ros2 topic echo`); PoseStamped as position, quaternion, RPY.
+
+The message type is found from the ROS graph, and the QoS is chosen to match the publisher.
+
+    tlessbot echo /objects/obj_05/pose
+    tlessbot echo /objects/obj_05/pose --csv --timeout 10
+    tlessbot echo /top/color/camera_info --once
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from tlessbot_ros.core.geometry import matrix_from_quaternion, rpy_from_matrix
+from tlessbot_ros.errors import TlessbotError
+
+CSV_HEADER = 'stamp_s,frame_id,x,y,z,qx,qy,qz,qw,roll_deg,pitch_deg,yaw_deg'
+
+
+def pose_fields(msg: Any) -> dict[str, Any]:
+    """The numbers echo prints: stamp (s), frame, position (m), quaternion, RPY (deg)."""
+    p, q = msg.pose.position, msg.pose.orientation
+    quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+    rpy = np.degrees(rpy_from_matrix(matrix_from_quaternion(quat))) \
+        if np.linalg.norm(quat) > 0 else np.full(3, math.nan)
+    return {
+        'stamp_s': msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9,
+        'frame_id': msg.header.frame_id,
+        'position': (p.x, p.y, p.z),
+        'quaternion': (q.x, q.y, q.z, q.w),
+        'rpy_deg': tuple(float(v) for v in rpy),
+    }
+
+
+def format_pose(msg: Any) -> str:
+    """Human-readable block for one PoseStamped."""
+    f = pose_fields(msg)
+    x, y, z = f['position']
+    qx, qy, qz, qw = f['quaternion']
+    roll, pitch, yaw = f['rpy_deg']
+    return (f'stamp: {f["stamp_s"]:.9f}  frame: {f["frame_id"]}\n'
+            f'  position [m]:   x={x:+.4f} y={y:+.4f} z={z:+.4f}\n'
+            f'  quaternion:     x={qx:+.5f} y={qy:+.5f} z={qz:+.5f} w={qw:+.5f}\n'
+            f'  rpy [deg]:      roll={roll:+.2f} pitch={pitch:+.2f} yaw={yaw:+.2f}')
+
+
+def format_pose_csv(msg: Any) -> str:
+    """One CSV row matching :data:`CSV_HEADER`."""
+    f = pose_fields(msg)
+    numbers = [*f['position'], *f['quaternion'], *f['rpy_deg']]
+    return f'{f["stamp_s"]:.9f},{f["frame_id"]},' + ','.join(f'{v:.6f}' for v in numbers)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('topic', help='topic name, e.g. /objects/obj_05/pose')
+    parser.add_argument('--once', action='store_true', help='print one message and exit')
+    parser.add_argument('--csv', action='store_true', help='CSV rows (PoseStamped only)')
+    parser.add_argument('--timeout', type=float, default=None, metavar='S',
+                        help='exit with an error if nothing arrives for this long')
+    parser.add_argument('--count', type=int, default=0, help='exit after N messages')
+
+
+def _wait_for_type(node: Any, topic: str, deadline: float | None) -> str:
+    import rclpy
+
+    while True:
+        types = dict(node.get_topic_names_and_types())
+        if topic in types and types[topic]:
+            return types[topic][0]
+        if deadline is not None and time.monotonic() > deadline:
+            raise TlessbotError(f'topic {topic} does not exist in the ROS graph')
+        rclpy.spin_once(node, timeout_sec=0.1)
+
+
+def _matching_qos(node: Any, topic: str) -> Any:
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    reliable, transient = True, True
+    for info in node.get_publishers_info_by_topic(topic):
+        reliable &= info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+        transient &= info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+    return QoSProfile(depth=10,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable
+                      else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if transient
+                      else DurabilityPolicy.VOLATILE)
+
+
+def run(args: argparse.Namespace) -> int:
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    from tlessbot_ros.nodes.common import format_message, message_class
+
+    topic = args.topic if args.topic.startswith('/') else '/' + args.topic
+    rclpy.init()
+    node = rclpy.create_node('tlessbot_echo')
+    received = 0
+    try:
+        deadline = time.monotonic() + args.timeout if args.timeout else None
+        type_name = _wait_for_type(node, topic, deadline)
+        is_pose = type_name == 'geometry_msgs/msg/PoseStamped'
+        if args.csv and not is_pose:
+            raise TlessbotError(f'--csv prints PoseStamped only; {topic} is {type_name}')
+        if args.csv:
+            print(CSV_HEADER, flush=True)
+
+        def on_message(msg: Any) -> None:
+            nonlocal received, deadline
+            received += 1
+            if args.csv:
+                print(format_pose_csv(msg), flush=True)
+            else:
+                print(format_pose(msg) if is_pose else format_message(msg), '\n---', flush=True)
+            if args.timeout:
+                deadline = time.monotonic() + args.timeout
+
+        node.create_subscription(message_class(type_name), topic, on_message,
+                                 _matching_qos(node, topic))
+        limit = 1 if args.once else args.count
+        while rclpy.ok() and not (limit and received >= limit):
+            rclpy.spin_once(node, timeout_sec=0.1)
+            if deadline is not None and time.monotonic() > deadline:
+                if received == 0:
+                    raise TlessbotError(f'no message on {topic} within {args.timeout} s')
+                break
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        sys.stdout.flush()
+    return 0

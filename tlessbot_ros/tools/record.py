@@ -1,0 +1,77 @@
+"""Record topics from the ROS graph into a rosbag2 bag (mcap by default) without ros2 bag.
+
+    tlessbot record --out run1 /objects/obj_05/pose /side/color/image_raw --duration 10
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from tlessbot_ros.errors import BagError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('topics', nargs='+', help='topics to record')
+    parser.add_argument('--out', required=True, help='output bag folder (must not exist)')
+    parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap')
+    parser.add_argument('--duration', type=float, default=0.0, metavar='S',
+                        help='stop after S seconds (default: until Ctrl-C)')
+    parser.add_argument('--discovery-timeout', type=float, default=5.0, metavar='S',
+                        help='how long to wait for the topics to appear in the graph')
+
+
+def run(args: argparse.Namespace) -> int:
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from tlessbot_ros.nodes.common import SENSOR_QOS, message_class
+
+    out = Path(args.out)
+    if out.exists():
+        raise BagError(f'output {out} exists; choose a new folder')
+    topics = [t if t.startswith('/') else '/' + t for t in args.topics]
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    rclpy.init()
+    node = rclpy.create_node('tlessbot_record')
+    writer = None
+    counts = dict.fromkeys(topics, 0)
+    try:
+        deadline = time.monotonic() + args.discovery_timeout
+        types: dict[str, str] = {}
+        while len(types) < len(topics) and time.monotonic() < deadline:
+            graph = dict(node.get_topic_names_and_types())
+            types = {t: graph[t][0] for t in topics if graph.get(t)}
+            rclpy.spin_once(node, timeout_sec=0.1)
+        missing = sorted(set(topics) - set(types))
+        if missing:
+            raise BagError(f'topic(s) {missing} not found in the ROS graph')
+        plugin = StoragePlugin.MCAP if args.storage == 'mcap' else StoragePlugin.SQLITE3
+        writer = Writer(out, version=9, storage_plugin=plugin)
+        writer.open()
+        connections = {t: writer.add_connection(t, m, typestore=typestore)
+                       for t, m in types.items()}
+
+        def subscriber(topic: str):
+            def on_raw(raw: bytes) -> None:
+                writer.write(connections[topic], time.time_ns(), raw)
+                counts[topic] += 1
+            return on_raw
+
+        for topic, msgtype in types.items():
+            node.create_subscription(message_class(msgtype), topic, subscriber(topic),
+                                     SENSOR_QOS, raw=True)
+        stop = time.monotonic() + args.duration if args.duration > 0 else None
+        while rclpy.ok() and (stop is None or time.monotonic() < stop):
+            rclpy.spin_once(node, timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if writer is not None:
+            writer.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    print('recorded ' + ', '.join(f'{t}: {n}' for t, n in counts.items()) + f' into {out}')
+    return 0
