@@ -1,0 +1,127 @@
+"""echo / replay / record as real processes over DDS, and their one-line errors."""
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from bagutil import TYPESTORE, write_bag
+from rosbags.rosbag2 import StoragePlugin
+
+from tlessbot_ros.conversions import RosbagsFactory, array_to_image, transform_to_pose_stamped
+from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
+from tlessbot_ros.io.bags import read_bag
+from tlessbot_ros.tools.echo import CSV_HEADER, format_pose, format_pose_csv
+
+CLI = [sys.executable, '-m', 'tlessbot_ros.tools.cli']
+POSE_TOPIC = '/objects/obj_05/pose'
+
+
+def _poses(count: int):
+    factory = RosbagsFactory()
+    return [transform_to_pose_stamped(
+        make_transform(rotation_about_axis([0, 0, 1], np.radians(10 * i)), [0.1 * i, 0.2, 0.5]),
+        frame_id='side_color_optical_frame', stamp_ns=(i + 1) * 50_000_000, factory=factory)
+        for i in range(count)]
+
+
+def test_pose_formatting():
+    msg = _poses(3)[2]
+    text = format_pose(msg)
+    assert 'frame: side_color_optical_frame' in text and 'yaw=+20.00' in text
+    row = format_pose_csv(msg).split(',')
+    assert len(row) == len(CSV_HEADER.split(','))
+    assert row[:3] == ['0.150000000', 'side_color_optical_frame', '0.200000']
+    assert float(row[-1]) == pytest.approx(20.0)
+
+
+@pytest.fixture
+def pose_bag(tmp_path):
+    image = array_to_image(np.zeros((4, 6, 3), np.uint8), 'rgb8', frame_id='side',
+                           factory=RosbagsFactory())
+    messages = []
+    for i, pose in enumerate(_poses(5)):
+        messages.append((POSE_TOPIC, (i + 1) * 50_000_000, pose))
+        messages.append(('/side/color/image_raw', (i + 1) * 50_000_000 + 1, image))
+    return write_bag(tmp_path / 'poses', messages)
+
+
+@pytest.mark.ros
+@pytest.mark.rosbag
+def test_replay_into_echo(pose_bag):
+    echo = subprocess.Popen([*CLI, 'echo', POSE_TOPIC, '--csv', '--count', '5', '--timeout',
+                             '30'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    replay = subprocess.Popen([*CLI, 'replay', str(pose_bag), '--loop', '--rate', '2'],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        out, err = echo.communicate(timeout=90)
+    finally:
+        replay.terminate()
+        replay.wait(timeout=20)
+    assert echo.returncode == 0, err
+    lines = out.strip().splitlines()
+    assert lines[0] == CSV_HEADER
+    rows = [line.split(',') for line in lines[1:]]
+    assert len(rows) == 5
+    expected = {f'{(i + 1) * 0.05:.9f}': i for i in range(5)}
+    for row in rows:
+        i = expected[row[0]]  # every stamp is one of the bag's
+        assert float(row[2]) == pytest.approx(0.1 * i)
+        assert float(row[-1]) == pytest.approx(10 * i)
+
+
+@pytest.mark.ros
+@pytest.mark.rosbag
+def test_record_keeps_raw_bytes(pose_bag, tmp_path):
+    out = tmp_path / 'recorded'
+    record = subprocess.Popen([*CLI, 'record', POSE_TOPIC, '--out', str(out), '--duration', '8',
+                               '--discovery-timeout', '20'],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    replay = subprocess.Popen([*CLI, 'replay', str(pose_bag), '--loop', '--topics', POSE_TOPIC],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        _, err = record.communicate(timeout=60)
+    finally:
+        replay.terminate()
+        replay.wait(timeout=20)
+    assert record.returncode == 0, err
+    originals = {m.raw for m in read_bag(pose_bag, [POSE_TOPIC])}
+    recorded = [m.raw for m in read_bag(out, [POSE_TOPIC])]
+    assert len(recorded) >= 3
+    assert set(recorded) <= originals
+
+
+def _run(*args):
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=60)
+
+
+def test_replay_errors_are_one_line(tmp_path, pose_bag):
+    missing = _run('replay', str(tmp_path / 'nope.mcap'))
+    assert missing.returncode == 1
+    assert missing.stderr.strip().splitlines() == [
+        f'tlessbot replay: error: bag not found: {tmp_path / "nope.mcap"}']
+    corrupt = tmp_path / 'corrupt.mcap'
+    corrupt.write_bytes(b'\x89MCAP0\r\n' + bytes(range(256)) * 4)
+    result = _run('replay', str(corrupt))
+    assert result.returncode == 1 and len(result.stderr.strip().splitlines()) == 1
+    assert 'cannot open bag' in result.stderr or 'corrupt' in result.stderr
+    result = _run('replay', str(pose_bag), '--topics', '/not/there')
+    assert result.returncode == 1 and "no topic(s) ['/not/there']" in result.stderr
+
+
+def test_truncated_bag_raises_bag_error(tmp_path, pose_bag):
+    from tlessbot_ros.errors import BagError
+
+    mcap = next(Path(pose_bag).glob('*.mcap'))
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[: len(data) // 2])
+    with pytest.raises(BagError):
+        list(read_bag(pose_bag))
+
+
+def test_sqlite_bags_read_too(tmp_path):
+    bag = write_bag(tmp_path / 'sq', [(POSE_TOPIC, 1, _poses(1)[0])],
+                    storage=StoragePlugin.SQLITE3)
+    (message,) = list(read_bag(bag))
+    assert TYPESTORE.deserialize_cdr(message.raw, message.msgtype).header.frame_id == \
+        'side_color_optical_frame'
