@@ -1,0 +1,316 @@
+"""Linear classifiers over HOG descriptors: SGD, Perceptron, PA-I and PA-II (paper §3.2, §6.1).
+
+Training uses scikit-learn's online learners through ``partial_fit`` on shuffled mini-batches:
+
+- ``'sgd'``: ``SGDClassifier`` (linear SVM, hinge loss, L2 penalty ``alpha``, optimal rate);
+- ``'perceptron'``: ``Perceptron`` (Rosenblatt's rule);
+- ``'pa1'`` / ``'pa2'``: Passive-Aggressive I / II of Crammer et al. [1], as
+  ``SGDClassifier(loss='hinge', penalty=None, learning_rate='pa1' | 'pa2', eta0=C)``, the
+  replacement of ``PassiveAggressiveClassifier`` (deprecated in scikit-learn 1.8, removed in 1.10).
+
+Prediction does not use scikit-learn: the fitted one-vs-rest weights are kept as a (D, C) matrix
+(with the feature standardisation folded in) and ``argmax(x @ W + b)`` takes about 0.01 ms per
+crop instead of 0.3 ms for ``predict``. The margin between the best and second-best class score
+is the confidence; a crop whose margin is below ``reject_margin`` is labelled ``UNKNOWN_ID``.
+
+The model file is an ``.npz`` read with ``allow_pickle=False``; see :meth:`LinearClassifier.save`.
+
+References:
+    [1] K. Crammer et al., "Online Passive-Aggressive Algorithms", JMLR 7, 2006.
+    [2] Sensors 2020, 20, 2203 (the seed paper), §3.2, §6.1, Fig. 10.
+"""
+from __future__ import annotations
+
+import json
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from tlessbot_ros.core.hog import HogParams
+from tlessbot_ros.errors import ModelFileError
+
+FORMAT_VERSION = 1
+FILE_MAGIC = 'tlessbot_ros.linear_classifier'
+KINDS = ('sgd', 'perceptron', 'pa1', 'pa2')
+UNKNOWN_ID = 0  # T-LESS ids start at 1
+
+
+@dataclass(frozen=True)
+class ClassifierParams:
+    """Training settings.
+
+    Attributes:
+        kind: one of ``KINDS``.
+        epochs: passes over the training set (each shuffled).
+        batch_size: samples per ``partial_fit`` call (the mini-batch).
+        alpha: L2 regularisation of ``'sgd'`` (scikit-learn's ``alpha``).
+        pa_c: aggressiveness C of PA-I / PA-II (scikit-learn's ``eta0``).
+        standardise: scale each feature to zero mean and unit variance before training; the
+            scaling is folded into the stored weights.
+        reject_margin: default minimum margin (best minus second-best score) to accept a label;
+            0 accepts everything.
+    """
+
+    kind: str = 'sgd'
+    epochs: int = 5
+    batch_size: int = 256
+    alpha: float = 1e-4
+    pa_c: float = 0.1
+    standardise: bool = True
+    reject_margin: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f'kind must be one of {KINDS}, got {self.kind!r}')
+        if self.epochs < 1 or self.batch_size < 1:
+            raise ValueError('epochs and batch_size must be >= 1')
+        if self.alpha <= 0 or self.pa_c <= 0:
+            raise ValueError('alpha and pa_c must be > 0')
+        if self.reject_margin < 0:
+            raise ValueError(f'reject_margin must be >= 0, got {self.reject_margin}')
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Labels of N crops.
+
+    Attributes:
+        class_ids: (N,) int64 predicted object ids, ``UNKNOWN_ID`` where rejected.
+        scores: (N,) float32 decision value of the best class.
+        margins: (N,) float32 best minus second-best decision value (>= 0).
+    """
+
+    class_ids: np.ndarray
+    scores: np.ndarray
+    margins: np.ndarray
+
+
+@dataclass(frozen=True)
+class LinearClassifier:
+    """A trained linear model over HOG descriptors.
+
+    Attributes:
+        weights: (D, C) float32, D = ``hog_params.feature_dim``, C classes.
+        intercepts: (C,) float32.
+        class_ids: (C,) int64 object ids of the columns.
+        hog_params: the crop normalisation and HOG settings the model was trained with.
+        kind: the learner (one of ``KINDS``).
+        reject_margin: default reject threshold of :meth:`predict`.
+        info: free-form JSON-serialisable training metadata (seed, sample counts, timings).
+    """
+
+    weights: np.ndarray
+    intercepts: np.ndarray
+    class_ids: np.ndarray
+    hog_params: HogParams = HogParams()
+    kind: str = 'sgd'
+    reject_margin: float = 0.0
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        w, b, ids = self.weights, self.intercepts, self.class_ids
+        if w.ndim != 2 or b.shape != (w.shape[1],) or ids.shape != (w.shape[1],):
+            raise ValueError(f'inconsistent shapes: weights {w.shape}, intercepts {b.shape}, '
+                             f'class_ids {ids.shape}; need (D, C), (C,), (C,)')
+        if w.shape[0] != self.hog_params.feature_dim:
+            raise ValueError(f'weights have {w.shape[0]} rows but the HOG settings give '
+                             f'{self.hog_params.feature_dim}-dimensional descriptors')
+        if w.shape[1] < 2:
+            raise ValueError('a classifier needs at least 2 classes')
+
+    def decision_function(self, features: np.ndarray) -> np.ndarray:
+        """(N, D) float32 descriptors -> (N, C) float32 class scores."""
+        features = np.asarray(features, dtype=np.float32)
+        if features.ndim == 1:
+            features = features[None]
+        if features.shape[1] != self.weights.shape[0]:
+            raise ValueError(f'descriptors have {features.shape[1]} values, the model expects '
+                             f'{self.weights.shape[0]}: were they made with its hog_params?')
+        return features @ self.weights + self.intercepts
+
+    def predict(self, features: np.ndarray, *, reject_margin: float | None = None) -> Prediction:
+        """Best class of each descriptor; ``UNKNOWN_ID`` where the margin is below the threshold.
+
+        Args:
+            features: (N, D) or (D,) float32 HOG descriptors.
+            reject_margin: overrides the model's ``reject_margin``.
+        """
+        scores = self.decision_function(features)
+        best_col = np.argmax(scores, axis=1)
+        top2 = -np.partition(-scores, 1, axis=1)[:, :2]  # [:, 0] best, [:, 1] second best
+        best = top2[:, 0]
+        margins = (top2[:, 0] - top2[:, 1]).astype(np.float32)
+        threshold = self.reject_margin if reject_margin is None else reject_margin
+        ids = self.class_ids[best_col].astype(np.int64)
+        ids[margins < threshold] = UNKNOWN_ID
+        return Prediction(ids, best.astype(np.float32), margins)
+
+    def save(self, path: str | Path) -> None:
+        """Write the model as a compressed ``.npz`` (no pickled objects).
+
+        Keys: ``magic``, ``format_version``, ``kind``, ``weights`` (D, C) float32,
+        ``intercepts`` (C,) float32, ``class_ids`` (C,) int64, ``hog_params`` (JSON),
+        ``reject_margin``, ``info`` (JSON).
+        """
+        np.savez_compressed(
+            Path(path), magic=np.array(FILE_MAGIC), format_version=np.array(FORMAT_VERSION),
+            kind=np.array(self.kind), weights=self.weights.astype(np.float32),
+            intercepts=self.intercepts.astype(np.float32),
+            class_ids=self.class_ids.astype(np.int64),
+            hog_params=np.array(json.dumps(self.hog_params.to_dict())),
+            reject_margin=np.array(float(self.reject_margin)),
+            info=np.array(json.dumps(self.info)))
+
+    @classmethod
+    def load(cls, path: str | Path) -> LinearClassifier:
+        """Read a model written by :meth:`save`; raises ``ModelFileError`` if it is not one."""
+        path = Path(path)
+        if not path.is_file():
+            raise ModelFileError(f'classifier model {path} does not exist')
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {key: data[key] for key in data.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+            raise ModelFileError(f'{path} is not a readable classifier .npz ({error})') from None
+        if str(arrays.get('magic', '')) != FILE_MAGIC:
+            raise ModelFileError(f'{path} is not a tlessbot classifier model (wrong magic); '
+                                 "make one with 'tlessbot train'")
+        version = int(arrays.get('format_version', -1))
+        if version != FORMAT_VERSION:
+            raise ModelFileError(f'{path} has model format version {version}; this tlessbot '
+                                 f'reads version {FORMAT_VERSION}: retrain it')
+        try:
+            hog_dict = json.loads(str(arrays['hog_params']))
+            known = {f.name for f in fields(HogParams)}
+            hog_params = HogParams(**{k: v for k, v in hog_dict.items() if k in known})
+            return cls(weights=arrays['weights'].astype(np.float32),
+                       intercepts=arrays['intercepts'].astype(np.float32),
+                       class_ids=arrays['class_ids'].astype(np.int64),
+                       hog_params=hog_params, kind=str(arrays['kind']),
+                       reject_margin=float(arrays['reject_margin']),
+                       info=json.loads(str(arrays['info'])))
+        except (KeyError, ValueError, TypeError) as error:
+            raise ModelFileError(f'{path} is a corrupt classifier model: {error}') from None
+
+
+def _make_learner(params: ClassifierParams, seed: int):
+    from sklearn.linear_model import Perceptron, SGDClassifier
+
+    if params.kind == 'sgd':
+        return SGDClassifier(loss='hinge', penalty='l2', alpha=params.alpha,
+                             learning_rate='optimal', random_state=seed)
+    if params.kind == 'perceptron':
+        return Perceptron(random_state=seed)
+    return SGDClassifier(loss='hinge', penalty=None, learning_rate=params.kind,
+                         eta0=params.pa_c, random_state=seed)
+
+
+class OnlineTrainer:
+    """Online (mini-batch) training of one linear model; call :meth:`partial_fit` repeatedly.
+
+    Args:
+        class_ids: all object ids the model will know, fixed up front.
+        params: learner settings.
+        feature_mean, feature_scale: (D,) standardisation applied before learning (and folded
+            into the weights of :meth:`model`); None for identity.
+        seed: random state of the learner.
+    """
+
+    def __init__(self, class_ids: np.ndarray, *, params: ClassifierParams = ClassifierParams(),
+                 feature_mean: np.ndarray | None = None,
+                 feature_scale: np.ndarray | None = None, seed: int = 0) -> None:
+        self.class_ids = np.unique(np.asarray(class_ids, dtype=np.int64))
+        if len(self.class_ids) < 2:
+            raise ValueError('need at least 2 classes to train a classifier')
+        if UNKNOWN_ID in self.class_ids:
+            raise ValueError(f'class id {UNKNOWN_ID} is reserved for "unknown"')
+        self.params = params
+        self._mean = feature_mean
+        self._scale = feature_scale
+        self._learner = _make_learner(params, seed)
+        self.samples_seen = 0
+
+    def _standardise(self, features: np.ndarray) -> np.ndarray:
+        if self._mean is not None:
+            features = features - self._mean
+        if self._scale is not None:
+            features = features / self._scale
+        return features
+
+    def partial_fit(self, features: np.ndarray, labels: np.ndarray) -> None:
+        """One online step on (N, D) float32 descriptors and their (N,) object ids."""
+        labels = np.asarray(labels, dtype=np.int64)
+        unknown = np.setdiff1d(labels, self.class_ids)
+        if unknown.size:
+            raise ValueError(f'labels {unknown.tolist()} are not among the trainer class_ids')
+        self._learner.partial_fit(self._standardise(np.asarray(features, np.float32)), labels,
+                                  classes=self.class_ids)
+        self.samples_seen += len(labels)
+
+    def model(self, hog_params: HogParams, *, info: dict | None = None) -> LinearClassifier:
+        """The current weights as a :class:`LinearClassifier` (standardisation folded in)."""
+        if self.samples_seen == 0:
+            raise ValueError('partial_fit was never called: nothing learnt yet')
+        coef = np.asarray(self._learner.coef_, dtype=np.float64)
+        intercept = np.asarray(self._learner.intercept_, dtype=np.float64)
+        if coef.shape[0] == 1:  # binary: scikit-learn keeps one hyperplane for class 1
+            coef = np.vstack([-coef, coef])
+            intercept = np.concatenate([-intercept, intercept])
+        weights = coef.T  # (D, C)
+        if self._scale is not None:
+            weights = weights / self._scale[:, None]
+        if self._mean is not None:
+            intercept = intercept - self._mean @ weights
+        return LinearClassifier(weights=weights.astype(np.float32),
+                                intercepts=intercept.astype(np.float32),
+                                class_ids=self.class_ids.copy(), hog_params=hog_params,
+                                kind=self.params.kind, reject_margin=self.params.reject_margin,
+                                info=dict(info or {}))
+
+
+def train_classifier(features: np.ndarray, labels: np.ndarray, *,
+                     hog_params: HogParams | None = None,
+                     params: ClassifierParams = ClassifierParams(), seed: int = 0,
+                     on_batch: Callable[[int], None] | None = None) -> LinearClassifier:
+    """Fit a linear model on in-memory descriptors with shuffled mini-batch epochs.
+
+    Args:
+        features: (N, D) float32 HOG descriptors (D = ``hog_params.feature_dim``).
+        labels: (N,) int object ids (> 0).
+        hog_params: stored in the model so inference normalises crops the same way
+            (default ``HogParams()``).
+        params: learner settings.
+        seed: seeds the shuffling and the learner; same inputs and seed give the same model.
+        on_batch: called with the batch size after each ``partial_fit`` (e.g. a progress bar).
+
+    Returns:
+        The trained :class:`LinearClassifier`.
+    """
+    hog_params = HogParams() if hog_params is None else hog_params
+    features = np.asarray(features, dtype=np.float32)
+    labels = np.asarray(labels, dtype=np.int64)
+    if features.ndim != 2 or labels.shape != (features.shape[0],):
+        raise ValueError(f'need (N, D) features and (N,) labels, got {features.shape} and '
+                         f'{labels.shape}')
+    if features.shape[1] != hog_params.feature_dim:
+        raise ValueError(f'features have {features.shape[1]} values but hog_params give '
+                         f'{hog_params.feature_dim}')
+    mean = scale = None
+    if params.standardise:
+        mean = features.mean(axis=0)
+        scale = np.maximum(features.std(axis=0), 1e-3).astype(np.float32)
+    trainer = OnlineTrainer(labels, params=params, feature_mean=mean, feature_scale=scale,
+                            seed=seed)
+    rng = np.random.default_rng(seed)
+    for _ in range(params.epochs):
+        order = rng.permutation(len(labels))
+        for start in range(0, len(order), params.batch_size):
+            batch = order[start:start + params.batch_size]
+            trainer.partial_fit(features[batch], labels[batch])
+            if on_batch is not None:
+                on_batch(len(batch))
+    return trainer.model(hog_params, info={'samples': int(len(labels)), 'seed': int(seed),
+                                           'epochs': params.epochs})

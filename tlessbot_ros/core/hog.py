@@ -1,0 +1,235 @@
+"""Crop normalisation and HOG descriptors for recognising textureless parts (paper §3.2).
+
+A region of interest (box, optionally a mask) is cut out square, resized to ``crop_px`` (60 by
+default) and its intensities are normalised so that the PLA colour and the lighting matter
+little: with a mask the object is contrast-stretched into ``[object_floor, 1]`` and the
+background is set to 0, so the silhouette and the shading edges carry the class. The HOG is
+Dalal and Triggs' [1] with unsigned gradients, ``cell_px`` cells, ``bins`` orientation bins and
+L2-Hys normalisation over blocks of 2×2 cells with a one-cell stride; the paper's choice is cells
+of 6×6 px and 4 bins (§3.2, Fig. 10). OpenCV's ``cv2.HOGDescriptor`` is used because it is about
+25× faster than ``skimage.feature.hog`` (0.1 ms against 2.5 ms per 60×60 crop); the two are not
+numerically identical, so train and test with this module only.
+
+References:
+    [1] N. Dalal and B. Triggs, "Histograms of oriented gradients for human detection",
+        CVPR 2005.
+    [2] Sensors 2020, 20, 2203 (the seed paper), §3.2 and §6.1.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class HogParams:
+    """Crop normalisation and HOG settings (stored in the classifier model file).
+
+    Attributes:
+        crop_px: side of the square normalised crop in pixels; must be a multiple of
+            ``cell_px`` and at least two cells.
+        cell_px: HOG cell side in pixels (paper: 6).
+        bins: orientation bins over 0–180° (paper: 4).
+        block_cells: block side in cells; blocks step by one cell (Dalal–Triggs: 2).
+        margin_frac: margin added around the box on each side, as a fraction of its longer side.
+        object_floor: with a mask, the darkest object pixel maps to this grey level (0–1) and
+            the background to 0, so the silhouette always has contrast.
+        low_percentile, high_percentile: the intensity percentiles stretched to the output range.
+    """
+
+    crop_px: int = 60
+    cell_px: int = 6
+    bins: int = 4
+    block_cells: int = 2
+    margin_frac: float = 0.06
+    object_floor: float = 0.3
+    low_percentile: float = 2.0
+    high_percentile: float = 98.0
+
+    def __post_init__(self) -> None:
+        if self.cell_px < 2:
+            raise ValueError(f'cell_px must be >= 2, got {self.cell_px}')
+        if self.crop_px % self.cell_px:
+            raise ValueError(f'crop_px ({self.crop_px}) must be a multiple of cell_px '
+                             f'({self.cell_px}); use a cell size that divides it, e.g. 2, 3, '
+                             '4, 5, 6, 10, 12, 15 or 20 for 60 px crops')
+        if self.crop_px // self.cell_px < self.block_cells:
+            raise ValueError(f'crop_px ({self.crop_px}) must hold at least one block of '
+                             f'{self.block_cells}x{self.block_cells} cells of {self.cell_px} px')
+        if not 2 <= self.bins <= 64:
+            raise ValueError(f'bins must be in [2, 64], got {self.bins}')
+        if self.block_cells < 1:
+            raise ValueError(f'block_cells must be >= 1, got {self.block_cells}')
+        if not 0.0 <= self.object_floor < 1.0:
+            raise ValueError(f'object_floor must be in [0, 1), got {self.object_floor}')
+        if not 0.0 <= self.low_percentile < self.high_percentile <= 100.0:
+            raise ValueError('need 0 <= low_percentile < high_percentile <= 100')
+        if self.margin_frac < 0.0:
+            raise ValueError(f'margin_frac must be >= 0, got {self.margin_frac}')
+
+    @property
+    def feature_dim(self) -> int:
+        """Length of one descriptor: blocks × cells per block × bins."""
+        blocks = self.crop_px // self.cell_px - self.block_cells + 1
+        return blocks * blocks * self.block_cells ** 2 * self.bins
+
+    def to_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+@lru_cache(maxsize=16)
+def _descriptor(params: HogParams) -> cv2.HOGDescriptor:
+    cell, block = params.cell_px, params.cell_px * params.block_cells
+    return cv2.HOGDescriptor((params.crop_px, params.crop_px), (block, block), (cell, cell),
+                             (cell, cell), params.bins)
+
+
+def _to_gray(image: np.ndarray) -> np.ndarray:
+    image = np.asarray(image)
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        image = image[..., :3]
+        if image.dtype != np.uint8:
+            image = image.astype(np.float32)
+        return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    if image.ndim == 2:
+        return image.astype(np.float32)
+    raise ValueError(f'image must be (H, W) grey or (H, W, 3|4) RGB(A), got shape {image.shape}')
+
+
+def _box_from_mask(mask: np.ndarray) -> tuple[int, int, int, int]:
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        raise ValueError('mask is empty: nothing to crop')
+    return int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1)
+
+
+def _square_window(box: Sequence[float], margin_frac: float) -> tuple[int, int, int]:
+    x, y, w, h = (float(v) for v in box)
+    if w <= 0 or h <= 0:
+        raise ValueError(f'box must have positive width and height, got {tuple(box)}')
+    side = max(w, h) * (1.0 + 2.0 * margin_frac)
+    side_i = max(int(round(side)), 2)
+    x0 = int(round(x + w / 2.0 - side_i / 2.0))
+    y0 = int(round(y + h / 2.0 - side_i / 2.0))
+    return x0, y0, side_i
+
+
+def _cut(image: np.ndarray, x0: int, y0: int, side: int, fill: float) -> np.ndarray:
+    """``image[y0:y0+side, x0:x0+side]``, padded with ``fill`` where it leaves the image."""
+    height, width = image.shape[:2]
+    out = np.full((side, side), fill, dtype=image.dtype)
+    xa, ya = max(x0, 0), max(y0, 0)
+    xb, yb = min(x0 + side, width), min(y0 + side, height)
+    if xb > xa and yb > ya:
+        out[ya - y0:yb - y0, xa - x0:xb - x0] = image[ya:yb, xa:xb]
+    return out
+
+
+def normalise_crop(image: np.ndarray, box: Sequence[float] | None = None,
+                   mask: np.ndarray | None = None, *,
+                   params: HogParams = HogParams()) -> np.ndarray:
+    """Cut one region out of an image and normalise it for HOG.
+
+    Args:
+        image: (H, W, 3) RGB (uint8 or float) or (H, W) grey image of the whole frame.
+        box: (x, y, width, height) of the region in pixels (BOP ``bbox`` convention); by default
+            the box of ``mask``, or the whole image.
+        mask: optional (H, W) bool mask of the object's visible pixels. Pixels outside it become
+            background (0) and only pixels inside set the intensity stretch.
+        params: crop size and intensity settings.
+
+    Returns:
+        (crop_px, crop_px) uint8 normalised crop. The region is padded to a square around the
+        box centre (padding outside the frame is background) before resizing, so the aspect
+        ratio of the part is kept.
+    """
+    gray = _to_gray(image)
+    if mask is not None:
+        mask = np.asarray(mask).astype(bool)
+        if mask.shape != gray.shape:
+            raise ValueError(f'mask shape {mask.shape} differs from image shape {gray.shape}')
+    if box is None:
+        box = _box_from_mask(mask) if mask is not None else (0, 0, gray.shape[1], gray.shape[0])
+    x0, y0, side = _square_window(box, params.margin_frac)
+    n = params.crop_px
+    interp = cv2.INTER_AREA if side > n else cv2.INTER_LINEAR
+    if mask is None:
+        region = _cut(gray, x0, y0, side, np.nan)
+        outside = np.isnan(region)
+        if outside.all():
+            raise ValueError(f'box {tuple(box)} lies outside the image')
+        region[outside] = region[~outside].mean()
+        region = cv2.resize(region, (n, n), interpolation=interp)
+        lo, hi = np.percentile(region, (params.low_percentile, params.high_percentile))
+        scaled = (region - lo) / max(hi - lo, 1e-6)
+        return (np.clip(scaled, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    region = _cut(gray, x0, y0, side, 0.0)
+    region_mask = _cut(mask.astype(np.float32), x0, y0, side, 0.0)
+    region = cv2.resize(region, (n, n), interpolation=interp)
+    weight = cv2.resize(region_mask, (n, n), interpolation=interp)
+    inside = weight > 0.5
+    if not inside.any():
+        raise ValueError('mask has no pixels inside the box')
+    lo, hi = np.percentile(region[inside], (params.low_percentile, params.high_percentile))
+    scaled = np.clip((region - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
+    floor = params.object_floor
+    # Soft mask edge: a resized mask is fractional on the silhouette, which keeps it anti-aliased.
+    out = weight * (floor + (1.0 - floor) * scaled)
+    return (np.clip(out, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def hog_features(crops: np.ndarray | Sequence[np.ndarray], *,
+                 params: HogParams = HogParams()) -> np.ndarray:
+    """HOG descriptors of normalised crops.
+
+    Args:
+        crops: (N, crop_px, crop_px) uint8 crops from :func:`normalise_crop`, or one crop.
+        params: HOG settings; must match the ones the crops were made with.
+
+    Returns:
+        (N, params.feature_dim) float32 descriptors (L2-Hys normalised blocks, OpenCV order).
+    """
+    crops = np.asarray(crops)
+    if crops.ndim == 2:
+        crops = crops[None]
+    n = params.crop_px
+    if crops.ndim != 3 or crops.shape[1:] != (n, n):
+        raise ValueError(f'crops must be (N, {n}, {n}), got shape {crops.shape}')
+    if crops.dtype != np.uint8:
+        raise ValueError(f'crops must be uint8 (from normalise_crop), got {crops.dtype}')
+    descriptor = _descriptor(params)
+    out = np.empty((len(crops), params.feature_dim), np.float32)
+    for i, crop in enumerate(crops):
+        out[i] = descriptor.compute(np.ascontiguousarray(crop)).ravel()
+    return out
+
+
+def describe_regions(image: np.ndarray, boxes: Sequence[Sequence[float]] | None = None,
+                     masks: Sequence[np.ndarray] | None = None, *,
+                     params: HogParams = HogParams()) -> np.ndarray:
+    """Normalise and describe all regions of one frame (batched).
+
+    Args:
+        image: (H, W, 3) RGB or (H, W) grey frame.
+        boxes: N boxes (x, y, width, height) in pixels, or None to use the masks' boxes.
+        masks: N (H, W) bool masks, or None.
+
+    Returns:
+        (N, params.feature_dim) float32 descriptors, in the order of the regions.
+    """
+    if boxes is None and masks is None:
+        raise ValueError('give boxes, masks or both')
+    count = len(boxes) if boxes is not None else len(masks)  # type: ignore[arg-type]
+    if boxes is not None and masks is not None and len(masks) != count:
+        raise ValueError(f'{count} boxes but {len(masks)} masks')
+    gray = _to_gray(image)
+    crops = np.empty((count, params.crop_px, params.crop_px), np.uint8)
+    for i in range(count):
+        crops[i] = normalise_crop(gray, None if boxes is None else boxes[i],
+                                  None if masks is None else masks[i], params=params)
+    return hog_features(crops, params=params)
