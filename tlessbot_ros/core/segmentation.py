@@ -1,0 +1,622 @@
+"""Colour segmentation of textureless parts on a table: watershed, HED, CIE-LAB, background.
+
+This is the paper's §3.1 (Sensors 2020, "Marker-less 3D object recognition and 6D pose
+estimation for homogeneous textureless objects") built from OpenCV operations so that one
+640x480 view takes about 10 ms:
+
+* **Histogram cut-offs.** Each cue channel (grey level, the three HED stains, the CIE-LAB
+  chroma axes a and b) gets a cut-off read from its histogram: the background is the dominant
+  peak; pixels further than ``cutoff_sigma`` robust standard deviations (and at least the
+  channel's ``*_floor``) from it are object candidates, pixels beyond ``sure_sigma`` are sure
+  object markers. With an empty-table image the same cut-offs are read on the difference to
+  it, which makes patterned tables as easy as plain ones (the paper's "first guess").
+* **HED colour deconvolution** (Ruifrok & Johnston, Anal. Quant. Cytol. Histol. 23(4), 2001)
+  through a 256-entry optical-density lookup table and one ``cv2.transform`` with the same
+  stain matrix as ``skimage.color.rgb2hed``: dark parts stand out in H, light ones in E.
+* **CIE-LAB** (``cv2.cvtColor`` on float RGB, true L in [0, 100]): translucent light-yellow
+  parts stand out on the b (yellow) axis, pink on a.
+* **Background subtraction** against an empty-table image: colour distance in LAB with a
+  shadow test (a cast shadow darkens the table but keeps its chromaticity).
+* **Watershed.** The union of the cues gives markers (sure object = union cores, sure
+  background = pixels far from every candidate); ``cv2.watershed`` floods between them.
+  OpenCV floods the largest absolute neighbour difference of its input; we feed it the image
+  smoothed by the 3x3 binomial kernel, so the flooded relief is the 3x3 Sobel gradient
+  magnitude (Sobel = binomial smoothing followed by a central difference).
+* **Instances.** Connected components, small-blob removal (``min_area_px``) and touching-object
+  separation: the distance transform of a blob is cut at a fraction of its maximum; two or more
+  cores seed a second watershed that divides the blob.
+
+All images are (H, W, 3) uint8 RGB. Labels are (H, W) uint16 with 0 = background. Boxes are
+(x, y, w, h) int32 pixels, the usual OpenCV / BOP ``bbox`` convention.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+# Stain OD vectors (rows: haematoxylin, eosin, DAB) of Ruifrok & Johnston (2001), as used by
+# skimage.color.rgb2hed; the deconvolution matrix is their inverse.
+_RGB_FROM_HED = np.array([[0.65, 0.70, 0.29], [0.07, 0.99, 0.11], [0.27, 0.57, 0.78]])
+_HED_FROM_RGB = np.linalg.inv(_RGB_FROM_HED)
+
+
+def _od_lut(dark_level: int) -> np.ndarray:
+    """(1, 256, 3) float32 optical density log(max(I, 1e-6)) / log(1e-6) of skimage, with
+    intensities below ``dark_level`` clamped to it (the log amplifies noise near black)."""
+    v = np.maximum(np.arange(256), dark_level) / 255.0
+    od = (np.log(np.maximum(v, 1e-6)) / np.log(1e-6)).astype(np.float32)
+    return np.repeat(od.reshape(256, 1, 1), 3, axis=2).reshape(1, 256, 3).copy()
+
+
+_OD_LUTS: dict[int, np.ndarray] = {}
+
+_LAB8_TO_LAB = np.array([[100.0 / 255.0, 0, 0, 0], [0, 1, 0, -128], [0, 0, 1, -128]], np.float32)
+
+METHODS = ('watershed', 'hed', 'lab', 'background')
+
+
+@dataclass(frozen=True)
+class SegmentationParams:
+    """Tuning of :func:`segment`. Defaults were chosen on simulated two-view scenes.
+
+    Attributes:
+        methods: cues whose union forms the foreground; any of ``METHODS``. 'watershed' adds
+            the grey-level histogram extremes as markers *and* refines the union by flooding;
+            without it the union is used as is. 'background' is used only when an empty-table
+            image is given.
+        cutoff_sigma: candidate cut-off, in robust standard deviations of the background peak.
+        sure_sigma: sure-object marker cut-off (histogram extreme), same unit.
+        grey_floor, hed_floor, lab_floor: smallest cut-off distance from the background peak
+            per channel (grey in L units 0-100, HED in optical-density units, a/b in LAB
+            units); stops sensor noise on a very plain table from becoming objects.
+        hed_dark_level: intensities below this are clamped before the HED logarithm, so the
+            noise of near-black pixels does not swamp the stain channels.
+        border_fraction: the background peak of each histogram is read from a frame of this
+            width (fraction of the image size) along the image border, where the table is;
+            0 uses the whole image.
+        background_delta_e: LAB distance to the empty-table image above which a pixel differs.
+        shadow_ratio: (low, high) brightness ratio to the empty table treated as a cast shadow
+            when the chromaticity also stays within ``shadow_chroma``.
+        shadow_chroma: largest a/b change (LAB units) of a shadowed table pixel.
+        band_px: the watershed decides only within this distance of a candidate pixel.
+        min_area_px: blobs smaller than this (pixels) are dropped.
+        open_px: radius of the morphological opening that removes thin noise before labelling.
+        split_touching: separate touching objects (distance transform + watershed).
+        split_core_fraction: distance-transform cores are pixels above this fraction of the
+            blob's largest distance; two or more cores mean two or more objects.
+        split_min_core_px: cores smaller than this (pixels) are ignored.
+        split_min_depth_px: largest distance of a blob (pixels) below which it is never split.
+        cue_scale: image scale at which the colour cues are computed (1.0 = full resolution).
+    """
+
+    methods: tuple[str, ...] = METHODS
+    cutoff_sigma: float = 5.0
+    sure_sigma: float = 9.0
+    grey_floor: float = 8.0
+    hed_floor: float = 0.04
+    lab_floor: float = 6.0
+    hed_dark_level: int = 10
+    border_fraction: float = 0.1
+    background_delta_e: float = 12.0
+    shadow_ratio: tuple[float, float] = (0.3, 0.97)
+    shadow_chroma: float = 4.0
+    band_px: int = 4
+    min_area_px: int = 80
+    open_px: int = 1
+    split_touching: bool = True
+    split_core_fraction: float = 0.55
+    split_min_core_px: int = 12
+    split_min_depth_px: float = 5.0
+    cue_scale: float = 0.5
+
+    def __post_init__(self) -> None:
+        unknown = set(self.methods) - set(METHODS)
+        if unknown or not self.methods:
+            raise ValueError(f'methods must be a non-empty subset of {METHODS}, '
+                             f'got {self.methods}')
+        if not 0.0 < self.cutoff_sigma <= self.sure_sigma:
+            raise ValueError('need 0 < cutoff_sigma <= sure_sigma, got '
+                             f'{self.cutoff_sigma} and {self.sure_sigma}')
+        if self.min_area_px < 1:
+            raise ValueError(f'min_area_px must be >= 1, got {self.min_area_px}')
+        if not 0.0 < self.split_core_fraction < 1.0:
+            raise ValueError('split_core_fraction must be in (0, 1), got '
+                             f'{self.split_core_fraction}')
+        if not 0.0 <= self.border_fraction < 0.5:
+            raise ValueError(f'border_fraction must be in [0, 0.5), got {self.border_fraction}')
+        if not 0.0 < self.cue_scale <= 1.0:
+            raise ValueError(f'cue_scale must be in (0, 1], got {self.cue_scale}')
+        lo, hi = self.shadow_ratio
+        if not 0.0 <= lo < hi <= 1.0:
+            raise ValueError(f'shadow_ratio must satisfy 0 <= low < high <= 1, got '
+                             f'{self.shadow_ratio}')
+
+
+@dataclass
+class Segmentation:
+    """Result of :func:`segment` for one view.
+
+    Attributes:
+        labels: (H, W) uint16 instance labels, 0 = background, 1..N objects.
+        boxes: (N, 4) int32 (x, y, w, h) of instance ``i + 1`` in row ``i``.
+        areas: (N,) int64 pixel counts.
+        foreground: (H, W) bool union mask before instance separation.
+        cues: per-method (H, W) bool candidate masks (for inspection and tests).
+        timings_ms: wall time per stage in milliseconds.
+    """
+
+    labels: np.ndarray
+    boxes: np.ndarray
+    areas: np.ndarray
+    foreground: np.ndarray
+    cues: dict[str, np.ndarray] = field(default_factory=dict)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def count(self) -> int:
+        return int(self.boxes.shape[0])
+
+
+# --------------------------------------------------------------------------- colour spaces
+def _check_rgb(rgb: np.ndarray, name: str = 'rgb') -> np.ndarray:
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f'{name} must be an (H, W, 3) RGB image, got shape {rgb.shape}')
+    if rgb.dtype != np.uint8:
+        raise ValueError(f'{name} must be uint8 (0-255), got {rgb.dtype}; convert with '
+                         'np.clip(x * 255, 0, 255).astype(np.uint8) for float images')
+    return np.ascontiguousarray(rgb)
+
+
+def rgb_to_hed(rgb: np.ndarray, *, dark_level: int = 0) -> np.ndarray:
+    """HED stain separation of an RGB image (colour deconvolution, Ruifrok & Johnston 2001).
+
+    Args:
+        rgb: (H, W, 3) uint8 RGB.
+        dark_level: intensities below this are clamped to it before the logarithm (0 = the
+            exact skimage transform).
+
+    Returns:
+        (H, W, 3) float32 stain densities (haematoxylin, eosin, DAB), the same values as
+        ``skimage.color.rgb2hed`` before its clipping at 0 (negative values are kept: they
+        carry the "lighter than the stain" side that light parts fall on).
+    """
+    rgb = _check_rgb(rgb)
+    if not 0 <= dark_level <= 255:
+        raise ValueError(f'dark_level must be in [0, 255], got {dark_level}')
+    lut = _OD_LUTS.get(dark_level)
+    if lut is None:
+        lut = _OD_LUTS.setdefault(dark_level, _od_lut(dark_level))
+    od = cv2.LUT(rgb, lut)
+    # cv2.transform computes m @ pixel; stains = od @ HED_FROM_RGB, so m is the transpose.
+    return cv2.transform(od, _HED_FROM_RGB.T.astype(np.float32))
+
+
+def rgb_to_lab(rgb: np.ndarray) -> np.ndarray:
+    """CIE-LAB (D65) of an RGB image: (H, W, 3) float32, L in [0, 100], a and b signed.
+
+    Computed by OpenCV's 8-bit conversion (4x faster than float input here) and rescaled, so
+    values are quantised to 100/255 in L and 1 in a, b.
+    """
+    rgb = _check_rgb(rgb)
+    lab8 = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab)
+    return cv2.transform(lab8.astype(np.float32), _LAB8_TO_LAB)
+
+
+# --------------------------------------------------------------------------- histogram cut-offs
+def histogram_background_peak(channel: np.ndarray, *, bins: int = 512, sample_step: int = 2,
+                              border_fraction: float = 0.0) -> tuple[float, float]:
+    """Dominant histogram peak of a channel and its robust spread.
+
+    The background covers most of a table image, so it is the highest histogram peak; its
+    spread is the half width at half maximum of that peak divided by sqrt(2 ln 2) (the
+    standard deviation of a Gaussian with that width), which ignores the objects' pixels.
+
+    Args:
+        channel: (H, W) float image.
+        bins: histogram bins between the channel's minimum and maximum.
+        sample_step: use every n-th row and column (speed; the histogram barely changes).
+        border_fraction: if > 0, only a frame of this relative width along the image border
+            is used (the table surrounds the parts in a table scene).
+
+    Returns:
+        (peak, sigma) in the channel's units; sigma > 0.
+    """
+    sample = np.asarray(channel, dtype=np.float32)[::sample_step, ::sample_step]
+    if border_fraction > 0.0:
+        h, w = sample.shape
+        bh, bw = max(int(h * border_fraction), 1), max(int(w * border_fraction), 1)
+        sample = np.concatenate([sample[:bh].ravel(), sample[-bh:].ravel(),
+                                 sample[bh:-bh, :bw].ravel(), sample[bh:-bh, -bw:].ravel()])
+        sample = sample.reshape(-1, 1)
+    sample = np.ascontiguousarray(sample)
+    lo, hi, _, _ = cv2.minMaxLoc(sample)
+    if not hi > lo:
+        return float(lo), 1e-6
+    hist = cv2.calcHist([sample], [0], None, [bins], [float(lo), float(hi) + 1e-6]).ravel()
+    hist = cv2.GaussianBlur(hist.reshape(-1, 1), (1, 7), 1.5).ravel()
+    width = (hi - lo) / bins
+    k = int(np.argmax(hist))
+    half = hist[k] / 2.0
+    left = k
+    while left > 0 and hist[left] > half:
+        left -= 1
+    right = k
+    while right < bins - 1 and hist[right] > half:
+        right += 1
+    hwhm = max(0.5 * (right - left), 0.5) * width
+    return float(lo + (k + 0.5) * width), float(hwhm / np.sqrt(2.0 * np.log(2.0)))
+
+
+def _cutoff_masks(channel: np.ndarray, floor: float, params: SegmentationParams,
+                  *, peak: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(candidate, sure) masks of pixels far from the background peak on either side."""
+    found_peak, sigma = histogram_background_peak(channel,
+                                                  border_fraction=params.border_fraction)
+    peak = found_peak if peak is None else peak
+    dev = np.abs(channel - np.float32(peak))
+    candidate = dev > max(params.cutoff_sigma * sigma, floor)
+    sure = dev > max(params.sure_sigma * sigma, 2.0 * floor)
+    return candidate, sure
+
+
+# --------------------------------------------------------------------------- cues
+def background_mask(rgb: np.ndarray, background: np.ndarray, *,
+                    params: SegmentationParams = SegmentationParams(),
+                    lab: np.ndarray | None = None,
+                    background_lab: np.ndarray | None = None) -> np.ndarray:
+    """Pixels that differ from the empty-table image, cast shadows excluded.
+
+    Args:
+        rgb, background: (H, W, 3) uint8 RGB of the scene and of the empty table (same camera
+            and lighting).
+        lab, background_lab: their LAB images if already computed.
+
+    Returns:
+        (H, W) bool.
+    """
+    rgb = _check_rgb(rgb)
+    background = _check_rgb(background, 'background')
+    if background.shape != rgb.shape:
+        raise ValueError(f'background shape {background.shape} differs from image shape '
+                         f'{rgb.shape}; it must come from the same camera and resolution')
+    lab = rgb_to_lab(rgb) if lab is None else lab
+    bg = rgb_to_lab(background) if background_lab is None else background_lab
+    diff = lab - bg
+    delta_e = np.sqrt(np.einsum('ijk,ijk->ij', diff, diff))
+    changed = delta_e > params.background_delta_e
+    # A cast shadow scales the table's luminance and keeps its chroma (a, b) roughly.
+    lo, hi = params.shadow_ratio
+    ratio = (lab[..., 0] + 1.0) / (bg[..., 0] + 1.0)
+    chroma_change = np.maximum(np.abs(diff[..., 1]), np.abs(diff[..., 2]))
+    shadow = (ratio > lo) & (ratio < hi) & (chroma_change < params.shadow_chroma)
+    return changed & ~shadow
+
+
+def hed_masks(hed: np.ndarray, params: SegmentationParams,
+              *, reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Union of the H, E and D histogram cut-offs: (candidate, sure) (H, W) bool masks.
+
+    With ``reference`` (the empty table's HED image) the cut-offs apply to the difference.
+    """
+    cand = np.zeros(hed.shape[:2], bool)
+    sure = np.zeros(hed.shape[:2], bool)
+    for c in range(3):
+        channel = hed[..., c] if reference is None else hed[..., c] - reference[..., c]
+        peak = None if reference is None else 0.0
+        a, b = _cutoff_masks(channel, params.hed_floor, params, peak=peak)
+        cand |= a
+        sure |= b
+    return cand, sure
+
+
+def lab_masks(lab: np.ndarray, params: SegmentationParams,
+              *, reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Chroma (a, b) histogram cut-offs: (candidate, sure) (H, W) bool masks."""
+    cand = np.zeros(lab.shape[:2], bool)
+    sure = np.zeros(lab.shape[:2], bool)
+    for c in (1, 2):
+        channel = lab[..., c] if reference is None else lab[..., c] - reference[..., c]
+        peak = None if reference is None else 0.0
+        a, b = _cutoff_masks(channel, params.lab_floor, params, peak=peak)
+        cand |= a
+        sure |= b
+    return cand, sure
+
+
+def sobel_magnitude(grey: np.ndarray) -> np.ndarray:
+    """3x3 Sobel gradient magnitude, (H, W) float32, of an (H, W) image."""
+    grey = np.asarray(grey, dtype=np.float32)
+    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
+    return cv2.magnitude(gx, gy)
+
+
+def watershed_refine(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray, *,
+                     band_px: int = 4) -> np.ndarray:
+    """Marker-controlled watershed between sure-object and sure-background markers.
+
+    Args:
+        rgb: (H, W, 3) uint8 image to flood (smoothed here by the 3x3 binomial kernel so the
+            relief is the Sobel gradient magnitude).
+        candidate: (H, W) bool object candidates; pixels further than ``band_px`` from any
+            candidate are sure background.
+        sure: (H, W) bool sure-object pixels (markers).
+
+    Returns:
+        (H, W) bool object mask.
+    """
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
+    near = cv2.dilate(candidate.view(np.uint8), kernel).astype(bool)
+    markers = np.zeros(candidate.shape, np.int32)
+    markers[~near] = 1
+    markers[sure] = 2
+    if not sure.any():
+        return np.zeros(candidate.shape, bool)
+    smooth = cv2.GaussianBlur(rgb, (3, 3), 0)
+    cv2.watershed(smooth, markers)
+    # Watershed lines (-1) between object and background belong to the object's rim.
+    return (markers == 2) | ((markers == -1) & candidate)
+
+
+# --------------------------------------------------------------------------- instances
+def split_touching(mask: np.ndarray, rgb: np.ndarray | None = None, *,
+                   params: SegmentationParams = SegmentationParams()) -> np.ndarray:
+    """Label a foreground mask, dividing blobs whose distance transform has several cores.
+
+    Args:
+        mask: (H, W) bool foreground.
+        rgb: (H, W, 3) uint8 image; when given, the dividing lines follow its colour edges.
+
+    Returns:
+        (H, W) int32 labels, 0 = background, 1..N (blobs below ``min_area_px`` removed).
+    """
+    mask_u8 = mask.astype(np.uint8)
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask_u8, connectivity=8)
+    labels = np.zeros(mask.shape, np.int32)
+    next_id = 1
+    for i in range(1, n):
+        x, y, w, h, area = (int(v) for v in stats[i])
+        if area < params.min_area_px:
+            continue
+        x0, y0 = max(x - 1, 0), max(y - 1, 0)
+        x1, y1 = min(x + w + 1, mask.shape[1]), min(y + h + 1, mask.shape[0])
+        blob = comp[y0:y1, x0:x1] == i
+        parts = _split_blob(blob, None if rgb is None else rgb[y0:y1, x0:x1], params) \
+            if params.split_touching else blob.astype(np.int32)
+        sub = labels[y0:y1, x0:x1]
+        for k in range(1, int(parts.max()) + 1):
+            piece = parts == k
+            if int(piece.sum()) < params.min_area_px:
+                continue
+            sub[piece] = next_id
+            next_id += 1
+    return labels
+
+
+def _split_blob(blob: np.ndarray, rgb: np.ndarray | None,
+                params: SegmentationParams) -> np.ndarray:
+    """Labels 1..k of one blob (a crop with a one-pixel border)."""
+    dist = cv2.distanceTransform(blob.astype(np.uint8), cv2.DIST_L2, 3)
+    top = float(dist.max())
+    if top < params.split_min_depth_px:
+        return blob.astype(np.int32)
+    cores = (dist > params.split_core_fraction * top).astype(np.uint8)
+    n, core_labels, stats, _ = cv2.connectedComponentsWithStats(cores, connectivity=8)
+    keep = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= params.split_min_core_px]
+    if len(keep) < 2:
+        return blob.astype(np.int32)
+    markers = np.zeros(blob.shape, np.int32)
+    markers[~blob] = 1
+    for j, k in enumerate(keep):
+        markers[core_labels == k] = j + 2
+    if rgb is None:
+        # Flood the distance map itself: the dividing line runs along the neck.
+        relief = cv2.normalize(-dist, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+        image = cv2.merge([relief, relief, relief])
+    else:
+        image = np.ascontiguousarray(cv2.GaussianBlur(rgb, (3, 3), 0))
+    cv2.watershed(image, markers)
+    out = np.where(blob, markers - 1, 0)
+    out[out < 0] = 0
+    # Watershed-line pixels inside the blob go to their nearest piece.
+    holes = blob & (out == 0)
+    if holes.any():
+        _, nearest = cv2.distanceTransformWithLabels((out == 0).astype(np.uint8), cv2.DIST_L2,
+                                                     3, labelType=cv2.DIST_LABEL_PIXEL)
+        ids = np.zeros(int(nearest.max()) + 1, np.int32)
+        ys, xs = np.nonzero(out)
+        ids[nearest[ys, xs]] = out[ys, xs]
+        out[holes] = ids[nearest[holes]]
+    return out
+
+
+def boxes_from_labels(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y, w, h) int32 boxes (N, 4) and int64 areas (N,) of labels 1..N (empty ids: zeros)."""
+    n = int(labels.max()) if labels.size else 0
+    boxes = np.zeros((n, 4), np.int32)
+    areas = np.zeros(n, np.int64)
+    if n == 0:
+        return boxes, areas
+    ys, xs = np.nonzero(labels)
+    ids = labels[ys, xs].astype(np.int64) - 1
+    areas = np.bincount(ids, minlength=n).astype(np.int64)
+    big = np.iinfo(np.int64).max
+    x0 = np.full(n, big)
+    y0 = np.full(n, big)
+    x1 = np.full(n, -1)
+    y1 = np.full(n, -1)
+    np.minimum.at(x0, ids, xs)
+    np.minimum.at(y0, ids, ys)
+    np.maximum.at(x1, ids, xs)
+    np.maximum.at(y1, ids, ys)
+    present = areas > 0
+    boxes[present] = np.stack([x0, y0, x1 - x0 + 1, y1 - y0 + 1], axis=1)[present]
+    return boxes, areas
+
+
+def relabel_sequential(labels: np.ndarray) -> np.ndarray:
+    """Renumber labels to 1..N in order of first appearance id; returns uint16."""
+    ids = np.unique(labels)
+    ids = ids[ids > 0]
+    lut = np.zeros(int(labels.max()) + 1 if labels.size else 1, np.uint16)
+    lut[ids] = np.arange(1, ids.size + 1, dtype=np.uint16)
+    return lut[labels]
+
+
+# --------------------------------------------------------------------------- entry point
+@dataclass(frozen=True)
+class BackgroundModel:
+    """An empty-table image prepared once for :func:`segment` (colour spaces at cue scale).
+
+    Attributes:
+        rgb: (H, W, 3) uint8 full-resolution empty-table image.
+        lab, hed: (h, w, 3) float32 LAB and HED images at ``scale``.
+        scale: the cue scale they were computed at.
+    """
+
+    rgb: np.ndarray
+    lab: np.ndarray
+    hed: np.ndarray
+    scale: float
+
+
+def prepare_background(background: np.ndarray, *,
+                       params: SegmentationParams = SegmentationParams()) -> BackgroundModel:
+    """Convert an (H, W, 3) uint8 RGB empty-table image once, for repeated :func:`segment`."""
+    background = _check_rgb(background, 'background')
+    small = _downscale(background, params.cue_scale)
+    return BackgroundModel(rgb=background, lab=rgb_to_lab(small),
+                           hed=rgb_to_hed(small, dark_level=params.hed_dark_level),
+                           scale=params.cue_scale)
+
+
+def _downscale(rgb: np.ndarray, scale: float) -> np.ndarray:
+    if scale == 1.0:
+        return rgb
+    return cv2.resize(rgb, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+
+
+def _upscale(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    if mask.shape == shape[:2]:
+        return mask
+    return cv2.resize(mask.view(np.uint8), (shape[1], shape[0]),
+                      interpolation=cv2.INTER_NEAREST).astype(bool)
+
+
+def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None = None,
+            params: SegmentationParams = SegmentationParams()) -> Segmentation:
+    """Segment the parts on a table in one RGB view (paper §3.1).
+
+    The cues are computed at ``params.cue_scale`` (default half resolution); the watershed
+    that places the contours and the instance separation run at full resolution.
+
+    Args:
+        rgb: (H, W, 3) uint8 RGB image.
+        background: optional empty-table image from the same camera, (H, W, 3) uint8 RGB or a
+            :class:`BackgroundModel` from :func:`prepare_background` (faster when reused).
+            When given, every histogram cut-off is read on the difference to it and the
+            'background' cue (LAB distance with shadow test) joins the union.
+        params: see :class:`SegmentationParams`.
+
+    Returns:
+        :class:`Segmentation` with uint16 labels (0 = background), (N, 4) boxes and timings.
+    """
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+
+    def lap(name: str, t0: float) -> float:
+        t1 = time.perf_counter()
+        timings[name] = (t1 - t0) * 1e3
+        return t1
+
+    rgb = _check_rgb(rgb)
+    methods = set(params.methods)
+    bgm: BackgroundModel | None = None
+    if background is not None:
+        bgm = background if isinstance(background, BackgroundModel) else \
+            prepare_background(background, params=params)
+        if bgm.rgb.shape != rgb.shape:
+            raise ValueError(f'background shape {bgm.rgb.shape} differs from image shape '
+                             f'{rgb.shape}; it must come from the same camera and resolution')
+        if bgm.scale != params.cue_scale:
+            bgm = prepare_background(bgm.rgb, params=params)
+    t = t_start
+    small = _downscale(rgb, params.cue_scale)
+    lab = rgb_to_lab(small)
+    t = lap('lab', t)
+    bg_lab = None if bgm is None else bgm.lab
+    cues: dict[str, np.ndarray] = {}
+    candidate = np.zeros(small.shape[:2], bool)
+    sure = np.zeros(small.shape[:2], bool)
+    not_shadow = None if bg_lab is None else _not_shadow(lab, bg_lab, params)
+    if 'watershed' in methods:
+        if bg_lab is None:
+            cand, sure_g = _cutoff_masks(lab[..., 0], params.grey_floor, params)
+        else:
+            cand, sure_g = _cutoff_masks(lab[..., 0] - bg_lab[..., 0], params.grey_floor,
+                                         params, peak=0.0)
+            cand &= not_shadow
+            sure_g &= not_shadow
+        cues['watershed'] = cand
+        candidate |= cand
+        sure |= sure_g
+    if 'hed' in methods:
+        hed = rgb_to_hed(small, dark_level=params.hed_dark_level)
+        cand, sure_h = hed_masks(hed, params, reference=None if bgm is None else bgm.hed)
+        if not_shadow is not None:
+            cand &= not_shadow
+            sure_h &= not_shadow
+        cues['hed'] = cand
+        candidate |= cand
+        sure |= sure_h
+        t = lap('hed', t)
+    if 'lab' in methods:
+        cand, sure_l = lab_masks(lab, params, reference=bg_lab)
+        cues['lab'] = cand
+        candidate |= cand
+        sure |= sure_l
+    if 'background' in methods and bgm is not None:
+        cand = background_mask(small, _downscale(bgm.rgb, params.cue_scale), params=params,
+                               lab=lab, background_lab=bg_lab)
+        cues['background'] = cand
+        candidate |= cand
+        sure |= _erode(cand, 1)
+    if params.open_px > 0:
+        candidate = _open(candidate, params.open_px)
+        sure &= candidate
+    candidate = _upscale(candidate, rgb.shape)
+    sure = _upscale(sure, rgb.shape)
+    cues = {k: _upscale(v, rgb.shape) for k, v in cues.items()}
+    t = lap('cues', t)
+    if 'watershed' in methods:
+        foreground = watershed_refine(rgb, candidate, _erode(sure, 1), band_px=params.band_px)
+    else:
+        foreground = candidate
+    t = lap('watershed', t)
+    labels = split_touching(foreground, rgb, params=params).astype(np.uint16)
+    boxes, areas = boxes_from_labels(labels)
+    lap('instances', t)
+    timings['total'] = (time.perf_counter() - t_start) * 1e3
+    return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
+                        cues=cues, timings_ms=timings)
+
+
+def _not_shadow(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> np.ndarray:
+    lo, hi = params.shadow_ratio
+    ratio = (lab[..., 0] + 1.0) / (bg_lab[..., 0] + 1.0)
+    chroma = np.maximum(np.abs(lab[..., 1] - bg_lab[..., 1]), np.abs(lab[..., 2] - bg_lab[..., 2]))
+    return ~((ratio > lo) & (ratio < hi) & (chroma < params.shadow_chroma))
+
+
+def _erode(mask: np.ndarray, radius: int) -> np.ndarray:
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    return cv2.erode(mask.view(np.uint8), kernel).astype(bool)
+
+
+def _open(mask: np.ndarray, radius: int) -> np.ndarray:
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    return cv2.morphologyEx(mask.view(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)
