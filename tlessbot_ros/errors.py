@@ -19,3 +19,7 @@ class CalibrationError(TlessbotError):
 
 class DatasetError(TlessbotError):
     """A dataset folder does not follow the expected (BOP) layout."""
+
+
+class DeviceError(TlessbotError):
+    """A camera is missing, busy or stopped delivering frames."""

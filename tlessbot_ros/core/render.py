@@ -44,7 +44,7 @@ class MeshRenderer:
 
     def add_mesh(self, vertices: np.ndarray, faces: np.ndarray,
                  T_world_object: np.ndarray | None = None) -> int:
-        """Add a mesh ((V, 3) vertices in metres, (F, 3) int faces) at a pose; returns its index."""
+        """Add a mesh ((V, 3) vertices, metres; (F, 3) int faces) at a pose; returns its index."""
         vertices = np.asarray(vertices, dtype=np.float64)
         if T_world_object is not None:
             vertices = transform_points(T_world_object, vertices)
