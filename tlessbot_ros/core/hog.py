@@ -170,8 +170,10 @@ def normalise_crop(image: np.ndarray, box: Sequence[float] | None = None,
         return (np.clip(scaled, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     region = _cut(gray, x0, y0, side, 0.0)
     region_mask = _cut(mask.astype(np.float32), x0, y0, side, 0.0)
-    region = cv2.resize(region, (n, n), interpolation=interp)
+    # Normalised convolution: resample object pixels only, so the background never leaks in.
     weight = cv2.resize(region_mask, (n, n), interpolation=interp)
+    region = cv2.resize(region * region_mask, (n, n), interpolation=interp)
+    region = np.where(weight > 1e-3, region / np.maximum(weight, 1e-3), 0.0)
     inside = weight > 0.5
     if not inside.any():
         raise ValueError('mask has no pixels inside the box')

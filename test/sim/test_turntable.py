@@ -1,0 +1,66 @@
+import numpy as np
+import pytest
+
+from tlessbot_ros.core.hog import normalise_crop
+from tlessbot_ros.io.models import load_models
+from tlessbot_ros.sim.turntable import Turntable, TurntableParams, square_crop, write_samples
+
+
+@pytest.fixture(scope='module')
+def models(tless_models_dir):
+    return load_models(tless_models_dir, [5, 19])
+
+
+def test_protocol_counts_and_crops(models):
+    params = TurntableParams(step_deg=90, positions=2, augmentations=1)
+    table = Turntable(models, params=params, seed=3)
+    samples = list(table.samples())
+    assert len(samples) == len(table) == 2 * 2 * 4 * 2
+    assert {s.obj_id for s in samples} == {5, 19}
+    assert sorted({s.angle_deg for s in samples}) == [0, 90, 180, 270]
+    for sample in samples:
+        assert sample.rgb.dtype == np.uint8 and sample.rgb.shape[:2] == sample.mask.shape
+        # the part covers a good share of its window; D415-like apparent size (tens of px)
+        assert 0.1 < sample.mask.mean() <= 1.0
+        assert 20 <= max(sample.mask.shape) <= 400
+        crop = normalise_crop(sample.rgb, mask=sample.mask)
+        assert crop.shape == (60, 60) and crop.max() > 200
+
+
+def test_deterministic_and_order_independent(models):
+    params = TurntableParams(step_deg=45, positions=1, augmentations=1)
+    a = list(Turntable(models, params=params, seed=7).views(19, 0, steps=[3]))
+    b = list(Turntable({19: models[19]}, params=params, seed=7).views(19, 0, steps=[3]))
+    full = [s for s in Turntable(models, params=params, seed=7).views(19, 0)
+            if s.angle_deg == 135.0]
+    for x, y, z in zip(a, b, full):
+        assert np.array_equal(x.rgb, y.rgb) and np.array_equal(x.mask, z.mask)
+        assert np.array_equal(x.rgb, z.rgb)
+    c = list(Turntable(models, params=params, seed=8).views(19, 0, steps=[3]))
+    assert not np.array_equal(a[0].rgb, c[0].rgb)
+
+
+def test_views_differ_with_angle(models):
+    params = TurntableParams(step_deg=90, positions=1, augmentations=0)
+    views = list(Turntable(models, params=params).views(5, 0))
+    crops = [normalise_crop(v.rgb, mask=v.mask).astype(float) for v in views]
+    assert np.abs(crops[0] - crops[2]).mean() > 5.0
+
+
+def test_write_samples(models, tmp_path):
+    params = TurntableParams(step_deg=180, positions=1, augmentations=0)
+    table = Turntable(models, params=params)
+    count = write_samples(table.samples(), tmp_path)
+    assert count == 4
+    lines = (tmp_path / 'labels.csv').read_text().splitlines()
+    assert lines[0].startswith('file,obj_id') and len(lines) == 5
+    assert len(list((tmp_path / '5').glob('*.png'))) == 2
+    rgba = square_crop(next(table.views(19, 0)))
+    assert rgba.shape == (60, 60, 4) and rgba[..., 3].max() == 255 and rgba[0, 0, 3] == 0
+
+
+def test_param_errors():
+    with pytest.raises(ValueError, match='elevation'):
+        TurntableParams(elevation_deg=(10.0, 100.0))
+    with pytest.raises(ValueError, match='step_deg'):
+        TurntableParams(step_deg=0)

@@ -1,0 +1,53 @@
+import numpy as np
+import pytest
+
+from tlessbot_ros.core.classifier import LinearClassifier
+from tlessbot_ros.sim.turntable import Turntable, TurntableParams, write_samples
+from tlessbot_ros.tools.cli import main
+
+
+def test_train_from_cad(tless_models_dir, tmp_path, capsys):
+    out = tmp_path / 'model.npz'
+    argv = ['train', '--models', str(tless_models_dir), '--ids', '5', '19', '21',
+            '--steps-deg', '60', '--positions', '2', '--augmentations', '1', '--seed', '3',
+            '--out', str(out)]
+    assert main(argv) == 0
+    assert 'trained in' in capsys.readouterr().out
+    model = LinearClassifier.load(out)
+    assert model.class_ids.tolist() == [5, 19, 21] and model.kind == 'sgd'
+    assert model.info['source'] == 'turntable' and model.info['train_accuracy'] > 0.8
+    again = tmp_path / 'again.npz'
+    assert main(argv[:-1] + [str(again)]) == 0
+    np.testing.assert_array_equal(LinearClassifier.load(again).weights, model.weights)
+
+
+def test_train_several_learners_from_images(tless_models_dir, tmp_path):
+    from tlessbot_ros.io.models import load_models
+
+    models = load_models(tless_models_dir, [5, 19])
+    table = Turntable(models, params=TurntableParams(step_deg=45, positions=1,
+                                                     augmentations=1))
+    write_samples(table.samples(), tmp_path / 'crops')
+    out = tmp_path / 'm.npz'
+    assert main(['train', '--from-images', str(tmp_path / 'crops'), '--classifier', 'pa1,pa2',
+                 '--cell', '10', '--bins', '3', '--out', str(out)]) == 0
+    for kind in ('pa1', 'pa2'):
+        model = LinearClassifier.load(tmp_path / f'm_{kind}.npz')
+        assert model.kind == kind and model.hog_params.cell_px == 10
+        assert model.info['samples'] == 32
+
+
+@pytest.mark.parametrize('extra, message', [
+    (['--classifier', 'svm'], 'unknown classifier'),
+    (['--cell', '7'], 'multiple of cell_px'),
+])
+def test_user_errors(tmp_path, capsys, extra, message):
+    (tmp_path / 'imgs').mkdir()
+    assert main(['train', '--from-images', str(tmp_path / 'imgs'), '--out',
+                 str(tmp_path / 'm.npz')] + extra) == 1
+    assert message in capsys.readouterr().err
+
+
+def test_empty_image_folder(tmp_path, capsys):
+    assert main(['train', '--from-images', str(tmp_path), '--out', str(tmp_path / 'm.npz')]) == 1
+    assert 'at least two' in capsys.readouterr().err

@@ -1,0 +1,180 @@
+"""Train the HOG + linear part classifier from CAD turntables or from real crops.
+
+From CAD (the paper's §4 protocol, rendered): every part at --positions places on a turntable,
+one view every --steps-deg degrees, each view plus --augmentations shear/zoom copies:
+
+    tlessbot train --models ../shared/data/tless_models_cad_stl --out classifier.npz
+
+From your own captures, laid out as DIR/<obj_id>/*.png (an alpha channel, if present, is the
+part's silhouette; otherwise the whole image is the crop):
+
+    tlessbot train --from-images DIR --out classifier.npz
+
+Several learners can share one rendering pass: --classifier all (or sgd,pa1) writes
+<out>_<kind>.npz per learner.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tlessbot_ros.core.classifier import KINDS, ClassifierParams, train_classifier
+from tlessbot_ros.core.hog import HogParams, hog_features, normalise_crop
+from tlessbot_ros.errors import DatasetError, TlessbotError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument('--models', type=Path, help='folder of obj_NN.stl|ply|obj CAD models')
+    source.add_argument('--from-images', type=Path, metavar='DIR',
+                        help='folder of <obj_id>/*.png crops (real turntable captures)')
+    parser.add_argument('--out', type=Path, required=True, help='model file to write (.npz)')
+    parser.add_argument('--classifier', default='sgd',
+                        help=f"learner: {', '.join(KINDS)}, a comma list, or 'all' "
+                             '(default: sgd)')
+    parser.add_argument('--ids', type=int, nargs='+', help='only these object ids (CAD mode)')
+    parser.add_argument('--steps-deg', type=float, default=2.0,
+                        help='turntable step in degrees (paper: 1; default 2, see README)')
+    parser.add_argument('--positions', type=int, default=4, help='places on the plate (4)')
+    parser.add_argument('--augmentations', type=int, default=3,
+                        help='shear/zoom copies per view (paper: 3, i.e. 4 images per view)')
+    parser.add_argument('--seed', type=int, default=0, help='rendering and training seed')
+    parser.add_argument('--cell', type=int, default=HogParams.cell_px, help='HOG cell px (6)')
+    parser.add_argument('--bins', type=int, default=HogParams.bins, help='HOG bins (4)')
+    parser.add_argument('--epochs', type=int, default=ClassifierParams.epochs)
+    parser.add_argument('--reject-margin', type=float, default=0.0,
+                        help='store this reject threshold in the model (0 = never reject)')
+
+
+def parse_kinds(text: str) -> list[str]:
+    """'all' | 'sgd' | 'sgd,pa1' -> list of learner kinds."""
+    kinds = list(KINDS) if text == 'all' else [k.strip() for k in text.split(',') if k.strip()]
+    bad = [k for k in kinds if k not in KINDS]
+    if bad or not kinds:
+        raise TlessbotError(f'unknown classifier {bad or text!r}; choose from {KINDS} or all')
+    return kinds
+
+
+def output_paths(out: Path, kinds: list[str]) -> dict[str, Path]:
+    """One path per learner: ``out`` itself for one, ``<stem>_<kind>.npz`` for several."""
+    if len(kinds) == 1:
+        return {kinds[0]: out}
+    return {kind: out.with_name(f'{out.stem}_{kind}{out.suffix or ".npz"}') for kind in kinds}
+
+
+def turntable_features(models_dir: Path, hog: HogParams, *, ids: list[int] | None,
+                       steps_deg: float, positions: int, augmentations: int,
+                       seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Render the turntable and describe every crop: ((N, D) float32, (N,) int64 ids)."""
+    from tqdm import tqdm
+
+    from tlessbot_ros.io.models import load_models
+    from tlessbot_ros.sim.turntable import Turntable, TurntableParams
+
+    models = load_models(models_dir, ids)
+    if len(models) < 2:
+        raise TlessbotError(f'need at least 2 models to train, found {len(models)}')
+    params = TurntableParams(positions=positions, step_deg=steps_deg,
+                             augmentations=augmentations)
+    table = Turntable(models, params=params, seed=seed)
+    features = np.empty((len(table), hog.feature_dim), np.float32)
+    labels = np.empty(len(table), np.int64)
+    batch = np.empty((256, hog.crop_px, hog.crop_px), np.uint8)
+    count = filled = 0
+    batch_labels = []
+    with tqdm(total=len(table), desc='render+HOG', unit='crop') as bar:
+        for sample in table.samples():
+            batch[filled] = normalise_crop(sample.rgb, mask=sample.mask, params=hog)
+            batch_labels.append(sample.obj_id)
+            filled += 1
+            if filled == len(batch):
+                features[count:count + filled] = hog_features(batch, params=hog)
+                labels[count:count + filled] = batch_labels
+                count, filled, batch_labels = count + filled, 0, []
+            bar.update()
+    features[count:count + filled] = hog_features(batch[:filled], params=hog)
+    labels[count:count + filled] = batch_labels
+    count += filled
+    return features[:count], labels[:count]
+
+
+def read_image_crop(path: Path, hog: HogParams) -> np.ndarray:
+    """Normalised crop of one image file; an alpha channel is used as the silhouette."""
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise DatasetError(f'cannot read image {path}')
+    if image.ndim == 3 and image.shape[2] == 4:
+        mask = image[..., 3] > 127
+        rgb = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
+        if mask.any():
+            return normalise_crop(rgb, mask=mask, params=hog)
+        return normalise_crop(rgb, params=hog)
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    return normalise_crop(image, params=hog)
+
+
+def image_folder_features(folder: Path, hog: HogParams) -> tuple[np.ndarray, np.ndarray]:
+    """Describe every <obj_id>/*.png of a folder: ((N, D) float32, (N,) int64 ids)."""
+    from tqdm import tqdm
+
+    if not folder.is_dir():
+        raise DatasetError(f'image folder not found: {folder}')
+    files = []
+    for sub in sorted(folder.iterdir()):
+        if sub.is_dir() and sub.name.isdigit() and int(sub.name) > 0:
+            files += [(int(sub.name), path) for path in sorted(sub.glob('*.png'))]
+    if len({obj_id for obj_id, _ in files}) < 2:
+        raise DatasetError(f'{folder} must hold at least two <obj_id>/ folders of .png crops '
+                           '(obj_id a positive integer)')
+    crops = np.empty((len(files), hog.crop_px, hog.crop_px), np.uint8)
+    for i, (_, path) in enumerate(tqdm(files, desc='read+normalise', unit='img')):
+        crops[i] = read_image_crop(path, hog)
+    return hog_features(crops, params=hog), np.array([obj_id for obj_id, _ in files], np.int64)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    kinds = parse_kinds(args.classifier)
+    try:
+        hog = HogParams(cell_px=args.cell, bins=args.bins)
+    except ValueError as error:
+        raise TlessbotError(str(error)) from None
+    started = time.perf_counter()
+    if args.models is not None:
+        features, labels = turntable_features(
+            args.models, hog, ids=args.ids, steps_deg=args.steps_deg, positions=args.positions,
+            augmentations=args.augmentations, seed=args.seed)
+        source = {'source': 'turntable', 'steps_deg': args.steps_deg,
+                  'positions': args.positions, 'augmentations': args.augmentations}
+    else:
+        features, labels = image_folder_features(args.from_images, hog)
+        source = {'source': 'images', 'folder': str(args.from_images)}
+    data_s = time.perf_counter() - started
+    ids = np.unique(labels)
+    print(f'{len(labels)} crops of {len(ids)} objects in {data_s:.1f} s')
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    for kind, path in output_paths(args.out, kinds).items():
+        params = ClassifierParams(kind=kind, epochs=args.epochs,
+                                  reject_margin=args.reject_margin)
+        batches = args.epochs * -(-len(labels) // params.batch_size)
+        t0 = time.perf_counter()
+        with tqdm(total=batches, desc=f'train {kind}', unit='batch') as bar:
+            model = train_classifier(features, labels, hog_params=hog, params=params,
+                                     seed=args.seed, on_batch=lambda _n: bar.update())
+        train_s = time.perf_counter() - t0
+        train_acc = float(np.mean(model.predict(features).class_ids == labels))
+        info = dict(model.info, **source, data_s=round(data_s, 2), train_s=round(train_s, 2),
+                    train_accuracy=round(train_acc, 4))
+        type(model)(weights=model.weights, intercepts=model.intercepts,
+                    class_ids=model.class_ids, hog_params=hog, kind=kind,
+                    reject_margin=model.reject_margin, info=info).save(path)
+        print(f'{kind}: trained in {train_s:.1f} s (data {data_s:.1f} s), training accuracy '
+              f'{100 * train_acc:.1f} % -> {path}')
+    return 0
