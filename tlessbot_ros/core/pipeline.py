@@ -1,0 +1,250 @@
+"""The perception stages composed over the label images the nodes exchange.
+
+Stages (each a method, each usable alone, so the ROS nodes and the evaluator run the same code):
+
+1. :meth:`PerceptionPipeline.localise`: segment every view, fuse them -> instance label images
+   (uint16, same id for the same part in both views).
+2. :meth:`PerceptionPipeline.classify`: HOG + linear model on each instance's crop in its
+   preferred view (side when visible there, else top) -> {instance: ClassGuess}.
+3. :meth:`PerceptionPipeline.estimate_poses`: ROI cloud of each classified instance on the
+   aligned depth of its preferred view -> pose in that camera's optical frame.
+
+Inputs per view are :class:`ViewInput`; a two-view frame is ``{'top': ..., 'side': ...}``.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tlessbot_ros.core.classifier import UNKNOWN_ID, LinearClassifier
+from tlessbot_ros.core.cloud import roi_cloud
+from tlessbot_ros.core.geometry import CameraIntrinsics, transform_points
+from tlessbot_ros.core.hog import describe_regions
+from tlessbot_ros.core.pose import PoseCandidate, PoseEstimator, PoseParams
+from tlessbot_ros.core.rig import Rig
+from tlessbot_ros.core.segmentation import BackgroundModel, SegmentationParams, segment
+from tlessbot_ros.core.templates import TemplateDatabase
+from tlessbot_ros.core.two_view import FusionParams, FusionResult, fuse_views
+
+PREFERRED_VIEWS = ('side', 'top')
+
+
+@dataclass(frozen=True)
+class PipelineParams:
+    """Thresholds of the composed pipeline (the stage parameters live in their own dataclasses).
+
+    Attributes:
+        min_instance_px: instances with fewer pixels in a view do not count as seen there.
+        min_roi_points: fewer valid depth points than this: the pose is not estimated.
+        table_clearance_m: in box mode, ROI points closer than this to the table plane are
+            dropped (the box holds table pixels around the part).
+        reject_margin: classifier margin below which the class is 'unknown' (0 = never).
+    """
+
+    min_instance_px: int = 60
+    min_roi_points: int = 30
+    table_clearance_m: float = 0.004
+    reject_margin: float = 0.0
+
+
+@dataclass
+class ViewInput:
+    """One camera's data for one frame.
+
+    Attributes:
+        rgb: (H, W, 3) uint8 RGB.
+        depth_m: (H, W) float32 aligned depth in metres, NaN or 0 = invalid (None if absent).
+        intrinsics: colour intrinsics (aligned depth shares them).
+        T_world_camera: (4, 4) camera pose in the table frame (world z = 0 is the table), or
+            None when uncalibrated.
+        background: empty-table image of this camera (for background subtraction), or None.
+    """
+
+    rgb: np.ndarray
+    depth_m: np.ndarray | None
+    intrinsics: CameraIntrinsics
+    T_world_camera: np.ndarray | None = None
+    background: BackgroundModel | np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class ClassGuess:
+    """Class of one instance: object id (0 = unknown), score and margin, view it came from."""
+
+    obj_id: int
+    score: float
+    margin: float
+    view: str
+
+
+@dataclass
+class Detection:
+    """One found part.
+
+    Attributes:
+        instance_id: id in the label images.
+        obj_id: recognised class (0 = unknown).
+        view: camera whose data gave the pose (its optical frame holds ``T_camera_object``).
+        box: (x, y, w, h) in that view.
+        class_score, class_margin: classifier outputs.
+        pose, second: best and second-best pose candidates (None when not estimated).
+        n_points: ROI points used.
+    """
+
+    instance_id: int
+    obj_id: int
+    view: str
+    box: tuple[int, int, int, int]
+    class_score: float = 0.0
+    class_margin: float = 0.0
+    pose: PoseCandidate | None = None
+    second: PoseCandidate | None = None
+    n_points: int = 0
+
+
+@dataclass
+class FrameResult:
+    """Detections of one frame, the label images, and per-stage wall times (ms)."""
+
+    detections: list[Detection]
+    labels: dict[str, np.ndarray]
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+def preferred_view(labels: dict[str, np.ndarray], instance_id: int, *,
+                   min_px: int) -> str | None:
+    """The view in which the pose and class of an instance are read: side first, then top."""
+    for view in (*PREFERRED_VIEWS, *sorted(set(labels) - set(PREFERRED_VIEWS))):
+        if view in labels and int(np.count_nonzero(labels[view] == instance_id)) >= min_px:
+            return view
+    return None
+
+
+def box_of(mask: np.ndarray) -> tuple[int, int, int, int]:
+    """(x, y, w, h) of the True pixels of a (H, W) mask."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    return (int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1))
+
+
+class PerceptionPipeline:
+    """Localiser, classifier and pose estimator with shared parameters.
+
+    Args:
+        rig: calibrated cameras (needed for two-view fusion beyond 'side_only').
+        classifier: a trained :class:`LinearClassifier` (needed by :meth:`classify`).
+        templates: a :class:`TemplateDatabase` (needed by :meth:`estimate_poses`).
+    """
+
+    def __init__(self, *, rig: Rig | None = None, classifier: LinearClassifier | None = None,
+                 templates: TemplateDatabase | None = None,
+                 params: PipelineParams = PipelineParams(),
+                 segmentation: SegmentationParams = SegmentationParams(),
+                 fusion: FusionParams = FusionParams(),
+                 pose: PoseParams = PoseParams()) -> None:
+        self.rig = rig
+        self.classifier = classifier
+        self.params = params
+        self.segmentation = segmentation
+        self.fusion = fusion
+        self.pose_estimator = PoseEstimator(templates, params=pose) if templates else None
+
+    # ---------------------------------------------------------------------------- stage 1
+    def localise(self, views: dict[str, ViewInput]) -> FusionResult:
+        """Instance label images of a two-view frame ('top' and 'side')."""
+        missing = {'top', 'side'} - set(views)
+        if missing:
+            raise ValueError(f'localise needs the top and side views; missing {sorted(missing)}')
+        top, side = (segment(views[v].rgb, background=views[v].background,
+                             params=self.segmentation) for v in ('top', 'side'))
+        depth_top = views['top'].depth_m
+        return fuse_views(top, side, rig=self.rig, side_rgb=views['side'].rgb,
+                          depth_top_m=None if depth_top is None else np.nan_to_num(depth_top),
+                          params=self.fusion)
+
+    # ---------------------------------------------------------------------------- stage 2
+    def classify(self, rgb: dict[str, np.ndarray], labels: dict[str, np.ndarray]
+                 ) -> dict[int, ClassGuess]:
+        """Class of every instance, read in its preferred view (one HOG batch per view)."""
+        if self.classifier is None:
+            raise ValueError('no classifier loaded')
+        by_view: dict[str, list[int]] = {}
+        for instance in _instance_ids(labels):
+            view = preferred_view(labels, instance, min_px=self.params.min_instance_px)
+            if view is not None:
+                by_view.setdefault(view, []).append(instance)
+        guesses = {}
+        for view, instances in by_view.items():
+            masks = [labels[view] == i for i in instances]
+            features = describe_regions(rgb[view], [box_of(m) for m in masks], masks,
+                                        params=self.classifier.hog_params)
+            prediction = self.classifier.predict(
+                features, reject_margin=self.params.reject_margin or None)
+            for k, instance in enumerate(instances):
+                guesses[instance] = ClassGuess(int(prediction.class_ids[k]),
+                                               float(prediction.scores[k]),
+                                               float(prediction.margins[k]), view)
+        return guesses
+
+    # ---------------------------------------------------------------------------- stage 3
+    def estimate_poses(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
+                       classes: dict[int, int], *, box_mode: bool = False) -> list[Detection]:
+        """Pose of every instance with a known class.
+
+        Args:
+            views: per view, the depth, intrinsics and extrinsics.
+            labels: instance label images per view (in box mode, each instance is its
+                filled box, and points on the table plane are discarded).
+            classes: {instance: obj_id}; instances with 0 or missing are skipped.
+            box_mode: regions are boxes, not masks (the paper's "GT box" setting).
+        """
+        if self.pose_estimator is None:
+            raise ValueError('no template database loaded')
+        detections = []
+        for instance in _instance_ids(labels):
+            obj_id = classes.get(instance, UNKNOWN_ID)
+            view = preferred_view(labels, instance, min_px=self.params.min_instance_px)
+            if obj_id == UNKNOWN_ID or view is None or obj_id not in self.pose_estimator.database:
+                continue
+            data = views[view]
+            mask = labels[view] == instance
+            detection = Detection(instance, obj_id, view, box_of(mask))
+            if data.depth_m is not None:
+                points = roi_cloud(data.depth_m, mask, data.intrinsics)
+                if box_mode and data.T_world_camera is not None:
+                    height = transform_points(data.T_world_camera, points)[:, 2]
+                    points = points[height > self.params.table_clearance_m]
+                detection.n_points = len(points)
+                if len(points) >= self.params.min_roi_points:
+                    result = self.pose_estimator.estimate(points, obj_id,
+                                                          T_world_camera=data.T_world_camera)
+                    detection.pose, detection.second = result.best, result.second
+            detections.append(detection)
+        return detections
+
+    # ---------------------------------------------------------------------------- all stages
+    def process(self, views: dict[str, ViewInput]) -> FrameResult:
+        """Localise, classify and estimate poses for one two-view frame, timing each stage."""
+        t0 = time.perf_counter()
+        fusion = self.localise(views)
+        t1 = time.perf_counter()
+        guesses = self.classify({v: views[v].rgb for v in views}, fusion.labels)
+        t2 = time.perf_counter()
+        detections = self.estimate_poses(views, fusion.labels,
+                                         {i: g.obj_id for i, g in guesses.items()})
+        t3 = time.perf_counter()
+        for detection in detections:
+            guess = guesses[detection.instance_id]
+            detection.class_score, detection.class_margin = guess.score, guess.margin
+        return FrameResult(detections, fusion.labels, {
+            'segmentation': 1e3 * (t1 - t0), 'classification': 1e3 * (t2 - t1),
+            'pose': 1e3 * (t3 - t2), 'frame': 1e3 * (t3 - t0)})
+
+
+def _instance_ids(labels: dict[str, np.ndarray]) -> list[int]:
+    ids: set[int] = set()
+    for image in labels.values():
+        ids.update(int(v) for v in np.unique(image) if v != 0)
+    return sorted(ids)
