@@ -1,0 +1,533 @@
+"""6D pose of a recognised object from its ROI cloud (paper §3.3, §6.2, and a faster path).
+
+Two estimators share one refinement and one scoring:
+
+* ``'ransac'`` – the paper's method, improved: FPFH + sample-consensus initial alignment
+  (Open3D RANSAC on feature matches, mutual filter, edge-length and distance checkers) of each
+  template of the recognised class against the ROI cloud, then point-to-plane ICP against the
+  CAD surface; best and second-best candidates by score after refinement.
+* ``'table'`` (default, falls back to ``'ransac'`` when its fit is poor) – parts rest on the
+  table, so the pose is one of the part's stable poses turned by a yaw and shifted on the plane.
+  For every stable pose and yaw hypothesis (yaw steps pruned by the pose's rotational symmetry)
+  the position on the plane is set by matching the centroid of the model surface facing the
+  camera to the ROI centroid, every hypothesis is scored at once through a precomputed
+  nearest-sample grid of the model, the best few are refined in (yaw, x, y) by point-to-plane
+  Gauss-Newton steps on that grid, and the winner gets a full 6-DOF point-to-plane ICP.
+  This needs the table frame: ``T_world_camera`` with the table at world z = 0 (the rig's
+  extrinsics, or :func:`table_frame_from_plane` of a fitted plane).
+
+Poses are ``T_camera_object`` (4, 4) float64, metres, in the optical frame of the ROI cloud.
+
+References:
+    R. B. Rusu, N. Blodow, M. Beetz, "Fast Point Feature Histograms (FPFH) for 3D
+    Registration", ICRA 2009 (FPFH, SAC-IA).
+    Y. Chen, G. Medioni, "Object modelling by registration of multiple range images",
+    Image and Vision Computing 10(3), 1992 (point-to-plane ICP).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from tlessbot_ros.core.cloud import (
+    CloudParams,
+    estimate_normals,
+    remove_statistical_outliers,
+    to_o3d,
+    voxel_downsample,
+)
+from tlessbot_ros.core.geometry import invert_transform, make_transform, transform_points
+from tlessbot_ros.core.templates import (
+    CONTINUOUS_YAW_PERIOD,
+    ObjectTemplates,
+    TemplateDatabase,
+    compute_fpfh,
+)
+
+METHODS = ('table', 'ransac')
+
+
+@dataclass(frozen=True)
+class PoseParams:
+    """Pose-estimation parameters (voxel scales are multiples of the database voxel, which is a
+    fraction of the object's diameter).
+
+    Attributes:
+        method: 'table' (fast path, RANSAC fallback) or 'ransac'.
+        yaw_step_deg: yaw hypothesis spacing of the table path.
+        max_stable_poses: stable poses searched (most probable first).
+        min_stable_probability: less likely stable poses are skipped.
+        score_points: scene points used to score hypotheses (random, seeded subset).
+        top_k: hypotheses refined in (yaw, x, y).
+        planar_iterations: Gauss-Newton steps of that refinement.
+        icp_iterations: final 6-DOF point-to-plane ICP iterations.
+        icp_distance_voxels: ICP correspondence distance (final iterations; the first ones
+            start at twice this).
+        icp_points: ICP uses at most this many scene points (evenly strided).
+        inlier_voxels: distance of a scene point to the model surface counted as an inlier.
+        fallback_fitness: the table path falls back to RANSAC below this fitness.
+        ransac_distance_voxels, ransac_edge_length, ransac_mutual_filter,
+        ransac_max_iteration, ransac_confidence: the SAC-IA settings (algo-notes §C.4).
+        fpfh_radius_voxels, fpfh_max_nn: scene FPFH support (as in the templates).
+        refine: refine RANSAC candidates with ICP (off = the paper's plain pipeline).
+        ransac_candidates: RANSAC candidates (best by raw fitness) that get refined.
+        seed: seeds the hypothesis subset and Open3D's RANSAC.
+    """
+
+    method: str = 'table'
+    yaw_step_deg: float = 10.0
+    max_stable_poses: int = 4
+    min_stable_probability: float = 0.02
+    score_points: int = 250
+    top_k: int = 6
+    planar_iterations: int = 8
+    icp_iterations: int = 12
+    icp_distance_voxels: float = 1.5
+    icp_points: int = 400
+    inlier_voxels: float = 1.0
+    fallback_fitness: float = 0.7
+    ransac_distance_voxels: float = 1.5
+    ransac_edge_length: float = 0.9
+    ransac_mutual_filter: bool = True
+    ransac_max_iteration: int = 100000
+    ransac_confidence: float = 0.999
+    fpfh_radius_voxels: float = 5.0
+    fpfh_max_nn: int = 100
+    refine: bool = True
+    ransac_candidates: int = 3
+    seed: int = 0
+    cloud: CloudParams = field(default_factory=CloudParams)
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f'method must be one of {METHODS}, got {self.method!r}')
+        if not 0.0 < self.yaw_step_deg <= 180.0:
+            raise ValueError(f'yaw_step_deg must be in (0, 180], got {self.yaw_step_deg}')
+        if self.top_k < 1 or self.score_points < 10 or self.max_stable_poses < 1:
+            raise ValueError('top_k and max_stable_poses must be >= 1, score_points >= 10')
+
+
+@dataclass
+class PoseCandidate:
+    """One pose hypothesis after refinement.
+
+    Attributes:
+        T_camera_object: (4, 4) float64 pose in the ROI cloud's camera frame.
+        fitness: fraction of scene points within ``inlier_voxels`` of the model surface.
+        inlier_rmse_m: RMS point-to-model distance of those inliers, metres.
+        coverage: fraction of the model surface facing the camera that has a scene point
+            nearby (1 when unknown).
+        method: 'table' or 'ransac'.
+        template_index: the template a RANSAC candidate came from (-1 for the table path).
+        stable_index: the stable pose of a table candidate (-1 otherwise).
+    """
+
+    T_camera_object: np.ndarray
+    fitness: float
+    inlier_rmse_m: float
+    coverage: float = 1.0
+    method: str = 'table'
+    template_index: int = -1
+    stable_index: int = -1
+
+    @property
+    def score(self) -> float:
+        return self.fitness + self.coverage
+
+
+@dataclass
+class PoseResult:
+    """Best and second-best candidates (paper: two templates) and per-stage times in ms."""
+
+    obj_id: int
+    best: PoseCandidate | None
+    second: PoseCandidate | None
+    n_points: int
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+def table_frame_from_plane(plane: np.ndarray, *, points_above: np.ndarray | None = None
+                           ) -> np.ndarray:
+    """A ``T_world_camera`` whose world z = 0 is a fitted table plane (z up, towards the camera).
+
+    Args:
+        plane: (4,) a, b, c, d of the plane in the camera frame (e.g. ``cloud.fit_plane``).
+        points_above: unused placeholder for a future orientation check; the normal is turned
+            towards the camera, which always looks at the table from above.
+    """
+    n = np.asarray(plane[:3], np.float64)
+    norm = np.linalg.norm(n)
+    if norm < 1e-9:
+        raise ValueError('plane normal is zero')
+    n, d = n / norm, float(plane[3]) / norm
+    if d < 0:  # make the camera origin lie on the positive side: n . 0 + d > 0
+        n, d = -n, -d
+    origin = -d * n  # the foot of the camera centre on the plane
+    x = np.cross([0.0, 1.0, 0.0], n)
+    if np.linalg.norm(x) < 1e-6:
+        x = np.cross([1.0, 0.0, 0.0], n)
+    x /= np.linalg.norm(x)
+    y = np.cross(n, x)
+    T_camera_world = make_transform(np.stack([x, y, n], axis=1), origin)
+    return invert_transform(T_camera_world)
+
+
+def _rodrigues(omega: np.ndarray) -> np.ndarray:
+    """Batched (K, 3) rotation vectors -> (K, 3, 3) matrices."""
+    theta = np.linalg.norm(omega, axis=-1)[..., None, None]
+    safe = np.where(theta > 1e-12, theta, 1.0)
+    k = omega / safe[..., 0]
+    K = np.zeros(omega.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2] = -k[..., 2], k[..., 1]
+    K[..., 1, 0], K[..., 1, 2] = k[..., 2], -k[..., 0]
+    K[..., 2, 0], K[..., 2, 1] = -k[..., 1], k[..., 0]
+    eye = np.broadcast_to(np.eye(3), K.shape)
+    return eye + np.sin(theta) * K + (1 - np.cos(theta)) * (K @ K)
+
+
+def _rz(yaw: np.ndarray) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.zeros(np.shape(yaw) + (3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
+    return R
+
+
+class PoseEstimator:
+    """Pose of recognised objects against a :class:`TemplateDatabase`.
+
+    Example:
+        >>> estimator = PoseEstimator(TemplateDatabase.load('templates.npz'))
+        >>> result = estimator.estimate(roi_points_c, 5, T_world_camera=side.T_world_camera)
+        >>> result.best.T_camera_object
+    """
+
+    def __init__(self, database: TemplateDatabase, *, params: PoseParams = PoseParams()):
+        self.database = database
+        self.params = params
+
+    # ----------------------------------------------------------------------------------- API
+    def estimate(self, points_c: np.ndarray, obj_id: int, *,
+                 T_world_camera: np.ndarray | None = None,
+                 method: str | None = None) -> PoseResult:
+        """Pose of object ``obj_id`` from its ROI cloud.
+
+        Args:
+            points_c: (N, 3) ROI points in the camera optical frame, metres (from
+                :func:`tlessbot_ros.core.cloud.roi_cloud`).
+            obj_id: the recognised T-LESS class.
+            T_world_camera: (4, 4) camera pose in a world frame whose z = 0 plane is the table
+                (needed by the table path; without it RANSAC is used).
+            method: overrides ``params.method``.
+
+        Returns:
+            a :class:`PoseResult`; ``best`` is None when the ROI has too few points.
+        """
+        points_c = np.asarray(points_c, np.float64)
+        if points_c.ndim != 2 or points_c.shape[1] != 3:
+            raise ValueError(f'points_c must be (N, 3), got shape {points_c.shape}')
+        method = method or self.params.method
+        if method not in METHODS:
+            raise ValueError(f'method must be one of {METHODS}, got {method!r}')
+        obj = self.database[obj_id]
+        p = self.params
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        voxel = obj.voxel_size_m
+        scene, _ = voxel_downsample(points_c, voxel)
+        scene = scene[remove_statistical_outliers(scene, neighbors=p.cloud.sor_neighbors,
+                                                  std_ratio=p.cloud.sor_std_ratio)]
+        timings['prep'] = 1e3 * (time.perf_counter() - t0)
+        result = PoseResult(int(obj_id), None, None, len(scene), timings)
+        if len(scene) < 10:
+            return result
+        candidates: list[PoseCandidate] = []
+        if method == 'table' and T_world_camera is not None:
+            t0 = time.perf_counter()
+            candidates = self._table_path(scene, obj, np.asarray(T_world_camera, np.float64))
+            timings['table'] = 1e3 * (time.perf_counter() - t0)
+        if not candidates or candidates[0].fitness < p.fallback_fitness:
+            t0 = time.perf_counter()
+            candidates = self._rank(candidates + self._ransac_path(scene, obj, timings))
+            timings['ransac'] = 1e3 * (time.perf_counter() - t0)
+        timings['total'] = sum(v for k, v in timings.items() if k in ('prep', 'table', 'ransac'))
+        result.best, result.second = self._best_two(candidates)
+        return result
+
+    # --------------------------------------------------------------------------- table path
+    def _table_path(self, scene_c: np.ndarray, obj: ObjectTemplates,
+                    T_world_camera: np.ndarray) -> list[PoseCandidate]:
+        p = self.params
+        voxel = obj.voxel_size_m
+        grid = obj.nearest_grid()
+        scene_w = transform_points(T_world_camera, scene_c)
+        camera_w = T_world_camera[:3, 3]
+        rng = np.random.default_rng(p.seed)
+        sub = scene_w if len(scene_w) <= p.score_points else \
+            scene_w[rng.choice(len(scene_w), p.score_points, replace=False)]
+        centroid = scene_w.mean(axis=0)
+
+        # Hypotheses: (stable pose, yaw) -> T_world_object, the position on the table set by
+        # matching the centroid of the model surface facing the camera (seen from far: one
+        # viewing direction) to the ROI centroid.
+        order = np.argsort(-obj.stable_probabilities)
+        model, normals = self._model_subset(obj)
+        view = camera_w - centroid
+        poses, stable_ids = [], []
+        for s in order[:p.max_stable_poses]:
+            if obj.stable_probabilities[s] < p.min_stable_probability and poses:
+                continue
+            period = obj.yaw_periods[s]
+            if period == CONTINUOUS_YAW_PERIOD:
+                yaws = np.zeros(1)
+            else:
+                yaws = np.arange(0.0, period - 1e-9, np.radians(p.yaw_step_deg))
+            Rz = _rz(yaws)                                          # (Y, 3, 3)
+            T_s = obj.stable_poses[s]
+            m_s = model @ T_s[:3, :3].T + T_s[:3, 3]                # resting, yaw 0
+            n_s = normals @ T_s[:3, :3].T
+            # (Rz n) . view > 0  <=>  n . (Rz^T view) > 0
+            visible = (n_s @ (view @ Rz).T > 0).astype(np.float64)  # (M, Y)
+            count = np.maximum(visible.sum(axis=0), 1.0)
+            m_vis = (visible.T @ m_s) / count[:, None]               # (Y, 3), before the yaw
+            m_vis = np.einsum('yij,yj->yi', Rz, m_vis)
+            T = np.tile(np.eye(4), (len(yaws), 1, 1))
+            T[:, :3, :3] = Rz @ T_s[:3, :3]
+            T[:, :3, 3] = Rz @ T_s[:3, 3]
+            T[:, :2, 3] += centroid[:2] - m_vis[:, :2]
+            poses.append(T)
+            stable_ids += [int(s)] * len(yaws)
+        T_all = np.concatenate(poses)
+        stable_ids_arr = np.array(stable_ids)
+
+        # Score every hypothesis at once on the grid (truncated mean distance).
+        tau = 2.0 * voxel
+        _, dist = grid.lookup(self._to_object(T_all, sub), outside=tau)
+        cost = np.minimum(dist, tau).mean(axis=1)
+        keep = np.argsort(cost)[:p.top_k]
+        T_top = self._planar_refine(T_all[keep], sub, obj, grid)
+
+        T_camera_world = invert_transform(T_world_camera)
+        scene_tree = cKDTree(scene_c)
+        candidates = [self._evaluate(scene_c, obj, T_camera_world @ T_wo, method='table',
+                                     stable=int(s), scene_tree=scene_tree)
+                      for T_wo, s in zip(T_top, stable_ids_arr[keep])]
+        best, second = self._best_two(candidates)
+        out = [self._evaluate(scene_c, obj, self._icp(scene_c, obj, best.T_camera_object),
+                              method='table', stable=best.stable_index, scene_tree=scene_tree)]
+        if second is not None:
+            out.append(self._evaluate(
+                scene_c, obj, self._icp(scene_c, obj, second.T_camera_object, iterations=4),
+                method='table', stable=second.stable_index, scene_tree=scene_tree))
+        return self._rank(out)
+
+    @staticmethod
+    def _model_subset(obj: ObjectTemplates, count: int = 800) -> tuple[np.ndarray, np.ndarray]:
+        """The first ``count`` surface samples (they are in random order) for cheap scoring."""
+        key = ('subset', count)
+        if key not in obj._cache:
+            obj._cache[key] = (obj.model_points[:count].astype(np.float64),
+                               obj.model_normals[:count].astype(np.float64))
+        return obj._cache[key]
+
+    @staticmethod
+    def _to_object(T_world_object: np.ndarray, points_w: np.ndarray) -> np.ndarray:
+        """(K, 4, 4) poses, (N, 3) world points -> (K, N, 3) points in each object frame."""
+        R = T_world_object[:, :3, :3]
+        t = T_world_object[:, :3, 3]
+        return (points_w[None] - t[:, None, :]) @ R
+
+    def _planar_refine(self, T: np.ndarray, points_w: np.ndarray, obj: ObjectTemplates,
+                       grid) -> np.ndarray:
+        """(yaw, x, y) point-to-plane Gauss-Newton of K poses at once on the nearest grid."""
+        p = self.params
+        model = obj.model_points.astype(np.float64)
+        normals = obj.model_normals.astype(np.float64)
+        T = T.copy()
+        for it in range(p.planar_iterations):
+            max_d = obj.voxel_size_m * (4.0 if it < p.planar_iterations // 2 else 2.0)
+            q = self._to_object(T, points_w)
+            index, _ = grid.lookup(q)
+            ok = index >= 0
+            idx = np.where(ok, index, 0)
+            R, t = T[:, :3, :3], T[:, :3, 3]
+            Rt = np.transpose(R, (0, 2, 1))
+            m = model[idx] @ Rt + t[:, None, :]
+            n = normals[idx] @ Rt
+            diff = points_w[None] - m
+            ok &= np.linalg.norm(diff, axis=-1) < max_d
+            r = np.sum(n * diff, axis=-1)
+            arm = m - t[:, None, :]
+            J = np.stack([arm[..., 0] * n[..., 1] - arm[..., 1] * n[..., 0],
+                          n[..., 0], n[..., 1]], axis=-1)       # n . (e_z x arm), n_x, n_y
+            w = ok.astype(np.float64)
+            A = np.einsum('kn,kni,knj->kij', w, J, J) + 1e-9 * np.eye(3)
+            b = np.einsum('kn,kni,kn->ki', w, J, r)
+            delta = np.linalg.solve(A, b[..., None])[..., 0]
+            delta[ok.sum(axis=1) < 6] = 0.0
+            Rd = _rz(delta[:, 0])
+            T_new = T.copy()
+            T_new[:, :3, :3] = Rd @ R
+            T_new[:, :3, 3] = t  # rotation about the object origin
+            T_new[:, 0, 3] += delta[:, 1]
+            T_new[:, 1, 3] += delta[:, 2]
+            T = T_new
+        return T
+
+    # ------------------------------------------------------------------------- ransac path
+    def _scene_features(self, scene_c: np.ndarray, obj: ObjectTemplates):
+        p = self.params
+        voxel = obj.voxel_size_m
+        normals = estimate_normals(scene_c, radius_m=p.cloud.normal_radius_voxels * voxel,
+                                   max_nn=p.cloud.normal_max_nn)
+        fpfh = compute_fpfh(scene_c, normals, radius_m=p.fpfh_radius_voxels * voxel,
+                            max_nn=p.fpfh_max_nn)
+        return normals, fpfh
+
+    def _ransac_path(self, scene_c: np.ndarray, obj: ObjectTemplates,
+                     timings: dict[str, float]) -> list[PoseCandidate]:
+        p = self.params
+        t0 = time.perf_counter()
+        normals, fpfh = self._scene_features(scene_c, obj)
+        timings['features'] = 1e3 * (time.perf_counter() - t0)
+        raw = register_templates(scene_c, normals, fpfh, obj, params=p)
+        if not p.refine:
+            return [self._evaluate(scene_c, obj, c.T_camera_object, method='ransac',
+                                   template=c.template_index) for c in raw]
+        raw.sort(key=lambda c: -c.fitness)
+        out = []
+        for c in raw[:p.ransac_candidates]:
+            T = self._icp(scene_c, obj, c.T_camera_object)
+            out.append(self._evaluate(scene_c, obj, T, method='ransac',
+                                      template=c.template_index))
+        return out
+
+    # --------------------------------------------------------------- refinement and scoring
+    def _icp(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
+             *, iterations: int | None = None) -> np.ndarray:
+        """6-DOF point-to-plane ICP of the scene onto the model surface samples."""
+        p = self.params
+        tree = obj.model_tree()
+        normals = obj.model_normals.astype(np.float64)
+        model = obj.model_points.astype(np.float64)
+        T = np.asarray(T_camera_object, np.float64).copy()
+        if len(scene_c) > p.icp_points:
+            step = int(np.ceil(len(scene_c) / p.icp_points))
+            scene_c = scene_c[::step]
+        iterations = p.icp_iterations if iterations is None else iterations
+        for it in range(iterations):
+            max_d = p.icp_distance_voxels * obj.voxel_size_m * (2.0 if it < iterations // 2
+                                                                else 1.0)
+            q = transform_points(invert_transform(T), scene_c)
+            dist, index = tree.query(q, k=1, distance_upper_bound=max_d)
+            ok = np.isfinite(dist)
+            if ok.sum() < 6:
+                break
+            R, t = T[:3, :3], T[:3, 3]
+            m = model[index[ok]] @ R.T + t
+            n = normals[index[ok]] @ R.T
+            s = scene_c[ok]
+            r = np.sum(n * (s - m), axis=1)
+            arm = m - t
+            J = np.concatenate([np.cross(arm, n), n], axis=1)
+            A = J.T @ J + 1e-9 * np.eye(6)
+            delta = np.linalg.solve(A, J.T @ r)
+            Rd = _rodrigues(delta[None, :3])[0]
+            T_new = np.eye(4)
+            T_new[:3, :3] = Rd @ R
+            T_new[:3, 3] = t + delta[3:]
+            T = T_new
+            if np.linalg.norm(delta) < 1e-6:
+                break
+        return T
+
+    def _evaluate(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
+                  *, method: str, stable: int = -1, template: int = -1,
+                  scene_tree: cKDTree | None = None) -> PoseCandidate:
+        """Fitness / RMSE (scene -> model) and coverage (visible model -> scene)."""
+        inlier = self.params.inlier_voxels * obj.voxel_size_m
+        q = transform_points(invert_transform(T_camera_object), scene_c)
+        dist, _ = obj.model_tree().query(q, k=1, distance_upper_bound=inlier)
+        ok = np.isfinite(dist)
+        fitness = float(ok.mean()) if len(ok) else 0.0
+        rmse = float(np.sqrt(np.mean(dist[ok] ** 2))) if ok.any() else np.inf
+        model, normals = self._model_subset(obj)
+        model_c = model @ T_camera_object[:3, :3].T + T_camera_object[:3, 3]
+        normals_c = normals @ T_camera_object[:3, :3].T
+        visible = np.sum(normals_c * model_c, axis=1) < 0        # facing the camera at origin
+        coverage = 1.0
+        if visible.any():
+            scene_tree = scene_tree or cKDTree(scene_c)
+            d2, _ = scene_tree.query(model_c[visible], k=1,
+                                     distance_upper_bound=2.0 * obj.voxel_size_m)
+            coverage = float(np.isfinite(d2).mean())
+        return PoseCandidate(np.asarray(T_camera_object, np.float64), fitness, rmse, coverage,
+                             method, template, stable)
+
+    @staticmethod
+    def _rank(candidates: list[PoseCandidate]) -> list[PoseCandidate]:
+        return sorted(candidates, key=lambda c: (-c.score, c.inlier_rmse_m))
+
+    @staticmethod
+    def _best_two(candidates: list[PoseCandidate]) -> tuple[PoseCandidate | None,
+                                                             PoseCandidate | None]:
+        """Best, and the best one that differs from it by > 1 cm or > 5° (else None)."""
+        if not candidates:
+            return None, None
+        ranked = PoseEstimator._rank(candidates)
+        best = ranked[0]
+        for c in ranked[1:]:
+            dt = np.linalg.norm(c.T_camera_object[:3, 3] - best.T_camera_object[:3, 3])
+            cos = (np.trace(c.T_camera_object[:3, :3].T @ best.T_camera_object[:3, :3]) - 1) / 2
+            if dt > 0.01 or np.degrees(np.arccos(np.clip(cos, -1, 1))) > 5.0:
+                return best, c
+        return best, None
+
+
+def register_templates(scene_c: np.ndarray, scene_normals: np.ndarray, scene_fpfh: np.ndarray,
+                       obj: ObjectTemplates, *, params: PoseParams = PoseParams(),
+                       template_indices: list[int] | None = None) -> list[PoseCandidate]:
+    """FPFH + RANSAC (SAC-IA) of each template against a scene cloud, no refinement.
+
+    Args:
+        scene_c: (N, 3) voxelised scene points (camera frame); scene_normals (N, 3);
+            scene_fpfh (N, 33) float32 from :func:`~tlessbot_ros.core.templates.compute_fpfh`.
+        obj: the object's templates.
+        template_indices: templates to try (default all).
+
+    Returns:
+        one candidate per template with Open3D's fitness / inlier RMSE (coverage 1).
+    """
+    reg = o3d.pipelines.registration
+    voxel = obj.voxel_size_m
+    distance = params.ransac_distance_voxels * voxel
+    target = to_o3d(scene_c, scene_normals)
+    target_feature = reg.Feature()
+    target_feature.data = np.asarray(scene_fpfh, np.float64).T
+    checkers = [reg.CorrespondenceCheckerBasedOnEdgeLength(params.ransac_edge_length),
+                reg.CorrespondenceCheckerBasedOnDistance(distance)]
+    out = []
+    indices = range(len(obj.templates)) if template_indices is None else template_indices
+    for i in indices:
+        template = obj.templates[i]
+        source = to_o3d(template.points, template.normals)
+        source_feature = reg.Feature()
+        source_feature.data = np.asarray(template.fpfh, np.float64).T
+        o3d.utility.random.seed(int(params.seed))
+        result = reg.registration_ransac_based_on_feature_matching(
+            source=source, target=target, source_feature=source_feature,
+            target_feature=target_feature, mutual_filter=params.ransac_mutual_filter,
+            max_correspondence_distance=distance,
+            estimation_method=reg.TransformationEstimationPointToPoint(with_scaling=False),
+            ransac_n=3, checkers=checkers,
+            criteria=reg.RANSACConvergenceCriteria(max_iteration=params.ransac_max_iteration,
+                                                   confidence=params.ransac_confidence))
+        T_scene_template = np.asarray(result.transformation)
+        out.append(PoseCandidate(T_scene_template @ template.T_camera_object,
+                                 float(result.fitness), float(result.inlier_rmse),
+                                 method='ransac', template_index=int(i)))
+    return out
+
