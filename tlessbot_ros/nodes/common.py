@@ -34,20 +34,59 @@ def message_class(type_name: str) -> type:
             from None
 
 
+def attribute_docs(cls: type) -> dict[str, str]:
+    """Field descriptions from a dataclass docstring's ``Attributes:`` section.
+
+    Handles ``name: text`` entries, continuation lines, and ``a, b, c: text`` groups.
+    """
+    docs: dict[str, str] = {}
+    lines = (cls.__doc__ or '').splitlines()
+    try:
+        start = next(i for i, line in enumerate(lines) if line.strip() == 'Attributes:')
+    except StopIteration:
+        return docs
+    current: list[str] = []
+    indent = None
+    for line in lines[start + 1:]:
+        if not line.strip():
+            continue
+        width = len(line) - len(line.lstrip())
+        if indent is None:
+            indent = width
+        if width < indent:
+            break
+        if width == indent and ':' in line:
+            names, text = line.strip().split(':', 1)
+            current = [n.strip() for n in names.split(',')]
+            for name in current:
+                docs[name] = text.strip()
+        else:
+            for name in current:
+                docs[name] = f'{docs[name]} {line.strip()}'.strip()
+    return docs
+
+
 def declare_from_dataclass(node: Node, params: Any, *, prefix: str = '',
                            descriptions: dict[str, str] | None = None,
                            ranges: dict[str, tuple[float, float]] | None = None) -> dict[str, Any]:
     """Declare one ROS parameter per field of a frozen ``*Params`` dataclass instance.
 
-    Field docs come from ``descriptions`` (field name -> text), falling back to the dataclass
-    docstring. Returns the declared values as a dict of field name -> value (after overrides
-    from YAML / command line), ready for ``dataclasses.replace(params, **values)``.
+    Field docs come from ``descriptions`` (field name -> text), then from the dataclass
+    docstring's ``Attributes:`` section. Nested dataclass fields become ``field.sub`` parameters.
+    Returns the declared values (after overrides from YAML / command line) as a dict of field
+    name -> value, ready for ``dataclasses.replace(params, **values)``.
     """
-    descriptions = descriptions or {}
+    descriptions = {**attribute_docs(type(params)), **(descriptions or {})}
     ranges = ranges or {}
     values = {}
     for field in dataclasses.fields(params):
         default = getattr(params, field.name)
+        if dataclasses.is_dataclass(default):
+            nested = declare_from_dataclass(node, default, prefix=f'{prefix}{field.name}.')
+            values[field.name] = dataclasses.replace(default, **nested)
+            continue
+        if default is None:
+            continue  # no type to declare; the dataclass default stays
         if isinstance(default, tuple):
             default = list(default)
         descriptor = ParameterDescriptor(
