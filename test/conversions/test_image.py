@@ -93,3 +93,20 @@ def test_depth_in_metres_marks_invalid_as_nan():
     np.testing.assert_array_equal(metres_to_depth_mm(np.array([[np.nan, 0.5004]])), [[0, 500]])
     with pytest.raises(ValueError, match='depth images must be'):
         depth_image_to_metres(array_to_image(SAMPLES['rgb8'], 'rgb8', factory=RosbagsFactory()))
+
+
+def test_image_to_rgb_from_every_colour_encoding():
+    from tlessbot_ros.conversions import image_to_rgb
+
+    rgb = SAMPLES['rgb8']
+    factory = RosbagsFactory()
+    for encoding, array in [('rgb8', rgb), ('bgr8', rgb[:, :, ::-1].copy()),
+                            ('rgba8', np.dstack([rgb, np.full(rgb.shape[:2], 255, np.uint8)])),
+                            ('bgra8', np.dstack([rgb[:, :, ::-1], np.zeros(rgb.shape[:2],
+                                                                           np.uint8)]))]:
+        np.testing.assert_array_equal(
+            image_to_rgb(array_to_image(array, encoding, factory=factory)), rgb)
+    grey = image_to_rgb(array_to_image(SAMPLES['mono8'], 'mono8', factory=factory))
+    assert grey.shape == (5, 7, 3) and (grey[:, :, 0] == SAMPLES['mono8']).all()
+    with pytest.raises(ValueError, match='colour images'):
+        image_to_rgb(array_to_image(SAMPLES['16UC1'], '16UC1', factory=factory))

@@ -13,6 +13,7 @@ from tlessbot_ros.conversions.image import (
     array_to_image,
     depth_image_to_metres,
     image_to_array,
+    image_to_rgb,
 )
 from tlessbot_ros.conversions.messages import (
     MessageFactory,
@@ -31,7 +32,7 @@ from tlessbot_ros.conversions.pose import pose_stamped_to_transform, transform_t
 
 __all__ = [
     'MessageFactory', 'RclpyFactory', 'RosbagsFactory', 'make_header', 'ns_to_stamp',
-    'stamp_to_ns', 'image_to_array', 'array_to_image', 'depth_image_to_metres',
+    'stamp_to_ns', 'image_to_array', 'image_to_rgb', 'array_to_image', 'depth_image_to_metres',
     'camera_info_to_intrinsics', 'intrinsics_to_camera_info', 'pointcloud2_to_xyz',
     'xyz_to_pointcloud2', 'depth_image_to_pointcloud2', 'pose_stamped_to_transform',
     'transform_to_pose_stamped',

@@ -118,6 +118,23 @@ def array_to_image(
     )
 
 
+def image_to_rgb(msg: Any) -> np.ndarray:
+    """Colour image as (H, W, 3) uint8 RGB, from rgb8, bgr8, rgba8, bgra8 or mono8."""
+    array = image_to_array(msg)
+    encoding = msg.encoding
+    if encoding == 'rgb8':
+        return array
+    if encoding == 'bgr8':
+        return np.ascontiguousarray(array[:, :, ::-1])
+    if encoding == 'rgba8':
+        return np.ascontiguousarray(array[:, :, :3])
+    if encoding == 'bgra8':
+        return np.ascontiguousarray(array[:, :, 2::-1])
+    if encoding in ('mono8', '8UC1'):
+        return np.repeat(array[:, :, None], 3, axis=2)
+    raise ValueError(f'colour images must be rgb8, bgr8, rgba8, bgra8 or mono8, got {encoding!r}')
+
+
 def depth_image_to_metres(msg: Any) -> np.ndarray:
     """Depth image (16UC1/mono16 in mm, or 32FC1 in m) as (H, W) float32 metres, NaN = invalid."""
     if msg.encoding in ('16UC1', 'mono16'):
