@@ -22,14 +22,12 @@ import dataclasses
 import threading
 from typing import Any
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from tlessbot_ros.conversions.camera import CAMERA_TOPICS, POINTS_TOPIC, camera_frame_messages
 from tlessbot_ros.conversions.messages import RclpyFactory
 from tlessbot_ros.errors import DeviceError
-from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class
+from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class, run_node
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, diagnostic_array
 from tlessbot_ros.sensors.realsense import RealSenseCamera, RealSenseParams
 
@@ -126,15 +124,7 @@ class CameraDriverNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = CameraDriverNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(CameraDriverNode, args)
 
 
 if __name__ == '__main__':

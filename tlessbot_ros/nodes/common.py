@@ -128,3 +128,32 @@ def format_message(msg: Any, *, max_array: int = 16, indent: int = 0) -> str:
         lines.append(f'{pad}{name}: {value!r}' if isinstance(value, str) else
                      f'{pad}{name}: {value}')
     return '\n'.join(lines)
+
+
+def run_node(node_class: type, args: list[str] | None = None) -> None:
+    """``main()`` of every node: init, spin until Ctrl-C or shutdown, clean up (Jazzy style).
+
+    A :class:`~tlessbot_ros.errors.TlessbotError` while constructing the node (a missing model
+    file, a bad parameter file) prints one line and exits with code 1.
+    """
+    import sys
+
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    from tlessbot_ros.errors import TlessbotError
+
+    rclpy.init(args=args)
+    try:
+        node = node_class()
+    except TlessbotError as error:
+        print(f'{node_class.__name__}: error: {error}', file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(1)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,81 @@
+"""classifier: names every localised instance with HOG + a linear model.
+
+Subscribes (sensor-data QoS), for CAMERA in top, side:
+    /CAMERA/color/image_raw      sensor_msgs/Image (rgb8, bgr8, ...)
+    /localiser/CAMERA/labels     sensor_msgs/Image 16UC1 instance labels
+Publishes (RELIABLE, depth 10):
+    classifier/CAMERA/classes    sensor_msgs/Image 16UC1 class-instance labels,
+                                 obj_id * 1000 + instance (0 * 1000 + i = unknown); the class of
+                                 an instance is read in its preferred view (side, else top) and
+                                 written in both views (header = the labels' header)
+    /diagnostics                 frames, failures, dropped, latency, last classes and margins
+Parameters: ``model_path`` (.npz from ``tlessbot train``; default: the packaged model),
+``reject_margin`` (margin below which a part is 'unknown'; 0 = the model's own),
+``min_instance_px``, ``sync.*``.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from tlessbot_ros.conversions import array_to_image, image_to_array, image_to_rgb, stamp_to_ns
+from tlessbot_ros.conversions.messages import RclpyFactory
+from tlessbot_ros.core.classifier import LinearClassifier
+from tlessbot_ros.core.labels import encode_classes
+from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams
+from tlessbot_ros.data import DEFAULT_CLASSIFIER
+from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
+from tlessbot_ros.nodes.stage import CAMERAS, StageNode, descriptor
+
+IMAGE = 'sensor_msgs/msg/Image'
+
+
+class ClassifierNode(StageNode):
+    """Instance labels + colour -> class-instance labels."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('classifier', **kwargs)
+        path = self.declare_parameter('model_path', str(DEFAULT_CLASSIFIER), descriptor(
+            'Classifier .npz written by tlessbot train')).value
+        reject = self.declare_parameter('reject_margin', 0.0, descriptor(
+            'Classifier margin below which a part is unknown (0: the model default)')).value
+        min_px = self.declare_parameter('min_instance_px', PipelineParams().min_instance_px,
+                                        descriptor('Pixels an instance needs in a view to be '
+                                                    'classified there')).value
+        self.model = LinearClassifier.load(path)  # ModelFileError: one line, exit 1
+        self.pipeline = PerceptionPipeline(
+            classifier=self.model,
+            params=PipelineParams(min_instance_px=int(min_px), reject_margin=float(reject)))
+        self._factory = RclpyFactory()
+        self._class_publishers = {
+            camera: self.create_publisher(message_class(IMAGE), f'classifier/{camera}/classes',
+                                          RESULT_QOS) for camera in CAMERAS}
+        self.setup_inputs({'color': (IMAGE, '/{camera}/color/image_raw'),
+                           'labels': (IMAGE, '/localiser/{camera}/labels')})
+        self.get_logger().info(f'loaded {self.model.kind} classifier for '
+                               f'{len(self.model.class_ids)} objects from {path}')
+
+    def process(self, views: dict[str, dict[str, Any]]) -> None:
+        rgb = {camera: image_to_rgb(msgs['color']) for camera, msgs in views.items()}
+        labels = {}
+        for camera, msgs in views.items():
+            if msgs['labels'].encoding not in ('16UC1', 'mono16'):
+                raise ValueError(f'labels must be 16UC1, got {msgs["labels"].encoding!r}')
+            labels[camera] = image_to_array(msgs['labels'])
+            if labels[camera].shape != rgb[camera].shape[:2]:
+                raise ValueError(f'{camera}: labels {labels[camera].shape} and colour '
+                                 f'{rgb[camera].shape[:2]} sizes differ')
+        guesses = self.pipeline.classify(rgb, labels)
+        classes = {instance: guess.obj_id for instance, guess in guesses.items()}
+        for camera, msgs in views.items():
+            header = msgs['labels'].header
+            self._class_publishers[camera].publish(array_to_image(
+                encode_classes(labels[camera], classes), '16UC1', frame_id=header.frame_id,
+                stamp_ns=stamp_to_ns(header.stamp), factory=self._factory))
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node(ClassifierNode, args)
+
+
+if __name__ == '__main__':
+    main()

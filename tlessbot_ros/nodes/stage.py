@@ -1,0 +1,121 @@
+"""The shared skeleton of the perception stage nodes (localiser, classifier, pose_estimator).
+
+A stage node subscribes per-camera topics for the ``top`` and ``side`` cameras, pairs them by
+stamp (:class:`~tlessbot_ros.nodes.inputs.TwoViewInputs`), runs one stage, and publishes results
+stamped with the source images' stamps. It never dies on bad input: a callback failure is
+logged (throttled) and counted. ``/diagnostics`` gets, at 1 Hz, frames processed, failures,
+frames dropped by synchronisation, and the processing latency.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+import traceback
+from collections import deque
+from typing import Any
+
+import numpy as np
+from rclpy.node import Node
+
+from tlessbot_ros.core.geometry import look_at
+from tlessbot_ros.core.rig import CameraMount, Rig, default_rig
+from tlessbot_ros.core.sync import SyncParams
+from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class
+from tlessbot_ros.nodes.diagnostics import ERROR, OK, WARN, diagnostic_array
+from tlessbot_ros.nodes.inputs import TwoViewInputs, Views
+
+CAMERAS = ('top', 'side')
+
+
+def declare_extrinsics(node: Node) -> dict[str, np.ndarray]:
+    """Declare ``rig.<camera>.{position_m, look_at_m, up}`` (defaults: the paper's cell) and
+    return {camera: T_world_camera}. Intrinsics come from the live CameraInfo instead."""
+    defaults = default_rig()
+    extrinsics = {}
+    for camera in CAMERAS:
+        T = defaults[camera].T_world_camera
+        position = node.declare_parameter(
+            f'rig.{camera}.position_m', [float(v) for v in T[:3, 3]],
+            descriptor(f'{camera} camera position in the world (table) frame, metres')).value
+        target = node.declare_parameter(
+            f'rig.{camera}.look_at_m', [0.0, 0.0, 0.0],
+            descriptor(f'point the {camera} camera looks at, world frame, metres')).value
+        up = node.declare_parameter(
+            f'rig.{camera}.up', [0.0, 1.0, 0.0] if camera == 'top' else [0.0, 0.0, 1.0],
+            descriptor(f'world direction shown at the top of the {camera} image')).value
+        extrinsics[camera] = look_at(np.asarray(position, float), np.asarray(target, float),
+                                     np.asarray(up, float))
+    return extrinsics
+
+
+def descriptor(text: str) -> Any:
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    return ParameterDescriptor(description=text)
+
+
+def rig_with_intrinsics(extrinsics: dict[str, np.ndarray], intrinsics: dict[str, Any]) -> Rig:
+    """A Rig from configured extrinsics and the intrinsics of the current CameraInfos."""
+    return Rig(cameras={c: CameraMount(c, intrinsics[c], extrinsics[c]) for c in intrinsics})
+
+
+class StageNode(Node):
+    """Base of the three perception nodes. Subclasses call :meth:`setup_inputs` and implement
+    :meth:`process`."""
+
+    def __init__(self, name: str, **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+        values = declare_from_dataclass(self, SyncParams(), prefix='sync.')
+        self.sync_params = dataclasses.replace(SyncParams(), **values)
+        self.frames = 0
+        self.failures = 0
+        self.last_error = ''
+        self._latencies_ms: deque[float] = deque(maxlen=100)
+        self._stats: dict[str, float] = {}
+        self._inputs: TwoViewInputs | None = None
+        self._diagnostics = self.create_publisher(
+            message_class('diagnostic_msgs/msg/DiagnosticArray'), '/diagnostics', RESULT_QOS)
+        self.create_timer(1.0, self._publish_diagnostics)
+
+    def setup_inputs(self, topics: dict[str, tuple[str, str]]) -> None:
+        """Subscribe ``{key: (ROS type name, '/{camera}/...' template)}`` for both cameras."""
+        self._inputs = TwoViewInputs(
+            self, {k: (message_class(t), template) for k, (t, template) in topics.items()},
+            CAMERAS, self.sync_params, self._on_views)
+
+    def _on_views(self, views: Views) -> None:
+        start = time.perf_counter()
+        try:
+            self.process(views)
+            self.frames += 1
+        except Exception as error:  # a bad frame must never take the node down
+            self.failures += 1
+            self.last_error = f'{type(error).__name__}: {error}'
+            self.get_logger().error(f'frame skipped: {self.last_error}',
+                                    throttle_duration_sec=5.0)
+            self.get_logger().debug(traceback.format_exc())
+        finally:
+            self._latencies_ms.append(1e3 * (time.perf_counter() - start))
+
+    def process(self, views: Views) -> None:
+        """Handle one synchronised two-view frame (``{camera: {key: msg}}``)."""
+        raise NotImplementedError
+
+    def record_stats(self, stats: dict[str, float]) -> None:
+        """Figures of the last frame shown on /diagnostics (stage times, counts, fitness)."""
+        self._stats = dict(stats)
+
+    def _publish_diagnostics(self) -> None:
+        latencies = np.asarray(self._latencies_ms) if self._latencies_ms else np.zeros(1)
+        dropped = self._inputs.dropped if self._inputs else 0
+        level = OK if not self.failures else (ERROR if self.frames == 0 else WARN)
+        values = {'frames': self.frames, 'failures': self.failures, 'dropped': dropped,
+                  'latency_ms_p50': f'{np.percentile(latencies, 50):.1f}',
+                  'latency_ms_p95': f'{np.percentile(latencies, 95):.1f}',
+                  'zero_stamps': self._inputs.zero_stamps if self._inputs else 0,
+                  **{k: f'{v:.3g}' for k, v in self._stats.items()}}
+        if self.last_error:
+            values['last_error'] = self.last_error
+        self._diagnostics.publish(diagnostic_array(
+            self.get_clock().now().to_msg(), self.get_name(), level,
+            'ok' if level == OK else self.last_error, values))
