@@ -49,6 +49,7 @@ from tlessbot_ros.core.templates import (
 )
 
 METHODS = ('table', 'ransac')
+COVERAGE_WEIGHT = 0.3
 
 
 @dataclass(frozen=True)
@@ -136,7 +137,9 @@ class PoseCandidate:
 
     @property
     def score(self) -> float:
-        return self.fitness + self.coverage
+        """Ranking score: fitness, plus a weaker coverage term (the back-face visibility test
+        behind coverage ignores self-occlusion, so it only breaks near-ties)."""
+        return self.fitness + COVERAGE_WEIGHT * self.coverage
 
 
 @dataclass

@@ -1,0 +1,102 @@
+"""core.templates: rendered template database, npz round trip, corrupt files, symmetry."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlessbot_ros.core import templates as tpl
+from tlessbot_ros.core.geometry import invert_transform, transform_points
+from tlessbot_ros.core.rig import default_rig
+from tlessbot_ros.errors import ModelFileError
+
+
+@pytest.fixture(scope='module')
+def obj21(tless_models_dir):
+    from tlessbot_ros.io.models import load_models, stable_poses
+    model = load_models(tless_models_dir, ids=[21])[21]
+    side = default_rig()['side']
+    poses = [(p.T_table_object, p.probability) for p in stable_poses(model)]
+    db = tpl.build_database([(21, model.vertices, model.faces, poses, model.diameter_m)],
+                            intrinsics=side.intrinsics, T_world_camera=side.T_world_camera,
+                            params=tpl.TemplateParams(n_views=4))
+    return model, db
+
+
+def test_templates_are_views_of_the_model(obj21):
+    model, db = obj21
+    obj = db[21]
+    assert len(obj.templates) == 4
+    assert obj.voxel_size_m == pytest.approx(model.diameter_m / 25)
+    for k, template in enumerate(obj.templates):
+        assert template.yaw_rad == pytest.approx(k * np.pi / 2)
+        assert template.fpfh.shape == (len(template.points), 33)
+        assert len(template.points) > 100
+        # The view cloud, moved into the object frame, lies on the CAD surface.
+        in_object = transform_points(invert_transform(template.T_camera_object), template.points)
+        distance, _ = obj.model_tree().query(in_object)
+        assert np.median(distance) < obj.voxel_size_m
+        # Normals face the camera.
+        assert np.mean(np.sum(template.normals * template.points, axis=1) < 0) > 0.95
+    assert obj.stable_poses.shape[1:] == (4, 4)
+    assert np.all(np.diff(obj.stable_probabilities) <= 0)
+
+
+def test_npz_round_trip(obj21, tmp_path):
+    _, db = obj21
+    path = tmp_path / 'templates.npz'
+    db.save(path)
+    loaded = tpl.TemplateDatabase.load(path)
+    a, b = db[21], loaded[21]
+    assert len(a.templates) == len(b.templates)
+    for ta, tb in zip(a.templates, b.templates):
+        np.testing.assert_allclose(ta.points, tb.points)
+        np.testing.assert_allclose(ta.fpfh, tb.fpfh)
+        np.testing.assert_allclose(ta.T_camera_object, tb.T_camera_object)
+    np.testing.assert_allclose(a.stable_poses, b.stable_poses)
+    assert loaded.params['n_views'] == 4
+    with pytest.raises(KeyError, match='obj_05'):
+        loaded[5]
+
+
+def test_missing_and_corrupt_files(tmp_path):
+    with pytest.raises(ModelFileError, match='not found'):
+        tpl.TemplateDatabase.load(tmp_path / 'nope.npz')
+    bad = tmp_path / 'bad.npz'
+    bad.write_bytes(b'not a zip file at all')
+    with pytest.raises(ModelFileError, match='corrupt'):
+        tpl.TemplateDatabase.load(bad)
+    other = tmp_path / 'other.npz'
+    np.savez(other, weights=np.zeros(3))
+    with pytest.raises(ModelFileError, match='not a tlessbot template'):
+        tpl.TemplateDatabase.load(other)
+    truncated = tmp_path / 'truncated.npz'
+    good = tmp_path / 'good.npz'
+    tpl.TemplateDatabase().save(good)
+    truncated.write_bytes(good.read_bytes()[:40])
+    with pytest.raises(ModelFileError):
+        tpl.TemplateDatabase.load(truncated)
+
+
+def test_params_validated():
+    with pytest.raises(ValueError, match='n_views'):
+        tpl.TemplateParams(n_views=1)
+    with pytest.raises(ValueError, match='n_views'):
+        tpl.TemplateParams(n_views=19)
+
+
+def test_yaw_period_of_simple_shapes():
+    # A square box standing on its base: 4-fold about the vertical; a cylinder: continuous.
+    import open3d as o3d
+    box = o3d.geometry.TriangleMesh.create_box(0.04, 0.04, 0.02)
+    box.translate([-0.02, -0.02, -0.01])
+    v, f = np.asarray(box.vertices), np.asarray(box.triangles)
+    rest = tpl.resting_pose(v)
+    assert tpl.yaw_period(v, f, rest, tolerance_m=4e-4) == pytest.approx(np.pi / 2)
+    cyl = o3d.geometry.TriangleMesh.create_cylinder(radius=0.02, height=0.05, resolution=72)
+    v, f = np.asarray(cyl.vertices), np.asarray(cyl.triangles)
+    assert tpl.yaw_period(v, f, tpl.resting_pose(v), tolerance_m=4e-4) == 0.0
+    # Lying on its side the cylinder has no yaw symmetry but a 180° one.
+    side = np.eye(4)
+    side[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
+    side[2, 3] = 0.02
+    assert tpl.yaw_period(v, f, side, tolerance_m=4e-4) == pytest.approx(np.pi)
