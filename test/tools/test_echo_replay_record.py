@@ -125,3 +125,19 @@ def test_sqlite_bags_read_too(tmp_path):
     (message,) = list(read_bag(bag))
     assert TYPESTORE.deserialize_cdr(message.raw, message.msgtype).header.frame_id == \
         'side_color_optical_frame'
+
+
+def test_restamp_rewrites_only_the_stamp(pose_bag):
+    from tlessbot_ros.io.bags import header_stamp_ns, restamp_cdr, starts_with_header
+
+    for message in read_bag(pose_bag):
+        assert starts_with_header(message.msgtype)
+        original = TYPESTORE.deserialize_cdr(message.raw, message.msgtype)
+        assert header_stamp_ns(message.raw) == \
+            original.header.stamp.sec * 10**9 + original.header.stamp.nanosec
+        moved = TYPESTORE.deserialize_cdr(restamp_cdr(message.raw, 1_800_000_000_123_456_789),
+                                          message.msgtype)
+        assert (moved.header.stamp.sec, moved.header.stamp.nanosec) == (1_800_000_000,
+                                                                        123_456_789)
+        assert moved.header.frame_id == original.header.frame_id
+    assert not starts_with_header('std_msgs/msg/String')

@@ -79,3 +79,37 @@ def deserialize(message: BagMessage, typestore: Any | None = None) -> Any:
         return typestore.deserialize_cdr(message.raw, message.msgtype)
     except Exception as error:
         raise BagError(f'cannot decode a {message.msgtype} on {message.topic}: {error}') from None
+
+
+_CDR_LITTLE_ENDIAN = (b'\x00\x01', b'\x00\x03')  # CDR_LE, PL_CDR_LE encapsulation ids
+_HEADER_FIRST: dict[str, bool] = {}
+
+
+def starts_with_header(msgtype: str) -> bool:
+    """Whether a message type's first field is a std_msgs/Header (cached)."""
+    if msgtype not in _HEADER_FIRST:
+        from rosbags.typesys import Stores, get_typestore
+
+        fields = get_typestore(Stores.ROS2_JAZZY).fielddefs.get(msgtype, ([], []))[1]
+        _HEADER_FIRST[msgtype] = bool(fields) and fields[0][0] == 'header' and \
+            fields[0][1][1] == 'std_msgs/msg/Header'
+    return _HEADER_FIRST[msgtype]
+
+
+def restamp_cdr(raw: bytes, stamp_ns: int) -> bytes:
+    """A copy of a CDR message whose first field is a Header, with ``header.stamp`` replaced.
+
+    In ROS 2 CDR the 4-byte encapsulation is followed directly by the Header's int32 sec and
+    uint32 nanosec, so the stamp is bytes 4..12; nothing else moves.
+    """
+    if raw[:2] not in _CDR_LITTLE_ENDIAN:
+        raise BagError('only little-endian CDR messages can be restamped')
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return raw[:4] + int(sec).to_bytes(4, 'little', signed=True) + \
+        int(nanosec).to_bytes(4, 'little') + raw[12:]
+
+
+def header_stamp_ns(raw: bytes) -> int:
+    """``header.stamp`` of a little-endian CDR message whose first field is a Header."""
+    return int.from_bytes(raw[4:8], 'little', signed=True) * 1_000_000_000 + \
+        int.from_bytes(raw[8:12], 'little')

@@ -6,12 +6,20 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from collections.abc import Callable
 from typing import Any
 
 from tlessbot_ros.errors import BagError
-from tlessbot_ros.io.bags import BagMessage, bag_topics, read_bag
+from tlessbot_ros.io.bags import (
+    BagMessage,
+    bag_topics,
+    header_stamp_ns,
+    read_bag,
+    restamp_cdr,
+    starts_with_header,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,14 +31,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='wait up to S seconds for a subscriber on every image topic')
     parser.add_argument('--qos', choices=('reliable', 'sensor'), default='reliable',
                         help='QoS of the publishers')
+    parser.add_argument('--restamp', action='store_true',
+                        help='shift header stamps so that the first message is stamped now '
+                             '(ROS time) and later loops keep moving forward')
 
 
 def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
            topics: list[str] | None = None, qos: str = 'reliable',
-           wait_for_subscribers_s: float = 0.0,
+           wait_for_subscribers_s: float = 0.0, restamp: bool = False,
            on_publish: Callable[[BagMessage], None] | None = None,
            should_stop: Callable[[], bool] = lambda: False) -> int:
-    """Publish the bag's raw messages through ``node``; returns the number published."""
+    """Publish the bag's raw messages through ``node``; returns the number published.
+
+    With ``restamp``, every header stamp is shifted by one offset per pass (now minus the first
+    log time), so stamps stay consistent within a frame and increase across loops.
+    """
     import rclpy
 
     from tlessbot_ros.nodes.common import RESULT_QOS, SENSOR_QOS, message_class
@@ -53,16 +68,20 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
             rclpy.spin_once(node, timeout_sec=0.05)
     published = 0
     while True:
-        start_wall, start_bag = None, None
+        start_wall, start_bag, offset_ns = None, None, 0
         for message in read_bag(bag, list(types)):
             if should_stop():
                 return published
             if start_wall is None:
                 start_wall, start_bag = time.monotonic(), message.log_time_ns
+                offset_ns = node.get_clock().now().nanoseconds - start_bag
             due = start_wall + (message.log_time_ns - start_bag) / 1e9 / rate
             delay = due - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
+            if restamp and starts_with_header(message.msgtype):
+                message = dataclasses.replace(message, raw=restamp_cdr(
+                    message.raw, header_stamp_ns(message.raw) + offset_ns))
             publishers[message.topic].publish(message.raw)
             published += 1
             if on_publish is not None:
@@ -80,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
     node = rclpy.create_node('tlessbot_replay')
     try:
         count = replay(node, args.bag, rate=args.rate, loop=args.loop, topics=args.topics,
-                       qos=args.qos, wait_for_subscribers_s=args.wait_for_subscribers)
+                       qos=args.qos, wait_for_subscribers_s=args.wait_for_subscribers,
+                       restamp=args.restamp)
         print(f'replayed {count} messages from {args.bag}')
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
