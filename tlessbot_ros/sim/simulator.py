@@ -1,0 +1,419 @@
+"""Two-view RGB-D table scenes of CAD parts, with BOP-style ground truth.
+
+``Simulator(models, rig=None, params=SimParams(), seed=0).frame(i)`` is a pure function of
+``(models, rig, params, seed, i)``: the same arguments give the same bytes. Each frame places
+1-8 parts (:mod:`~tlessbot_ros.sim.scene`), picks a table (plain or textured) and a lamp
+(:mod:`~tlessbot_ros.sim.materials`), ray-casts depth and instances per camera
+(one Open3D ``RaycastingScene`` per frame shared by camera rays, shadow rays and the
+``px_count_all`` counts, same conventions as :mod:`tlessbot_ros.core.render`; the table is the
+analytic plane z = 0), shades
+colour with cast shadows (:mod:`~tlessbot_ros.sim.shading`) and adds D415-like depth noise and
+colour sensor noise (:mod:`~tlessbot_ros.sim.noise`).
+
+Ground truth follows the BOP definitions: ``visib_fract = px_count_visib / px_count_all`` where
+``px_count_all`` counts the pixels of the object rendered alone (inside the image).
+"""
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from tlessbot_ros.core.geometry import CameraIntrinsics, project_points, transform_points
+from tlessbot_ros.core.rig import CameraMount, Rig, default_rig
+from tlessbot_ros.io.models import ObjectModel
+from tlessbot_ros.sim import shading
+from tlessbot_ros.sim.materials import (
+    MATERIALS,
+    TABLE_KINDS,
+    Light,
+    Table,
+    make_table,
+    random_light,
+)
+from tlessbot_ros.sim.noise import DepthNoiseParams, add_colour_noise, add_depth_noise
+from tlessbot_ros.sim.scene import PlacedObject, SceneParams, sample_scene
+
+__all__ = ['GroundTruthObject', 'PlacedObject', 'SimParams', 'SimulatedFrame', 'SimulatedView',
+           'Simulator']
+
+NO_BOX = (-1, -1, -1, -1)
+
+
+@dataclass
+class GroundTruthObject:
+    """Ground truth of one placed part in one view (BOP scene_gt + scene_gt_info fields).
+
+    Attributes:
+        obj_id: object class.
+        T_camera_object: (4, 4) pose in the camera's optical frame, metres.
+        bbox_visib: (x, y, w, h) box of the visible pixels, (-1, -1, -1, -1) if none.
+        visib_fract: visible pixels / pixels of the object rendered alone.
+        mask_visib: (H, W) bool visible pixels.
+        px_count_all: pixels of the object rendered alone (inside the image).
+        px_count_visib: visible pixels.
+        bbox_obj: (x, y, w, h) box of the object rendered alone.
+    """
+
+    obj_id: int
+    T_camera_object: np.ndarray
+    bbox_visib: tuple[int, int, int, int]
+    visib_fract: float
+    mask_visib: np.ndarray
+    px_count_all: int
+    px_count_visib: int
+    bbox_obj: tuple[int, int, int, int] = NO_BOX
+
+
+@dataclass
+class SimulatedView:
+    """One camera's images of a frame.
+
+    Attributes:
+        name: camera name ('top', 'side').
+        intrinsics: colour intrinsics (depth is aligned to colour).
+        T_world_camera: (4, 4) optical frame -> world.
+        rgb: (H, W, 3) uint8 RGB.
+        depth_mm: (H, W) uint16 noisy depth in millimetres, 0 = invalid.
+        depth_clean_m: (H, W) float32 noiseless depth in metres (table included), 0 = nothing.
+        instance: (H, W) int32, -1 = background, else the index into ``frame.objects``.
+        gt: per object of ``frame.objects`` (same order).
+    """
+
+    name: str
+    intrinsics: CameraIntrinsics
+    T_world_camera: np.ndarray
+    rgb: np.ndarray
+    depth_mm: np.ndarray
+    depth_clean_m: np.ndarray
+    instance: np.ndarray
+    gt: list[GroundTruthObject] = field(default_factory=list)
+
+
+@dataclass
+class SimulatedFrame:
+    """A scene seen by all cameras: ``views`` keyed by camera name ('top', 'side')."""
+
+    scene_id: int
+    im_id: int
+    objects: list[PlacedObject]
+    views: dict[str, SimulatedView]
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """Simulator options.
+
+    ``noise_scale`` multiplies ``noise.scale`` (depth sigma and dropout; 0 = clean depth);
+    ``materials`` and ``tables`` are the names drawn from (``MATERIALS``, ``TABLE_KINDS``).
+    A BOP scene folder holds ``frames_per_scene`` consecutive frames (each its own arrangement).
+    """
+
+    parts_min: int = 1
+    parts_max: int = 8
+    materials: tuple[str, ...] = tuple(MATERIALS)
+    tables: tuple[str, ...] = TABLE_KINDS
+    noise: DepthNoiseParams = DepthNoiseParams()
+    noise_scale: float = 1.0
+    colour_noise_sigma: float = 1.5
+    blur_sigma_px: float = 0.6
+    shadows: bool = True
+    area_radius_m: float = 0.2
+    cluster_prob: float = 0.5
+    unique_classes: bool = True
+    margin_px: int = 8
+    frames_per_scene: int = 1000
+
+    def __post_init__(self) -> None:
+        unknown = [m for m in self.materials if m not in MATERIALS]
+        if unknown or not self.materials:
+            raise ValueError(f'unknown materials {unknown}; choose from {sorted(MATERIALS)}')
+        unknown = [t for t in self.tables if t not in TABLE_KINDS]
+        if unknown or not self.tables:
+            raise ValueError(f'unknown tables {unknown}; choose from {TABLE_KINDS}')
+        if not 1 <= self.parts_min <= self.parts_max:
+            raise ValueError(f'need 1 <= parts_min <= parts_max, got {self.parts_min}, '
+                             f'{self.parts_max}')
+        if self.noise_scale < 0:
+            raise ValueError(f'noise_scale must be >= 0, got {self.noise_scale}')
+
+    @property
+    def scene_params(self) -> SceneParams:
+        return SceneParams(parts_min=self.parts_min, parts_max=self.parts_max,
+                           area_radius_m=self.area_radius_m, cluster_prob=self.cluster_prob,
+                           unique_classes=self.unique_classes, margin_px=self.margin_px)
+
+    @property
+    def depth_noise(self) -> DepthNoiseParams:
+        return replace(self.noise, scale=self.noise.scale * self.noise_scale)
+
+
+@dataclass
+class _Environment:
+    table: Table
+    light: Light
+    exposure: float
+
+
+def _box(mask_rows: np.ndarray, mask_cols: np.ndarray) -> tuple[int, int, int, int]:
+    if len(mask_rows) == 0:
+        return NO_BOX
+    x0, x1 = int(mask_cols.min()), int(mask_cols.max())
+    y0, y1 = int(mask_rows.min()), int(mask_rows.max())
+    return (x0, y0, x1 - x0 + 1, y1 - y0 + 1)
+
+
+def _cast_view(scene, rays_c: np.ndarray, T_world_camera: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cast a camera's rays (z = 1 in the optical frame): depth (H, W) float32 (0 = no part),
+    instance (H, W) int32 (-1 = none) and world normals (H, W, 3) float32 (unoriented)."""
+    import open3d as o3d
+
+    R = T_world_camera[:3, :3].astype(np.float32)
+    rays = np.empty(rays_c.shape[:2] + (6,), np.float32)
+    rays[..., :3] = T_world_camera[:3, 3]
+    rays[..., 3:] = rays_c @ R.T
+    hits = scene.cast_rays(o3d.core.Tensor(rays))
+    t_hit = hits['t_hit'].numpy()
+    hit = np.isfinite(t_hit)
+    depth = np.where(hit, t_hit, 0.0).astype(np.float32)  # z = 1 rays: t is the depth
+    instance = np.where(hit, hits['geometry_ids'].numpy().astype(np.int64), -1).astype(np.int32)
+    return depth, instance, hits['primitive_normals'].numpy()
+
+
+def _o3d_scene(meshes: list[tuple[np.ndarray, np.ndarray]]):
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    for vertices, faces in meshes:
+        mesh = o3d.t.geometry.TriangleMesh()
+        mesh.vertex.positions = o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32))
+        mesh.triangle.indices = o3d.core.Tensor(np.ascontiguousarray(faces, np.int32))
+        scene.add_triangles(mesh)
+    return scene
+
+
+class Simulator:
+    """Deterministic two-view scene generator (see the module docstring).
+
+    ``timings`` accumulates seconds per stage ('scene', 'raycast', 'shading', 'noise', 'gt')
+    over all calls, for benchmarks.
+    """
+
+    def __init__(self, models: dict[int, ObjectModel], *, rig: Rig | None = None,
+                 params: SimParams = SimParams(), seed: int = 0) -> None:
+        if not models:
+            raise ValueError('Simulator needs at least one model')
+        self.models = dict(models)
+        self.rig = rig if rig is not None else default_rig()
+        self.params = params
+        self.seed = int(seed)
+        self.timings: dict[str, float] = defaultdict(float)
+
+    # -- randomness: one independent stream per (seed, index, purpose) ------------------------
+    def _rng(self, index: int, *purpose: int) -> np.random.Generator:
+        return np.random.default_rng([self.seed, int(index), *purpose])
+
+    def _environment(self, index: int) -> _Environment:
+        rng = self._rng(index, 1)
+        kind = self.params.tables[int(rng.integers(len(self.params.tables)))]
+        table = make_table(kind, rng)
+        light = random_light(rng)
+        mean_albedo = float(table.texture.mean())
+        exposure = rng.uniform(0.8, 1.05) * 0.55 / (mean_albedo * (light.intensity
+                                                                    + light.ambient))
+        exposure = float(np.clip(exposure, 0.5, 2.0))
+        return _Environment(table, light, exposure)
+
+    def _ids(self, index: int) -> tuple[int, int]:
+        per = max(1, self.params.frames_per_scene)
+        return index // per, index % per
+
+    # -- public API -----------------------------------------------------------------------------
+    def frame(self, index: int) -> SimulatedFrame:
+        """The scene ``index``: parts, and per camera colour, depth, instances and ground truth."""
+        t0 = time.perf_counter()
+        materials = tuple(self.params.materials)
+        objects = sample_scene(self.models, self.rig, self._rng(index, 0),
+                               self.params.scene_params, materials=materials)
+        env = self._environment(index)
+        part_rng = self._rng(index, 4)
+        albedo_scale = part_rng.uniform(0.9, 1.1, len(objects))
+        meshes_w = []
+        for obj in objects:
+            model = self.models[obj.obj_id]
+            meshes_w.append((transform_points(obj.T_world_object, model.vertices), model.faces))
+        # One ray-casting scene serves camera rays, shadow rays and the objects-alone counts;
+        # geometry id k is part k (added in order).
+        scene = _o3d_scene(meshes_w) if objects else None
+        self.timings['scene'] += time.perf_counter() - t0
+        views = {}
+        for k, (name, cam) in enumerate(self.rig.cameras.items()):
+            views[name] = self._render_view(index, k, cam, objects, env, scene, meshes_w,
+                                            albedo_scale)
+        scene_id, im_id = self._ids(index)
+        return SimulatedFrame(scene_id, im_id, objects, views)
+
+    def empty_table(self, index: int) -> dict[str, SimulatedView]:
+        """Background images per camera: the table and light of ``frame(index)``, no parts."""
+        env = self._environment(index)
+        views = {}
+        for k, (name, cam) in enumerate(self.rig.cameras.items()):
+            views[name] = self._render_view(index, k, cam, [], env, None, [], np.ones(0),
+                                            purpose=3)
+        return views
+
+    # -- rendering ------------------------------------------------------------------------------
+    def _render_view(self, index: int, view_index: int, cam: CameraMount,
+                     objects: list[PlacedObject], env: _Environment, scene, meshes_w: list,
+                     albedo_scale: np.ndarray, purpose: int = 2) -> SimulatedView:
+        p = self.params
+        intr = cam.intrinsics
+        T = np.asarray(cam.T_world_camera, dtype=np.float64)
+        R = T[:3, :3].astype(np.float32)
+        eye = T[:3, 3].astype(np.float32)
+        h, w = intr.height, intr.width
+        t0 = time.perf_counter()
+        rays_c = shading.camera_rays(intr)
+        if scene is not None:
+            part_depth, instance, normals_w = _cast_view(scene, rays_c, T)
+            part = instance >= 0
+        else:
+            part_depth, normals_w = None, None
+            instance = np.full((h, w), -1, np.int32)
+            part = np.zeros((h, w), bool)
+        t1 = time.perf_counter()
+        self.timings['raycast'] += t1 - t0
+
+        # Table: shaded everywhere (it is also what shows through translucent parts).
+        radiance, table_d = shading.shade_table_image(env.table, intr, T, env.light)
+        depth = table_d if part_depth is None else np.where(part, part_depth, table_d)
+        inv_len = 1.0 / np.linalg.norm(rays_c, axis=-1)
+        cos_inc = np.abs(rays_c @ R[2]) * inv_len  # table normal (world z) in the camera frame
+        highlight = np.zeros((h, w), np.float32)
+        ir_drop = np.zeros((h, w), np.float32)
+        if part.any():
+            rows, cols = np.nonzero(part)
+            pts_w = (rays_c[rows, cols] * depth[rows, cols, None]) @ R.T + eye
+            inst = instance[rows, cols]
+            n_w = normals_w[rows, cols]
+            n_w *= -np.sign(np.sum(n_w * (rays_c[rows, cols] @ R.T), axis=1) + 1e-12)[:, None]
+            n_c = n_w @ R
+            mats = shading.material_arrays([MATERIALS[o.material] for o in objects], inst,
+                                           albedo_scale)
+            lit_part = None
+            if p.shadows:
+                lit_part = shading.cast_shadows(scene, pts_w, n_w, env.light)
+                self._shadow_table(radiance, table_d, part, intr, T, env, scene, meshes_w)
+            shaded = shading.blinn_phong(pts_w, n_w, eye, mats['albedo'], mats['specular'],
+                                         mats['shininess'], env.light, lit=lit_part,
+                                         translucency=mats['translucency'])
+            tl = mats['translucency']
+            tint = mats['albedo'] / np.maximum(mats['albedo'].max(axis=1, keepdims=True), 1e-6)
+            bleed = (0.4 * tl)[:, None]
+            radiance[rows, cols] = ((1.0 - bleed) * shaded.radiance
+                                    + bleed * radiance[rows, cols] * tint)
+            highlight[rows, cols] = shaded.highlight
+            ir_drop[rows, cols] = mats['ir_dropout']
+            cos_inc[rows, cols] = np.abs(np.sum(n_c * rays_c[rows, cols], axis=1)
+                                         * inv_len[rows, cols])
+        rgb = shading.to_srgb8(radiance, env.exposure)
+        t2 = time.perf_counter()
+        self.timings['shading'] += t2 - t1
+
+        noise_rng = self._rng(index, purpose, view_index)
+        colour_sigma = p.colour_noise_sigma * min(p.noise_scale, 1.0)
+        rgb = add_colour_noise(rgb, noise_rng, sigma=colour_sigma,
+                               blur_sigma_px=p.blur_sigma_px)
+        depth_mm = add_depth_noise(depth, intr.fx, noise_rng, p.depth_noise,
+                                   cos_incidence=cos_inc, highlight=highlight,
+                                   ir_dropout=ir_drop)
+        t3 = time.perf_counter()
+        self.timings['noise'] += t3 - t2
+
+        gt = [self._ground_truth(k, obj, cam, instance, meshes_w[k], scene)
+              for k, obj in enumerate(objects)]
+        self.timings['gt'] += time.perf_counter() - t3
+        return SimulatedView(cam.name, intr, T, rgb, depth_mm, depth, instance, gt)
+
+    def _shadow_table(self, radiance: np.ndarray, table_d: np.ndarray, part: np.ndarray,
+                      intr: CameraIntrinsics, T: np.ndarray, env: _Environment, occluders,
+                      meshes_w: list) -> None:
+        """Darken the table where the parts cast shadows (rays only where a shadow can fall)."""
+        light = np.asarray(env.light.position_w, np.float64)
+        # Each part's shadow lies inside the box of its vertices projected from the lamp onto
+        # z = 0; only table pixels in one of those boxes get a shadow ray.
+        boxes = []
+        for vertices, _ in meshes_w:
+            v = vertices[::max(1, len(vertices) // 500)]
+            s = light[2] / np.maximum(light[2] - v[:, 2], 1e-6)
+            xy = light[:2] + (v[:, :2] - light[:2]) * s[:, None]
+            boxes.append((xy.min(axis=0), xy.max(axis=0)))
+        table_free = (table_d > 0) & ~part
+        pts = shading.pixels_to_world(table_d, intr, T)
+        cand = np.zeros_like(table_free)
+        for lo, hi in boxes:
+            cand |= ((pts[..., 0] >= lo[0]) & (pts[..., 0] <= hi[0]) & (pts[..., 1] >= lo[1])
+                     & (pts[..., 1] <= hi[1]))
+        cand &= table_free
+        if not cand.any():
+            return
+        rows, cols = np.nonzero(cand)
+        ground = pts[rows, cols]
+        up = np.zeros_like(ground)
+        up[:, 2] = 1.0
+        lit = shading.cast_shadows(occluders, ground, up, env.light)
+        dark = lit < 1.0
+        if dark.any():
+            redo = shading.shade_table(env.table, ground[dark], T[:3, 3].astype(np.float32),
+                                       env.light, lit=lit[dark])
+            radiance[rows[dark], cols[dark]] = redo.radiance
+
+    def _ground_truth(self, k: int, obj: PlacedObject, cam: CameraMount, instance: np.ndarray,
+                      mesh_w: tuple[np.ndarray, np.ndarray], scene) -> GroundTruthObject:
+        intr = cam.intrinsics
+        T_cw = cam.T_camera_world
+        mask = instance == k
+        rows, cols = np.nonzero(mask)
+        visib = int(len(rows))
+        # The object alone: cast only the rays of its projected bounding box.
+        pts_c = transform_points(T_cw, mesh_w[0])
+        in_front = pts_c[:, 2] > 1e-3
+        all_count, bbox_obj = 0, NO_BOX
+        if in_front.any():
+            uv = project_points(pts_c[in_front], intr.K)
+            x0 = int(np.clip(np.floor(uv[:, 0].min()) - 1, 0, intr.width - 1))
+            x1 = int(np.clip(np.ceil(uv[:, 0].max()) + 1, 0, intr.width - 1))
+            y0 = int(np.clip(np.floor(uv[:, 1].min()) - 1, 0, intr.height - 1))
+            y1 = int(np.clip(np.ceil(uv[:, 1].max()) + 1, 0, intr.height - 1))
+            if x1 >= x0 and y1 >= y0:
+                import open3d as o3d
+
+                # Rays of the box whose first hit is another part may still meet this one
+                # behind it: list every intersection of those rays.
+                box_inst = instance[y0:y1 + 1, x0:x1 + 1]
+                alone = box_inst == k
+                other = box_inst >= 0
+                other &= ~alone
+                if other.any():
+                    orow, ocol = np.nonzero(other)
+                    rays_c = shading.camera_rays(intr)[orow + y0, ocol + x0]
+                    T_wc = cam.T_world_camera
+                    rays = np.empty((len(orow), 6), np.float32)
+                    rays[:, :3] = T_wc[:3, 3]
+                    rays[:, 3:] = rays_c @ T_wc[:3, :3].T.astype(np.float32)
+                    hits = scene.list_intersections(o3d.core.Tensor(rays))
+                    ray_ids = hits['ray_ids'].numpy()[hits['geometry_ids'].numpy() == k]
+                    behind = np.zeros(len(orow), bool)
+                    behind[ray_ids] = True
+                    alone[orow[behind], ocol[behind]] = True
+                hr, hc = np.nonzero(alone)
+                all_count = int(len(hr))
+                bbox_obj = _box(hr + y0, hc + x0)
+        all_count = max(all_count, visib)
+        return GroundTruthObject(
+            obj_id=obj.obj_id, T_camera_object=T_cw @ obj.T_world_object,
+            bbox_visib=_box(rows, cols), visib_fract=visib / all_count if all_count else 0.0,
+            mask_visib=mask, px_count_all=all_count, px_count_visib=visib, bbox_obj=bbox_obj)
