@@ -96,3 +96,21 @@ def test_rclpy_deserialises_every_message_type(bag):
 def test_refuses_to_overwrite(bag):
     with pytest.raises(BagError, match='exists'):
         write_bag([], bag[0])
+
+
+def test_ground_truth_reads_back(bag):
+    from tlessbot_ros.io.ground_truth import read_ground_truth
+
+    path, frames, _ = bag
+    truth = read_ground_truth(path)
+    assert len(truth) == 3
+    for stamp, instances in truth.items():
+        index = round((stamp - BagParams().start_ns) / 1e8)
+        assert [i.obj_id for i in instances] == [5, 21]
+        for k, instance in enumerate(instances):
+            assert instance.visib_fract['side'] == pytest.approx(0.25 + 0.5 * k)
+            assert instance.bbox_visib['top'] == (1, 2, 3 + k, 4)
+            np.testing.assert_allclose(
+                instance.T_camera_object['side_color_optical_frame'],
+                frames[index].views['side'].gt[k].T_camera_object, atol=1e-9)
+    assert truth[BagParams().start_ns][1].max_visib_fract == pytest.approx(0.75)
