@@ -395,8 +395,8 @@ def watershed_refine(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray, *
         return np.zeros(candidate.shape, bool)
     smooth = cv2.GaussianBlur(rgb, (3, 3), 0)
     markers = _watershed_padded(smooth, markers)
-    # Watershed lines (-1) between object and background belong to the object's rim.
-    return (markers == 2) | ((markers == -1) & candidate)
+    # Watershed lines (-1) lie on the edge itself; they go to the background.
+    return markers == 2
 
 
 def _watershed_padded(image: np.ndarray, markers: np.ndarray) -> np.ndarray:
