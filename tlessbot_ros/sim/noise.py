@@ -3,9 +3,11 @@
 Depth model (all on a depth image aligned to colour, metres in, uint16 millimetres out):
 
 * **Axial noise.** Stereo depth error grows with the square of the distance:
-  ``sigma_z = scale * z^2 * sigma_subpixel / (f_px * baseline_m)``. With the D415's 55 mm
-  baseline, f ~ 615 px and ``sigma_subpixel = 0.07`` px this gives 2.1 mm RMS at 1 m (0.2 % of z,
-  inside Intel's "<= 2 % at 2 m" spec and close to measured D415 numbers), 0.5 mm at 0.5 m.
+  ``sigma_z = scale * z^2 * sigma_subpixel / (f_ir_px * baseline_m)``, where ``f_ir_px`` is the
+  focal length of the IR stereo pair (``ir_focal_px``; independent of the size of the colour
+  image the depth is aligned to). With the D415's 55 mm baseline, f_ir ~ 615 px and
+  ``sigma_subpixel = 0.07`` px this gives 2.1 mm RMS at 1 m (0.2 % of z, inside Intel's
+  "<= 2 % at 2 m" spec and close to measured D415 numbers), 0.5 mm at 0.5 m.
   Half of the variance is spatially correlated (stereo matching windows), half is per pixel;
   slanted surfaces get up to 3x more (``1 / max(cos(incidence), 1/3)``).
 * **Quantisation** to 1 mm (the 16UC1 depth unit).
@@ -38,6 +40,7 @@ class DepthNoiseParams:
 
     scale: float = 1.0
     sigma_subpixel: float = 0.07
+    ir_focal_px: float = 615.0
     baseline_m: float = 0.055
     correlated_share: float = 0.5
     correlation_px: int = 4
@@ -51,9 +54,9 @@ class DepthNoiseParams:
     projector_shadow: bool = True
 
 
-def depth_sigma_m(depth_m: np.ndarray, focal_px: float, params: DepthNoiseParams) -> np.ndarray:
+def depth_sigma_m(depth_m: np.ndarray, params: DepthNoiseParams) -> np.ndarray:
     """Axial standard deviation (metres) at depth ``depth_m`` (any shape) before slant/scale."""
-    return depth_m ** 2 * params.sigma_subpixel / (focal_px * params.baseline_m)
+    return depth_m ** 2 * params.sigma_subpixel / (params.ir_focal_px * params.baseline_m)
 
 
 def stereo_shadow(depth_m: np.ndarray, focal_px: float, baseline_m: float) -> np.ndarray:
@@ -102,7 +105,8 @@ def add_depth_noise(depth_m: np.ndarray, focal_px: float, rng: np.random.Generat
 
     Args:
         depth_m: (H, W) float32 clean z-depth in metres, 0 = no surface.
-        focal_px: horizontal focal length of the (aligned) depth image in pixels.
+        focal_px: horizontal focal length of the (aligned) depth image in pixels (for the
+            stereo shadow, drawn in image coordinates).
         rng: random generator (the result is a deterministic function of its state).
         params: noise model parameters.
         cos_incidence: (H, W) cosine between the surface normal and the viewing ray (1 = facing
@@ -121,7 +125,7 @@ def add_depth_noise(depth_m: np.ndarray, focal_px: float, rng: np.random.Generat
     s = float(params.scale)
     noisy = depth_m.copy()
     if s > 0:
-        sigma = depth_sigma_m(depth_m, focal_px, params) * s
+        sigma = depth_sigma_m(depth_m, params) * s
         if cos_incidence is not None:
             sigma = sigma / np.maximum(np.abs(cos_incidence), 1.0 / 3.0)
         white = rng.standard_normal((h, w), dtype=np.float32)
