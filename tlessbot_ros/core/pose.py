@@ -62,6 +62,8 @@ class PoseParams:
         yaw_step_deg: yaw hypothesis spacing of the table path.
         max_stable_poses: stable poses searched (most probable first).
         min_stable_probability: less likely stable poses are skipped.
+        table_voxel_scale: the table path voxelises the ROI this much coarser than the
+            templates (fewer points; the CAD surface is matched, not FPFH features).
         score_points: scene points used to score hypotheses (random, seeded subset).
         top_k: hypotheses refined in (yaw, x, y).
         planar_iterations: Gauss-Newton steps of that refinement.
@@ -83,12 +85,13 @@ class PoseParams:
     yaw_step_deg: float = 10.0
     max_stable_poses: int = 4
     min_stable_probability: float = 0.02
-    score_points: int = 250
-    top_k: int = 6
-    planar_iterations: int = 8
-    icp_iterations: int = 12
+    table_voxel_scale: float = 1.5
+    score_points: int = 200
+    top_k: int = 4
+    planar_iterations: int = 6
+    icp_iterations: int = 8
     icp_distance_voxels: float = 1.5
-    icp_points: int = 400
+    icp_points: int = 300
     inlier_voxels: float = 1.0
     fallback_fitness: float = 0.7
     ransac_distance_voxels: float = 1.5
@@ -238,27 +241,38 @@ class PoseEstimator:
         obj = self.database[obj_id]
         p = self.params
         timings: dict[str, float] = {}
-        t0 = time.perf_counter()
-        voxel = obj.voxel_size_m
-        scene, _ = voxel_downsample(points_c, voxel)
-        scene = scene[remove_statistical_outliers(scene, neighbors=p.cloud.sor_neighbors,
-                                                  std_ratio=p.cloud.sor_std_ratio)]
-        timings['prep'] = 1e3 * (time.perf_counter() - t0)
+        use_table = method == 'table' and T_world_camera is not None
+        scene = self._prepare(points_c, obj, p.table_voxel_scale if use_table else 1.0, timings)
         result = PoseResult(int(obj_id), None, None, len(scene), timings)
         if len(scene) < 10:
             return result
         candidates: list[PoseCandidate] = []
-        if method == 'table' and T_world_camera is not None:
+        if use_table:
             t0 = time.perf_counter()
             candidates = self._table_path(scene, obj, np.asarray(T_world_camera, np.float64))
             timings['table'] = 1e3 * (time.perf_counter() - t0)
-        if not candidates or candidates[0].fitness < p.fallback_fitness:
-            t0 = time.perf_counter()
-            candidates = self._rank(candidates + self._ransac_path(scene, obj, timings))
-            timings['ransac'] = 1e3 * (time.perf_counter() - t0)
+            if candidates and candidates[0].fitness >= p.fallback_fitness:
+                timings['total'] = timings['prep'] + timings['table']
+                result.best, result.second = self._best_two(candidates)
+                return result
+            scene = self._prepare(points_c, obj, 1.0, timings)
+        t0 = time.perf_counter()
+        candidates = self._rank(candidates + self._ransac_path(scene, obj, timings))
+        timings['ransac'] = 1e3 * (time.perf_counter() - t0)
         timings['total'] = sum(v for k, v in timings.items() if k in ('prep', 'table', 'ransac'))
         result.best, result.second = self._best_two(candidates)
         return result
+
+    def _prepare(self, points_c: np.ndarray, obj: ObjectTemplates, scale: float,
+                 timings: dict[str, float]) -> np.ndarray:
+        """Voxel grid, then statistical outlier removal (cheaper after the grid)."""
+        t0 = time.perf_counter()
+        cloud = self.params.cloud
+        scene, _ = voxel_downsample(points_c, obj.voxel_size_m * scale)
+        scene = scene[remove_statistical_outliers(scene, neighbors=cloud.sor_neighbors,
+                                                  std_ratio=cloud.sor_std_ratio)]
+        timings['prep'] = timings.get('prep', 0.0) + 1e3 * (time.perf_counter() - t0)
+        return scene
 
     # --------------------------------------------------------------------------- table path
     def _table_path(self, scene_c: np.ndarray, obj: ObjectTemplates,
@@ -311,20 +325,20 @@ class PoseEstimator:
         _, dist = grid.lookup(self._to_object(T_all, sub), outside=tau)
         cost = np.minimum(dist, tau).mean(axis=1)
         keep = np.argsort(cost)[:p.top_k]
-        T_top = self._planar_refine(T_all[keep], sub, obj, grid)
-
+        T_top, cost_top = self._planar_refine(T_all[keep], sub, obj, grid, tau=tau)
+        order = np.argsort(cost_top)
         T_camera_world = invert_transform(T_world_camera)
+        T_best = T_camera_world @ T_top[order[0]]
+        picked = [(T_best, int(stable_ids_arr[keep][order[0]]), p.icp_iterations)]
+        for k in order[1:]:  # second best: the best one that is a different pose
+            T_k = T_camera_world @ T_top[k]
+            if _differs(T_k, T_best):
+                picked.append((T_k, int(stable_ids_arr[keep][k]), max(p.icp_iterations // 3, 1)))
+                break
         scene_tree = cKDTree(scene_c)
-        candidates = [self._evaluate(scene_c, obj, T_camera_world @ T_wo, method='table',
-                                     stable=int(s), scene_tree=scene_tree)
-                      for T_wo, s in zip(T_top, stable_ids_arr[keep])]
-        best, second = self._best_two(candidates)
-        out = [self._evaluate(scene_c, obj, self._icp(scene_c, obj, best.T_camera_object),
-                              method='table', stable=best.stable_index, scene_tree=scene_tree)]
-        if second is not None:
-            out.append(self._evaluate(
-                scene_c, obj, self._icp(scene_c, obj, second.T_camera_object, iterations=4),
-                method='table', stable=second.stable_index, scene_tree=scene_tree))
+        out = [self._evaluate(scene_c, obj, self._icp(scene_c, obj, T, iterations=n),
+                              method='table', stable=s, scene_tree=scene_tree)
+               for T, s, n in picked]
         return self._rank(out)
 
     @staticmethod
@@ -344,8 +358,9 @@ class PoseEstimator:
         return (points_w[None] - t[:, None, :]) @ R
 
     def _planar_refine(self, T: np.ndarray, points_w: np.ndarray, obj: ObjectTemplates,
-                       grid) -> np.ndarray:
-        """(yaw, x, y) point-to-plane Gauss-Newton of K poses at once on the nearest grid."""
+                       grid, *, tau: float) -> tuple[np.ndarray, np.ndarray]:
+        """(yaw, x, y) point-to-plane Gauss-Newton of K poses at once on the nearest grid;
+        returns the poses and their final truncated mean distance (tau)."""
         p = self.params
         model = obj.model_points.astype(np.float64)
         normals = obj.model_normals.astype(np.float64)
@@ -378,7 +393,8 @@ class PoseEstimator:
             T_new[:, 0, 3] += delta[:, 1]
             T_new[:, 1, 3] += delta[:, 2]
             T = T_new
-        return T
+        _, dist = grid.lookup(self._to_object(T, points_w), outside=tau)
+        return T, np.minimum(dist, tau).mean(axis=1)
 
     # ------------------------------------------------------------------------- ransac path
     def _scene_features(self, scene_c: np.ndarray, obj: ObjectTemplates):
@@ -397,9 +413,10 @@ class PoseEstimator:
         normals, fpfh = self._scene_features(scene_c, obj)
         timings['features'] = 1e3 * (time.perf_counter() - t0)
         raw = register_templates(scene_c, normals, fpfh, obj, params=p)
-        if not p.refine:
-            return [self._evaluate(scene_c, obj, c.T_camera_object, method='ransac',
-                                   template=c.template_index) for c in raw]
+        if not p.refine:  # the paper: templates ranked by RANSAC fitness alone
+            for c in raw:
+                c.coverage = 0.0
+            return raw
         raw.sort(key=lambda c: -c.fitness)
         out = []
         for c in raw[:p.ransac_candidates]:
@@ -483,11 +500,16 @@ class PoseEstimator:
         ranked = PoseEstimator._rank(candidates)
         best = ranked[0]
         for c in ranked[1:]:
-            dt = np.linalg.norm(c.T_camera_object[:3, 3] - best.T_camera_object[:3, 3])
-            cos = (np.trace(c.T_camera_object[:3, :3].T @ best.T_camera_object[:3, :3]) - 1) / 2
-            if dt > 0.01 or np.degrees(np.arccos(np.clip(cos, -1, 1))) > 5.0:
+            if _differs(c.T_camera_object, best.T_camera_object):
                 return best, c
         return best, None
+
+
+def _differs(T_a: np.ndarray, T_b: np.ndarray, *, t_m: float = 0.01, r_deg: float = 5.0) -> bool:
+    """True when two poses differ by more than ``t_m`` or ``r_deg``."""
+    cos = (np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1.0) / 2.0
+    return bool(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]) > t_m or
+                np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > r_deg)
 
 
 def register_templates(scene_c: np.ndarray, scene_normals: np.ndarray, scene_fpfh: np.ndarray,
