@@ -212,6 +212,21 @@ class Simulator:
         self.seed = int(seed)
         self.timings: dict[str, float] = defaultdict(float)
 
+    def prepare(self, *, progress: bool = False) -> None:
+        """Compute the per-model caches (resting poses, collision hulls) now instead of on first
+        use; frames are identical either way."""
+        from tlessbot_ros.io.models import stable_poses
+        from tlessbot_ros.sim.scene import _hull_info
+
+        items = list(self.models.values())
+        if progress:
+            from tqdm import tqdm
+
+            items = tqdm(items, desc='resting poses', unit='model')
+        for model in items:
+            stable_poses(model)
+            _hull_info(model, self.params.scene_params.hull_samples)
+
     # -- randomness: one independent stream per (seed, index, purpose) ------------------------
     def _rng(self, index: int, *purpose: int) -> np.random.Generator:
         return np.random.default_rng([self.seed, int(index), *purpose])
