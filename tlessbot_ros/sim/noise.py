@@ -155,9 +155,10 @@ def add_depth_noise(depth_m: np.ndarray, focal_px: float, rng: np.random.Generat
 def add_colour_noise(rgb: np.ndarray, rng: np.random.Generator, *, sigma: float = 1.5,
                      blur_sigma_px: float = 0.6) -> np.ndarray:
     """Blur (lens/demosaicing) and Gaussian read noise on an (H, W, 3) uint8 image; uint8 out."""
-    img = rgb.astype(np.float32)
-    if blur_sigma_px > 0:
-        img = cv2.GaussianBlur(img, (0, 0), blur_sigma_px)
-    if sigma > 0:
-        img += rng.standard_normal(img.shape, dtype=np.float32) * sigma
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    img = cv2.GaussianBlur(rgb, (0, 0), blur_sigma_px) if blur_sigma_px > 0 else rgb
+    if sigma <= 0:
+        return np.ascontiguousarray(img, dtype=np.uint8)
+    noise = rng.standard_normal(img.shape, dtype=np.float32)
+    noise *= np.float32(sigma)
+    noise += img
+    return np.clip(noise + np.float32(0.5), 0, 255).astype(np.uint8)

@@ -135,8 +135,9 @@ def shade_table(table: Table, points_w: np.ndarray, eye_w: np.ndarray, light: Li
 
 
 def shade_table_image(table: Table, intrinsics: CameraIntrinsics, T_world_camera: np.ndarray,
-                      light: Light, *, step_px: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """Unshadowed table radiance (H, W, 3) float32 and its table depth (H, W).
+                      light: Light, *, step_px: int = 4
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unshadowed table radiance (H, W, 3) float32, table depth (H, W) and table xy (H, W, 2).
 
     The lighting of a plane by a point light is smooth, so it is computed every ``step_px``
     pixels and interpolated; only the albedo texture is sampled at every pixel.
@@ -145,12 +146,14 @@ def shade_table_image(table: Table, intrinsics: CameraIntrinsics, T_world_camera
 
     h, w = intrinsics.height, intrinsics.width
     depth = table_depth(intrinsics, T_world_camera)
-    ys = np.arange(0, h + step_px, step_px).clip(max=h - 1)
-    xs = np.arange(0, w + step_px, step_px).clip(max=w - 1)
     rays = camera_rays(intrinsics)
     R, t = T_world_camera[:3, :3].astype(np.float32), T_world_camera[:3, 3].astype(np.float32)
-    pts_full = (rays * depth[..., None]) @ R.T + t
-    coarse = pts_full[np.ix_(ys, xs)].reshape(-1, 3)
+    xy = (rays @ R[:2].T) * depth[..., None] + t[:2]
+    ys = np.arange(0, h + step_px, step_px).clip(max=h - 1)
+    xs = np.arange(0, w + step_px, step_px).clip(max=w - 1)
+    grid = np.ix_(ys, xs)
+    coarse = np.concatenate([xy[grid], np.zeros(xy[grid].shape[:2] + (1,), np.float32)],
+                            axis=-1).reshape(-1, 3)
     n = len(coarse)
     normals = np.zeros((n, 3), np.float32)
     normals[:, 2] = 1.0
@@ -166,10 +169,11 @@ def shade_table_image(table: Table, intrinsics: CameraIntrinsics, T_world_camera
                          interpolation=cv2.INTER_LINEAR)[:h, :w]
     specular = cv2.resize(spec.radiance.reshape(gy, gx, 3), size,
                           interpolation=cv2.INTER_LINEAR)[:h, :w]
-    albedo = table.albedo_at(pts_full[..., :2])
-    radiance = albedo * diffuse + specular
+    radiance = table.albedo_at(xy)
+    radiance *= diffuse
+    radiance += specular
     radiance[depth <= 0] = 0.0
-    return radiance.astype(np.float32), depth
+    return radiance, depth, xy
 
 
 def material_arrays(materials: list[Material], instance: np.ndarray,
@@ -187,7 +191,13 @@ def material_arrays(materials: list[Material], instance: np.ndarray,
     }
 
 
+_GAMMA_LUT = np.rint(255.0 * np.linspace(0.0, 1.0, 4096) ** (1.0 / 2.2)).astype(np.uint8)
+
+
 def to_srgb8(radiance: np.ndarray, exposure: float = 1.0) -> np.ndarray:
-    """Linear radiance (..., 3) -> uint8 with a 1/2.2 display gamma (clipped highlights)."""
-    x = np.clip(radiance * np.float32(exposure), 0.0, 1.0)
-    return np.rint(255.0 * x ** np.float32(1.0 / 2.2)).astype(np.uint8)
+    """Linear radiance (..., 3) -> uint8 with a 1/2.2 display gamma (clipped highlights).
+
+    Uses a 4096-entry table (12-bit linear input, finer than one display step everywhere but in
+    the deepest shadows)."""
+    index = np.clip(radiance * np.float32(4095.0 * exposure), 0.0, 4095.0)
+    return _GAMMA_LUT[(index + 0.5).astype(np.uint16)]

@@ -303,7 +303,7 @@ class Simulator:
         self.timings['raycast'] += t1 - t0
 
         # Table: shaded everywhere (it is also what shows through translucent parts).
-        radiance, table_d = shading.shade_table_image(env.table, intr, T, env.light)
+        radiance, table_d, table_xy = shading.shade_table_image(env.table, intr, T, env.light)
         depth = table_d if part_depth is None else np.where(part, part_depth, table_d)
         inv_len = 1.0 / np.linalg.norm(rays_c, axis=-1)
         cos_inc = np.abs(rays_c @ R[2]) * inv_len  # table normal (world z) in the camera frame
@@ -321,7 +321,7 @@ class Simulator:
             lit_part = None
             if p.shadows:
                 lit_part = shading.cast_shadows(scene, pts_w, n_w, env.light)
-                self._shadow_table(radiance, table_d, part, intr, T, env, scene, meshes_w)
+                self._shadow_table(radiance, table_d, table_xy, part, T, env, scene, meshes_w)
             shaded = shading.blinn_phong(pts_w, n_w, eye, mats['albedo'], mats['specular'],
                                          mats['shininess'], env.light, lit=lit_part,
                                          translucency=mats['translucency'])
@@ -353,8 +353,8 @@ class Simulator:
         self.timings['gt'] += time.perf_counter() - t3
         return SimulatedView(cam.name, intr, T, rgb, depth_mm, depth, instance, gt)
 
-    def _shadow_table(self, radiance: np.ndarray, table_d: np.ndarray, part: np.ndarray,
-                      intr: CameraIntrinsics, T: np.ndarray, env: _Environment, occluders,
+    def _shadow_table(self, radiance: np.ndarray, table_d: np.ndarray, table_xy: np.ndarray,
+                      part: np.ndarray, T: np.ndarray, env: _Environment, occluders,
                       meshes_w: list) -> None:
         """Darken the table where the parts cast shadows (rays only where a shadow can fall)."""
         light = np.asarray(env.light.position_w, np.float64)
@@ -367,16 +367,16 @@ class Simulator:
             xy = light[:2] + (v[:, :2] - light[:2]) * s[:, None]
             boxes.append((xy.min(axis=0), xy.max(axis=0)))
         table_free = (table_d > 0) & ~part
-        pts = shading.pixels_to_world(table_d, intr, T)
+        x, y = table_xy[..., 0], table_xy[..., 1]
         cand = np.zeros_like(table_free)
         for lo, hi in boxes:
-            cand |= ((pts[..., 0] >= lo[0]) & (pts[..., 0] <= hi[0]) & (pts[..., 1] >= lo[1])
-                     & (pts[..., 1] <= hi[1]))
+            cand |= (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1])
         cand &= table_free
         if not cand.any():
             return
         rows, cols = np.nonzero(cand)
-        ground = pts[rows, cols]
+        ground = np.zeros((len(rows), 3), np.float32)
+        ground[:, :2] = table_xy[rows, cols]
         up = np.zeros_like(ground)
         up[:, 2] = 1.0
         lit = shading.cast_shadows(occluders, ground, up, env.light)
