@@ -91,6 +91,11 @@ class SegmentationParams:
         split_min_core_px: cores smaller than this (pixels) are ignored.
         split_min_depth_px: largest distance of a blob (pixels) below which it is never split.
         cue_scale: image scale at which the colour cues are computed (1.0 = full resolution).
+        colour_split_delta: a blob whose pixels form two chroma clusters (a / L, b / L, x100)
+            further apart than this is divided between them first (touching parts of different
+            materials); 0 disables.
+        colour_split_min_share: smallest share of the blob for a colour piece (so specular
+            highlights do not become parts).
     """
 
     methods: tuple[str, ...] = METHODS
@@ -112,6 +117,8 @@ class SegmentationParams:
     split_min_core_px: int = 12
     split_min_depth_px: float = 5.0
     cue_scale: float = 0.5
+    colour_split_delta: float = 25.0
+    colour_split_min_share: float = 0.12
 
     def __post_init__(self) -> None:
         unknown = set(self.methods) - set(METHODS)
@@ -145,7 +152,7 @@ class Segmentation:
         boxes: (N, 4) int32 (x, y, w, h) of instance ``i + 1`` in row ``i``.
         areas: (N,) int64 pixel counts.
         foreground: (H, W) bool union mask before instance separation.
-        cues: per-method (H, W) bool candidate masks (for inspection and tests).
+        cues: per-method bool candidate masks at ``params.cue_scale`` (for inspection).
         timings_ms: wall time per stage in milliseconds.
     """
 
@@ -323,11 +330,7 @@ def background_mask(rgb: np.ndarray, background: np.ndarray, *,
     diff = lab - bg
     delta_e = np.sqrt(np.einsum('ijk,ijk->ij', diff, diff))
     changed = delta_e > params.background_delta_e
-    # A cast shadow scales the table's luminance and keeps its chroma (a, b) roughly.
-    lo, hi = params.shadow_ratio
-    ratio = (lab[..., 0] + 1.0) / (bg[..., 0] + 1.0)
-    chroma_change = np.maximum(np.abs(diff[..., 1]), np.abs(diff[..., 2]))
-    shadow = (ratio > lo) & (ratio < hi) & (chroma_change < params.shadow_chroma)
+    shadow = _shadow(lab, bg, params)
     return changed & ~shadow
 
 
@@ -387,16 +390,21 @@ def watershed_refine(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray, *
         (H, W) bool object mask.
     """
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
-    near = cv2.dilate(candidate.view(np.uint8), kernel).astype(bool)
-    markers = np.zeros(candidate.shape, np.int32)
-    markers[~near] = 1
-    markers[sure] = 2
+    out = np.zeros(candidate.shape, bool)
     if not sure.any():
-        return np.zeros(candidate.shape, bool)
-    smooth = cv2.GaussianBlur(rgb, (3, 3), 0)
+        return out
+    near = cv2.dilate(candidate.view(np.uint8), kernel)
+    # Flood only the box around the candidates (the rest is background anyway).
+    x, y, w, h = cv2.boundingRect(near)
+    near_c = near[y:y + h, x:x + w].astype(bool)
+    markers = np.zeros((h, w), np.int32)
+    markers[~near_c] = 1
+    markers[sure[y:y + h, x:x + w]] = 2
+    smooth = cv2.GaussianBlur(rgb[y:y + h, x:x + w], (3, 3), 0)
     markers = _watershed_padded(smooth, markers)
     # Watershed lines (-1) lie on the edge itself; they go to the background.
-    return markers == 2
+    out[y:y + h, x:x + w] = markers == 2
+    return out
 
 
 def _watershed_padded(image: np.ndarray, markers: np.ndarray) -> np.ndarray:
@@ -430,16 +438,65 @@ def split_touching(mask: np.ndarray, rgb: np.ndarray | None = None, *,
         x0, y0 = max(x - 1, 0), max(y - 1, 0)
         x1, y1 = min(x + w + 1, mask.shape[1]), min(y + h + 1, mask.shape[0])
         blob = comp[y0:y1, x0:x1] == i
-        parts = _split_blob(blob, None if rgb is None else rgb[y0:y1, x0:x1], params) \
-            if params.split_touching else blob.astype(np.int32)
         sub = labels[y0:y1, x0:x1]
-        for k in range(1, int(parts.max()) + 1):
-            piece = parts == k
-            if int(piece.sum()) < params.min_area_px:
-                continue
-            sub[piece] = next_id
+        if not params.split_touching:
+            sub[blob] = next_id
             next_id += 1
+            continue
+        crop = None if rgb is None else rgb[y0:y1, x0:x1]
+        pieces = [blob] if crop is None or params.colour_split_delta <= 0 else \
+            _colour_pieces(blob, crop, params)
+        for piece_mask in pieces:
+            parts = _split_blob(piece_mask, crop, params)
+            for k in range(1, int(parts.max()) + 1):
+                piece = parts == k
+                if int(piece.sum()) < params.min_area_px:
+                    continue
+                sub[piece] = next_id
+                next_id += 1
     return labels
+
+
+def _colour_pieces(blob: np.ndarray, rgb: np.ndarray, params: SegmentationParams,
+                   depth: int = 0) -> list[np.ndarray]:
+    """Divide a blob made of parts of different materials by 2-means on shading-invariant
+    chroma (a / L, b / L); recursive for three or more materials. Returns bool masks."""
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab).astype(np.float32)
+    L = np.maximum(lab[..., 0][blob], 40.0)
+    feats = np.stack([(lab[..., 1][blob] - 128.0) / L, (lab[..., 2][blob] - 128.0) / L],
+                     axis=1) * np.float32(100.0)
+    min_piece = max(params.min_area_px, int(params.colour_split_min_share * blob.sum()))
+    if feats.shape[0] < 2 * min_piece or feats.std(axis=0).max() < params.colour_split_delta / 4:
+        return [blob]
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
+    cv2.setRNGSeed(0)
+    _, which, centres = cv2.kmeans(feats, 2, None, criteria, 1, cv2.KMEANS_PP_CENTERS)
+    if float(np.linalg.norm(centres[0] - centres[1])) < params.colour_split_delta:
+        return [blob]
+    cluster = np.zeros(blob.shape, np.int32)
+    cluster[blob] = which.ravel() + 1
+    seeds = np.zeros(blob.shape, np.int32)
+    n_seeds = 0
+    for c in (1, 2):
+        m = _open((cluster == c), 1).view(np.uint8)
+        n, comp, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+        for j in range(1, n):
+            if stats[j, cv2.CC_STAT_AREA] >= min_piece:
+                n_seeds += 1
+                seeds[comp == j] = n_seeds
+    if n_seeds < 2:
+        return [blob]
+    # Every blob pixel joins the nearest seed piece.
+    _, nearest = cv2.distanceTransformWithLabels((seeds == 0).astype(np.uint8), cv2.DIST_L2, 3,
+                                                 labelType=cv2.DIST_LABEL_PIXEL)
+    lut = np.zeros(int(nearest.max()) + 1, np.int32)
+    ys, xs = np.nonzero(seeds)
+    lut[nearest[ys, xs]] = seeds[ys, xs]
+    owner = np.where(blob, lut[nearest], 0)
+    pieces = [owner == k for k in range(1, n_seeds + 1)]
+    if depth >= 1:
+        return pieces
+    return [q for p in pieces for q in _colour_pieces(p, rgb, params, depth + 1)]
 
 
 def _split_blob(blob: np.ndarray, rgb: np.ndarray | None,
@@ -481,25 +538,17 @@ def _split_blob(blob: np.ndarray, rgb: np.ndarray | None,
 
 def boxes_from_labels(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(x, y, w, h) int32 boxes (N, 4) and int64 areas (N,) of labels 1..N (empty ids: zeros)."""
+    from scipy import ndimage
+
     n = int(labels.max()) if labels.size else 0
     boxes = np.zeros((n, 4), np.int32)
-    areas = np.zeros(n, np.int64)
     if n == 0:
-        return boxes, areas
-    ys, xs = np.nonzero(labels)
-    ids = labels[ys, xs].astype(np.int64) - 1
-    areas = np.bincount(ids, minlength=n).astype(np.int64)
-    big = np.iinfo(np.int64).max
-    x0 = np.full(n, big)
-    y0 = np.full(n, big)
-    x1 = np.full(n, -1)
-    y1 = np.full(n, -1)
-    np.minimum.at(x0, ids, xs)
-    np.minimum.at(y0, ids, ys)
-    np.maximum.at(x1, ids, xs)
-    np.maximum.at(y1, ids, ys)
-    present = areas > 0
-    boxes[present] = np.stack([x0, y0, x1 - x0 + 1, y1 - y0 + 1], axis=1)[present]
+        return boxes, np.zeros(0, np.int64)
+    areas = np.bincount(labels.ravel(), minlength=n + 1)[1:].astype(np.int64)
+    for i, sl in enumerate(ndimage.find_objects(labels.astype(np.int32, copy=False), n)):
+        if sl is not None:
+            boxes[i] = (sl[1].start, sl[0].start, sl[1].stop - sl[1].start,
+                        sl[0].stop - sl[0].start)
     return boxes, areas
 
 
@@ -635,7 +684,6 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         sure &= candidate
     candidate = _upscale(candidate, rgb.shape)
     sure = _upscale(sure, rgb.shape)
-    cues = {k: _upscale(v, rgb.shape) for k, v in cues.items()}
     t = lap('cues', t)
     if 'watershed' in methods:
         foreground = watershed_refine(rgb, candidate, _erode(sure, 1), band_px=params.band_px)
@@ -650,11 +698,22 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
                         cues=cues, timings_ms=timings)
 
 
-def _not_shadow(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> np.ndarray:
+def _shadow(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> np.ndarray:
+    """Pixels that look like the empty table darkened by a cast shadow.
+
+    A shadow scales the table's colour: the luminance ratio lies in ``shadow_ratio`` and the
+    chroma (a, b) shrinks roughly in proportion, so a / L and b / L stay close to the table's.
+    """
     lo, hi = params.shadow_ratio
-    ratio = (lab[..., 0] + 1.0) / (bg_lab[..., 0] + 1.0)
-    chroma = np.maximum(np.abs(lab[..., 1] - bg_lab[..., 1]), np.abs(lab[..., 2] - bg_lab[..., 2]))
-    return ~((ratio > lo) & (ratio < hi) & (chroma < params.shadow_chroma))
+    L, bL = lab[..., 0] + 1.0, bg_lab[..., 0] + 1.0
+    ratio = L / bL
+    da = np.abs(lab[..., 1] - bg_lab[..., 1] * ratio)
+    db = np.abs(lab[..., 2] - bg_lab[..., 2] * ratio)
+    return (ratio > lo) & (ratio < hi) & (np.maximum(da, db) < params.shadow_chroma)
+
+
+def _not_shadow(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> np.ndarray:
+    return ~_shadow(lab, bg_lab, params)
 
 
 def _erode(mask: np.ndarray, radius: int) -> np.ndarray:

@@ -1,0 +1,237 @@
+"""Localiser: segmentation + two-view fusion on simulated two-view scenes (issue 4).
+
+For each simulated scene (1-8 parts, all tables and materials) both views are segmented,
+with the empty-table image (the paper's background-subtraction first guess) and, as a second
+run, from the colour image alone; the side-only baseline, the paper's Algorithm 1 and the
+calibrated fusion (table plane only, and with the top depth) are scored:
+
+* detection rate: side-view parts at least ``--min-visib`` visible whose visible box is matched
+  one-to-one by a side instance with box IoU > 0.7 (the paper's criterion);
+* false positives per frame: side instances lying mostly (> 50 %) on bare table;
+* merged blobs split: side foreground blobs holding two or more such parts, counted as split
+  when every one of those parts is detected;
+* side-occluded parts recovered: parts under ``--min-visib`` visible in the side view but
+  visible in the top view, recovered when an instance's top box matches theirs (IoU > 0.7);
+* median milliseconds per view (segmentation) and per pair (fusion).
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+IOU = 0.7
+METHODS = (('side only', 'side_only', False), ('Algorithm 1 (paper)', 'algorithm1', False),
+           ('calibrated, table plane', 'calibrated', False),
+           ('calibrated, top depth', 'calibrated', True))
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--models', type=Path, required=True, help='folder of CAD models (mm)')
+    parser.add_argument('--scenes', type=int, default=200, help='two-view scenes (default 200)')
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--width', type=int, default=640)
+    parser.add_argument('--height', type=int, default=480)
+    parser.add_argument('--min-visib', type=float, default=0.3,
+                        help='side visibility of the scored parts (default 0.3)')
+    parser.add_argument('--no-image-only', action='store_true',
+                        help='skip the run without the empty-table image')
+    parser.add_argument('--out', type=Path, help='write the Markdown table here (+ .png)')
+
+
+def _box_iou(a, b) -> float:
+    ax, ay, aw, ah = a
+    bx, by, bw, bh = b
+    iw = min(ax + aw, bx + bw) - max(ax, bx)
+    ih = min(ay + ah, by + bh) - max(ay, by)
+    if iw <= 0 or ih <= 0:
+        return 0.0
+    inter = iw * ih
+    return inter / float(aw * ah + bw * bh - inter)
+
+
+def _match(gt_boxes: list, pred_boxes: list) -> dict[int, int]:
+    """Greedy one-to-one matching at IoU > 0.7: gt index -> pred index."""
+    pairs = [(_box_iou(g, p), i, j) for i, g in enumerate(gt_boxes)
+             for j, p in enumerate(pred_boxes)]
+    pairs = sorted((p for p in pairs if p[0] > IOU), reverse=True)
+    used_g, used_p, out = set(), set(), {}
+    for _, i, j in pairs:
+        if i not in used_g and j not in used_p:
+            used_g.add(i)
+            used_p.add(j)
+            out[i] = j
+    return out
+
+
+def _score_frame(frame, result, side_blobs, min_visib: float, stats: dict, key: str) -> None:
+    side, top = frame.views['side'], frame.views['top']
+    targets = [k for k, g in enumerate(side.gt) if g.visib_fract >= min_visib]
+    inst = [i for i in result.instances if i.in_side]
+    pred_boxes = [i.box_side for i in inst]
+    matched = _match([side.gt[k].bbox_visib for k in targets], pred_boxes)
+    detected = {targets[i] for i in matched}
+    s = stats[key]
+    s['targets'] += len(targets)
+    s['detected'] += len(detected)
+    for k in targets:
+        mat = frame.objects[k].material
+        s[f'targets:{mat}'] += 1
+        s[f'detected:{mat}'] += k in detected
+    s['frames'] += 1
+    on_part = side.instance >= 0
+    labels = result.labels['side']
+    for i in inst:
+        m = labels == i.instance_id
+        if on_part[m].mean() < 0.5:
+            s['fp'] += 1
+    # Merged blobs of the side segmentation (before any split): do all their parts come out?
+    for blob_targets in side_blobs:
+        s['merged'] += 1
+        s['merged_split'] += all(k in detected for k in blob_targets)
+    # Side-occluded parts seen from the top.
+    top_boxes = [i.box_top for i in result.instances if i.in_top]
+    for k, g in enumerate(side.gt):
+        if g.visib_fract >= min_visib or top.gt[k].visib_fract < min_visib:
+            continue
+        s['occluded'] += 1
+        s['recovered'] += any(_box_iou(top.gt[k].bbox_visib, b) > IOU for b in top_boxes)
+
+
+def _merged_blobs(frame, seg, min_visib: float) -> list[list[int]]:
+    import cv2
+
+    side = frame.views['side']
+    n, comp = cv2.connectedComponents(seg.foreground.astype(np.uint8), connectivity=8)
+    out = []
+    for b in range(1, n):
+        blob = comp == b
+        inside = [k for k, g in enumerate(side.gt) if g.visib_fract >= min_visib
+                  and (blob & g.mask_visib).sum() >= 0.5 * max(g.px_count_visib, 1)]
+        if len(inside) >= 2:
+            out.append(inside)
+    return out
+
+
+def _pct(a: float, b: float) -> str:
+    return f'{100.0 * a / b:.1f} % ({int(a)}/{int(b)})' if b else 'n/a'
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from tlessbot_ros.core.rig import CameraMount, Rig, default_rig
+    from tlessbot_ros.core.segmentation import prepare_background, segment
+    from tlessbot_ros.core.two_view import FusionParams, fuse_views
+    from tlessbot_ros.errors import TlessbotError
+    from tlessbot_ros.io.models import load_models
+    from tlessbot_ros.sim.simulator import Simulator
+
+    if args.scenes < 1:
+        raise TlessbotError('--scenes must be >= 1')
+    models = load_models(args.models)
+    sim = Simulator(models, rig=default_rig(args.width, args.height), seed=args.seed)
+    cue_runs = ['empty-table image'] if args.no_image_only else \
+        ['empty-table image', 'colour image only']
+    stats: dict[str, dict[str, float]] = defaultdict(lambda: defaultdict(float))
+    seg_ms: dict[str, list[float]] = defaultdict(list)
+    fuse_ms: dict[str, list[float]] = defaultdict(list)
+    tables: dict[str, int] = defaultdict(int)
+    for index in tqdm(range(args.scenes), desc='localiser', unit='scene'):
+        frame = sim.frame(index)
+        empty = sim.empty_table(index)
+        table_kind = sim._environment(index).table.kind  # the frame does not carry it
+        tables[table_kind] += 1
+        rig = Rig(cameras={n: CameraMount(n, v.intrinsics, v.T_world_camera)
+                           for n, v in frame.views.items()})
+        depth_top = frame.views['top'].depth_mm.astype(np.float32) / 1000.0
+        for cues in cue_runs:
+            segs = {}
+            for name, view in frame.views.items():
+                background = prepare_background(empty[name].rgb) \
+                    if cues == 'empty-table image' else None
+                segs[name] = segment(view.rgb, background=background)
+                seg_ms[cues].append(segs[name].timings_ms['total'])
+            blobs = _merged_blobs(frame, segs['side'], args.min_visib)
+            for label, method, use_depth in METHODS:
+                result = fuse_views(segs['top'], segs['side'], rig=rig,
+                                    depth_top_m=depth_top if use_depth else None,
+                                    side_rgb=frame.views['side'].rgb,
+                                    params=FusionParams(method=method))
+                fuse_ms[f'{cues}|{label}'].append(result.timings_ms['total'])
+                for key in (f'{cues}|{label}', f'{cues}|{label}|{table_kind}'):
+                    _score_frame(frame, result, blobs, args.min_visib, stats, key)
+    text = _report(args, stats, seg_ms, fuse_ms, tables, cue_runs)
+    print(text)
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text, encoding='utf-8')
+        _plot(args.out.with_suffix('.png'), stats, cue_runs)
+        print(f'wrote {args.out} and {args.out.with_suffix(".png")}')
+    return 0
+
+
+def _report(args, stats, seg_ms, fuse_ms, tables, cue_runs) -> str:
+    from tlessbot_ros.sim.materials import MATERIALS
+
+    lines = [f'# Localiser benchmark: {args.scenes} simulated two-view scenes '
+             f'({args.width}x{args.height}, seed {args.seed})', '',
+             'Tables: ' + ', '.join(f'{k} {v}' for k, v in sorted(tables.items())) +
+             f'. Scored parts: side visibility >= {args.min_visib:.0%}; detection = visible box '
+             f'matched one-to-one at IoU > {IOU}.', '']
+    for cues in cue_runs:
+        med = statistics.median(seg_ms[cues]) if seg_ms[cues] else float('nan')
+        lines += [f'## Segmentation with the {cues}', '',
+                  f'Segmentation: median {med:.1f} ms per view '
+                  f'(p90 {np.percentile(seg_ms[cues], 90):.1f} ms).', '',
+                  '| method | detection rate | false positives / frame | merged blobs split | '
+                  'side-occluded recovered from top | fusion ms (median) |',
+                  '|---|---|---|---|---|---|']
+        for label, _, _ in METHODS:
+            s = stats[f'{cues}|{label}']
+            lines.append(
+                f"| {label} | {_pct(s['detected'], s['targets'])} | "
+                f"{s['fp'] / max(s['frames'], 1):.2f} | {_pct(s['merged_split'], s['merged'])} "
+                f"| {_pct(s['recovered'], s['occluded'])} | "
+                f"{statistics.median(fuse_ms[f'{cues}|{label}']):.1f} |")
+        label = METHODS[-1][0]
+        s = stats[f'{cues}|{label}']
+        lines += ['', f'Detection rate of "{label}" per material and per table:', '',
+                  '| ' + ' | '.join(list(MATERIALS) + sorted(tables)) + ' |',
+                  '|' + '---|' * (len(MATERIALS) + len(tables))]
+        cells = [_pct(s[f'detected:{m}'], s[f'targets:{m}']) for m in MATERIALS]
+        for kind in sorted(tables):
+            t = stats[f'{cues}|{label}|{kind}']
+            cells.append(_pct(t['detected'], t['targets']))
+        lines += ['| ' + ' | '.join(cells) + ' |', '']
+    lines.append(f'Re-run: tlessbot bench localiser --models DIR --scenes {args.scenes} '
+                 f'--seed {args.seed}')
+    return '\n'.join(lines) + '\n'
+
+
+def _plot(path: Path, stats, cue_runs) -> None:
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    width = 0.8 / len(cue_runs)
+    x = np.arange(len(METHODS))
+    for j, cues in enumerate(cue_runs):
+        rates = []
+        for label, _, _ in METHODS:
+            s = stats[f'{cues}|{label}']
+            rates.append(100.0 * s['detected'] / max(s['targets'], 1))
+        ax.bar(x + j * width, rates, width, label=cues)
+    ax.axhline(95, color='k', lw=0.8, ls='--')
+    ax.set_xticks(x + width * (len(cue_runs) - 1) / 2, [m[0] for m in METHODS], fontsize=8)
+    ax.set_ylabel(f'side detection rate at IoU > {IOU} (%)')
+    ax.set_ylim(0, 100)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
