@@ -86,9 +86,9 @@ class PoseParams:
     max_stable_poses: int = 4
     min_stable_probability: float = 0.02
     table_voxel_scale: float = 1.5
-    score_points: int = 200
-    top_k: int = 4
-    planar_iterations: int = 6
+    score_points: int = 250
+    top_k: int = 6
+    planar_iterations: int = 8
     icp_iterations: int = 8
     icp_distance_voxels: float = 1.5
     icp_points: int = 300
@@ -288,11 +288,11 @@ class PoseEstimator:
         centroid = scene_w.mean(axis=0)
 
         # Hypotheses: (stable pose, yaw) -> T_world_object, the position on the table set by
-        # matching the centroid of the model surface facing the camera (seen from far: one
-        # viewing direction) to the ROI centroid.
+        # matching the centroid of the model surface facing the camera (back-face test) to the
+        # ROI centroid.
         order = np.argsort(-obj.stable_probabilities)
         model, normals = self._model_subset(obj)
-        view = camera_w - centroid
+        view = camera_w - np.array([centroid[0], centroid[1], 0.0])
         poses, stable_ids = [], []
         for s in order[:p.max_stable_poses]:
             if obj.stable_probabilities[s] < p.min_stable_probability and poses:
@@ -306,8 +306,9 @@ class PoseEstimator:
             T_s = obj.stable_poses[s]
             m_s = model @ T_s[:3, :3].T + T_s[:3, 3]                # resting, yaw 0
             n_s = normals @ T_s[:3, :3].T
-            # (Rz n) . view > 0  <=>  n . (Rz^T view) > 0
-            visible = (n_s @ (view @ Rz).T > 0).astype(np.float64)  # (M, Y)
+            # (Rz n) . (view - Rz m) > 0  <=>  n . (Rz^T view) - n . m > 0
+            visible = (n_s @ (view @ Rz).T - np.sum(n_s * m_s, axis=1)[:, None] > 0
+                       ).astype(np.float64)                          # (M, Y)
             count = np.maximum(visible.sum(axis=0), 1.0)
             m_vis = (visible.T @ m_s) / count[:, None]               # (Y, 3), before the yaw
             m_vis = np.einsum('yij,yj->yi', Rz, m_vis)
@@ -325,21 +326,21 @@ class PoseEstimator:
         _, dist = grid.lookup(self._to_object(T_all, sub), outside=tau)
         cost = np.minimum(dist, tau).mean(axis=1)
         keep = np.argsort(cost)[:p.top_k]
-        T_top, cost_top = self._planar_refine(T_all[keep], sub, obj, grid, tau=tau)
-        order = np.argsort(cost_top)
+        T_top, _ = self._planar_refine(T_all[keep], sub, obj, grid, tau=voxel)
+        # Rank the refined hypotheses by fitness (sharper than the grid's truncated distance),
+        # then ICP the best and the best different one.
         T_camera_world = invert_transform(T_world_camera)
-        T_best = T_camera_world @ T_top[order[0]]
-        picked = [(T_best, int(stable_ids_arr[keep][order[0]]), p.icp_iterations)]
-        for k in order[1:]:  # second best: the best one that is a different pose
-            T_k = T_camera_world @ T_top[k]
-            if _differs(T_k, T_best):
-                picked.append((T_k, int(stable_ids_arr[keep][k]), max(p.icp_iterations // 3, 1)))
-                break
         scene_tree = cKDTree(scene_c)
-        out = [self._evaluate(scene_c, obj, self._icp(scene_c, obj, T, iterations=n),
-                              method='table', stable=s, scene_tree=scene_tree)
-               for T, s, n in picked]
-        return self._rank(out)
+        ranked = self._rank([self._evaluate(scene_c, obj, T_camera_world @ T_wo,
+                                            method='table', stable=int(s),
+                                            scene_tree=scene_tree)
+                             for T_wo, s in zip(T_top, stable_ids_arr[keep])])
+        best, second = self._best_two(ranked)
+        return self._rank([self._evaluate(scene_c, obj, self._icp(scene_c, obj,
+                                                                  c.T_camera_object),
+                                          method='table', stable=c.stable_index,
+                                          scene_tree=scene_tree)
+                           for c in (best, second) if c is not None])
 
     @staticmethod
     def _model_subset(obj: ObjectTemplates, count: int = 800) -> tuple[np.ndarray, np.ndarray]:
