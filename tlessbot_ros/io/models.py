@@ -260,44 +260,13 @@ def _rotation_to_minus_z(n: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * K + (1 - c) * K @ K
 
 
-def _facets(hull) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Coplanar hull triangles grouped: (facet index per triangle, triangles per facet)."""
+def _facets(hull) -> tuple[np.ndarray, np.ndarray]:
+    """Coplanar hull triangles grouped: (facet index per triangle, one triangle per facet)."""
     eq = hull.equations
     scale = max(float(np.ptp(hull.points, axis=0).max()), 1e-9)
     key = np.round(np.c_[eq[:, :3] * 1e4, eq[:, 3] / scale * 1e4]).astype(np.int64)
-    _, label = np.unique(key, axis=0, return_inverse=True)
-    label = label.ravel()
-    groups = [np.flatnonzero(label == k) for k in range(label.max() + 1)]
-    return label, groups
-
-
-def _inside_facet(p: np.ndarray, tris: np.ndarray, normal: np.ndarray, margin: float) -> bool:
-    """Is point ``p`` (on the facet plane) inside one of the facet's (T, 3, 3) triangles?"""
-    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
-    for e0, e1 in ((a, b), (b, c), (c, a)):
-        side = np.einsum('ij,j->i', np.cross(e1 - e0, p - e0), normal)
-        edge = np.linalg.norm(e1 - e0, axis=1)
-        ok = side >= margin * edge
-        if e0 is a:
-            inside = ok
-        else:
-            inside &= ok
-    return bool(inside.any())
-
-
-def _closest_point_on_triangles(p: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """Closest point to ``p`` over the (T, 3, 3) coplanar triangles (p lies in their plane)."""
-    best, best_d = None, np.inf
-    for tri in tris:
-        for i in range(3):
-            a, b = tri[i], tri[(i + 1) % 3]
-            ab = b - a
-            t = np.clip(np.dot(p - a, ab) / max(np.dot(ab, ab), 1e-30), 0.0, 1.0)
-            q = a + t * ab
-            d = np.linalg.norm(p - q)
-            if d < best_d:
-                best, best_d = q, d
-    return best
+    _, first, label = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return label.ravel(), first
 
 
 def stable_poses(model: ObjectModel, *, min_probability: float = 0.0) -> list[StablePose]:
@@ -323,57 +292,63 @@ def stable_poses(model: ObjectModel, *, min_probability: float = 0.0) -> list[St
 
     com = centre_of_mass(model.vertices, model.faces)
     hull = ConvexHull(model.vertices)
-    label, groups = _facets(hull)
+    label, first_tri = _facets(hull)
+    n_facets = len(first_tri)
     points = hull.points
     tri_pts = points[hull.simplices]
     omega = _solid_angle(tri_pts[:, 0] - com, tri_pts[:, 1] - com, tri_pts[:, 2] - com)
-    facet_omega = np.bincount(label, weights=omega, minlength=len(groups))
-    normals = np.array([hull.equations[g[0], :3] for g in groups])
-    offsets = np.array([hull.equations[g[0], 3] for g in groups])
-    # Edge -> facets, to find the neighbour across a tipping edge.
-    edge_facets: dict[tuple[int, int], set[int]] = {}
-    for t, simplex in enumerate(hull.simplices):
-        for i in range(3):
-            e = tuple(sorted((int(simplex[i]), int(simplex[(i + 1) % 3]))))
-            edge_facets.setdefault(e, set()).add(int(label[t]))
-    margin = 1e-6 * model.diameter_m
-    next_facet = np.arange(len(groups))
-    for f, g in enumerate(groups):
-        n = normals[f]
-        p = com - (np.dot(n, com) + offsets[f]) * n
-        tris = points[hull.simplices[g]]
-        if _inside_facet(p, tris, n, margin):
-            continue
-        q = _closest_point_on_triangles(p, tris)
-        # The pivot edge holds q; the next facet is the neighbour across it whose plane the
-        # centre of mass falls towards (the one whose normal is closest to the tipping direction).
-        tip = (p - q) / max(np.linalg.norm(p - q), 1e-30)
-        best, best_score = f, -np.inf
-        for simplex in hull.simplices[g]:
-            for i in range(3):
-                a, b = points[simplex[i]], points[simplex[(i + 1) % 3]]
-                ab = b - a
-                t = np.clip(np.dot(q - a, ab) / max(np.dot(ab, ab), 1e-30), 0.0, 1.0)
-                if np.linalg.norm(a + t * ab - q) > 1e-9:
-                    continue
-                e = tuple(sorted((int(simplex[i]), int(simplex[(i + 1) % 3]))))
-                for other in edge_facets.get(e, ()):
-                    if other == f:
-                        continue
-                    score = float(np.dot(normals[other], tip))
-                    if score > best_score:
-                        best, best_score = other, score
-        next_facet[f] = best
+    facet_omega = np.bincount(label, weights=omega, minlength=n_facets)
+    normals = hull.equations[first_tri, :3]
+    offsets = hull.equations[first_tri, 3]
+    # Centre of mass projected onto each triangle's (= its facet's) plane.
+    n_t = normals[label]
+    p_t = com - (n_t @ com + offsets[label])[:, None] * n_t
+    # Edge i of a triangle is opposite vertex i; hull.neighbors[t, i] shares that edge.
+    a = tri_pts[:, [1, 2, 0]]
+    b = tri_pts[:, [2, 0, 1]]
+    ab = b - a
+    ap = p_t[:, None, :] - a
+    edge_len = np.linalg.norm(ab, axis=2)
+    # qhull does not orient its simplices: measure sides relative to each triangle's winding.
+    winding = np.sign(np.einsum('tj,tj->t', np.cross(tri_pts[:, 1] - tri_pts[:, 0],
+                                                     tri_pts[:, 2] - tri_pts[:, 0]), n_t))
+    side = np.einsum('tij,tj->ti', np.cross(ab, ap), n_t) * winding[:, None]
+    nbr_f = label[hull.neighbors]
+    interior = nbr_f == label[:, None]  # edges between two triangles of the same facet
+    margin = np.where(interior, -1e-6, 1e-6) * model.diameter_m * edge_len
+    inside_t = np.all(side >= margin, axis=1)
+    stable_f = np.bincount(label, weights=inside_t, minlength=n_facets) > 0
+    # Unstable facet: it tips over the boundary edge nearest to the projected centre of mass
+    # onto the neighbouring facet across it (ties at a corner: the neighbour whose normal leans
+    # most toward the centre of mass).
+    t = np.clip(np.einsum('tij,tij->ti', ap, ab) / np.maximum(edge_len ** 2, 1e-30), 0.0, 1.0)
+    q = a + t[..., None] * ab
+    dist = np.linalg.norm(p_t[:, None, :] - q, axis=2)
+    dist[interior] = np.inf
+    facet_of_edge = np.repeat(label, 3)
+    nearest = np.full(n_facets, np.inf)
+    np.minimum.at(nearest, facet_of_edge, dist.ravel())
+    cand = dist.ravel() <= nearest[facet_of_edge] + 1e-9 * model.diameter_m
+    cand &= ~stable_f[facet_of_edge]
+    tip = (p_t[:, None, :] - q).reshape(-1, 3)[cand]
+    tip /= np.maximum(np.linalg.norm(tip, axis=1, keepdims=True), 1e-30)
+    c_facet = facet_of_edge[cand]
+    c_next = nbr_f.ravel()[cand]
+    score = np.sum(normals[c_next] * tip, axis=1)
+    order = np.lexsort((-score, c_facet))
+    first = np.unique(c_facet[order], return_index=True)[1]
+    next_facet = np.arange(n_facets)
+    next_facet[c_facet[order][first]] = c_next[order][first]
     # Follow the tipping chains (the centre of mass drops at each step, so they end).
-    final = np.arange(len(groups))
-    for f in range(len(groups)):
+    final = np.arange(n_facets)
+    for f in range(n_facets):
         seen, cur = set(), f
         while next_facet[cur] != cur and cur not in seen:
             seen.add(cur)
             cur = next_facet[cur]
         final[f] = cur
-    share = np.bincount(final, weights=facet_omega, minlength=len(groups)) / (4.0 * np.pi)
-    stable = [f for f in range(len(groups)) if next_facet[f] == f and share[f] > 0]
+    share = np.bincount(final, weights=facet_omega, minlength=n_facets) / (4.0 * np.pi)
+    stable = [f for f in range(n_facets) if stable_f[f] and share[f] > 0]
     total = sum(share[f] for f in stable)
     poses = []
     for f in sorted(stable, key=lambda f: -share[f]):
