@@ -670,6 +670,9 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         t = lap('hed', t)
     if 'lab' in methods:
         cand, sure_l = lab_masks(lab, params, reference=bg_lab)
+        if not_shadow is not None:
+            cand &= not_shadow
+            sure_l &= not_shadow
         cues['lab'] = cand
         candidate |= cand
         sure |= sure_l

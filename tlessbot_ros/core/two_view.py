@@ -55,6 +55,10 @@ class FusionParams:
         min_visible_px: a prediction with fewer visible side pixels than this is treated as
             occluded in the side view.
         seed_erode_px: predicted regions are eroded by this radius before seeding the split.
+        fragment_fraction: a side blob matching no prediction by the rules above but lying
+            at least this much inside one joins it (fragments of one part share its id).
+        drop_unpredicted: drop side blobs that no top blob predicts (fewer false positives
+            when the top view sees the whole work area; off by default).
         box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
             in a side box.
     """
@@ -69,6 +73,8 @@ class FusionParams:
     min_visible_px: int = 40
     seed_erode_px: int = 2
     box_margin_px: int = 6
+    fragment_fraction: float = 0.5
+    drop_unpredicted: bool = False
 
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:
@@ -386,6 +392,13 @@ def _calibrated(top: Segmentation, side: Segmentation, rig: Rig,
                   and pred_area[k] >= params.min_visible_px
                   and overlap[b, k] >= params.min_overlap_fraction * pred_area[k]]
         blob = blobs == b
+        if not owners and n_top > 0:
+            # A fragment (e.g. of a dark part on a dark square) lying inside one prediction.
+            best = int(np.argmax(overlap[b, 1:])) + 1
+            if overlap[b, best] >= params.fragment_fraction * blob.sum():
+                owners = [best]
+        if not owners and params.drop_unpredicted:
+            continue
         if not owners:
             # Not predicted from the top: keep the side segmentation's own instances.
             for j in np.unique(side.labels[blob]):
