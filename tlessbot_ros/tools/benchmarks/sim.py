@@ -8,6 +8,7 @@ Model loading and the per-model caches (resting poses, hulls) are timed separate
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -43,11 +44,13 @@ def run(args: argparse.Namespace) -> int:
     t_warm = time.perf_counter() - t0
     sim.timings.clear()
     parts = 0
+    c0 = time.process_time()
     t0 = time.perf_counter()
     for index in tqdm(range(args.frames), desc='bench sim', unit='frame',
                       disable=args.no_progress):
         parts += len(sim.frame(index).objects)
     total = time.perf_counter() - t0
+    cpu = time.process_time() - c0
     n = args.frames
     views = len(sim.rig.cameras)
     print(f'simulator: {n} frames x {views} views at {args.width}x{args.height}, '
@@ -55,6 +58,9 @@ def run(args: argparse.Namespace) -> int:
     print(f'  model loading {t_load:.2f} s, resting poses + hulls {t_warm:.2f} s')
     print(f'  total {total:.2f} s = {1000 * total / n:.0f} ms/frame '
           f'({1000 * total / (n * views):.0f} ms/view)')
+    load = os.getloadavg()[0] if hasattr(os, 'getloadavg') else float('nan')
+    print(f'  CPU time {cpu:.2f} s = {1000 * cpu / n:.0f} ms/frame (all threads); '
+          f'load average {load:.1f} on {os.cpu_count()} cores')
     print('  | stage | ms/frame | share |')
     print('  |---|---:|---:|')
     accounted = sum(sim.timings.values())
