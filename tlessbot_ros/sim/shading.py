@@ -191,6 +191,51 @@ def material_arrays(materials: list[Material], instance: np.ndarray,
     }
 
 
+def shade_render(result, T_world_camera: np.ndarray, materials: list[Material], light: Light,
+                 *, background: np.ndarray | None = None, exposure: float = 1.0,
+                 albedo_scale: np.ndarray | None = None, scene=None) -> np.ndarray:
+    """Colour image of a :class:`~tlessbot_ros.core.render.RenderResult`.
+
+    Args:
+        result: the render (depth, instance, normals_c, ray_dirs_c) of a camera at
+            ``T_world_camera`` (4x4, optical frame -> world).
+        materials: one :class:`Material` per mesh index of the render.
+        light: lamp and ambient (world frame).
+        background: (H, W, 3) float32 linear radiance behind the meshes (what translucent parts
+            let through), or None for black.
+        exposure: radiance scale before the display gamma.
+        albedo_scale: (len(materials),) per-mesh brightness factors, or None.
+        scene: an ``open3d.t.geometry.RaycastingScene`` of the occluders (world frame) for cast
+            shadows on the meshes, or None for no shadows.
+
+    Returns:
+        (H, W, 3) uint8 RGB (display gamma 1/2.2).
+    """
+    h, w = result.depth_m.shape
+    radiance = (np.zeros((h, w, 3), np.float32) if background is None
+                else np.array(background, dtype=np.float32, copy=True))
+    part = result.instance >= 0
+    if part.any():
+        rows, cols = np.nonzero(part)
+        R = np.asarray(T_world_camera[:3, :3], np.float32)
+        eye = np.asarray(T_world_camera[:3, 3], np.float32)
+        rays = result.ray_dirs_c[rows, cols]
+        # ray_dirs_c are unit rays: the point is at depth / cos(angle to the optical axis).
+        pts_c = rays * (result.depth_m[rows, cols] / rays[:, 2])[:, None]
+        pts_w = pts_c @ R.T + eye
+        n_w = result.normals_c[rows, cols] @ R.T
+        mats = material_arrays(materials, result.instance[rows, cols], albedo_scale)
+        lit = cast_shadows(scene, pts_w, n_w, light) if scene is not None else None
+        shaded = blinn_phong(pts_w, n_w, eye, mats['albedo'], mats['specular'],
+                             mats['shininess'], light, lit=lit,
+                             translucency=mats['translucency'])
+        tint = mats['albedo'] / np.maximum(mats['albedo'].max(axis=1, keepdims=True), 1e-6)
+        bleed = (0.4 * mats['translucency'])[:, None]
+        radiance[rows, cols] = ((1.0 - bleed) * shaded.radiance
+                                + bleed * radiance[rows, cols] * tint)
+    return to_srgb8(radiance, exposure)
+
+
 _GAMMA_LUT = np.rint(255.0 * np.linspace(0.0, 1.0, 4096) ** (1.0 / 2.2)).astype(np.uint8)
 
 
