@@ -88,12 +88,16 @@ def depth_edges(depth_m: np.ndarray, params: DepthNoiseParams) -> np.ndarray:
 
 
 def _blobs(seeds: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Grow single-pixel holes into 1-3 px blobs."""
+    """Grow single-pixel holes into 1-3 px blobs (each neighbour joins with probability 1/2)."""
     if not seeds.any():
         return seeds
     grown = cv2.dilate(seeds.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-    keep = rng.random(seeds.shape) < 0.5
-    return seeds | (grown & keep)
+    grown &= ~seeds
+    rows, cols = np.nonzero(grown)
+    keep = rng.random(len(rows)) < 0.5
+    out = seeds.copy()
+    out[rows[keep], cols[keep]] = True
+    return out
 
 
 def add_depth_noise(depth_m: np.ndarray, focal_px: float, rng: np.random.Generator,
@@ -133,18 +137,22 @@ def add_depth_noise(depth_m: np.ndarray, focal_px: float, rng: np.random.Generat
         coarse = rng.standard_normal((h // c + 2, w // c + 2), dtype=np.float32)
         smooth = cv2.resize(coarse, (w + 2 * c, h + 2 * c), interpolation=cv2.INTER_LINEAR)
         smooth = smooth[c:c + h, c:c + w]
-        smooth /= max(float(smooth.std()), 1e-6)
+        smooth /= max(float(smooth[::3, ::3].std()), 1e-6)
         a = np.sqrt(params.correlated_share)
         b = np.sqrt(1.0 - params.correlated_share)
         noisy = depth_m + sigma * (a * smooth + b * white)
-        drop = depth_edges(depth_m, params) & (rng.random((h, w)) < min(1.0, params.edge_dropout
-                                                                         * s))
-        drop |= _blobs(rng.random((h, w)) < params.random_holes * s, rng)
+        # One uniform draw serves edge dropout (low end) and random holes (high end).
+        u = rng.random((h, w), dtype=np.float32)
+        drop = depth_edges(depth_m, params) & (u < min(1.0, params.edge_dropout * s))
+        holes = u > 1.0 - params.random_holes * s
         if highlight is not None and ir_dropout is not None:
-            strong = np.clip((highlight - params.highlight_threshold)
-                             / (1.0 - params.highlight_threshold), 0, 1)
-            p = np.clip(ir_dropout * strong * s * 4.0, 0, 1)
-            drop |= _blobs(rng.random((h, w)) < p, rng)
+            rows, cols = np.nonzero((highlight > params.highlight_threshold) & (ir_dropout > 0))
+            strong = ((highlight[rows, cols] - params.highlight_threshold)
+                      / (1.0 - params.highlight_threshold))
+            p = np.clip(ir_dropout[rows, cols] * strong * s * 4.0, 0, 1)
+            hit = rng.random(len(rows)) < p
+            holes[rows[hit], cols[hit]] = True
+        drop |= _blobs(holes, rng)
         valid &= ~drop
     if params.projector_shadow and params.baseline_m > 0:
         valid &= ~stereo_shadow(depth_m, focal_px, params.baseline_m)
