@@ -6,8 +6,10 @@ augmentation (30 objects × 4 × 360 × 4 = 172,800 crops). Here the same protoc
 from the CAD models:
 
 - the part rests on the plate in one of its stable poses (:func:`tlessbot_ros.io.models.
-  stable_poses`); position ``k`` puts it ``position_radius_m`` off the plate centre and uses the
-  ``k``-th most probable resting pose, so the four positions also show the part lying differently;
+  stable_poses`), drawn per view with its drop probability, so the training views show parts
+  lying as they land on the table (a physical session would re-lay the part now and then; a
+  fixed pose per position left e.g. rolling cylinders, which mostly lie on their side, seen
+  upright only); position ``k`` puts it ``position_radius_m`` off the plate centre;
 - the plate turns in ``step_deg`` steps (the camera orbits the plate, which is the same thing for
   a static scene); the camera's elevation and distance are drawn per step from ranges that
   cover the cell's top (≈ 90°, 1.1 m) and side (≈ 50–90°, 0.5–0.8 m) views, where the paper's
@@ -62,7 +64,9 @@ class TurntableParams:
         occlusion_prob: chance that an augmented copy loses part of its silhouette.
         occlusion_max_frac: largest fraction of the silhouette cut away.
         noise_sigma: (min, max) standard deviation of Gaussian pixel noise (grey levels).
-        min_pose_probability: resting poses rarer than this are not used.
+        min_pose_probability: resting poses rarer than this are not used (0 keeps all: a
+            rolling part has many rare facet poses that together are its most likely way to
+            lie).
     """
 
     positions: int = 4
@@ -78,7 +82,7 @@ class TurntableParams:
     occlusion_prob: float = 0.3
     occlusion_max_frac: float = 0.35
     noise_sigma: tuple[float, float] = (1.0, 5.0)
-    min_pose_probability: float = 0.02
+    min_pose_probability: float = 0.0
 
     def __post_init__(self) -> None:
         if self.positions < 1:
@@ -217,9 +221,7 @@ class Turntable:
     def __len__(self) -> int:
         return len(self.models) * self.params.views_per_object()
 
-    def _placement(self, model: ObjectModel, position: int) -> np.ndarray:
-        poses = stable_poses(model, min_probability=self.params.min_pose_probability)
-        pose = poses[position % len(poses)].T_table_object
+    def _placement(self, pose: np.ndarray, position: int) -> np.ndarray:
         phi = 2.0 * np.pi * position / self.params.positions
         offset = self.params.position_radius_m * np.array([np.cos(phi), np.sin(phi), 0.0])
         return make_transform(np.eye(3), offset) @ pose
@@ -229,16 +231,22 @@ class Turntable:
         """All samples of one object at one position (each step: plain view then its copies)."""
         model = self.models[obj_id]
         p = self.params
-        T_world_object = self._placement(model, position)
-        renderer = MeshRenderer()
-        renderer.add_mesh(model.vertices, model.faces, T_world_object)
-        corners = transform_points(T_world_object, _box_corners(model.vertices))
-        centre = corners.mean(axis=0)
-        plate_centre = np.zeros(3)
+        poses = stable_poses(model, min_probability=p.min_pose_probability)
+        probs = np.array([pose.probability for pose in poses])
+        probs /= probs.sum()
+        placed: dict[int, tuple] = {}  # resting pose index -> (renderer, box corners, centre)
         for step in (range(p.steps) if steps is None else steps):
             rng = np.random.default_rng([self.seed, obj_id, position, step])
+            pose_index = int(rng.choice(len(poses), p=probs))
+            if pose_index not in placed:
+                T_world_object = self._placement(poses[pose_index].T_table_object, position)
+                renderer = MeshRenderer()
+                renderer.add_mesh(model.vertices, model.faces, T_world_object)
+                corners = transform_points(T_world_object, _box_corners(model.vertices))
+                placed[pose_index] = (renderer, corners, corners.mean(axis=0))
+            renderer, corners, centre = placed[pose_index]
             angle = step * p.step_deg
-            T_world_camera = self._camera(angle, centre, plate_centre, rng)
+            T_world_camera = self._camera(angle, centre, rng)
             rgb, mask = self._render(renderer, corners, T_world_camera, rng)
             if not mask.any():
                 continue
@@ -253,7 +261,7 @@ class Turntable:
             for position in range(self.params.positions):
                 yield from self.views(obj_id, position)
 
-    def _camera(self, angle_deg: float, centre: np.ndarray, plate_centre: np.ndarray,
+    def _camera(self, angle_deg: float, centre: np.ndarray,
                 rng: np.random.Generator) -> np.ndarray:
         p = self.params
         elevation = np.radians(rng.uniform(*p.elevation_deg))
