@@ -21,7 +21,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from tlessbot_ros.core.geometry import CameraIntrinsics, project_points, transform_points
+from tlessbot_ros.core.geometry import (
+    CameraIntrinsics,
+    invert_transform,
+    project_points,
+    transform_points,
+)
 from tlessbot_ros.core.rig import CameraMount, Rig, default_rig
 from tlessbot_ros.io.models import ObjectModel
 from tlessbot_ros.sim import shading
@@ -433,7 +438,8 @@ class Simulator:
             lit_part = None
             if p.shadows:
                 lit_part = _lit(scene, pts_w, n_w, env.light)
-                self._shadow_table(radiance, table_d, table_xy, part, T, env, scene, meshes_w)
+                self._shadow_table(radiance, table_d, table_xy, part, T, intr.K, env, scene,
+                                   meshes_w)
             shaded = shading.blinn_phong(pts_w, n_w, eye, mats['albedo'], mats['specular'],
                                          mats['shininess'], env.light, lit=lit_part,
                                          translucency=mats['translucency'])
@@ -466,8 +472,8 @@ class Simulator:
         return SimulatedView(cam.name, intr, T, rgb, depth_mm, depth, instance, gt)
 
     def _shadow_table(self, radiance: np.ndarray, table_d: np.ndarray, table_xy: np.ndarray,
-                      part: np.ndarray, T: np.ndarray, env: _Environment, occluders,
-                      meshes_w: list) -> None:
+                      part: np.ndarray, T: np.ndarray, intr_K: np.ndarray, env: _Environment,
+                      occluders, meshes_w: list) -> None:
         """Darken the table where the parts cast shadows (rays only where a shadow can fall)."""
         light = np.asarray(env.light.position_w, np.float64)
         # Each part's shadow lies inside the box of its vertices projected from the lamp onto
@@ -479,10 +485,23 @@ class Simulator:
             xy = light[:2] + (v[:, :2] - light[:2]) * s[:, None]
             boxes.append((xy.min(axis=0), xy.max(axis=0)))
         table_free = (table_d > 0) & ~part
-        x, y = table_xy[..., 0], table_xy[..., 1]
+        h, w = table_d.shape
+        T_cw = invert_transform(T)
         cand = np.zeros_like(table_free)
         for lo, hi in boxes:
-            cand |= (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1])
+            # Test table points only inside the image rectangle of the shadow box's corners.
+            corners = np.array([[lo[0], lo[1], 0], [hi[0], lo[1], 0], [lo[0], hi[1], 0],
+                                [hi[0], hi[1], 0]])
+            pts_c = transform_points(T_cw, corners)
+            if np.any(pts_c[:, 2] <= 1e-3):
+                r0, r1, c0, c1 = 0, h, 0, w
+            else:
+                uv = project_points(pts_c, intr_K)
+                c0, r0 = np.clip(np.floor(uv.min(axis=0)).astype(int) - 1, 0, [w, h])
+                c1, r1 = np.clip(np.ceil(uv.max(axis=0)).astype(int) + 2, 0, [w, h])
+            x = table_xy[r0:r1, c0:c1, 0]
+            y = table_xy[r0:r1, c0:c1, 1]
+            cand[r0:r1, c0:c1] |= (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1])
         cand &= table_free
         if not cand.any():
             return
