@@ -49,26 +49,3 @@ def test_edges_and_highlights_make_holes():
     assert (out[:, :20] == 0).mean() > 0.5
     assert (out[:, 25:45] == 0).mean() < 0.01
 
-
-def test_shade_render_of_a_core_render(tless_models_dir):
-    from tlessbot_ros.core.render import MeshRenderer
-    from tlessbot_ros.core.rig import default_rig
-    from tlessbot_ros.io.models import load_models
-    from tlessbot_ros.sim.materials import BLACK, LIGHT_YELLOW, Light
-    from tlessbot_ros.sim.shading import shade_render
-
-    model = load_models(tless_models_dir, ids=[6])[6]
-    cam = default_rig(160, 120)['side']
-    T = np.eye(4)
-    T[2, 3] = 0.03
-    renderer = MeshRenderer()
-    renderer.add_mesh(model.vertices, model.faces, T)
-    result = renderer.render(cam.intrinsics, cam.T_world_camera)
-    light = Light((0.3, -0.5, 1.5))
-    grey = np.full((120, 160, 3), 0.2, np.float32)
-    yellow = shade_render(result, cam.T_world_camera, [LIGHT_YELLOW], light, background=grey)
-    black = shade_render(result, cam.T_world_camera, [BLACK], light, background=grey)
-    part = result.instance == 0
-    assert part.sum() > 100 and yellow.dtype == np.uint8
-    assert np.array_equal(yellow[~part], black[~part])  # background untouched
-    assert yellow[part].mean() > black[part].mean() + 60
