@@ -93,3 +93,24 @@ def test_stable_poses_of_a_box_are_its_faces():
     top = poses[0].T_table_object[:3, :3]
     assert abs(top[2] @ np.array([0, 0, 1.0])) == pytest.approx(1.0)
     assert poses[0].probability > poses[-1].probability
+
+
+def test_merge_rolling_poses_of_a_cylinder():
+    import trimesh
+
+    from tlessbot_ros.io.models import ObjectModel
+
+    cyl = trimesh.creation.cylinder(radius=0.015, height=0.1, sections=64)
+    v = np.asarray(cyl.vertices, dtype=np.float64)
+    model = ObjectModel(obj_id=99, vertices=v, faces=np.asarray(cyl.faces, np.int32),
+                        diameter_m=0.104, extent_m=np.ptp(v, axis=0))
+    many = stable_poses(model)
+    merged = stable_poses(model, merge_rolling=True)
+    assert len(many) > 60  # one pose per side strip + 2 ends
+    assert len(merged) == 3
+    assert sum(p.probability for p in merged) == pytest.approx(1.0)
+    side = merged[0].T_table_object
+    # Lying on the side: the cylinder axis (model z) is horizontal and most likely.
+    assert abs(side[2, 2]) < 1e-6 and merged[0].probability > 0.5
+    for pose in merged[1:]:
+        assert abs(pose.T_table_object[2, 2]) == pytest.approx(1.0)

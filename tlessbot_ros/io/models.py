@@ -269,7 +269,9 @@ def _facets(hull) -> tuple[np.ndarray, np.ndarray]:
     return label.ravel(), first
 
 
-def stable_poses(model: ObjectModel, *, min_probability: float = 0.0) -> list[StablePose]:
+def stable_poses(model: ObjectModel, *, min_probability: float = 0.0,
+                 merge_rolling: bool = False, rolling_angle_deg: float = 10.0
+                 ) -> list[StablePose]:
     """Resting poses of ``model`` on a horizontal plane, most probable first.
 
     Quasi-static drop model: the part rests on a face of its convex hull; a face is stable when
@@ -277,15 +279,19 @@ def stable_poses(model: ObjectModel, *, min_probability: float = 0.0) -> list[St
     to its solid angle seen from the centre of mass (a random orientation of the gravity vector);
     an unstable face tips over the edge nearest to the projected centre of mass onto the
     neighbouring face, until a stable face is reached, and passes its share on. Curved parts get
-    one pose per hull facet of their rolling surface (each with a small probability).
+    one pose per hull facet of their rolling surface (each with a small probability); with
+    ``merge_rolling`` the resting facets reached from adjacent hull facets whose normals differ
+    by less than ``rolling_angle_deg``, at the same height of the centre of mass (within
+    max(0.5 mm, 1 % of the diameter): neutral equilibrium), count as one pose (lying on the
+    curved side), represented by its most probable facet and carrying the summed probability.
 
-    Results are cached on the model per ``min_probability``.
+    Results are cached on the model per option set.
 
     Returns:
         list of :class:`StablePose` with probability >= ``min_probability`` (renormalised to
         sum to 1).
     """
-    key = ('stable_poses', float(min_probability))
+    key = ('stable_poses', float(min_probability), bool(merge_rolling), float(rolling_angle_deg))
     if key in model._cache:
         return model._cache[key]
     from scipy.spatial import ConvexHull
@@ -349,6 +355,32 @@ def stable_poses(model: ObjectModel, *, min_probability: float = 0.0) -> list[St
         final[f] = cur
     share = np.bincount(final, weights=facet_omega, minlength=n_facets) / (4.0 * np.pi)
     stable = [f for f in range(n_facets) if stable_f[f] and share[f] > 0]
+    if merge_rolling and stable:
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        fa, fb = np.repeat(label, 3), nbr_f.ravel()
+        close = np.einsum('ij,ij->i', normals[fa], normals[fb]) > np.cos(
+            np.radians(rolling_angle_deg))
+        # Adjacent, nearly parallel facets roll into each other: join where they come to rest.
+        # Rolling keeps the centre of mass at one height; faces joined by a fillet do not.
+        height = -(normals @ com + offsets)
+        ra, rb = final[fa], final[fb]
+        level = np.abs(height[ra] - height[rb]) < max(5e-4, 0.01 * model.diameter_m)
+        link = (ra != rb) & close & level & stable_f[ra] & stable_f[rb]
+        graph = coo_matrix((np.ones(int(link.sum())), (ra[link], rb[link])),
+                           shape=(n_facets, n_facets))
+        _, component = connected_components(graph, directed=False)
+        merged = np.bincount(component, weights=np.where(stable_f, share, 0.0))
+        keep = {}
+        for f in stable:
+            c = component[f]
+            if c not in keep or share[f] > share[keep[c]]:
+                keep[c] = f
+        share = share.copy()
+        for c, f in keep.items():
+            share[f] = merged[c]
+        stable = sorted(keep.values())
     total = sum(share[f] for f in stable)
     poses = []
     for f in sorted(stable, key=lambda f: -share[f]):
