@@ -536,10 +536,11 @@ class Simulator:
             y1 = int(np.clip(np.ceil(uv[:, 1].max()) + 1, 0, intr.height - 1))
             if x1 >= x0 and y1 >= y0:
                 # Rays of the box whose first hit is this part, plus those that meet it behind
-                # another part (cast against this part alone).
+                # another part (cast against this part alone); rays that hit no part at all
+                # cannot meet it.
                 box_inst = instance[y0:y1 + 1, x0:x1 + 1]
                 alone = box_inst == k
-                rest = np.nonzero(~alone)
+                rest = np.nonzero((box_inst >= 0) & ~alone)
                 if len(rest[0]):
                     rays_c = shading.camera_rays(intr)[rest[0] + y0, rest[1] + x0]
                     T_wc = cam.T_world_camera.astype(np.float32)
