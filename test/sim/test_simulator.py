@@ -173,3 +173,17 @@ def test_params_validation():
         SimParams(tables=('marble',))
     with pytest.raises(ValueError, match='parts_min'):
         SimParams(parts_min=3, parts_max=2)
+
+
+def test_px_count_all_matches_rendering_the_part_alone(frames, models):
+    from tlessbot_ros.core.render import MeshRenderer
+
+    frame = min(frames, key=lambda f: min(g.visib_fract for g in f.views['side'].gt))
+    for view in frame.views.values():
+        for obj, gt in zip(frame.objects, view.gt):
+            renderer = MeshRenderer()
+            model = models[obj.obj_id]
+            renderer.add_mesh(model.vertices, model.faces, obj.T_world_object)
+            alone = renderer.render(view.intrinsics, view.T_world_camera).instance == 0
+            assert abs(int(alone.sum()) - gt.px_count_all) <= max(2, 0.002 * gt.px_count_all)
+            assert np.all(alone[gt.mask_visib])  # visible pixels are part of the full mask
