@@ -10,9 +10,11 @@ def test_simulate_writes_two_view_bop(tmp_path, tless_models_dir, capsys):
     out = tmp_path / 'sim'
     rc = main(['simulate', '--models', str(tless_models_dir), '--out', str(out), '--frames', '2',
                '--ids', '6', '19', '--parts-max', '2', '--width', '320', '--height', '240',
-               '--seed', '3', '--no-progress'])
+               '--seed', '3', '--backgrounds', '--no-progress'])
     assert rc == 0
-    assert list_splits(out) == ['test_side', 'test_top']
+    assert list_splits(out) == ['background_side', 'background_top', 'test_side', 'test_top']
+    (bg,) = list(read_split(out, 'background_side', limit=1))
+    assert bg.gt == [] and (bg.scene_id, bg.im_id) == (0, 0)
     top = list(read_split(out, 'test_top'))
     side = list(read_split(out, 'test_side'))
     assert [(i.scene_id, i.im_id) for i in top] == [(i.scene_id, i.im_id) for i in side]

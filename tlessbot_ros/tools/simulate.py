@@ -1,8 +1,10 @@
 """Render simulated two-view table scenes of CAD parts to a BOP dataset (and/or a rosbag2).
 
 Writes ``<out>/test_top`` and ``<out>/test_side`` (same scene and image ids), ``camera_top.json``,
-``camera_side.json`` and ``models_info.json`` (diameters, mm). The rig comes from the YAML
-(``config/cell.yaml`` by default); ``--width/--height`` rescale its intrinsics.
+``camera_side.json`` and ``models_info.json`` (diameters, mm); with ``--backgrounds`` also
+``background_top`` / ``background_side``: each frame's empty table (same ids, no ground truth).
+The rig comes from the YAML (``config/cell.yaml`` by default); ``--width/--height`` rescale its
+intrinsics.
 
 Example:
   tlessbot simulate --models ../shared/data/tless_models_cad_stl --out /tmp/sim --frames 20
@@ -41,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--materials', nargs='+', help='subset of light_yellow pink black blue')
     parser.add_argument('--tables', nargs='+', help='subset of plain wood checker')
     parser.add_argument('--no-masks', action='store_true', help='skip mask_visib/ PNGs')
+    parser.add_argument('--backgrounds', action='store_true',
+                        help='also write background_<camera> splits: the same table and light '
+                             'without parts (for background subtraction), same ids')
     parser.add_argument('--no-progress', action='store_true')
 
 
@@ -112,13 +117,15 @@ def run(args: argparse.Namespace) -> int:
     sim = Simulator(models, rig=rig, params=params, seed=args.seed)
     sim.prepare(progress=not args.no_progress)
 
-    writers = {}
+    writers, backgrounds = {}, {}
     if args.out is not None:
         if args.out.exists() and not args.out.is_dir():
             raise DatasetError(f'--out {args.out} exists and is not a folder')
         args.out.mkdir(parents=True, exist_ok=True)
         for name, cam in rig.cameras.items():
             writers[name] = BopWriter(args.out, f'test_{name}', write_masks=not args.no_masks)
+            if args.backgrounds:
+                backgrounds[name] = BopWriter(args.out, f'background_{name}')
             write_camera_json(args.out / f'camera_{name}.json', cam.intrinsics)
         (args.out / 'models_info.json').write_text(json.dumps(_models_info(models), indent=1))
 
@@ -130,6 +137,10 @@ def run(args: argparse.Namespace) -> int:
             frame = sim.frame(index)
             for name, writer in writers.items():
                 writer.add(frame.scene_id, frame.im_id, frame.views[name])
+            if backgrounds:
+                empty = sim.empty_table(index)
+                for name, writer in backgrounds.items():
+                    writer.add(frame.scene_id, frame.im_id, empty[name])
             yield frame
 
     try:
@@ -142,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
             for _ in frames():
                 pass
     finally:
-        for writer in writers.values():
+        for writer in [*writers.values(), *backgrounds.values()]:
             writer.close()
     if args.out is not None:
         print(f'wrote {args.frames} two-view frames to {args.out} '
