@@ -39,7 +39,7 @@ from tlessbot_ros.sim.materials import (
     random_light,
 )
 from tlessbot_ros.sim.noise import DepthNoiseParams, add_colour_noise, add_depth_noise
-from tlessbot_ros.sim.scene import PlacedObject, SceneParams, sample_scene
+from tlessbot_ros.sim.scene import PlacedObject, SceneParams, _hull_info, sample_scene
 
 __all__ = ['GroundTruthObject', 'PlacedObject', 'SimParams', 'SimulatedFrame', 'SimulatedView',
            'Simulator']
@@ -332,7 +332,6 @@ class Simulator:
         """Compute the per-model caches (resting poses, collision hulls) now instead of on first
         use; frames are identical either way."""
         from tlessbot_ros.io.models import stable_poses
-        from tlessbot_ros.sim.scene import _hull_info
 
         items = list(self.models.values())
         if progress:
@@ -375,7 +374,9 @@ class Simulator:
         meshes_w = []
         for obj in objects:
             model = self.models[obj.obj_id]
-            meshes_w.append((transform_points(obj.T_world_object, model.vertices), model.faces))
+            # Convex-hull vertices suffice: extremes of any projection are hull vertices.
+            hull = _hull_info(model, self.params.scene_params.hull_samples).vertices
+            meshes_w.append((transform_points(obj.T_world_object, hull), None))
         # Camera rays, shadow rays and the objects-alone counts all go through the parts' cached
         # per-model scenes.
         scene = _Parts(self.models, objects) if objects else None
@@ -480,7 +481,7 @@ class Simulator:
         # z = 0; only table pixels in one of those boxes get a shadow ray.
         boxes = []
         for vertices, _ in meshes_w:
-            v = vertices[::max(1, len(vertices) // 500)]
+            v = vertices
             s = light[2] / np.maximum(light[2] - v[:, 2], 1e-6)
             xy = light[:2] + (v[:, :2] - light[:2]) * s[:, None]
             boxes.append((xy.min(axis=0), xy.max(axis=0)))

@@ -132,9 +132,13 @@ def run(args: argparse.Namespace) -> int:
     indices = range(args.first, args.first + args.frames)
     bar = tqdm(indices, desc='simulate', unit='frame', disable=args.no_progress)
 
+    short = []
+
     def frames() -> Iterator:
         for index in bar:
             frame = sim.frame(index)
+            if len(frame.objects) < args.parts_min:
+                short.append(index)
             for name, writer in writers.items():
                 writer.add(frame.scene_id, frame.im_id, frame.views[name])
             if backgrounds:
@@ -155,6 +159,9 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for writer in [*writers.values(), *backgrounds.values()]:
             writer.close()
+    if short:
+        print(f'note: {len(short)} frame(s) hold fewer than --parts-min parts (no free place '
+              f'seen by every camera), e.g. frame {short[0]}')
     if args.out is not None:
         print(f'wrote {args.frames} two-view frames to {args.out} '
               f'(splits: {", ".join("test_" + n for n in writers)})')
