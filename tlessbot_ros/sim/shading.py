@@ -134,21 +134,31 @@ def shade_table(table: Table, points_w: np.ndarray, eye_w: np.ndarray, light: Li
                        np.full(n, table.shininess, np.float32), light, lit=lit)
 
 
+def table_geometry(intrinsics: CameraIntrinsics, T_world_camera: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Table depth (H, W) float32 (0 = not seen) and table xy (H, W, 2) float32 per pixel."""
+    depth = table_depth(intrinsics, T_world_camera)
+    R = T_world_camera[:3, :3].astype(np.float32)
+    xy = (camera_rays(intrinsics) @ R[:2].T) * depth[..., None]
+    xy += T_world_camera[:2, 3].astype(np.float32)
+    return depth, xy
+
+
 def shade_table_image(table: Table, intrinsics: CameraIntrinsics, T_world_camera: np.ndarray,
-                      light: Light, *, step_px: int = 4
+                      light: Light, *, step_px: int = 4,
+                      geometry: tuple[np.ndarray, np.ndarray] | None = None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unshadowed table radiance (H, W, 3) float32, table depth (H, W) and table xy (H, W, 2).
 
     The lighting of a plane by a point light is smooth, so it is computed every ``step_px``
-    pixels and interpolated; only the albedo texture is sampled at every pixel.
+    pixels and interpolated; only the albedo texture is sampled at every pixel. ``geometry``
+    is :func:`table_geometry` of this camera, if already computed.
     """
     import cv2
 
     h, w = intrinsics.height, intrinsics.width
-    depth = table_depth(intrinsics, T_world_camera)
-    rays = camera_rays(intrinsics)
-    R, t = T_world_camera[:3, :3].astype(np.float32), T_world_camera[:3, 3].astype(np.float32)
-    xy = (rays @ R[:2].T) * depth[..., None] + t[:2]
+    depth, xy = geometry if geometry is not None else table_geometry(intrinsics, T_world_camera)
+    t = T_world_camera[:3, 3].astype(np.float32)
     ys = np.arange(0, h + step_px, step_px).clip(max=h - 1)
     xs = np.arange(0, w + step_px, step_px).clip(max=w - 1)
     grid = np.ix_(ys, xs)

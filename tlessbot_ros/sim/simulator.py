@@ -327,6 +327,7 @@ class Simulator:
         self.params = params
         self.seed = int(seed)
         self.timings: dict[str, float] = defaultdict(float)
+        self._camera_cache: dict[str, tuple] = {}
 
     def prepare(self, *, progress: bool = False) -> None:
         """Compute the per-model caches (resting poses, collision hulls) now instead of on first
@@ -398,6 +399,19 @@ class Simulator:
         return views
 
     # -- rendering ------------------------------------------------------------------------------
+    def _camera_constants(self, cam: CameraMount) -> tuple:
+        """Per camera: table geometry, 1 / |ray| and the table's incidence cosine."""
+        cached = self._camera_cache.get(cam.name)
+        if cached is None:
+            rays_c = shading.camera_rays(cam.intrinsics)
+            inv_len = 1.0 / np.linalg.norm(rays_c, axis=-1)
+            R = np.asarray(cam.T_world_camera[:3, :3], np.float32)
+            cos_table = np.abs(rays_c @ R[2]) * inv_len  # world z seen from the camera
+            cached = (shading.table_geometry(cam.intrinsics, cam.T_world_camera), inv_len,
+                      cos_table)
+            self._camera_cache[cam.name] = cached
+        return cached
+
     def _render_view(self, index: int, view_index: int, cam: CameraMount,
                      objects: list[PlacedObject], env: _Environment, scene, meshes_w: list,
                      albedo_scale: np.ndarray, purpose: int = 2) -> SimulatedView:
@@ -421,10 +435,11 @@ class Simulator:
         self.timings['raycast'] += t1 - t0
 
         # Table: shaded everywhere (it is also what shows through translucent parts).
-        radiance, table_d, table_xy = shading.shade_table_image(env.table, intr, T, env.light)
-        depth = table_d if part_depth is None else np.where(part, part_depth, table_d)
-        inv_len = 1.0 / np.linalg.norm(rays_c, axis=-1)
-        cos_inc = np.abs(rays_c @ R[2]) * inv_len  # table normal (world z) in the camera frame
+        geometry, inv_len, cos_table = self._camera_constants(cam)
+        radiance, table_d, table_xy = shading.shade_table_image(env.table, intr, T, env.light,
+                                                                geometry=geometry)
+        depth = table_d.copy() if part_depth is None else np.where(part, part_depth, table_d)
+        cos_inc = cos_table.copy()
         highlight = np.zeros((h, w), np.float32)
         ir_drop = np.zeros((h, w), np.float32)
         if part.any():
