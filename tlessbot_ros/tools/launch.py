@@ -91,20 +91,32 @@ class GraphProcesses:
         self._threads: list[threading.Thread] = []
 
     def start(self) -> None:
+        """Start every process; their output is echoed with a ``[label]`` prefix."""
+        self._start(sink=None)
+
+    def start_capturing(self, sink: list[str]) -> None:
+        """Start every process; their prefixed output lines are appended to ``sink``."""
+        self._start(sink=sink)
+
+    def _start(self, sink: list[str] | None) -> None:
         for spec in self.specs:
             child = subprocess.Popen(spec.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True, bufsize=1, env=self.env)
             self.children[spec.label] = child
-            thread = threading.Thread(target=self._pump, args=(spec.label, child), daemon=True)
+            thread = threading.Thread(target=self._pump, args=(spec.label, child, sink),
+                                      daemon=True)
             thread.start()
             self._threads.append(thread)
 
     @staticmethod
-    def _pump(label: str, child: subprocess.Popen) -> None:
+    def _pump(label: str, child: subprocess.Popen, sink: list[str] | None) -> None:
         assert child.stdout is not None
         for line in child.stdout:
-            sys.stdout.write(f'[{label}] {line}')
-            sys.stdout.flush()
+            if sink is not None:
+                sink.append(f'[{label}] {line}')
+            else:
+                sys.stdout.write(f'[{label}] {line}')
+                sys.stdout.flush()
 
     def first_exited(self) -> tuple[str, int] | None:
         for label, child in self.children.items():

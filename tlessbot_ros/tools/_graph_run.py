@@ -1,0 +1,148 @@
+"""Run the perception graph on a bag and collect what it publishes (demo, bench graph, e2e).
+
+The three perception nodes run as separate processes (as ``tlessbot launch`` starts them);
+this process replays the bag's raw CDR and listens to ``/objects/obj_NN/pose`` over DDS.
+"""
+from __future__ import annotations
+
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.tools.launch import PERCEPTION_NODES, GraphProcesses, graph_processes
+
+ALL_OBJECT_IDS = range(1, 31)
+
+
+@dataclass
+class ReceivedPose:
+    """A PoseStamped the graph published: source stamp, object, pose, frame, arrival time."""
+
+    stamp_ns: int
+    obj_id: int
+    T: np.ndarray
+    frame_id: str
+    received_ns: int
+
+
+@dataclass
+class GraphRunResult:
+    poses: list[ReceivedPose] = field(default_factory=list)
+    frames_replayed: list[int] = field(default_factory=list)  # source stamps of side colour
+    rss_mb_start: dict[str, float] = field(default_factory=dict)
+    rss_mb_end: dict[str, float] = field(default_factory=dict)
+    rss_mb_samples: dict[str, list[float]] = field(default_factory=dict)
+    node_output: str = ''
+
+
+def rss_mb(pid: int) -> float:
+    """Resident set size of a process in MiB (Linux /proc)."""
+    try:
+        for line in Path(f'/proc/{pid}/status').read_text().splitlines():
+            if line.startswith('VmRSS:'):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float('nan')
+
+
+def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | None = None,
+                     rate: float = 1.0, loop: bool = False, duration_s: float = 0.0,
+                     restamp: bool = False, startup_timeout_s: float = 90.0,
+                     settle_s: float = 3.0, quiet: bool = True) -> GraphRunResult:
+    """Start the perception nodes, replay ``bag`` into them, collect the published poses.
+
+    Args:
+        ros_args: extra ``--ros-args`` for every node (e.g. ``-p model_path:=...``).
+        loop, duration_s: replay in a loop until ``duration_s`` seconds have passed.
+        restamp: shift stamps to now (needed to measure latency and to loop).
+        settle_s: after the replay, wait until no pose arrived for this long.
+    """
+    import rclpy
+    from rclpy.executors import MultiThreadedExecutor
+
+    from tlessbot_ros.conversions.pose import pose_stamped_to_transform
+    from tlessbot_ros.io.bags import header_stamp_ns
+    from tlessbot_ros.nodes.common import RESULT_QOS, message_class
+    from tlessbot_ros.tools.replay import replay
+
+    specs = graph_processes(config, nodes=list(PERCEPTION_NODES), extra_ros_args=ros_args)
+    graph = GraphProcesses(specs, env=dict(os.environ))
+    result = GraphRunResult()
+    output: list[str] = []
+    rclpy.init()
+    monitor = rclpy.create_node('tlessbot_graph_monitor')
+    player = rclpy.create_node('tlessbot_graph_replay')
+    executor = MultiThreadedExecutor(num_threads=2)
+    executor.add_node(monitor)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    lock = threading.Lock()
+    last_pose = [time.monotonic()]
+
+    def on_pose(obj_id: int):
+        def callback(msg) -> None:
+            T, frame_id, stamp = pose_stamped_to_transform(msg)
+            with lock:
+                result.poses.append(ReceivedPose(stamp, obj_id, T, frame_id, time.time_ns()))
+                last_pose[0] = time.monotonic()
+        return callback
+
+    pose_class = message_class('geometry_msgs/msg/PoseStamped')
+    for obj_id in ALL_OBJECT_IDS:
+        monitor.create_subscription(pose_class, f'/objects/obj_{obj_id:02d}/pose',
+                                    on_pose(obj_id), RESULT_QOS)
+    try:
+        if quiet:
+            graph.start_capturing(output)
+        else:
+            graph.start()
+        spinner.start()
+        deadline = time.monotonic() + startup_timeout_s
+        # Ready when every perception node subscribes the side colour and labels flow.
+        while player.count_subscribers('/side/color/image_raw') < len(PERCEPTION_NODES):
+            exited = graph.first_exited()
+            if exited is not None:
+                raise TlessbotError(f'{exited[0]} exited with code {exited[1]} during start-up:'
+                                    f'\n{"".join(output[-20:])}')
+            if time.monotonic() > deadline:
+                raise TlessbotError('the perception nodes did not come up within '
+                                    f'{startup_timeout_s:.0f} s:\n{"".join(output[-20:])}')
+            time.sleep(0.2)
+        time.sleep(1.0)  # let DDS match the remaining topics
+        pids = {spec.label: graph.children[spec.label].pid for spec in specs}
+        result.rss_mb_start = {label: rss_mb(pid) for label, pid in pids.items()}
+        stop_at = time.monotonic() + duration_s if duration_s else None
+        next_sample = [time.monotonic()]
+
+        def on_publish(message) -> None:
+            if message.topic == '/side/color/image_raw':
+                result.frames_replayed.append(header_stamp_ns(message.raw))
+            if time.monotonic() >= next_sample[0]:
+                for label, pid in pids.items():
+                    result.rss_mb_samples.setdefault(label, []).append(rss_mb(pid))
+                next_sample[0] = time.monotonic() + 1.0
+
+        replay(player, str(bag), rate=rate, loop=loop, restamp=restamp, on_publish=on_publish,
+               should_stop=(lambda: stop_at is not None and time.monotonic() > stop_at))
+        while time.monotonic() - last_pose[0] < settle_s:
+            time.sleep(0.1)
+            if graph.first_exited() is not None:
+                break
+        exited = graph.first_exited()
+        if exited is not None:
+            raise TlessbotError(f'{exited[0]} exited with code {exited[1]}:\n'
+                                f'{"".join(output[-20:])}')
+        result.rss_mb_end = {label: rss_mb(pid) for label, pid in pids.items()}
+    finally:
+        graph.stop()
+        executor.shutdown()
+        monitor.destroy_node()
+        player.destroy_node()
+        rclpy.try_shutdown()
+        result.node_output = ''.join(output)
+    return result
