@@ -1,0 +1,77 @@
+"""Scoring poses published by the graph against a bag's ground truth (demo, e2e, evaluate)."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from tlessbot_ros.core.metrics import PoseError, is_correct_cm_deg, pose_error
+from tlessbot_ros.core.symmetry import Symmetries
+from tlessbot_ros.io.ground_truth import GroundTruthInstance
+
+MIN_VISIB_FRACT = 0.3
+
+
+@dataclass
+class Estimate:
+    """A pose the graph published: source stamp, class, pose in ``frame_id``."""
+
+    stamp_ns: int
+    obj_id: int
+    T: np.ndarray
+    frame_id: str
+
+
+@dataclass
+class Match:
+    """One ground-truth part of a frame and the estimate assigned to it (if any)."""
+
+    truth: GroundTruthInstance
+    estimate: Estimate | None
+    error: PoseError | None
+
+    @property
+    def correct(self) -> bool:
+        return self.error is not None and is_correct_cm_deg(self.error)
+
+
+def score_frame(truth: Sequence[GroundTruthInstance], estimates: Sequence[Estimate],
+                symmetries: dict[int, Symmetries], *,
+                min_visib_fract: float = MIN_VISIB_FRACT) -> tuple[list[Match], list[Estimate]]:
+    """Match one frame's estimates to its parts (same class; smallest rotation error first).
+
+    Only parts at least ``min_visib_fract`` visible in some view are scored. Returns the
+    matches (one per scored part) and the unmatched estimates (false positives; estimates of
+    parts below the visibility bar are neither).
+    """
+    pairs = []
+    for t_index, part in enumerate(truth):
+        for e_index, estimate in enumerate(estimates):
+            T_gt = part.T_camera_object.get(estimate.frame_id)
+            if estimate.obj_id != part.obj_id or T_gt is None:
+                continue
+            error = pose_error(estimate.T, T_gt, symmetries.get(part.obj_id))
+            pairs.append((error.rotation_deg + 1e3 * error.translation_m, t_index, e_index,
+                          error))
+    pairs.sort(key=lambda p: p[0])
+    used_truth: dict[int, tuple[int, PoseError]] = {}
+    used_estimates: set[int] = set()
+    for _, t_index, e_index, error in pairs:
+        if t_index in used_truth or e_index in used_estimates:
+            continue
+        used_truth[t_index] = (e_index, error)
+        used_estimates.add(e_index)
+    matches = []
+    ignored = set()
+    for t_index, part in enumerate(truth):
+        assigned = used_truth.get(t_index)
+        if part.max_visib_fract < min_visib_fract:
+            if assigned is not None:
+                ignored.add(assigned[0])
+            continue
+        matches.append(Match(part, None if assigned is None else estimates[assigned[0]],
+                             None if assigned is None else assigned[1]))
+    false_positives = [e for i, e in enumerate(estimates)
+                       if i not in used_estimates and i not in ignored]
+    return matches, false_positives
