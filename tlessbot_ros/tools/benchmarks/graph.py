@@ -1,0 +1,81 @@
+"""Graph latency: replay a bag at a frame rate through the three perception nodes (processes).
+
+    tlessbot bench graph --fps 30 --duration 60
+
+Stamps are shifted to now (replay --restamp), so latency is the time from a frame's source
+stamp to the arrival of its PoseStamped here (p50, p95). A frame is dropped when no pose comes
+back for its stamp. RSS of each node is sampled every second; the trend is a least-squares
+slope in MiB per minute.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_TEMPLATES
+from tlessbot_ros.io.bags import read_bag
+from tlessbot_ros.io.config import default_config_path
+from tlessbot_ros.tools.demo import DEFAULT_BAG
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--bag', default=str(DEFAULT_BAG))
+    parser.add_argument('--fps', type=float, default=30.0, help='replayed frame rate')
+    parser.add_argument('--duration', type=float, default=60.0, help='seconds of replay')
+    parser.add_argument('--classifier', default=str(DEFAULT_CLASSIFIER))
+    parser.add_argument('--templates', default=str(DEFAULT_TEMPLATES))
+    parser.add_argument('--config', default=None)
+    parser.add_argument('--out', default=None, help='write the Markdown table here')
+
+
+def bag_frame_interval_s(bag: str) -> float:
+    """Median interval between the side colour frames of a bag."""
+    times = [m.log_time_ns for m in read_bag(bag, ['/side/color/image_raw'])]
+    if len(times) < 2:
+        return 1.0 / 15.0
+    return float(np.median(np.diff(times))) / 1e9
+
+
+def rss_trend_mb_per_min(samples: list[float]) -> float:
+    """Least-squares slope of 1 Hz RSS samples, MiB per minute."""
+    values = np.asarray([s for s in samples if np.isfinite(s)])
+    if len(values) < 3:
+        return float('nan')
+    return float(np.polyfit(np.arange(len(values)) / 60.0, values, 1)[0])
+
+
+def run(args: argparse.Namespace) -> int:
+    from tlessbot_ros.tools._graph_run import run_graph_on_bag
+
+    interval = bag_frame_interval_s(args.bag)
+    rate = args.fps * interval
+    result = run_graph_on_bag(
+        args.bag, config=Path(args.config) if args.config else default_config_path(),
+        rate=rate, loop=True, duration_s=args.duration, restamp=True, settle_s=3.0,
+        ros_args=['-p', f'model_path:={args.classifier}',
+                  '-p', f'templates_path:={args.templates}'])
+    latencies = np.array([(p.received_ns - p.stamp_ns) / 1e6 for p in result.poses])
+    answered = {p.stamp_ns for p in result.poses}
+    replayed = result.frames_replayed
+    dropped = sum(1 for stamp in replayed if stamp not in answered)
+    rows = [
+        ('frames replayed', f'{len(replayed)} in {args.duration:.0f} s at {args.fps:.0f} fps'),
+        ('poses received', str(len(result.poses))),
+        ('latency p50 (source stamp -> PoseStamped)',
+         f'{np.percentile(latencies, 50):.1f} ms' if len(latencies) else 'n/a'),
+        ('latency p95', f'{np.percentile(latencies, 95):.1f} ms' if len(latencies) else 'n/a'),
+        ('frames dropped (no pose back)',
+         f'{dropped} ({100 * dropped / max(1, len(replayed)):.1f} %)'),
+    ]
+    for label in sorted(result.rss_mb_start):
+        trend = rss_trend_mb_per_min(result.rss_mb_samples.get(label, []))
+        rows.append((f'RSS {label} start -> end',
+                     f'{result.rss_mb_start[label]:.0f} -> {result.rss_mb_end[label]:.0f} MiB '
+                     f'(trend {trend:+.2f} MiB/min)'))
+    table = '| measure | value |\n|---|---|\n' + '\n'.join(f'| {k} | {v} |' for k, v in rows)
+    print(table)
+    if args.out:
+        Path(args.out).write_text(table + '\n')
+    return 0
