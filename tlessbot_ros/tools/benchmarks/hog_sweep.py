@@ -5,7 +5,7 @@ another seed for testing); then for every cell size × bins the HOG is recompute
 Perceptron, PA-I and PA-II are trained and scored. The default run is small (coarse turntable,
 few scenes) so that it finishes in a few minutes on two cores:
 
-    tlessbot bench hog-sweep --models ../shared/data/tless_models_cad_stl --out reports/hog_sweep
+    tlessbot bench hog_sweep --models ../shared/data/tless_models_cad_stl --out reports/hog_sweep
 
 Writes <out>/hog_sweep.md and <out>/hog_sweep.png.
 """
