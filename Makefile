@@ -3,13 +3,16 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 PYTEST_ARGS ?=
 
-.PHONY: setup test lint freeze clean
+.PHONY: setup test demo lint freeze clean
 
 setup:
 	@scripts/setup.sh
 
 test: setup
 	$(PY) -m pytest -m 'not hardware' $(PYTEST_ARGS)
+
+demo: setup
+	$(PY) -m tlessbot_ros.tools.cli demo
 
 lint: setup
 	$(PY) -m ruff check tlessbot_ros test
