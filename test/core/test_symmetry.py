@@ -1,0 +1,105 @@
+"""Symmetry representation, models_info parsing and detection on the T-LESS CAD models."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
+from tlessbot_ros.core.symmetry import (
+    Symmetries,
+    detect_symmetries,
+    sample_surface,
+    symmetries_from_models_info,
+    symmetries_to_models_info,
+)
+
+# BOP's published groups for T-LESS (models_info.json); only some models are on disk here.
+CONTINUOUS = {1, 2, 3, 4, 13, 14, 15, 16, 17, 24, 30}
+TWO_FOLD = {5, 6, 7, 8, 9, 10, 11, 12, 19, 20, 23, 25, 26, 28, 29}
+FOUR_FOLD = {27}
+NONE = {18, 21, 22}
+AVAILABLE = [2, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 19, 20, 21, 22, 23, 24, 25, 26, 30]
+
+
+def _expected(obj_id: int) -> str:
+    if obj_id in CONTINUOUS:
+        return 'continuous'
+    if obj_id in TWO_FOLD:
+        return '2-fold'
+    if obj_id in FOUR_FOLD:
+        return '4-fold'
+    return 'none'
+
+
+def _box_mesh(size):
+    sx, sy, sz = (s / 2 for s in size)
+    v = np.array([[x, y, z] for x in (-sx, sx) for y in (-sy, sy) for z in (-sz, sz)])
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    return v, f
+
+
+def test_symmetries_always_hold_identity_first():
+    flip = make_transform(rotation_about_axis([0, 0, 1], np.pi), np.zeros(3))
+    s = Symmetries(discrete=(flip,))
+    assert len(s.discrete) == 2
+    assert np.allclose(s.discrete[0], np.eye(4))
+    assert Symmetries().is_trivial and not s.is_trivial
+
+
+def test_transforms_discretise_continuous_axes():
+    s = Symmetries(discrete=(make_transform(rotation_about_axis([1, 0, 0], np.pi), np.zeros(3)),),
+                   continuous=(([0, 0, 2.0], [0.0, 0.0, 0.0]),))
+    T = s.transforms(step_rad=np.radians(10))
+    assert T.shape == (36 * 2, 4, 4)
+    assert np.allclose(T[0], np.eye(4))
+    # every element maps the z axis to +-z
+    assert np.allclose(np.abs(T[:, 2, 2]), 1.0)
+
+
+def test_models_info_round_trip_in_mm():
+    entry = {'symmetries_discrete': [[-1, 0, 0, 0, 0, -1, 0, 0, 0, 0, 1, 5.0, 0, 0, 0, 1]],
+             'symmetries_continuous': [{'axis': [0, 0, 1], 'offset': [0, 0, 10.0]}]}
+    s = symmetries_from_models_info(entry)
+    assert len(s.discrete) == 2
+    assert s.discrete[1][2, 3] == pytest.approx(0.005)
+    assert np.allclose(s.continuous[0][1], [0, 0, 0.010])
+    back = symmetries_to_models_info(s)
+    assert np.allclose(back['symmetries_discrete'][0], entry['symmetries_discrete'][0])
+    assert np.allclose(back['symmetries_continuous'][0]['offset'], [0, 0, 10.0])
+    assert symmetries_from_models_info({}).is_trivial
+    with pytest.raises(ValueError, match='16 numbers'):
+        symmetries_from_models_info({'symmetries_discrete': [[1, 0, 0]]})
+
+
+def test_sample_surface_lies_on_the_box():
+    v, f = _box_mesh((0.1, 0.06, 0.04))
+    p = sample_surface(v, f, 2000, seed=1)
+    on_face = np.isclose(np.abs(p), [0.05, 0.03, 0.02], atol=1e-9).any(axis=1)
+    assert on_face.all()
+    assert np.all(np.abs(p) <= [0.05 + 1e-9, 0.03 + 1e-9, 0.02 + 1e-9])
+
+
+def test_detects_the_three_flips_of_a_box():
+    v, f = _box_mesh((0.1, 0.06, 0.04))
+    s = detect_symmetries(v, f)
+    assert not s.continuous
+    assert len(s.discrete) == 4  # identity + 180° about x, y and z
+
+
+@pytest.mark.parametrize('obj_id', [
+    pytest.param(i, marks=pytest.mark.xfail(
+        strict=True, reason='obj_25: the 180° flip leaves 20 % of the surface > 1 % of the '
+        'diameter away (more than obj_21, which BOP lists as asymmetric)'))
+    if i == 25 else i for i in AVAILABLE])
+def test_detection_matches_bop_groups(tless_models_dir, obj_id):
+    trimesh = pytest.importorskip('trimesh')
+    mesh = trimesh.load(tless_models_dir / f'obj_{obj_id:02d}.stl')
+    s = detect_symmetries(np.asarray(mesh.vertices) / 1000.0, np.asarray(mesh.faces))
+    expected = _expected(obj_id)
+    if expected == 'continuous':
+        assert len(s.continuous) == 1
+        assert abs(s.continuous[0][0][2]) > 0.99  # T-LESS models turn about their z axis
+    else:
+        assert not s.continuous
+        assert s.describe() == expected

@@ -1,0 +1,429 @@
+"""Symmetries of rigid objects: representation, BOP ``models_info.json`` parsing, detection.
+
+A symmetry of a model is a rigid transform ``S`` (model frame) that maps the surface onto
+itself, so the poses ``T`` and ``T @ S`` look the same. BOP represents a model's symmetries as a
+list of discrete transforms and a list of continuous rotation axes (axis direction and a point
+on the axis); see Hodaň et al., "BOP Challenge 2020 on 6D Object Localization", ECCV-W 2020,
+and bop_toolkit ``misc.get_symmetry_transformations``.
+
+Detection (:func:`detect_symmetries`) tests candidate rotations about the principal axes of the
+surface: the surface is sampled uniformly, rotated, and compared with itself by nearest-neighbour
+distance (``scipy.spatial.cKDTree``) against a tolerance relative to the model diameter.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import open3d as o3d
+
+from tlessbot_ros.core.geometry import make_transform, rotation_about_axis, rotation_angle_deg
+
+
+def _as_transform(T: np.ndarray) -> np.ndarray:
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise ValueError(f'a symmetry transform must be 4x4, got shape {T.shape}')
+    return T
+
+
+@dataclass(frozen=True, eq=False)
+class Symmetries:
+    """The symmetry group of a model, as BOP describes it.
+
+    Attributes:
+        discrete: (4, 4) float64 transforms in the model frame (translation in metres); the
+            identity is always included (added when missing).
+        continuous: ``(axis (3,) unit vector, offset (3,) metres)`` per continuous rotation axis:
+            rotations by any angle about the line through ``offset`` along ``axis``.
+    """
+
+    discrete: tuple[np.ndarray, ...] = field(default_factory=lambda: (np.eye(4),))
+    continuous: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+
+    def __post_init__(self) -> None:
+        discrete = [_as_transform(T) for T in self.discrete]
+        if not any(np.allclose(T, np.eye(4), atol=1e-6) for T in discrete):
+            discrete.insert(0, np.eye(4))
+        else:  # identity first, exactly
+            discrete = [np.eye(4)] + [T for T in discrete if not np.allclose(T, np.eye(4),
+                                                                            atol=1e-6)]
+        continuous = []
+        for item in self.continuous:
+            if len(item) != 2:
+                raise ValueError('each continuous symmetry must be (axis, offset)')
+            axis = np.asarray(item[0], dtype=np.float64).reshape(3)
+            norm = np.linalg.norm(axis)
+            if norm < 1e-12:
+                raise ValueError('a continuous symmetry axis must be non-zero')
+            offset = np.asarray(item[1], dtype=np.float64).reshape(3)
+            continuous.append((axis / norm, offset))
+        object.__setattr__(self, 'discrete', tuple(discrete))
+        object.__setattr__(self, 'continuous', tuple(continuous))
+
+    @property
+    def is_trivial(self) -> bool:
+        """True when the only symmetry is the identity."""
+        return len(self.discrete) == 1 and not self.continuous
+
+    def transforms(self, *, step_rad: float = np.radians(1.0)) -> np.ndarray:
+        """All symmetry transforms, continuous axes discretised; (K, 4, 4) float64.
+
+        As bop_toolkit ``get_symmetry_transformations``: each continuous rotation is sampled at
+        ``ceil(2 pi / step_rad)`` equal steps and composed with every discrete transform
+        (``S = S_continuous @ S_discrete``). The identity is element 0.
+        """
+        if step_rad <= 0:
+            raise ValueError(f'step_rad must be positive, got {step_rad}')
+        continuous = [np.eye(4)]
+        for axis, offset in self.continuous:
+            count = int(np.ceil(2 * np.pi / step_rad))
+            sampled = []
+            for k in range(count):
+                R = rotation_about_axis(axis, 2 * np.pi * k / count)
+                sampled.append(make_transform(R, offset - R @ offset))
+            continuous = [A @ B for A in sampled for B in continuous]
+        return np.stack([C @ D for C in continuous for D in self.discrete])
+
+    def describe(self) -> str:
+        """Short text: 'none', 'continuous', '2-fold', 'continuous + 2-fold', ..."""
+        parts = []
+        if self.continuous:
+            parts.append('continuous' if len(self.continuous) == 1
+                         else f'{len(self.continuous)} continuous axes')
+        if len(self.discrete) > 1:
+            parts.append(f'{len(self.discrete)}-fold')
+        return ' + '.join(parts) if parts else 'none'
+
+
+def symmetries_from_models_info(entry: dict) -> Symmetries:
+    """Symmetries from one object's entry of BOP ``models_info.json``.
+
+    Args:
+        entry: dict with optional ``symmetries_discrete`` (list of 16 numbers: a row-major 4x4
+            transform, translation in mm) and ``symmetries_continuous`` (list of
+            ``{'axis': [3], 'offset': [3] mm}``).
+
+    Returns:
+        :class:`Symmetries` in metres (identity added to the discrete set).
+    """
+    discrete = []
+    for values in entry.get('symmetries_discrete', []) or []:
+        T = np.asarray(values, dtype=np.float64)
+        if T.size != 16:
+            raise ValueError(f'symmetries_discrete entries must have 16 numbers, got {T.size}')
+        T = T.reshape(4, 4).copy()
+        T[:3, 3] /= 1000.0
+        discrete.append(T)
+    continuous = []
+    for item in entry.get('symmetries_continuous', []) or []:
+        if 'axis' not in item:
+            raise ValueError('symmetries_continuous entries need an "axis"')
+        offset = np.asarray(item.get('offset', [0.0, 0.0, 0.0]), dtype=np.float64) / 1000.0
+        continuous.append((np.asarray(item['axis'], dtype=np.float64), offset))
+    return Symmetries(discrete=tuple(discrete), continuous=tuple(continuous))
+
+
+def symmetries_to_models_info(symmetries: Symmetries) -> dict:
+    """Inverse of :func:`symmetries_from_models_info` (mm, flattened; identity omitted)."""
+    entry: dict = {}
+    discrete = []
+    for T in symmetries.discrete[1:]:
+        T_mm = T.copy()
+        T_mm[:3, 3] *= 1000.0
+        discrete.append([float(v) for v in T_mm.ravel()])
+    if discrete:
+        entry['symmetries_discrete'] = discrete
+    if symmetries.continuous:
+        entry['symmetries_continuous'] = [
+            {'axis': [float(v) for v in axis], 'offset': [float(v) * 1000.0 for v in offset]}
+            for axis, offset in symmetries.continuous]
+    return entry
+
+
+# ------------------------------------------------------------------------------------------------
+# Detection
+
+@dataclass(frozen=True)
+class SymmetryParams:
+    """Tuning of :func:`detect_symmetries`.
+
+    Attributes:
+        samples: surface points used to query the nearest-neighbour test.
+        reference_samples: surface points in the KD-tree the rotated samples are compared with.
+        tolerance: a rotation is a symmetry when the ``quantile`` of the nearest-neighbour
+            distances is below ``tolerance * diameter``.
+        continuous_tolerance: the same for the rotations that test a continuous axis (a
+            revolved CAD part has small features that break it slightly at most angles).
+        quantile: which quantile of the distances is tested (robust to small features).
+        continuous_angles_deg: rotation angles that must all pass for a continuous axis.
+        plane_scan_step_deg: step when searching 2-fold axes in a plane of degenerate
+            principal axes (rotationally symmetric in that plane).
+        max_axis_deviation_deg: candidate axes closer than this are the same axis, and a
+            refined symmetry may deviate this much from the candidate rotation.
+        icp_iterations: trimmed ICP iterations refining each candidate rotation.
+        seed: seed of the surface sampling.
+    """
+
+    samples: int = 1500
+    reference_samples: int = 10000
+    tolerance: float = 0.01
+    continuous_tolerance: float = 0.02
+    quantile: float = 0.8
+    continuous_angles_deg: tuple[float, ...] = (7.0, 23.0, 45.0, 90.0, 131.0, 180.0, 217.0)
+    plane_scan_step_deg: float = 2.0
+    max_axis_deviation_deg: float = 10.0
+    icp_iterations: int = 8
+    seed: int = 0
+
+
+def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, *,
+                   seed: int = 0) -> np.ndarray:
+    """Uniform (area-weighted) random points on a triangle mesh.
+
+    Args:
+        vertices: (V, 3) vertex positions (any unit).
+        faces: (F, 3) int vertex indices.
+        count: number of points.
+        seed: seed of the random generator.
+
+    Returns:
+        (count, 3) float64 points on the surface, in the unit of ``vertices``.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise ValueError('vertices must be (V, 3) and faces (F, 3)')
+    tri = vertices[faces]
+    areas = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if areas.sum() <= 0:
+        raise ValueError('the mesh has no area')
+    rng = np.random.default_rng(seed)
+    index = rng.choice(len(faces), size=count, p=areas / areas.sum())
+    r1 = np.sqrt(rng.random(count))
+    r2 = rng.random(count)
+    t = tri[index]
+    return ((1 - r1)[:, None] * t[:, 0] + (r1 * (1 - r2))[:, None] * t[:, 1]
+            + (r1 * r2)[:, None] * t[:, 2])
+
+
+def _kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares rotation and translation mapping (N, 3) source onto (N, 3) target."""
+    mu_s, mu_t = source.mean(0), target.mean(0)
+    U, _, Vt = np.linalg.svd((source - mu_s).T @ (target - mu_t))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return R, mu_t - R @ mu_s
+
+
+class _SurfaceTest:
+    """Nearest-neighbour test of rigid transforms against the sampled surface.
+
+    A candidate rotation about an estimated axis is first refined by a few trimmed ICP
+    iterations (the principal axes of a real CAD model are a little off the true symmetry axis
+    because of small asymmetric features), then judged by the quantile of the distances.
+    """
+
+    def __init__(self, query: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                 threshold: float, quantile: float, icp_iterations: int) -> None:
+        self.query = query
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)),
+                                 o3d.core.Tensor(np.asarray(faces, np.uint32)))
+        self.threshold = threshold
+        self.quantile = quantile
+        self.icp_iterations = icp_iterations
+
+    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closest surface points of (N, 3) points and the distances to them."""
+        result = self.scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
+        closest = result['points'].numpy().astype(np.float64)
+        return closest, np.linalg.norm(closest - points, axis=1)
+
+    def error(self, R: np.ndarray, centre: np.ndarray) -> float:
+        """Distance quantile of the samples rotated by ``R`` about ``centre``."""
+        return float(np.quantile(self.closest((self.query - centre) @ R.T + centre)[1],
+                                 self.quantile))
+
+    def refine(self, R: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, float]:
+        """Refined (4, 4) transform near the rotation ``R`` about ``centre``, and its error."""
+        t = centre - R @ centre
+        for _ in range(self.icp_iterations):
+            closest, distances = self.closest(self.query @ R.T + t)
+            keep = distances <= np.quantile(distances, self.quantile)
+            R, t = _kabsch(self.query[keep], closest[keep])
+        distances = self.closest(self.query @ R.T + t)[1]
+        return make_transform(R, t), float(np.quantile(distances, self.quantile))
+
+    def check(self, axis: np.ndarray, angle_rad: float, centre: np.ndarray,
+              max_deviation_rad: float, *, threshold: float | None = None) -> np.ndarray | None:
+        """The refined symmetry near the rotation (axis, angle) about centre, or None.
+
+        None when the refined transform does not map the surface onto itself, or when ICP slid
+        to a different rotation (axis or angle off by more than ``max_deviation_rad``).
+        """
+        T, error = self.refine(rotation_about_axis(axis, angle_rad), centre)
+        if error > (self.threshold if threshold is None else threshold):
+            return None
+        wrapped = np.arccos(np.cos(angle_rad))  # the rotation angle in [0, pi]
+        if abs(_angle(T) - wrapped) > max_deviation_rad:
+            return None
+        if angle_rad > 1e-3 and np.arccos(min(1.0, abs(_mean_axis([T[:3, :3]], axis) @ axis))) \
+                > max_deviation_rad:
+            return None
+        return T
+
+
+def _perpendicular(axis: np.ndarray) -> np.ndarray:
+    helper = np.eye(3)[int(np.argmin(np.abs(axis)))]
+    v = np.cross(axis, helper)
+    return v / np.linalg.norm(v)
+
+
+def _close_group(rotations: list[np.ndarray], *, tolerance_deg: float = 3.0,
+                 limit: int = 48) -> list[np.ndarray]:
+    """The finite rotation group generated by ``rotations`` (identity first).
+
+    Rotations closer than ``tolerance_deg`` are merged, so slightly inconsistent generators
+    (measured on a real mesh) cannot generate an endless group.
+    """
+    group = [np.eye(3)]
+
+    def known(R: np.ndarray) -> bool:
+        return any(rotation_angle_deg(R, G) < tolerance_deg for G in group)
+
+    pending = list(rotations)
+    while pending and len(group) < limit:
+        R = pending.pop(0)
+        if known(R):
+            continue
+        group.append(R)
+        pending.extend(R @ G for G in list(group))
+        pending.extend(G @ R for G in list(group))
+    return group
+
+
+def detect_symmetries(vertices: np.ndarray, faces: np.ndarray, *,
+                      params: SymmetryParams = SymmetryParams(),
+                      diameter: float | None = None) -> Symmetries:
+    """Detect the discrete and continuous rotational symmetries of a mesh.
+
+    Method: the surface is sampled uniformly; its area-weighted centroid and principal axes
+    (eigenvectors of the covariance) are computed, since every symmetry fixes the centroid and
+    maps principal axes to principal axes. For each principal axis:
+
+    * continuous: the surface maps onto itself for all of ``params.continuous_angles_deg``;
+    * n-fold (n in 2, 3, 4, 6): the rotation by 360°/n maps the surface onto itself.
+
+    For 2-fold flips perpendicular to a continuous or n-fold (n >= 3) axis, where the two other
+    principal axes are degenerate, candidate axes in that plane are scanned. The discrete set is
+    closed into a group. "Maps onto itself" means the ``quantile`` of nearest-neighbour distances
+    between the rotated samples and a denser reference sample is below
+    ``tolerance * diameter``.
+
+    Args:
+        vertices: (V, 3) vertex positions in metres (model frame).
+        faces: (F, 3) int vertex indices.
+        params: detection settings.
+        diameter: the model diameter in metres (default: estimated from the samples).
+
+    Returns:
+        :class:`Symmetries` with transforms about the surface centroid (metres).
+    """
+    reference = sample_surface(vertices, faces, params.reference_samples, seed=params.seed)
+    query = sample_surface(vertices, faces, params.samples, seed=params.seed + 1)
+    if diameter is None:
+        far = reference[np.argsort(np.linalg.norm(reference - reference.mean(0), axis=1))
+                        [-min(len(reference), 500):]]
+        diameter = float(np.linalg.norm(far[:, None] - far[None], axis=-1).max())
+    centre = reference.mean(axis=0)
+    _, principal = np.linalg.eigh(np.cov((reference - centre).T))
+    test = _SurfaceTest(query, vertices, faces, params.tolerance * diameter, params.quantile,
+                        params.icp_iterations)
+    deviation = np.radians(params.max_axis_deviation_deg)
+    candidates: list[np.ndarray] = []
+    # the model frame's axes first (CAD frames are usually aligned with the symmetry axes),
+    # then the principal axes
+    for axis in [*np.eye(3), *principal.T]:
+        if all(abs(axis @ c) < np.cos(np.radians(3.0)) for c in candidates):
+            candidates.append(axis / np.linalg.norm(axis))
+
+    continuous_axis = None
+    for axis in candidates:
+        found = []
+        for angle in params.continuous_angles_deg:
+            T = test.check(axis, np.radians(angle), centre, deviation,
+                           threshold=params.continuous_tolerance * diameter)
+            if T is None:
+                break
+            found.append(T)
+        else:
+            continuous_axis = _mean_axis([T[:3, :3] for T in found], axis)
+            centre = np.mean([_axis_point(T) for T in found if _angle(T) > 0.3], axis=0) \
+                if any(_angle(T) > 0.3 for T in found) else centre
+            break
+
+    generators: list[np.ndarray] = []
+    special = continuous_axis
+    fold_of_special = 0
+    if continuous_axis is None:
+        for axis in candidates:
+            fold = 0
+            found = None
+            for n in (2, 3):
+                T = test.check(axis, 2 * np.pi / n, centre, deviation)
+                if T is not None:
+                    fold, found = n, T
+            if fold and test.check(axis, np.pi / fold, centre, deviation) is not None:
+                fold *= 2  # 4-fold or 6-fold
+            if fold:
+                refined = _mean_axis([found[:3, :3]], axis)
+                generators.append(rotation_about_axis(refined, 2 * np.pi / fold))
+                if fold > fold_of_special and fold > 2:
+                    special, fold_of_special = refined, fold
+    if special is not None:
+        # 2-fold axes perpendicular to a continuous or n-fold (n >= 3) axis: with a continuous
+        # axis any one of them will do; with an n-fold axis they repeat every 180°/n.
+        u = _perpendicular(special)
+        v = np.cross(special, u)
+        span = 1.0 if continuous_axis is not None else 180.0 / max(fold_of_special, 2)
+        best_flip = None
+        for a in np.arange(0.0, span, params.plane_scan_step_deg):
+            flip_axis = np.cos(np.radians(a)) * u + np.sin(np.radians(a)) * v
+            error = test.error(rotation_about_axis(flip_axis, np.pi), centre)
+            if best_flip is None or error < best_flip[0]:
+                best_flip = (error, flip_axis)
+        if best_flip is not None:
+            T = test.check(best_flip[1], np.pi, centre, deviation)
+            if T is not None:
+                flip = _mean_axis([T[:3, :3]], best_flip[1])
+                flip = flip - (flip @ special) * special  # exactly perpendicular
+                generators.append(rotation_about_axis(flip / np.linalg.norm(flip), np.pi))
+    group = _close_group(generators)
+    discrete = tuple(make_transform(R, centre - R @ centre) for R in group)
+    if continuous_axis is not None:
+        continuous_axis = continuous_axis * (1 if continuous_axis[np.argmax(np.abs(
+            continuous_axis))] > 0 else -1)
+    continuous = ((continuous_axis, centre),) if continuous_axis is not None else ()
+    return Symmetries(discrete=discrete, continuous=continuous)
+
+
+def _angle(T: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1)))
+
+
+def _mean_axis(rotations: list[np.ndarray], reference: np.ndarray) -> np.ndarray:
+    """Mean rotation axis of rotations (sign aligned with ``reference``)."""
+    axes = []
+    for R in rotations:
+        w, V = np.linalg.eig(R)
+        axis = np.real(V[:, np.argmin(np.abs(w - 1))])
+        axes.append(axis if axis @ reference >= 0 else -axis)
+    mean = np.mean(axes, axis=0)
+    return mean / np.linalg.norm(mean)
+
+
+def _axis_point(T: np.ndarray) -> np.ndarray:
+    """The point of the rotation axis of ``T`` closest to the origin (least squares)."""
+    R, t = T[:3, :3], T[:3, 3]
+    return np.linalg.lstsq(np.eye(3) - R, t, rcond=None)[0]
