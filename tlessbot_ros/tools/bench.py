@@ -16,7 +16,7 @@ def available_benchmarks() -> dict[str, str]:
         if path.stem.startswith('_'):
             continue
         doc = ast.get_docstring(ast.parse(path.read_text(encoding='utf-8'))) or ''
-        found[path.stem] = doc.strip().splitlines()[0] if doc.strip() else ''
+        found[path.stem.replace('_', '-')] = doc.strip().splitlines()[0] if doc.strip() else ''
     return found
 
 
@@ -25,9 +25,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     subparsers = parser.add_subparsers(dest='benchmark', required=True, metavar='NAME')
     for name, text in benchmarks.items():
         sub = subparsers.add_parser(name, help=text, description=text)
-        sub.set_defaults(_bench_module=name)
+        module = name.replace('-', '_')
+        sub.set_defaults(_bench_module=module)
         # Each benchmark adds its own options; import only to build its parser.
-        importlib.import_module(f'tlessbot_ros.tools.benchmarks.{name}').add_arguments(sub)
+        importlib.import_module(f'tlessbot_ros.tools.benchmarks.{module}').add_arguments(sub)
 
 
 def run(args: argparse.Namespace) -> int:
