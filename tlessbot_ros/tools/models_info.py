@@ -1,0 +1,58 @@
+"""Write a BOP models_info.json (diameter, size, symmetries) for a folder of CAD models.
+
+    tlessbot models-info --models ../shared/data/tless_models_cad_stl --out models_info.json
+
+Symmetries come from the folder's own models_info.json when it has one, else they are detected
+from the mesh (core.symmetry.detect_symmetries). Units are millimetres, as in BOP.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from tlessbot_ros.core.symmetry import Symmetries, detect_symmetries, symmetries_to_models_info
+from tlessbot_ros.io.models import ObjectModel, load_models
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--models', required=True, help='folder of CAD models (mm)')
+    parser.add_argument('--out', required=True, help='models_info.json to write')
+    parser.add_argument('--ids', type=int, nargs='+', default=None, help='only these ids')
+
+
+def model_symmetries(model: ObjectModel) -> Symmetries:
+    """The model's listed symmetries, or detected ones when the files list none."""
+    if model.symmetries_discrete is None and model.symmetries_continuous is None:
+        return detect_symmetries(model.vertices, model.faces, diameter=model.diameter_m)
+    import numpy as np
+
+    discrete = (np.eye(4), *(model.symmetries_discrete or []))
+    continuous = tuple((c['axis'], c['offset_m']) for c in model.symmetries_continuous or [])
+    return Symmetries(discrete=discrete, continuous=continuous)
+
+
+def models_info_entry(model: ObjectModel, symmetries: Symmetries) -> dict:
+    """One BOP models_info.json entry (mm)."""
+    low = model.vertices.min(axis=0) * 1000.0
+    size = model.extent_m * 1000.0
+    entry = {'diameter': round(model.diameter_m * 1000.0, 4),
+             'min_x': round(float(low[0]), 4), 'min_y': round(float(low[1]), 4),
+             'min_z': round(float(low[2]), 4), 'size_x': round(float(size[0]), 4),
+             'size_y': round(float(size[1]), 4), 'size_z': round(float(size[2]), 4)}
+    entry.update(symmetries_to_models_info(symmetries))
+    return entry
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    models = load_models(args.models, ids=args.ids)
+    info = {}
+    for obj_id, model in tqdm(sorted(models.items()), desc='symmetries', unit='obj'):
+        symmetries = model_symmetries(model)
+        info[str(obj_id)] = models_info_entry(model, symmetries)
+        tqdm.write(f'obj_{obj_id:02d}: {symmetries.describe()}')
+    Path(args.out).write_text(json.dumps(info, indent=1) + '\n')
+    print(f'{len(info)} models -> {args.out}')
+    return 0
