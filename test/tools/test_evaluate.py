@@ -1,0 +1,116 @@
+"""tlessbot evaluate: scoring given poses on a tiny simulated BOP set, and its error lines."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
+from tlessbot_ros.io.bop import read_split
+from tlessbot_ros.io.bop_results import PoseResult, write_results
+from tlessbot_ros.tools.cli import main
+
+IDS = (5, 11)
+
+
+@pytest.fixture(scope='module')
+def dataset(tless_models_dir, tmp_path_factory):
+    root = tmp_path_factory.mktemp('eval')
+    models = root / 'models'
+    models.mkdir()
+    for obj_id in IDS:
+        shutil.copy(tless_models_dir / f'obj_{obj_id:02d}.stl', models)
+    data = root / 'bop'
+    assert main(['simulate', '--models', str(models), '--out', str(data), '--frames', '3',
+                 '--ids', *map(str, IDS), '--parts-min', '2', '--parts-max', '2',
+                 '--width', '320', '--height', '240', '--no-progress', '--seed', '3']) == 0
+    return models, data
+
+
+def _estimates(data):
+    """Frame 0: every part exact; frame 1: every part 30° off; frame 2: obj_05 shifted 3 cm."""
+    results, expected = [], {'targets': 0, 'ok': 0, 'ok_1cm': 0}
+    for image in read_split(data, 'test_side', load_masks=False):
+        for gt in image.gt:
+            counted = gt.visib_fract >= 0.3
+            T = gt.T_camera_object.copy()
+            ok = ok_1cm = True
+            if image.im_id == 1:
+                T = T @ make_transform(rotation_about_axis(np.array([1.0, 0, 0]), np.radians(30)),
+                                       np.zeros(3))
+                ok = ok_1cm = False
+            elif image.im_id == 2 and gt.obj_id == 5:
+                T[:3, 3] += [0.03, 0.0, 0.0]
+                ok_1cm = False
+            results.append(PoseResult(image.scene_id, image.im_id, gt.obj_id, 1.0, T, 0.05))
+            expected['targets'] += counted
+            expected['ok'] += counted and ok
+            expected['ok_1cm'] += counted and ok_1cm
+    return results, expected
+
+
+def test_scores_given_poses_exactly(dataset, tmp_path):
+    models, data = dataset
+    results, expected = _estimates(data)
+    assert expected['targets'] > 0
+    poses = tmp_path / 'poses.csv'
+    write_results(poses, results)
+    out = tmp_path / 'out'
+    assert main(['evaluate', '--dataset', str(data), '--models', str(models),
+                 '--poses', str(poses), '--out', str(out)]) == 0
+    report = json.loads((out / 'report.json').read_text())
+    assert report['frames'] == 3
+    assert report['objects_gt'] == expected['targets']
+    pose = report['pose']
+    assert pose['recall_5cm5deg'] == pytest.approx(expected['ok'] / expected['targets'])
+    assert pose['recall_1cm5deg'] == pytest.approx(expected['ok_1cm'] / expected['targets'])
+    exact = expected['ok_1cm'] / expected['targets']  # these pass every measure
+    assert pose['recall_adds01d'] >= exact - 1e-9
+    assert pose['recall_vsd03'] >= exact - 1e-9
+    assert exact - 1e-9 <= pose['mssd_recall'] < 1
+    for key in ('iou07_rate', 'false_pos_per_frame'):
+        assert report['detection'][key] is None  # the localiser did not run
+    assert report['recognition']['top1'] is None
+    assert report['timing_ms']['frame'] == pytest.approx(50.0)
+    assert report['timing_ms']['pose'] is None
+    assert set(report['per_object']) <= {'5', '11'}
+    assert sum(v['objects_gt'] for v in report['per_object'].values()) == expected['targets']
+    assert (out / 'report.md').read_text().count('obj_') >= 1
+    assert (out / 'recall_per_object.png').stat().st_size > 0
+    assert len((out / 'estimates.csv').read_text().splitlines()) == len(results) + 1
+
+
+def test_missing_estimates_count_as_misses(dataset, tmp_path):
+    models, data = dataset
+    poses = tmp_path / 'empty.csv'
+    write_results(poses, [])
+    out = tmp_path / 'out'
+    assert main(['evaluate', '--dataset', str(data), '--models', str(models),
+                 '--poses', str(poses), '--out', str(out), '--limit', '1']) == 0
+    report = json.loads((out / 'report.json').read_text())
+    assert report['frames'] == 1
+    assert report['pose']['recall_5cm5deg'] == 0.0
+    assert report['pose']['mssd_recall'] == 0.0
+
+
+def test_error_lines(dataset, tmp_path, capsys):
+    models, data = dataset
+    poses = tmp_path / 'p.csv'
+    write_results(poses, [])
+    base = ['evaluate', '--models', str(models), '--poses', str(poses), '--out',
+            str(tmp_path / 'o')]
+    assert main(base + ['--dataset', str(tmp_path)]) == 1
+    assert 'not a BOP dataset' in capsys.readouterr().err
+    assert main(base + ['--dataset', str(data), '--split', 'test_front']) == 1
+    assert "no split 'test_front'" in capsys.readouterr().err
+    empty_models = tmp_path / 'models'
+    empty_models.mkdir()
+    (empty_models / 'obj_05.stl').write_bytes((models / 'obj_05.stl').read_bytes())
+    assert main(['evaluate', '--models', str(empty_models), '--poses', str(poses), '--out',
+                 str(tmp_path / 'o'), '--dataset', str(data)]) == 1
+    assert 'no model' in capsys.readouterr().err
+    assert main(['evaluate', '--models', str(models), '--dataset', str(data), '--out',
+                 str(tmp_path / 'o')]) == 1
+    assert '--templates' in capsys.readouterr().err
