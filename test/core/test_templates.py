@@ -29,14 +29,16 @@ def test_templates_are_views_of_the_model(obj21):
     assert obj.voxel_size_m == pytest.approx(model.diameter_m / 25)
     for k, template in enumerate(obj.templates):
         assert template.yaw_rad == pytest.approx(k * np.pi / 2)
-        assert template.fpfh.shape == (len(template.points), 33)
+        assert template.fpfh is None   # computed on first use, never stored
+        normals, fpfh = obj.features(k)
+        assert fpfh.shape == (len(template.points), 33) and template.fpfh is fpfh
         assert len(template.points) > 100
         # The view cloud, moved into the object frame, lies on the CAD surface.
         in_object = transform_points(invert_transform(template.T_camera_object), template.points)
         distance, _ = obj.model_tree().query(in_object)
         assert np.median(distance) < obj.voxel_size_m
         # Normals face the camera.
-        assert np.mean(np.sum(template.normals * template.points, axis=1) < 0) > 0.95
+        assert np.mean(np.sum(normals * template.points, axis=1) < 0) > 0.95
     assert obj.stable_poses.shape[1:] == (4, 4)
     assert np.all(np.diff(obj.stable_probabilities) <= 0)
 
@@ -48,14 +50,27 @@ def test_npz_round_trip(obj21, tmp_path):
     loaded = tpl.TemplateDatabase.load(path)
     a, b = db[21], loaded[21]
     assert len(a.templates) == len(b.templates)
-    for ta, tb in zip(a.templates, b.templates):
-        np.testing.assert_allclose(ta.points, tb.points)
-        np.testing.assert_allclose(ta.fpfh, tb.fpfh)
+    for i, (ta, tb) in enumerate(zip(a.templates, b.templates)):
+        # points are stored as 0.05 mm steps; features are recomputed alike after loading
+        np.testing.assert_allclose(ta.points, tb.points, atol=tpl.POINT_QUANTUM_M)
+        assert tb.normals is None and tb.fpfh is None
+        # FPFH bins shift a little when a neighbour crosses the search radius
+        assert np.median(np.abs(a.features(i)[1] - b.features(i)[1])) < 0.5
         np.testing.assert_allclose(ta.T_camera_object, tb.T_camera_object)
+    np.testing.assert_allclose(a.model_points, b.model_points, atol=tpl.POINT_QUANTUM_M)
+    assert np.degrees(np.arccos(np.min(np.sum(a.model_normals * b.model_normals, axis=1)))) < 1
     np.testing.assert_allclose(a.stable_poses, b.stable_poses)
+    assert b.fpfh_radius_voxels == a.fpfh_radius_voxels
     assert loaded.params['n_views'] == 4
     with pytest.raises(KeyError, match='obj_05'):
         loaded[5]
+
+
+def test_old_format_version_is_refused(tmp_path):
+    old = tmp_path / 'v1.npz'
+    np.savez(old, format=np.array(tpl.FORMAT), version=np.array(1))
+    with pytest.raises(ModelFileError, match=r'version 1, expected 2.*tlessbot templates'):
+        tpl.TemplateDatabase.load(old)
 
 
 def test_missing_and_corrupt_files(tmp_path):

@@ -539,9 +539,10 @@ def register_templates(scene_c: np.ndarray, scene_normals: np.ndarray, scene_fpf
     indices = range(len(obj.templates)) if template_indices is None else template_indices
     for i in indices:
         template = obj.templates[i]
-        source = to_o3d(template.points, template.normals)
+        template_normals, template_fpfh = obj.features(i)
+        source = to_o3d(template.points, template_normals)
         source_feature = reg.Feature()
-        source_feature.data = np.asarray(template.fpfh, np.float64).T
+        source_feature.data = np.asarray(template_fpfh, np.float64).T
         o3d.utility.random.seed(int(params.seed))
         result = reg.registration_ransac_based_on_feature_matching(
             source=source, target=target, source_feature=source_feature,

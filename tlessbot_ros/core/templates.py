@@ -3,11 +3,13 @@
 Each object gets N partial views (2–18, default 12) rendered from its CAD model as the side camera
 sees it resting on the table in a stable pose, the table turned in yaw steps of 360°/N, or views
 captured from real turntable clouds (:func:`template_from_cloud`). A template stores its
-voxelised cloud, normals (facing the camera), FPFH features (Rusu 2009) and the pose of the object
-in the template's camera frame. Per object the database also keeps what the fast table-plane path
-of :mod:`tlessbot_ros.core.pose` needs: surface samples with normals, the stable poses on the
-table, and the yaw period of each stable pose (its rotational symmetry about the table normal,
-detected from the mesh: 2π for none, π for a 180° flip, ~0 for a continuous axis).
+voxelised cloud and the pose of the object in the template's camera frame; its normals (facing
+the camera) and FPFH features (Rusu 2009) are computed on first use by the RANSAC path and kept in
+memory, never stored (format version 2: FPFH was 90 % of a version-1 file). Per object the
+database also keeps what the fast table-plane path of :mod:`tlessbot_ros.core.pose` needs: surface
+samples with normals, the stable poses on the table, and the yaw period of each stable pose (its
+rotational symmetry about the table normal, detected from the mesh: 2π for none, π for a 180°
+flip, ~0 for a continuous axis).
 
 Files are ``.npz`` loaded with ``allow_pickle=False``; units are metres.
 
@@ -27,7 +29,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from tlessbot_ros.core.cloud import CloudParams, preprocess_roi, to_o3d
+from tlessbot_ros.core.cloud import CloudParams, estimate_normals, preprocess_roi, to_o3d
 from tlessbot_ros.core.geometry import (
     CameraIntrinsics,
     depth_to_points,
@@ -39,9 +41,13 @@ from tlessbot_ros.core.geometry import (
 from tlessbot_ros.errors import ModelFileError
 
 FORMAT = 'tlessbot_templates'
-VERSION = 1
+VERSION = 2
 MIN_VIEWS, MAX_VIEWS = 2, 18
 CONTINUOUS_YAW_PERIOD = 0.0
+# Storage: points as int16 multiples of 0.05 mm (10x below the sensor noise), unit normals as
+# int8 / 127; this, and no stored FPFH, keeps all 23 T-LESS objects near 1 MB.
+POINT_QUANTUM_M = 5e-5
+NORMAL_SCALE = 127.0
 
 
 @dataclass(frozen=True)
@@ -85,16 +91,17 @@ class Template:
 
     Attributes:
         points: (N, 3) float32 voxelised view cloud in the template camera frame, metres.
-        normals: (N, 3) float32 unit normals facing the camera.
-        fpfh: (N, 33) float32 FPFH descriptors.
+        normals: (N, 3) float32 unit normals facing the camera, or None until
+            :meth:`ObjectTemplates.features` computes them.
+        fpfh: (N, 33) float32 FPFH descriptors, or None (computed lazily likewise).
         T_camera_object: (4, 4) float64 pose of the object in the template camera frame.
         stable_index: index of the stable pose the object rests in (-1: unknown / captured).
         yaw_rad: turntable yaw of the view.
     """
 
     points: np.ndarray
-    normals: np.ndarray
-    fpfh: np.ndarray
+    normals: np.ndarray | None
+    fpfh: np.ndarray | None
     T_camera_object: np.ndarray
     stable_index: int = -1
     yaw_rad: float = 0.0
@@ -116,6 +123,8 @@ class ObjectTemplates:
         yaw_periods: (S,) float64 yaw symmetry period of each stable pose about the table normal
             through the object origin, radians (2π: none; 0: continuous).
         templates: the views.
+        normal_radius_voxels, normal_max_nn, fpfh_radius_voxels, fpfh_max_nn: the feature
+            settings of :meth:`features` (as when the templates were made).
     """
 
     obj_id: int
@@ -127,7 +136,26 @@ class ObjectTemplates:
     stable_probabilities: np.ndarray
     yaw_periods: np.ndarray
     templates: list[Template] = field(default_factory=list)
+    normal_radius_voxels: float = 2.0
+    normal_max_nn: int = 30
+    fpfh_radius_voxels: float = 5.0
+    fpfh_max_nn: int = 100
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def features(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Normals (N, 3) and FPFH (N, 33) float32 of template ``index``, computed on the first
+        call (~5-15 ms per template) and kept on the template."""
+        template = self.templates[index]
+        voxel = self.voxel_size_m
+        if template.normals is None:
+            template.normals = estimate_normals(
+                template.points, radius_m=self.normal_radius_voxels * voxel,
+                max_nn=self.normal_max_nn).astype(np.float32)
+        if template.fpfh is None:
+            template.fpfh = compute_fpfh(template.points, template.normals,
+                                         radius_m=self.fpfh_radius_voxels * voxel,
+                                         max_nn=self.fpfh_max_nn)
+        return template.normals, template.fpfh
 
     def model_tree(self) -> cKDTree:
         """KD-tree of ``model_points`` (built once)."""
@@ -207,25 +235,33 @@ class TemplateDatabase:
         return obj_id in self.objects
 
     def save(self, path: str | Path) -> None:
-        """Write the database as a compressed ``.npz`` (no pickled objects)."""
+        """Write the database as a compressed ``.npz`` (no pickled objects; template normals and
+        FPFH are not stored, see :meth:`ObjectTemplates.features`)."""
         arrays: dict[str, np.ndarray] = {
             'format': np.array(FORMAT), 'version': np.array(VERSION),
             'params_json': np.array(json.dumps(self.params)),
             'obj_ids': np.array(sorted(self.objects), dtype=np.int64)}
         for obj_id, obj in self.objects.items():
             p = f'o{obj_id}_'
-            arrays[p + 'scalars'] = np.array([obj.diameter_m, obj.voxel_size_m])
-            arrays[p + 'model_points'] = obj.model_points.astype(np.float32)
-            arrays[p + 'model_normals'] = obj.model_normals.astype(np.float32)
+            arrays[p + 'scalars'] = np.array([obj.diameter_m, obj.voxel_size_m,
+                                              obj.normal_radius_voxels, obj.normal_max_nn,
+                                              obj.fpfh_radius_voxels, obj.fpfh_max_nn],
+                                             np.float64)
+            arrays[p + 'model_points'] = _quantise(obj.model_points, np.zeros(3))
+            arrays[p + 'model_normals'] = np.round(
+                np.clip(obj.model_normals, -1.0, 1.0) * NORMAL_SCALE).astype(np.int8)
             arrays[p + 'stable_poses'] = np.asarray(obj.stable_poses, np.float64).reshape(-1, 4, 4)
             arrays[p + 'stable_probabilities'] = np.asarray(obj.stable_probabilities, np.float64)
             arrays[p + 'yaw_periods'] = np.asarray(obj.yaw_periods, np.float64)
             t = obj.templates
             counts = [len(x.points) for x in t]
             arrays[p + 'offsets'] = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-            arrays[p + 'points'] = _cat([x.points for x in t], 3)
-            arrays[p + 'normals'] = _cat([x.normals for x in t], 3)
-            arrays[p + 'fpfh'] = _cat([x.fpfh for x in t], 33)
+            origins = np.array([x.points.mean(axis=0) if len(x.points) else np.zeros(3)
+                                for x in t], np.float64).reshape(-1, 3)
+            arrays[p + 'origins'] = origins
+            arrays[p + 'points'] = np.concatenate(
+                [_quantise(x.points, o) for x, o in zip(t, origins)]
+                or [np.zeros((0, 3), np.int16)])
             arrays[p + 'T_camera_object'] = np.array(
                 [x.T_camera_object for x in t], np.float64).reshape(-1, 4, 4)
             arrays[p + 'stable_index'] = np.array([x.stable_index for x in t], np.int64)
@@ -247,7 +283,8 @@ class TemplateDatabase:
                     raise ModelFileError(f'{path} is not a tlessbot template database')
                 if int(data['version']) != VERSION:
                     raise ModelFileError(f'{path}: template format version '
-                                         f'{int(data["version"])}, expected {VERSION}')
+                                         f'{int(data["version"])}, expected {VERSION}; '
+                                         'rebuild it with `tlessbot templates`')
                 db = cls(params=json.loads(str(data['params_json'])))
                 for obj_id in data['obj_ids'].tolist():
                     db.objects[int(obj_id)] = _read_object(data, int(obj_id))
@@ -258,31 +295,44 @@ class TemplateDatabase:
         return db
 
 
-def _cat(arrays: list[np.ndarray], width: int) -> np.ndarray:
-    if not arrays:
-        return np.zeros((0, width), np.float32)
-    return np.concatenate(arrays).astype(np.float32)
+def _quantise(points: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """(N, 3) metres -> int16 multiples of ``POINT_QUANTUM_M`` relative to ``origin``."""
+    q = np.round((np.asarray(points, np.float64) - origin) / POINT_QUANTUM_M)
+    if len(q) and np.abs(q).max() > np.iinfo(np.int16).max:
+        raise ValueError('points lie more than 1.6 m from their origin; cannot store them')
+    return q.astype(np.int16)
+
+
+def _unit(vectors: np.ndarray) -> np.ndarray:
+    return vectors / np.maximum(np.linalg.norm(vectors, axis=1, keepdims=True), 1e-9)
 
 
 def _read_object(data: np.lib.npyio.NpzFile, obj_id: int) -> ObjectTemplates:
     p = f'o{obj_id}_'
     scalars = data[p + 'scalars']
     offsets = data[p + 'offsets']
-    points, normals, fpfh = data[p + 'points'], data[p + 'normals'], data[p + 'fpfh']
+    origins = data[p + 'origins']
+    counts = np.diff(offsets)
+    points = (data[p + 'points'].astype(np.float64) * POINT_QUANTUM_M +
+              np.repeat(origins, counts, axis=0)).astype(np.float32)
     poses = data[p + 'T_camera_object']
     stable_index, yaw = data[p + 'stable_index'], data[p + 'yaw_rad']
-    if len(offsets) != len(poses) + 1 or offsets[-1] != len(points) or \
-            fpfh.shape != (len(points), 33) or normals.shape != points.shape:
+    if len(offsets) != len(poses) + 1 or offsets[-1] != len(points) or len(scalars) != 6 or \
+            points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f'inconsistent template arrays of obj_{obj_id:02d}')
-    templates = [Template(points[a:b], normals[a:b], fpfh[a:b], poses[i],
-                          int(stable_index[i]), float(yaw[i]))
+    templates = [Template(points[a:b], None, None, poses[i], int(stable_index[i]),
+                          float(yaw[i]))
                  for i, (a, b) in enumerate(zip(offsets[:-1], offsets[1:]))]
     return ObjectTemplates(
         obj_id=obj_id, diameter_m=float(scalars[0]), voxel_size_m=float(scalars[1]),
-        model_points=data[p + 'model_points'], model_normals=data[p + 'model_normals'],
+        model_points=(data[p + 'model_points'].astype(np.float64) * POINT_QUANTUM_M
+                      ).astype(np.float32),
+        model_normals=_unit(data[p + 'model_normals'].astype(np.float32) / NORMAL_SCALE),
         stable_poses=data[p + 'stable_poses'],
         stable_probabilities=data[p + 'stable_probabilities'],
-        yaw_periods=data[p + 'yaw_periods'], templates=templates)
+        yaw_periods=data[p + 'yaw_periods'], templates=templates,
+        normal_radius_voxels=float(scalars[2]), normal_max_nn=int(scalars[3]),
+        fpfh_radius_voxels=float(scalars[4]), fpfh_max_nn=int(scalars[5]))
 
 
 def compute_fpfh(points: np.ndarray, normals: np.ndarray, *, radius_m: float,
@@ -405,20 +455,22 @@ def diameter(vertices: np.ndarray) -> float:
 
 def template_from_cloud(points_c: np.ndarray, T_camera_object: np.ndarray, *,
                         voxel_size_m: float, params: TemplateParams = TemplateParams(),
-                        stable_index: int = -1, yaw_rad: float = 0.0) -> Template:
+                        stable_index: int = -1, yaw_rad: float = 0.0,
+                        with_fpfh: bool = False) -> Template:
     """A template from a captured or rendered partial cloud in its camera frame.
 
     Args:
         points_c: (N, 3) points of the object only, camera optical frame, metres.
         T_camera_object: (4, 4) pose of the object in that camera frame (e.g. from the
             turntable calibration).
+        with_fpfh: compute the FPFH now (otherwise on first use).
     """
     points, normals = preprocess_roi(points_c, voxel_size_m=voxel_size_m, params=params.cloud)
     if len(points) < 10:
         raise ValueError(f'template view has only {len(points)} points after voxelisation; '
                          'is the object visible?')
     fpfh = compute_fpfh(points, normals, radius_m=params.fpfh_radius_voxels * voxel_size_m,
-                        max_nn=params.fpfh_max_nn)
+                        max_nn=params.fpfh_max_nn) if with_fpfh else None
     return Template(points.astype(np.float32), normals.astype(np.float32), fpfh,
                     np.asarray(T_camera_object, np.float64), stable_index, float(yaw_rad))
 
@@ -433,8 +485,8 @@ def build_object_templates(
 
     The object rests on the table (world z = 0) at ``position_m`` (default: where the camera's
     optical axis meets the table) in each of its most probable stable poses and is turned by
-    ``2π k / n_views``; each view is ray-cast from the camera, back-projected, voxelised and
-    described by FPFH.
+    ``2π k / n_views``; each view is ray-cast from the camera, back-projected and voxelised
+    (FPFH on first use).
 
     Args:
         obj_id: T-LESS id.
@@ -479,7 +531,9 @@ def build_object_templates(
         obj_id=int(obj_id), diameter_m=diam, voxel_size_m=voxel, model_points=model_points,
         model_normals=model_normals, stable_poses=np.array([T for T, _ in poses]),
         stable_probabilities=np.array([p for _, p in poses]), yaw_periods=periods,
-        templates=templates)
+        templates=templates, normal_radius_voxels=params.cloud.normal_radius_voxels,
+        normal_max_nn=params.cloud.normal_max_nn, fpfh_radius_voxels=params.fpfh_radius_voxels,
+        fpfh_max_nn=params.fpfh_max_nn)
 
 
 def _optical_axis_on_table(T_world_camera: np.ndarray) -> np.ndarray:
