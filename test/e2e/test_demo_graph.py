@@ -13,7 +13,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.rosbag, pytest.mark.slow]
 def test_demo_bag_through_the_graph(capsys):
     summary = run_demo(str(DEFAULT_BAG), config=default_config_path(),
                        classifier=str(DEFAULT_CLASSIFIER), templates=str(DEFAULT_TEMPLATES),
-                       symmetries=load_symmetries(DEFAULT_MODELS_INFO), rate=0.5)
+                       symmetries=load_symmetries(DEFAULT_MODELS_INFO))
     report = capsys.readouterr().out
     assert summary['frames'] >= 3, report
     assert summary['parts_scored'] >= 10, report

@@ -30,7 +30,7 @@ class SyncParams:
     """
 
     slop_s: float = 0.010
-    queue_size: int = 5
+    queue_size: int = 15
     max_age_s: float = 0.050
 
 

@@ -54,14 +54,20 @@ def rss_mb(pid: int) -> float:
 def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | None = None,
                      rate: float = 1.0, loop: bool = False, duration_s: float = 0.0,
                      restamp: bool = False, startup_timeout_s: float = 90.0,
-                     settle_s: float = 3.0, quiet: bool = True) -> GraphRunResult:
+                     settle_s: float = 3.0, drain_timeout_s: float = 60.0,
+                     lockstep: bool = False, quiet: bool = True) -> GraphRunResult:
     """Start the perception nodes, replay ``bag`` into them, collect the published poses.
 
     Args:
         ros_args: extra ``--ros-args`` for every node (e.g. ``-p model_path:=...``).
         loop, duration_s: replay in a loop until ``duration_s`` seconds have passed.
         restamp: shift stamps to now (needed to measure latency and to loop).
-        settle_s: after the replay, wait until no pose arrived for this long.
+        settle_s: after the replay, wait until no pose arrived for this long ...
+        drain_timeout_s: ... and, up to this long, until the pose estimator's /diagnostics
+            count (frames + failures) covers every replayed frame.
+        lockstep: publish one frame (all messages sharing a log time), then wait until the
+            pose estimator has handled it before the next (no frame is dropped; for scoring,
+            not for timing). ``rate`` and ``loop`` are ignored.
     """
     import rclpy
     from rclpy.executors import MultiThreadedExecutor
@@ -92,6 +98,16 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
                 last_pose[0] = time.monotonic()
         return callback
 
+    handled = [0]
+
+    def on_diagnostics(msg) -> None:
+        for status in msg.status:
+            if status.name == 'pose_estimator':
+                values = {kv.key: kv.value for kv in status.values}
+                handled[0] = int(values.get('frames', 0)) + int(values.get('failures', 0))
+
+    monitor.create_subscription(message_class('diagnostic_msgs/msg/DiagnosticArray'),
+                                '/diagnostics', on_diagnostics, RESULT_QOS)
     pose_class = message_class('geometry_msgs/msg/PoseStamped')
     for obj_id in ALL_OBJECT_IDS:
         monitor.create_subscription(pose_class, f'/objects/obj_{obj_id:02d}/pose',
@@ -127,11 +143,19 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
                     result.rss_mb_samples.setdefault(label, []).append(rss_mb(pid))
                 next_sample[0] = time.monotonic() + 1.0
 
-        replay(player, str(bag), rate=rate, loop=loop, restamp=restamp, on_publish=on_publish,
-               should_stop=(lambda: stop_at is not None and time.monotonic() > stop_at))
-        while time.monotonic() - last_pose[0] < settle_s:
+        if lockstep:
+            _replay_lockstep(player, str(bag), handled, on_publish, graph, drain_timeout_s)
+        else:
+            replay(player, str(bag), rate=rate, loop=loop, restamp=restamp,
+                   on_publish=on_publish,
+                   should_stop=(lambda: stop_at is not None and time.monotonic() > stop_at))
+        drain_until = time.monotonic() + drain_timeout_s
+        with lock:
+            last_pose[0] = time.monotonic()
+        while time.monotonic() < drain_until and graph.first_exited() is None:
             time.sleep(0.1)
-            if graph.first_exited() is not None:
+            if handled[0] >= len(result.frames_replayed) and \
+                    time.monotonic() - last_pose[0] > settle_s:
                 break
         exited = graph.first_exited()
         if exited is not None:
@@ -146,3 +170,26 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         rclpy.try_shutdown()
         result.node_output = ''.join(output)
     return result
+
+
+def _replay_lockstep(node, bag: str, handled: list[int], on_publish, graph: GraphProcesses,
+                     frame_timeout_s: float) -> None:
+    """Publish frame after frame, each once the pose estimator reported the previous one."""
+    from itertools import groupby
+
+    from tlessbot_ros.io.bags import bag_topics, read_bag
+    from tlessbot_ros.nodes.common import RESULT_QOS, message_class
+
+    publishers = {topic: node.create_publisher(message_class(msgtype), topic, RESULT_QOS)
+                  for topic, msgtype in bag_topics(bag).items()}
+    time.sleep(1.0)  # let the new publishers match the nodes' subscriptions
+    for count, (_, messages) in enumerate(groupby(read_bag(bag), key=lambda m: m.log_time_ns),
+                                          start=1):
+        for message in messages:
+            publishers[message.topic].publish(message.raw)
+            on_publish(message)
+        deadline = time.monotonic() + frame_timeout_s
+        while handled[0] < count and time.monotonic() < deadline:
+            if graph.first_exited() is not None:
+                return
+            time.sleep(0.05)

@@ -32,7 +32,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--templates', default=str(DEFAULT_TEMPLATES), help='templates .npz')
     parser.add_argument('--models-info', default=str(DEFAULT_MODELS_INFO),
                         help='BOP models_info.json with the symmetries used for scoring')
-    parser.add_argument('--rate', type=float, default=0.5, help='replay rate')
+    parser.add_argument('--rate', type=float, default=1.0,
+                        help='replay rate with --realtime (default 1)')
+    parser.add_argument('--realtime', action='store_true',
+                        help='replay at the recorded rate (frames the graph cannot keep up '
+                             'with are dropped); default: frame by frame, each once the pose '
+                             'estimator has handled the previous one')
     parser.add_argument('--json', default=None, help='also write the summary here')
 
 
@@ -49,7 +54,8 @@ def load_symmetries(path: str | Path) -> dict[int, Symmetries]:
 
 
 def run_demo(bag: str, *, config: Path, classifier: str, templates: str,
-             symmetries: dict[int, Symmetries], rate: float, echo: bool = True) -> dict:
+             symmetries: dict[int, Symmetries], rate: float = 1.0, lockstep: bool = True,
+             echo: bool = True) -> dict:
     """Replay, collect, score; returns the summary (also printed when ``echo``)."""
     from tlessbot_ros.tools._bag_scoring import Estimate, score_frame
     from tlessbot_ros.tools._graph_run import run_graph_on_bag
@@ -58,7 +64,7 @@ def run_demo(bag: str, *, config: Path, classifier: str, templates: str,
         if not Path(path).is_file():
             raise ModelFileError(f'model file not found: {path}')
     truth = read_ground_truth(bag)
-    run = run_graph_on_bag(bag, config=config, rate=rate, restamp=False, ros_args=[
+    run = run_graph_on_bag(bag, config=config, rate=rate, lockstep=lockstep, ros_args=[
         '-p', f'model_path:={classifier}', '-p', f'templates_path:={templates}'])
     estimates: dict[int, list[Estimate]] = {}
     for pose in run.poses:
@@ -113,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         raise TlessbotError(f'bag not found: {args.bag}')
     summary = run_demo(args.bag, config=config, classifier=args.classifier,
                        templates=args.templates, symmetries=load_symmetries(args.models_info),
-                       rate=args.rate)
+                       rate=args.rate, lockstep=not args.realtime)
     if args.json:
         Path(args.json).write_text(json.dumps(summary, indent=2))
     return 0

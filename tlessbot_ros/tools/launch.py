@@ -76,6 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='replay this bag instead of starting the camera drivers')
     parser.add_argument('--rate', type=float, default=1.0, help='replay rate')
     parser.add_argument('--loop', action='store_true', help='replay in a loop')
+    parser.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE',
+                        help='parameter override for every node (repeatable), e.g. '
+                             '-p templates_path:=my_templates.npz')
     parser.add_argument('--nodes', nargs='+', default=None,
                         help='only these nodes (camera_driver, localiser, classifier, '
                              'pose_estimator)')
@@ -149,8 +152,12 @@ def run(args: argparse.Namespace) -> int:
     config = Path(args.config) if args.config else default_config_path()
     if not config.is_file():
         raise TlessbotError(f'parameter file not found: {config}')
+    for override in args.param:
+        if ':=' not in override:
+            raise TlessbotError(f'parameter override must look like NAME:=VALUE, got {override!r}')
     specs = graph_processes(config, replay=args.replay, rate=args.rate, loop=args.loop,
-                            nodes=args.nodes)
+                            nodes=args.nodes,
+                            extra_ros_args=[a for o in args.param for a in ('-p', o)])
     graph = GraphProcesses(specs, env=dict(os.environ))
     graph.start()
     print(f'launched {len(specs)} processes: ' + ', '.join(s.label for s in specs), flush=True)

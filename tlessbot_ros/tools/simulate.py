@@ -12,7 +12,6 @@ Example:
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 from collections.abc import Iterator
 from pathlib import Path
@@ -28,6 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--out', type=Path, help='output BOP dataset folder')
     parser.add_argument('--bag', type=Path, help='also write a rosbag2 (mcap) folder here')
     parser.add_argument('--fps', type=float, default=15.0, help='bag frame rate (default 15)')
+    parser.add_argument('--cloud-stride', type=int, default=1,
+                        help='bag point clouds use every n-th pixel row and column (default 1)')
+    parser.add_argument('--no-compress', action='store_true',
+                        help='write bag messages without zstd compression')
     parser.add_argument('--frames', type=int, default=10, help='number of frames (default 10)')
     parser.add_argument('--first', type=int, default=0, help='index of the first frame')
     parser.add_argument('--seed', type=int, default=0)
@@ -103,8 +106,8 @@ def run(args: argparse.Namespace) -> int:
         raise TlessbotError('nothing to write: give --out DIR and/or --bag FILE')
     if args.frames < 1:
         raise TlessbotError('--frames must be at least 1')
-    if args.bag is not None and importlib.util.find_spec('tlessbot_ros.sim.bag') is None:
-        raise TlessbotError('--bag needs tlessbot_ros.sim.bag, which is not installed')
+    if args.cloud_stride < 1:
+        raise TlessbotError('--cloud-stride must be at least 1')
     try:
         params = SimParams(parts_min=args.parts_min, parts_max=args.parts_max,
                            noise_scale=args.noise_scale,
@@ -151,7 +154,8 @@ def run(args: argparse.Namespace) -> int:
         if args.bag is not None:
             from tlessbot_ros.sim.bag import BagParams, write_bag
 
-            counts = write_bag(frames(), args.bag, params=BagParams(fps=args.fps))
+            counts = write_bag(frames(), args.bag, params=BagParams(
+                fps=args.fps, cloud_stride=args.cloud_stride, compress=not args.no_compress))
             print(f'bag {args.bag}: ' + ', '.join(f'{t} {n}' for t, n in sorted(counts.items())))
         else:
             for _ in frames():
