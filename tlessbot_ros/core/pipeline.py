@@ -153,12 +153,24 @@ class PerceptionPipeline:
 
     # ---------------------------------------------------------------------------- stage 1
     def localise(self, views: dict[str, ViewInput]) -> FusionResult:
-        """Instance label images of a two-view frame ('top' and 'side')."""
+        """Instance label images of a two-view frame ('top' and 'side').
+
+        A view with aligned depth and a camera pose is segmented with the depth cue (height
+        above the table) fused with the colour cues; otherwise from colour alone (the paper).
+        """
         missing = {'top', 'side'} - set(views)
         if missing:
             raise ValueError(f'localise needs the top and side views; missing {sorted(missing)}')
-        top, side = (segment(views[v].rgb, background=views[v].background,
-                             params=self.segmentation) for v in ('top', 'side'))
+
+        def seg(view: ViewInput):
+            with_depth = view.depth_m is not None and view.T_world_camera is not None
+            return segment(view.rgb, background=view.background,
+                           depth_m=view.depth_m if with_depth else None,
+                           intrinsics=view.intrinsics if with_depth else None,
+                           T_world_camera=view.T_world_camera if with_depth else None,
+                           params=self.segmentation)
+
+        top, side = seg(views['top']), seg(views['side'])
         depth_top = views['top'].depth_m
         return fuse_views(top, side, rig=self.rig, side_rgb=views['side'].rgb,
                           depth_top_m=None if depth_top is None else np.nan_to_num(depth_top),

@@ -56,7 +56,7 @@ _OD_LUTS: dict[int, np.ndarray] = {}
 
 _LAB8_TO_LAB = np.array([[100.0 / 255.0, 0, 0, 0], [0, 1, 0, -128], [0, 0, 1, -128]], np.float32)
 
-METHODS = ('watershed', 'hed', 'lab', 'background')
+METHODS = ('watershed', 'hed', 'lab', 'background', 'depth')
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,8 @@ class SegmentationParams:
         methods: cues whose union forms the foreground; any of ``METHODS``. 'watershed' adds
             the grey-level histogram extremes as markers *and* refines the union by flooding;
             without it the union is used as is. 'background' is used only when an empty-table
-            image is given.
+            image is given, 'depth' only when an aligned depth image and the camera pose are
+            given (leave 'depth' out for the paper's RGB-only method).
         cutoff_sigma: candidate cut-off, in robust standard deviations of the background peak.
         sure_sigma: sure-object marker cut-off (histogram extreme), same unit.
         grey_floor, hed_floor, lab_floor: smallest cut-off distance from the background peak
@@ -96,6 +97,16 @@ class SegmentationParams:
             materials); 0 disables.
         colour_split_min_share: smallest share of the blob for a colour piece (so specular
             highlights do not become parts).
+        depth_min_height_m: depth cue: pixels whose back-projected point lies higher than
+            this above the table plane (world z) are object candidates...
+        depth_sure_height_m: ... and higher than this, sure object markers.
+        depth_noise_k: both heights are raised to this many robust standard deviations of
+            the table's measured height (the depth noise grows with distance).
+        depth_table_height_m: pixels with valid depth lower than this (and lower than
+            ``depth_noise_k / 2`` noise deviations) are table: colour candidates there are
+            dropped (cast shadows, dark table squares) and they seed the watershed's
+            background. Invalid depth (0 / NaN) votes for nothing, so the colour cues decide.
+        depth_filter_px: aperture of the median filter on the height map (1 = none).
     """
 
     methods: tuple[str, ...] = METHODS
@@ -119,6 +130,11 @@ class SegmentationParams:
     cue_scale: float = 0.5
     colour_split_delta: float = 25.0
     colour_split_min_share: float = 0.12
+    depth_min_height_m: float = 0.004
+    depth_sure_height_m: float = 0.010
+    depth_noise_k: float = 4.0
+    depth_table_height_m: float = 0.0025
+    depth_filter_px: int = 3
 
     def __post_init__(self) -> None:
         unknown = set(self.methods) - set(METHODS)
@@ -137,6 +153,11 @@ class SegmentationParams:
             raise ValueError(f'border_fraction must be in [0, 0.5), got {self.border_fraction}')
         if not 0.0 < self.cue_scale <= 1.0:
             raise ValueError(f'cue_scale must be in (0, 1], got {self.cue_scale}')
+        if not 0.0 < self.depth_min_height_m <= self.depth_sure_height_m:
+            raise ValueError('need 0 < depth_min_height_m <= depth_sure_height_m, got '
+                             f'{self.depth_min_height_m} and {self.depth_sure_height_m}')
+        if self.depth_filter_px not in (1, 3, 5):
+            raise ValueError(f'depth_filter_px must be 1, 3 or 5, got {self.depth_filter_px}')
         lo, hi = self.shadow_ratio
         if not 0.0 <= lo < hi <= 1.0:
             raise ValueError(f'shadow_ratio must satisfy 0 <= low < high <= 1, got '
@@ -305,6 +326,87 @@ def _cutoff_masks(channel: np.ndarray, floor: float, params: SegmentationParams,
     return candidate, sure
 
 
+# --------------------------------------------------------------------------- depth
+_HEIGHT_COEF: dict[tuple, np.ndarray] = {}
+
+
+def height_above_table(depth_m: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray, *,
+                       scale: float = 1.0) -> np.ndarray:
+    """Height of every depth pixel's 3D point above the table plane (world z = 0).
+
+    A pixel (u, v) with z-depth d back-projects to ``d K^-1 (u, v, 1)`` in the optical frame;
+    its world height is ``d (r3 . K^-1 (u, v, 1)) + t_z`` with r3 the third row of the
+    camera's rotation, so one multiply-add per pixel with a cached coefficient image (lens
+    distortion is ignored: the D415 colour stream is nearly distortion-free).
+
+    Args:
+        depth_m: (H, W) float z-depth in metres aligned to the colour image; 0 or NaN =
+            invalid.
+        K: (3, 3) intrinsic matrix of that image.
+        T_world_camera: (4, 4) optical frame -> world (world z = 0 is the table, z up).
+        scale: output scale; pixel (r, c) of the output samples the input at
+            (floor(r / scale), floor(c / scale)) (the same pixels as ``cv2.INTER_NEAREST``).
+
+    Returns:
+        (round(H * scale), round(W * scale)) float32 heights in metres, NaN where invalid.
+    """
+    depth_m = np.asarray(depth_m)
+    if depth_m.ndim != 2:
+        raise ValueError(f'depth_m must be an (H, W) image, got shape {depth_m.shape}')
+    K = np.asarray(K, dtype=np.float64)
+    T = np.asarray(T_world_camera, dtype=np.float64)
+    if K.shape != (3, 3) or T.shape != (4, 4):
+        raise ValueError(f'K must be (3, 3) and T_world_camera (4, 4), got {K.shape} and '
+                         f'{T.shape}')
+    h, w = depth_m.shape
+    hs, ws = int(round(h * scale)), int(round(w * scale))
+    rows = np.minimum((np.arange(hs) / scale).astype(np.int64), h - 1)
+    cols = np.minimum((np.arange(ws) / scale).astype(np.int64), w - 1)
+    key = (K.tobytes(), T[2, :3].tobytes(), h, w, hs, ws)
+    coef = _HEIGHT_COEF.get(key)
+    if coef is None:
+        r3 = T[2, :3]
+        cu = (cols - K[0, 2]) / K[0, 0]
+        cv = (rows - K[1, 2]) / K[1, 1]
+        coef = (r3[0] * cu[None, :] + r3[1] * cv[:, None] + r3[2]).astype(np.float32)
+        if len(_HEIGHT_COEF) > 16:
+            _HEIGHT_COEF.clear()
+        _HEIGHT_COEF[key] = coef
+    d = depth_m[rows[:, None], cols[None, :]] if (hs, ws) != (h, w) else depth_m
+    d = d.astype(np.float32, copy=False)
+    d = np.where(d > 0, d, np.float32(np.nan))  # 0 and NaN invalid (NaN > 0 is False)
+    return d * coef + np.float32(T[2, 3])
+
+
+@dataclass
+class _DepthCue:
+    candidate: np.ndarray  # object candidates (cue scale)
+    sure: np.ndarray  # sure object
+    table: np.ndarray  # valid depth on the table plane
+    sigma_m: float  # robust height noise of the table
+
+
+def _depth_cue(height: np.ndarray, params: SegmentationParams) -> _DepthCue:
+    """Object / table masks from a (h, w) height map (NaN invalid)."""
+    valid = np.isfinite(height)
+    filled = np.where(valid, height, np.float32(0.0))
+    sample = filled[::2, ::2][valid[::2, ::2]]
+    sample = sample[np.abs(sample) < 0.02]
+    sigma = 1.4826 * float(np.median(np.abs(sample))) if sample.size > 50 else 0.0
+    if params.depth_filter_px > 1:
+        filtered = cv2.medianBlur(filled, params.depth_filter_px)
+    else:
+        filtered = filled
+    k = params.depth_noise_k
+    low = max(params.depth_min_height_m, k * sigma)
+    high = max(params.depth_sure_height_m, 1.5 * k * sigma)
+    table_h = max(params.depth_table_height_m, 0.5 * k * sigma)
+    candidate = valid & (filtered > low)
+    sure = valid & (filtered > high)
+    table = valid & (filtered < table_h) & (filled < table_h)
+    return _DepthCue(candidate, sure, table, sigma)
+
+
 # --------------------------------------------------------------------------- cues
 def background_mask(rgb: np.ndarray, background: np.ndarray, *,
                     params: SegmentationParams = SegmentationParams(),
@@ -376,7 +478,7 @@ def sobel_magnitude(grey: np.ndarray) -> np.ndarray:
 
 
 def watershed_refine(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray, *,
-                     band_px: int = 4) -> np.ndarray:
+                     band_px: int = 4, sure_background: np.ndarray | None = None) -> np.ndarray:
     """Marker-controlled watershed between sure-object and sure-background markers.
 
     Args:
@@ -385,6 +487,8 @@ def watershed_refine(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray, *
         candidate: (H, W) bool object candidates; pixels further than ``band_px`` from any
             candidate are sure background.
         sure: (H, W) bool sure-object pixels (markers).
+        sure_background: optional (H, W) bool pixels known to be table (e.g. from depth);
+            they become background markers too (sure-object pixels win where both hold).
 
     Returns:
         (H, W) bool object mask.
@@ -399,6 +503,8 @@ def watershed_refine(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray, *
     near_c = near[y:y + h, x:x + w].astype(bool)
     markers = np.zeros((h, w), np.int32)
     markers[~near_c] = 1
+    if sure_background is not None:
+        markers[sure_background[y:y + h, x:x + w]] = 1
     markers[sure[y:y + h, x:x + w]] = 2
     smooth = cv2.GaussianBlur(rgb[y:y + h, x:x + w], (3, 3), 0)
     markers = _watershed_padded(smooth, markers)
@@ -602,8 +708,10 @@ def _upscale(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
 
 
 def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None = None,
+            depth_m: np.ndarray | None = None, intrinsics=None,
+            T_world_camera: np.ndarray | None = None,
             params: SegmentationParams = SegmentationParams()) -> Segmentation:
-    """Segment the parts on a table in one RGB view (paper §3.1).
+    """Segment the parts on a table in one RGB view (paper §3.1), optionally helped by depth.
 
     The cues are computed at ``params.cue_scale`` (default half resolution); the watershed
     that places the contours and the instance separation run at full resolution.
@@ -614,6 +722,15 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
             :class:`BackgroundModel` from :func:`prepare_background` (faster when reused).
             When given, every histogram cut-off is read on the difference to it and the
             'background' cue (LAB distance with shadow test) joins the union.
+        depth_m: optional (H, W) float depth in metres aligned to ``rgb`` (0 / NaN invalid).
+            With ``intrinsics`` and ``T_world_camera`` it adds the 'depth' cue (not in the
+            paper): height above the table plane, see :func:`height_above_table`. It is fused
+            with the colour cues: high pixels join the union, pixels with valid depth on the
+            table plane veto colour candidates (shadows) and seed the watershed's background;
+            pixels without valid depth are left to the colour cues.
+        intrinsics: :class:`~tlessbot_ros.core.geometry.CameraIntrinsics` or a (3, 3) K of
+            the image (needed with ``depth_m``).
+        T_world_camera: (4, 4) camera pose in the table frame (needed with ``depth_m``).
         params: see :class:`SegmentationParams`.
 
     Returns:
@@ -638,6 +755,14 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
                              f'{rgb.shape}; it must come from the same camera and resolution')
         if bgm.scale != params.cue_scale:
             bgm = prepare_background(bgm.rgb, params=params)
+    use_depth = depth_m is not None and 'depth' in methods
+    if depth_m is not None:
+        if intrinsics is None or T_world_camera is None:
+            raise ValueError('depth_m needs intrinsics= and T_world_camera= (the camera pose '
+                             'in the table frame) to find the table plane')
+        if np.shape(depth_m) != rgb.shape[:2]:
+            raise ValueError(f'depth_m shape {np.shape(depth_m)} differs from the image '
+                             f'{rgb.shape[:2]}; align depth to colour first')
     t = t_start
     small = _downscale(rgb, params.cue_scale)
     lab = rgb_to_lab(small)
@@ -646,50 +771,72 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     cues: dict[str, np.ndarray] = {}
     candidate = np.zeros(small.shape[:2], bool)
     sure = np.zeros(small.shape[:2], bool)
-    not_shadow = None if bg_lab is None else _not_shadow(lab, bg_lab, params)
+    # Pixels where colour evidence is not trusted: cast shadows, and table seen by depth.
+    shadow = None if bg_lab is None else _shadow(lab, bg_lab, params)
+    veto = shadow
+    depth_cue = None
+    if use_depth:
+        K = np.asarray(getattr(intrinsics, 'K', intrinsics))
+        height = height_above_table(depth_m, K, T_world_camera,
+                                    scale=small.shape[0] / rgb.shape[0])
+        if height.shape != small.shape[:2]:
+            height = cv2.resize(height, (small.shape[1], small.shape[0]),
+                                interpolation=cv2.INTER_NEAREST)
+        depth_cue = _depth_cue(height, params)
+        veto = depth_cue.table if veto is None else veto | depth_cue.table
+        t = lap('depth', t)
+    keep = None if veto is None else ~veto
     if 'watershed' in methods:
         if bg_lab is None:
             cand, sure_g = _cutoff_masks(remove_trend(lab[..., 0]), params.grey_floor, params)
         else:
             cand, sure_g = _cutoff_masks(lab[..., 0] - bg_lab[..., 0], params.grey_floor,
                                          params, peak=0.0)
-            cand &= not_shadow
-            sure_g &= not_shadow
+        if keep is not None:
+            cand &= keep
+            sure_g &= keep
         cues['watershed'] = cand
         candidate |= cand
         sure |= sure_g
     if 'hed' in methods:
         hed = rgb_to_hed(small, dark_level=params.hed_dark_level)
         cand, sure_h = hed_masks(hed, params, reference=None if bgm is None else bgm.hed)
-        if not_shadow is not None:
-            cand &= not_shadow
-            sure_h &= not_shadow
+        if keep is not None:
+            cand &= keep
+            sure_h &= keep
         cues['hed'] = cand
         candidate |= cand
         sure |= sure_h
         t = lap('hed', t)
     if 'lab' in methods:
         cand, sure_l = lab_masks(lab, params, reference=bg_lab)
-        if not_shadow is not None:
-            cand &= not_shadow
-            sure_l &= not_shadow
+        if keep is not None:
+            cand &= keep
+            sure_l &= keep
         cues['lab'] = cand
         candidate |= cand
         sure |= sure_l
     if 'background' in methods and bgm is not None:
-        cand = background_mask(small, _downscale(bgm.rgb, params.cue_scale), params=params,
-                               lab=lab, background_lab=bg_lab)
+        cand = _background_change(lab, bg_lab, params, shadow=shadow)
+        if depth_cue is not None:
+            cand &= ~depth_cue.table
         cues['background'] = cand
         candidate |= cand
         sure |= _erode(cand, 1)
+    if depth_cue is not None:
+        cues['depth'] = depth_cue.candidate
+        candidate |= depth_cue.candidate
+        sure |= depth_cue.sure
     if params.open_px > 0:
         candidate = _open(candidate, params.open_px)
         sure &= candidate
     candidate = _upscale(candidate, rgb.shape)
     sure = _upscale(sure, rgb.shape)
+    table = None if depth_cue is None else _upscale(_erode(depth_cue.table, 1), rgb.shape)
     t = lap('cues', t)
     if 'watershed' in methods:
-        foreground = watershed_refine(rgb, candidate, _erode(sure, 1), band_px=params.band_px)
+        foreground = watershed_refine(rgb, candidate, _erode(sure, 1), band_px=params.band_px,
+                                      sure_background=table)
     else:
         foreground = candidate
     t = lap('watershed', t)
@@ -699,6 +846,16 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     timings['total'] = (time.perf_counter() - t_start) * 1e3
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
                         cues=cues, timings_ms=timings)
+
+
+def _background_change(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams, *,
+                       shadow: np.ndarray | None = None) -> np.ndarray:
+    """LAB distance to the empty table above ``background_delta_e``, shadows excluded."""
+    diff = lab - bg_lab
+    delta_e_sq = np.einsum('ijk,ijk->ij', diff, diff)
+    if shadow is None:
+        shadow = _shadow(lab, bg_lab, params)
+    return (delta_e_sq > params.background_delta_e ** 2) & ~shadow
 
 
 def _shadow(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> np.ndarray:
@@ -713,10 +870,6 @@ def _shadow(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> 
     da = np.abs(lab[..., 1] - bg_lab[..., 1] * ratio)
     db = np.abs(lab[..., 2] - bg_lab[..., 2] * ratio)
     return (ratio > lo) & (ratio < hi) & (np.maximum(da, db) < params.shadow_chroma)
-
-
-def _not_shadow(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> np.ndarray:
-    return ~_shadow(lab, bg_lab, params)
 
 
 def _erode(mask: np.ndarray, radius: int) -> np.ndarray:
