@@ -1,4 +1,11 @@
-"""Linear classifiers over HOG descriptors: SGD, Perceptron, PA-I and PA-II (paper §3.2, §6.1).
+"""Linear classifiers over HOG (+ metric shape) descriptors: SGD, Perceptron, PA-I and PA-II.
+
+After the paper (§3.2, §6.1) the descriptor of a crop is its HOG ("paper features"). A model may
+also carry :class:`~tlessbot_ros.core.shape_features.ShapeParams` ("ours"): then the vector
+is the HOG followed by metric shape features read from the aligned depth of the region (heights
+above the table, footprint, yaw-normalised height map), which give back the physical size that
+the 60×60 crop throws away. Where a region has no usable depth the shape part is filled with
+its training mean (``shape_fill``), so it adds a constant and the HOG decides alone.
 
 Training uses scikit-learn's online learners through ``partial_fit`` on shuffled mini-batches:
 
@@ -29,10 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-from tlessbot_ros.core.hog import HogParams
+from tlessbot_ros.core.hog import HogParams, describe_regions
+from tlessbot_ros.core.shape_features import ShapeParams, region_points_world, shape_features
 from tlessbot_ros.errors import ModelFileError
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2 adds shape_params / shape_fill; version 1 files still load
 FILE_MAGIC = 'tlessbot_ros.linear_classifier'
 KINDS = ('sgd', 'perceptron', 'pa1', 'pa2')
 UNKNOWN_ID = 0  # T-LESS ids start at 1
@@ -52,6 +60,10 @@ class ClassifierParams:
             scaling is folded into the stored weights.
         reject_margin: default minimum margin (best minus second-best score) to accept a label;
             0 accepts everything.
+        hog_weight: with shape features, the standardised HOG block is multiplied by this
+            fixed factor before learning (a fixed feature map, folded into the stored
+            weights): the rendered-vs-scene domain gap is larger for HOG than for the metric
+            features, and a low weight keeps it from drowning them (measured in the README).
     """
 
     kind: str = 'sgd'
@@ -61,8 +73,11 @@ class ClassifierParams:
     pa_c: float = 0.1
     standardise: bool = True
     reject_margin: float = 0.0
+    hog_weight: float = 0.1
 
     def __post_init__(self) -> None:
+        if self.hog_weight <= 0:
+            raise ValueError(f'hog_weight must be > 0, got {self.hog_weight}')
         if self.kind not in KINDS:
             raise ValueError(f'kind must be one of {KINDS}, got {self.kind!r}')
         if self.epochs < 1 or self.batch_size < 1:
@@ -100,6 +115,9 @@ class LinearClassifier:
         kind: the learner (one of ``KINDS``).
         reject_margin: default reject threshold of :meth:`predict`.
         info: free-form JSON-serialisable training metadata (seed, sample counts, timings).
+        shape_params: metric shape features appended to the HOG, or None (paper features).
+        shape_fill: (shape_params.feature_dim,) float32 value of the shape part for regions
+            without usable depth (the training mean); required with ``shape_params``.
     """
 
     weights: np.ndarray
@@ -109,17 +127,68 @@ class LinearClassifier:
     kind: str = 'sgd'
     reject_margin: float = 0.0
     info: dict = field(default_factory=dict)
+    shape_params: ShapeParams | None = None
+    shape_fill: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         w, b, ids = self.weights, self.intercepts, self.class_ids
         if w.ndim != 2 or b.shape != (w.shape[1],) or ids.shape != (w.shape[1],):
             raise ValueError(f'inconsistent shapes: weights {w.shape}, intercepts {b.shape}, '
                              f'class_ids {ids.shape}; need (D, C), (C,), (C,)')
-        if w.shape[0] != self.hog_params.feature_dim:
-            raise ValueError(f'weights have {w.shape[0]} rows but the HOG settings give '
-                             f'{self.hog_params.feature_dim}-dimensional descriptors')
+        if w.shape[0] != self.feature_dim:
+            raise ValueError(f'weights have {w.shape[0]} rows but the HOG (+ shape) settings '
+                             f'give {self.feature_dim}-dimensional descriptors')
+        if self.shape_params is not None and (
+                self.shape_fill is None
+                or np.shape(self.shape_fill) != (self.shape_params.feature_dim,)):
+            raise ValueError('a model with shape_params needs a shape_fill of '
+                             f'{self.shape_params.feature_dim} values')
         if w.shape[1] < 2:
             raise ValueError('a classifier needs at least 2 classes')
+
+    @property
+    def feature_dim(self) -> int:
+        """Descriptor length: HOG, plus the shape vector when ``shape_params`` is set."""
+        extra = 0 if self.shape_params is None else self.shape_params.feature_dim
+        return self.hog_params.feature_dim + extra
+
+    @property
+    def uses_depth(self) -> bool:
+        """True for the "ours" models (HOG + metric shape features)."""
+        return self.shape_params is not None
+
+    def describe(self, image: np.ndarray, masks: list[np.ndarray] | None = None,
+                 boxes: list | None = None, *, depth_m: np.ndarray | None = None,
+                 K: np.ndarray | None = None,
+                 T_world_camera: np.ndarray | None = None) -> np.ndarray:
+        """Descriptors of the regions of one frame, as this model expects them.
+
+        Args:
+            image: (H, W, 3) RGB or (H, W) grey frame.
+            masks: N (H, W) bool region masks (or None with ``boxes``).
+            boxes: N (x, y, w, h) boxes in pixels (or None: the masks' boxes).
+            depth_m: (H, W) aligned z-depth in metres (0/NaN invalid), or None.
+            K: (3, 3) camera matrix of the image (needed with ``depth_m``).
+            T_world_camera: (4, 4) camera pose in the table frame (needed with ``depth_m``).
+
+        Returns:
+            (N, feature_dim) float32. Without depth, extrinsics or enough valid points, a
+            region's shape part is ``shape_fill``.
+        """
+        hog = describe_regions(image, boxes, masks, params=self.hog_params)
+        if self.shape_params is None:
+            return hog
+        shape = np.tile(np.asarray(self.shape_fill, np.float32), (len(hog), 1))
+        if depth_m is not None and K is not None and T_world_camera is not None:
+            depth_m = np.asarray(depth_m)
+            for i in range(len(hog)):
+                region = masks[i] if masks is not None else _box_mask(boxes[i], depth_m.shape)
+                values = shape_features(
+                    region_points_world(depth_m, region, K, T_world_camera),
+                    params=self.shape_params)
+                if values is not None:
+                    shape[i] = values
+        return np.hstack([hog, shape])
 
     def decision_function(self, features: np.ndarray) -> np.ndarray:
         """(N, D) float32 descriptors -> (N, C) float32 class scores."""
@@ -128,7 +197,8 @@ class LinearClassifier:
             features = features[None]
         if features.shape[1] != self.weights.shape[0]:
             raise ValueError(f'descriptors have {features.shape[1]} values, the model expects '
-                             f'{self.weights.shape[0]}: were they made with its hog_params?')
+                             f'{self.weights.shape[0]}: were they made with its hog_params '
+                             '(and shape_params)?')
         return features @ self.weights + self.intercepts
 
     def predict(self, features: np.ndarray, *, reject_margin: float | None = None) -> Prediction:
@@ -153,8 +223,12 @@ class LinearClassifier:
 
         Keys: ``magic``, ``format_version``, ``kind``, ``weights`` (D, C) float32,
         ``intercepts`` (C,) float32, ``class_ids`` (C,) int64, ``hog_params`` (JSON),
-        ``reject_margin``, ``info`` (JSON).
+        ``reject_margin``, ``info`` (JSON), ``shape_params`` (JSON, "null" for paper features),
+        ``shape_fill`` (F,) float32 (empty for paper features).
         """
+        shape_json = json.dumps(None if self.shape_params is None else
+                                self.shape_params.to_dict())
+        fill = np.zeros(0, np.float32) if self.shape_fill is None else self.shape_fill
         np.savez_compressed(
             Path(path), magic=np.array(FILE_MAGIC), format_version=np.array(FORMAT_VERSION),
             kind=np.array(self.kind), weights=self.weights.astype(np.float32),
@@ -162,7 +236,8 @@ class LinearClassifier:
             class_ids=self.class_ids.astype(np.int64),
             hog_params=np.array(json.dumps(self.hog_params.to_dict())),
             reject_margin=np.array(float(self.reject_margin)),
-            info=np.array(json.dumps(self.info)))
+            info=np.array(json.dumps(self.info)), shape_params=np.array(shape_json),
+            shape_fill=np.asarray(fill, np.float32))
 
     @classmethod
     def load(cls, path: str | Path) -> LinearClassifier:
@@ -179,19 +254,23 @@ class LinearClassifier:
             raise ModelFileError(f'{path} is not a tlessbot classifier model (wrong magic); '
                                  "make one with 'tlessbot train'")
         version = int(arrays.get('format_version', -1))
-        if version != FORMAT_VERSION:
+        if version not in (1, FORMAT_VERSION):
             raise ModelFileError(f'{path} has model format version {version}; this tlessbot '
                                  f'reads version {FORMAT_VERSION}: retrain it')
         try:
             hog_dict = json.loads(str(arrays['hog_params']))
             known = {f.name for f in fields(HogParams)}
             hog_params = HogParams(**{k: v for k, v in hog_dict.items() if k in known})
+            shape_dict = json.loads(str(arrays.get('shape_params', 'null')))
+            shape_params = None if shape_dict is None else ShapeParams.from_dict(shape_dict)
             return cls(weights=arrays['weights'].astype(np.float32),
                        intercepts=arrays['intercepts'].astype(np.float32),
                        class_ids=arrays['class_ids'].astype(np.int64),
                        hog_params=hog_params, kind=str(arrays['kind']),
                        reject_margin=float(arrays['reject_margin']),
-                       info=json.loads(str(arrays['info'])))
+                       info=json.loads(str(arrays['info'])), shape_params=shape_params,
+                       shape_fill=None if shape_params is None else
+                       arrays['shape_fill'].astype(np.float32))
         except (KeyError, ValueError, TypeError) as error:
             raise ModelFileError(f'{path} is a corrupt classifier model: {error}') from None
 
@@ -250,7 +329,9 @@ class OnlineTrainer:
                                   classes=self.class_ids)
         self.samples_seen += len(labels)
 
-    def model(self, hog_params: HogParams, *, info: dict | None = None) -> LinearClassifier:
+    def model(self, hog_params: HogParams, *, info: dict | None = None,
+              shape_params: ShapeParams | None = None,
+              shape_fill: np.ndarray | None = None) -> LinearClassifier:
         """The current weights as a :class:`LinearClassifier` (standardisation folded in)."""
         if self.samples_seen == 0:
             raise ValueError('partial_fit was never called: nothing learnt yet')
@@ -268,23 +349,28 @@ class OnlineTrainer:
                                 intercepts=intercept.astype(np.float32),
                                 class_ids=self.class_ids.copy(), hog_params=hog_params,
                                 kind=self.params.kind, reject_margin=self.params.reject_margin,
-                                info=dict(info or {}))
+                                info=dict(info or {}), shape_params=shape_params,
+                                shape_fill=shape_fill)
 
 
 def train_classifier(features: np.ndarray, labels: np.ndarray, *,
                      hog_params: HogParams | None = None,
                      params: ClassifierParams = ClassifierParams(), seed: int = 0,
-                     on_batch: Callable[[int], None] | None = None) -> LinearClassifier:
+                     on_batch: Callable[[int], None] | None = None,
+                     shape_params: ShapeParams | None = None) -> LinearClassifier:
     """Fit a linear model on in-memory descriptors with shuffled mini-batch epochs.
 
     Args:
-        features: (N, D) float32 HOG descriptors (D = ``hog_params.feature_dim``).
+        features: (N, D) float32 descriptors: HOG (D = ``hog_params.feature_dim``), followed
+            by the shape vector when ``shape_params`` is given (NaN rows of the shape part =
+            no usable depth; they get the training mean, which becomes ``shape_fill``).
         labels: (N,) int object ids (> 0).
         hog_params: stored in the model so inference normalises crops the same way
             (default ``HogParams()``).
         params: learner settings.
         seed: seeds the shuffling and the learner; same inputs and seed give the same model.
         on_batch: called with the batch size after each ``partial_fit`` (e.g. a progress bar).
+        shape_params: the shape feature settings ("ours"), or None for HOG only ("paper").
 
     Returns:
         The trained :class:`LinearClassifier`.
@@ -295,13 +381,26 @@ def train_classifier(features: np.ndarray, labels: np.ndarray, *,
     if features.ndim != 2 or labels.shape != (features.shape[0],):
         raise ValueError(f'need (N, D) features and (N,) labels, got {features.shape} and '
                          f'{labels.shape}')
-    if features.shape[1] != hog_params.feature_dim:
-        raise ValueError(f'features have {features.shape[1]} values but hog_params give '
-                         f'{hog_params.feature_dim}')
+    hog_dim = hog_params.feature_dim
+    expected = hog_dim + (0 if shape_params is None else shape_params.feature_dim)
+    if features.shape[1] != expected:
+        raise ValueError(f'features have {features.shape[1]} values but hog_params (and '
+                         f'shape_params) give {expected}')
+    shape_fill = None
+    if shape_params is not None:
+        shape = features[:, hog_dim:]
+        known = np.isfinite(shape).all(axis=1)
+        shape_fill = (shape[known].mean(axis=0) if known.any()
+                      else np.zeros(shape.shape[1])).astype(np.float32)
+        if not known.all():
+            features = features.copy()
+            features[~known, hog_dim:] = shape_fill
     mean = scale = None
     if params.standardise:
         mean = features.mean(axis=0)
         scale = np.maximum(features.std(axis=0), 1e-3).astype(np.float32)
+        if shape_params is not None:
+            scale[:hog_dim] /= params.hog_weight
     trainer = OnlineTrainer(labels, params=params, feature_mean=mean, feature_scale=scale,
                             seed=seed)
     rng = np.random.default_rng(seed)
@@ -313,4 +412,12 @@ def train_classifier(features: np.ndarray, labels: np.ndarray, *,
             if on_batch is not None:
                 on_batch(len(batch))
     return trainer.model(hog_params, info={'samples': int(len(labels)), 'seed': int(seed),
-                                           'epochs': params.epochs})
+                                           'epochs': params.epochs},
+                         shape_params=shape_params, shape_fill=shape_fill)
+
+
+def _box_mask(box, shape: tuple[int, int]) -> np.ndarray:
+    x, y, w, h = (int(round(float(v))) for v in box)
+    mask = np.zeros(shape, bool)
+    mask[max(y, 0):max(y + h, 0), max(x, 0):max(x + w, 0)] = True
+    return mask

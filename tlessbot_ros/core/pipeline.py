@@ -21,7 +21,6 @@ import numpy as np
 from tlessbot_ros.core.classifier import UNKNOWN_ID, LinearClassifier
 from tlessbot_ros.core.cloud import roi_cloud
 from tlessbot_ros.core.geometry import CameraIntrinsics, transform_points
-from tlessbot_ros.core.hog import describe_regions
 from tlessbot_ros.core.pose import PoseCandidate, PoseEstimator, PoseParams
 from tlessbot_ros.core.rig import Rig
 from tlessbot_ros.core.segmentation import BackgroundModel, SegmentationParams, segment
@@ -177,9 +176,18 @@ class PerceptionPipeline:
                           params=self.fusion)
 
     # ---------------------------------------------------------------------------- stage 2
-    def classify(self, rgb: dict[str, np.ndarray], labels: dict[str, np.ndarray]
-                 ) -> dict[int, ClassGuess]:
-        """Class of every instance, read in its preferred view (one HOG batch per view)."""
+    def classify(self, rgb: dict[str, np.ndarray], labels: dict[str, np.ndarray], *,
+                 views: dict[str, ViewInput] | None = None) -> dict[int, ClassGuess]:
+        """Class of every instance, read in its preferred view (one batch per view).
+
+        Args:
+            rgb: per view, (H, W, 3) uint8 RGB.
+            labels: per view, (H, W) instance label images (0 = background).
+            views: per view, the :class:`ViewInput` with the aligned depth, intrinsics and
+                ``T_world_camera``; a model trained with shape features ("ours") reads the
+                metric shape of each region from them. Without them (or without depth or
+                extrinsics in a view) such a model falls back to its HOG part.
+        """
         if self.classifier is None:
             raise ValueError('no classifier loaded')
         by_view: dict[str, list[int]] = {}
@@ -190,8 +198,13 @@ class PerceptionPipeline:
         guesses = {}
         for view, instances in by_view.items():
             masks = [labels[view] == i for i in instances]
-            features = describe_regions(rgb[view], [box_of(m) for m in masks], masks,
-                                        params=self.classifier.hog_params)
+            depth = {}
+            data = None if views is None else views.get(view)
+            if self.classifier.uses_depth and data is not None and data.depth_m is not None:
+                depth = {'depth_m': data.depth_m, 'K': data.intrinsics.K,
+                         'T_world_camera': data.T_world_camera}
+            features = self.classifier.describe(rgb[view], masks, [box_of(m) for m in masks],
+                                                **depth)
             prediction = self.classifier.predict(
                 features, reject_margin=self.params.reject_margin or None)
             for k, instance in enumerate(instances):
@@ -242,7 +255,7 @@ class PerceptionPipeline:
         t0 = time.perf_counter()
         fusion = self.localise(views)
         t1 = time.perf_counter()
-        guesses = self.classify({v: views[v].rgb for v in views}, fusion.labels)
+        guesses = self.classify({v: views[v].rgb for v in views}, fusion.labels, views=views)
         t2 = time.perf_counter()
         detections = self.estimate_poses(views, fusion.labels,
                                          {i: g.obj_id for i, g in guesses.items()})

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import csv
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -45,6 +45,7 @@ from tlessbot_ros.core.geometry import (
 from tlessbot_ros.core.render import MeshRenderer
 from tlessbot_ros.core.rig import d415_intrinsics
 from tlessbot_ros.io.models import ObjectModel, stable_poses
+from tlessbot_ros.sim.noise import DepthNoiseParams, add_depth_noise
 
 
 @dataclass(frozen=True)
@@ -67,6 +68,8 @@ class TurntableParams:
         min_pose_probability: resting poses rarer than this are not used (0 keeps all: a
             rolling part has many rare facet poses that together are its most likely way to
             lie).
+        depth_noise_scale: scale of the simulator's D415 depth noise model on the rendered
+            depth (0 = clean depth).
     """
 
     positions: int = 4
@@ -83,6 +86,7 @@ class TurntableParams:
     occlusion_max_frac: float = 0.35
     noise_sigma: tuple[float, float] = (1.0, 5.0)
     min_pose_probability: float = 0.0
+    depth_noise_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.positions < 1:
@@ -119,6 +123,12 @@ class TurntableSample:
         position: turntable position index.
         angle_deg: plate angle.
         augmentation: 0 for the plain view, 1.. for augmented copies.
+        depth_m: (h, w) float32 D415-like noisy z-depth of the window in metres (the part and
+            the plate, which is the table plane z = 0), 0 = invalid; warped with the image in
+            augmented copies.
+        K: (3, 3) camera matrix of the window (for augmented copies, the warp composed with
+            the intrinsics, so ``K⁻¹ [u, v, 1]ᵀ`` is still the viewing ray of pixel (u, v)).
+        T_world_camera: (4, 4) camera pose in the plate (table) frame.
     """
 
     obj_id: int
@@ -127,6 +137,9 @@ class TurntableSample:
     position: int
     angle_deg: float
     augmentation: int
+    depth_m: np.ndarray | None = None
+    K: np.ndarray | None = None
+    T_world_camera: np.ndarray | None = None
 
 
 # PLA looks of the paper's parts (light-yellow translucent, shiny pink, black, blue) and a few
@@ -170,8 +183,13 @@ def _background(shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
 
 
 def _augment(rgb: np.ndarray, mask: np.ndarray, params: TurntableParams,
-             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Random shear and zoom about the silhouette centre, then an optional occlusion cut."""
+             rng: np.random.Generator, depth_m: np.ndarray, K: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Random shear and zoom about the silhouette centre, then an optional occlusion cut.
+
+    The depth is warped with the image (nearest neighbour) and the returned camera matrix is
+    the warp composed with ``K``, so the warped pixels still back-project to the same points.
+    """
     h, w = mask.shape
     zoom = rng.uniform(*params.zoom)
     shear = rng.uniform(-params.shear_max, params.shear_max, 2)
@@ -185,6 +203,9 @@ def _augment(rgb: np.ndarray, mask: np.ndarray, params: TurntableParams,
                            borderMode=cv2.BORDER_REFLECT_101)
     warped = cv2.warpAffine(mask.astype(np.float32), M, (out_w, out_h),
                             flags=cv2.INTER_LINEAR) > 0.5
+    depth = cv2.warpAffine(depth_m, M, (out_w, out_h), flags=cv2.INTER_NEAREST,
+                           borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    K_warped = np.vstack([M, [0.0, 0.0, 1.0]]) @ K
     if rng.random() < params.occlusion_prob and warped.sum() > 50:
         # A neighbour hides the part beyond a random straight edge.
         angle = rng.uniform(0.0, 2.0 * np.pi)
@@ -196,8 +217,8 @@ def _augment(rgb: np.ndarray, mask: np.ndarray, params: TurntableParams,
         warped &= ~hidden
         image[hidden] = (rng.uniform(0.0, 255.0, 3)).astype(np.uint8)
     if not warped.any():
-        return rgb, mask
-    return image, warped
+        return rgb, mask, depth_m, K
+    return image, warped, depth, K_warped
 
 
 class Turntable:
@@ -217,6 +238,7 @@ class Turntable:
         self.params = params
         self.seed = int(seed)
         self._full = d415_intrinsics(params.width, params.height)
+        self._noise = replace(DepthNoiseParams(), scale=params.depth_noise_scale)
 
     def __len__(self) -> int:
         return len(self.models) * self.params.views_per_object()
@@ -247,13 +269,15 @@ class Turntable:
             renderer, corners, centre = placed[pose_index]
             angle = step * p.step_deg
             T_world_camera = self._camera(angle, centre, rng)
-            rgb, mask = self._render(renderer, corners, T_world_camera, rng)
+            rgb, mask, depth, K = self._render(renderer, corners, T_world_camera, rng)
             if not mask.any():
                 continue
-            yield TurntableSample(obj_id, rgb, mask, position, angle, 0)
+            yield TurntableSample(obj_id, rgb, mask, position, angle, 0, depth, K,
+                                  T_world_camera)
             for copy in range(1, p.augmentations + 1):
-                aug_rgb, aug_mask = _augment(rgb, mask, p, rng)
-                yield TurntableSample(obj_id, aug_rgb, aug_mask, position, angle, copy)
+                aug_rgb, aug_mask, aug_depth, aug_K = _augment(rgb, mask, p, rng, depth, K)
+                yield TurntableSample(obj_id, aug_rgb, aug_mask, position, angle, copy,
+                                      aug_depth, aug_K, T_world_camera)
 
     def samples(self, obj_ids: Sequence[int] | None = None) -> Iterator[TurntableSample]:
         """Every sample of the chosen objects (default all), object by object."""
@@ -277,7 +301,8 @@ class Turntable:
         return look_at(eye, target, up)
 
     def _render(self, renderer: MeshRenderer, corners_w: np.ndarray, T_world_camera: np.ndarray,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Colour, silhouette, noisy depth (part on the plate) and K of the part's window."""
         full = self._full
         uv = project_points(transform_points(invert_transform(T_world_camera), corners_w),
                             full.K)
@@ -301,7 +326,24 @@ class Turntable:
                         _background((h, w), rng), rng)
         colour += rng.normal(0.0, rng.uniform(*self.params.noise_sigma) / 255.0, colour.shape)
         rgb = (np.clip(colour, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-        return rgb, hit
+        depth = np.where(hit, result.depth_m, _plane_depth(K, (h, w), T_world_camera))
+        depth_mm = add_depth_noise(depth.astype(np.float32), float(K[0, 0]), rng,
+                                   self._noise)
+        return rgb, hit, depth_mm.astype(np.float32) / 1000.0, K
+
+
+def _plane_depth(K: np.ndarray, shape: tuple[int, int], T_world_camera: np.ndarray
+                 ) -> np.ndarray:
+    """(h, w) float32 z-depth of the plate (table plane z = 0), 0 where it is not seen."""
+    h, w = shape
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    R, t = T_world_camera[:3, :3], T_world_camera[:3, 3]
+    x = (u - K[0, 2]) / K[0, 0]
+    y = (v - K[1, 2]) / K[1, 1]
+    dz = R[2, 0] * x + R[2, 1] * y + R[2, 2]  # world z of the ray with unit optical z
+    with np.errstate(divide='ignore', invalid='ignore'):
+        depth = np.where(dz < -1e-9, -t[2] / dz, 0.0)
+    return depth.astype(np.float32)
 
 
 def _box_corners(vertices: np.ndarray) -> np.ndarray:

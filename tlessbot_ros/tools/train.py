@@ -12,6 +12,11 @@ part's silhouette; otherwise the whole image is the crop):
 
 Several learners can share one rendering pass: --classifier all (or sgd,pa1) writes
 <out>_<kind>.npz per learner.
+
+--features ours (the default in CAD mode) appends metric shape features from the rendered,
+D415-noised depth of each view (heights above the plate, footprint, height map; see
+tlessbot_ros.core.shape_features) to the HOG; --features paper keeps the paper's HOG only.
+Image folders have no depth, so they always give paper-feature models.
 """
 from __future__ import annotations
 
@@ -23,7 +28,11 @@ import numpy as np
 
 from tlessbot_ros.core.classifier import KINDS, ClassifierParams, train_classifier
 from tlessbot_ros.core.hog import HogParams, hog_features, normalise_crop
+from tlessbot_ros.core.shape_features import ShapeParams, region_points_world, shape_features
 from tlessbot_ros.errors import DatasetError, TlessbotError
+
+DEFAULT_STEP_DEG = 8.0
+DEFAULT_AUGMENTATIONS = 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,11 +45,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"learner: {', '.join(KINDS)}, a comma list, or 'all' "
                              '(default: sgd)')
     parser.add_argument('--ids', type=int, nargs='+', help='only these object ids (CAD mode)')
-    parser.add_argument('--steps-deg', type=float, default=2.0,
-                        help='turntable step in degrees (paper: 1; default 2, see README)')
+    parser.add_argument('--features', choices=('ours', 'paper'), default='ours',
+                        help='ours: HOG + metric shape features from depth (default); '
+                             "paper: HOG only (the paper's descriptor)")
+    parser.add_argument('--steps-deg', type=float, default=DEFAULT_STEP_DEG,
+                        help='turntable step in degrees (paper: 1; default '
+                             f'{DEFAULT_STEP_DEG:g}, see README)')
     parser.add_argument('--positions', type=int, default=4, help='places on the plate (4)')
-    parser.add_argument('--augmentations', type=int, default=3,
-                        help='shear/zoom copies per view (paper: 3, i.e. 4 images per view)')
+    parser.add_argument('--augmentations', type=int, default=DEFAULT_AUGMENTATIONS,
+                        help='shear/zoom copies per view (paper: 3, i.e. 4 images per view; '
+                             f'default {DEFAULT_AUGMENTATIONS})')
     parser.add_argument('--seed', type=int, default=0, help='rendering and training seed')
     parser.add_argument('--cell', type=int, default=HogParams.cell_px, help='HOG cell px (6)')
     parser.add_argument('--bins', type=int, default=HogParams.bins, help='HOG bins (4)')
@@ -65,10 +79,22 @@ def output_paths(out: Path, kinds: list[str]) -> dict[str, Path]:
     return {kind: out.with_name(f'{out.stem}_{kind}{out.suffix or ".npz"}') for kind in kinds}
 
 
+def sample_shape(sample, shape: ShapeParams) -> np.ndarray:
+    """(F,) float32 shape vector of a turntable sample, NaN where its depth is unusable."""
+    values = shape_features(region_points_world(sample.depth_m, sample.mask, sample.K,
+                                                sample.T_world_camera), params=shape)
+    return np.full(shape.feature_dim, np.nan, np.float32) if values is None else values
+
+
 def turntable_features(models_dir: Path, hog: HogParams, *, ids: list[int] | None,
                        steps_deg: float, positions: int, augmentations: int,
-                       seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Render the turntable and describe every crop: ((N, D) float32, (N,) int64 ids)."""
+                       seed: int, shape: ShapeParams | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Render the turntable and describe every crop: ((N, D) float32, (N,) int64 ids).
+
+    D is the HOG length, plus ``shape.feature_dim`` shape values (NaN = no usable depth) when
+    ``shape`` is given.
+    """
     from tqdm import tqdm
 
     from tlessbot_ros.io.models import load_models
@@ -80,7 +106,9 @@ def turntable_features(models_dir: Path, hog: HogParams, *, ids: list[int] | Non
     params = TurntableParams(positions=positions, step_deg=steps_deg,
                              augmentations=augmentations)
     table = Turntable(models, params=params, seed=seed)
-    features = np.empty((len(table), hog.feature_dim), np.float32)
+    hog_dim = hog.feature_dim
+    features = np.empty((len(table), hog_dim + (shape.feature_dim if shape else 0)),
+                        np.float32)
     labels = np.empty(len(table), np.int64)
     batch = np.empty((256, hog.crop_px, hog.crop_px), np.uint8)
     count = filled = 0
@@ -88,14 +116,16 @@ def turntable_features(models_dir: Path, hog: HogParams, *, ids: list[int] | Non
     with tqdm(total=len(table), desc='render+HOG', unit='crop') as bar:
         for sample in table.samples():
             batch[filled] = normalise_crop(sample.rgb, mask=sample.mask, params=hog)
+            if shape is not None:
+                features[count + filled, hog_dim:] = sample_shape(sample, shape)
             batch_labels.append(sample.obj_id)
             filled += 1
             if filled == len(batch):
-                features[count:count + filled] = hog_features(batch, params=hog)
+                features[count:count + filled, :hog_dim] = hog_features(batch, params=hog)
                 labels[count:count + filled] = batch_labels
                 count, filled, batch_labels = count + filled, 0, []
             bar.update()
-    features[count:count + filled] = hog_features(batch[:filled], params=hog)
+    features[count:count + filled, :hog_dim] = hog_features(batch[:filled], params=hog)
     labels[count:count + filled] = batch_labels
     count += filled
     return features[:count], labels[:count]
@@ -147,15 +177,19 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise TlessbotError(str(error)) from None
     started = time.perf_counter()
+    shape = ShapeParams() if args.features == 'ours' and args.models is not None else None
     if args.models is not None:
         features, labels = turntable_features(
             args.models, hog, ids=args.ids, steps_deg=args.steps_deg, positions=args.positions,
-            augmentations=args.augmentations, seed=args.seed)
+            augmentations=args.augmentations, seed=args.seed, shape=shape)
         source = {'source': 'turntable', 'steps_deg': args.steps_deg,
                   'positions': args.positions, 'augmentations': args.augmentations}
     else:
+        if args.features == 'ours':
+            print('image folders have no depth: training a paper-features (HOG only) model')
         features, labels = image_folder_features(args.from_images, hog)
         source = {'source': 'images', 'folder': str(args.from_images)}
+    source['features'] = 'ours' if shape is not None else 'paper'
     data_s = time.perf_counter() - started
     ids = np.unique(labels)
     print(f'{len(labels)} crops of {len(ids)} objects in {data_s:.1f} s')
@@ -167,14 +201,21 @@ def run(args: argparse.Namespace) -> int:
         t0 = time.perf_counter()
         with tqdm(total=batches, desc=f'train {kind}', unit='batch') as bar:
             model = train_classifier(features, labels, hog_params=hog, params=params,
-                                     seed=args.seed, on_batch=lambda _n: bar.update())
+                                     seed=args.seed, on_batch=lambda _n: bar.update(),
+                                     shape_params=shape)
         train_s = time.perf_counter() - t0
-        train_acc = float(np.mean(model.predict(features).class_ids == labels))
+        filled_in = features
+        if shape is not None:
+            filled_in = np.where(np.isfinite(features), features,
+                                 np.concatenate([np.zeros(hog.feature_dim, np.float32),
+                                                 model.shape_fill]))
+        train_acc = float(np.mean(model.predict(filled_in).class_ids == labels))
         info = dict(model.info, **source, data_s=round(data_s, 2), train_s=round(train_s, 2),
                     train_accuracy=round(train_acc, 4))
         type(model)(weights=model.weights, intercepts=model.intercepts,
                     class_ids=model.class_ids, hog_params=hog, kind=kind,
-                    reject_margin=model.reject_margin, info=info).save(path)
+                    reject_margin=model.reject_margin, info=info, shape_params=shape,
+                    shape_fill=model.shape_fill).save(path)
         print(f'{kind}: trained in {train_s:.1f} s (data {data_s:.1f} s), training accuracy '
               f'{100 * train_acc:.1f} % -> {path}')
     return 0
