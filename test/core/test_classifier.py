@@ -137,3 +137,96 @@ def test_errors():
     model = train_classifier(x, y, hog_params=HOG)
     with pytest.raises(ValueError, match='expects'):
         model.predict(np.zeros((1, 7), np.float32))
+
+
+# ------------------------------------------------------------------ metric shape features ("ours")
+def _top_down_box(length=0.06, width=0.03, height=0.025, yaw=0.0, size=200):
+    """Depth image of a box on the table seen straight down from 1 m, with K and the pose."""
+    from tlessbot_ros.core.geometry import make_transform
+
+    f = 600.0
+    K = np.array([[f, 0, size / 2], [0, f, size / 2], [0, 0, 1.0]])
+    # camera at z = 1 m looking down: optical z = -world z, optical y = -world y
+    R = np.diag([1.0, -1.0, -1.0])
+    T_world_camera = make_transform(R, np.array([0.0, 0.0, 1.0]))
+    v, u = np.mgrid[0:size, 0:size].astype(float)
+    x_w = (u - size / 2) / f * 1.0
+    y_w = -(v - size / 2) / f * 1.0
+    c, s = np.cos(-yaw), np.sin(-yaw)
+    xb, yb = c * x_w - s * y_w, s * x_w + c * y_w
+    inside = (np.abs(xb) < length / 2) & (np.abs(yb) < width / 2)
+    depth = np.where(inside, 1.0 - height, 1.0).astype(np.float32)
+    return depth, inside, K, T_world_camera
+
+
+def test_shape_features_measure_the_part():
+    from tlessbot_ros.core.shape_features import ShapeParams, region_points_world, shape_features
+
+    params = ShapeParams()
+    depth, mask, K, T = _top_down_box()
+    points = region_points_world(depth, mask, K, T)
+    assert np.allclose(points[:, 2], 0.025, atol=1e-4)
+    f = shape_features(points, params=params)
+    assert f.shape == (params.feature_dim,) and f.dtype == np.float32
+    n = len(params.percentiles)
+    np.testing.assert_allclose(f[:n], 2.5, atol=0.01)  # heights in cm
+    length, width, ratio, area = f[n + 2 + params.hist_bins:n + 6 + params.hist_bins]
+    assert length == pytest.approx(6.0 * 0.96, abs=0.3) and width == pytest.approx(2.9, abs=0.3)
+    assert area == pytest.approx(18.0, rel=0.25)
+    # yaw-normalised: the same box turned on the table gives (nearly) the same vector
+    turned = shape_features(region_points_world(*_top_down_box(yaw=0.7)[:1],
+                                                _top_down_box(yaw=0.7)[1], K, T))
+    scalars = slice(0, n + 5 + params.hist_bins)  # the grid-counted area varies a little
+    np.testing.assert_allclose(turned[scalars], f[scalars], atol=0.4)
+    assert turned[n + 5 + params.hist_bins] == pytest.approx(area, rel=0.25)
+    # a taller part differs clearly
+    tall = shape_features(region_points_world(*_top_down_box(height=0.05)[:2], K, T))
+    assert abs(tall[1] - f[1]) > 2.0
+
+
+def test_shape_features_tolerate_invalid_depth():
+    from tlessbot_ros.core.shape_features import region_points_world, shape_features
+
+    depth, mask, K, T = _top_down_box()
+    rng = np.random.default_rng(0)
+    holes = depth.copy()
+    holes[rng.random(depth.shape) < 0.3] = 0.0
+    holes[rng.random(depth.shape) < 0.1] = np.nan
+    bad = mask.copy()
+    bad[:, :95] |= True  # table pixels in the region (height 0) are ignored
+    a = shape_features(region_points_world(depth, mask, K, T))
+    b = shape_features(region_points_world(holes, bad, K, T))
+    assert np.all(np.isfinite(b))
+    np.testing.assert_allclose(b[:5], a[:5], atol=0.05)
+    assert shape_features(np.zeros((3, 3))) is None
+    assert shape_features(region_points_world(np.zeros_like(depth), mask, K, T)) is None
+
+
+def test_model_with_shape_features_round_trip(tmp_path):
+    from tlessbot_ros.core.shape_features import ShapeParams
+
+    shape = ShapeParams()
+    x, y = _toy()
+    rng = np.random.default_rng(1)
+    s = rng.normal(size=(len(y), shape.feature_dim)).astype(np.float32) + y[:, None] * 0.1
+    s[:3] = np.nan  # no usable depth for these: filled with the training mean
+    model = train_classifier(np.hstack([x, s]), y, hog_params=HOG, shape_params=shape)
+    assert model.uses_depth and model.feature_dim == HOG.feature_dim + shape.feature_dim
+    assert np.all(np.isfinite(model.shape_fill))
+    path = tmp_path / 'ours.npz'
+    model.save(path)
+    loaded = LinearClassifier.load(path)
+    assert loaded.shape_params == shape
+    np.testing.assert_array_equal(loaded.shape_fill, model.shape_fill)
+    # describe: with depth the shape part is measured, without it is the fill
+    depth, mask, K, T = _top_down_box(size=120)
+    image = np.where(mask[..., None], 200, 40).astype(np.uint8).repeat(3, axis=2)
+    with_depth = loaded.describe(image, [mask], depth_m=depth, K=K, T_world_camera=T)
+    without = loaded.describe(image, [mask])
+    assert with_depth.shape == without.shape == (1, loaded.feature_dim)
+    np.testing.assert_array_equal(without[0, HOG.feature_dim:], loaded.shape_fill)
+    assert with_depth[0, HOG.feature_dim] == pytest.approx(2.5, abs=0.05)
+    assert loaded.predict(with_depth).class_ids[0] in (2, 5, 19)
+    with pytest.raises(ValueError, match='shape_fill'):
+        LinearClassifier(model.weights, model.intercepts, model.class_ids, hog_params=HOG,
+                         shape_params=shape)

@@ -64,3 +64,23 @@ def test_param_errors():
         TurntableParams(elevation_deg=(10.0, 100.0))
     with pytest.raises(ValueError, match='step_deg'):
         TurntableParams(step_deg=0)
+
+
+def test_samples_carry_depth_and_pose(models):
+    from tlessbot_ros.core.shape_features import region_points_world
+
+    params = TurntableParams(step_deg=120, positions=1, augmentations=2)
+    for sample in Turntable(models, params=params, seed=2).views(5, 0):
+        assert sample.depth_m.shape == sample.mask.shape and sample.depth_m.dtype == np.float32
+        points = region_points_world(sample.depth_m, sample.mask, sample.K,
+                                     sample.T_world_camera, max_points=0)
+        assert len(points) > 0.5 * sample.mask.sum()  # noise drops only a few pixels
+        top = models[5].vertices.max(axis=0) - models[5].vertices.min(axis=0)
+        # every visible point of the part lies above the plate, below its largest side
+        assert np.percentile(points[:, 2], 5) > -0.003
+        assert np.percentile(points[:, 2], 95) < top.max() + 0.005
+        # the plate around the part (outside the mask) is the table plane z = 0
+        plate = region_points_world(sample.depth_m, ~sample.mask, sample.K,
+                                    sample.T_world_camera)
+        if len(plate) > 50:
+            assert abs(np.median(plate[:, 2])) < 0.003
