@@ -33,7 +33,7 @@ All images are (H, W, 3) uint8 RGB. Labels are (H, W) uint16 with 0 = background
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -372,10 +372,18 @@ def height_above_table(depth_m: np.ndarray, K: np.ndarray, T_world_camera: np.nd
         if len(_HEIGHT_COEF) > 16:
             _HEIGHT_COEF.clear()
         _HEIGHT_COEF[key] = coef
-    d = depth_m[rows[:, None], cols[None, :]] if (hs, ws) != (h, w) else depth_m
-    d = d.astype(np.float32, copy=False)
-    d = np.where(d > 0, d, np.float32(np.nan))  # 0 and NaN invalid (NaN > 0 is False)
-    return d * coef + np.float32(T[2, 3])
+    step = 1.0 / scale
+    if (hs, ws) == (h, w):
+        d = depth_m
+    elif step == int(step) and rows[-1] == (hs - 1) * int(step):
+        d = depth_m[::int(step), ::int(step)][:hs, :ws]  # same pixels, cheaper than a gather
+    else:
+        d = depth_m[rows[:, None], cols[None, :]]
+    d = d.astype(np.float32)
+    d[~(d > 0)] = np.nan  # 0 and NaN invalid (NaN > 0 is False)
+    d *= coef
+    d += np.float32(T[2, 3])
+    return d
 
 
 @dataclass
@@ -388,8 +396,9 @@ class _DepthCue:
 
 def _depth_cue(height: np.ndarray, params: SegmentationParams) -> _DepthCue:
     """Object / table masks from a (h, w) height map (NaN invalid)."""
-    valid = np.isfinite(height)
-    filled = np.where(valid, height, np.float32(0.0))
+    valid = ~np.isnan(height)
+    filled = height.copy()
+    filled[~valid] = 0.0
     sample = filled[::2, ::2][valid[::2, ::2]]
     sample = sample[np.abs(sample) < 0.02]
     sigma = 1.4826 * float(np.median(np.abs(sample))) if sample.size > 50 else 0.0
@@ -526,6 +535,10 @@ def split_touching(mask: np.ndarray, rgb: np.ndarray | None = None, *,
                    params: SegmentationParams = SegmentationParams()) -> np.ndarray:
     """Label a foreground mask, dividing blobs whose distance transform has several cores.
 
+    Blobs of several materials are first divided by colour (2-means on a / L, b / L); then
+    a blob whose distance transform, cut at ``split_core_fraction`` of its maximum, has two
+    or more cores is divided by a watershed seeded with them.
+
     Args:
         mask: (H, W) bool foreground.
         rgb: (H, W, 3) uint8 image; when given, the dividing lines follow its colour edges.
@@ -533,52 +546,143 @@ def split_touching(mask: np.ndarray, rgb: np.ndarray | None = None, *,
     Returns:
         (H, W) int32 labels, 0 = background, 1..N (blobs below ``min_area_px`` removed).
     """
-    mask_u8 = mask.astype(np.uint8)
-    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask_u8, connectivity=8)
-    labels = np.zeros(mask.shape, np.int32)
-    next_id = 1
-    for i in range(1, n):
+    return _instances(mask, rgb, params)[0]
+
+
+def _instances(mask: np.ndarray, rgb: np.ndarray | None,
+               params: SegmentationParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(labels (H, W) int32, boxes (N, 4) int32, areas (N,) int64) of :func:`split_touching`.
+
+    Blobs are labelled by one look-up; only blobs that may hold several parts (deep enough
+    for a split) are looked at one by one, in a crop.
+    """
+    mask_u8 = np.ascontiguousarray(mask, dtype=np.uint8)
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask_u8, connectivity=8,
+                                                         ltype=cv2.CV_32S)
+    big = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= params.min_area_px) + 1
+    H, W = mask.shape
+    # pieces[i]: None = the blob stays whole; else (y0, x0, [bool piece masks in the crop]).
+    pieces: dict[int, tuple[int, int, list[np.ndarray]]] = {}
+    # A blob narrower than twice the smallest split depth has a distance transform below it.
+    deep = 2.0 * params.split_min_depth_px
+    for i in big if params.split_touching else ():
         x, y, w, h, area = (int(v) for v in stats[i])
-        if area < params.min_area_px:
+        if min(w, h) < deep:
             continue
         x0, y0 = max(x - 1, 0), max(y - 1, 0)
-        x1, y1 = min(x + w + 1, mask.shape[1]), min(y + h + 1, mask.shape[0])
+        x1, y1 = min(x + w + 1, W), min(y + h + 1, H)
         blob = comp[y0:y1, x0:x1] == i
-        sub = labels[y0:y1, x0:x1]
-        if not params.split_touching:
-            sub[blob] = next_id
-            next_id += 1
-            continue
         crop = None if rgb is None else rgb[y0:y1, x0:x1]
-        pieces = [blob] if crop is None or params.colour_split_delta <= 0 else \
+        by_colour = [blob] if crop is None or params.colour_split_delta <= 0 else \
             _colour_pieces(blob, crop, params)
-        for piece_mask in pieces:
+        found = []
+        for piece_mask in by_colour:
             parts = _split_blob(piece_mask, crop, params)
-            for k in range(1, int(parts.max()) + 1):
-                piece = parts == k
-                if int(piece.sum()) < params.min_area_px:
-                    continue
-                sub[piece] = next_id
-                next_id += 1
-    return labels
+            top = int(parts.max())
+            if top == 1 and len(by_colour) == 1:
+                break
+            found += [parts == k for k in range(1, top + 1)]
+        if found:
+            pieces[int(i)] = (y0, x0, [f for f in found
+                                       if cv2.countNonZero(f.view(np.uint8))
+                                       >= params.min_area_px])
+    lut = np.zeros(n, np.int32)
+    boxes: list[tuple[int, int, int, int]] = []
+    areas: list[int] = []
+    placed: list[tuple[int, int, np.ndarray, int]] = []
+    for i in big:
+        i = int(i)
+        if i not in pieces:
+            boxes.append(tuple(int(v) for v in stats[i, :4]))
+            areas.append(int(stats[i, cv2.CC_STAT_AREA]))
+            lut[i] = len(boxes)
+            continue
+        y0, x0, found = pieces[i]
+        for f in found:
+            bx, by, bw, bh = cv2.boundingRect(f.view(np.uint8))
+            boxes.append((bx + x0, by + y0, bw, bh))
+            areas.append(cv2.countNonZero(f.view(np.uint8)))
+            placed.append((y0, x0, f, len(boxes)))
+    labels = lut[comp]
+    for y0, x0, f, k in placed:
+        labels[y0:y0 + f.shape[0], x0:x0 + f.shape[1]][f] = k
+    return (labels, np.array(boxes, np.int32).reshape(-1, 4),
+            np.array(areas, np.int64))
+
+
+def _instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarray,
+                        params: SegmentationParams
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Instance separation at the cue scale, labels carried back to the full-resolution mask.
+
+    The blobs are divided on the ``small`` image (4x fewer pixels at half scale; the sizes in
+    ``params`` are scaled with it); every full-resolution foreground pixel then takes the
+    label of its low-resolution pixel, or of a neighbour on the thin rim that the reduction
+    lost. Returns uint16 labels, (N, 4) int32 boxes, (N,) int64 areas at full resolution.
+    """
+    h, w = small.shape[:2]
+    H, W = foreground.shape
+    if (h, w) == (H, W):
+        labels, boxes, areas = _instances(foreground, rgb, params)
+        return labels.astype(np.uint16), boxes, areas
+    s = h / H
+    small_params = replace(params, min_area_px=max(1, int(round(params.min_area_px * s * s))),
+                           split_min_depth_px=params.split_min_depth_px * s,
+                           split_min_core_px=max(1, int(round(params.split_min_core_px * s * s))))
+    fg_small = cv2.resize(foreground.view(np.uint8) * np.uint8(255), (w, h),
+                          interpolation=cv2.INTER_AREA) >= 128
+    labels_s, boxes_s, _ = _instances(fg_small, small, small_params)
+    labels_s = labels_s.astype(np.uint16)
+    n = len(boxes_s)
+    if n == 0:
+        return np.zeros((H, W), np.uint16), np.zeros((0, 4), np.int32), np.zeros(0, np.int64)
+    up = cv2.resize(labels_s, (W, H), interpolation=cv2.INTER_NEAREST)
+    labels = np.where(foreground, up, np.uint16(0))
+    rim = foreground & (up == 0)
+    if rim.any():
+        grown = cv2.dilate(up, np.ones((5, 5), np.uint8))
+        labels[rim] = grown[rim]
+    # Boxes and areas: look only near each low-resolution box.
+    boxes = np.zeros((n, 4), np.int32)
+    areas = np.zeros(n, np.int64)
+    pad = int(np.ceil(1.0 / s)) + 2
+    for k, (bx, by, bw, bh) in enumerate(boxes_s, start=1):
+        y0, y1 = max(int(by / s) - pad, 0), min(int((by + bh) / s) + pad, H)
+        x0, x1 = max(int(bx / s) - pad, 0), min(int((bx + bw) / s) + pad, W)
+        m = (labels[y0:y1, x0:x1] == k).view(np.uint8)
+        bx, by, bw, bh = cv2.boundingRect(m)
+        boxes[k - 1] = (bx + x0, by + y0, bw, bh)
+        areas[k - 1] = cv2.countNonZero(m)
+    if np.any(areas == 0):
+        labels = relabel_sequential(labels)
+        keep = areas > 0
+        boxes, areas = boxes[keep], areas[keep]
+    return labels, boxes, areas
 
 
 def _colour_pieces(blob: np.ndarray, rgb: np.ndarray, params: SegmentationParams,
                    depth: int = 0) -> list[np.ndarray]:
     """Divide a blob made of parts of different materials by 2-means on shading-invariant
     chroma (a / L, b / L); recursive for three or more materials. Returns bool masks."""
-    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab).astype(np.float32)
-    L = np.maximum(lab[..., 0][blob], 40.0)
-    feats = np.stack([(lab[..., 1][blob] - 128.0) / L, (lab[..., 2][blob] - 128.0) / L],
-                     axis=1) * np.float32(100.0)
-    min_piece = max(params.min_area_px, int(params.colour_split_min_share * blob.sum()))
-    if feats.shape[0] < 2 * min_piece or feats.std(axis=0).max() < params.colour_split_delta / 4:
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab)
+    ab = lab[blob].astype(np.float32)  # (N, 3)
+    L = np.maximum(ab[:, 0], np.float32(40.0))
+    feats = (ab[:, 1:] - np.float32(128.0)) * (np.float32(100.0) / L)[:, None]
+    min_piece = max(params.min_area_px, int(params.colour_split_min_share * len(feats)))
+    if len(feats) < 2 * min_piece:
+        return [blob]
+    # The test and the clustering use at most ~800 pixels; all pixels then take the nearer
+    # centre.
+    sample = np.ascontiguousarray(feats[::max(1, len(feats) // 800)])
+    if sample.std(axis=0).max() < params.colour_split_delta / 4:
         return [blob]
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
     cv2.setRNGSeed(0)
-    _, which, centres = cv2.kmeans(feats, 2, None, criteria, 1, cv2.KMEANS_PP_CENTERS)
+    _, _, centres = cv2.kmeans(sample, 2, None, criteria, 1, cv2.KMEANS_PP_CENTERS)
     if float(np.linalg.norm(centres[0] - centres[1])) < params.colour_split_delta:
         return [blob]
+    which = (np.sum((feats - centres[1]) ** 2, axis=1)
+             < np.sum((feats - centres[0]) ** 2, axis=1)).astype(np.int32)
     cluster = np.zeros(blob.shape, np.int32)
     cluster[blob] = which.ravel() + 1
     seeds = np.zeros(blob.shape, np.int32)
@@ -840,8 +944,7 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     else:
         foreground = candidate
     t = lap('watershed', t)
-    labels = split_touching(foreground, rgb, params=params).astype(np.uint16)
-    boxes, areas = boxes_from_labels(labels)
+    labels, boxes, areas = _instances_at_scale(foreground, rgb, small, params)
     lap('instances', t)
     timings['total'] = (time.perf_counter() - t_start) * 1e3
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
