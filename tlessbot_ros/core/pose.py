@@ -73,6 +73,12 @@ class PoseParams:
         icp_points: ICP uses at most this many scene points (evenly strided).
         inlier_voxels: distance of a scene point to the model surface counted as an inlier.
         fallback_fitness: the table path falls back to RANSAC below this fitness.
+        fallback: run that fallback at all (off: the table path's best is returned).
+        fallback_templates: the fallback registers only the templates whose view is closest
+            in rotation to the table path's best hypotheses, at most this many.
+        fallback_max_iteration: RANSAC iterations per template in the fallback.
+        fallback_budget_ms: the fallback starts no further template once this much time has
+            passed since :meth:`PoseEstimator.estimate` began (bounds the worst case).
         ransac_distance_voxels, ransac_edge_length, ransac_mutual_filter,
         ransac_max_iteration, ransac_confidence: the SAC-IA settings (algo-notes §C.4).
         fpfh_radius_voxels, fpfh_max_nn: scene FPFH support (as in the templates).
@@ -94,6 +100,10 @@ class PoseParams:
     icp_points: int = 300
     inlier_voxels: float = 1.0
     fallback_fitness: float = 0.7
+    fallback: bool = True
+    fallback_templates: int = 3
+    fallback_max_iteration: int = 20000
+    fallback_budget_ms: float = 80.0
     ransac_distance_voxels: float = 1.5
     ransac_edge_length: float = 0.9
     ransac_mutual_filter: bool = True
@@ -232,6 +242,7 @@ class PoseEstimator:
         Returns:
             a :class:`PoseResult`; ``best`` is None when the ROI has too few points.
         """
+        start = time.perf_counter()
         points_c = np.asarray(points_c, np.float64)
         if points_c.ndim != 2 or points_c.shape[1] != 3:
             raise ValueError(f'points_c must be (N, 3), got shape {points_c.shape}')
@@ -247,21 +258,41 @@ class PoseEstimator:
         if len(scene) < 10:
             return result
         candidates: list[PoseCandidate] = []
+        indices, max_iteration, deadline = None, p.ransac_max_iteration, None
         if use_table:
             t0 = time.perf_counter()
             candidates = self._table_path(scene, obj, np.asarray(T_world_camera, np.float64))
             timings['table'] = 1e3 * (time.perf_counter() - t0)
-            if candidates and candidates[0].fitness >= p.fallback_fitness:
+            if not p.fallback or (candidates and candidates[0].fitness >= p.fallback_fitness):
                 timings['total'] = timings['prep'] + timings['table']
                 result.best, result.second = self._best_two(candidates)
                 return result
+            # Bounded fallback: a few templates near the table path's best views, fewer
+            # iterations, and no new template once the budget is spent.
+            indices = self._fallback_templates(obj, candidates)
+            max_iteration = p.fallback_max_iteration
+            deadline = start + 1e-3 * p.fallback_budget_ms
             scene = self._prepare(points_c, obj, 1.0, timings)
         t0 = time.perf_counter()
-        candidates = self._rank(candidates + self._ransac_path(scene, obj, timings))
+        candidates = self._rank(candidates + self._ransac_path(
+            scene, obj, timings, indices=indices, max_iteration=max_iteration,
+            deadline=deadline))
         timings['ransac'] = 1e3 * (time.perf_counter() - t0)
         timings['total'] = sum(v for k, v in timings.items() if k in ('prep', 'table', 'ransac'))
         result.best, result.second = self._best_two(candidates)
         return result
+
+    def _fallback_templates(self, obj: ObjectTemplates,
+                            candidates: list[PoseCandidate]) -> list[int]:
+        """Templates whose object rotation in the (side) camera is nearest to the candidates'."""
+        if not obj.templates:
+            return []
+        R_t = np.array([t.T_camera_object[:3, :3] for t in obj.templates])   # (T, 3, 3)
+        angle = np.full(len(R_t), np.inf)
+        for c in candidates[:2] or []:
+            cos = (np.einsum('tij,ij->t', R_t, c.T_camera_object[:3, :3]) - 1.0) / 2.0
+            angle = np.minimum(angle, np.arccos(np.clip(cos, -1.0, 1.0)))
+        return [int(i) for i in np.argsort(angle, kind='stable')[:self.params.fallback_templates]]
 
     def _prepare(self, points_c: np.ndarray, obj: ObjectTemplates, scale: float,
                  timings: dict[str, float]) -> np.ndarray:
@@ -408,12 +439,15 @@ class PoseEstimator:
         return normals, fpfh
 
     def _ransac_path(self, scene_c: np.ndarray, obj: ObjectTemplates,
-                     timings: dict[str, float]) -> list[PoseCandidate]:
+                     timings: dict[str, float], *, indices: list[int] | None = None,
+                     max_iteration: int | None = None,
+                     deadline: float | None = None) -> list[PoseCandidate]:
         p = self.params
         t0 = time.perf_counter()
         normals, fpfh = self._scene_features(scene_c, obj)
         timings['features'] = 1e3 * (time.perf_counter() - t0)
-        raw = register_templates(scene_c, normals, fpfh, obj, params=p)
+        raw = register_templates(scene_c, normals, fpfh, obj, params=p, template_indices=indices,
+                                 max_iteration=max_iteration, deadline=deadline)
         if not p.refine:  # the paper: templates ranked by RANSAC fitness alone
             for c in raw:
                 c.coverage = 0.0
@@ -515,7 +549,9 @@ def _differs(T_a: np.ndarray, T_b: np.ndarray, *, t_m: float = 0.01, r_deg: floa
 
 def register_templates(scene_c: np.ndarray, scene_normals: np.ndarray, scene_fpfh: np.ndarray,
                        obj: ObjectTemplates, *, params: PoseParams = PoseParams(),
-                       template_indices: list[int] | None = None) -> list[PoseCandidate]:
+                       template_indices: list[int] | None = None,
+                       max_iteration: int | None = None,
+                       deadline: float | None = None) -> list[PoseCandidate]:
     """FPFH + RANSAC (SAC-IA) of each template against a scene cloud, no refinement.
 
     Args:
@@ -523,6 +559,9 @@ def register_templates(scene_c: np.ndarray, scene_normals: np.ndarray, scene_fpf
             scene_fpfh (N, 33) float32 from :func:`~tlessbot_ros.core.templates.compute_fpfh`.
         obj: the object's templates.
         template_indices: templates to try (default all).
+        max_iteration: RANSAC iterations per template (default ``params.ransac_max_iteration``).
+        deadline: a ``time.perf_counter()`` value after which no further template is started
+            (at least one always is).
 
     Returns:
         one candidate per template with Open3D's fitness / inlier RMSE (coverage 1).
@@ -537,7 +576,10 @@ def register_templates(scene_c: np.ndarray, scene_normals: np.ndarray, scene_fpf
                 reg.CorrespondenceCheckerBasedOnDistance(distance)]
     out = []
     indices = range(len(obj.templates)) if template_indices is None else template_indices
+    iterations = int(max_iteration or params.ransac_max_iteration)
     for i in indices:
+        if deadline is not None and out and time.perf_counter() > deadline:
+            break
         template = obj.templates[i]
         template_normals, template_fpfh = obj.features(i)
         source = to_o3d(template.points, template_normals)
@@ -550,7 +592,7 @@ def register_templates(scene_c: np.ndarray, scene_normals: np.ndarray, scene_fpf
             max_correspondence_distance=distance,
             estimation_method=reg.TransformationEstimationPointToPoint(with_scaling=False),
             ransac_n=3, checkers=checkers,
-            criteria=reg.RANSACConvergenceCriteria(max_iteration=params.ransac_max_iteration,
+            criteria=reg.RANSACConvergenceCriteria(max_iteration=iterations,
                                                    confidence=params.ransac_confidence))
         T_scene_template = np.asarray(result.transformation)
         out.append(PoseCandidate(T_scene_template @ template.T_camera_object,

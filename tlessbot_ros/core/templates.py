@@ -501,14 +501,17 @@ def build_object_templates(
 
     poses = sorted(((np.asarray(T, np.float64), float(p)) for T, p in stable_poses),
                    key=lambda pair: -pair[1])
-    poses = [pair for pair in poses if pair[1] >= params.min_stable_probability] or poses[:1]
     if not poses:
         raise ValueError(f'obj_{obj_id:02d}: at least one stable pose is needed')
     diam = float(diameter_m) if diameter_m else diameter(vertices)
+    # Merge first: a part lying on its curved side has many hull facets, each improbable, that
+    # together are often its most probable pose.
+    poses = merge_equivalent_poses(vertices, faces, poses, tolerance_m=0.015 * diam)
+    poses.sort(key=lambda pair: -pair[1])
+    poses = [pair for pair in poses if pair[1] >= params.min_stable_probability] or poses[:1]
     voxel = diam * params.voxel_fraction
     model_points, model_normals = sample_surface(vertices, faces, params.model_samples,
                                                  seed=params.seed)
-    poses = merge_equivalent_poses(vertices, faces, poses, tolerance_m=0.015 * diam)
     periods = np.array([yaw_period(vertices, faces, T, tolerance_m=0.01 * diam)
                         for T, _ in poses])
     if position_m is None:

@@ -61,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
     side = _side_camera(args.config)
     start = time.perf_counter()
     items = [(i, m.vertices, m.faces,
-              [(p.T_table_object, p.probability) for p in stable_poses(m)], m.diameter_m)
-             for i, m in sorted(models.items())]
+              [(p.T_table_object, p.probability) for p in stable_poses(m, merge_rolling=True)],
+              m.diameter_m) for i, m in sorted(models.items())]
     db = build_database(items, intrinsics=side.intrinsics, T_world_camera=side.T_world_camera,
                         params=params, progress=lambda it: tqdm(it, desc='templates',
                                                                 unit='obj'))
