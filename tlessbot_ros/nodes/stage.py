@@ -20,7 +20,13 @@ from rclpy.node import Node
 from tlessbot_ros.core.geometry import look_at
 from tlessbot_ros.core.rig import CameraMount, Rig, default_rig
 from tlessbot_ros.core.sync import SyncParams
-from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class
+from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.nodes.common import (
+    RESULT_QOS,
+    SENSOR_QOS,
+    declare_from_dataclass,
+    message_class,
+)
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, WARN, diagnostic_array
 from tlessbot_ros.nodes.inputs import TwoViewInputs, Views
 
@@ -67,6 +73,12 @@ class StageNode(Node):
         super().__init__(name, **kwargs)
         values = declare_from_dataclass(self, SyncParams(), prefix='sync.')
         self.sync_params = dataclasses.replace(SyncParams(), **values)
+        self.input_qos = self.declare_parameter('input_qos', 'sensor_data', descriptor(
+            "QoS of the subscriptions: 'sensor_data' (best effort, the ROS convention for "
+            "camera streams) or 'reliable' (no loss of large images under CPU load)")).value
+        if self.input_qos not in ('sensor_data', 'reliable'):
+            raise TlessbotError(f"input_qos must be 'sensor_data' or 'reliable', got "
+                                f'{self.input_qos!r}')
         self.frames = 0
         self.failures = 0
         self.last_error = ''
@@ -81,7 +93,8 @@ class StageNode(Node):
         """Subscribe ``{key: (ROS type name, '/{camera}/...' template)}`` for both cameras."""
         self._inputs = TwoViewInputs(
             self, {k: (message_class(t), template) for k, (t, template) in topics.items()},
-            CAMERAS, self.sync_params, self._on_views)
+            CAMERAS, self.sync_params, self._on_views,
+            qos=SENSOR_QOS if self.input_qos == 'sensor_data' else RESULT_QOS)
 
     def _on_views(self, views: Views) -> None:
         start = time.perf_counter()
