@@ -66,6 +66,9 @@ class PoseParams:
             templates (fewer points; the CAD surface is matched, not FPFH features).
         score_points: scene points used to score hypotheses (random, seeded subset).
         top_k: hypotheses refined in (yaw, x, y).
+        flip_hypotheses: the best this many also enter turned by 180° in yaw.
+        flip_axes: also refine the best turned by 180° about each object axis (through the
+            surface centroid) and keep whichever fits best.
         planar_iterations: Gauss-Newton steps of that refinement.
         icp_iterations: final 6-DOF point-to-plane ICP iterations.
         icp_distance_voxels: ICP correspondence distance (final iterations; the first ones
@@ -94,6 +97,8 @@ class PoseParams:
     table_voxel_scale: float = 1.5
     score_points: int = 250
     top_k: int = 6
+    flip_hypotheses: int = 2
+    flip_axes: bool = True
     planar_iterations: int = 8
     icp_iterations: int = 8
     icp_distance_voxels: float = 1.5
@@ -356,8 +361,22 @@ class PoseEstimator:
         tau = 2.0 * voxel
         _, dist = grid.lookup(self._to_object(T_all, sub), outside=tau)
         cost = np.minimum(dist, tau).mean(axis=1)
-        keep = np.argsort(cost)[:p.top_k]
-        T_top, _ = self._planar_refine(T_all[keep], sub, obj, grid, tau=voxel)
+        order_all = np.argsort(cost)
+        keep = order_all[:p.top_k]
+        # ... plus the best of every stable pose not yet represented (a part upside down can
+        # lose on the coarse grid and win after refinement).
+        extra = [order_all[stable_ids_arr[order_all] == s][0]
+                 for s in np.unique(stable_ids_arr) if s not in stable_ids_arr[keep]]
+        keep = np.concatenate([keep, np.array(extra, dtype=keep.dtype)])
+        # Add the 180° yaw turn (about the vertical through the ROI centroid) of the best
+        # hypotheses: near-symmetric parts fit both ways on the coarse grid.
+        flip = make_transform(_rz(np.array(np.pi)), np.zeros(3))
+        flip[:2, 3] = 2.0 * centroid[:2]
+        keep = np.concatenate([keep, keep[:p.flip_hypotheses]])
+        T_start = T_all[keep].copy()
+        T_start[len(keep) - min(p.flip_hypotheses, len(keep) // 2):] = \
+            flip @ T_start[len(keep) - min(p.flip_hypotheses, len(keep) // 2):]
+        T_top, _ = self._planar_refine(T_start, sub, obj, grid, tau=voxel)
         # Rank the refined hypotheses by fitness (sharper than the grid's truncated distance),
         # then ICP the best and the best different one.
         T_camera_world = invert_transform(T_world_camera)
@@ -367,11 +386,20 @@ class PoseEstimator:
                                             scene_tree=scene_tree)
                              for T_wo, s in zip(T_top, stable_ids_arr[keep])])
         best, second = self._best_two(ranked)
-        return self._rank([self._evaluate(scene_c, obj, self._icp(scene_c, obj,
-                                                                  c.T_camera_object),
-                                          method='table', stable=c.stable_index,
-                                          scene_tree=scene_tree)
-                           for c in (best, second) if c is not None])
+        starts = [(c.T_camera_object, c.stable_index) for c in (best, second) if c is not None]
+        if best is not None and p.flip_axes:
+            # Half-turns about the object's axes: a part that is nearly symmetric that way
+            # (lying on one face or the opposite one) fits the visible surface almost equally;
+            # the finer fitness after ICP decides.
+            for axis in np.eye(3):
+                turn = make_transform(_rodrigues(np.pi * axis[None])[0], np.zeros(3))
+                T = best.T_camera_object @ turn
+                centre = obj.model_points.mean(axis=0)
+                T[:3, 3] += best.T_camera_object[:3, :3] @ centre - T[:3, :3] @ centre
+                starts.append((T, -1))
+        return self._rank([self._evaluate(scene_c, obj, self._icp(scene_c, obj, T),
+                                          method='table', stable=s, scene_tree=scene_tree)
+                           for T, s in starts])
 
     @staticmethod
     def _model_subset(obj: ObjectTemplates, count: int = 800) -> tuple[np.ndarray, np.ndarray]:
@@ -512,7 +540,9 @@ class PoseEstimator:
         model, normals = self._model_subset(obj)
         model_c = model @ T_camera_object[:3, :3].T + T_camera_object[:3, 3]
         normals_c = normals @ T_camera_object[:3, :3].T
-        visible = np.sum(normals_c * model_c, axis=1) < 0        # facing the camera at origin
+        visible = _visible(model_c, normals_c, cell_rad=0.5 * obj.voxel_size_m
+                           / max(float(np.median(scene_c[:, 2])), 1e-3),
+                           depth_tolerance_m=obj.voxel_size_m)
         coverage = 1.0
         if visible.any():
             scene_tree = scene_tree or cKDTree(scene_c)
@@ -538,6 +568,25 @@ class PoseEstimator:
             if _differs(c.T_camera_object, best.T_camera_object):
                 return best, c
         return best, None
+
+
+def _visible(points_c: np.ndarray, normals_c: np.ndarray, *, cell_rad: float,
+             depth_tolerance_m: float) -> np.ndarray:
+    """(N,) bool: model points facing the camera (origin) and not hidden by the model itself,
+    by a z-buffer over direction cells of ``cell_rad`` (x/z, y/z)."""
+    facing = np.sum(normals_c * points_c, axis=1) < 0
+    z = points_c[:, 2]
+    ok = facing & (z > 1e-6)
+    if not ok.any():
+        return ok
+    uv = np.floor(points_c[ok, :2] / z[ok, None] / cell_rad).astype(np.int64)
+    uv -= uv.min(axis=0)
+    key = uv[:, 0] * (uv[:, 1].max() + 1) + uv[:, 1]
+    nearest = np.full(key.max() + 1, np.inf)
+    np.minimum.at(nearest, key, z[ok])
+    visible = np.zeros(len(points_c), bool)
+    visible[np.flatnonzero(ok)] = z[ok] <= nearest[key] + depth_tolerance_m
+    return visible
 
 
 def _differs(T_a: np.ndarray, T_b: np.ndarray, *, t_m: float = 0.01, r_deg: float = 5.0) -> bool:
