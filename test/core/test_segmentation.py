@@ -189,3 +189,90 @@ def test_real_tless_crops_are_not_swamped(shared_data) -> None:
         assert 0.01 < share < 0.9, (path.name, share)
         if path.parent.name == 'tless_21' and path.name == 'query_0.png':
             assert 0.2 < share < 0.6, share
+
+
+# --------------------------------------------------------------------------- depth cue
+def _depth_scene(table_rgb, part_rgb, *, shadow: bool = False):
+    """Top view (320x240) of a 120x90x25 mm box on the table: rgb, depth_m, truth, camera."""
+    from tlessbot_ros.core.geometry import make_transform
+    from tlessbot_ros.core.render import MeshRenderer
+    from tlessbot_ros.core.rig import default_rig
+
+    cam = default_rig(320, 240)['top']
+    v = np.array([[x, y, z] for x in (-0.06, 0.06) for y in (-0.045, 0.045) for z in (0, 0.025)])
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    renderer = MeshRenderer()
+    renderer.add_mesh(v, f, make_transform(np.eye(3), [0.01, -0.02, 0.0]))
+    res = renderer.render(cam.intrinsics, cam.T_world_camera)
+    truth = res.instance == 0
+    # Table depth: the plane z = 0 seen by the camera (the renderer only has the part).
+    rays = np.linalg.inv(cam.intrinsics.K) @ np.vstack([
+        np.mgrid[0:240, 0:320][::-1].reshape(2, -1), np.ones((1, 240 * 320))])
+    R, t = cam.T_world_camera[:3, :3], cam.T_world_camera[:3, 3]
+    table_z = (-t[2] / (R[2] @ rays)).reshape(240, 320)
+    depth = np.where(truth, res.depth_m, table_z).astype(np.float32)
+    rng = np.random.default_rng(0)
+    rgb = np.empty((240, 320, 3))
+    rgb[:] = table_rgb
+    rgb[truth] = part_rgb
+    if shadow:
+        rgb[60:120, 200:260] *= 0.5  # a cast shadow on the bare table
+    rgb = np.clip(rgb + rng.normal(0, 2.0, rgb.shape), 0, 255).astype(np.uint8)
+    depth += rng.normal(0, 0.0015, depth.shape).astype(np.float32)
+    return rgb, depth, truth, cam
+
+
+def test_height_above_table_of_plane_and_part() -> None:
+    from tlessbot_ros.core.segmentation import height_above_table
+
+    _, depth, truth, cam = _depth_scene((90, 90, 90), (30, 30, 30))
+    h = height_above_table(depth, cam.intrinsics.K, cam.T_world_camera)
+    assert h.shape == depth.shape and h.dtype == np.float32
+    assert abs(float(np.median(h[~truth]))) < 0.001
+    assert abs(float(np.median(h[truth])) - 0.025) < 0.002
+    half = height_above_table(depth, cam.intrinsics.K, cam.T_world_camera, scale=0.5)
+    assert half.shape == (120, 160)
+    np.testing.assert_allclose(half, h[::2, ::2], atol=1e-6)
+    holed = depth.copy()
+    holed[:10] = 0.0
+    holed[10:20] = np.nan
+    assert np.isnan(height_above_table(holed, cam.intrinsics.K, cam.T_world_camera)[:20]).all()
+
+
+def test_depth_cue_finds_black_part_on_black_table_despite_holes() -> None:
+    rgb, depth, truth, cam = _depth_scene((28, 28, 30), (32, 32, 34), shadow=False)
+    rgb_only = segment(rgb)
+    assert _best_iou(rgb_only.labels, truth) < 0.5  # colour alone cannot see it
+    holes = np.random.default_rng(1).random(depth.shape) < 0.2
+    depth[holes] = 0.0
+    depth[:, :30] = np.nan
+    seg = segment(rgb, depth_m=depth, intrinsics=cam.intrinsics,
+                  T_world_camera=cam.T_world_camera)
+    assert seg.count == 1
+    assert _best_iou(seg.labels, truth) > 0.85
+    # The paper's RGB-only method stays selectable with depth given.
+    paper = SegmentationParams(methods=('watershed', 'hed', 'lab', 'background'))
+    seg = segment(rgb, depth_m=depth, intrinsics=cam.intrinsics,
+                  T_world_camera=cam.T_world_camera, params=paper)
+    assert _best_iou(seg.labels, truth) < 0.5
+
+
+def test_depth_cue_vetoes_a_cast_shadow() -> None:
+    rgb, depth, truth, cam = _depth_scene((150, 150, 145), (40, 70, 170), shadow=True)
+    assert segment(rgb).count == 2  # the shadow looks like a dark part
+    seg = segment(rgb, depth_m=depth, intrinsics=cam.intrinsics.K,
+                  T_world_camera=cam.T_world_camera)
+    assert seg.count == 1
+    assert _best_iou(seg.labels, truth) > 0.85
+
+
+def test_depth_cue_errors() -> None:
+    rgb = np.zeros((20, 20, 3), np.uint8)
+    with pytest.raises(ValueError, match='intrinsics'):
+        segment(rgb, depth_m=np.ones((20, 20), np.float32))
+    with pytest.raises(ValueError, match='align depth'):
+        segment(rgb, depth_m=np.ones((10, 20), np.float32), intrinsics=np.eye(3),
+                T_world_camera=np.eye(4))
+    with pytest.raises(ValueError, match='depth_min_height_m'):
+        SegmentationParams(depth_min_height_m=0.02, depth_sure_height_m=0.01)

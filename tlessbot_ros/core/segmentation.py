@@ -410,8 +410,10 @@ def _depth_cue(height: np.ndarray, params: SegmentationParams) -> _DepthCue:
     low = max(params.depth_min_height_m, k * sigma)
     high = max(params.depth_sure_height_m, 1.5 * k * sigma)
     table_h = max(params.depth_table_height_m, 0.5 * k * sigma)
-    candidate = valid & (filtered > low)
-    sure = valid & (filtered > high)
+    # The median over a hole's neighbours fills it (invalid pixels count as table height, so
+    # they never make an object on their own).
+    candidate = filtered > low
+    sure = filtered > high
     table = valid & (filtered < table_h) & (filled < table_h)
     return _DepthCue(candidate, sure, table, sigma)
 
