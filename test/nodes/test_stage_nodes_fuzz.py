@@ -210,9 +210,11 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
                 frame_id=header.frame_id, stamp_ns=STAMP0)
         node = ClassifierNode(parameter_overrides=[Parameter('model_path',
                                                              value=str(classifier_path))])
-        harness = Harness(node, {'/{camera}/color/image_raw': 'sensor_msgs/msg/Image',
-                                 '/localiser/{camera}/labels': 'sensor_msgs/msg/Image'},
-                          ['/classifier/side/classes'])
+        harness = Harness(node, {
+            '/{camera}/color/image_raw': 'sensor_msgs/msg/Image',
+            '/{camera}/aligned_depth_to_color/image_raw': 'sensor_msgs/msg/Image',
+            '/{camera}/aligned_depth_to_color/camera_info': 'sensor_msgs/msg/CameraInfo',
+            '/localiser/{camera}/labels': 'sensor_msgs/msg/Image'}, ['/classifier/side/classes'])
         bad = {key: _restamped(msg, 1) for key, msg in good.items()}
         bad['/localiser/side/labels'] = array_to_image(np.zeros((10, 10), np.uint8), 'mono8',
                                                        stamp_ns=STAMP0 + 10**9)

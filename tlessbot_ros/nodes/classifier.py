@@ -1,8 +1,10 @@
 """classifier: names every localised instance with HOG + a linear model.
 
-Subscribes (sensor-data QoS), for CAMERA in top, side:
-    /CAMERA/color/image_raw      sensor_msgs/Image (rgb8, bgr8, ...)
-    /localiser/CAMERA/labels     sensor_msgs/Image 16UC1 instance labels
+Subscribes (``input_qos``), for CAMERA in top, side:
+    /CAMERA/color/image_raw                      sensor_msgs/Image (rgb8, bgr8, ...)
+    /CAMERA/aligned_depth_to_color/image_raw     sensor_msgs/Image (metric shape features)
+    /CAMERA/aligned_depth_to_color/camera_info   sensor_msgs/CameraInfo
+    /localiser/CAMERA/labels                     sensor_msgs/Image 16UC1 instance labels
 Publishes (RELIABLE, depth 10):
     classifier/CAMERA/classes    sensor_msgs/Image 16UC1 class-instance labels,
                                  obj_id * 1000 + instance (0 * 1000 + i = unknown); the class of
@@ -11,20 +13,27 @@ Publishes (RELIABLE, depth 10):
     /diagnostics                 frames, failures, dropped, latency, last classes and margins
 Parameters: ``model_path`` (.npz from ``tlessbot train``; default: the packaged model),
 ``reject_margin`` (margin below which a part is 'unknown'; 0 = the model's own),
-``min_instance_px``, ``sync.*``.
+``min_instance_px``, ``rig.CAMERA.*`` (extrinsics: heights above the table), ``sync.*``.
 """
 from __future__ import annotations
 
 from typing import Any
 
-from tlessbot_ros.conversions import array_to_image, image_to_array, image_to_rgb, stamp_to_ns
+from tlessbot_ros.conversions import (
+    array_to_image,
+    camera_info_to_intrinsics,
+    depth_image_to_metres,
+    image_to_array,
+    image_to_rgb,
+    stamp_to_ns,
+)
 from tlessbot_ros.conversions.messages import RclpyFactory
 from tlessbot_ros.core.classifier import LinearClassifier
 from tlessbot_ros.core.labels import encode_classes
-from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams
+from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
 from tlessbot_ros.data import DEFAULT_CLASSIFIER
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
-from tlessbot_ros.nodes.stage import CAMERAS, StageNode, descriptor
+from tlessbot_ros.nodes.stage import CAMERAS, StageNode, declare_extrinsics, descriptor
 
 IMAGE = 'sensor_msgs/msg/Image'
 
@@ -41,6 +50,7 @@ class ClassifierNode(StageNode):
         min_px = self.declare_parameter('min_instance_px', PipelineParams().min_instance_px,
                                         descriptor('Pixels an instance needs in a view to be '
                                                     'classified there')).value
+        self.extrinsics = declare_extrinsics(self)
         self.model = LinearClassifier.load(path)  # ModelFileError: one line, exit 1
         self.pipeline = PerceptionPipeline(
             classifier=self.model,
@@ -49,8 +59,11 @@ class ClassifierNode(StageNode):
         self._class_publishers = {
             camera: self.create_publisher(message_class(IMAGE), f'classifier/{camera}/classes',
                                           RESULT_QOS) for camera in CAMERAS}
-        self.setup_inputs({'color': (IMAGE, '/{camera}/color/image_raw'),
-                           'labels': (IMAGE, '/localiser/{camera}/labels')})
+        self.setup_inputs({
+            'color': (IMAGE, '/{camera}/color/image_raw'),
+            'depth': (IMAGE, '/{camera}/aligned_depth_to_color/image_raw'),
+            'info': ('sensor_msgs/msg/CameraInfo', '/{camera}/aligned_depth_to_color/camera_info'),
+            'labels': (IMAGE, '/localiser/{camera}/labels')})
         self.get_logger().info(f'loaded {self.model.kind} classifier for '
                                f'{len(self.model.class_ids)} objects from {path}')
 
@@ -64,7 +77,11 @@ class ClassifierNode(StageNode):
             if labels[camera].shape != rgb[camera].shape[:2]:
                 raise ValueError(f'{camera}: labels {labels[camera].shape} and colour '
                                  f'{rgb[camera].shape[:2]} sizes differ')
-        guesses = self.pipeline.classify(rgb, labels)
+        views_in = {camera: ViewInput(
+            rgb=rgb[camera], depth_m=depth_image_to_metres(msgs['depth']),
+            intrinsics=camera_info_to_intrinsics(msgs['info']),
+            T_world_camera=self.extrinsics[camera]) for camera, msgs in views.items()}
+        guesses = self.pipeline.classify(rgb, labels, views=views_in)
         classes = {instance: guess.obj_id for instance, guess in guesses.items()}
         for camera, msgs in views.items():
             header = msgs['labels'].header

@@ -46,7 +46,10 @@ _MAX_METRIC_POINTS = 1000
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('--dataset', required=True, type=Path, help='BOP dataset root')
+    parser.add_argument('--dataset', type=Path, help='BOP dataset root')
+    parser.add_argument('--bag', type=Path,
+                        help='instead of --dataset: a bag with /ground_truth topics, replayed '
+                             'through the ROS graph (each node its own process)')
     parser.add_argument('--models', required=True, type=Path,
                         help='CAD models: obj_NN.stl folder or BOP models/ with models_info.json')
     parser.add_argument('--split', help='evaluate this single split (default: test_top + '
@@ -431,28 +434,34 @@ def run(args: argparse.Namespace) -> int:
         raise TlessbotError('--limit must be positive')
     if not args.models.is_dir():
         raise ModelFileError(f'models folder not found: {args.models}')
-    split, two_view = _scored_split(args.dataset, args.split)
+    if (args.dataset is None) == (args.bag is None):
+        raise TlessbotError('give exactly one of --dataset DIR and --bag FILE')
     started = time.perf_counter()
     frames: list[tuple[object, FrameOutput]] = []
-    if args.poses is not None:
+    if args.bag is not None:
+        frames, split, two_view = _bag_frames(args), 'bag (side camera)', True
+        mode = f'ROS graph on {args.bag.name}'
+    elif args.poses is not None:
+        split, two_view = _scored_split(args.dataset, args.split)
         given = _given_poses(args.poses)
         images = read_split(args.dataset, split, limit=args.limit, load_masks=False)
         for image in tqdm(images, desc='scoring', unit='frame', total=args.limit):
             frames.append((image, given.get((image.scene_id, image.im_id), FrameOutput())))
         mode = f'given poses ({args.poses.name})'
     else:
+        split, two_view = _scored_split(args.dataset, args.split)
         iterator = _pipeline_frames(args, split, two_view)
         for item in tqdm(iterator, desc='pipeline', unit='frame', total=args.limit):
             frames.append(item)
         mode = f'pipeline, oracle {args.oracle}'
     if not frames:
-        raise DatasetError(f'{args.dataset}/{split} has no images')
+        raise DatasetError(f'{args.dataset or args.bag}: {split} has no images')
     ids = {gt.obj_id for image, _ in frames for gt in image.gt}
     ids |= {p.obj_id for _, o in frames for p in o.poses}
     models = load_scoring_models(args.models, ids)
     report = score_frames(frames, models)
     report['mode'] = mode
-    report['dataset'] = str(args.dataset)
+    report['dataset'] = str(args.dataset or args.bag)
     report['split'] = 'test_top + test_side' if two_view else split
     report['run_time_s'] = time.perf_counter() - started
     args.out.mkdir(parents=True, exist_ok=True)
@@ -465,6 +474,56 @@ def run(args: argparse.Namespace) -> int:
           f'ADD-S {_fmt(pose["recall_adds01d"])}, MSSD AR {_fmt(pose["mssd_recall"])} '
           f'-> {args.out}')
     return 0
+
+
+def _bag_frames(args: argparse.Namespace) -> list[tuple[object, FrameOutput]]:
+    """Replay a simulated bag through the graph (lock-step) and pair its poses with the bag's
+    ground truth, all in the side camera (top-view poses through the rig extrinsics)."""
+    from types import SimpleNamespace
+
+    from tlessbot_ros.conversions import camera_info_to_intrinsics, depth_image_to_metres
+    from tlessbot_ros.core.rig import rig_from_params
+    from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_TEMPLATES
+    from tlessbot_ros.io.bags import deserialize, read_bag
+    from tlessbot_ros.io.config import default_config_path, load_ros_params
+    from tlessbot_ros.io.ground_truth import read_ground_truth
+    from tlessbot_ros.tools._graph_run import run_graph_on_bag
+
+    config = default_config_path()
+    rig = rig_from_params(load_ros_params(config))
+    T_side_top = rig.T_a_b('side', 'top')
+    truth = read_ground_truth(args.bag)
+    depth, intrinsics = {}, {}
+    for message in read_bag(args.bag, ['/side/aligned_depth_to_color/image_raw',
+                                       '/side/aligned_depth_to_color/camera_info']):
+        msg = deserialize(message)
+        if message.msgtype == 'sensor_msgs/msg/Image':
+            depth[message.log_time_ns] = depth_image_to_metres(msg)
+        else:
+            intrinsics[message.log_time_ns] = camera_info_to_intrinsics(msg)
+    classifier = args.classifier or DEFAULT_CLASSIFIER
+    templates = args.templates or DEFAULT_TEMPLATES
+    for path in (classifier, templates):
+        if not Path(path).is_file():
+            raise ModelFileError(f'model file not found: {path}')
+    run = run_graph_on_bag(args.bag, config=config, lockstep=True, ros_args=[
+        '-p', f'model_path:={classifier}', '-p', f'templates_path:={templates}'])
+    poses: dict[int, list[PoseResult]] = {}
+    for pose in run.poses:
+        T = pose.T if pose.frame_id.startswith('side') else T_side_top @ pose.T
+        poses.setdefault(pose.stamp_ns, []).append(PoseResult(0, 0, pose.obj_id, 1.0, T))
+    frames = []
+    for index, stamp in enumerate(sorted(truth)[:args.limit]):
+        gt = [SimpleNamespace(obj_id=p.obj_id, visib_fract=p.visib_fract.get('side', 0.0),
+                              bbox_visib=p.bbox_visib.get('side'),
+                              T_camera_object=p.T_camera_object['side_color_optical_frame'])
+              for p in truth[stamp] if 'side_color_optical_frame' in p.T_camera_object]
+        image = SimpleNamespace(scene_id=0, im_id=index, gt=gt, depth_m=depth.get(stamp),
+                                intrinsics=intrinsics.get(stamp))
+        for estimate in poses.get(stamp, []):
+            estimate.im_id = index
+        frames.append((image, FrameOutput(poses=poses.get(stamp, []))))
+    return frames
 
 
 def _fmt(value: float | None) -> str:
