@@ -23,13 +23,14 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
-    package_data={package_name: ['data/*', 'data/**/*']},
+    package_data={package_name: ['data/*.npz', 'data/*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
         (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
         (os.path.join('share', package_name, 'bags'), glob('bags/*.md')),
+        (os.path.join('share', package_name, 'bags', 'demo'), glob('bags/demo/*')),
     ],
     python_requires='>=3.10',
     install_requires=[
