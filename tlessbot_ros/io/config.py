@@ -43,14 +43,20 @@ def load_ros_params(path: str | Path, node_name: str | None = None) -> dict[str,
     return params
 
 
-def default_config_path() -> Path:
-    """config/cell.yaml of this package: the source tree's, else the installed share/ copy."""
-    source = Path(__file__).resolve().parents[2] / 'config' / 'cell.yaml'
-    if source.is_file():
+def package_path(*parts: str) -> Path:
+    """A file of this package outside the Python modules (config/, bags/): the source tree's,
+    else the copy a colcon install put in share/tlessbot_ros/."""
+    source = Path(__file__).resolve().parents[2].joinpath(*parts)
+    if source.exists():
         return source
     try:
         from ament_index_python.packages import get_package_share_directory
 
-        return Path(get_package_share_directory('tlessbot_ros')) / 'config' / 'cell.yaml'
+        return Path(get_package_share_directory('tlessbot_ros')).joinpath(*parts)
     except (ImportError, LookupError):
         return source
+
+
+def default_config_path() -> Path:
+    """config/cell.yaml of this package."""
+    return package_path('config', 'cell.yaml')

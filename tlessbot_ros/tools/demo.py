@@ -19,10 +19,10 @@ from tlessbot_ros.core.geometry import rpy_from_matrix
 from tlessbot_ros.core.symmetry import Symmetries, symmetries_from_models_info
 from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_MODELS_INFO, DEFAULT_TEMPLATES
 from tlessbot_ros.errors import ModelFileError, TlessbotError
-from tlessbot_ros.io.config import default_config_path
+from tlessbot_ros.io.config import default_config_path, package_path
 from tlessbot_ros.io.ground_truth import read_ground_truth
 
-DEFAULT_BAG = Path(__file__).resolve().parents[2] / 'bags' / 'demo'
+DEFAULT_BAG = package_path('bags', 'demo')
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
