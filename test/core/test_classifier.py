@@ -195,9 +195,16 @@ def test_shape_features_tolerate_invalid_depth():
     bad = mask.copy()
     bad[:, :95] |= True  # table pixels in the region (height 0) are ignored
     a = shape_features(region_points_world(depth, mask, K, T))
-    b = shape_features(region_points_world(holes, bad, K, T))
+    # a region that is 97 % table: keep all its pixels (a 400-point subsample holds ~8 of the part)
+    b = shape_features(region_points_world(holes, bad, K, T, max_points=0))
     assert np.all(np.isfinite(b))
     np.testing.assert_allclose(b[:5], a[:5], atol=0.05)
+    # box mode (the filled box of the part, table in its corners) with the default subsample
+    rows, cols = np.nonzero(mask)
+    box = np.zeros_like(mask)
+    box[rows.min():rows.max() + 1, cols.min():cols.max() + 1] = True
+    c = shape_features(region_points_world(holes, box, K, T))
+    np.testing.assert_allclose(c[:5], a[:5], atol=0.05)
     assert shape_features(np.zeros((3, 3))) is None
     assert shape_features(region_points_world(np.zeros_like(depth), mask, K, T)) is None
 
@@ -230,3 +237,20 @@ def test_model_with_shape_features_round_trip(tmp_path):
     with pytest.raises(ValueError, match='shape_fill'):
         LinearClassifier(model.weights, model.intercepts, model.class_ids, hog_params=HOG,
                          shape_params=shape)
+
+
+def test_shape_features_batch_matches_single_regions():
+    from tlessbot_ros.core.shape_features import shape_features, shape_features_batch
+
+    rng = np.random.default_rng(3)
+    regions = [rng.normal(size=(50 + 40 * i, 3)) * [0.03, 0.015, 0.02] + [0.3, 0.1, 0.03]
+               for i in range(4)]
+    regions[1][:7] = np.nan
+    regions.insert(2, np.zeros((5, 3)))  # no usable points: a NaN row
+    batch = shape_features_batch(regions)
+    assert batch.shape == (5, shape_features(regions[0]).shape[0])
+    assert np.isnan(batch[2]).all()
+    for i in (0, 1, 3, 4):
+        np.testing.assert_allclose(batch[i], shape_features(regions[i]), rtol=1e-6)
+    # a region's vector does not depend on its neighbours in the batch
+    np.testing.assert_allclose(shape_features_batch(regions[::-1])[0], batch[4], rtol=1e-6)

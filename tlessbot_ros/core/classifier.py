@@ -34,10 +34,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from tlessbot_ros.core.hog import HogParams, describe_regions
-from tlessbot_ros.core.shape_features import ShapeParams, region_points_world, shape_features
+from tlessbot_ros.core.shape_features import ShapeParams, region_points_world, shape_features_batch
 from tlessbot_ros.errors import ModelFileError
 
 FORMAT_VERSION = 2  # 2 adds shape_params / shape_fill; version 1 files still load
@@ -175,19 +176,21 @@ class LinearClassifier:
             (N, feature_dim) float32. Without depth, extrinsics or enough valid points, a
             region's shape part is ``shape_fill``.
         """
+        if boxes is None and masks is not None:  # one box per mask, shared by both steps
+            boxes = [_mask_box(mask) for mask in masks]
         hog = describe_regions(image, boxes, masks, params=self.hog_params)
         if self.shape_params is None:
             return hog
         shape = np.tile(np.asarray(self.shape_fill, np.float32), (len(hog), 1))
         if depth_m is not None and K is not None and T_world_camera is not None:
             depth_m = np.asarray(depth_m)
-            for i in range(len(hog)):
-                region = masks[i] if masks is not None else _box_mask(boxes[i], depth_m.shape)
-                values = shape_features(
-                    region_points_world(depth_m, region, K, T_world_camera),
-                    params=self.shape_params)
-                if values is not None:
-                    shape[i] = values
+            points = [region_points_world(
+                depth_m, masks[i] if masks is not None else _box_mask(boxes[i], depth_m.shape),
+                K, T_world_camera, box=None if boxes is None else boxes[i])
+                for i in range(len(hog))]
+            values = shape_features_batch(points, params=self.shape_params)
+            known = ~np.isnan(values[:, 0])
+            shape[known] = values[known]
         return np.hstack([hog, shape])
 
     def decision_function(self, features: np.ndarray) -> np.ndarray:
@@ -414,6 +417,15 @@ def train_classifier(features: np.ndarray, labels: np.ndarray, *,
     return trainer.model(hog_params, info={'samples': int(len(labels)), 'seed': int(seed),
                                            'epochs': params.epochs},
                          shape_params=shape_params, shape_fill=shape_fill)
+
+
+def _mask_box(mask: np.ndarray) -> tuple[int, int, int, int]:
+    mask = np.ascontiguousarray(mask)
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8) if mask.dtype == bool
+                                  else (mask != 0).astype(np.uint8))
+    if w == 0 or h == 0:
+        raise ValueError('a region mask is empty: nothing to describe')
+    return x, y, w, h
 
 
 def _box_mask(box, shape: tuple[int, int]) -> np.ndarray:
