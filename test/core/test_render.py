@@ -1,8 +1,7 @@
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.geometry import CameraIntrinsics, depth_to_points, look_at, \
-    transform_points
+from tlessbot_ros.core.geometry import CameraIntrinsics, depth_to_points, look_at, transform_points
 from tlessbot_ros.core.render import NO_HIT, MeshRenderer
 
 
