@@ -349,14 +349,20 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
     views = ('top', 'side') if two_view else ('side',)
     splits = {'top': 'test_top', 'side': 'test_side'} if two_view else {'side': split}
     readers = {v: read_split(args.dataset, splits[v], limit=args.limit) for v in views}
+    # Empty-table images (``tlessbot simulate --backgrounds``) feed background subtraction.
+    backgrounds = {v: read_split(args.dataset, f'background_{v}', limit=args.limit,
+                                 load_masks=False)
+                   for v in views if (args.dataset / f'background_{v}').is_dir()}
     pipeline = None
     for images in zip(*readers.values()):
         by_view = dict(zip(views, images))
+        empty = {v: next(reader).rgb for v, reader in backgrounds.items()}
         scored = by_view['side']
         keys = {(im.scene_id, im.im_id) for im in images}
         if len(keys) != 1:
             raise DatasetError('test_top and test_side do not hold the same scene/image ids')
-        inputs = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera)
+        inputs = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera,
+                               background=empty.get(v))
                   for v, im in by_view.items()}
         if pipeline is None:
             rig = None
@@ -386,7 +392,8 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
                 classes = {k + 1: gt.obj_id for k, gt in enumerate(scored.gt)}
             else:
                 t1 = time.perf_counter()
-                guesses = pipeline.classify({v: im.rgb for v, im in by_view.items()}, labels)
+                guesses = pipeline.classify({v: im.rgb for v, im in by_view.items()}, labels,
+                                            views=inputs)
                 output.timings_ms['classification'] = 1e3 * (time.perf_counter() - t1)
                 classes = {i: g.obj_id for i, g in guesses.items()}
                 output.classes_by_gt = {i - 1: c for i, c in classes.items()}
