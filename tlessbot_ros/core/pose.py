@@ -69,12 +69,15 @@ class PoseParams:
         flip_hypotheses: the best this many also enter turned by 180° in yaw.
         flip_axes: also refine the best turned by 180° about each object axis (through the
             surface centroid) and keep whichever fits best.
+        final_candidates: refined table candidates scored fully (fitness and coverage).
         planar_iterations: Gauss-Newton steps of that refinement.
         icp_iterations: final 6-DOF point-to-plane ICP iterations.
         icp_distance_voxels: ICP correspondence distance (final iterations; the first ones
             start at twice this).
         icp_points: ICP uses at most this many scene points (evenly strided).
         inlier_voxels: distance of a scene point to the model surface counted as an inlier.
+        inlier_plane_m: an inlier must also lie this close to the tangent plane of its nearest
+            model sample (0: off); used for the final ranking.
         fallback_fitness: the table path falls back to RANSAC below this fitness.
         fallback: run that fallback at all (off: the table path's best is returned).
         fallback_templates: the fallback registers only the templates whose view is closest
@@ -99,11 +102,13 @@ class PoseParams:
     top_k: int = 6
     flip_hypotheses: int = 2
     flip_axes: bool = True
+    final_candidates: int = 3
     planar_iterations: int = 8
     icp_iterations: int = 8
     icp_distance_voxels: float = 1.5
     icp_points: int = 300
     inlier_voxels: float = 1.0
+    inlier_plane_m: float = 0.0025
     fallback_fitness: float = 0.7
     fallback: bool = True
     fallback_templates: int = 3
@@ -377,29 +382,50 @@ class PoseEstimator:
         T_start[len(keep) - min(p.flip_hypotheses, len(keep) // 2):] = \
             flip @ T_start[len(keep) - min(p.flip_hypotheses, len(keep) // 2):]
         T_top, _ = self._planar_refine(T_start, sub, obj, grid, tau=voxel)
-        # Rank the refined hypotheses by fitness (sharper than the grid's truncated distance),
-        # then ICP the best and the best different one.
+        # Rank the refined hypotheses by grid fitness (sharper than the truncated distance),
+        # take the best and the best different one, add the half-turns of the best about the
+        # object's axes (a part lying on one face or the opposite one fits the visible surface
+        # almost equally), ICP them all, and score the few best fully (fitness + coverage).
         T_camera_world = invert_transform(T_world_camera)
-        scene_tree = cKDTree(scene_c)
-        ranked = self._rank([self._evaluate(scene_c, obj, T_camera_world @ T_wo,
-                                            method='table', stable=int(s),
-                                            scene_tree=scene_tree)
-                             for T_wo, s in zip(T_top, stable_ids_arr[keep])])
-        best, second = self._best_two(ranked)
-        starts = [(c.T_camera_object, c.stable_index) for c in (best, second) if c is not None]
-        if best is not None and p.flip_axes:
-            # Half-turns about the object's axes: a part that is nearly symmetric that way
-            # (lying on one face or the opposite one) fits the visible surface almost equally;
-            # the finer fitness after ICP decides.
+        fit = self._grid_fitness(T_top, scene_w, obj)
+        order = np.argsort(-fit, kind='stable')
+        stable_top = stable_ids_arr[keep]
+        starts = [(T_camera_world @ T_top[order[0]], int(stable_top[order[0]]))]
+        for k in order[1:]:
+            if _differs(T_top[k], T_top[order[0]]):
+                starts.append((T_camera_world @ T_top[k], int(stable_top[k])))
+                break
+        if p.flip_axes:
+            centre = obj.model_points.mean(axis=0).astype(np.float64)
+            T_best = starts[0][0]
             for axis in np.eye(3):
-                turn = make_transform(_rodrigues(np.pi * axis[None])[0], np.zeros(3))
-                T = best.T_camera_object @ turn
-                centre = obj.model_points.mean(axis=0)
-                T[:3, 3] += best.T_camera_object[:3, :3] @ centre - T[:3, :3] @ centre
+                T = T_best.copy()
+                T[:3, :3] = T_best[:3, :3] @ _rodrigues(np.pi * axis[None])[0]
+                T[:3, 3] += T_best[:3, :3] @ centre - T[:3, :3] @ centre
                 starts.append((T, -1))
-        return self._rank([self._evaluate(scene_c, obj, self._icp(scene_c, obj, T),
-                                          method='table', stable=s, scene_tree=scene_tree)
-                           for T, s in starts])
+        refined = self._icp_batch(scene_c, obj, np.array([T for T, _ in starts]))
+        fit = self._grid_fitness(refined, scene_c, obj)
+        scene_tree = cKDTree(scene_c)
+        chosen: list[int] = []
+        for k in np.argsort(-fit, kind='stable'):
+            if len(chosen) == p.final_candidates:
+                break
+            if all(_differs(refined[k], refined[c]) for c in chosen):
+                chosen.append(int(k))
+        return self._rank([self._evaluate(scene_c, obj, refined[k], method='table',
+                                          stable=starts[k][1], scene_tree=scene_tree)
+                           for k in chosen])
+
+    def _grid_fitness(self, T: np.ndarray, points: np.ndarray, obj: ObjectTemplates
+                      ) -> np.ndarray:
+        """(K,) fraction of ``points`` within ``inlier_voxels`` of the model for K poses of the
+        object in the points' frame, via the nearest-sample grid (one vectorised lookup)."""
+        q = self._to_object(np.asarray(T), points)
+        index, _ = obj.nearest_grid().lookup(q)
+        _, model = self._model_arrays(obj)
+        d = np.linalg.norm(q - model[np.maximum(index, 0)], axis=-1)
+        inlier = (index >= 0) & (d < self.params.inlier_voxels * obj.voxel_size_m)
+        return inlier.mean(axis=-1)
 
     @staticmethod
     def _model_subset(obj: ObjectTemplates, count: int = 800) -> tuple[np.ndarray, np.ndarray]:
@@ -409,6 +435,14 @@ class PoseEstimator:
             obj._cache[key] = (obj.model_points[:count].astype(np.float64),
                                obj.model_normals[:count].astype(np.float64))
         return obj._cache[key]
+
+    @staticmethod
+    def _model_arrays(obj: ObjectTemplates) -> tuple[np.ndarray, np.ndarray]:
+        """float64 model normals and points (converted once)."""
+        if 'float64' not in obj._cache:
+            obj._cache['float64'] = (obj.model_normals.astype(np.float64),
+                                     obj.model_points.astype(np.float64))
+        return obj._cache['float64']
 
     @staticmethod
     def _to_object(T_world_object: np.ndarray, points_w: np.ndarray) -> np.ndarray:
@@ -422,8 +456,7 @@ class PoseEstimator:
         """(yaw, x, y) point-to-plane Gauss-Newton of K poses at once on the nearest grid;
         returns the poses and their final truncated mean distance (tau)."""
         p = self.params
-        model = obj.model_points.astype(np.float64)
-        normals = obj.model_normals.astype(np.float64)
+        normals, model = self._model_arrays(obj)
         T = T.copy()
         for it in range(p.planar_iterations):
             max_d = obj.voxel_size_m * (4.0 if it < p.planar_iterations // 2 else 2.0)
@@ -492,38 +525,44 @@ class PoseEstimator:
     def _icp(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
              *, iterations: int | None = None) -> np.ndarray:
         """6-DOF point-to-plane ICP of the scene onto the model surface samples."""
+        return self._icp_batch(scene_c, obj, np.asarray(T_camera_object)[None],
+                               iterations=iterations)[0]
+
+    def _icp_batch(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
+                   *, iterations: int | None = None) -> np.ndarray:
+        """Point-to-plane ICP (Chen & Medioni 1992) of K (K, 4, 4) starting poses at once; the
+        model's nearest sample comes from the nearest-sample grid (O(1) per point)."""
         p = self.params
-        tree = obj.model_tree()
-        normals = obj.model_normals.astype(np.float64)
-        model = obj.model_points.astype(np.float64)
-        T = np.asarray(T_camera_object, np.float64).copy()
+        grid = obj.nearest_grid()
+        normals, model = self._model_arrays(obj)
+        T = np.array(T_camera_object, np.float64).reshape(-1, 4, 4)
         if len(scene_c) > p.icp_points:
-            step = int(np.ceil(len(scene_c) / p.icp_points))
-            scene_c = scene_c[::step]
+            scene_c = scene_c[::int(np.ceil(len(scene_c) / p.icp_points))]
         iterations = p.icp_iterations if iterations is None else iterations
         for it in range(iterations):
             max_d = p.icp_distance_voxels * obj.voxel_size_m * (2.0 if it < iterations // 2
                                                                 else 1.0)
-            q = transform_points(invert_transform(T), scene_c)
-            dist, index = tree.query(q, k=1, distance_upper_bound=max_d)
-            ok = np.isfinite(dist)
-            if ok.sum() < 6:
-                break
-            R, t = T[:3, :3], T[:3, 3]
-            m = model[index[ok]] @ R.T + t
-            n = normals[index[ok]] @ R.T
-            s = scene_c[ok]
-            r = np.sum(n * (s - m), axis=1)
-            arm = m - t
-            J = np.concatenate([np.cross(arm, n), n], axis=1)
-            A = J.T @ J + 1e-9 * np.eye(6)
-            delta = np.linalg.solve(A, J.T @ r)
-            Rd = _rodrigues(delta[None, :3])[0]
-            T_new = np.eye(4)
-            T_new[:3, :3] = Rd @ R
-            T_new[:3, 3] = t + delta[3:]
+            q = self._to_object(T, scene_c)                       # (K, N, 3)
+            index, _ = grid.lookup(q)
+            ok = index >= 0
+            index = np.where(ok, index, 0)
+            ok &= np.linalg.norm(q - model[index], axis=-1) < max_d
+            R, t = T[:, :3, :3], T[:, :3, 3]
+            Rt = np.transpose(R, (0, 2, 1))
+            m = model[index] @ Rt + t[:, None, :]
+            n = normals[index] @ Rt
+            r = np.sum(n * (scene_c[None] - m), axis=-1)
+            J = np.concatenate([np.cross(m - t[:, None, :], n), n], axis=-1)   # (K, N, 6)
+            w = ok.astype(np.float64)
+            A = np.einsum('kn,kni,knj->kij', w, J, J) + 1e-9 * np.eye(6)
+            b = np.einsum('kn,kni,kn->ki', w, J, r)
+            delta = np.linalg.solve(A, b[..., None])[..., 0]
+            delta[ok.sum(axis=1) < 6] = 0.0
+            T_new = T.copy()
+            T_new[:, :3, :3] = _rodrigues(delta[:, :3]) @ R
+            T_new[:, :3, 3] = t + delta[:, 3:]
             T = T_new
-            if np.linalg.norm(delta) < 1e-6:
+            if np.abs(delta).max() < 1e-6:
                 break
         return T
 
@@ -533,8 +572,15 @@ class PoseEstimator:
         """Fitness / RMSE (scene -> model) and coverage (visible model -> scene)."""
         inlier = self.params.inlier_voxels * obj.voxel_size_m
         q = transform_points(invert_transform(T_camera_object), scene_c)
-        dist, _ = obj.model_tree().query(q, k=1, distance_upper_bound=inlier)
+        dist, index = obj.model_tree().query(q, k=1, distance_upper_bound=inlier)
         ok = np.isfinite(dist)
+        if self.params.inlier_plane_m > 0 and ok.any():
+            # ... and within inlier_plane_m of the tangent plane there: small features (a few
+            # mm) decide between near-symmetric poses that a voxel-wide radius cannot tell apart
+            normals_all, model_all = self._model_arrays(obj)
+            i = index[ok]
+            plane = np.abs(np.sum(normals_all[i] * (q[ok] - model_all[i]), axis=1))
+            ok[np.flatnonzero(ok)[plane >= self.params.inlier_plane_m]] = False
         fitness = float(ok.mean()) if len(ok) else 0.0
         rmse = float(np.sqrt(np.mean(dist[ok] ** 2))) if ok.any() else np.inf
         model, normals = self._model_subset(obj)
