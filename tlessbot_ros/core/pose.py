@@ -112,8 +112,8 @@ class PoseParams:
     fallback_fitness: float = 0.7
     fallback: bool = True
     fallback_templates: int = 3
-    fallback_max_iteration: int = 20000
-    fallback_budget_ms: float = 80.0
+    fallback_max_iteration: int = 5000
+    fallback_budget_ms: float = 60.0
     ransac_distance_voxels: float = 1.5
     ransac_edge_length: float = 0.9
     ransac_mutual_filter: bool = True

@@ -166,10 +166,12 @@ def template_database(models: dict, *, views: int, path: Path | None = None):
 
 
 def warm(db, ids) -> None:
-    """Build the per-object caches (grids, trees) outside the timed loop, as a node does once."""
+    """Build the per-object caches (grids, trees, template FPFH) outside the timed loop, as a
+    long-running node has them after its first frames."""
     for obj_id in ids:
         db[obj_id].nearest_grid()
         db[obj_id].model_tree()
+    db.precompute_features(ids)
 
 
 def score_methods(methods: dict, objects: list, scorers: dict, *, with_vsd: bool = True,
