@@ -117,3 +117,49 @@ def test_table_frame_from_plane_matches_the_rig():
     z_fit = (points_c @ T_wc[:3, :3].T + T_wc[:3, 3])[:, 2]
     np.testing.assert_allclose(z_fit, z_rig, atol=1e-9)
     assert invert_transform(T_wc)[2, 3] > 0   # the table origin lies in front of the camera
+
+
+def test_fallback_is_bounded_and_can_be_switched_off(setup, monkeypatch):
+    from tlessbot_ros.core import pose as pose_module
+    model, db = setup
+    points = _view(model, _place(db, 0, 50.0, 0.0, 0.0))
+    calls = []
+    original = pose_module.register_templates
+
+    def spy(*args, **kwargs):
+        out = original(*args, **kwargs)
+        calls.append((kwargs.get('template_indices'), kwargs.get('max_iteration'), len(out)))
+        return out
+    monkeypatch.setattr(pose_module, 'register_templates', spy)
+    forced = PoseParams(fallback_fitness=1.01, fallback_templates=2, fallback_max_iteration=500,
+                        fallback_budget_ms=0.0)   # the table fit never suffices; no time left
+    result = PoseEstimator(db, params=forced).estimate(points, 21,
+                                                       T_world_camera=SIDE.T_world_camera)
+    (indices, iterations, registered), = calls
+    assert len(indices) == 2 and iterations == 500
+    assert registered == 1      # the budget was spent: one template, then stop
+    assert 'ransac' in result.timings_ms and result.best is not None
+    # the chosen templates are the views nearest to the table path's rotation (yaw 50°:
+    # the 60° and 30° views of the 12)
+    yaws = sorted(round(np.degrees(db[21].templates[i].yaw_rad)) for i in indices)
+    assert yaws == [30, 60]
+    calls.clear()
+    off = PoseParams(fallback_fitness=1.01, fallback=False)
+    result = PoseEstimator(db, params=off).estimate(points, 21,
+                                                    T_world_camera=SIDE.T_world_camera)
+    assert not calls and 'ransac' not in result.timings_ms
+    assert result.best.method == 'table'
+
+
+def test_near_symmetric_flip_is_resolved(setup):
+    # obj_21 lying on its other face, turned 200°: the half-turn about an object axis fits the
+    # visible surface almost as well; the tangent-plane fitness after ICP must pick the truth.
+    model, db = setup
+    T_wo = _place(db, 1, 200.0, -0.06, 0.05)
+    result = PoseEstimator(db).estimate(_view(model, T_wo), 21,
+                                        T_world_camera=SIDE.T_world_camera)
+    t_err, r_err = _errors(result.best.T_camera_object, SIDE.T_camera_world @ T_wo)
+    assert t_err < 0.005 and r_err < 3.0
+    off = PoseEstimator(db, params=PoseParams(flip_axes=False)).estimate(
+        _view(model, T_wo), 21, T_world_camera=SIDE.T_world_camera)
+    assert off.best.fitness <= result.best.fitness + 1e-9

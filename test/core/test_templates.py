@@ -115,3 +115,24 @@ def test_yaw_period_of_simple_shapes():
     side[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
     side[2, 3] = 0.02
     assert tpl.yaw_period(v, f, side, tolerance_m=4e-4) == pytest.approx(np.pi)
+
+
+def test_precompute_features_fills_every_template(obj21, tmp_path):
+    _, db = obj21
+    path = tmp_path / 't.npz'
+    db.save(path)
+    loaded = tpl.TemplateDatabase.load(path)
+    assert all(t.fpfh is None for t in loaded[21].templates)
+    loaded.precompute_features([21])
+    assert all(t.fpfh is not None and t.fpfh.shape == (len(t.points), 33)
+               for t in loaded[21].templates)
+    with pytest.raises(KeyError, match='obj_05'):
+        loaded.precompute_features([5])
+
+
+def test_shipped_database_is_small_and_complete():
+    from tlessbot_ros.data import DEFAULT_TEMPLATES
+    assert DEFAULT_TEMPLATES.stat().st_size < 3_000_000
+    db = tpl.TemplateDatabase.load(DEFAULT_TEMPLATES)
+    assert sorted(db.objects) == [2] + list(range(4, 17)) + list(range(19, 27)) + [30]
+    assert all(len(o.templates) == 12 for o in db.objects.values())
