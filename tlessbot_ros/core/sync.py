@@ -24,13 +24,15 @@ class SyncParams:
         slop_s: largest stamp difference within one camera's colour / depth / camera_info set.
             realsense-ros stamps aligned depth with the colour frame's stamp, so a small slop
             suffices.
-        queue_size: items kept per stream while waiting for partners.
+        queue_size: items kept per stream while waiting for partners; it must cover the
+            upstream latency (a pose estimator holds depth until the classes of the same frame
+            arrive): 30 is one second at 30 fps.
         max_age_s: largest stamp difference between the top and the side camera sets that are
             fused into one two-view frame.
     """
 
     slop_s: float = 0.010
-    queue_size: int = 15
+    queue_size: int = 30
     max_age_s: float = 0.050
 
 

@@ -1,7 +1,6 @@
 """pose_estimator: 6D pose of every classified part, published for the arm.
 
-Subscribes (sensor-data QoS), for CAMERA in top, side:
-    /CAMERA/color/image_raw                      sensor_msgs/Image (for the debug overlay)
+Subscribes (``input_qos``), for CAMERA in top, side:
     /CAMERA/aligned_depth_to_color/image_raw     sensor_msgs/Image (16UC1 mm or 32FC1 m)
     /CAMERA/aligned_depth_to_color/camera_info   sensor_msgs/CameraInfo
     /classifier/CAMERA/classes                   sensor_msgs/Image 16UC1 class-instance labels
@@ -11,7 +10,8 @@ Publishes (RELIABLE, depth 10):
                             the camera that saw it best (side, else top) or in ``world_frame``
                             when ``output_frame`` is 'world'
     objects/markers         visualization_msgs/MarkerArray: model surface points + text label
-    objects/debug_image     sensor_msgs/Image rgb8 overlay, built only while subscribed
+    objects/debug_image     sensor_msgs/Image rgb8: side depth in false colour, part outlines
+                            and the posed models' points, built only while subscribed
     /diagnostics            latency per stage, fitness, frames dropped, failures
 Parameters: ``templates_path`` (.npz from ``tlessbot templates``; default: the packaged one),
 ``output_frame`` ('camera' or 'world'), ``world_frame``, ``min_fitness``, ``pose.*``
@@ -30,7 +30,6 @@ from tlessbot_ros.conversions import (
     camera_info_to_intrinsics,
     depth_image_to_metres,
     image_to_array,
-    image_to_rgb,
     stamp_to_ns,
     transform_to_pose_stamped,
 )
@@ -85,7 +84,6 @@ class PoseEstimatorNode(StageNode):
         self._overlay = self.create_publisher(message_class(IMAGE), 'objects/debug_image',
                                               RESULT_QOS)
         self.setup_inputs({
-            'color': (IMAGE, '/{camera}/color/image_raw'),
             'depth': (IMAGE, '/{camera}/aligned_depth_to_color/image_raw'),
             'info': ('sensor_msgs/msg/CameraInfo', '/{camera}/aligned_depth_to_color/camera_info'),
             'classes': (IMAGE, '/classifier/{camera}/classes'),
@@ -165,8 +163,14 @@ class PoseEstimatorNode(StageNode):
     def _overlay_image(self, detections: list[Detection], views: dict,
                        inputs: dict[str, ViewInput], labels: dict[str, np.ndarray],
                        stamp_ns: int) -> Any:
-        colour_msg = views['side']['color']
-        canvas = np.ascontiguousarray(image_to_rgb(colour_msg))
+        depth_msg = views['side']['depth']
+        depth = np.nan_to_num(inputs['side'].depth_m, nan=0.0)
+        valid = depth > 0
+        span = np.percentile(depth[valid], [2, 98]) if valid.any() else np.array([0.0, 1.0])
+        scaled = np.clip((depth - span[0]) / max(span[1] - span[0], 1e-6), 0, 1)
+        canvas = cv2.applyColorMap((255 * (1 - scaled)).astype(np.uint8), cv2.COLORMAP_JET)
+        canvas = np.ascontiguousarray(canvas[:, :, ::-1])
+        canvas[~valid] = 0
         side_labels = labels['side'].astype(np.uint8 if labels['side'].max() < 256 else np.uint16)
         edges = cv2.morphologyEx((side_labels > 0).astype(np.uint8), cv2.MORPH_GRADIENT,
                                  np.ones((3, 3), np.uint8)) > 0
@@ -184,7 +188,7 @@ class PoseEstimatorNode(StageNode):
             x, y, _, _ = detection.box
             cv2.putText(canvas, f'obj_{detection.obj_id:02d}', (x, max(12, y - 4)),
                         cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 60, 60), 1, cv2.LINE_AA)
-        return array_to_image(canvas, 'rgb8', frame_id=colour_msg.header.frame_id,
+        return array_to_image(canvas, 'rgb8', frame_id=depth_msg.header.frame_id,
                               stamp_ns=stamp_ns, factory=self._factory)
 
 

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile
 
 from tlessbot_ros.core.geometry import look_at
 from tlessbot_ros.core.rig import CameraMount, Rig, default_rig
@@ -76,6 +77,9 @@ class StageNode(Node):
         self.input_qos = self.declare_parameter('input_qos', 'sensor_data', descriptor(
             "QoS of the subscriptions: 'sensor_data' (best effort, the ROS convention for "
             "camera streams) or 'reliable' (no loss of large images under CPU load)")).value
+        self.input_depth = self.declare_parameter('input_depth', 2, descriptor(
+            'History depth of each subscription: a node that falls behind drops the older '
+            'frames instead of queueing them (latency stays bounded)')).value
         if self.input_qos not in ('sensor_data', 'reliable'):
             raise TlessbotError(f"input_qos must be 'sensor_data' or 'reliable', got "
                                 f'{self.input_qos!r}')
@@ -93,8 +97,13 @@ class StageNode(Node):
         """Subscribe ``{key: (ROS type name, '/{camera}/...' template)}`` for both cameras."""
         self._inputs = TwoViewInputs(
             self, {k: (message_class(t), template) for k, (t, template) in topics.items()},
-            CAMERAS, self.sync_params, self._on_views,
-            qos=SENSOR_QOS if self.input_qos == 'sensor_data' else RESULT_QOS)
+            CAMERAS, self.sync_params, self._on_views, qos=self._input_profile())
+
+    def _input_profile(self) -> QoSProfile:
+        """The subscriptions' QoS: ``input_qos`` reliability with ``input_depth`` history."""
+        base = SENSOR_QOS if self.input_qos == 'sensor_data' else RESULT_QOS
+        return QoSProfile(reliability=base.reliability, durability=base.durability,
+                          history=HistoryPolicy.KEEP_LAST, depth=max(1, int(self.input_depth)))
 
     def _on_views(self, views: Views) -> None:
         start = time.perf_counter()

@@ -17,6 +17,7 @@ from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.tools.launch import PERCEPTION_NODES, GraphProcesses, graph_processes
 
 ALL_OBJECT_IDS = range(1, 31)
+READY_TOPIC = '/side/aligned_depth_to_color/image_raw'  # every perception node subscribes it
 
 
 @dataclass
@@ -119,8 +120,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             graph.start()
         spinner.start()
         deadline = time.monotonic() + startup_timeout_s
-        # Ready when every perception node subscribes the side colour and labels flow.
-        while player.count_subscribers('/side/color/image_raw') < len(PERCEPTION_NODES):
+        # Ready when every perception node subscribes the side depth.
+        while player.count_subscribers(READY_TOPIC) < len(PERCEPTION_NODES):
             exited = graph.first_exited()
             if exited is not None:
                 raise TlessbotError(f'{exited[0]} exited with code {exited[1]} during start-up:'

@@ -67,9 +67,12 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
         while time.monotonic() < deadline and not all(p.get_subscription_count() for p in watched):
             rclpy.spin_once(node, timeout_sec=0.05)
     published = 0
+    # A looped bag is read once and kept in memory (decompressing it every pass would cap the
+    # replay rate); bags are demo-sized here.
+    cached = list(read_bag(bag, list(types))) if loop else None
     while True:
         start_wall, start_bag, offset_ns = None, None, 0
-        for message in read_bag(bag, list(types)):
+        for message in cached if cached is not None else read_bag(bag, list(types)):
             if should_stop():
                 return published
             if start_wall is None:
