@@ -94,19 +94,19 @@ class PoseParams:
     """
 
     method: str = 'table'
-    yaw_step_deg: float = 10.0
+    yaw_step_deg: float = 15.0
     max_stable_poses: int = 4
     min_stable_probability: float = 0.02
     table_voxel_scale: float = 1.5
-    score_points: int = 250
+    score_points: int = 200
     top_k: int = 6
     flip_hypotheses: int = 2
     flip_axes: bool = True
     final_candidates: int = 3
-    planar_iterations: int = 8
+    planar_iterations: int = 6
     icp_iterations: int = 8
     icp_distance_voxels: float = 1.5
-    icp_points: int = 300
+    icp_points: int = 250
     inlier_voxels: float = 1.0
     inlier_plane_m: float = 0.0025
     fallback_fitness: float = 0.7
