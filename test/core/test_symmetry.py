@@ -103,3 +103,15 @@ def test_detection_matches_bop_groups(tless_models_dir, obj_id):
     else:
         assert not s.continuous
         assert s.describe() == expected
+
+
+def test_axis_point_ignores_the_tiny_singular_value_along_the_axis():
+    from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
+    from tlessbot_ros.core.symmetry import _axis_point
+
+    axis = np.array([1e-4, -2e-4, 1.0])
+    centre = np.array([0.01, -0.02, 0.0])
+    R = rotation_about_axis(axis, np.radians(60)) @ rotation_about_axis([1, 0, 0], 1e-6)
+    T = make_transform(R, centre - R @ centre + np.array([0, 0, 1e-7]))
+    point = _axis_point(T)
+    assert np.linalg.norm(point[:2] - centre[:2]) < 1e-3 and abs(point[2]) < 0.01

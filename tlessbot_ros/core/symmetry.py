@@ -424,6 +424,12 @@ def _mean_axis(rotations: list[np.ndarray], reference: np.ndarray) -> np.ndarray
 
 
 def _axis_point(T: np.ndarray) -> np.ndarray:
-    """The point of the rotation axis of ``T`` closest to the origin (least squares)."""
+    """The point of the rotation axis of ``T`` closest to the origin (least squares).
+
+    ``I - R`` is singular along the axis; a refined ``T`` is not exactly a rotation, so its
+    third singular value is tiny but not zero, and solving with it would throw the point far
+    along the axis. Singular values under 5 % of the largest are cut (callers pass rotations
+    of more than ~17 degrees, whose other two singular values exceed 0.3).
+    """
     R, t = T[:3, :3], T[:3, 3]
-    return np.linalg.lstsq(np.eye(3) - R, t, rcond=None)[0]
+    return np.linalg.lstsq(np.eye(3) - R, t, rcond=0.05)[0]
