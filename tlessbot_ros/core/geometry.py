@@ -214,3 +214,20 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return make_transform(np.stack([x, y, z], axis=1), eye)
+
+
+def point_set_diameter(points: np.ndarray) -> float:
+    """Largest distance between two of the (N, 3) points, e.g. a model's vertices (BOP's object
+    diameter). Computed on the convex hull, in blocks to bound memory."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    try:
+        points = points[ConvexHull(points).vertices]
+    except (QhullError, ValueError):  # flat or tiny sets: use every point
+        pass
+    best = 0.0
+    for start in range(0, len(points), 1024):
+        block = points[start:start + 1024]
+        best = max(best, float(np.max(np.sum((block[:, None] - points[None]) ** 2, axis=-1))))
+    return float(np.sqrt(best))

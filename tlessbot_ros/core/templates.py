@@ -35,6 +35,7 @@ from tlessbot_ros.core.geometry import (
     depth_to_points,
     invert_transform,
     make_transform,
+    point_set_diameter,
     rotation_about_axis,
     transform_points,
 )
@@ -447,18 +448,8 @@ def merge_equivalent_poses(vertices: np.ndarray, faces: np.ndarray,
 
 
 def diameter(vertices: np.ndarray) -> float:
-    """Largest distance between two vertices (on the convex hull), metres."""
-    from scipy.spatial import ConvexHull
-    pts = np.asarray(vertices, np.float64)
-    try:
-        pts = pts[ConvexHull(pts).vertices]
-    except Exception:  # noqa: BLE001 - degenerate hulls fall back to all vertices
-        pass
-    best = 0.0
-    for start in range(0, len(pts), 512):
-        d = np.linalg.norm(pts[start:start + 512, None] - pts[None], axis=-1)
-        best = max(best, float(d.max()))
-    return best
+    """Largest distance between two vertices, metres."""
+    return point_set_diameter(vertices)
 
 
 def template_from_cloud(points_c: np.ndarray, T_camera_object: np.ndarray, *,

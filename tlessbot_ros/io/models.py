@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tlessbot_ros.core.geometry import point_set_diameter
 from tlessbot_ros.errors import ModelFileError
 
 MODEL_SUFFIXES = ('.stl', '.ply', '.obj')
@@ -115,24 +116,9 @@ def _read_mesh_mm(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return vertices, faces
 
 
-def _hull_points(vertices: np.ndarray) -> np.ndarray:
-    from scipy.spatial import ConvexHull, QhullError
-
-    try:
-        return vertices[ConvexHull(vertices).vertices]
-    except (QhullError, ValueError):
-        return vertices
-
-
 def diameter(vertices: np.ndarray) -> float:
-    """Largest distance between two of the (N, 3) points (computed on the convex hull)."""
-    hull = _hull_points(np.asarray(vertices, dtype=np.float64))
-    best = 0.0
-    for start in range(0, len(hull), 1024):
-        block = hull[start:start + 1024]
-        d2 = np.sum((block[:, None, :] - hull[None, :, :]) ** 2, axis=-1)
-        best = max(best, float(d2.max()))
-    return float(np.sqrt(best))
+    """Largest distance between two vertices, metres (BOP's object diameter)."""
+    return point_set_diameter(vertices)
 
 
 def _symmetries(entry: dict) -> tuple[list[np.ndarray], list[dict[str, np.ndarray]]]:
