@@ -111,6 +111,18 @@ def test_error_lines(dataset, tmp_path, capsys):
     assert main(['evaluate', '--models', str(empty_models), '--poses', str(poses), '--out',
                  str(tmp_path / 'o'), '--dataset', str(data)]) == 1
     assert 'no model' in capsys.readouterr().err
-    assert main(['evaluate', '--models', str(models), '--dataset', str(data), '--out',
-                 str(tmp_path / 'o')]) == 1
-    assert '--templates' in capsys.readouterr().err
+    assert main(['evaluate', '--models', str(models), '--dataset', str(data), '--bag',
+                 str(tmp_path / 'b')]) == 1
+    assert 'exactly one of --dataset' in capsys.readouterr().err
+
+
+def test_missing_templates_are_built_once_and_cached(dataset, tmp_path, capsys):
+    models, data = dataset
+    out = tmp_path / 'o'
+    argv = ['evaluate', '--models', str(models), '--dataset', str(data), '--oracle',
+            'boxes+classes', '--limit', '1', '--out', str(out)]
+    assert main(argv) == 0
+    assert 'building' in capsys.readouterr().out
+    assert (out / 'templates.npz').is_file() and (out / 'report.json').is_file()
+    assert main(argv) == 0
+    assert f'using cached {out / "templates.npz"}' in capsys.readouterr().out

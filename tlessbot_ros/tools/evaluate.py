@@ -330,11 +330,9 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
                      ) -> Iterator[tuple[object, FrameOutput]]:
     """Run core.pipeline on every frame (or the oracle variants)."""
     if args.templates is None:
-        raise TlessbotError('the pipeline needs a template database: pass --templates FILE '
-                            '(build one with `tlessbot templates`)')
+        args.templates = _cached_model(args, 'templates')
     if args.oracle != 'boxes+classes' and args.classifier is None:
-        raise TlessbotError('the pipeline needs a classifier: pass --classifier FILE (train one '
-                            'with `tlessbot train`), or use --oracle boxes+classes')
+        args.classifier = _cached_model(args, 'train')
     if args.oracle == 'none' and not two_view:
         raise TlessbotError('--oracle none needs a two-view dataset (test_top + test_side); '
                             'use --oracle boxes or boxes+classes for a single split')
@@ -412,6 +410,29 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
             output.poses.append(PoseResult(scored.scene_id, scored.im_id, d.obj_id,
                                            float(d.pose.fitness), T, frame_s))
         yield scored, output
+
+
+def _cached_model(args: argparse.Namespace, command: str) -> Path:
+    """``<out>/templates.npz`` or ``<out>/classifier.npz`` built from ``--models`` with the
+    default settings (``tlessbot templates`` / ``tlessbot train``, progress bar shown) unless
+    an earlier run cached it."""
+    import subprocess
+    import sys
+
+    name = 'templates.npz' if command == 'templates' else 'classifier.npz'
+    path = args.out / name
+    if path.is_file():
+        print(f'using cached {path}')
+        return path
+    args.out.mkdir(parents=True, exist_ok=True)
+    print(f'no --{"templates" if command == "templates" else "classifier"} given: building '
+          f'{path} from {args.models} with the default settings')
+    result = subprocess.run([sys.executable, '-m', 'tlessbot_ros.tools.cli', command,
+                             '--models', str(args.models), '--out', str(path)])
+    if result.returncode != 0 or not path.is_file():
+        raise TlessbotError(f'building {path} failed (tlessbot {command} exited with '
+                            f'{result.returncode})')
+    return path
 
 
 def _oracle_labels(by_view: dict) -> dict[str, np.ndarray]:
