@@ -95,7 +95,7 @@ class PoseParams:
 
     method: str = 'table'
     yaw_step_deg: float = 15.0
-    max_stable_poses: int = 4
+    max_stable_poses: int = 8
     min_stable_probability: float = 0.02
     table_voxel_scale: float = 1.5
     score_points: int = 200
