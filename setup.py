@@ -4,8 +4,8 @@ The PyPI ROS 2 wheels are *not* install requirements: in a ROS 2 Jazzy workspace
 message packages come from the distribution (see README, "colcon path"). The stand-alone set-up
 installs them from requirements/ros-pypi.txt instead.
 """
-from glob import glob
 import os
+from glob import glob
 
 from setuptools import find_packages, setup
 

@@ -163,3 +163,19 @@ def test_near_symmetric_flip_is_resolved(setup):
     off = PoseEstimator(db, params=PoseParams(flip_axes=False)).estimate(
         _view(model, T_wo), 21, T_world_camera=SIDE.T_world_camera)
     assert off.best.fitness <= result.best.fitness + 1e-9
+
+
+def test_warm_up_builds_every_cache_before_the_first_frame(setup):
+    model, db = setup
+    estimator = PoseEstimator(db)
+    obj = db[21]
+    obj._cache.clear()
+    for template in obj.templates:
+        template.normals = template.fpfh = None
+    estimator.warm_up()
+    assert 'tree' in obj._cache and len(obj._cache) >= 2     # KD-tree and nearest-point grid
+    assert all(t.fpfh is not None and t.fpfh.shape[1] == 33 for t in obj.templates)
+    T_gt = _place(db, 0, 30.0, 0.02, -0.01)
+    result = estimator.estimate(_view(model, T_gt), 21, T_world_camera=SIDE.T_world_camera)
+    t_err, r_err = _errors(result.best.T_camera_object, SIDE.T_camera_world @ T_gt)
+    assert t_err < 0.01 and r_err < 5.0

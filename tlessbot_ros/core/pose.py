@@ -27,6 +27,7 @@ References:
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -236,6 +237,24 @@ class PoseEstimator:
         self.params = params
 
     # ----------------------------------------------------------------------------------- API
+    def warm_up(self, obj_ids: Iterable[int] | None = None, *, features: bool = True) -> None:
+        """Build every per-object cache now (nearest-point grids, KD-trees, scoring subsets,
+        and with ``features`` the templates' FPFH), so the first frame that shows an object is
+        not slower than the next: about 0.5 s per object, once. Each object's first template
+        cloud is run through :meth:`estimate` with the template camera's pose."""
+        ids = sorted(self.database.objects) if obj_ids is None else list(obj_ids)
+        T_world_camera = self.database.params.get('T_world_camera')
+        for obj_id in ids:
+            obj = self.database[obj_id]
+            obj.nearest_grid()
+            obj.model_tree()
+            if obj.templates:
+                self.estimate(obj.templates[0].points.astype(np.float64), obj_id,
+                              T_world_camera=None if T_world_camera is None
+                              else np.asarray(T_world_camera, np.float64))
+        if features:
+            self.database.precompute_features(ids)
+
     def estimate(self, points_c: np.ndarray, obj_id: int, *,
                  T_world_camera: np.ndarray | None = None,
                  method: str | None = None) -> PoseResult:

@@ -20,6 +20,7 @@ Parameters: ``templates_path`` (.npz from ``tlessbot templates``; default: the p
 from __future__ import annotations
 
 import dataclasses
+import time
 from typing import Any
 
 import cv2
@@ -88,7 +89,10 @@ class PoseEstimatorNode(StageNode):
             'info': ('sensor_msgs/msg/CameraInfo', '/{camera}/aligned_depth_to_color/camera_info'),
             'classes': (IMAGE, '/classifier/{camera}/classes'),
         })
-        self.get_logger().info(f'templates for {len(self.templates.objects)} objects from {path}')
+        started = time.perf_counter()
+        self.pipeline.pose_estimator.warm_up()
+        self.get_logger().info(f'templates for {len(self.templates.objects)} objects from {path}'
+                               f' (caches built in {time.perf_counter() - started:.1f} s)')
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         inputs, labels, classes = {}, {}, {}
