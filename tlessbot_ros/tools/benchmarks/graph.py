@@ -5,7 +5,8 @@
 Stamps are shifted to now (replay --restamp), so latency is the time from a frame's source
 stamp to the arrival of its PoseStamped here (p50, p95). A frame is dropped when no pose comes
 back for its stamp. RSS of each node is sampled every second; the trend is a least-squares
-slope in MiB per minute.
+slope in MiB per minute, over the whole run and over its second half (allocator pools and caches
+fill during the first frames; a leak keeps its slope in the second half).
 """
 from __future__ import annotations
 
@@ -70,10 +71,12 @@ def run(args: argparse.Namespace) -> int:
          f'{dropped} ({100 * dropped / max(1, len(replayed)):.1f} %)'),
     ]
     for label in sorted(result.rss_mb_start):
-        trend = rss_trend_mb_per_min(result.rss_mb_samples.get(label, []))
+        samples = result.rss_mb_samples.get(label, [])
+        trend = rss_trend_mb_per_min(samples)
+        late_trend = rss_trend_mb_per_min(samples[len(samples) // 2:])
         rows.append((f'RSS {label} start -> end',
                      f'{result.rss_mb_start[label]:.0f} -> {result.rss_mb_end[label]:.0f} MiB '
-                     f'(trend {trend:+.2f} MiB/min)'))
+                     f'(trend {trend:+.2f} MiB/min; second half {late_trend:+.2f} MiB/min)'))
     table = '| measure | value |\n|---|---|\n' + '\n'.join(f'| {k} | {v} |' for k, v in rows)
     print(table)
     if args.out:
