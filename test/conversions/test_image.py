@@ -19,6 +19,7 @@ SAMPLES = {
     'mono8': rng.integers(0, 256, (5, 7), dtype=np.uint8),
     'mono16': rng.integers(0, 65536, (5, 7), dtype=np.uint16),
     '16UC1': rng.integers(0, 65536, (5, 7), dtype=np.uint16),
+    '16UC3': rng.integers(0, 65536, (5, 7, 3), dtype=np.uint16),
     '32FC1': rng.random((5, 7)).astype(np.float32),
 }
 

@@ -1,7 +1,13 @@
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.labels import decode_classes, encode_classes, instance_masks
+from tlessbot_ros.core.labels import (
+    decode_candidates,
+    decode_classes,
+    encode_candidates,
+    encode_classes,
+    instance_masks,
+)
 
 
 def test_round_trip_with_unknown_instance():
@@ -19,3 +25,21 @@ def test_limits():
         encode_classes(np.ones((2, 2), np.uint16), {1: 70})
     with pytest.raises(ValueError, match='instances'):
         encode_classes(np.full((2, 2), 1000, np.uint16), {})
+
+
+def test_candidates_round_trip_and_channel_zero_is_the_plain_image():
+    labels = np.array([[0, 1, 1], [2, 2, 3]], np.uint16)
+    candidates = {1: (5, 6, 7), 2: (30,), 3: ()}
+    encoded = encode_candidates(labels, candidates, 3)
+    assert encoded.shape == (2, 3, 3) and encoded.dtype == np.uint16
+    np.testing.assert_array_equal(encoded[..., 0], encode_classes(labels, {1: 5, 2: 30}))
+    instances, decoded = decode_candidates(encoded)
+    np.testing.assert_array_equal(instances, labels)
+    assert decoded == {1: (5, 6, 7), 2: (30,)}       # unknown entries dropped
+    plain = encode_candidates(labels, candidates, 1)
+    assert plain.shape == labels.shape
+    assert decode_candidates(plain)[1] == {1: (5,), 2: (30,)}
+    broken = encoded.copy()
+    broken[0, 1, 2] = 7002                           # channel 2 names another instance
+    with pytest.raises(ValueError, match='channel 2'):
+        decode_candidates(broken)

@@ -223,7 +223,8 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
         assert node.failures == 1  # wrong encoding and size: logged, not fatal
         harness.publish(good)
         harness.spin(15.0, until=lambda: harness.received['/classifier/side/classes'])
-        assert harness.received['/classifier/side/classes']
+        classes = harness.received['/classifier/side/classes']
+        assert classes and classes[0].encoding == '16UC3'   # three candidates per part
         harness.close()
 
         node = PoseEstimatorNode(parameter_overrides=[Parameter('templates_path',

@@ -212,7 +212,15 @@ class LinearClassifier:
             features: (N, D) or (D,) float32 HOG descriptors.
             reject_margin: overrides the model's ``reject_margin``.
         """
-        scores = self.decision_function(features)
+        return self.predict_scores(self.decision_function(features), reject_margin=reject_margin)
+
+    def predict_scores(self, scores: np.ndarray, *, reject_margin: float | None = None
+                       ) -> Prediction:
+        """:meth:`predict` on (N, C) class scores already computed (e.g. summed over the views
+        that see a part)."""
+        scores = np.asarray(scores, np.float32)
+        if scores.ndim == 1:
+            scores = scores[None]
         best_col = np.argmax(scores, axis=1)
         top2 = -np.partition(-scores, 1, axis=1)[:, :2]  # [:, 0] best, [:, 1] second best
         best = top2[:, 0]
@@ -221,6 +229,14 @@ class LinearClassifier:
         ids = self.class_ids[best_col].astype(np.int64)
         ids[margins < threshold] = UNKNOWN_ID
         return Prediction(ids, best.astype(np.float32), margins)
+
+    def ranked_classes(self, scores: np.ndarray, k: int) -> np.ndarray:
+        """(N, C) class scores -> (N, min(k, C)) int64 object ids, best first."""
+        scores = np.asarray(scores)
+        if scores.ndim == 1:
+            scores = scores[None]
+        k = max(1, min(int(k), scores.shape[1]))
+        return self.class_ids[np.argsort(-scores, axis=1, kind='stable')[:, :k]].astype(np.int64)
 
     def save(self, path: str | Path) -> None:
         """Write the model as a compressed ``.npz`` (no pickled objects).

@@ -4,6 +4,9 @@
   marks the same physical part in the top and the side view.
 - Class-instance labels (classifier output): ``obj_id * 1000 + instance``, the panoptic
   encoding of Cityscapes, so one mono16 image carries both; ``obj_id = 0`` means unknown.
+- Class candidates (classifier output with ``class_candidates`` > 1): a 16UC<k> image whose
+  channel c holds the class-instance labels of every part's c-th best class; channel 0 alone
+  is the plain class-instance image.
 """
 from __future__ import annotations
 
@@ -41,6 +44,40 @@ def decode_classes(class_labels: np.ndarray) -> tuple[np.ndarray, dict[int, int]
         if value % CLASS_STRIDE:
             classes[int(value % CLASS_STRIDE)] = int(value // CLASS_STRIDE)
     return instances, classes
+
+
+def encode_candidates(instance_labels: np.ndarray,
+                      candidates_of_instance: dict[int, tuple[int, ...]], k: int) -> np.ndarray:
+    """(H, W) instance labels + {instance: (obj_id, ...) best first} -> (H, W, k) uint16
+    class-instance labels, channel c for the c-th candidate ((H, W) when k is 1). Missing
+    candidates are 0 (unknown)."""
+    if k < 1:
+        raise ValueError(f'need at least one candidate channel, got {k}')
+    channels = [encode_classes(instance_labels, {
+        instance: (tuple(ids)[c] if len(tuple(ids)) > c else 0)
+        for instance, ids in candidates_of_instance.items()}) for c in range(k)]
+    return channels[0] if k == 1 else np.stack(channels, axis=-1)
+
+
+def decode_candidates(class_labels: np.ndarray) -> tuple[np.ndarray, dict[int, tuple[int, ...]]]:
+    """Inverse of :func:`encode_candidates` (also takes a plain (H, W) class-instance image):
+    (instance labels uint16, {instance: (obj_id, ...)} without the unknown entries)."""
+    class_labels = np.asarray(class_labels)
+    if class_labels.ndim == 2:
+        class_labels = class_labels[..., None]
+    if class_labels.ndim != 3:
+        raise ValueError(f'class labels must be (H, W) or (H, W, k), got {class_labels.shape}')
+    instances, _ = decode_classes(class_labels[..., 0])
+    candidates: dict[int, list[int]] = {}
+    for c in range(class_labels.shape[2]):
+        channel_instances, classes = decode_classes(class_labels[..., c])
+        if c and not np.array_equal(channel_instances[channel_instances > 0],
+                                    instances[channel_instances > 0]):
+            raise ValueError(f'candidate channel {c} disagrees with channel 0 on the instances')
+        for instance, obj_id in classes.items():
+            if obj_id:
+                candidates.setdefault(instance, []).append(obj_id)
+    return instances, {i: tuple(ids) for i, ids in candidates.items()}
 
 
 def instance_masks(instance_labels: np.ndarray) -> dict[int, np.ndarray]:

@@ -4,16 +4,22 @@ Stages (each a method, each usable alone, so the ROS nodes and the evaluator run
 
 1. :meth:`PerceptionPipeline.localise`: segment every view, fuse them -> instance label images
    (uint16, same id for the same part in both views).
-2. :meth:`PerceptionPipeline.classify`: HOG + linear model on each instance's crop in its
-   preferred view (side when visible there, else top) -> {instance: ClassGuess}.
+2. :meth:`PerceptionPipeline.classify`: HOG (+ shape) + linear model on each instance's crop
+   in every view that sees it, scores summed over the views -> {instance: ClassGuess} with the
+   best ``class_candidates`` classes.
 3. :meth:`PerceptionPipeline.estimate_poses`: ROI cloud of each classified instance on the
-   aligned depth of its preferred view -> pose in that camera's optical frame.
+   aligned depth of its preferred view (side when visible there, else top) -> pose in that
+   camera's optical frame. With several candidate classes, the first is accepted when its
+   template fit is good (fitness >= ``verify_accept_fitness``); otherwise every candidate is
+   fitted and the best fit names the part (verification by geometry, our addition: the
+   near-identical T-LESS parts differ by millimetres that a 60 px crop cannot show).
 
 Inputs per view are :class:`ViewInput`; a two-view frame is ``{'top': ..., 'side': ...}``.
 """
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,13 +45,24 @@ class PipelineParams:
         min_roi_points: fewer valid depth points than this: the pose is not estimated.
         table_clearance_m: in box mode, ROI points closer than this to the table plane are
             dropped (the box holds table pixels around the part).
-        reject_margin: classifier margin below which the class is 'unknown' (0 = never).
+        reject_margin: classifier margin below which the class is 'unknown' (0 = never); the
+            margin is read on the scores summed over the views that see the part.
+        class_candidates: classes per part handed to the pose stage, best first (1 = the
+            classifier alone decides, as in the paper; at most 4, the channels of a 16UC4
+            image).
+        verify_accept_fitness: the first candidate is kept without fitting the others when its
+            pose fitness reaches this.
+        verify_rmse_weight: candidates are ranked by fitness - weight * inlier RMSE (1/m), so
+            1 mm of RMSE costs 0.05 of fitness.
     """
 
     min_instance_px: int = 60
     min_roi_points: int = 30
     table_clearance_m: float = 0.004
     reject_margin: float = 0.0
+    class_candidates: int = 3
+    verify_accept_fitness: float = 0.95
+    verify_rmse_weight: float = 50.0
 
 
 @dataclass
@@ -70,12 +87,15 @@ class ViewInput:
 
 @dataclass(frozen=True)
 class ClassGuess:
-    """Class of one instance: object id (0 = unknown), score and margin, view it came from."""
+    """Class of one instance: object id (0 = unknown), score and margin (summed over the views
+    that see it), its preferred view, and the best classes in order (``candidates[0] ==
+    obj_id`` unless unknown; empty when unknown)."""
 
     obj_id: int
     score: float
     margin: float
     view: str
+    candidates: tuple[int, ...] = ()
 
 
 @dataclass
@@ -88,6 +108,8 @@ class Detection:
         view: camera whose data gave the pose (its optical frame holds ``T_camera_object``).
         box: (x, y, w, h) in that view.
         class_score, class_margin: classifier outputs.
+        class_rank: rank of ``obj_id`` among the classifier's candidates (0 = its first
+            choice; more when the pose fit overruled it).
         pose, second: best and second-best pose candidates (None when not estimated).
         n_points: ROI points used.
     """
@@ -98,6 +120,7 @@ class Detection:
     box: tuple[int, int, int, int]
     class_score: float = 0.0
     class_margin: float = 0.0
+    class_rank: int = 0
     pose: PoseCandidate | None = None
     second: PoseCandidate | None = None
     n_points: int = 0
@@ -178,7 +201,10 @@ class PerceptionPipeline:
     # ---------------------------------------------------------------------------- stage 2
     def classify(self, rgb: dict[str, np.ndarray], labels: dict[str, np.ndarray], *,
                  views: dict[str, ViewInput] | None = None) -> dict[int, ClassGuess]:
-        """Class of every instance, read in its preferred view (one batch per view).
+        """Class of every instance from all the views that see it (one batch per view).
+
+        The linear scores of an instance's crops in the views where it has at least
+        ``min_instance_px`` pixels are summed (the two cameras vote), then ranked.
 
         Args:
             rgb: per view, (H, W, 3) uint8 RGB.
@@ -190,13 +216,12 @@ class PerceptionPipeline:
         """
         if self.classifier is None:
             raise ValueError('no classifier loaded')
-        by_view: dict[str, list[int]] = {}
-        for instance in _instance_ids(labels):
-            view = preferred_view(labels, instance, min_px=self.params.min_instance_px)
-            if view is not None:
-                by_view.setdefault(view, []).append(instance)
-        guesses = {}
-        for view, instances in by_view.items():
+        summed: dict[int, np.ndarray] = {}
+        for view in sorted(labels):
+            instances = [i for i in _instance_ids({view: labels[view]})
+                         if np.count_nonzero(labels[view] == i) >= self.params.min_instance_px]
+            if not instances or view not in rgb:
+                continue
             masks = [labels[view] == i for i in instances]
             depth = {}
             data = None if views is None else views.get(view)
@@ -205,37 +230,54 @@ class PerceptionPipeline:
                          'T_world_camera': data.T_world_camera}
             features = self.classifier.describe(rgb[view], masks, [box_of(m) for m in masks],
                                                 **depth)
-            prediction = self.classifier.predict(
-                features, reject_margin=self.params.reject_margin or None)
-            for k, instance in enumerate(instances):
-                guesses[instance] = ClassGuess(int(prediction.class_ids[k]),
-                                               float(prediction.scores[k]),
-                                               float(prediction.margins[k]), view)
+            for instance, scores in zip(instances, self.classifier.decision_function(features)):
+                summed[instance] = summed.get(instance, 0.0) + scores
+        if not summed:
+            return {}
+        instances = sorted(summed)
+        scores = np.stack([summed[i] for i in instances])
+        prediction = self.classifier.predict_scores(
+            scores, reject_margin=self.params.reject_margin or None)
+        ranked = self.classifier.ranked_classes(scores, max(1, self.params.class_candidates))
+        guesses = {}
+        for k, instance in enumerate(instances):
+            obj_id = int(prediction.class_ids[k])
+            guesses[instance] = ClassGuess(
+                obj_id, float(prediction.scores[k]), float(prediction.margins[k]),
+                preferred_view(labels, instance, min_px=self.params.min_instance_px),
+                tuple(int(c) for c in ranked[k]) if obj_id != UNKNOWN_ID else ())
         return guesses
 
     # ---------------------------------------------------------------------------- stage 3
     def estimate_poses(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
-                       classes: dict[int, int], *, box_mode: bool = False) -> list[Detection]:
+                       classes: Mapping[int, int | Sequence[int]], *,
+                       box_mode: bool = False) -> list[Detection]:
         """Pose of every instance with a known class.
 
         Args:
             views: per view, the depth, intrinsics and extrinsics.
             labels: instance label images per view (in box mode, each instance is its
                 filled box, and points on the table plane are discarded).
-            classes: {instance: obj_id}; instances with 0 or missing are skipped.
+            classes: {instance: obj_id} or {instance: (obj_id, ...)} candidates best first
+                (see :class:`ClassGuess`); 0 and ids without templates are skipped, an
+                instance without any is skipped. Several candidates are verified by their
+                pose fit (``verify_accept_fitness``, ``verify_rmse_weight``).
             box_mode: regions are boxes, not masks (the paper's "GT box" setting).
         """
         if self.pose_estimator is None:
             raise ValueError('no template database loaded')
+        database = self.pose_estimator.database
         detections = []
         for instance in _instance_ids(labels):
-            obj_id = classes.get(instance, UNKNOWN_ID)
+            candidates = classes.get(instance, UNKNOWN_ID)
+            candidates = (candidates,) if np.isscalar(candidates) else tuple(candidates)
+            candidates = tuple(int(c) for c in candidates if c != UNKNOWN_ID and c in database)
             view = preferred_view(labels, instance, min_px=self.params.min_instance_px)
-            if obj_id == UNKNOWN_ID or view is None or obj_id not in self.pose_estimator.database:
+            if not candidates or view is None:
                 continue
             data = views[view]
             mask = labels[view] == instance
-            detection = Detection(instance, obj_id, view, box_of(mask))
+            detection = Detection(instance, candidates[0], view, box_of(mask))
             if data.depth_m is not None:
                 points = roi_cloud(data.depth_m, mask, data.intrinsics)
                 if box_mode and data.T_world_camera is not None:
@@ -243,11 +285,27 @@ class PerceptionPipeline:
                     points = points[height > self.params.table_clearance_m]
                 detection.n_points = len(points)
                 if len(points) >= self.params.min_roi_points:
-                    result = self.pose_estimator.estimate(points, obj_id,
-                                                          T_world_camera=data.T_world_camera)
-                    detection.pose, detection.second = result.best, result.second
+                    self._verified_pose(detection, points, candidates, data.T_world_camera)
             detections.append(detection)
         return detections
+
+    def _verified_pose(self, detection: Detection, points: np.ndarray,
+                       candidates: tuple[int, ...], T_world_camera: np.ndarray | None) -> None:
+        """Fit the candidates in order and keep the best (fills the detection's class, rank
+        and poses); stop at the first whose fitness reaches ``verify_accept_fitness``."""
+        p = self.params
+        best_value = None
+        for rank, obj_id in enumerate(candidates):
+            result = self.pose_estimator.estimate(points, obj_id, T_world_camera=T_world_camera)
+            if result.best is None:
+                continue
+            value = result.best.fitness - p.verify_rmse_weight * result.best.inlier_rmse_m
+            if best_value is None or value > best_value:
+                best_value = value
+                detection.obj_id, detection.class_rank = obj_id, rank
+                detection.pose, detection.second = result.best, result.second
+            if rank == 0 and result.best.fitness >= p.verify_accept_fitness:
+                break
 
     # ---------------------------------------------------------------------------- all stages
     def process(self, views: dict[str, ViewInput]) -> FrameResult:
@@ -258,7 +316,7 @@ class PerceptionPipeline:
         guesses = self.classify({v: views[v].rgb for v in views}, fusion.labels, views=views)
         t2 = time.perf_counter()
         detections = self.estimate_poses(views, fusion.labels,
-                                         {i: g.obj_id for i, g in guesses.items()})
+                                         {i: g.candidates for i, g in guesses.items()})
         t3 = time.perf_counter()
         for detection in detections:
             guess = guesses[detection.instance_id]

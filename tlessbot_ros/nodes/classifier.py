@@ -6,14 +6,16 @@ Subscribes (``input_qos``), for CAMERA in top, side:
     /CAMERA/aligned_depth_to_color/camera_info   sensor_msgs/CameraInfo
     /localiser/CAMERA/labels                     sensor_msgs/Image 16UC1 instance labels
 Publishes (RELIABLE, depth 10):
-    classifier/CAMERA/classes    sensor_msgs/Image 16UC1 class-instance labels,
-                                 obj_id * 1000 + instance (0 * 1000 + i = unknown); the class of
-                                 an instance is read in its preferred view (side, else top) and
-                                 written in both views (header = the labels' header)
+    classifier/CAMERA/classes    sensor_msgs/Image 16UC<k> class-instance labels,
+                                 obj_id * 1000 + instance (0 * 1000 + i = unknown), channel c
+                                 for the c-th best class (k = class_candidates; 16UC1 when 1);
+                                 the scores of an instance are summed over the views that see
+                                 it and written in both views (header = the labels' header)
     /diagnostics                 frames, failures, dropped, latency, last classes and margins
 Parameters: ``model_path`` (.npz from ``tlessbot train``; default: the packaged model),
 ``reject_margin`` (margin below which a part is 'unknown'; 0 = the model's own),
-``min_instance_px``, ``rig.CAMERA.*`` (extrinsics: heights above the table), ``sync.*``.
+``min_instance_px``, ``class_candidates``, ``rig.CAMERA.*`` (extrinsics: heights above the
+table), ``sync.*``.
 """
 from __future__ import annotations
 
@@ -29,9 +31,10 @@ from tlessbot_ros.conversions import (
 )
 from tlessbot_ros.conversions.messages import RclpyFactory
 from tlessbot_ros.core.classifier import LinearClassifier
-from tlessbot_ros.core.labels import encode_classes
+from tlessbot_ros.core.labels import encode_candidates
 from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
 from tlessbot_ros.data import DEFAULT_CLASSIFIER
+from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
 from tlessbot_ros.nodes.stage import CAMERAS, StageNode, declare_extrinsics, descriptor
 
@@ -50,11 +53,20 @@ class ClassifierNode(StageNode):
         min_px = self.declare_parameter('min_instance_px', PipelineParams().min_instance_px,
                                         descriptor('Pixels an instance needs in a view to be '
                                                     'classified there')).value
+        candidates = self.declare_parameter(
+            'class_candidates', PipelineParams().class_candidates, descriptor(
+                'Classes per part sent to the pose estimator, best first, as the channels of '
+                'a 16UC<k> classes image (1: the classifier alone decides, 16UC1; at most 4)')
+        ).value
+        if not 1 <= int(candidates) <= 4:
+            raise TlessbotError(f'class_candidates must be 1..4, got {candidates}')
+        self.candidates = int(candidates)
         self.extrinsics = declare_extrinsics(self)
         self.model = LinearClassifier.load(path)  # ModelFileError: one line, exit 1
         self.pipeline = PerceptionPipeline(
             classifier=self.model,
-            params=PipelineParams(min_instance_px=int(min_px), reject_margin=float(reject)))
+            params=PipelineParams(min_instance_px=int(min_px), reject_margin=float(reject),
+                                  class_candidates=self.candidates))
         self._factory = RclpyFactory()
         self._class_publishers = {
             camera: self.create_publisher(message_class(IMAGE), f'classifier/{camera}/classes',
@@ -82,11 +94,13 @@ class ClassifierNode(StageNode):
             intrinsics=camera_info_to_intrinsics(msgs['info']),
             T_world_camera=self.extrinsics[camera]) for camera, msgs in views.items()}
         guesses = self.pipeline.classify(rgb, labels, views=views_in)
-        classes = {instance: guess.obj_id for instance, guess in guesses.items()}
+        candidates = {instance: guess.candidates for instance, guess in guesses.items()}
+        encoding = f'16UC{self.candidates}'
         for camera, msgs in views.items():
             header = msgs['labels'].header
             self._class_publishers[camera].publish(array_to_image(
-                encode_classes(labels[camera], classes), '16UC1', frame_id=header.frame_id,
+                encode_candidates(labels[camera], candidates, self.candidates), encoding,
+                frame_id=header.frame_id,
                 stamp_ns=stamp_to_ns(header.stamp), factory=self._factory))
 
 

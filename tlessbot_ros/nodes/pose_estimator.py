@@ -3,7 +3,8 @@
 Subscribes (``input_qos``), for CAMERA in top, side:
     /CAMERA/aligned_depth_to_color/image_raw     sensor_msgs/Image (16UC1 mm or 32FC1 m)
     /CAMERA/aligned_depth_to_color/camera_info   sensor_msgs/CameraInfo
-    /classifier/CAMERA/classes                   sensor_msgs/Image 16UC1 class-instance labels
+    /classifier/CAMERA/classes                   sensor_msgs/Image 16UC1 class-instance labels,
+                                                 or 16UC2..4: class candidates, best first
 Publishes (RELIABLE, depth 10):
     objects/obj_NN/pose     geometry_msgs/PoseStamped, one message per found instance of object
                             NN, stamped with the source images' stamp, in the optical frame of
@@ -14,7 +15,8 @@ Publishes (RELIABLE, depth 10):
                             and the posed models' points, built only while subscribed
     /diagnostics            latency per stage, fitness, frames dropped, failures
 Parameters: ``templates_path`` (.npz from ``tlessbot templates``; default: the packaged one),
-``output_frame`` ('camera' or 'world'), ``world_frame``, ``min_fitness``, ``pose.*``
+``output_frame`` ('camera' or 'world'), ``world_frame``, ``min_fitness``,
+``verify_accept_fitness`` and ``verify_rmse_weight`` (how candidates are verified), ``pose.*``
 (PoseParams), ``rig.CAMERA.*`` (extrinsics; the table path needs them), ``sync.*``.
 """
 from __future__ import annotations
@@ -36,8 +38,8 @@ from tlessbot_ros.conversions import (
 )
 from tlessbot_ros.conversions.messages import RclpyFactory
 from tlessbot_ros.core.geometry import project_points, transform_points
-from tlessbot_ros.core.labels import decode_classes
-from tlessbot_ros.core.pipeline import Detection, PerceptionPipeline, ViewInput
+from tlessbot_ros.core.labels import decode_candidates
+from tlessbot_ros.core.pipeline import Detection, PerceptionPipeline, PipelineParams, ViewInput
 from tlessbot_ros.core.pose import PoseParams
 from tlessbot_ros.core.templates import TemplateDatabase
 from tlessbot_ros.data import DEFAULT_TEMPLATES
@@ -45,6 +47,7 @@ from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class, run_node
 from tlessbot_ros.nodes.stage import StageNode, declare_extrinsics, descriptor
 
+CLASS_ENCODINGS = ('16UC1', 'mono16', '16UC2', '16UC3', '16UC4')
 IMAGE = 'sensor_msgs/msg/Image'
 MARKER_POINTS = 300
 
@@ -70,11 +73,22 @@ class PoseEstimatorNode(StageNode):
         if self.output_frame not in ('camera', 'world'):
             raise TlessbotError(f"output_frame must be 'camera' or 'world', got "
                              f'{self.output_frame!r}')
+        defaults = PipelineParams()
+        accept = self.declare_parameter(
+            'verify_accept_fitness', defaults.verify_accept_fitness, descriptor(
+                'With several class candidates, the first is kept without fitting the others '
+                'when its pose fitness reaches this')).value
+        rmse_weight = self.declare_parameter(
+            'verify_rmse_weight', defaults.verify_rmse_weight, descriptor(
+                'Candidates are ranked by fitness - weight * inlier RMSE (1/m)')).value
         pose_params = dataclasses.replace(PoseParams(), **declare_from_dataclass(
             self, PoseParams(), prefix='pose.'))
         self.extrinsics = declare_extrinsics(self)
         self.templates = TemplateDatabase.load(path)
-        self.pipeline = PerceptionPipeline(templates=self.templates, pose=pose_params)
+        self.pipeline = PerceptionPipeline(
+            templates=self.templates, pose=pose_params,
+            params=dataclasses.replace(defaults, verify_accept_fitness=float(accept),
+                                       verify_rmse_weight=float(rmse_weight)))
         self._factory = RclpyFactory()
         pose_class = message_class('geometry_msgs/msg/PoseStamped')
         self._pose_publishers = {obj_id: self.create_publisher(pose_class, pose_topic(obj_id),
@@ -99,15 +113,18 @@ class PoseEstimatorNode(StageNode):
         for camera, msgs in views.items():
             intrinsics = camera_info_to_intrinsics(msgs['info'])
             depth = depth_image_to_metres(msgs['depth'])
+            if msgs['classes'].encoding not in CLASS_ENCODINGS:
+                raise ValueError(f'classes must be one of {CLASS_ENCODINGS}, got '
+                                 f'{msgs["classes"].encoding!r}')
             class_image = image_to_array(msgs['classes'])
             if depth.shape != (intrinsics.height, intrinsics.width) or \
-                    class_image.shape != depth.shape:
+                    class_image.shape[:2] != depth.shape:
                 raise ValueError(f'{camera}: depth {depth.shape}, classes {class_image.shape} '
                                  f'and CameraInfo {intrinsics.height}x{intrinsics.width} differ')
             inputs[camera] = ViewInput(rgb=None, depth_m=depth, intrinsics=intrinsics,
                                        T_world_camera=self.extrinsics[camera])
-            labels[camera], view_classes = decode_classes(class_image)
-            classes.update({k: v for k, v in view_classes.items() if v})
+            labels[camera], view_classes = decode_candidates(class_image)
+            classes.update(view_classes)
         detections = self.pipeline.estimate_poses(inputs, labels, classes)
         stamp_ns = stamp_to_ns(views['side']['depth'].header.stamp)
         published = [d for d in detections if d.pose is not None

@@ -1,0 +1,73 @@
+"""Class verification by the pose fit (PerceptionPipeline.estimate_poses with candidates)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlessbot_ros.core import templates as tpl
+from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
+from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+from tlessbot_ros.core.render import MeshRenderer
+from tlessbot_ros.core.rig import default_rig
+
+SIDE = default_rig()['side']
+
+
+@pytest.fixture(scope='module')
+def scene(tless_models_dir):
+    from tlessbot_ros.io.models import load_models, stable_poses
+    models = load_models(tless_models_dir, ids=[5, 21])
+    db = tpl.build_database(
+        [(i, m.vertices, m.faces, [(p.T_table_object, p.probability) for p in stable_poses(m)],
+          m.diameter_m) for i, m in models.items()],
+        intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera)
+    T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(40)),
+                                    [0.01, 0.02, 0]) @ db[21].stable_poses[0]
+    renderer = MeshRenderer()
+    renderer.add_mesh(models[21].vertices, models[21].faces, T_world_object)
+    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
+    depth = np.where(view.instance == 0, view.depth_m, 0).astype(np.float32)
+    depth += np.random.default_rng(0).normal(0, 0.0005, depth.shape).astype(np.float32) * (
+        depth > 0)
+    inputs = {'side': ViewInput(rgb=None, depth_m=depth, intrinsics=SIDE.intrinsics,
+                                T_world_camera=SIDE.T_world_camera)}
+    labels = {'side': (view.instance == 0).astype(np.uint16)}
+    return db, inputs, labels, SIDE.T_camera_world @ T_world_object
+
+
+def _counting(pipeline):
+    calls = []
+    estimate = pipeline.pose_estimator.estimate
+
+    def counted(points, obj_id, **kwargs):
+        calls.append(obj_id)
+        return estimate(points, obj_id, **kwargs)
+    pipeline.pose_estimator.estimate = counted
+    return calls
+
+
+def test_a_wrong_first_class_is_overruled_by_the_better_fit(scene):
+    db, inputs, labels, T_gt = scene
+    pipeline = PerceptionPipeline(templates=db)
+    calls = _counting(pipeline)
+    [detection] = pipeline.estimate_poses(inputs, labels, {1: (5, 21)})
+    assert calls == [5, 21]
+    assert detection.obj_id == 21 and detection.class_rank == 1
+    assert np.linalg.norm(detection.pose.T_camera_object[:3, 3] - T_gt[:3, 3]) < 0.01
+
+
+def test_a_good_first_fit_is_accepted_without_trying_the_others(scene):
+    db, inputs, labels, _ = scene
+    pipeline = PerceptionPipeline(templates=db)
+    calls = _counting(pipeline)
+    [detection] = pipeline.estimate_poses(inputs, labels, {1: (21, 5)})
+    assert calls == [21] and detection.pose.fitness >= PipelineParams().verify_accept_fitness
+    assert detection.obj_id == 21 and detection.class_rank == 0
+
+
+def test_one_candidate_is_the_classifier_alone(scene):
+    db, inputs, labels, _ = scene
+    pipeline = PerceptionPipeline(templates=db)
+    [detection] = pipeline.estimate_poses(inputs, labels, {1: 5})
+    assert detection.obj_id == 5 and detection.class_rank == 0
+    assert pipeline.estimate_poses(inputs, labels, {1: (0, 99)}) == []   # unknown, no templates
