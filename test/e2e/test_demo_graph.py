@@ -17,8 +17,8 @@ def test_demo_bag_through_the_graph(capsys):
     report = capsys.readouterr().out
     assert summary['frames'] >= 3, report
     assert summary['parts_scored'] >= 10, report
-    # Issue 7's goal is 0.90 within 5 cm / 5 deg with the right class; the shipped models reach
-    # 23/27 = 0.85 on this bag today (recognition is the bottleneck, see README "Results").
-    # This floor makes a regression fail the build without pretending the goal is met.
-    assert summary['recall_5cm5deg'] >= 0.75, report
+    # Issue 7's bar: >= 90 % within 5 cm / 5 deg with the right class. Measured 25/27 = 0.926
+    # on this bag (lock-step replay, deterministic), with the pose fit verifying the classifier's
+    # top 3; the classifier alone gave 23/27.
+    assert summary['recall_5cm5deg'] >= 0.90, report
     assert summary['false_positives'] <= summary['parts_scored'] // 4, report
