@@ -9,6 +9,12 @@ turntable the models were trained on). Several model files can be compared in on
         --real-data ../shared/data --out reports/recognition
 
 Writes <out>/recognition.md (Table 1 shape + timing) and <out>/confusion_<model file stem>.png.
+
+With --templates, the parts (not the crops) are also scored as the graph names them: the
+scores of a part's crops in both views are summed (two-view vote), and its best --candidates
+classes are verified by fitting their templates to the part's side-view cloud
+(``PerceptionPipeline.estimate_poses``; the first candidate is kept when its fit reaches
+``verify_accept_fitness``). Parts seen by the side camera (>= --min-pixels) are scored.
 """
 from __future__ import annotations
 
@@ -31,6 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='skip crops with fewer visible pixels')
     parser.add_argument('--real-data', type=Path,
                         help='shared data folder: also test the real T-LESS crops in it')
+    parser.add_argument('--templates', type=Path,
+                        help='template database: also score two-view voting and pose '
+                             "verification per part (the graph's recognition)")
+    parser.add_argument('--candidates', type=int, default=3,
+                        help='classes verified by the pose fit per part (with --templates)')
     parser.add_argument('--out', type=Path, default=Path('reports/recognition'))
 
 
@@ -44,8 +55,10 @@ def simulated_crops(models_dir: Path, scenes: int, seed: int, min_pixels: int, m
     models = load_models(models_dir, sorted(int(i) for i in model_ids))
     simulator = Simulator(models, seed=seed)
     views = []  # (rgb, masks, labels, visib, depth kwargs)
+    frames = []
     for index in tqdm(range(scenes), desc='simulate', unit='frame'):
         frame = simulator.frame(index)
+        frames.append(frame)
         for view in frame.views.values():
             gts = [g for g in view.gt if g.px_count_visib >= min_pixels]
             if gts:
@@ -54,7 +67,49 @@ def simulated_crops(models_dir: Path, scenes: int, seed: int, min_pixels: int, m
                 views.append((view.rgb, [g.mask_visib for g in gts],
                               np.array([g.obj_id for g in gts]),
                               np.array([g.visib_fract for g in gts]), depth))
-    return views
+    return views, frames
+
+
+def part_recognition(model, templates, frames, min_pixels: int, candidates: int
+                     ) -> dict[str, np.ndarray]:
+    """Per part seen by the side camera: truth, side-crop class, two-view vote, verified class,
+    and the verification time in ms. Ground-truth masks are the instance labels."""
+    from tqdm import tqdm
+
+    from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+
+    pipeline = PerceptionPipeline(classifier=model, templates=templates,
+                                  params=PipelineParams(min_instance_px=min_pixels,
+                                                        class_candidates=candidates))
+    pipeline.pose_estimator.warm_up()
+    rows = {'truth': [], 'side': [], 'vote': [], 'verified': [], 'ms': []}
+    for frame in tqdm(frames, desc='verify', unit='frame'):
+        labels, inputs, rgb = {}, {}, {}
+        for name, view in frame.views.items():
+            labels[name] = (view.instance + 1).astype(np.uint16)   # -1 background -> 0
+            rgb[name] = view.rgb
+            inputs[name] = ViewInput(view.rgb, view.depth_mm.astype(np.float32) / 1000.0,
+                                     view.intrinsics, view.T_world_camera)
+        side_only = {'side': labels['side']}
+        seen = [i for i in np.unique(labels['side']) if i and
+                np.count_nonzero(labels['side'] == i) >= min_pixels]
+        if not seen:
+            continue
+        side_guess = pipeline.classify({'side': rgb['side']}, side_only, views=inputs)
+        vote = pipeline.classify(rgb, labels, views=inputs)
+        t0 = time.perf_counter()
+        detections = {d.instance_id: d for d in pipeline.estimate_poses(
+            inputs, side_only, {i: vote[i].candidates for i in seen if i in vote})}
+        per_part_ms = 1e3 * (time.perf_counter() - t0) / len(seen)
+        for instance in seen:
+            truth = frame.views['side'].gt[instance - 1].obj_id
+            rows['truth'].append(truth)
+            rows['side'].append(side_guess[instance].obj_id if instance in side_guess else 0)
+            rows['vote'].append(vote[instance].obj_id if instance in vote else 0)
+            found = detections.get(instance)
+            rows['verified'].append(found.obj_id if found is not None else rows['vote'][-1])
+            rows['ms'].append(per_part_ms)
+    return {key: np.asarray(values) for key, values in rows.items()}
 
 
 def real_crops(data: Path):
@@ -113,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
 
     classifiers = {path: LinearClassifier.load(path) for path in args.classifier}
     ids = sorted(set().union(*(m.class_ids.tolist() for m in classifiers.values())))
-    views = simulated_crops(args.models, args.scenes, args.seed, args.min_pixels, ids)
+    views, frames = simulated_crops(args.models, args.scenes, args.seed, args.min_pixels, ids)
     labels = np.concatenate([v[2] for v in views])
     visib = np.concatenate([v[3] for v in views])
     args.out.mkdir(parents=True, exist_ok=True)
@@ -166,6 +221,29 @@ def run(args: argparse.Namespace) -> int:
         confusion_png(png, matrix, ids, f'{model.kind} ({path.name}): '
                       f'{100 * overall[path]:.1f} % top-1, {len(labels)} simulated crops')
         lines.append(f'- confusion matrix of {model.kind} ({path.name}): {png.name}')
+    if args.templates is not None:
+        from tlessbot_ros.core.templates import TemplateDatabase
+
+        templates = TemplateDatabase.load(args.templates)
+        lines += ['', '## Parts as the graph names them (two-view vote, pose verification)', '',
+                  f'Parts seen by the side camera; verification fits the best {args.candidates} '
+                  f"classes' templates ({args.templates.name}) to the side-view cloud.", '',
+                  '| model | parts | side crop | two-view vote | + pose verification '
+                  '| verification ms/part |', '|---|---|---|---|---|---|']
+        for path, (model, _, _) in results.items():
+            parts = part_recognition(model, templates, frames, args.min_pixels, args.candidates)
+            truth = parts['truth']
+            cells = [f'{100 * np.mean(parts[key] == truth):.1f}'
+                     for key in ('side', 'vote', 'verified')]
+            lines.append(f'| {model.kind} ({path.name}) | {len(truth)} | ' + ' | '.join(cells)
+                         + f' | {np.median(parts["ms"]):.0f} (median) |')
+            lines += ['', '| obj | parts | side crop | + pose verification |', '|---|---|---|---|']
+            for obj_id in ids:
+                sel = truth == obj_id
+                if sel.any():
+                    lines.append(f'| obj_{obj_id:02d} | {int(sel.sum())} | '
+                                 f'{100 * np.mean(parts["side"][sel] == obj_id):.1f} | '
+                                 f'{100 * np.mean(parts["verified"][sel] == obj_id):.1f} |')
     if args.real_data is not None:
         real = real_crops(args.real_data)
         lines += ['', '## Real T-LESS crops', '',
