@@ -700,14 +700,17 @@ def register_templates(scene_c: np.ndarray, scene_normals: np.ndarray, scene_fpf
         source_feature = reg.Feature()
         source_feature.data = np.asarray(template_fpfh, np.float64).T
         o3d.utility.random.seed(int(params.seed))
-        result = reg.registration_ransac_based_on_feature_matching(
-            source=source, target=target, source_feature=source_feature,
-            target_feature=target_feature, mutual_filter=params.ransac_mutual_filter,
-            max_correspondence_distance=distance,
-            estimation_method=reg.TransformationEstimationPointToPoint(with_scaling=False),
-            ransac_n=3, checkers=checkers,
-            criteria=reg.RANSACConvergenceCriteria(max_iteration=iterations,
-                                                   confidence=params.ransac_confidence))
+        # Errors only: the mutual filter's "too few correspondences, fall back" warning is
+        # expected on small ROI clouds and would flood a node's log every frame.
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            result = reg.registration_ransac_based_on_feature_matching(
+                source=source, target=target, source_feature=source_feature,
+                target_feature=target_feature, mutual_filter=params.ransac_mutual_filter,
+                max_correspondence_distance=distance,
+                estimation_method=reg.TransformationEstimationPointToPoint(with_scaling=False),
+                ransac_n=3, checkers=checkers,
+                criteria=reg.RANSACConvergenceCriteria(max_iteration=iterations,
+                                                       confidence=params.ransac_confidence))
         T_scene_template = np.asarray(result.transformation)
         out.append(PoseCandidate(T_scene_template @ template.T_camera_object,
                                  float(result.fitness), float(result.inlier_rmse),
