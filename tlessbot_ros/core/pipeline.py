@@ -292,11 +292,18 @@ class PerceptionPipeline:
     def _verified_pose(self, detection: Detection, points: np.ndarray,
                        candidates: tuple[int, ...], T_world_camera: np.ndarray | None) -> None:
         """Fit the candidates in order and keep the best (fills the detection's class, rank
-        and poses); stop at the first whose fitness reaches ``verify_accept_fitness``."""
+        and poses); stop at the first whose fitness reaches ``verify_accept_fitness``.
+
+        With several candidates and a table frame, each is fitted by the table path alone
+        (a wrong class fits poorly, and the RANSAC fallback would spend its budget on it);
+        the RANSAC fallback then runs once, for the winner, if its fit stays poor."""
         p = self.params
+        estimator = self.pose_estimator
+        quick = len(candidates) > 1 and T_world_camera is not None
         best_value = None
         for rank, obj_id in enumerate(candidates):
-            result = self.pose_estimator.estimate(points, obj_id, T_world_camera=T_world_camera)
+            result = estimator.estimate(points, obj_id, T_world_camera=T_world_camera,
+                                        fallback=False if quick else None)
             if result.best is None:
                 continue
             value = result.best.fitness - p.verify_rmse_weight * result.best.inlier_rmse_m
@@ -306,6 +313,12 @@ class PerceptionPipeline:
                 detection.pose, detection.second = result.best, result.second
             if rank == 0 and result.best.fitness >= p.verify_accept_fitness:
                 break
+        pose_params = estimator.params
+        if quick and detection.pose is not None and pose_params.fallback and \
+                detection.pose.fitness < pose_params.fallback_fitness:
+            result = estimator.estimate(points, detection.obj_id, T_world_camera=T_world_camera)
+            if result.best is not None and result.best.score > detection.pose.score:
+                detection.pose, detection.second = result.best, result.second
 
     # ---------------------------------------------------------------------------- all stages
     def process(self, views: dict[str, ViewInput]) -> FrameResult:

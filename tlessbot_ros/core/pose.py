@@ -257,7 +257,7 @@ class PoseEstimator:
 
     def estimate(self, points_c: np.ndarray, obj_id: int, *,
                  T_world_camera: np.ndarray | None = None,
-                 method: str | None = None) -> PoseResult:
+                 method: str | None = None, fallback: bool | None = None) -> PoseResult:
         """Pose of object ``obj_id`` from its ROI cloud.
 
         Args:
@@ -267,6 +267,8 @@ class PoseEstimator:
             T_world_camera: (4, 4) camera pose in a world frame whose z = 0 plane is the table
                 (needed by the table path; without it RANSAC is used).
             method: overrides ``params.method``.
+            fallback: overrides ``params.fallback`` (False: the table path's answer however
+                poor, e.g. to compare candidate classes quickly).
 
         Returns:
             a :class:`PoseResult`; ``best`` is None when the ROI has too few points.
@@ -292,7 +294,8 @@ class PoseEstimator:
             t0 = time.perf_counter()
             candidates = self._table_path(scene, obj, np.asarray(T_world_camera, np.float64))
             timings['table'] = 1e3 * (time.perf_counter() - t0)
-            if not p.fallback or (candidates and candidates[0].fitness >= p.fallback_fitness):
+            fallback = p.fallback if fallback is None else fallback
+            if not fallback or (candidates and candidates[0].fitness >= p.fallback_fitness):
                 timings['total'] = timings['prep'] + timings['table']
                 result.best, result.second = self._best_two(candidates)
                 return result
