@@ -53,8 +53,12 @@ class RclpyFactory:
         return self._class(msgtype)(**fields)
 
     def uint8_array(self, data: bytes | np.ndarray) -> Any:
-        # array.array('B') is stored without per-element checks by rclpy's setters.
-        return array.array('B', _as_bytes(data))
+        # array.array('B') is stored without per-element checks by rclpy's setters. frombytes
+        # copies in one go; array.array('B', memoryview) iterates per byte (36 ms for a
+        # 640x480 rgb8 image, measured).
+        values = array.array('B')
+        values.frombytes(_as_bytes(data))
+        return values
 
     def float64_array(self, values: np.ndarray) -> Any:
         return np.asarray(values, dtype=np.float64).ravel()

@@ -29,11 +29,16 @@ class SyncParams:
             arrive): 30 is one second at 30 fps.
         max_age_s: largest stamp difference between the top and the side camera sets that are
             fused into one two-view frame.
+        max_rate_hz: most two-view frames processed per second (wall clock); a frame that
+            completes sooner after the last one processed is dropped and counted (0 = no
+            limit). On a small machine a stage that runs ahead (the localiser, the cheapest)
+            takes the CPU the later stages need, and every frame's latency grows.
     """
 
     slop_s: float = 0.010
     queue_size: int = 30
     max_age_s: float = 0.050
+    max_rate_hz: float = 0.0
 
 
 class StampSynchroniser(Generic[Item]):

@@ -85,6 +85,8 @@ class StageNode(Node):
                                 f'{self.input_qos!r}')
         self.frames = 0
         self.failures = 0
+        self.rate_dropped = 0   # complete frames skipped by sync.max_rate_hz
+        self._last_start = -float('inf')
         self.last_error = ''
         self._latencies_ms: deque[float] = deque(maxlen=100)
         self._stats: dict[str, float] = {}
@@ -107,6 +109,11 @@ class StageNode(Node):
 
     def _on_views(self, views: Views) -> None:
         start = time.perf_counter()
+        max_rate = self.sync_params.max_rate_hz
+        if max_rate > 0 and start - self._last_start < 1.0 / max_rate:
+            self.rate_dropped += 1
+            return
+        self._last_start = start
         try:
             self.process(views)
             self.frames += 1
@@ -129,7 +136,7 @@ class StageNode(Node):
 
     def _publish_diagnostics(self) -> None:
         latencies = np.asarray(self._latencies_ms) if self._latencies_ms else np.zeros(1)
-        dropped = self._inputs.dropped if self._inputs else 0
+        dropped = (self._inputs.dropped if self._inputs else 0) + self.rate_dropped
         level = OK if not self.failures else (ERROR if self.frames == 0 else WARN)
         values = {'frames': self.frames, 'failures': self.failures, 'dropped': dropped,
                   'latency_ms_p50': f'{np.percentile(latencies, 50):.1f}',
