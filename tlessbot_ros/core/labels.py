@@ -67,17 +67,15 @@ def decode_candidates(class_labels: np.ndarray) -> tuple[np.ndarray, dict[int, t
         class_labels = class_labels[..., None]
     if class_labels.ndim != 3:
         raise ValueError(f'class labels must be (H, W) or (H, W, k), got {class_labels.shape}')
-    instances, _ = decode_classes(class_labels[..., 0])
-    candidates: dict[int, list[int]] = {}
-    for c in range(class_labels.shape[2]):
-        channel_instances, classes = decode_classes(class_labels[..., c])
-        if c and not np.array_equal(channel_instances[channel_instances > 0],
-                                    instances[channel_instances > 0]):
+    instances = (class_labels[..., 0] % CLASS_STRIDE).astype(np.uint16)
+    for c in range(1, class_labels.shape[2]):
+        if np.any(class_labels[..., c] % CLASS_STRIDE != instances):
             raise ValueError(f'candidate channel {c} disagrees with channel 0 on the instances')
-        for instance, obj_id in classes.items():
-            if obj_id:
-                candidates.setdefault(instance, []).append(obj_id)
-    return instances, {i: tuple(ids) for i, ids in candidates.items()}
+    # Every pixel of an instance holds the same candidates: read them at one pixel each.
+    ids, first = np.unique(instances.ravel(), return_index=True)
+    values = class_labels.reshape(-1, class_labels.shape[2])[first] // CLASS_STRIDE
+    return instances, {int(i): tuple(int(v) for v in row if v)
+                       for i, row in zip(ids, values) if i and row.any()}
 
 
 def instance_masks(instance_labels: np.ndarray) -> dict[int, np.ndarray]:
