@@ -51,3 +51,23 @@ def test_user_errors(tmp_path, capsys, extra, message):
 def test_empty_image_folder(tmp_path, capsys):
     assert main(['train', '--from-images', str(tmp_path), '--out', str(tmp_path / 'm.npz')]) == 1
     assert 'at least two' in capsys.readouterr().err
+
+
+def test_train_adds_simulated_scene_crops(tless_models_dir, tmp_path):
+    from tlessbot_ros.tools.train import scene_features
+
+    out = tmp_path / 'scenes.npz'
+    argv = ['train', '--models', str(tless_models_dir), '--ids', '5', '19', '21',
+            '--steps-deg', '90', '--positions', '1', '--scenes', '3', '--hog-weight', '0.3',
+            '--out', str(out)]
+    assert main(argv) == 0
+    model = LinearClassifier.load(out)
+    assert model.info['scenes'] == 3 and model.info['scene_crops'] > 0
+    assert model.info['samples'] > model.info['scene_crops']   # turntable crops too
+    from tlessbot_ros.core.hog import HogParams
+    from tlessbot_ros.core.shape_features import ShapeParams
+    features, labels = scene_features(tless_models_dir, HogParams(), ShapeParams(),
+                                      ids=[5, 19, 21], scenes=3, seed=0)
+    assert len(labels) == model.info['scene_crops'] and set(labels) <= {5, 19, 21}
+    assert features.shape[1] == model.feature_dim
+    assert np.isfinite(features[:, :HogParams().feature_dim]).all()

@@ -10,6 +10,14 @@ part's silhouette; otherwise the whole image is the crop):
 
     tlessbot train --from-images DIR --out classifier.npz
 
+--scenes N adds the crops of N simulated two-view table scenes (random parts, tables, lights
+and materials, cut by their ground-truth visible masks; simulator seed --seed + 1000003, apart
+from the seeds the benchmarks and the demo use). Scene crops carry what a turntable lacks:
+neighbours, the real camera angles, both tables. The packaged model was trained with
+
+    tlessbot train --models ../shared/data/tless_models_cad_stl --scenes 2000 --hog-weight 0.3 \
+        --out tlessbot_ros/data/classifier.npz
+
 Several learners can share one rendering pass: --classifier all (or sgd,pa1) writes
 <out>_<kind>.npz per learner.
 
@@ -32,6 +40,7 @@ from tlessbot_ros.core.shape_features import ShapeParams, region_points_world, s
 from tlessbot_ros.errors import DatasetError, TlessbotError
 
 DEFAULT_STEP_DEG = 8.0
+SCENE_SEED_OFFSET = 1_000_003   # training scenes never reuse a benchmark's simulator stream
 DEFAULT_AUGMENTATIONS = 1
 
 
@@ -55,10 +64,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--augmentations', type=int, default=DEFAULT_AUGMENTATIONS,
                         help='shear/zoom copies per view (paper: 3, i.e. 4 images per view; '
                              f'default {DEFAULT_AUGMENTATIONS})')
+    parser.add_argument('--scenes', type=int, default=0,
+                        help='also train on the crops of this many simulated two-view scenes '
+                             '(CAD mode, ours features; 0 = turntable only, the paper)')
     parser.add_argument('--seed', type=int, default=0, help='rendering and training seed')
     parser.add_argument('--cell', type=int, default=HogParams.cell_px, help='HOG cell px (6)')
     parser.add_argument('--bins', type=int, default=HogParams.bins, help='HOG bins (4)')
     parser.add_argument('--epochs', type=int, default=ClassifierParams.epochs)
+    parser.add_argument('--hog-weight', type=float, default=ClassifierParams.hog_weight,
+                        help='weight of the standardised HOG beside the shape features '
+                             f'(default {ClassifierParams.hog_weight})')
     parser.add_argument('--reject-margin', type=float, default=0.0,
                         help='store this reject threshold in the model (0 = never reject)')
 
@@ -131,6 +146,39 @@ def turntable_features(models_dir: Path, hog: HogParams, *, ids: list[int] | Non
     return features[:count], labels[:count]
 
 
+def scene_features(models_dir: Path, hog: HogParams, shape: ShapeParams, *,
+                   ids: list[int] | None, scenes: int, seed: int, min_pixels: int = 100
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Describe every part (>= ``min_pixels`` visible) of ``scenes`` simulated two-view
+    frames, in both views: ((N, D) float32 HOG + shape, NaN where the depth is unusable;
+    (N,) int64 ids)."""
+    from tqdm import tqdm
+
+    from tlessbot_ros.core.hog import describe_regions
+    from tlessbot_ros.core.shape_features import shape_features_batch
+    from tlessbot_ros.io.models import load_models
+    from tlessbot_ros.sim.simulator import Simulator
+
+    simulator = Simulator(load_models(models_dir, ids), seed=seed + SCENE_SEED_OFFSET)
+    features, labels = [], []
+    for index in tqdm(range(scenes), desc='scenes', unit='frame'):
+        for view in simulator.frame(index).views.values():
+            parts = [g for g in view.gt if g.px_count_visib >= min_pixels]
+            if not parts:
+                continue
+            masks = [g.mask_visib for g in parts]
+            boxes = [g.bbox_visib for g in parts]
+            depth_m = view.depth_mm.astype(np.float32) / 1000.0
+            points = [region_points_world(depth_m, m, view.intrinsics.K, view.T_world_camera,
+                                          box=b) for m, b in zip(masks, boxes)]
+            features.append(np.hstack([describe_regions(view.rgb, boxes, masks, params=hog),
+                                       shape_features_batch(points, params=shape)]))
+            labels += [g.obj_id for g in parts]
+    if not labels:
+        raise TlessbotError('the simulated scenes held no visible parts')
+    return np.vstack(features).astype(np.float32), np.asarray(labels, np.int64)
+
+
 def read_image_crop(path: Path, hog: HogParams) -> np.ndarray:
     """Normalised crop of one image file; an alpha channel is used as the silhouette."""
     import cv2
@@ -184,6 +232,14 @@ def run(args: argparse.Namespace) -> int:
             augmentations=args.augmentations, seed=args.seed, shape=shape)
         source = {'source': 'turntable', 'steps_deg': args.steps_deg,
                   'positions': args.positions, 'augmentations': args.augmentations}
+        if args.scenes:
+            if shape is None:
+                raise TlessbotError('--scenes needs --features ours')
+            more, more_labels = scene_features(args.models, hog, shape, ids=args.ids,
+                                               scenes=args.scenes, seed=args.seed)
+            features = np.vstack([features, more])
+            labels = np.concatenate([labels, more_labels])
+            source.update(scenes=args.scenes, scene_crops=len(more_labels))
     else:
         if args.features == 'ours':
             print('image folders have no depth: training a paper-features (HOG only) model')
@@ -196,7 +252,7 @@ def run(args: argparse.Namespace) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for kind, path in output_paths(args.out, kinds).items():
         params = ClassifierParams(kind=kind, epochs=args.epochs,
-                                  reject_margin=args.reject_margin)
+                                  reject_margin=args.reject_margin, hog_weight=args.hog_weight)
         batches = args.epochs * -(-len(labels) // params.batch_size)
         t0 = time.perf_counter()
         with tqdm(total=batches, desc=f'train {kind}', unit='batch') as bar:
