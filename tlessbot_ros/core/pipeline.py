@@ -135,11 +135,17 @@ class FrameResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
+def _view_order(views) -> list[str]:
+    """View names in preference order: side, top, then any other in name order."""
+    return [v for v in (*PREFERRED_VIEWS, *sorted(set(views) - set(PREFERRED_VIEWS)))
+            if v in views]
+
+
 def preferred_view(labels: dict[str, np.ndarray], instance_id: int, *,
                    min_px: int) -> str | None:
     """The view in which the pose and class of an instance are read: side first, then top."""
-    for view in (*PREFERRED_VIEWS, *sorted(set(labels) - set(PREFERRED_VIEWS))):
-        if view in labels and int(np.count_nonzero(labels[view] == instance_id)) >= min_px:
+    for view in _view_order(labels):
+        if int(np.count_nonzero(labels[view] == instance_id)) >= min_px:
             return view
     return None
 
@@ -216,10 +222,14 @@ class PerceptionPipeline:
         """
         if self.classifier is None:
             raise ValueError('no classifier loaded')
+        seen: dict[str, list[int]] = {}   # per view, the instances with enough pixels there
+        for view, image in labels.items():
+            counts = np.bincount(np.asarray(image).ravel())
+            seen[view] = [int(i) for i in np.flatnonzero(counts >= self.params.min_instance_px)
+                          if i]
         summed: dict[int, np.ndarray] = {}
         for view in sorted(labels):
-            instances = [i for i in _instance_ids({view: labels[view]})
-                         if np.count_nonzero(labels[view] == i) >= self.params.min_instance_px]
+            instances = seen[view]
             if not instances or view not in rgb:
                 continue
             masks = [labels[view] == i for i in instances]
@@ -244,7 +254,7 @@ class PerceptionPipeline:
             obj_id = int(prediction.class_ids[k])
             guesses[instance] = ClassGuess(
                 obj_id, float(prediction.scores[k]), float(prediction.margins[k]),
-                preferred_view(labels, instance, min_px=self.params.min_instance_px),
+                next(v for v in _view_order(labels) if instance in seen[v]),
                 tuple(int(c) for c in ranked[k]) if obj_id != UNKNOWN_ID else ())
         return guesses
 

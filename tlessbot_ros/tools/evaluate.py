@@ -397,8 +397,7 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
             t2 = time.perf_counter()
             detections = pipeline.estimate_poses(inputs, labels, classes, box_mode=True)
             if args.oracle == 'boxes':  # the class after verification by the pose fit
-                output.classes_by_gt = {i - 1: (g.candidates or (0,))[0]
-                                        for i, g in guesses.items()}
+                output.classes_by_gt = {i - 1: g.obj_id for i, g in guesses.items()}
                 output.classes_by_gt.update({d.instance_id - 1: d.obj_id for d in detections})
             output.timings_ms['pose'] = 1e3 * (time.perf_counter() - t2)
             output.timings_ms['frame'] = 1e3 * (time.perf_counter() - t0)

@@ -229,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
                   f'Parts seen by the side camera; verification fits the best {args.candidates} '
                   f"classes' templates ({args.templates.name}) to the side-view cloud.", '',
                   '| model | parts | side crop | two-view vote | + pose verification '
-                  '| verification ms/part |', '|---|---|---|---|---|---|']
+                  '| pose + verification ms/part |', '|---|---|---|---|---|---|']
         for path, (model, _, _) in results.items():
             parts = part_recognition(model, templates, frames, args.min_pixels, args.candidates)
             truth = parts['truth']
