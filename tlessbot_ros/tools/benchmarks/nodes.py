@@ -1,0 +1,103 @@
+"""Node callbacks in-process: ms per frame of each stage node's process() on a bag's frames.
+
+    tlessbot bench nodes [--bag bags/demo] [--repeats 3]
+
+The bag's camera messages are deserialised by rclpy, as a subscription would deliver them, and
+fed straight to LocaliserNode, ClassifierNode and PoseEstimatorNode (no DDS, no other process):
+each stage's labels or classes are the next one's input. The figure is the node's own cost per
+frame (conversions, core, building the outgoing messages); what the graph adds on top of it is
+transport and waiting (``tlessbot bench graph``).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from tlessbot_ros.tools.demo import DEFAULT_BAG
+
+INPUTS = {'color': '/{camera}/color/image_raw',
+          'depth': '/{camera}/aligned_depth_to_color/image_raw',
+          'info': '/{camera}/aligned_depth_to_color/camera_info'}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--bag', default=str(DEFAULT_BAG), help='bag with camera topics')
+    parser.add_argument('--repeats', type=int, default=3, help='passes over the frames')
+
+
+class _Captured:
+    """Stands in for a publisher: keeps the last message."""
+
+    def __init__(self) -> None:
+        self.last = None
+
+    def publish(self, msg) -> None:
+        self.last = msg
+
+    def get_subscription_count(self) -> int:
+        return 0
+
+
+def _frames(bag: str) -> list[dict[str, dict]]:
+    from rclpy.serialization import deserialize_message
+
+    from tlessbot_ros.io.bags import read_bag
+    from tlessbot_ros.nodes.common import message_class
+
+    topics = [t.format(camera=c) for t in INPUTS.values() for c in ('top', 'side')]
+    by_topic: dict[str, list] = {}
+    for m in read_bag(bag, topics):
+        by_topic.setdefault(m.topic, []).append(deserialize_message(m.raw,
+                                                                    message_class(m.msgtype)))
+    count = min((len(v) for v in by_topic.values()), default=0)
+    return [{c: {k: by_topic[t.format(camera=c)][i] for k, t in INPUTS.items()}
+             for c in ('top', 'side')} for i in range(count)]
+
+
+def run(args: argparse.Namespace) -> int:
+    import rclpy
+
+    from tlessbot_ros.nodes.classifier import ClassifierNode
+    from tlessbot_ros.nodes.localiser import LocaliserNode
+    from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
+
+    frames = _frames(args.bag)
+    if not frames:
+        print(f'no two-view camera frames in {args.bag}')
+        return 1
+    rclpy.init()
+    try:
+        localiser, classifier, pose = LocaliserNode(), ClassifierNode(), PoseEstimatorNode()
+        labels = {c: _Captured() for c in ('top', 'side')}
+        classes = {c: _Captured() for c in ('top', 'side')}
+        localiser._label_publishers, classifier._class_publishers = labels, classes
+        pose._pose_publishers = {k: _Captured() for k in pose._pose_publishers}
+        pose._markers, pose._overlay = _Captured(), _Captured()
+        times: dict[str, list[float]] = {'localiser': [], 'classifier': [], 'pose_estimator': []}
+        for _ in range(max(1, args.repeats)):
+            for frame in frames:
+                views = {c: dict(msgs) for c, msgs in frame.items()}
+                for name, node, outputs, key in (('localiser', localiser, labels, 'labels'),
+                                                 ('classifier', classifier, classes, 'classes'),
+                                                 ('pose_estimator', pose, None, None)):
+                    t0 = time.perf_counter()
+                    node.process(views)
+                    times[name].append(1e3 * (time.perf_counter() - t0))
+                    if outputs is not None:
+                        for c in views:
+                            views[c][key] = outputs[c].last
+        for node in (localiser, classifier, pose):
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+    lines = ['| node | median ms/frame | p90 ms |', '|---|---|---|']
+    lines += [f'| {name} | {np.median(v):.1f} | {np.percentile(v, 90):.1f} |'
+              for name, v in times.items()]
+    load = ', '.join(f'{v:.2f}' for v in os.getloadavg())
+    lines += ['', f'{len(frames)} frames x {max(1, args.repeats)} passes from {args.bag}; '
+              f'load average {load} on {os.cpu_count()} cores.']
+    print('\n'.join(lines))
+    return 0
