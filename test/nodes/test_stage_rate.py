@@ -1,4 +1,5 @@
-"""sync.max_rate_hz: a stage drops (and counts) frames that complete too soon after the last."""
+"""How a stage node admits frames: sync.max_rate_hz drops (and counts) frames that complete too
+soon after the last; with sync.worker_thread a busy stage keeps only the newest pending frame."""
 from __future__ import annotations
 
 import time
@@ -24,13 +25,50 @@ def test_frames_faster_than_max_rate_are_dropped_and_counted():
 
     rclpy.init()
     try:
-        node = Counting(parameter_overrides=[Parameter('sync.max_rate_hz', value=5.0)])
+        node = Counting(parameter_overrides=[Parameter('sync.max_rate_hz', value=5.0),
+                                             Parameter('sync.worker_thread', value=False)])
         node._on_views({})
         node._on_views({})                   # 0.2 s have not passed: dropped
         assert (node.processed, node.rate_dropped, node.frames) == (1, 1, 1)
         time.sleep(0.25)
         node._on_views({})
         assert (node.processed, node.rate_dropped, node.frames) == (2, 1, 2)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+
+
+def test_busy_worker_processes_the_newest_frame_and_drops_the_ones_between():
+    import threading
+
+    import rclpy
+
+    from tlessbot_ros.nodes.stage import StageNode
+
+    release = threading.Event()
+
+    class Slow(StageNode):
+        def __init__(self, **kwargs):
+            super().__init__('worker_probe', **kwargs)
+            self.seen = []
+
+        def process(self, views):
+            self.seen.append(views['n'])
+            release.wait(timeout=10.0)
+
+    rclpy.init()
+    try:
+        node = Slow()
+        node._on_views({'n': 0})
+        deadline = time.monotonic() + 5.0
+        while not node.seen and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for n in (1, 2, 3):        # arrive while frame 0 is being processed
+            node._on_views({'n': n})
+        release.set()
+        assert node.wait_idle(10.0)
+        assert node.seen == [0, 3]
+        assert (node.frames, node.busy_dropped) == (2, 2)
         node.destroy_node()
     finally:
         rclpy.try_shutdown()

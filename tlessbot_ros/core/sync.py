@@ -33,12 +33,20 @@ class SyncParams:
             completes sooner after the last one processed is dropped and counted (0 = no
             limit). On a small machine a stage that runs ahead (the localiser, the cheapest)
             takes the CPU the later stages need, and every frame's latency grows.
+        worker_thread: process frames on a worker thread while the subscriptions keep
+            feeding the synchroniser. A frame that completes while the worker is busy waits as
+            the single pending frame; a newer one replaces it (the older is dropped and
+            counted), so a slow stage works on the newest frame and never queues. Without the
+            worker, frames are processed inside the subscription callback and the DDS history
+            (``input_depth``) overflows meanwhile: a later stage then loses the camera frames
+            it must pair with its upstream results and drops whole frames.
     """
 
     slop_s: float = 0.010
     queue_size: int = 30
     max_age_s: float = 0.050
     max_rate_hz: float = 0.0
+    worker_thread: bool = True
 
 
 class StampSynchroniser(Generic[Item]):

@@ -3,11 +3,13 @@
 - QoS profiles: sensor data in (best effort, shallow), results out (reliable, depth 10).
 - Parameter declaration from a core ``*Params`` dataclass, so code and YAML share one truth.
 - Message classes by ROS type name, and rosbags <-> rclpy type-name mapping.
+- :func:`init_ros`: ``rclpy.init`` with the package's Fast DDS profile (config/fastdds.xml).
 """
 from __future__ import annotations
 
 import dataclasses
 import importlib
+import os
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -17,6 +19,39 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_
 SENSOR_QOS = qos_profile_sensor_data
 RESULT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
                         history=HistoryPolicy.KEEP_LAST, depth=10)
+
+
+DDS_PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+
+
+def use_package_dds_profile(environ: dict[str, str] | None = None) -> str | None:
+    """Point Fast DDS at config/fastdds.xml (large shared-memory segments, so camera images
+    are not fragmented and repaired), unless the user chose a profile or another middleware.
+
+    Must run before the process's first ``rclpy.init``; child processes inherit it through
+    ``environ`` (default ``os.environ``). Returns the profile path set, or None.
+    """
+    from tlessbot_ros.io.config import package_path
+
+    environ = os.environ if environ is None else environ
+    if any(environ.get(name) for name in DDS_PROFILE_VARIABLES):
+        return None
+    if 'fastrtps' not in environ.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp'):
+        return None
+    profile = package_path('config', 'fastdds.xml')
+    if not profile.is_file():
+        return None
+    for name in DDS_PROFILE_VARIABLES:
+        environ[name] = str(profile)
+    return str(profile)
+
+
+def init_ros(args: list[str] | None = None) -> None:
+    """``rclpy.init`` after :func:`use_package_dds_profile`."""
+    import rclpy
+
+    use_package_dds_profile()
+    rclpy.init(args=args)
 
 
 def message_class(type_name: str) -> type:
@@ -143,7 +178,7 @@ def run_node(node_class: type, args: list[str] | None = None) -> None:
 
     from tlessbot_ros.errors import TlessbotError
 
-    rclpy.init(args=args)
+    init_ros(args)
     try:
         node = node_class()
     except TlessbotError as error:

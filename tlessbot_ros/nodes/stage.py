@@ -5,10 +5,17 @@ stamp (:class:`~tlessbot_ros.nodes.inputs.TwoViewInputs`), runs one stage, and p
 stamped with the source images' stamps. It never dies on bad input: a callback failure is
 logged (throttled) and counted. ``/diagnostics`` gets, at 1 Hz, frames processed, failures,
 frames dropped by synchronisation, and the processing latency.
+
+Threading (``sync.worker_thread``, on by default): the executor thread only takes messages and
+pairs them; one worker thread runs :meth:`StageNode.process`. A frame that completes while the
+worker is busy becomes the single pending frame, and a newer one replaces it, so a slow stage
+always starts on the newest frame and its partners are still buffered when its upstream result
+comes in.
 """
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 import traceback
 from collections import deque
@@ -86,7 +93,17 @@ class StageNode(Node):
         self.frames = 0
         self.failures = 0
         self.rate_dropped = 0   # complete frames skipped by sync.max_rate_hz
+        self.busy_dropped = 0   # complete frames replaced by a newer one while the worker ran
         self._last_start = -float('inf')
+        self._pending: Views | None = None
+        self._busy = False
+        self._wakeup = threading.Condition()
+        self._stopping = False
+        self._worker: threading.Thread | None = None
+        if self.sync_params.worker_thread:
+            self._worker = threading.Thread(target=self._work, name=f'{name}_worker',
+                                            daemon=True)
+            self._worker.start()
         self.last_error = ''
         self._latencies_ms: deque[float] = deque(maxlen=100)
         self._stats: dict[str, float] = {}
@@ -108,12 +125,54 @@ class StageNode(Node):
                           history=HistoryPolicy.KEEP_LAST, depth=max(1, int(self.input_depth)))
 
     def _on_views(self, views: Views) -> None:
-        start = time.perf_counter()
+        """A complete two-view frame: hand it to the worker (or process it here without one)."""
         max_rate = self.sync_params.max_rate_hz
-        if max_rate > 0 and start - self._last_start < 1.0 / max_rate:
+        now = time.perf_counter()
+        if max_rate > 0 and now - self._last_start < 1.0 / max_rate:
             self.rate_dropped += 1
             return
-        self._last_start = start
+        self._last_start = now
+        if self._worker is None:
+            self._process_safely(views)
+            return
+        with self._wakeup:
+            if self._pending is not None:
+                self.busy_dropped += 1
+            self._pending = views
+            self._wakeup.notify()
+
+    def _work(self) -> None:
+        while True:
+            with self._wakeup:
+                while self._pending is None and not self._stopping:
+                    self._wakeup.wait()
+                if self._stopping:
+                    return
+                views, self._pending = self._pending, None
+                self._busy = True
+            self._process_safely(views)
+
+    def wait_idle(self, timeout_s: float = 10.0) -> bool:
+        """Block until no frame is pending (tests, tools); False on timeout."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self._wakeup:
+                if self._pending is None and not self._busy:
+                    return True
+            time.sleep(0.005)
+        return False
+
+    def destroy_node(self) -> None:
+        with self._wakeup:
+            self._stopping = True
+            self._wakeup.notify_all()
+        if self._worker is not None and self._worker is not threading.current_thread():
+            self._worker.join(timeout=30.0)
+        super().destroy_node()
+
+    def _process_safely(self, views: Views) -> None:
+        start = time.perf_counter()
+        self._busy = True
         try:
             self.process(views)
             self.frames += 1
@@ -124,6 +183,7 @@ class StageNode(Node):
                                     throttle_duration_sec=5.0)
             self.get_logger().debug(traceback.format_exc())
         finally:
+            self._busy = False
             self._latencies_ms.append(1e3 * (time.perf_counter() - start))
 
     def process(self, views: Views) -> None:
@@ -136,7 +196,8 @@ class StageNode(Node):
 
     def _publish_diagnostics(self) -> None:
         latencies = np.asarray(self._latencies_ms) if self._latencies_ms else np.zeros(1)
-        dropped = (self._inputs.dropped if self._inputs else 0) + self.rate_dropped
+        dropped = (self._inputs.dropped if self._inputs else 0) + self.rate_dropped + \
+            self.busy_dropped
         level = OK if not self.failures else (ERROR if self.frames == 0 else WARN)
         values = {'frames': self.frames, 'failures': self.failures, 'dropped': dropped,
                   'latency_ms_p50': f'{np.percentile(latencies, 50):.1f}',

@@ -38,7 +38,18 @@ class GraphRunResult:
     rss_mb_start: dict[str, float] = field(default_factory=dict)
     rss_mb_end: dict[str, float] = field(default_factory=dict)
     rss_mb_samples: dict[str, list[float]] = field(default_factory=dict)
+    cpu_s: dict[str, float] = field(default_factory=dict)   # CPU seconds used while replaying
+    diagnostics: dict[str, dict[str, str]] = field(default_factory=dict)  # last, per node
     node_output: str = ''
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time a process has used, seconds (Linux /proc)."""
+    try:
+        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    except (OSError, IndexError, ValueError):
+        return float('nan')
 
 
 def rss_mb(pid: int) -> float:
@@ -75,14 +86,14 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
 
     from tlessbot_ros.conversions.pose import pose_stamped_to_transform
     from tlessbot_ros.io.bags import header_stamp_ns
-    from tlessbot_ros.nodes.common import RESULT_QOS, message_class
+    from tlessbot_ros.nodes.common import RESULT_QOS, init_ros, message_class
     from tlessbot_ros.tools.replay import replay
 
     specs = graph_processes(config, nodes=list(PERCEPTION_NODES), extra_ros_args=ros_args)
     graph = GraphProcesses(specs, env=dict(os.environ))
     result = GraphRunResult()
     output: list[str] = []
-    rclpy.init()
+    init_ros()
     monitor = rclpy.create_node('tlessbot_graph_monitor')
     player = rclpy.create_node('tlessbot_graph_replay')
     executor = MultiThreadedExecutor(num_threads=2)
@@ -103,8 +114,9 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
 
     def on_diagnostics(msg) -> None:
         for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
+            result.diagnostics[status.name] = values
             if status.name == 'pose_estimator':
-                values = {kv.key: kv.value for kv in status.values}
                 handled[0] = int(values.get('frames', 0)) + int(values.get('failures', 0))
 
     monitor.create_subscription(message_class('diagnostic_msgs/msg/DiagnosticArray'),
@@ -133,6 +145,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         time.sleep(1.0)  # let DDS match the remaining topics
         pids = {spec.label: graph.children[spec.label].pid for spec in specs}
         result.rss_mb_start = {label: rss_mb(pid) for label, pid in pids.items()}
+        cpu_pids = {**pids, 'replay and monitor': os.getpid()}
+        cpu_start = {label: cpu_seconds(pid) for label, pid in cpu_pids.items()}
         stop_at = time.monotonic() + duration_s if duration_s else None
         next_sample = [time.monotonic()]
 
@@ -150,6 +164,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             replay(player, str(bag), rate=rate, loop=loop, restamp=restamp,
                    on_publish=on_publish,
                    should_stop=(lambda: stop_at is not None and time.monotonic() > stop_at))
+        result.cpu_s = {label: cpu_seconds(pid) - cpu_start[label]
+                        for label, pid in cpu_pids.items()}
         drain_until = time.monotonic() + drain_timeout_s
         with lock:
             last_pose[0] = time.monotonic()

@@ -98,7 +98,9 @@ def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.nodes.common import format_message, message_class
 
     topic = args.topic if args.topic.startswith('/') else '/' + args.topic
-    rclpy.init()
+    from tlessbot_ros.nodes.common import init_ros
+
+    init_ros()
     node = rclpy.create_node('tlessbot_echo')
     received = 0
     try:

@@ -34,7 +34,9 @@ def run(args: argparse.Namespace) -> int:
         raise BagError(f'output {out} exists; choose a new folder')
     topics = [t if t.startswith('/') else '/' + t for t in args.topics]
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    rclpy.init()
+    from tlessbot_ros.nodes.common import init_ros
+
+    init_ros()
     node = rclpy.create_node('tlessbot_record')
     writer = None
     counts = dict.fromkeys(topics, 0)

@@ -98,7 +98,9 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import ExternalShutdownException
 
     bag_topics(args.bag)  # fail with one clear line before touching ROS
-    rclpy.init()
+    from tlessbot_ros.nodes.common import init_ros
+
+    init_ros()
     node = rclpy.create_node('tlessbot_replay')
     try:
         count = replay(node, args.bag, rate=args.rate, loop=args.loop, topics=args.topics,

@@ -77,6 +77,13 @@ def run(args: argparse.Namespace) -> int:
         rows.append((f'RSS {label} start -> end',
                      f'{result.rss_mb_start[label]:.0f} -> {result.rss_mb_end[label]:.0f} MiB '
                      f'(trend {trend:+.2f} MiB/min; second half {late_trend:+.2f} MiB/min)'))
+    for label in sorted(result.cpu_s):
+        values = result.diagnostics.get(label, {})
+        rows.append((f'{label}: CPU while replaying, frames processed / dropped',
+                     f'{100 * result.cpu_s[label] / max(args.duration, 1e-9):.0f} % of one core; '
+                     f"{values.get('frames', '?')} / {values.get('dropped', '?')}; "
+                     f"processing p50 {values.get('latency_ms_p50', '?')} ms, "
+                     f"p95 {values.get('latency_ms_p95', '?')} ms"))
     table = '| measure | value |\n|---|---|\n' + '\n'.join(f'| {k} | {v} |' for k, v in rows)
     print(table)
     if args.out:

@@ -68,7 +68,9 @@ def run(args: argparse.Namespace) -> int:
     if not frames:
         print(f'no two-view camera frames in {args.bag}')
         return 1
-    rclpy.init()
+    from tlessbot_ros.nodes.common import init_ros
+
+    init_ros()
     try:
         localiser, classifier, pose = LocaliserNode(), ClassifierNode(), PoseEstimatorNode()
         labels = {c: _Captured() for c in ('top', 'side')}

@@ -1,0 +1,33 @@
+"""The package's Fast DDS profile is used unless the user chose one or another middleware."""
+from __future__ import annotations
+
+import xml.etree.ElementTree as ElementTree
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+
+def test_profile_is_set_when_nothing_is_chosen():
+    from tlessbot_ros.nodes.common import DDS_PROFILE_VARIABLES, use_package_dds_profile
+
+    environ: dict[str, str] = {}
+    path = use_package_dds_profile(environ)
+    assert path is not None and path.endswith('fastdds.xml')
+    assert all(environ[name] == path for name in DDS_PROFILE_VARIABLES)
+    root = ElementTree.parse(path).getroot()
+    sizes = [int(e.text) for e in root.iter() if e.tag.endswith('segment_size')]
+    assert sizes and min(sizes) >= 4 * 2**20   # a whole two-view frame fits unfragmented
+
+
+@pytest.mark.parametrize('environ', [
+    {'FASTRTPS_DEFAULT_PROFILES_FILE': '/etc/my_profile.xml'},
+    {'FASTDDS_DEFAULT_PROFILES_FILE': '/etc/my_profile.xml'},
+    {'RMW_IMPLEMENTATION': 'rmw_cyclonedds_cpp'},
+])
+def test_a_users_choice_is_left_alone(environ):
+    from tlessbot_ros.nodes.common import use_package_dds_profile
+
+    before = dict(environ)
+    assert use_package_dds_profile(environ) is None
+    assert environ == before
