@@ -53,18 +53,18 @@ def test_busy_worker_processes_the_newest_frame_and_drops_the_ones_between():
             self.seen = []
 
         def process(self, views):
-            self.seen.append(views['n'])
+            self.seen.append(views['top']['n'])
             release.wait(timeout=10.0)
 
     rclpy.init()
     try:
         node = Slow()
-        node._on_views({'n': 0})
+        node._on_views({'top': {'n': 0}})
         deadline = time.monotonic() + 5.0
         while not node.seen and time.monotonic() < deadline:
             time.sleep(0.01)
         for n in (1, 2, 3):        # arrive while frame 0 is being processed
-            node._on_views({'n': n})
+            node._on_views({'top': {'n': n}})
         release.set()
         assert node.wait_idle(10.0)
         assert node.seen == [0, 3]

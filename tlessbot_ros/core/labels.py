@@ -32,7 +32,7 @@ def encode_classes(instance_labels: np.ndarray, class_of_instance: dict[int, int
             raise ValueError(f'object id {obj_id} does not fit the 16-bit panoptic encoding')
         if 0 < instance < len(lookup):
             lookup[instance] += obj_id * CLASS_STRIDE
-    return lookup[labels].astype(np.uint16)
+    return lookup.astype(np.uint16)[labels]   # cast the small table, not the image
 
 
 def decode_classes(class_labels: np.ndarray) -> tuple[np.ndarray, dict[int, int]]:
@@ -71,9 +71,11 @@ def decode_candidates(class_labels: np.ndarray) -> tuple[np.ndarray, dict[int, t
     for c in range(1, class_labels.shape[2]):
         if np.any(class_labels[..., c] % CLASS_STRIDE != instances):
             raise ValueError(f'candidate channel {c} disagrees with channel 0 on the instances')
-    # Every pixel of an instance holds the same candidates: read them at one pixel each.
-    ids, first = np.unique(instances.ravel(), return_index=True)
-    values = class_labels.reshape(-1, class_labels.shape[2])[first] // CLASS_STRIDE
+    # Every pixel of an instance holds the same candidates: read them at one pixel each (the
+    # parts cover a few % of the image, so only labelled pixels are sorted).
+    labelled = np.flatnonzero(instances.ravel())
+    ids, first = np.unique(instances.ravel()[labelled], return_index=True)
+    values = class_labels.reshape(-1, class_labels.shape[2])[labelled[first]] // CLASS_STRIDE
     return instances, {int(i): tuple(int(v) for v in row if v)
                        for i, row in zip(ids, values) if i and row.any()}
 

@@ -42,6 +42,7 @@ from tlessbot_ros.core.cloud import (
     voxel_downsample,
 )
 from tlessbot_ros.core.geometry import invert_transform, make_transform, transform_points
+from tlessbot_ros.core.grid_kernels import inlier_fraction, normal_equations, truncated_cost
 from tlessbot_ros.core.templates import (
     CONTINUOUS_YAW_PERIOD,
     ObjectTemplates,
@@ -216,6 +217,12 @@ def _rodrigues(omega: np.ndarray) -> np.ndarray:
     return eye + np.sin(theta) * K + (1 - np.cos(theta)) * (K @ K)
 
 
+def _rotation_translation(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 4, 4) poses -> contiguous float64 (K, 3, 3) rotations and (K, 3) translations."""
+    T = np.asarray(T, np.float64).reshape(-1, 4, 4)
+    return np.ascontiguousarray(T[:, :3, :3]), np.ascontiguousarray(T[:, :3, 3])
+
+
 def _rz(yaw: np.ndarray) -> np.ndarray:
     c, s = np.cos(yaw), np.sin(yaw)
     R = np.zeros(np.shape(yaw) + (3, 3))
@@ -386,8 +393,8 @@ class PoseEstimator:
 
         # Score every hypothesis at once on the grid (truncated mean distance).
         tau = 2.0 * voxel
-        _, dist = grid.lookup(self._to_object(T_all, sub), outside=tau)
-        cost = np.minimum(dist, tau).mean(axis=1)
+        cost = truncated_cost(*_rotation_translation(T_all), sub, grid.origin, grid.spacing,
+                              grid.distance, tau)
         order_all = np.argsort(cost)
         keep = order_all[:p.top_k]
         # ... plus the best of every stable pose not yet represented (a part upside down can
@@ -441,13 +448,12 @@ class PoseEstimator:
     def _grid_fitness(self, T: np.ndarray, points: np.ndarray, obj: ObjectTemplates
                       ) -> np.ndarray:
         """(K,) fraction of ``points`` within ``inlier_voxels`` of the model for K poses of the
-        object in the points' frame, via the nearest-sample grid (one vectorised lookup)."""
-        q = self._to_object(np.asarray(T), points)
-        index, _ = obj.nearest_grid().lookup(q)
+        object in the points' frame, via the nearest-sample grid."""
+        grid = obj.nearest_grid()
         _, model = self._model_arrays(obj)
-        d = np.linalg.norm(q - model[np.maximum(index, 0)], axis=-1)
-        inlier = (index >= 0) & (d < self.params.inlier_voxels * obj.voxel_size_m)
-        return inlier.mean(axis=-1)
+        return inlier_fraction(*_rotation_translation(T), np.ascontiguousarray(points),
+                               grid.origin, grid.spacing, grid.index, model,
+                               self.params.inlier_voxels * obj.voxel_size_m)
 
     @staticmethod
     def _model_subset(obj: ObjectTemplates, count: int = 800) -> tuple[np.ndarray, np.ndarray]:
@@ -466,50 +472,28 @@ class PoseEstimator:
                                      obj.model_points.astype(np.float64))
         return obj._cache['float64']
 
-    @staticmethod
-    def _to_object(T_world_object: np.ndarray, points_w: np.ndarray) -> np.ndarray:
-        """(K, 4, 4) poses, (N, 3) world points -> (K, N, 3) points in each object frame."""
-        R = T_world_object[:, :3, :3]
-        t = T_world_object[:, :3, 3]
-        return (points_w[None] - t[:, None, :]) @ R
-
     def _planar_refine(self, T: np.ndarray, points_w: np.ndarray, obj: ObjectTemplates,
                        grid, *, tau: float) -> tuple[np.ndarray, np.ndarray]:
         """(yaw, x, y) point-to-plane Gauss-Newton of K poses at once on the nearest grid;
         returns the poses and their final truncated mean distance (tau)."""
         p = self.params
         normals, model = self._model_arrays(obj)
+        points_w = np.ascontiguousarray(points_w, np.float64)
         T = T.copy()
         for it in range(p.planar_iterations):
             max_d = obj.voxel_size_m * (4.0 if it < p.planar_iterations // 2 else 2.0)
-            q = self._to_object(T, points_w)
-            index, _ = grid.lookup(q)
-            ok = index >= 0
-            idx = np.where(ok, index, 0)
-            R, t = T[:, :3, :3], T[:, :3, 3]
-            Rt = np.transpose(R, (0, 2, 1))
-            m = model[idx] @ Rt + t[:, None, :]
-            n = normals[idx] @ Rt
-            diff = points_w[None] - m
-            ok &= np.linalg.norm(diff, axis=-1) < max_d
-            r = np.sum(n * diff, axis=-1)
-            arm = m - t[:, None, :]
-            J = np.stack([arm[..., 0] * n[..., 1] - arm[..., 1] * n[..., 0],
-                          n[..., 0], n[..., 1]], axis=-1)       # n . (e_z x arm), n_x, n_y
-            w = ok.astype(np.float64)
-            A = np.einsum('kn,kni,knj->kij', w, J, J) + 1e-9 * np.eye(3)
-            b = np.einsum('kn,kni,kn->ki', w, J, r)
-            delta = np.linalg.solve(A, b[..., None])[..., 0]
-            delta[ok.sum(axis=1) < 6] = 0.0
-            Rd = _rz(delta[:, 0])
+            R, t = _rotation_translation(T)
+            A, b, count = normal_equations(R, t, points_w, grid.origin, grid.spacing,
+                                           grid.index, model, normals, max_d, True)
+            delta = np.linalg.solve(A + 1e-9 * np.eye(3), b[..., None])[..., 0]
+            delta[count < 6] = 0.0
             T_new = T.copy()
-            T_new[:, :3, :3] = Rd @ R
-            T_new[:, :3, 3] = t  # rotation about the object origin
-            T_new[:, 0, 3] += delta[:, 1]
+            T_new[:, :3, :3] = _rz(delta[:, 0]) @ R
+            T_new[:, 0, 3] += delta[:, 1]   # rotation about the object origin
             T_new[:, 1, 3] += delta[:, 2]
             T = T_new
-        _, dist = grid.lookup(self._to_object(T, points_w), outside=tau)
-        return T, np.minimum(dist, tau).mean(axis=1)
+        return T, truncated_cost(*_rotation_translation(T), points_w, grid.origin,
+                                 grid.spacing, grid.distance, tau)
 
     # ------------------------------------------------------------------------- ransac path
     def _scene_features(self, scene_c: np.ndarray, obj: ObjectTemplates):
@@ -561,25 +545,15 @@ class PoseEstimator:
         if len(scene_c) > p.icp_points:
             scene_c = scene_c[::int(np.ceil(len(scene_c) / p.icp_points))]
         iterations = p.icp_iterations if iterations is None else iterations
+        scene_c = np.ascontiguousarray(scene_c, np.float64)
         for it in range(iterations):
             max_d = p.icp_distance_voxels * obj.voxel_size_m * (2.0 if it < iterations // 2
                                                                 else 1.0)
-            q = self._to_object(T, scene_c)                       # (K, N, 3)
-            index, _ = grid.lookup(q)
-            ok = index >= 0
-            index = np.where(ok, index, 0)
-            ok &= np.linalg.norm(q - model[index], axis=-1) < max_d
-            R, t = T[:, :3, :3], T[:, :3, 3]
-            Rt = np.transpose(R, (0, 2, 1))
-            m = model[index] @ Rt + t[:, None, :]
-            n = normals[index] @ Rt
-            r = np.sum(n * (scene_c[None] - m), axis=-1)
-            J = np.concatenate([np.cross(m - t[:, None, :], n), n], axis=-1)   # (K, N, 6)
-            w = ok.astype(np.float64)
-            A = np.einsum('kn,kni,knj->kij', w, J, J) + 1e-9 * np.eye(6)
-            b = np.einsum('kn,kni,kn->ki', w, J, r)
-            delta = np.linalg.solve(A, b[..., None])[..., 0]
-            delta[ok.sum(axis=1) < 6] = 0.0
+            R, t = _rotation_translation(T)
+            A, b, count = normal_equations(R, t, scene_c, grid.origin, grid.spacing,
+                                           grid.index, model, normals, max_d, False)
+            delta = np.linalg.solve(A + 1e-9 * np.eye(6), b[..., None])[..., 0]
+            delta[count < 6] = 0.0
             T_new = T.copy()
             T_new[:, :3, :3] = _rodrigues(delta[:, :3]) @ R
             T_new[:, :3, 3] = t + delta[:, 3:]

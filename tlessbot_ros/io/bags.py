@@ -110,6 +110,10 @@ def restamp_cdr(raw: bytes, stamp_ns: int) -> bytes:
 
 
 def header_stamp_ns(raw: bytes) -> int:
-    """``header.stamp`` of a little-endian CDR message whose first field is a Header."""
-    return int.from_bytes(raw[4:8], 'little', signed=True) * 1_000_000_000 + \
-        int.from_bytes(raw[8:12], 'little')
+    """``header.stamp`` of a CDR message whose first field is a Header (the 4-byte
+    encapsulation header says the byte order: 0x0001 little-endian, 0x0000 big-endian)."""
+    if len(raw) < 12:
+        raise ValueError(f'a CDR message with a Header has at least 12 bytes, got {len(raw)}')
+    order = 'little' if raw[1] & 1 else 'big'
+    return int.from_bytes(raw[4:8], order, signed=True) * 1_000_000_000 + \
+        int.from_bytes(raw[8:12], order)

@@ -10,7 +10,8 @@ Publishes (RELIABLE, depth 10):
                             NN, stamped with the source images' stamp, in the optical frame of
                             the camera that saw it best (side, else top) or in ``world_frame``
                             when ``output_frame`` is 'world'
-    objects/markers         visualization_msgs/MarkerArray: model surface points + text label
+    objects/markers         visualization_msgs/MarkerArray: model surface points + text label,
+                            built only while subscribed (RViz)
     objects/debug_image     sensor_msgs/Image rgb8: side depth in false colour, part outlines
                             and the posed models' points, built only while subscribed
     /diagnostics            latency per stage, fitness, frames dropped, failures
@@ -132,7 +133,8 @@ class PoseEstimatorNode(StageNode):
         for detection in published:
             self._pose_publishers[detection.obj_id].publish(self._pose_message(
                 detection, views[detection.view]['depth'].header.frame_id, stamp_ns))
-        self._markers.publish(self._marker_array(published, views, stamp_ns))
+        if self._markers.get_subscription_count() > 0:
+            self._markers.publish(self._marker_array(published, views, stamp_ns))
         if self._overlay.get_subscription_count() > 0:
             self._overlay.publish(self._overlay_image(published, views, inputs, labels, stamp_ns))
         fitness = [d.pose.fitness for d in published]

@@ -36,7 +36,7 @@ from tlessbot_ros.nodes.common import (
     message_class,
 )
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, WARN, diagnostic_array
-from tlessbot_ros.nodes.inputs import TwoViewInputs, Views
+from tlessbot_ros.nodes.inputs import TwoViewInputs, Views, deserialise_views
 
 CAMERAS = ('top', 'side')
 
@@ -174,7 +174,7 @@ class StageNode(Node):
         start = time.perf_counter()
         self._busy = True
         try:
-            self.process(views)
+            self.process(deserialise_views(views))
             self.frames += 1
         except Exception as error:  # a bad frame must never take the node down
             self.failures += 1
@@ -203,6 +203,7 @@ class StageNode(Node):
                   'latency_ms_p50': f'{np.percentile(latencies, 50):.1f}',
                   'latency_ms_p95': f'{np.percentile(latencies, 95):.1f}',
                   'zero_stamps': self._inputs.zero_stamps if self._inputs else 0,
+                  'malformed': self._inputs.malformed if self._inputs else 0,
                   **{k: f'{v:.3g}' for k, v in self._stats.items()}}
         if self.last_error:
             values['last_error'] = self.last_error

@@ -62,6 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--poses', type=Path, help='only score these poses (BOP results CSV)')
     parser.add_argument('--limit', type=int, help='score at most N frames')
     parser.add_argument('--out', type=Path, default=Path('eval_out'), help='output folder')
+    parser.add_argument('--pose-param', action='append', metavar='NAME=VALUE',
+                        help='override a PoseParams field, e.g. icp_iterations=6 (repeatable)')
 
 
 # ------------------------------------------------------------------------------------------------
@@ -338,6 +340,8 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
                             'use --oracle boxes or boxes+classes for a single split')
     from tlessbot_ros.core.classifier import LinearClassifier
     from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput, box_of
+    from tlessbot_ros.core.pose import PoseParams
+    from tlessbot_ros.tools._overrides import apply_overrides
     from tlessbot_ros.core.rig import CameraMount, Rig
     from tlessbot_ros.core.templates import TemplateDatabase
     from tlessbot_ros.io.bop import read_split
@@ -367,7 +371,9 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
             if all(im.T_world_camera is not None for im in images):
                 rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
                            for v, im in by_view.items()})
-            pipeline = PerceptionPipeline(rig=rig, classifier=classifier, templates=templates)
+            pipeline = PerceptionPipeline(
+                rig=rig, classifier=classifier, templates=templates,
+                pose=apply_overrides(PoseParams(), args.pose_param))
         output = FrameOutput()
         t0 = time.perf_counter()
         if args.oracle == 'none':

@@ -23,6 +23,9 @@ from tlessbot_ros.errors import DatasetError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--pose-param', action='append', metavar='NAME=VALUE',
+                        help='override a PoseParams field of (b), e.g. icp_iterations=6 '
+                             '(repeatable)')
     parser.add_argument('--models', type=Path, required=True, help='folder of CAD models (mm)')
     parser.add_argument('--objects-per-class', type=int, default=5,
                         help='side-view objects scored per class (default 5)')
@@ -207,6 +210,7 @@ def run(args: argparse.Namespace) -> int:
 
     from tlessbot_ros.core.pose import PoseEstimator, PoseParams
     from tlessbot_ros.io.models import load_models
+    from tlessbot_ros.tools._overrides import apply_overrides
 
     models = load_models(args.models, ids=args.ids)
     t0 = time.perf_counter()
@@ -217,7 +221,8 @@ def run(args: argparse.Namespace) -> int:
                               seed=args.seed, max_frames=args.max_frames)
     symmetries = packaged_symmetries()
     scorers = {i: SymmetryAwareScorer(m, symmetries.get(i)) for i, m in models.items()}
-    methods = {'(b) ours': PoseEstimator(db, params=PoseParams())}
+    methods = {'(b) ours': PoseEstimator(db, params=apply_overrides(PoseParams(),
+                                                                    args.pose_param))}
     if not args.skip_baseline:
         methods['(a) paper'] = PoseEstimator(db, params=PoseParams(method='ransac',
                                                                    refine=False))

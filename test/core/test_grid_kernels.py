@@ -1,0 +1,83 @@
+"""The numba grid kernels compute what the plain numpy formulation of the table path does."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlessbot_ros.core.grid_kernels import inlier_fraction, normal_equations, truncated_cost
+from tlessbot_ros.core.templates import NearestGrid
+
+
+@pytest.fixture(scope='module')
+def setup():
+    rng = np.random.default_rng(3)
+    model = rng.normal(size=(400, 3)) * [0.03, 0.02, 0.01]
+    normals = rng.normal(size=(400, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    grid = NearestGrid.build(model, 0.002, margin_m=0.01)
+    K = 5
+    angles = rng.uniform(-0.3, 0.3, size=(K, 3))
+    T = np.tile(np.eye(4), (K, 1, 1))
+    for k, (a, b, c) in enumerate(angles):
+        ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+        Rx = np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]])
+        Ry = np.array([[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]])
+        Rz = np.array([[cc, -sc, 0], [sc, cc, 0], [0, 0, 1]])
+        T[k, :3, :3] = Rz @ Ry @ Rx
+        T[k, :3, 3] = rng.normal(scale=0.005, size=3)
+    # scene: model points seen under the first pose, with noise, plus far-away clutter
+    points = model[:250] @ T[0, :3, :3].T + T[0, :3, 3] + rng.normal(scale=0.001, size=(250, 3))
+    points = np.vstack([points, rng.uniform(-0.2, 0.2, size=(20, 3))])
+    return model, normals, grid, T, points
+
+
+def _reference(T, points, grid, model, normals, max_d, planar):
+    """The numpy formulation the kernels replaced (K, N, 3 temporaries)."""
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    q = (points[None] - t[:, None, :]) @ R
+    index, _ = grid.lookup(q)
+    ok = index >= 0
+    idx = np.where(ok, index, 0)
+    ok &= np.linalg.norm(q - model[idx], axis=-1) < max_d
+    Rt = np.transpose(R, (0, 2, 1))
+    m = model[idx] @ Rt + t[:, None, :]
+    n = normals[idx] @ Rt
+    r = np.sum(n * (points[None] - m), axis=-1)
+    arm = m - t[:, None, :]
+    if planar:
+        J = np.stack([arm[..., 0] * n[..., 1] - arm[..., 1] * n[..., 0],
+                      n[..., 0], n[..., 1]], axis=-1)
+    else:
+        J = np.concatenate([np.cross(arm, n), n], axis=-1)
+    w = ok.astype(float)
+    return (np.einsum('kn,kni,knj->kij', w, J, J), np.einsum('kn,kni,kn->ki', w, J, r),
+            ok.sum(axis=1), q, index)
+
+
+@pytest.mark.parametrize('planar', [False, True])
+def test_normal_equations_match_numpy(setup, planar):
+    model, normals, grid, T, points = setup
+    A_ref, b_ref, count_ref, _, _ = _reference(T, points, grid, model, normals, 0.004, planar)
+    A, b, count = normal_equations(np.ascontiguousarray(T[:, :3, :3]),
+                                   np.ascontiguousarray(T[:, :3, 3]), points, grid.origin,
+                                   grid.spacing, grid.index, model, normals, 0.004, planar)
+    assert count_ref.min() > 50      # the test exercises real correspondences
+    np.testing.assert_array_equal(count, count_ref)
+    np.testing.assert_allclose(A, A_ref, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(b, b_ref, rtol=1e-9, atol=1e-15)
+
+
+def test_cost_and_fitness_match_numpy(setup):
+    model, normals, grid, T, points = setup
+    R, t = np.ascontiguousarray(T[:, :3, :3]), np.ascontiguousarray(T[:, :3, 3])
+    _, _, _, q, index = _reference(T, points, grid, model, normals, 0.004, False)
+    tau = 0.003
+    _, dist = grid.lookup(q, outside=tau)
+    np.testing.assert_allclose(
+        truncated_cost(R, t, points, grid.origin, grid.spacing, grid.distance, tau),
+        np.minimum(dist, tau).mean(axis=1), rtol=1e-6)   # the grid holds float32 distances
+    d = np.linalg.norm(q - model[np.maximum(index, 0)], axis=-1)
+    expected = ((index >= 0) & (d < 0.002)).mean(axis=1)
+    fitness = inlier_fraction(R, t, points, grid.origin, grid.spacing, grid.index, model, 0.002)
+    np.testing.assert_allclose(fitness, expected)
+    assert fitness[0] > 0.5 > fitness.min()   # the true pose fits, the others less

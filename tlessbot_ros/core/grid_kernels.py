@@ -1,0 +1,146 @@
+"""Fused loops of the table-path pose search over a nearest-sample grid (numba).
+
+The table path scores and refines K poses of one object against N scene points through a
+:class:`~tlessbot_ros.core.templates.NearestGrid`. Written with numpy, each step builds several
+(K, N, 3) temporaries and spends most of its time in small-array overhead; these kernels make
+one pass per pose and point, without temporaries. They compute exactly what the numpy
+formulation does (up to summation order): tests compare the two.
+
+Common arguments:
+    R: (K, 3, 3) rotations and t: (K, 3) translations of T_frame_object, float64.
+    points: (N, 3) points in that frame, metres.
+    origin, spacing, index_grid / distance_grid: the NearestGrid (cell (i, j, k) covers
+        origin + [i, i+1) * spacing on x, and so on).
+    model, normals: (M, 3) model surface samples and unit normals, object frame.
+
+Reference: Y. Chen, G. Medioni, "Object modelling by registration of multiple range images",
+Image and Vision Computing 10(3), 1992 (point-to-plane normal equations).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, inline='always')
+def _cell(qx, qy, qz, origin, spacing, shape):
+    """Grid cell of an object-frame point, or (-1, 0, 0) outside."""
+    cx = int(np.floor((qx - origin[0]) / spacing))
+    cy = int(np.floor((qy - origin[1]) / spacing))
+    cz = int(np.floor((qz - origin[2]) / spacing))
+    if cx < 0 or cy < 0 or cz < 0 or cx >= shape[0] or cy >= shape[1] or cz >= shape[2]:
+        return -1, 0, 0
+    return cx, cy, cz
+
+
+@njit(cache=True, inline='always')
+def _to_object(R, t, k, px, py, pz):
+    """R_k^T (p - t_k)."""
+    dx, dy, dz = px - t[k, 0], py - t[k, 1], pz - t[k, 2]
+    return (R[k, 0, 0] * dx + R[k, 1, 0] * dy + R[k, 2, 0] * dz,
+            R[k, 0, 1] * dx + R[k, 1, 1] * dy + R[k, 2, 1] * dz,
+            R[k, 0, 2] * dx + R[k, 1, 2] * dy + R[k, 2, 2] * dz)
+
+
+@njit(cache=True)
+def truncated_cost(R, t, points, origin, spacing, distance_grid, tau):
+    """(K,) mean over the points of min(grid distance to the model, tau); tau outside."""
+    K, N = R.shape[0], points.shape[0]
+    shape = distance_grid.shape
+    cost = np.empty(K)
+    for k in range(K):
+        total = 0.0
+        for i in range(N):
+            qx, qy, qz = _to_object(R, t, k, points[i, 0], points[i, 1], points[i, 2])
+            cx, cy, cz = _cell(qx, qy, qz, origin, spacing, shape)
+            d = tau if cx < 0 else min(float(distance_grid[cx, cy, cz]), tau)
+            total += d
+        cost[k] = total / max(N, 1)
+    return cost
+
+
+@njit(cache=True)
+def inlier_fraction(R, t, points, origin, spacing, index_grid, model, inlier_m):
+    """(K,) fraction of points closer than inlier_m to their grid-nearest model sample."""
+    K, N = R.shape[0], points.shape[0]
+    shape = index_grid.shape
+    fraction = np.empty(K)
+    limit = inlier_m * inlier_m
+    for k in range(K):
+        count = 0
+        for i in range(N):
+            qx, qy, qz = _to_object(R, t, k, points[i, 0], points[i, 1], points[i, 2])
+            cx, cy, cz = _cell(qx, qy, qz, origin, spacing, shape)
+            if cx < 0:
+                continue
+            j = index_grid[cx, cy, cz]
+            ex, ey, ez = qx - model[j, 0], qy - model[j, 1], qz - model[j, 2]
+            if ex * ex + ey * ey + ez * ez < limit:
+                count += 1
+        fraction[k] = count / max(N, 1)
+    return fraction
+
+
+@njit(cache=True)
+def normal_equations(R, t, points, origin, spacing, index_grid, model, normals, max_d, planar):
+    """Point-to-plane Gauss-Newton normal equations of K poses.
+
+    For every point whose grid-nearest model sample lies within ``max_d``: residual
+    r = n . (p - (R m + t)) with n = R n_model, and the Jacobian row of a left increment
+    about the object origin: [ (R m) x n, n ] (6-DOF), or in the plane
+    [ (R m)_x n_y - (R m)_y n_x, n_x, n_y ] (yaw about the vertical, x, y) when ``planar``.
+
+    Returns:
+        A: (K, D, D) sum of J J^T, b: (K, D) sum of J r (D = 3 planar, else 6), and
+        count: (K,) points used.
+    """
+    K, N = R.shape[0], points.shape[0]
+    D = 3 if planar else 6
+    shape = index_grid.shape
+    A = np.zeros((K, D, D))
+    b = np.zeros((K, D))
+    count = np.zeros(K, np.int64)
+    J = np.empty(D)
+    limit = max_d * max_d
+    for k in range(K):
+        for i in range(N):
+            px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+            qx, qy, qz = _to_object(R, t, k, px, py, pz)
+            cx, cy, cz = _cell(qx, qy, qz, origin, spacing, shape)
+            if cx < 0:
+                continue
+            j = index_grid[cx, cy, cz]
+            mx, my, mz = model[j, 0], model[j, 1], model[j, 2]
+            ex, ey, ez = qx - mx, qy - my, qz - mz
+            if ex * ex + ey * ey + ez * ez >= limit:
+                continue
+            # arm = R m (the model point about the object origin), n = R n_model
+            ax = R[k, 0, 0] * mx + R[k, 0, 1] * my + R[k, 0, 2] * mz
+            ay = R[k, 1, 0] * mx + R[k, 1, 1] * my + R[k, 1, 2] * mz
+            az = R[k, 2, 0] * mx + R[k, 2, 1] * my + R[k, 2, 2] * mz
+            ux, uy, uz = normals[j, 0], normals[j, 1], normals[j, 2]
+            nx = R[k, 0, 0] * ux + R[k, 0, 1] * uy + R[k, 0, 2] * uz
+            ny = R[k, 1, 0] * ux + R[k, 1, 1] * uy + R[k, 1, 2] * uz
+            nz = R[k, 2, 0] * ux + R[k, 2, 1] * uy + R[k, 2, 2] * uz
+            r = (nx * (px - t[k, 0] - ax) + ny * (py - t[k, 1] - ay)
+                 + nz * (pz - t[k, 2] - az))
+            if planar:
+                J[0] = ax * ny - ay * nx
+                J[1] = nx
+                J[2] = ny
+            else:
+                J[0] = ay * nz - az * ny
+                J[1] = az * nx - ax * nz
+                J[2] = ax * ny - ay * nx
+                J[3] = nx
+                J[4] = ny
+                J[5] = nz
+            for a in range(D):
+                b[k, a] += J[a] * r
+                for c in range(a, D):
+                    A[k, a, c] += J[a] * J[c]
+            count[k] += 1
+        for a in range(D):
+            for c in range(a):
+                A[k, a, c] = A[k, c, a]
+    return A, b, count
