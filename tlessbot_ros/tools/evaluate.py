@@ -341,10 +341,10 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
     from tlessbot_ros.core.classifier import LinearClassifier
     from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput, box_of
     from tlessbot_ros.core.pose import PoseParams
-    from tlessbot_ros.tools._overrides import apply_overrides
     from tlessbot_ros.core.rig import CameraMount, Rig
     from tlessbot_ros.core.templates import TemplateDatabase
     from tlessbot_ros.io.bop import read_split
+    from tlessbot_ros.tools._overrides import apply_overrides
 
     templates = TemplateDatabase.load(args.templates)
     classifier = LinearClassifier.load(args.classifier) if args.classifier else None
