@@ -89,6 +89,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
     from tlessbot_ros.nodes.common import RESULT_QOS, init_ros, message_class
     from tlessbot_ros.tools.replay import replay
 
+    if lockstep:  # one frame at a time: no frame may be skipped by a rate cap
+        ros_args = [*(ros_args or []), '-p', 'sync.max_rate_hz:=0.0']
     specs = graph_processes(config, nodes=list(PERCEPTION_NODES), extra_ros_args=ros_args)
     graph = GraphProcesses(specs, env=dict(os.environ))
     result = GraphRunResult()

@@ -36,6 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              '(ROS time) and later loops keep moving forward')
 
 
+def replay_stamp_ns(stamp_ns: int, pass_start_bag_ns: int, pass_start_ros_ns: int,
+                    rate: float) -> int:
+    """The stamp a replayed message gets: when it is due, in ROS time (see :func:`replay`)."""
+    return pass_start_ros_ns + int(round((stamp_ns - pass_start_bag_ns) / rate))
+
+
 def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
            topics: list[str] | None = None, qos: str = 'reliable',
            wait_for_subscribers_s: float = 0.0, restamp: bool = False,
@@ -43,8 +49,10 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
            should_stop: Callable[[], bool] = lambda: False) -> int:
     """Publish the bag's raw messages through ``node``; returns the number published.
 
-    With ``restamp``, every header stamp is shifted by one offset per pass (now minus the first
-    log time), so stamps stay consistent within a frame and increase across loops.
+    With ``restamp``, a header stamp becomes the ROS time at which the replay publishes it:
+    now at the start of the pass plus its offset in the bag divided by ``rate`` (so messages
+    sharing a stamp still share one, stamps increase across loops, and latency measured from
+    the stamp starts when the frame goes out, at any rate).
     """
     import rclpy
 
@@ -71,20 +79,21 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
     # replay rate); bags are demo-sized here.
     cached = list(read_bag(bag, list(types))) if loop else None
     while True:
-        start_wall, start_bag, offset_ns = None, None, 0
+        start_wall, start_bag, start_ros_ns = None, None, 0
         for message in cached if cached is not None else read_bag(bag, list(types)):
             if should_stop():
                 return published
             if start_wall is None:
                 start_wall, start_bag = time.monotonic(), message.log_time_ns
-                offset_ns = node.get_clock().now().nanoseconds - start_bag
+                start_ros_ns = node.get_clock().now().nanoseconds
             due = start_wall + (message.log_time_ns - start_bag) / 1e9 / rate
             delay = due - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             if restamp and starts_with_header(message.msgtype):
                 message = dataclasses.replace(message, raw=restamp_cdr(
-                    message.raw, header_stamp_ns(message.raw) + offset_ns))
+                    message.raw, replay_stamp_ns(header_stamp_ns(message.raw), start_bag,
+                                                 start_ros_ns, rate)))
             publishers[message.topic].publish(message.raw)
             published += 1
             if on_publish is not None:
