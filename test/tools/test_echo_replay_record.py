@@ -143,11 +143,12 @@ def test_restamp_rewrites_only_the_stamp(pose_bag):
     assert not starts_with_header('std_msgs/msg/String')
 
 
-def test_restamped_replay_stamps_a_frame_when_it_is_due():
-    from tlessbot_ros.tools.replay import replay_stamp_ns
+def test_restamped_replay_stamps_a_frame_when_it_goes_out():
+    from tlessbot_ros.tools.replay import FrameRestamper
 
-    start_bag, start_ros = 1_000_000_000, 5_000_000_000
-    # at twice the bag's rate, a frame 0.2 s into the bag goes out 0.1 s into the pass
-    assert replay_stamp_ns(start_bag + 200_000_000, start_bag, start_ros, 2.0) == \
-        start_ros + 100_000_000
-    assert replay_stamp_ns(start_bag, start_bag, start_ros, 2.0) == start_ros
+    restamper = FrameRestamper()
+    first = restamper.stamp(1_000, now_ns=5_000)
+    assert restamper.stamp(1_000, now_ns=5_900) == first == 5_000   # same frame, same stamp
+    assert restamper.stamp(2_000, now_ns=6_000) == 6_000            # next frame: its own time
+    restamper.new_pass()
+    assert restamper.stamp(1_000, now_ns=9_000) == 9_000            # a loop: a new frame

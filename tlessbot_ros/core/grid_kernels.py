@@ -4,7 +4,8 @@ The table path scores and refines K poses of one object against N scene points t
 :class:`~tlessbot_ros.core.templates.NearestGrid`. Written with numpy, each step builds several
 (K, N, 3) temporaries and spends most of its time in small-array overhead; these kernels make
 one pass per pose and point, without temporaries. They compute exactly what the numpy
-formulation does (up to summation order): tests compare the two.
+formulation does (up to summation order): tests compare the two. They release the GIL, so a
+node's executor thread can take messages meanwhile.
 
 Common arguments:
     R: (K, 3, 3) rotations and t: (K, 3) translations of T_frame_object, float64.
@@ -42,7 +43,7 @@ def _to_object(R, t, k, px, py, pz):
             R[k, 0, 2] * dx + R[k, 1, 2] * dy + R[k, 2, 2] * dz)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def truncated_cost(R, t, points, origin, spacing, distance_grid, tau):
     """(K,) mean over the points of min(grid distance to the model, tau); tau outside."""
     K, N = R.shape[0], points.shape[0]
@@ -59,7 +60,7 @@ def truncated_cost(R, t, points, origin, spacing, distance_grid, tau):
     return cost
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def inlier_fraction(R, t, points, origin, spacing, index_grid, model, inlier_m):
     """(K,) fraction of points closer than inlier_m to their grid-nearest model sample."""
     K, N = R.shape[0], points.shape[0]
@@ -81,7 +82,7 @@ def inlier_fraction(R, t, points, origin, spacing, index_grid, model, inlier_m):
     return fraction
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def normal_equations(R, t, points, origin, spacing, index_grid, model, normals, max_d, planar):
     """Point-to-plane Gauss-Newton normal equations of K poses.
 

@@ -17,6 +17,7 @@ from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.tools.launch import PERCEPTION_NODES, GraphProcesses, graph_processes
 
 ALL_OBJECT_IDS = range(1, 31)
+STAGE_OUTPUTS = {'localiser': '/localiser/side/labels', 'classifier': '/classifier/side/classes'}
 READY_TOPIC = '/side/aligned_depth_to_color/image_raw'  # every perception node subscribes it
 
 
@@ -40,6 +41,8 @@ class GraphRunResult:
     rss_mb_samples: dict[str, list[float]] = field(default_factory=dict)
     cpu_s: dict[str, float] = field(default_factory=dict)   # CPU seconds used while replaying
     diagnostics: dict[str, dict[str, str]] = field(default_factory=dict)  # last, per node
+    # When each stage's side output of a frame arrived here: {stage: {stamp_ns: time_ns}}
+    stage_arrivals: dict[str, dict[int, int]] = field(default_factory=dict)
     node_output: str = ''
 
 
@@ -82,7 +85,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             not for timing). ``rate`` and ``loop`` are ignored.
     """
     import rclpy
-    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.executors import SingleThreadedExecutor
 
     from tlessbot_ros.conversions.pose import pose_stamped_to_transform
     from tlessbot_ros.io.bags import header_stamp_ns
@@ -98,7 +101,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
     init_ros()
     monitor = rclpy.create_node('tlessbot_graph_monitor')
     player = rclpy.create_node('tlessbot_graph_replay')
-    executor = MultiThreadedExecutor(num_threads=2)
+    executor = SingleThreadedExecutor()
     executor.add_node(monitor)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     lock = threading.Lock()
@@ -123,6 +126,17 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
 
     monitor.create_subscription(message_class('diagnostic_msgs/msg/DiagnosticArray'),
                                 '/diagnostics', on_diagnostics, RESULT_QOS)
+    def on_stage_output(stage: str):
+        arrivals = result.stage_arrivals.setdefault(stage, {})
+
+        def callback(data: bytes) -> None:
+            arrivals[header_stamp_ns(data)] = time.time_ns()
+        return callback
+
+    image_class = message_class('sensor_msgs/msg/Image')
+    for stage, topic in STAGE_OUTPUTS.items():   # raw: only the stamp is read
+        monitor.create_subscription(image_class, topic, on_stage_output(stage), RESULT_QOS,
+                                    raw=True)
     pose_class = message_class('geometry_msgs/msg/PoseStamped')
     for obj_id in ALL_OBJECT_IDS:
         monitor.create_subscription(pose_class, f'/objects/obj_{obj_id:02d}/pose',

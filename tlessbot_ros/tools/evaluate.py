@@ -64,6 +64,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--out', type=Path, default=Path('eval_out'), help='output folder')
     parser.add_argument('--pose-param', action='append', metavar='NAME=VALUE',
                         help='override a PoseParams field, e.g. icp_iterations=6 (repeatable)')
+    parser.add_argument('--pipeline-param', action='append', metavar='NAME=VALUE',
+                        help='override a PipelineParams field, e.g. verify_accept_fitness=0.9 '
+                             '(repeatable)')
 
 
 # ------------------------------------------------------------------------------------------------
@@ -339,7 +342,7 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
         raise TlessbotError('--oracle none needs a two-view dataset (test_top + test_side); '
                             'use --oracle boxes or boxes+classes for a single split')
     from tlessbot_ros.core.classifier import LinearClassifier
-    from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput, box_of
+    from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput, box_of
     from tlessbot_ros.core.pose import PoseParams
     from tlessbot_ros.core.rig import CameraMount, Rig
     from tlessbot_ros.core.templates import TemplateDatabase
@@ -373,7 +376,8 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
                            for v, im in by_view.items()})
             pipeline = PerceptionPipeline(
                 rig=rig, classifier=classifier, templates=templates,
-                pose=apply_overrides(PoseParams(), args.pose_param))
+                pose=apply_overrides(PoseParams(), args.pose_param),
+                params=apply_overrides(PipelineParams(), args.pipeline_param))
         output = FrameOutput()
         t0 = time.perf_counter()
         if args.oracle == 'none':

@@ -11,6 +11,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from tlessbot_ros.errors import BagError
 from tlessbot_ros.io.bags import (
     BagMessage,
@@ -36,10 +38,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              '(ROS time) and later loops keep moving forward')
 
 
-def replay_stamp_ns(stamp_ns: int, pass_start_bag_ns: int, pass_start_ros_ns: int,
-                    rate: float) -> int:
-    """The stamp a replayed message gets: when it is due, in ROS time (see :func:`replay`)."""
-    return pass_start_ros_ns + int(round((stamp_ns - pass_start_bag_ns) / rate))
+def _loop_period_ns(messages: list[BagMessage]) -> int:
+    """Span of the bag's log times plus the median gap between distinct ones."""
+    times = np.unique([m.log_time_ns for m in messages])
+    if len(times) < 2:
+        return 0
+    return int(times[-1] - times[0] + np.median(np.diff(times)))
+
+
+class FrameRestamper:
+    """New header stamps for a replay: the ROS time at which a frame goes out.
+
+    Every message that shares an original stamp (one camera frame: colour, depth, infos, ground
+    truth) gets the stamp given to the first of them, so frames stay consistent; a later frame
+    gets a later time, across loops too. Stamping at publication, like a driver stamping at
+    capture, keeps the replay's own lag out of latencies measured from the stamp.
+    """
+
+    def __init__(self) -> None:
+        self._assigned: dict[int, int] = {}
+
+    def stamp(self, original_ns: int, now_ns: int) -> int:
+        if original_ns not in self._assigned:
+            if len(self._assigned) > 1000:   # bounded: only the current frames matter
+                self._assigned.clear()
+            self._assigned[original_ns] = now_ns
+        return self._assigned[original_ns]
+
+    def new_pass(self) -> None:
+        """A loop starts again: the same original stamps are new frames now."""
+        self._assigned.clear()
 
 
 def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
@@ -49,10 +77,8 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
            should_stop: Callable[[], bool] = lambda: False) -> int:
     """Publish the bag's raw messages through ``node``; returns the number published.
 
-    With ``restamp``, a header stamp becomes the ROS time at which the replay publishes it:
-    now at the start of the pass plus its offset in the bag divided by ``rate`` (so messages
-    sharing a stamp still share one, stamps increase across loops, and latency measured from
-    the stamp starts when the frame goes out, at any rate).
+    With ``restamp``, a header stamp becomes the ROS time at which its frame is published
+    (:class:`FrameRestamper`).
     """
     import rclpy
 
@@ -78,28 +104,37 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
     # A looped bag is read once and kept in memory (decompressing it every pass would cap the
     # replay rate); bags are demo-sized here.
     cached = list(read_bag(bag, list(types))) if loop else None
+    restamper = FrameRestamper()
+    # A loop's next pass starts one frame interval after the last frame of this one (not at
+    # once, which would replay faster than the bag's rate).
+    pass_period_ns = _loop_period_ns(cached) if cached else 0
+    next_pass_wall = None
     while True:
-        start_wall, start_bag, start_ros_ns = None, None, 0
+        if next_pass_wall is not None and next_pass_wall > time.monotonic():
+            time.sleep(next_pass_wall - time.monotonic())
+        start_wall, start_bag = None, None
+        restamper.new_pass()
         for message in cached if cached is not None else read_bag(bag, list(types)):
             if should_stop():
                 return published
             if start_wall is None:
                 start_wall, start_bag = time.monotonic(), message.log_time_ns
-                start_ros_ns = node.get_clock().now().nanoseconds
             due = start_wall + (message.log_time_ns - start_bag) / 1e9 / rate
             delay = due - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             if restamp and starts_with_header(message.msgtype):
                 message = dataclasses.replace(message, raw=restamp_cdr(
-                    message.raw, replay_stamp_ns(header_stamp_ns(message.raw), start_bag,
-                                                 start_ros_ns, rate)))
+                    message.raw, restamper.stamp(header_stamp_ns(message.raw),
+                                                 node.get_clock().now().nanoseconds)))
             publishers[message.topic].publish(message.raw)
             published += 1
             if on_publish is not None:
                 on_publish(message)
         if not loop or published == 0:
             return published
+        if start_wall is not None:
+            next_pass_wall = start_wall + pass_period_ns / 1e9 / rate
 
 
 def run(args: argparse.Namespace) -> int:

@@ -47,6 +47,25 @@ def rss_trend_mb_per_min(samples: list[float]) -> float:
     return float(np.polyfit(np.arange(len(values)) / 60.0, values, 1)[0])
 
 
+def hop_latencies(result) -> list[tuple[str, str]]:
+    """Where a posed frame's latency goes: source stamp -> localiser labels -> classifier
+    classes -> first PoseStamped, each as arrival times at the monitor (p50 / p95 ms)."""
+    first_pose: dict[int, int] = {}
+    for pose in result.poses:
+        first_pose[pose.stamp_ns] = min(pose.received_ns, first_pose.get(pose.stamp_ns,
+                                                                         pose.received_ns))
+    labels = result.stage_arrivals.get('localiser', {})
+    classes = result.stage_arrivals.get('classifier', {})
+    stamps = [s for s in first_pose if s in labels and s in classes]
+    if not stamps:
+        return []
+    hops = {'stamp -> localiser labels': [labels[s] - s for s in stamps],
+            'labels -> classifier classes': [classes[s] - labels[s] for s in stamps],
+            'classes -> first pose': [first_pose[s] - classes[s] for s in stamps]}
+    return [(name, f'{np.percentile(v, 50) / 1e6:.1f} / {np.percentile(v, 95) / 1e6:.1f} ms')
+            for name, v in hops.items()]
+
+
 def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.tools._graph_run import run_graph_on_bag
 
@@ -77,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
         rows.append((f'RSS {label} start -> end',
                      f'{result.rss_mb_start[label]:.0f} -> {result.rss_mb_end[label]:.0f} MiB '
                      f'(trend {trend:+.2f} MiB/min; second half {late_trend:+.2f} MiB/min)'))
+    rows += [(f'{name} (p50 / p95)', value) for name, value in hop_latencies(result)]
     for label in sorted(result.cpu_s):
         values = result.diagnostics.get(label, {})
         rows.append((f'{label}: CPU while replaying, frames processed / dropped',
