@@ -1,0 +1,36 @@
+"""bench graph's report: where a posed frame's latency goes, and the replay's loop period."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+
+def test_hop_latencies_split_each_posed_frame():
+    from tlessbot_ros.tools._graph_run import GraphRunResult, ReceivedPose
+    from tlessbot_ros.tools.benchmarks.graph import hop_latencies
+
+    ms = 1_000_000
+    result = GraphRunResult()
+    for stamp in (1000 * ms, 2000 * ms):
+        result.stage_arrivals.setdefault('localiser', {})[stamp] = stamp + 40 * ms
+        result.stage_arrivals.setdefault('classifier', {})[stamp] = stamp + 70 * ms
+        # two parts: the first pose counts for the last hop
+        result.poses += [ReceivedPose(stamp, 5, None, 'f', stamp + 130 * ms),
+                         ReceivedPose(stamp, 6, None, 'f', stamp + 120 * ms)]
+    result.stage_arrivals['localiser'][3000 * ms] = 3040 * ms   # never posed: not counted
+    hops = dict(hop_latencies(result))
+    assert hops == {'stamp -> localiser labels': '40.0 / 40.0 ms',
+                    'labels -> classifier classes': '30.0 / 30.0 ms',
+                    'classes -> first pose': '50.0 / 50.0 ms'}
+    assert hop_latencies(GraphRunResult()) == []
+
+
+@pytest.mark.parametrize('times, expected', [
+    ([0, 100, 100, 200, 300], 400),   # span 300 + one 100 gap: the next pass starts on time
+    ([5], 0),
+])
+def test_a_looped_replay_waits_one_frame_interval_between_passes(times, expected):
+    from tlessbot_ros.tools.replay import _loop_period_ns
+
+    assert _loop_period_ns([SimpleNamespace(log_time_ns=t) for t in times]) == expected
