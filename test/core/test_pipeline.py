@@ -71,3 +71,18 @@ def test_one_candidate_is_the_classifier_alone(scene):
     [detection] = pipeline.estimate_poses(inputs, labels, {1: 5})
     assert detection.obj_id == 5 and detection.class_rank == 0
     assert pipeline.estimate_poses(inputs, labels, {1: (0, 99)}) == []   # unknown, no templates
+
+
+def test_a_region_no_candidate_fits_gets_no_ransac_fallback(scene):
+    db, inputs, labels, _ = scene
+    depth = inputs['side'].depth_m.copy()
+    junk = np.zeros_like(labels['side'])
+    junk[40:80, 40:80] = 1
+    depth[junk > 0] = 0.40      # a flat card floating 40 cm from the camera: no part
+    views = {'side': ViewInput(rgb=None, depth_m=depth, intrinsics=SIDE.intrinsics,
+                               T_world_camera=SIDE.T_world_camera)}
+    pipeline = PerceptionPipeline(templates=db)
+    calls = _counting(pipeline)
+    [detection] = pipeline.estimate_poses(views, {'side': junk}, {1: (5, 21)})
+    assert calls == [5, 21]      # both verified, no third (fallback) call
+    assert detection.pose.fitness < PipelineParams().fallback_min_fitness

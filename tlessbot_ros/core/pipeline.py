@@ -54,6 +54,10 @@ class PipelineParams:
             pose fitness reaches this.
         verify_rmse_weight: candidates are ranked by fitness - weight * inlier RMSE (1/m), so
             1 mm of RMSE costs 0.05 of fitness.
+        fallback_min_fitness: after verification, the RANSAC fallback is not tried for a
+            region that no candidate fits at all (best fitness below this): such a region is
+            no known part on the table (an arm, a shadow) and the fallback would spend its
+            whole budget on it.
     """
 
     min_instance_px: int = 60
@@ -63,6 +67,7 @@ class PipelineParams:
     class_candidates: int = 3
     verify_accept_fitness: float = 0.95
     verify_rmse_weight: float = 50.0
+    fallback_min_fitness: float = 0.1
 
 
 @dataclass
@@ -325,7 +330,7 @@ class PerceptionPipeline:
                 break
         pose_params = estimator.params
         if quick and detection.pose is not None and pose_params.fallback and \
-                detection.pose.fitness < pose_params.fallback_fitness:
+                p.fallback_min_fitness <= detection.pose.fitness < pose_params.fallback_fitness:
             result = estimator.estimate(points, detection.obj_id, T_world_camera=T_world_camera)
             if result.best is not None and result.best.score > detection.pose.score:
                 detection.pose, detection.second = result.best, result.second

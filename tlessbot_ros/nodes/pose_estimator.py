@@ -17,7 +17,8 @@ Publishes (RELIABLE, depth 10):
     /diagnostics            latency per stage, fitness, frames dropped, failures
 Parameters: ``templates_path`` (.npz from ``tlessbot templates``; default: the packaged one),
 ``output_frame`` ('camera' or 'world'), ``world_frame``, ``min_fitness``,
-``verify_accept_fitness`` and ``verify_rmse_weight`` (how candidates are verified), ``pose.*``
+``verify_accept_fitness``, ``verify_rmse_weight`` and ``fallback_min_fitness`` (how candidates
+are verified), ``pose.*``
 (PoseParams), ``rig.CAMERA.*`` (extrinsics; the table path needs them), ``sync.*``.
 """
 from __future__ import annotations
@@ -82,6 +83,10 @@ class PoseEstimatorNode(StageNode):
         rmse_weight = self.declare_parameter(
             'verify_rmse_weight', defaults.verify_rmse_weight, descriptor(
                 'Candidates are ranked by fitness - weight * inlier RMSE (1/m)')).value
+        fallback_floor = self.declare_parameter(
+            'fallback_min_fitness', defaults.fallback_min_fitness, descriptor(
+                'No RANSAC fallback for a region that no class candidate fits at all (best '
+                'fitness below this): no known part on the table')).value
         pose_params = dataclasses.replace(PoseParams(), **declare_from_dataclass(
             self, PoseParams(), prefix='pose.'))
         self.extrinsics = declare_extrinsics(self)
@@ -89,7 +94,8 @@ class PoseEstimatorNode(StageNode):
         self.pipeline = PerceptionPipeline(
             templates=self.templates, pose=pose_params,
             params=dataclasses.replace(defaults, verify_accept_fitness=float(accept),
-                                       verify_rmse_weight=float(rmse_weight)))
+                                       verify_rmse_weight=float(rmse_weight),
+                                       fallback_min_fitness=float(fallback_floor)))
         self._factory = RclpyFactory()
         pose_class = message_class('geometry_msgs/msg/PoseStamped')
         self._pose_publishers = {obj_id: self.create_publisher(pose_class, pose_topic(obj_id),
