@@ -198,6 +198,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
     finally:
         graph.stop()
         executor.shutdown()
+        if spinner.is_alive():   # a spinning executor thread left behind aborts the exit
+            spinner.join(timeout=10.0)
         monitor.destroy_node()
         player.destroy_node()
         rclpy.try_shutdown()
