@@ -240,10 +240,19 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
             harness.spin(10.0, until=lambda b=before: node.failures + node.frames > b)
             assert node.failures + node.frames > before, f'{name}: frame never processed'
         assert node.failures >= 2
+        # RViz markers are built only while someone subscribes: subscribe, then send the frame
+        from tlessbot_ros.nodes.common import RESULT_QOS, message_class
+        markers = []
+        harness.peer.create_subscription(message_class('visualization_msgs/msg/MarkerArray'),
+                                         '/objects/markers', markers.append, RESULT_QOS)
+        harness.spin(5.0, until=lambda: node._markers.get_subscription_count() > 0)
         frames_before = node.frames
         harness.publish(good)
-        harness.spin(15.0, until=lambda: node.frames > frames_before)
+        harness.spin(15.0, until=lambda: node.frames > frames_before and markers)
         assert node.frames > frames_before
+        assert markers and markers[-1].markers[0].action == 3   # DELETEALL, then this frame's
+        for marker in markers[-1].markers[1:]:
+            assert marker.header.stamp.sec == STAMP0 // 10**9
         harness.close()
     finally:
         rclpy.try_shutdown()
