@@ -7,8 +7,8 @@ paired across cameras under ``max_age_s``. The callback gets
 Everything is bounded: old frames are dropped and counted.
 
 The subscriptions are raw: a message is kept as its CDR bytes and only its header stamp is
-read, so the many camera frames a slow stage skips are never turned into Python messages
-(measured: receiving 4 image topics at 30 fps costs 16 % of a core deserialised, 7 % raw).
+read, so the many camera frames a slow stage skips are never turned into Python messages, and
+what is deserialised is deserialised on the stage's worker thread, not the executor's.
 """
 from __future__ import annotations
 
