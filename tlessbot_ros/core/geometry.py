@@ -129,13 +129,22 @@ def depth_to_points(
     depth_m = np.asarray(depth_m)
     if depth_m.ndim != 2:
         raise ValueError(f'depth must be a 2-D (H, W) array, got shape {depth_m.shape}')
-    valid = np.isfinite(depth_m) & (depth_m > 0)
+    r0, c0, window = 0, 0, depth_m
+    valid = None
     if mask is not None:
         if mask.shape != depth_m.shape:
             raise ValueError(f'mask shape {mask.shape} differs from depth shape {depth_m.shape}')
-        valid &= mask.astype(bool)
+        mask = mask.astype(bool, copy=False)
+        # Work in the mask's bounding box: a part covers a few % of the image.
+        rows_any, cols_any = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+        r0, r1 = (int(rows_any[0]), int(rows_any[-1]) + 1) if len(rows_any) else (0, 0)
+        c0, c1 = (int(cols_any[0]), int(cols_any[-1]) + 1) if len(cols_any) else (0, 0)
+        window = depth_m[r0:r1, c0:c1]
+        valid = mask[r0:r1, c0:c1]
+    valid = np.isfinite(window) & (window > 0) & (True if valid is None else valid)
     rows, cols = np.nonzero(valid)
-    z = depth_m[rows, cols].astype(np.float32)
+    z = window[rows, cols].astype(np.float32)
+    rows, cols = rows + r0, cols + c0
     x = (cols.astype(np.float32) - np.float32(K[0, 2])) * z / np.float32(K[0, 0])
     y = (rows.astype(np.float32) - np.float32(K[1, 2])) * z / np.float32(K[1, 1])
     return np.stack([x, y, z], axis=1), np.stack([rows, cols], axis=1)

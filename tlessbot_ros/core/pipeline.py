@@ -146,11 +146,15 @@ def _view_order(views) -> list[str]:
             if v in views]
 
 
-def preferred_view(labels: dict[str, np.ndarray], instance_id: int, *,
+def preferred_view(counts: dict[str, np.ndarray], instance_id: int, *,
                    min_px: int) -> str | None:
-    """The view in which the pose and class of an instance are read: side first, then top."""
-    for view in _view_order(labels):
-        if int(np.count_nonzero(labels[view] == instance_id)) >= min_px:
+    """The view in which the pose and class of an instance are read: side first, then top.
+
+    Args:
+        counts: per view, the pixel count of every label (``np.bincount`` of the label image).
+    """
+    for view in _view_order(counts):
+        if instance_id < len(counts[view]) and counts[view][instance_id] >= min_px:
             return view
     return None
 
@@ -283,11 +287,12 @@ class PerceptionPipeline:
             raise ValueError('no template database loaded')
         database = self.pose_estimator.database
         detections = []
-        for instance in _instance_ids(labels):
+        counts = {view: np.bincount(np.asarray(image).ravel()) for view, image in labels.items()}
+        for instance in _instance_ids(counts):
             candidates = classes.get(instance, UNKNOWN_ID)
             candidates = (candidates,) if np.isscalar(candidates) else tuple(candidates)
             candidates = tuple(int(c) for c in candidates if c != UNKNOWN_ID and c in database)
-            view = preferred_view(labels, instance, min_px=self.params.min_instance_px)
+            view = preferred_view(counts, instance, min_px=self.params.min_instance_px)
             if not candidates or view is None:
                 continue
             data = views[view]
@@ -354,8 +359,9 @@ class PerceptionPipeline:
             'pose': 1e3 * (t3 - t2), 'frame': 1e3 * (t3 - t0)})
 
 
-def _instance_ids(labels: dict[str, np.ndarray]) -> list[int]:
+def _instance_ids(counts: dict[str, np.ndarray]) -> list[int]:
+    """Sorted non-zero labels present in any view, from per-view pixel counts (bincount)."""
     ids: set[int] = set()
-    for image in labels.values():
-        ids.update(int(v) for v in np.unique(image) if v != 0)
+    for view_counts in counts.values():
+        ids.update(int(v) for v in np.flatnonzero(view_counts) if v != 0)
     return sorted(ids)
