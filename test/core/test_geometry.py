@@ -64,3 +64,24 @@ def test_bad_intrinsics_raise():
         CameraIntrinsics(width=1, height=1, K=np.eye(2))
     with pytest.raises(ValueError, match='focal'):
         CameraIntrinsics(width=1, height=1, K=np.zeros((3, 3)))
+
+
+@pytest.mark.parametrize('region', [(slice(100, 160), slice(200, 290)),
+                                    (slice(0, 5), slice(630, 640)), (slice(0, 0), slice(0, 0))])
+def test_masked_back_projection_is_the_masked_part_of_the_whole(region):
+    from tlessbot_ros.core.geometry import depth_to_points
+
+    rng = np.random.default_rng(1)
+    depth = rng.uniform(0.3, 1.0, (480, 640)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.1] = 0.0
+    depth[rng.random(depth.shape) < 0.05] = np.nan
+    K = np.array([[615.0, 0, 321.37], [0, 615.0, 239.81], [0, 0, 1]])
+    mask = np.zeros(depth.shape, bool)
+    mask[region] = True
+    mask[rng.random(depth.shape) < 0.2] = False
+    points, pixels = depth_to_points(depth, K, mask=mask)
+    all_points, all_pixels = depth_to_points(depth, K)
+    keep = mask[all_pixels[:, 0], all_pixels[:, 1]]
+    np.testing.assert_array_equal(points, all_points[keep])      # same values, same order
+    np.testing.assert_array_equal(pixels, all_pixels[keep])
+    assert points.dtype == np.float32 and pixels.shape == (int(keep.sum()), 2)
