@@ -152,3 +152,6 @@ def test_restamped_replay_stamps_a_frame_when_it_goes_out():
     assert restamper.stamp(2_000, now_ns=6_000) == 6_000            # next frame: its own time
     restamper.new_pass()
     assert restamper.stamp(1_000, now_ns=9_000) == 9_000            # a loop: a new frame
+    for original in range(2_000, 2_000 + 1_500):                     # a long bag: bounded,
+        restamper.stamp(original, now_ns=original)                    # but the newest frame
+    assert restamper.stamp(3_499, now_ns=0) == 3_499                  # keeps its stamp

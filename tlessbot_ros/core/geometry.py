@@ -129,8 +129,7 @@ def depth_to_points(
     depth_m = np.asarray(depth_m)
     if depth_m.ndim != 2:
         raise ValueError(f'depth must be a 2-D (H, W) array, got shape {depth_m.shape}')
-    r0, c0, window = 0, 0, depth_m
-    valid = None
+    r0, r1, c0, c1 = 0, depth_m.shape[0], 0, depth_m.shape[1]
     if mask is not None:
         if mask.shape != depth_m.shape:
             raise ValueError(f'mask shape {mask.shape} differs from depth shape {depth_m.shape}')
@@ -139,9 +138,10 @@ def depth_to_points(
         rows_any, cols_any = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
         r0, r1 = (int(rows_any[0]), int(rows_any[-1]) + 1) if len(rows_any) else (0, 0)
         c0, c1 = (int(cols_any[0]), int(cols_any[-1]) + 1) if len(cols_any) else (0, 0)
-        window = depth_m[r0:r1, c0:c1]
-        valid = mask[r0:r1, c0:c1]
-    valid = np.isfinite(window) & (window > 0) & (True if valid is None else valid)
+    window = depth_m[r0:r1, c0:c1]
+    valid = np.isfinite(window) & (window > 0)
+    if mask is not None:
+        valid &= mask[r0:r1, c0:c1]
     rows, cols = np.nonzero(valid)
     z = window[rows, cols].astype(np.float32)
     rows, cols = rows + r0, cols + c0

@@ -77,7 +77,7 @@ def decode_candidates(class_labels: np.ndarray) -> tuple[np.ndarray, dict[int, t
     ids, first = np.unique(instances.ravel()[labelled], return_index=True)
     values = class_labels.reshape(-1, class_labels.shape[2])[labelled[first]] // CLASS_STRIDE
     return instances, {int(i): tuple(int(v) for v in row if v)
-                       for i, row in zip(ids, values) if i and row.any()}
+                       for i, row in zip(ids, values) if row.any()}
 
 
 def instance_masks(instance_labels: np.ndarray) -> dict[int, np.ndarray]:

@@ -146,12 +146,17 @@ def _view_order(views) -> list[str]:
             if v in views]
 
 
+def label_counts(labels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Per view, the pixel count of every label (index = label id)."""
+    return {view: np.bincount(np.asarray(image).ravel()) for view, image in labels.items()}
+
+
 def preferred_view(counts: dict[str, np.ndarray], instance_id: int, *,
                    min_px: int) -> str | None:
     """The view in which the pose and class of an instance are read: side first, then top.
 
     Args:
-        counts: per view, the pixel count of every label (``np.bincount`` of the label image).
+        counts: per view, the pixel count of every label (:func:`label_counts`).
     """
     for view in _view_order(counts):
         if instance_id < len(counts[view]) and counts[view][instance_id] >= min_px:
@@ -231,11 +236,11 @@ class PerceptionPipeline:
         """
         if self.classifier is None:
             raise ValueError('no classifier loaded')
-        seen: dict[str, list[int]] = {}   # per view, the instances with enough pixels there
-        for view, image in labels.items():
-            counts = np.bincount(np.asarray(image).ravel())
-            seen[view] = [int(i) for i in np.flatnonzero(counts >= self.params.min_instance_px)
-                          if i]
+        counts = label_counts(labels)
+        min_px = self.params.min_instance_px
+        # per view, the instances with enough pixels there
+        seen = {view: [int(i) for i in np.flatnonzero(view_counts >= min_px) if i]
+                for view, view_counts in counts.items()}
         summed: dict[int, np.ndarray] = {}
         for view in sorted(labels):
             instances = seen[view]
@@ -263,7 +268,7 @@ class PerceptionPipeline:
             obj_id = int(prediction.class_ids[k])
             guesses[instance] = ClassGuess(
                 obj_id, float(prediction.scores[k]), float(prediction.margins[k]),
-                next(v for v in _view_order(labels) if instance in seen[v]),
+                preferred_view(counts, instance, min_px=min_px),
                 tuple(int(c) for c in ranked[k]) if obj_id != UNKNOWN_ID else ())
         return guesses
 
@@ -287,7 +292,7 @@ class PerceptionPipeline:
             raise ValueError('no template database loaded')
         database = self.pose_estimator.database
         detections = []
-        counts = {view: np.bincount(np.asarray(image).ravel()) for view, image in labels.items()}
+        counts = label_counts(labels)
         for instance in _instance_ids(counts):
             candidates = classes.get(instance, UNKNOWN_ID)
             candidates = (candidates,) if np.isscalar(candidates) else tuple(candidates)

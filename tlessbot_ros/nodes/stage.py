@@ -100,10 +100,6 @@ class StageNode(Node):
         self._wakeup = threading.Condition()
         self._stopping = False
         self._worker: threading.Thread | None = None
-        if self.sync_params.worker_thread:
-            self._worker = threading.Thread(target=self._work, name=f'{name}_worker',
-                                            daemon=True)
-            self._worker.start()
         self.last_error = ''
         self._latencies_ms: deque[float] = deque(maxlen=100)
         self._stats: dict[str, float] = {}
@@ -111,6 +107,10 @@ class StageNode(Node):
         self._diagnostics = self.create_publisher(
             message_class('diagnostic_msgs/msg/DiagnosticArray'), '/diagnostics', RESULT_QOS)
         self.create_timer(1.0, self._publish_diagnostics)
+        if self.sync_params.worker_thread:
+            self._worker = threading.Thread(target=self._work, name=f'{name}_worker',
+                                            daemon=True)
+            self._worker.start()
 
     def setup_inputs(self, topics: dict[str, tuple[str, str]]) -> None:
         """Subscribe ``{key: (ROS type name, '/{camera}/...' template)}`` for both cameras."""
@@ -172,7 +172,6 @@ class StageNode(Node):
 
     def _process_safely(self, views: Views) -> None:
         start = time.perf_counter()
-        self._busy = True
         try:
             self.process(deserialise_views(views))
             self.frames += 1

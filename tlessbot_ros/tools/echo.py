@@ -95,11 +95,9 @@ def run(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from tlessbot_ros.nodes.common import format_message, message_class
+    from tlessbot_ros.nodes.common import format_message, init_ros, message_class
 
     topic = args.topic if args.topic.startswith('/') else '/' + args.topic
-    from tlessbot_ros.nodes.common import init_ros
-
     init_ros()
     node = rclpy.create_node('tlessbot_echo')
     received = 0

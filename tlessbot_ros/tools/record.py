@@ -27,15 +27,13 @@ def run(args: argparse.Namespace) -> int:
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
-    from tlessbot_ros.nodes.common import SENSOR_QOS, message_class
+    from tlessbot_ros.nodes.common import SENSOR_QOS, init_ros, message_class
 
     out = Path(args.out)
     if out.exists():
         raise BagError(f'output {out} exists; choose a new folder')
     topics = [t if t.startswith('/') else '/' + t for t in args.topics]
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    from tlessbot_ros.nodes.common import init_ros
-
     init_ros()
     node = rclpy.create_node('tlessbot_record')
     writer = None

@@ -34,8 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--qos', choices=('reliable', 'sensor'), default='reliable',
                         help='QoS of the publishers')
     parser.add_argument('--restamp', action='store_true',
-                        help='shift header stamps so that the first message is stamped now '
-                             '(ROS time) and later loops keep moving forward')
+                        help='stamp each frame with the ROS time at which it is published '
+                             '(its messages share the stamp; later loops move forward)')
 
 
 def _loop_period_ns(messages: list[BagMessage]) -> int:
@@ -60,8 +60,8 @@ class FrameRestamper:
 
     def stamp(self, original_ns: int, now_ns: int) -> int:
         if original_ns not in self._assigned:
-            if len(self._assigned) > 1000:   # bounded: only the current frames matter
-                self._assigned.clear()
+            if len(self._assigned) >= 1000:   # bounded: forget the oldest frame, not the last
+                del self._assigned[next(iter(self._assigned))]
             self._assigned[original_ns] = now_ns
         return self._assigned[original_ns]
 
@@ -141,9 +141,9 @@ def run(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    bag_topics(args.bag)  # fail with one clear line before touching ROS
     from tlessbot_ros.nodes.common import init_ros
 
+    bag_topics(args.bag)  # fail with one clear line before touching ROS
     init_ros()
     node = rclpy.create_node('tlessbot_replay')
     try:

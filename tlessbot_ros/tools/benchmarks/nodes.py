@@ -61,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     import rclpy
 
     from tlessbot_ros.nodes.classifier import ClassifierNode
+    from tlessbot_ros.nodes.common import init_ros
     from tlessbot_ros.nodes.localiser import LocaliserNode
     from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
 
@@ -68,8 +69,6 @@ def run(args: argparse.Namespace) -> int:
     if not frames:
         print(f'no two-view camera frames in {args.bag}')
         return 1
-    from tlessbot_ros.nodes.common import init_ros
-
     init_ros()
     try:
         localiser, classifier, pose = LocaliserNode(), ClassifierNode(), PoseEstimatorNode()
