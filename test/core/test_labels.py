@@ -43,3 +43,26 @@ def test_candidates_round_trip_and_channel_zero_is_the_plain_image():
     broken[0, 1, 2] = 7002                           # channel 2 names another instance
     with pytest.raises(ValueError, match='channel 2'):
         decode_candidates(broken)
+
+
+def test_fast_paths_equal_the_whole_image_formulas():
+    """encode / decode / label_counts touch only labelled pixels; the result must equal the
+    plain whole-image definitions."""
+    from tlessbot_ros.core.pipeline import label_counts
+    rng = np.random.default_rng(5)
+    labels = np.zeros((48, 64), np.uint16)
+    for instance in range(1, 6):
+        y, x = rng.integers(0, 40), rng.integers(0, 56)
+        labels[y:y + 8, x:x + 8] = instance
+    candidates = {1: (5, 7), 2: (30,), 4: (12, 13, 14), 9: (2,)}   # 3, 5 unknown; 9 absent
+    encoded = encode_candidates(labels, candidates, 3)
+    for c in range(3):
+        lookup = np.arange(labels.max() + 1)
+        for instance, ids in candidates.items():
+            if instance < len(lookup) and len(ids) > c:
+                lookup[instance] += ids[c] * 1000
+        np.testing.assert_array_equal(encoded[..., c], lookup[labels])
+    instances, decoded = decode_candidates(encoded)
+    np.testing.assert_array_equal(instances, encoded[..., 0] % 1000)
+    assert decoded == {1: (5, 7), 2: (30,), 4: (12, 13, 14)}
+    np.testing.assert_array_equal(label_counts({'v': labels})['v'], np.bincount(labels.ravel()))

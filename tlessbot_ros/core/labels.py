@@ -21,18 +21,33 @@ def encode_classes(instance_labels: np.ndarray, class_of_instance: dict[int, int
 
     Instances missing from ``class_of_instance`` keep class 0 (unknown).
     """
+    labels = _instance_image(instance_labels)
+    lookup = _class_lookup(labels, class_of_instance)
+    out = np.zeros(labels.shape, np.uint16)
+    labelled = np.flatnonzero(labels != 0)  # parts cover a few % of the image: touch only those
+    out.ravel()[labelled] = lookup[labels.ravel()[labelled]]
+    return out
+
+
+def _instance_image(instance_labels: np.ndarray) -> np.ndarray:
+    """Checked (H, W) instance labels (at most MAX_INSTANCES)."""
     labels = np.asarray(instance_labels)
     if labels.ndim != 2:
         raise ValueError(f'instance labels must be (H, W), got shape {labels.shape}')
     if labels.size and int(labels.max()) > MAX_INSTANCES:
         raise ValueError(f'at most {MAX_INSTANCES} instances per image, got {int(labels.max())}')
+    return labels
+
+
+def _class_lookup(labels: np.ndarray, class_of_instance: dict[int, int]) -> np.ndarray:
+    """uint16 table: instance id -> class-instance label."""
     lookup = np.arange(int(labels.max(initial=0)) + 1, dtype=np.int64)
     for instance, obj_id in class_of_instance.items():
         if not 0 <= obj_id <= 65:
             raise ValueError(f'object id {obj_id} does not fit the 16-bit panoptic encoding')
         if 0 < instance < len(lookup):
             lookup[instance] += obj_id * CLASS_STRIDE
-    return lookup.astype(np.uint16)[labels]   # cast the small table, not the image
+    return lookup.astype(np.uint16)
 
 
 def decode_classes(class_labels: np.ndarray) -> tuple[np.ndarray, dict[int, int]]:
@@ -53,10 +68,15 @@ def encode_candidates(instance_labels: np.ndarray,
     candidates are 0 (unknown)."""
     if k < 1:
         raise ValueError(f'need at least one candidate channel, got {k}')
-    channels = [encode_classes(instance_labels, {
+    labels = _instance_image(instance_labels)
+    lookups = np.stack([_class_lookup(labels, {
         instance: (tuple(ids)[c] if len(tuple(ids)) > c else 0)
-        for instance, ids in candidates_of_instance.items()}) for c in range(k)]
-    return channels[0] if k == 1 else np.stack(channels, axis=-1)
+        for instance, ids in candidates_of_instance.items()}) for c in range(k)], axis=-1)
+    out = np.zeros((labels.size, k), np.uint16)
+    labelled = np.flatnonzero(labels != 0)
+    out[labelled] = lookups[labels.ravel()[labelled]]
+    out = out.reshape(*labels.shape, k)
+    return out[..., 0] if k == 1 else out
 
 
 def decode_candidates(class_labels: np.ndarray) -> tuple[np.ndarray, dict[int, tuple[int, ...]]]:
@@ -67,13 +87,20 @@ def decode_candidates(class_labels: np.ndarray) -> tuple[np.ndarray, dict[int, t
         class_labels = class_labels[..., None]
     if class_labels.ndim != 3:
         raise ValueError(f'class labels must be (H, W) or (H, W, k), got {class_labels.shape}')
-    instances = (class_labels[..., 0] % CLASS_STRIDE).astype(np.uint16)
+    first_channel = class_labels[..., 0].ravel()
+    instances = np.zeros(first_channel.shape, np.uint16)
+    nonzero = np.flatnonzero(first_channel != 0)  # only a few % of the pixels are labelled
+    instances[nonzero] = first_channel[nonzero] % CLASS_STRIDE
+    instances = instances.reshape(class_labels.shape[:2])
     for c in range(1, class_labels.shape[2]):
-        if np.any(class_labels[..., c] % CLASS_STRIDE != instances):
+        channel = class_labels[..., c].ravel()
+        # Where both channels are 0 they agree; compare the rest.
+        either = np.flatnonzero((first_channel | channel) != 0)
+        if np.any(channel[either] % CLASS_STRIDE != instances.ravel()[either]):
             raise ValueError(f'candidate channel {c} disagrees with channel 0 on the instances')
     # Every pixel of an instance holds the same candidates: read them at one pixel each (the
     # parts cover a few % of the image, so only labelled pixels are sorted).
-    labelled = np.flatnonzero(instances.ravel())
+    labelled = nonzero[instances.ravel()[nonzero] != 0]
     ids, first = np.unique(instances.ravel()[labelled], return_index=True)
     values = class_labels.reshape(-1, class_labels.shape[2])[labelled[first]] // CLASS_STRIDE
     return instances, {int(i): tuple(int(v) for v in row if v)

@@ -148,7 +148,15 @@ def _view_order(views) -> list[str]:
 
 def label_counts(labels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Per view, the pixel count of every label (index = label id)."""
-    return {view: np.bincount(np.asarray(image).ravel()) for view, image in labels.items()}
+    return {view: _counts(np.asarray(image).ravel()) for view, image in labels.items()}
+
+
+def _counts(flat: np.ndarray) -> np.ndarray:
+    """``np.bincount(flat)``, counting only the (few) labelled pixels."""
+    labelled = flat[flat != 0]
+    counts = np.bincount(labelled, minlength=1)
+    counts[0] = flat.size - labelled.size
+    return counts
 
 
 def preferred_view(counts: dict[str, np.ndarray], instance_id: int, *,

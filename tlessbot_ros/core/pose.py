@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import open3d as o3d
-from scipy.spatial import cKDTree
 
+from tlessbot_ros.core.buckets import PointBuckets
 from tlessbot_ros.core.cloud import (
     CloudParams,
     estimate_normals,
@@ -434,7 +434,7 @@ class PoseEstimator:
                 starts.append((T, -1))
         refined = self._icp_batch(scene_c, obj, np.array([T for T, _ in starts]))
         fit = self._grid_fitness(refined, scene_c, obj)
-        scene_tree = cKDTree(scene_c)
+        scene_buckets = PointBuckets.build(scene_c, self._coverage_radius(obj))
         chosen: list[int] = []
         for k in np.argsort(-fit, kind='stable'):
             if len(chosen) == p.final_candidates:
@@ -442,7 +442,7 @@ class PoseEstimator:
             if all(_differs(refined[k], refined[c]) for c in chosen):
                 chosen.append(int(k))
         return self._rank([self._evaluate(scene_c, obj, refined[k], method='table',
-                                          stable=starts[k][1], scene_tree=scene_tree)
+                                          stable=starts[k][1], scene_buckets=scene_buckets)
                            for k in chosen])
 
     def _grid_fitness(self, T: np.ndarray, points: np.ndarray, obj: ObjectTemplates
@@ -564,11 +564,15 @@ class PoseEstimator:
 
     def _evaluate(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
                   *, method: str, stable: int = -1, template: int = -1,
-                  scene_tree: cKDTree | None = None) -> PoseCandidate:
-        """Fitness / RMSE (scene -> model) and coverage (visible model -> scene)."""
+                  scene_buckets: PointBuckets | None = None) -> PoseCandidate:
+        """Fitness / RMSE (scene -> model) and coverage (visible model -> scene).
+
+        ``scene_buckets``: :class:`PointBuckets` of ``scene_c`` with an edge of at least
+        :meth:`_coverage_radius` (built here when not given).
+        """
         inlier = self.params.inlier_voxels * obj.voxel_size_m
         q = transform_points(invert_transform(T_camera_object), scene_c)
-        dist, index = obj.model_tree().query(q, k=1, distance_upper_bound=inlier)
+        dist, index = obj.model_buckets(inlier).nearest(q, inlier)
         ok = np.isfinite(dist)
         if self.params.inlier_plane_m > 0 and ok.any():
             # ... and within inlier_plane_m of the tangent plane there: small features (a few
@@ -587,12 +591,16 @@ class PoseEstimator:
                            depth_tolerance_m=obj.voxel_size_m)
         coverage = 1.0
         if visible.any():
-            scene_tree = scene_tree or cKDTree(scene_c)
-            d2, _ = scene_tree.query(model_c[visible], k=1,
-                                     distance_upper_bound=2.0 * obj.voxel_size_m)
-            coverage = float(np.isfinite(d2).mean())
+            radius = self._coverage_radius(obj)
+            scene_buckets = scene_buckets or PointBuckets.build(scene_c, radius)
+            coverage = float(scene_buckets.any_within(model_c[visible], radius).mean())
         return PoseCandidate(np.asarray(T_camera_object, np.float64), fitness, rmse, coverage,
                              method, template, stable)
+
+    @staticmethod
+    def _coverage_radius(obj: ObjectTemplates) -> float:
+        """A visible model sample is covered by a scene point within this distance (m)."""
+        return 2.0 * obj.voxel_size_m
 
     @staticmethod
     def _rank(candidates: list[PoseCandidate]) -> list[PoseCandidate]:

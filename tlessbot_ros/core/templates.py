@@ -29,6 +29,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
+from tlessbot_ros.core.buckets import PointBuckets
 from tlessbot_ros.core.cloud import CloudParams, estimate_normals, preprocess_roi, to_o3d
 from tlessbot_ros.core.geometry import (
     CameraIntrinsics,
@@ -163,6 +164,14 @@ class ObjectTemplates:
         if 'tree' not in self._cache:
             self._cache['tree'] = cKDTree(self.model_points.astype(np.float64))
         return self._cache['tree']
+
+    def model_buckets(self, edge_m: float) -> PointBuckets:
+        """``model_points`` in buckets of ``edge_m`` (built once per edge) for exact
+        fixed-radius nearest-sample queries up to that radius."""
+        key = ('buckets', round(float(edge_m), 9))
+        if key not in self._cache:
+            self._cache[key] = PointBuckets.build(self.model_points, edge_m)
+        return self._cache[key]
 
     def nearest_grid(self, spacing_m: float | None = None) -> NearestGrid:
         """A voxel grid of the nearest model sample of every cell (built once per spacing)."""

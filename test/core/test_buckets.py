@@ -1,0 +1,40 @@
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from tlessbot_ros.core.buckets import PointBuckets
+
+
+@pytest.mark.parametrize('radius', [0.002, 0.005, 0.01])
+def test_nearest_within_equals_kdtree(radius):
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-0.05, 0.05, (2000, 3))
+    queries = np.concatenate([points[:300] + rng.normal(0, radius / 2, (300, 3)),
+                              rng.uniform(-0.08, 0.08, (300, 3))])   # some outside the box
+    buckets = PointBuckets.build(points, 0.01)
+    dist, index = buckets.nearest(queries, radius)
+    want_dist, want_index = cKDTree(points).query(queries, k=1, distance_upper_bound=radius)
+    np.testing.assert_array_equal(np.isfinite(dist), np.isfinite(want_dist))
+    assert np.isfinite(dist).sum() > 100 and (~np.isfinite(dist)).sum() > 100
+    np.testing.assert_allclose(dist[np.isfinite(dist)], want_dist[np.isfinite(want_dist)],
+                               rtol=1e-12)
+    np.testing.assert_array_equal(index, want_index)
+    np.testing.assert_array_equal(buckets.any_within(queries, radius), np.isfinite(want_dist))
+
+
+def test_radius_is_strict_and_bounded_by_the_edge():
+    buckets = PointBuckets.build(np.zeros((1, 3)), 0.01)
+    dist, index = buckets.nearest(np.array([[0.005, 0.0, 0.0]]), 0.005)
+    assert np.isinf(dist[0]) and index[0] == 1          # at exactly the radius: not a neighbour
+    assert buckets.nearest(np.array([[0.004, 0.0, 0.0]]), 0.005)[1][0] == 0
+    with pytest.raises(ValueError, match='bucket edge'):
+        buckets.nearest(np.zeros((1, 3)), 0.02)
+
+
+def test_empty_points_and_nan_queries():
+    empty = PointBuckets.build(np.zeros((0, 3)), 0.01)
+    dist, index = empty.nearest(np.zeros((2, 3)), 0.01)
+    assert np.isinf(dist).all() and (index == 0).all()
+    buckets = PointBuckets.build(np.zeros((1, 3)), 0.01)
+    dist, index = buckets.nearest(np.array([[np.nan, 0.0, 0.0], [0.0, 0.0, 0.0]]), 0.01)
+    assert np.isinf(dist[0]) and index[0] == 1 and dist[1] == 0.0
