@@ -56,6 +56,21 @@ def test_a_wrong_first_class_is_overruled_by_the_better_fit(scene):
     assert np.linalg.norm(detection.pose.T_camera_object[:3, 3] - T_gt[:3, 3]) < 0.01
 
 
+def test_each_detection_is_handed_over_as_soon_as_it_is_complete(scene):
+    db, inputs, labels, _ = scene
+    two = labels['side'].copy()
+    rows = np.flatnonzero(two.any(axis=1))
+    two[rows[len(rows) // 2]:] *= 2              # the part's lower half is a second instance
+    pipeline = PerceptionPipeline(templates=db)
+    calls = _counting(pipeline)
+    handed = []
+    detections = pipeline.estimate_poses(
+        inputs, {'side': two}, {1: (21,), 2: (21,)},
+        on_detection=lambda d: handed.append((d.instance_id, len(calls))))
+    assert [d.instance_id for d in detections] == [1, 2]
+    assert handed == [(1, 1), (2, 2)]            # instance 1 went out before 2 was fitted
+
+
 def test_a_good_first_fit_is_accepted_without_trying_the_others(scene):
     db, inputs, labels, _ = scene
     pipeline = PerceptionPipeline(templates=db)

@@ -31,3 +31,11 @@ def test_a_users_choice_is_left_alone(environ):
     before = dict(environ)
     assert use_package_dds_profile(environ) is None
     assert environ == before
+
+
+def test_freed_buffers_are_kept_unless_the_user_tuned_malloc():
+    from tlessbot_ros.nodes.common import keep_freed_buffers
+
+    assert keep_freed_buffers(environ={'MALLOC_TRIM_THRESHOLD_': '0'}) is False
+    # The test runs on glibc (Debian); elsewhere the call reports that it did nothing.
+    assert keep_freed_buffers(environ={}) is True

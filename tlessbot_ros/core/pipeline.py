@@ -19,7 +19,7 @@ Inputs per view are :class:`ViewInput`; a two-view frame is ``{'top': ..., 'side
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -283,7 +283,9 @@ class PerceptionPipeline:
     # ---------------------------------------------------------------------------- stage 3
     def estimate_poses(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
                        classes: Mapping[int, int | Sequence[int]], *,
-                       box_mode: bool = False) -> list[Detection]:
+                       box_mode: bool = False,
+                       on_detection: Callable[[Detection], None] | None = None
+                       ) -> list[Detection]:
         """Pose of every instance with a known class.
 
         Args:
@@ -295,6 +297,8 @@ class PerceptionPipeline:
                 instance without any is skipped. Several candidates are verified by their
                 pose fit (``verify_accept_fitness``, ``verify_rmse_weight``).
             box_mode: regions are boxes, not masks (the paper's "GT box" setting).
+            on_detection: called with each detection as soon as it is complete, so a node
+                can publish a part's pose without waiting for the rest of the frame.
         """
         if self.pose_estimator is None:
             raise ValueError('no template database loaded')
@@ -320,6 +324,8 @@ class PerceptionPipeline:
                 if len(points) >= self.params.min_roi_points:
                     self._verified_pose(detection, points, candidates, data.T_world_camera)
             detections.append(detection)
+            if on_detection is not None:
+                on_detection(detection)
         return detections
 
     def _verified_pose(self, detection: Detection, points: np.ndarray,

@@ -3,7 +3,8 @@
 - QoS profiles: sensor data in (best effort, shallow), results out (reliable, depth 10).
 - Parameter declaration from a core ``*Params`` dataclass, so code and YAML share one truth.
 - Message classes by ROS type name, and rosbags <-> rclpy type-name mapping.
-- :func:`init_ros`: ``rclpy.init`` with the package's Fast DDS profile (config/fastdds.xml).
+- :func:`init_ros`: ``rclpy.init`` with the package's Fast DDS profile (config/fastdds.xml)
+  and glibc's allocator told to keep image-sized buffers (:func:`keep_freed_buffers`).
 """
 from __future__ import annotations
 
@@ -46,11 +47,45 @@ def use_package_dds_profile(environ: dict[str, str] | None = None) -> str | None
     return str(profile)
 
 
+# mallopt(3) parameters of glibc's malloc.h.
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+MALLOC_VARIABLES = ('MALLOC_MMAP_THRESHOLD_', 'MALLOC_TRIM_THRESHOLD_')
+
+
+def keep_freed_buffers(*, mmap_threshold: int = 32 << 20, trim_threshold: int = 64 << 20,
+                       environ: dict[str, str] | None = None) -> bool:
+    """Make glibc's malloc serve image-sized blocks from the heap and keep freed memory.
+
+    Every received image (0.6-0.9 MiB) passes through a few freshly allocated buffers (the
+    middleware's copy, the serialised bytes, numpy arrays). By default glibc maps blocks this
+    large with mmap, or trims the heap once they are freed, so each message pays for new
+    zero-filled pages: measured here (4 camera topics at 30 fps into one process), 1.5-1.7 ms
+    of CPU per image, against 0.75-0.84 ms with this setting. Memory freed stays with the
+    process, up to ``trim_threshold`` bytes above what it uses.
+
+    Does nothing (returns False) off glibc or when the user set MALLOC_MMAP_THRESHOLD_ or
+    MALLOC_TRIM_THRESHOLD_ (mallopt would override their choice).
+    """
+    import ctypes
+
+    environ = os.environ if environ is None else environ
+    if any(name in environ for name in MALLOC_VARIABLES):
+        return False
+    try:
+        libc = ctypes.CDLL('libc.so.6')
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    return bool(mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold))
+                and mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)))
+
+
 def init_ros(args: list[str] | None = None) -> None:
-    """``rclpy.init`` after :func:`use_package_dds_profile`."""
+    """``rclpy.init`` after :func:`use_package_dds_profile` and :func:`keep_freed_buffers`."""
     import rclpy
 
     use_package_dds_profile()
+    keep_freed_buffers()
     rclpy.init(args=args)
 
 

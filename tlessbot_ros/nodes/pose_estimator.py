@@ -132,13 +132,18 @@ class PoseEstimatorNode(StageNode):
                                        T_world_camera=self.extrinsics[camera])
             labels[camera], view_classes = decode_candidates(class_image)
             classes.update(view_classes)
-        detections = self.pipeline.estimate_poses(inputs, labels, classes)
         stamp_ns = stamp_to_ns(views['side']['depth'].header.stamp)
-        published = [d for d in detections if d.pose is not None
-                     and d.pose.fitness >= self.min_fitness]
-        for detection in published:
-            self._pose_publishers[detection.obj_id].publish(self._pose_message(
-                detection, views[detection.view]['depth'].header.frame_id, stamp_ns))
+        published = []
+
+        def publish_pose(detection: Detection) -> None:
+            # Each part goes out as soon as it is fitted: the arm can start on the first part
+            # while the others are still being estimated.
+            if detection.pose is not None and detection.pose.fitness >= self.min_fitness:
+                self._pose_publishers[detection.obj_id].publish(self._pose_message(
+                    detection, views[detection.view]['depth'].header.frame_id, stamp_ns))
+                published.append(detection)
+
+        self.pipeline.estimate_poses(inputs, labels, classes, on_detection=publish_pose)
         if self._markers.get_subscription_count() > 0:
             self._markers.publish(self._marker_array(published, views, stamp_ns))
         if self._overlay.get_subscription_count() > 0:

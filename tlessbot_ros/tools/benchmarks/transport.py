@@ -5,8 +5,9 @@
 One process publishes four image topics (top/side colour 640x480 rgb8 and depth 16UC1, raw
 CDR, stamped when sent) at ``--fps``; another subscribes RELIABLE with history depth 2, as the
 perception nodes do, and reports what arrived, the latency from the stamp, and its own CPU.
-Three set-ups: Fast DDS's built-in transports with deserialised messages, the package profile
-(config/fastdds.xml) deserialised, and the profile with raw subscriptions (the nodes' way).
+Four set-ups: Fast DDS's built-in transports with deserialised messages, the package profile
+(config/fastdds.xml) deserialised, the profile with raw subscriptions, and that with glibc told
+to keep freed image buffers (``keep_freed_buffers``; the nodes' way).
 Each pair of processes gets its own ROS_DOMAIN_ID offset so set-ups never hear each other.
 """
 from __future__ import annotations
@@ -22,9 +23,10 @@ import numpy as np
 
 TOPICS = {'/top/color': ('rgb8', 3), '/top/depth': ('16UC1', 2),
           '/side/color': ('rgb8', 3), '/side/depth': ('16UC1', 2)}
-SETUPS = (('Fast DDS defaults, deserialised', False, False),
-          ('package profile, deserialised', True, False),
-          ('package profile, raw (the nodes)', True, True))
+SETUPS = (('Fast DDS defaults, deserialised', False, False, False),
+          ('package profile, deserialised', True, False, False),
+          ('package profile, raw', True, True, False),
+          ('package profile, raw, freed buffers kept (the nodes)', True, True, True))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,6 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--duration', type=float, default=8.0, help='seconds of publishing')
     parser.add_argument('--role', choices=('publisher', 'subscriber'), help=argparse.SUPPRESS)
     parser.add_argument('--raw', action='store_true', help=argparse.SUPPRESS)
+    parser.add_argument('--keep-buffers', action='store_true', help=argparse.SUPPRESS)
 
 
 def _publisher(args: argparse.Namespace) -> None:
@@ -103,11 +106,12 @@ def _subscriber(args: argparse.Namespace) -> None:
     rclpy.try_shutdown()
 
 
-def _child(role: str, args: argparse.Namespace, env: dict[str, str], raw: bool):
+def _child(role: str, args: argparse.Namespace, env: dict[str, str], raw: bool,
+           keep_buffers: bool):
     command = [sys.executable, '-m', 'tlessbot_ros.tools.cli', 'bench', 'transport',
                '--role', role, '--fps', str(args.fps), '--duration', str(args.duration)]
-    return subprocess.Popen(command + (['--raw'] if raw else []), env=env,
-                            stdout=subprocess.PIPE, text=True)
+    command += (['--raw'] if raw else []) + (['--keep-buffers'] if keep_buffers else [])
+    return subprocess.Popen(command, env=env, stdout=subprocess.PIPE, text=True)
 
 
 def _last_json(process: subprocess.Popen) -> dict:
@@ -117,6 +121,9 @@ def _last_json(process: subprocess.Popen) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.keep_buffers:
+        from tlessbot_ros.nodes.common import keep_freed_buffers
+        keep_freed_buffers()
     if args.role == 'publisher':
         _publisher(args)
         return 0
@@ -128,14 +135,14 @@ def run(args: argparse.Namespace) -> int:
     base = {k: v for k, v in os.environ.items() if k not in DDS_PROFILE_VARIABLES}
     domain = int(base.get('ROS_DOMAIN_ID', '0'))
     rows = []
-    for k, (name, with_profile, raw) in enumerate(SETUPS):
+    for k, (name, with_profile, raw, keep_buffers) in enumerate(SETUPS):
         env = dict(base, ROS_DOMAIN_ID=str((domain + 11 + k) % 100),
                    ROS_AUTOMATIC_DISCOVERY_RANGE=base.get('ROS_AUTOMATIC_DISCOVERY_RANGE',
                                                           'LOCALHOST'))
         if with_profile:   # else no profile variable: Fast DDS's built-in transports
             use_package_dds_profile(env)
-        subscriber = _child('subscriber', args, env, raw)
-        publisher = _child('publisher', args, env, raw)
+        subscriber = _child('subscriber', args, env, raw, keep_buffers)
+        publisher = _child('publisher', args, env, raw, keep_buffers)
         sent = _last_json(publisher).get('published', 0)
         got = _last_json(subscriber)
         counts = got.get('received', {})
