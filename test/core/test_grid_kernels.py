@@ -81,3 +81,37 @@ def test_cost_and_fitness_match_numpy(setup):
     fitness = inlier_fraction(R, t, points, grid.origin, grid.spacing, grid.index, model, 0.002)
     np.testing.assert_allclose(fitness, expected)
     assert fitness[0] > 0.5 > fitness.min()   # the true pose fits, the others less
+
+
+@pytest.mark.parametrize('planar', [False, True])
+def test_gauss_newton_equals_the_python_loop(setup, planar):
+    """The fused iterations equal one normal_equations call, a numpy solve and the update per
+    iteration, and a 6-DOF run converges towards the pose the scene was drawn from."""
+    from tlessbot_ros.core.grid_kernels import gauss_newton
+    from tlessbot_ros.core.pose import _rodrigues, _rz
+
+    model, normals, grid, T, points = setup
+    start = T.copy()
+    start[:, :3, 3] = T[0, :3, 3] + 0.002
+    max_d = np.array([0.008, 0.008, 0.004, 0.004])
+    R, t = start[:, :3, :3].copy(), start[:, :3, 3].copy()
+    for d in max_d:
+        A, b, count = normal_equations(R, t, points, grid.origin, grid.spacing, grid.index,
+                                       model, normals, d, planar)
+        size = 3 if planar else 6
+        delta = np.linalg.solve(A + 1e-9 * np.eye(size), b[..., None])[..., 0]
+        delta[count < 6] = 0.0
+        if planar:
+            R = _rz(delta[:, 0]) @ R
+            t = t + np.column_stack([delta[:, 1], delta[:, 2], np.zeros(len(t))])
+        else:
+            R = _rodrigues(delta[:, :3]) @ R
+            t = t + delta[:, 3:]
+    R_fused, t_fused = gauss_newton(np.ascontiguousarray(start[:, :3, :3]),
+                                    np.ascontiguousarray(start[:, :3, 3]), points, grid.origin,
+                                    grid.spacing, grid.index, model, normals, max_d, planar, 0.0)
+    np.testing.assert_allclose(R_fused, R, atol=1e-9)
+    np.testing.assert_allclose(t_fused, t, atol=1e-9)
+    if not planar:
+        assert np.linalg.norm(t_fused[0] - T[0, :3, 3]) < np.linalg.norm(start[0, :3, 3]
+                                                                         - T[0, :3, 3])

@@ -145,3 +145,72 @@ def normal_equations(R, t, points, origin, spacing, index_grid, model, normals, 
             for c in range(a):
                 A[k, a, c] = A[k, c, a]
     return A, b, count
+
+
+@njit(cache=True, nogil=True)
+def gauss_newton(R, t, points, origin, spacing, index_grid, model, normals, max_d, planar,
+                 stop_below):
+    """Point-to-plane Gauss-Newton iterations of K poses (the loop around
+    :func:`normal_equations`), without returning to Python between iterations.
+
+    Each iteration solves (A + 1e-9 I) delta = b per pose (delta = 0 for a pose with fewer than
+    6 points in range) and applies it as a left increment about the object origin:
+    6-DOF: R <- Rodrigues(delta[:3]) R, t <- t + delta[3:];
+    planar: R <- Rz(delta[0]) R, t[:2] <- t[:2] + delta[1:3].
+
+    Args:
+        max_d: (I,) correspondence distance of each of the I iterations, metres.
+        stop_below: stop once no component of any delta reaches this (0: run all I).
+
+    Returns:
+        (R, t) refined copies.
+    """
+    R = R.copy()
+    t = t.copy()
+    K = R.shape[0]
+    D = 3 if planar else 6
+    eye = np.eye(D)
+    for it in range(max_d.shape[0]):
+        A, b, count = normal_equations(R, t, points, origin, spacing, index_grid, model,
+                                       normals, max_d[it], planar)
+        largest = 0.0
+        for k in range(K):
+            if count[k] < 6:
+                continue
+            delta = np.linalg.solve(A[k] + 1e-9 * eye, b[k])
+            for a in range(D):
+                largest = max(largest, abs(delta[a]))
+            if planar:
+                step = _rz_matrix(delta[0])
+                t[k, 0] += delta[1]
+                t[k, 1] += delta[2]
+            else:
+                step = _rodrigues_matrix(delta[0], delta[1], delta[2])
+                t[k, 0] += delta[3]
+                t[k, 1] += delta[4]
+                t[k, 2] += delta[5]
+            R[k] = step @ R[k]
+        if stop_below > 0.0 and largest < stop_below:
+            break
+    return R, t
+
+
+@njit(cache=True, inline='always')
+def _rz_matrix(yaw):
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = np.zeros((3, 3))
+    out[0, 0], out[0, 1], out[1, 0], out[1, 1], out[2, 2] = c, -s, s, c, 1.0
+    return out
+
+
+@njit(cache=True, inline='always')
+def _rodrigues_matrix(wx, wy, wz):
+    """Rotation of the rotation vector (wx, wy, wz): I + sin(theta) K + (1 - cos(theta)) K^2."""
+    theta = np.sqrt(wx * wx + wy * wy + wz * wz)
+    scale = theta if theta > 1e-12 else 1.0
+    kx, ky, kz = wx / scale, wy / scale, wz / scale
+    skew = np.zeros((3, 3))
+    skew[0, 1], skew[0, 2] = -kz, ky
+    skew[1, 0], skew[1, 2] = kz, -kx
+    skew[2, 0], skew[2, 1] = -ky, kx
+    return np.eye(3) + np.sin(theta) * skew + (1.0 - np.cos(theta)) * (skew @ skew)

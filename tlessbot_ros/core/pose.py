@@ -42,7 +42,7 @@ from tlessbot_ros.core.cloud import (
     voxel_downsample,
 )
 from tlessbot_ros.core.geometry import invert_transform, make_transform, transform_points
-from tlessbot_ros.core.grid_kernels import inlier_fraction, normal_equations, truncated_cost
+from tlessbot_ros.core.grid_kernels import gauss_newton, inlier_fraction, truncated_cost
 from tlessbot_ros.core.templates import (
     CONTINUOUS_YAW_PERIOD,
     ObjectTemplates,
@@ -479,19 +479,12 @@ class PoseEstimator:
         p = self.params
         normals, model = self._model_arrays(obj)
         points_w = np.ascontiguousarray(points_w, np.float64)
-        T = T.copy()
-        for it in range(p.planar_iterations):
-            max_d = obj.voxel_size_m * (4.0 if it < p.planar_iterations // 2 else 2.0)
-            R, t = _rotation_translation(T)
-            A, b, count = normal_equations(R, t, points_w, grid.origin, grid.spacing,
-                                           grid.index, model, normals, max_d, True)
-            delta = np.linalg.solve(A + 1e-9 * np.eye(3), b[..., None])[..., 0]
-            delta[count < 6] = 0.0
-            T_new = T.copy()
-            T_new[:, :3, :3] = _rz(delta[:, 0]) @ R
-            T_new[:, 0, 3] += delta[:, 1]   # rotation about the object origin
-            T_new[:, 1, 3] += delta[:, 2]
-            T = T_new
+        half = p.planar_iterations // 2
+        max_d = obj.voxel_size_m * np.where(np.arange(p.planar_iterations) < half, 4.0, 2.0)
+        R, t = gauss_newton(*_rotation_translation(T), points_w, grid.origin, grid.spacing,
+                            grid.index, model, normals, max_d, True, 0.0)
+        T = np.array(T, np.float64).reshape(-1, 4, 4)
+        T[:, :3, :3], T[:, :3, 3] = R, t
         return T, truncated_cost(*_rotation_translation(T), points_w, grid.origin,
                                  grid.spacing, grid.distance, tau)
 
@@ -546,20 +539,11 @@ class PoseEstimator:
             scene_c = scene_c[::int(np.ceil(len(scene_c) / p.icp_points))]
         iterations = p.icp_iterations if iterations is None else iterations
         scene_c = np.ascontiguousarray(scene_c, np.float64)
-        for it in range(iterations):
-            max_d = p.icp_distance_voxels * obj.voxel_size_m * (2.0 if it < iterations // 2
-                                                                else 1.0)
-            R, t = _rotation_translation(T)
-            A, b, count = normal_equations(R, t, scene_c, grid.origin, grid.spacing,
-                                           grid.index, model, normals, max_d, False)
-            delta = np.linalg.solve(A + 1e-9 * np.eye(6), b[..., None])[..., 0]
-            delta[count < 6] = 0.0
-            T_new = T.copy()
-            T_new[:, :3, :3] = _rodrigues(delta[:, :3]) @ R
-            T_new[:, :3, 3] = t + delta[:, 3:]
-            T = T_new
-            if np.abs(delta).max() < 1e-6:
-                break
+        max_d = p.icp_distance_voxels * obj.voxel_size_m * np.where(
+            np.arange(iterations) < iterations // 2, 2.0, 1.0)
+        R, t = gauss_newton(*_rotation_translation(T), scene_c, grid.origin, grid.spacing,
+                            grid.index, model, normals, max_d, False, 1e-6)
+        T[:, :3, :3], T[:, :3, 3] = R, t
         return T
 
     def _evaluate(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
