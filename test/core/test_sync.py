@@ -37,3 +37,27 @@ def test_bad_arguments_raise():
         StampSynchroniser(['a', 'a'], slop_ns=0, queue_size=1)
     with pytest.raises(KeyError, match='unknown stream'):
         StampSynchroniser(['a'], slop_ns=0, queue_size=1).add('b', 0, None)
+
+
+def test_a_late_frame_is_not_paired_with_the_previous_frame_of_the_other_camera():
+    """max_age (50 ms) is wider than the frame period (33 ms): when the side set of a frame
+    completes before the top set of the same frame, the older top frame must not be taken."""
+    sync = StampSynchroniser(['top', 'side'], slop_ns=50 * MS, queue_size=4)
+    for i in range(3):
+        assert sync.add('top', i * 33 * MS, f't{i}') is None
+        assert sync.add('side', i * 33 * MS, f's{i}') == {'top': f't{i}', 'side': f's{i}'}
+    assert sync.add('top', 99 * MS, 't3') is None             # s3 is lost: t3 stays queued
+    assert sync.add('side', 132 * MS, 's4') is None           # t4 is late; t3 is not taken
+    assert sync.add('top', 132 * MS, 't4') == {'top': 't4', 'side': 's4'}
+    assert sync.dropped == 1                                  # t3
+
+
+def test_free_running_cameras_with_a_phase_offset_still_pair_at_once():
+    sync = StampSynchroniser(['top', 'side'], slop_ns=50 * MS, queue_size=4)
+    emitted = []
+    for i in range(6):
+        for stream, offset in (('side', 0), ('top', 14)):
+            result = sync.add(stream, (i * 33 + offset) * MS, f'{stream}{i}')
+            if result:
+                emitted.append((result['side'], result['top']))
+    assert emitted == [(f'side{i}', f'top{i}') for i in range(6)]

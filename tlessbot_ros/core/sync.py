@@ -5,6 +5,12 @@ A :class:`StampSynchroniser` holds at most ``queue_size`` items per stream. When
 arrives, it looks in every other stream for the item nearest in stamp; if all lie within
 ``slop_ns`` of it, the set is emitted and every item older than the set is dropped (counted in
 :attr:`dropped`). Old frames are dropped, never queued without bound.
+
+A slop wider than the frame period (two free-running cameras, or a stage's output waiting for
+its inputs) would otherwise pair an item with the *previous* frame of a stream whose current
+frame is merely late. So a partner older than the arriving item is not taken while that
+stream's next item, expected one median period after its newest, would match clearly better;
+the set forms when that item arrives (or the arriving item is dropped once newer sets form).
 """
 from __future__ import annotations
 
@@ -62,6 +68,7 @@ class StampSynchroniser(Generic[Item]):
         self._queues: dict[str, deque[tuple[int, Item]]] = {
             name: deque() for name in self.streams}
         self._queue_size = queue_size
+        self._recent: dict[str, deque[int]] = {name: deque(maxlen=9) for name in self.streams}
         self.dropped = 0
         self.emitted = 0
 
@@ -74,6 +81,7 @@ class StampSynchroniser(Generic[Item]):
             queue.popleft()
             self.dropped += 1
         queue.append((int(stamp_ns), item))
+        self._recent[stream].append(int(stamp_ns))
         chosen: dict[str, tuple[int, Item]] = {stream: (int(stamp_ns), item)}
         for other in self.streams:
             if other == stream:
@@ -81,6 +89,8 @@ class StampSynchroniser(Generic[Item]):
             nearest = min(self._queues[other], key=lambda entry: abs(entry[0] - stamp_ns),
                           default=None)
             if nearest is None or abs(nearest[0] - stamp_ns) > self.slop_ns:
+                return None
+            if self._better_partner_due(other, nearest[0], int(stamp_ns)):
                 return None
             chosen[other] = nearest
         for name, (stamp, _) in chosen.items():
@@ -91,6 +101,18 @@ class StampSynchroniser(Generic[Item]):
                     self.dropped += 1
         self.emitted += 1
         return {name: entry[1] for name, entry in chosen.items()}
+
+    def _better_partner_due(self, stream: str, partner_ns: int, pivot_ns: int) -> bool:
+        """True when ``stream``'s next item, expected one median period after its newest,
+        would lie less than half as far from the pivot as the partner it has now."""
+        if partner_ns >= pivot_ns:
+            return False   # items arrive in stamp order: later ones would only be farther
+        stamps = list(self._recent[stream])
+        steps = [b - a for a, b in zip(stamps, stamps[1:]) if b > a]
+        if not steps:
+            return False   # no period known yet: take what is there
+        expected = stamps[-1] + sorted(steps)[len(steps) // 2]
+        return abs(expected - pivot_ns) < (pivot_ns - partner_ns) / 2
 
     def pending(self) -> dict[str, int]:
         """Items waiting per stream."""
