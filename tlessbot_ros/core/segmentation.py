@@ -38,6 +38,8 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
+from tlessbot_ros.core.surface_fit import robust_quadratic_fit
+
 # Stain OD vectors (rows: haematoxylin, eosin, DAB) of Ruifrok & Johnston (2001), as used by
 # skimage.color.rgb2hed; the deconvolution matrix is their inverse.
 _RGB_FROM_HED = np.array([[0.65, 0.70, 0.29], [0.07, 0.99, 0.11], [0.27, 0.57, 0.78]])
@@ -293,22 +295,13 @@ def remove_trend(channel: np.ndarray, *, step: int = 8, iterations: int = 3) -> 
         (H, W) float32 channel minus the fitted surface.
     """
     h, w = channel.shape
-    sample = channel[step // 2::step, step // 2::step].astype(np.float64)
+    sample = np.ascontiguousarray(channel[step // 2::step, step // 2::step], np.float64)
+    coef = robust_quadratic_fit(sample, iterations)
     gy, gx = np.mgrid[0:sample.shape[0], 0:sample.shape[1]]
-    x = gx.ravel() / max(sample.shape[1] - 1, 1) - 0.5
-    y = gy.ravel() / max(sample.shape[0] - 1, 1) - 0.5
-    A = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
-    z = sample.ravel()
-    keep = np.ones(z.size, bool)
-    coef = np.zeros(6)
-    for _ in range(iterations):
-        if keep.sum() < 12:
-            break
-        coef, *_ = np.linalg.lstsq(A[keep], z[keep], rcond=None)
-        resid = z - A @ coef
-        sd = 1.4826 * np.median(np.abs(resid[keep])) + 1e-9
-        keep = np.abs(resid) < 2.5 * sd
-    surface = (A @ coef).reshape(sample.shape).astype(np.float32)
+    x = gx / max(sample.shape[1] - 1, 1) - 0.5
+    y = gy / max(sample.shape[0] - 1, 1) - 0.5
+    surface = (coef[0] + coef[1] * x + coef[2] * y + coef[3] * x * x + coef[4] * x * y
+               + coef[5] * y * y).astype(np.float32)
     # The sample grid covers [step/2, ... ] pixel centres; resize spans the same range closely.
     surface = cv2.resize(surface, (w, h), interpolation=cv2.INTER_LINEAR)
     return channel - surface
