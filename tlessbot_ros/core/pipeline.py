@@ -27,6 +27,7 @@ import numpy as np
 from tlessbot_ros.core.classifier import UNKNOWN_ID, LinearClassifier
 from tlessbot_ros.core.cloud import roi_cloud
 from tlessbot_ros.core.geometry import CameraIntrinsics, transform_points
+from tlessbot_ros.core.labels import pixel_counts
 from tlessbot_ros.core.pose import PoseCandidate, PoseEstimator, PoseParams
 from tlessbot_ros.core.rig import Rig
 from tlessbot_ros.core.segmentation import BackgroundModel, SegmentationParams, segment
@@ -148,15 +149,7 @@ def _view_order(views) -> list[str]:
 
 def label_counts(labels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Per view, the pixel count of every label (index = label id)."""
-    return {view: _counts(np.asarray(image).ravel()) for view, image in labels.items()}
-
-
-def _counts(flat: np.ndarray) -> np.ndarray:
-    """``np.bincount(flat)``, counting only the (few) labelled pixels."""
-    labelled = flat[flat != 0]
-    counts = np.bincount(labelled, minlength=1)
-    counts[0] = flat.size - labelled.size
-    return counts
+    return {view: pixel_counts(image) for view, image in labels.items()}
 
 
 def preferred_view(counts: dict[str, np.ndarray], instance_id: int, *,

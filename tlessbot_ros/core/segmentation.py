@@ -38,6 +38,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
+from tlessbot_ros.core.labels import pixel_counts
 from tlessbot_ros.core.surface_fit import robust_quadratic_fit
 
 # Stain OD vectors (rows: haematoxylin, eosin, DAB) of Ruifrok & Johnston (2001), as used by
@@ -749,7 +750,7 @@ def boxes_from_labels(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     boxes = np.zeros((n, 4), np.int32)
     if n == 0:
         return boxes, np.zeros(0, np.int64)
-    areas = np.bincount(labels.ravel(), minlength=n + 1)[1:].astype(np.int64)
+    areas = pixel_counts(labels, minlength=n + 1)[1:].astype(np.int64)
     for i, sl in enumerate(ndimage.find_objects(labels.astype(np.int32, copy=False), n)):
         if sl is not None:
             boxes[i] = (sl[1].start, sl[0].start, sl[1].stop - sl[1].start,
