@@ -115,3 +115,35 @@ def test_gauss_newton_equals_the_python_loop(setup, planar):
     if not planar:
         assert np.linalg.norm(t_fused[0] - T[0, :3, 3]) < np.linalg.norm(start[0, :3, 3]
                                                                          - T[0, :3, 3])
+
+
+def _visible_reference(points_c, normals_c, cell_rad, depth_tolerance_m):
+    """The numpy z-buffer the kernel replaced."""
+    facing = np.sum(normals_c * points_c, axis=1) < 0
+    z = points_c[:, 2]
+    ok = facing & (z > 1e-6)
+    if not ok.any():
+        return ok
+    uv = np.floor(points_c[ok, :2] / z[ok, None] / cell_rad).astype(np.int64)
+    uv -= uv.min(axis=0)
+    key = uv[:, 0] * (uv[:, 1].max() + 1) + uv[:, 1]
+    nearest = np.full(key.max() + 1, np.inf)
+    np.minimum.at(nearest, key, z[ok])
+    visible = np.zeros(len(points_c), bool)
+    visible[np.flatnonzero(ok)] = z[ok] <= nearest[key] + depth_tolerance_m
+    return visible
+
+
+def test_self_visible_equals_the_numpy_z_buffer(setup):
+    from tlessbot_ros.core.grid_kernels import self_visible
+
+    model, normals, _, T, _ = setup
+    for k in range(len(T)):
+        points = model @ T[k, :3, :3].T + T[k, :3, 3] + [0.0, 0.0, 0.6]   # in front of a camera
+        rotated = normals @ T[k, :3, :3].T
+        got = self_visible(points, rotated, 0.003, 0.004)
+        want = _visible_reference(points, rotated, 0.003, 0.004)
+        np.testing.assert_array_equal(got, want)
+        assert 0 < got.sum() < len(got)                  # some seen, some back-facing or hidden
+    behind = model - [0.0, 0.0, 1.0]                     # all behind the camera: none visible
+    assert not self_visible(behind, normals, 0.003, 0.004).any()

@@ -214,3 +214,46 @@ def _rodrigues_matrix(wx, wy, wz):
     skew[1, 0], skew[1, 2] = kz, -kx
     skew[2, 0], skew[2, 1] = -ky, kx
     return np.eye(3) + np.sin(theta) * skew + (1.0 - np.cos(theta)) * (skew @ skew)
+
+
+@njit(cache=True, nogil=True)
+def self_visible(points, normals, cell_rad, depth_tolerance):
+    """(N,) bool: model points (camera frame) that face the camera at the origin and are not
+    hidden by the model itself, by a z-buffer over direction cells of ``cell_rad``
+    (floor((x / z) / cell_rad), floor((y / z) / cell_rad)); a point is visible within
+    ``depth_tolerance`` metres of its cell's nearest depth."""
+    n = points.shape[0]
+    visible = np.zeros(n, np.bool_)
+    candidate = np.zeros(n, np.bool_)
+    u = np.zeros(n, np.int64)
+    v = np.zeros(n, np.int64)
+    u_min, v_min = np.int64(0), np.int64(0)
+    found = False
+    for i in range(n):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        if normals[i, 0] * x + normals[i, 1] * y + normals[i, 2] * z < 0 and z > 1e-6:
+            candidate[i] = True
+            u[i] = np.int64(np.floor(x / z / cell_rad))
+            v[i] = np.int64(np.floor(y / z / cell_rad))
+            if not found or u[i] < u_min:
+                u_min = u[i]
+            if not found or v[i] < v_min:
+                v_min = v[i]
+            found = True
+    if not found:
+        return visible
+    u_span, v_span = np.int64(0), np.int64(0)
+    for i in range(n):
+        if candidate[i]:
+            u_span = max(u_span, u[i] - u_min + 1)
+            v_span = max(v_span, v[i] - v_min + 1)
+    nearest = np.full(u_span * v_span, np.inf)
+    for i in range(n):
+        if candidate[i]:
+            key = (u[i] - u_min) * v_span + (v[i] - v_min)
+            nearest[key] = min(nearest[key], points[i, 2])
+    for i in range(n):
+        if candidate[i]:
+            key = (u[i] - u_min) * v_span + (v[i] - v_min)
+            visible[i] = points[i, 2] <= nearest[key] + depth_tolerance
+    return visible

@@ -42,7 +42,12 @@ from tlessbot_ros.core.cloud import (
     voxel_downsample,
 )
 from tlessbot_ros.core.geometry import invert_transform, make_transform, transform_points
-from tlessbot_ros.core.grid_kernels import gauss_newton, inlier_fraction, truncated_cost
+from tlessbot_ros.core.grid_kernels import (
+    gauss_newton,
+    inlier_fraction,
+    self_visible,
+    truncated_cost,
+)
 from tlessbot_ros.core.templates import (
     CONTINUOUS_YAW_PERIOD,
     ObjectTemplates,
@@ -570,9 +575,8 @@ class PoseEstimator:
         model, normals = self._model_subset(obj)
         model_c = model @ T_camera_object[:3, :3].T + T_camera_object[:3, 3]
         normals_c = normals @ T_camera_object[:3, :3].T
-        visible = _visible(model_c, normals_c, cell_rad=0.5 * obj.voxel_size_m
-                           / max(float(np.median(scene_c[:, 2])), 1e-3),
-                           depth_tolerance_m=obj.voxel_size_m)
+        visible = self_visible(model_c, normals_c, 0.5 * obj.voxel_size_m
+                               / max(float(np.median(scene_c[:, 2])), 1e-3), obj.voxel_size_m)
         coverage = 1.0
         if visible.any():
             radius = self._coverage_radius(obj)
@@ -602,25 +606,6 @@ class PoseEstimator:
             if _differs(c.T_camera_object, best.T_camera_object):
                 return best, c
         return best, None
-
-
-def _visible(points_c: np.ndarray, normals_c: np.ndarray, *, cell_rad: float,
-             depth_tolerance_m: float) -> np.ndarray:
-    """(N,) bool: model points facing the camera (origin) and not hidden by the model itself,
-    by a z-buffer over direction cells of ``cell_rad`` (x/z, y/z)."""
-    facing = np.sum(normals_c * points_c, axis=1) < 0
-    z = points_c[:, 2]
-    ok = facing & (z > 1e-6)
-    if not ok.any():
-        return ok
-    uv = np.floor(points_c[ok, :2] / z[ok, None] / cell_rad).astype(np.int64)
-    uv -= uv.min(axis=0)
-    key = uv[:, 0] * (uv[:, 1].max() + 1) + uv[:, 1]
-    nearest = np.full(key.max() + 1, np.inf)
-    np.minimum.at(nearest, key, z[ok])
-    visible = np.zeros(len(points_c), bool)
-    visible[np.flatnonzero(ok)] = z[ok] <= nearest[key] + depth_tolerance_m
-    return visible
 
 
 def _differs(T_a: np.ndarray, T_b: np.ndarray, *, t_m: float = 0.01, r_deg: float = 5.0) -> bool:
