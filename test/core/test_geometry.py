@@ -85,3 +85,13 @@ def test_masked_back_projection_is_the_masked_part_of_the_whole(region):
     np.testing.assert_array_equal(points, all_points[keep])      # same values, same order
     np.testing.assert_array_equal(pixels, all_pixels[keep])
     assert points.dtype == np.float32 and pixels.shape == (int(keep.sum()), 2)
+
+
+def test_mask_box_is_the_tight_box_and_empty_for_an_empty_mask():
+    from tlessbot_ros.core.geometry import mask_box
+
+    mask = np.zeros((20, 30), bool)
+    assert mask_box(mask) == (0, 0, 0, 0)
+    mask[3:7, 10:25] = True
+    mask[12, 4] = True
+    assert mask_box(mask) == (4, 3, 21, 10)

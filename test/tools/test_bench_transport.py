@@ -1,4 +1,4 @@
-"""bench transport runs its three publisher/subscriber set-ups and reports each."""
+"""bench transport runs its four publisher/subscriber set-ups and reports each."""
 from __future__ import annotations
 
 import subprocess
@@ -9,7 +9,7 @@ import pytest
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
-def test_bench_transport_reports_three_setups():
+def test_bench_transport_reports_four_setups():
     out = subprocess.run([sys.executable, '-m', 'tlessbot_ros.tools.cli', 'bench', 'transport',
                           '--fps', '5', '--duration', '2'],
                          capture_output=True, text=True, timeout=180)

@@ -112,6 +112,16 @@ def project_points(points_c: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.stack([u, v], axis=1)
 
 
+def mask_box(mask: np.ndarray) -> tuple[int, int, int, int]:
+    """(x, y, w, h) pixel box of the True (non-zero) pixels of a (H, W) mask; (0, 0, 0, 0)
+    when it is empty."""
+    rows = np.flatnonzero(np.any(mask, axis=1))
+    cols = np.flatnonzero(np.any(mask, axis=0))
+    if rows.size == 0:
+        return 0, 0, 0, 0
+    return int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1)
+
+
 def depth_to_points(
     depth_m: np.ndarray, K: np.ndarray, *, mask: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -135,9 +145,8 @@ def depth_to_points(
             raise ValueError(f'mask shape {mask.shape} differs from depth shape {depth_m.shape}')
         mask = mask.astype(bool, copy=False)
         # Work in the mask's bounding box: a part covers a few % of the image.
-        rows_any, cols_any = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-        r0, r1 = (int(rows_any[0]), int(rows_any[-1]) + 1) if len(rows_any) else (0, 0)
-        c0, c1 = (int(cols_any[0]), int(cols_any[-1]) + 1) if len(cols_any) else (0, 0)
+        c0, r0, w, h = mask_box(mask)
+        r1, c1 = r0 + h, c0 + w
     window = depth_m[r0:r1, c0:c1]
     valid = np.isfinite(window) & (window > 0)
     if mask is not None:

@@ -24,6 +24,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from tlessbot_ros.core.geometry import mask_box
+
 
 @dataclass(frozen=True)
 class HogParams:
@@ -101,11 +103,10 @@ def _to_gray(image: np.ndarray) -> np.ndarray:
 
 
 def _box_from_mask(mask: np.ndarray) -> tuple[int, int, int, int]:
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    if rows.size == 0:
+    box = mask_box(mask)
+    if box[2] == 0:
         raise ValueError('mask is empty: nothing to crop')
-    return int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1)
+    return box
 
 
 def _square_window(box: Sequence[float], margin_frac: float) -> tuple[int, int, int]:

@@ -26,7 +26,7 @@ import numpy as np
 
 from tlessbot_ros.core.classifier import UNKNOWN_ID, LinearClassifier
 from tlessbot_ros.core.cloud import roi_cloud
-from tlessbot_ros.core.geometry import CameraIntrinsics, transform_points
+from tlessbot_ros.core.geometry import CameraIntrinsics, mask_box, transform_points
 from tlessbot_ros.core.labels import pixel_counts
 from tlessbot_ros.core.pose import PoseCandidate, PoseEstimator, PoseParams
 from tlessbot_ros.core.rig import Rig
@@ -165,13 +165,6 @@ def preferred_view(counts: dict[str, np.ndarray], instance_id: int, *,
     return None
 
 
-def box_of(mask: np.ndarray) -> tuple[int, int, int, int]:
-    """(x, y, w, h) of the True pixels of a (H, W) mask."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    return (int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1))
-
-
 class PerceptionPipeline:
     """Localiser, classifier and pose estimator with shared parameters.
 
@@ -253,7 +246,7 @@ class PerceptionPipeline:
             if self.classifier.uses_depth and data is not None and data.depth_m is not None:
                 depth = {'depth_m': data.depth_m, 'K': data.intrinsics.K,
                          'T_world_camera': data.T_world_camera}
-            features = self.classifier.describe(rgb[view], masks, [box_of(m) for m in masks],
+            features = self.classifier.describe(rgb[view], masks, [mask_box(m) for m in masks],
                                                 **depth)
             for instance, scores in zip(instances, self.classifier.decision_function(features)):
                 summed[instance] = summed.get(instance, 0.0) + scores
@@ -307,7 +300,7 @@ class PerceptionPipeline:
                 continue
             data = views[view]
             mask = labels[view] == instance
-            detection = Detection(instance, candidates[0], view, box_of(mask))
+            detection = Detection(instance, candidates[0], view, mask_box(mask))
             if data.depth_m is not None:
                 points = roi_cloud(data.depth_m, mask, data.intrinsics)
                 if box_mode and data.T_world_camera is not None:

@@ -342,7 +342,8 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
         raise TlessbotError('--oracle none needs a two-view dataset (test_top + test_side); '
                             'use --oracle boxes or boxes+classes for a single split')
     from tlessbot_ros.core.classifier import LinearClassifier
-    from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput, box_of
+    from tlessbot_ros.core.geometry import mask_box
+    from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
     from tlessbot_ros.core.pose import PoseParams
     from tlessbot_ros.core.rig import CameraMount, Rig
     from tlessbot_ros.core.templates import TemplateDatabase
@@ -392,7 +393,7 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
                 for instance in np.unique(side_labels):
                     if instance == 0:
                         continue
-                    box = box_of(side_labels == instance)
+                    box = mask_box(side_labels == instance)
                     output.boxes.append((*box, int(by_instance.get(int(instance), 0))))
         else:
             labels = _oracle_labels(by_view)

@@ -73,6 +73,7 @@ def _subscriber(args: argparse.Namespace) -> None:
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
 
+    from tlessbot_ros.conversions.messages import stamp_to_ns
     from tlessbot_ros.io.bags import header_stamp_ns
 
     rclpy.init()
@@ -84,8 +85,7 @@ def _subscriber(args: argparse.Namespace) -> None:
 
     def on_message(topic: str):
         def callback(msg) -> None:
-            stamp = header_stamp_ns(msg) if args.raw else \
-                msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+            stamp = header_stamp_ns(msg) if args.raw else stamp_to_ns(msg.header.stamp)
             latencies.append((node.get_clock().now().nanoseconds - stamp) / 1e6)
             received[topic] += 1
         return callback
