@@ -68,3 +68,31 @@ def shared_data() -> Path:
 @pytest.fixture(scope='session')
 def tless_models_dir(shared_data: Path) -> Path:
     return shared_data / 'tless_models_cad_stl'
+
+
+@pytest.fixture(scope='session')
+def part21_seen_from_the_side(tless_models_dir: Path):
+    """A template database of objects 5 and 21 (side camera of the default rig) and object 21
+    lying on the table, rendered by that camera: (database, depth_m (H, W) float32 with 0 off
+    the part, part mask (H, W) bool, T_camera_object (4, 4))."""
+    import numpy as np
+
+    from tlessbot_ros.core import templates as tpl
+    from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
+    from tlessbot_ros.core.render import MeshRenderer
+    from tlessbot_ros.core.rig import default_rig
+    from tlessbot_ros.io.models import load_models, stable_poses
+
+    side = default_rig()['side']
+    models = load_models(tless_models_dir, ids=[5, 21])
+    db = tpl.build_database(
+        [(i, m.vertices, m.faces, [(p.T_table_object, p.probability) for p in stable_poses(m)],
+          m.diameter_m) for i, m in models.items()],
+        intrinsics=side.intrinsics, T_world_camera=side.T_world_camera)
+    T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(40)),
+                                    [0.01, 0.02, 0]) @ db[21].stable_poses[0]
+    renderer = MeshRenderer()
+    renderer.add_mesh(models[21].vertices, models[21].faces, T_world_object)
+    view = renderer.render(side.intrinsics, side.T_world_camera)
+    depth = np.where(view.instance == 0, view.depth_m, 0).astype(np.float32)
+    return db, depth, view.instance == 0, side.T_camera_world @ T_world_object

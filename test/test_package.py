@@ -27,15 +27,27 @@ def test_core_and_conversions_import_without_rclpy(tmp_path):
 
 def test_core_never_imports_ros_or_upper_layers():
     forbidden = ('rclpy', 'tlessbot_ros.nodes', 'tlessbot_ros.tools', 'tlessbot_ros.conversions',
-                 'tlessbot_ros.sim', 'tlessbot_ros.sensors', 'sensor_msgs', 'geometry_msgs')
+                 'tlessbot_ros.sim', 'tlessbot_ros.sensors', 'tlessbot_ros.parallel',
+                 'sensor_msgs', 'geometry_msgs')
+    assert not _imports_of(REPO / 'tlessbot_ros' / 'core', forbidden)
+
+
+def test_pose_workers_never_import_ros_or_upper_layers():
+    forbidden = ('rclpy', 'tlessbot_ros.nodes', 'tlessbot_ros.tools', 'tlessbot_ros.conversions',
+                 'sensor_msgs', 'geometry_msgs')
+    assert not _imports_of(REPO / 'tlessbot_ros' / 'parallel', forbidden)
+
+
+def _imports_of(folder: Path, forbidden: tuple[str, ...]) -> list[str]:
+    """Import lines under ``folder`` that name one of ``forbidden``."""
     offenders = []
-    for path in (REPO / 'tlessbot_ros' / 'core').rglob('*.py'):
+    for path in folder.rglob('*.py'):
         for line in path.read_text().splitlines():
             stripped = line.strip()
             if stripped.startswith(('import ', 'from ')) and any(
                     f' {name}' in stripped for name in forbidden):
                 offenders.append(f'{path.name}: {stripped}')
-    assert not offenders
+    return offenders
 
 
 def test_ruff_is_clean():

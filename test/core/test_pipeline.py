@@ -4,35 +4,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tlessbot_ros.core import templates as tpl
-from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
 from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
-from tlessbot_ros.core.render import MeshRenderer
 from tlessbot_ros.core.rig import default_rig
 
 SIDE = default_rig()['side']
 
 
 @pytest.fixture(scope='module')
-def scene(tless_models_dir):
-    from tlessbot_ros.io.models import load_models, stable_poses
-    models = load_models(tless_models_dir, ids=[5, 21])
-    db = tpl.build_database(
-        [(i, m.vertices, m.faces, [(p.T_table_object, p.probability) for p in stable_poses(m)],
-          m.diameter_m) for i, m in models.items()],
-        intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera)
-    T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(40)),
-                                    [0.01, 0.02, 0]) @ db[21].stable_poses[0]
-    renderer = MeshRenderer()
-    renderer.add_mesh(models[21].vertices, models[21].faces, T_world_object)
-    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
-    depth = np.where(view.instance == 0, view.depth_m, 0).astype(np.float32)
-    depth += np.random.default_rng(0).normal(0, 0.0005, depth.shape).astype(np.float32) * (
-        depth > 0)
+def scene(part21_seen_from_the_side):
+    db, depth, mask, T_camera_object = part21_seen_from_the_side
+    depth = depth + np.random.default_rng(0).normal(0, 0.0005, depth.shape).astype(
+        np.float32) * (depth > 0)
     inputs = {'side': ViewInput(rgb=None, depth_m=depth, intrinsics=SIDE.intrinsics,
                                 T_world_camera=SIDE.T_world_camera)}
-    labels = {'side': (view.instance == 0).astype(np.uint16)}
-    return db, inputs, labels, SIDE.T_camera_world @ T_world_object
+    return db, inputs, {'side': mask.astype(np.uint16)}, T_camera_object
 
 
 def _counting(pipeline):

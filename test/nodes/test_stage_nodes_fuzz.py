@@ -227,8 +227,10 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
         assert classes and classes[0].encoding == '16UC3'   # three candidates per part
         harness.close()
 
-        node = PoseEstimatorNode(parameter_overrides=[Parameter('templates_path',
-                                                                value=str(templates_path))])
+        node = PoseEstimatorNode(parameter_overrides=[
+            Parameter('templates_path', value=str(templates_path)),
+            Parameter('workers.count', value=1)])      # malformed frames reach the worker too
+        workers = list(node.workers._workers)
         harness = Harness(node, {
             '/{camera}/color/image_raw': 'sensor_msgs/msg/Image',
             '/{camera}/aligned_depth_to_color/image_raw': 'sensor_msgs/msg/Image',
@@ -253,7 +255,9 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
         assert markers and markers[-1].markers[0].action == 3   # DELETEALL, then this frame's
         for marker in markers[-1].markers[1:]:
             assert marker.header.stamp.sec == STAMP0 // 10**9
+        assert node.workers.worker_fits > 0 and node.workers.failures == 0
         harness.close()
+        assert all(w.process.poll() is not None for w in workers)   # no process left behind
     finally:
         rclpy.try_shutdown()
 

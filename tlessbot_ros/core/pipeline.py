@@ -21,6 +21,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -139,6 +140,27 @@ class FrameResult:
     detections: list[Detection]
     labels: dict[str, np.ndarray]
     timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class PartJob:
+    """One part to fit: its detection (filled in by the fit), its ROI cloud ((N, 3) metres in
+    the optical frame of ``detection.view``), its class candidates best first, and that
+    camera's ``T_world_camera`` (None: no table frame)."""
+
+    detection: Detection
+    points: np.ndarray
+    candidates: tuple[int, ...]
+    T_world_camera: np.ndarray | None
+
+
+class PartFitter(Protocol):
+    """Runs the fits of one frame's parts, e.g. several at once (``tlessbot_ros.parallel``)."""
+
+    def fit_all(self, jobs: Sequence[PartJob], fit_here: Callable[[PartJob], None],
+                on_done: Callable[[PartJob], None]) -> None:
+        """Fit every job (``fit_here`` fits one in this process) and call ``on_done`` once per
+        job as soon as it is fitted, never from two threads at once."""
 
 
 def _view_order(views) -> list[str]:
@@ -270,8 +292,8 @@ class PerceptionPipeline:
     def estimate_poses(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
                        classes: Mapping[int, int | Sequence[int]], *,
                        box_mode: bool = False,
-                       on_detection: Callable[[Detection], None] | None = None
-                       ) -> list[Detection]:
+                       on_detection: Callable[[Detection], None] | None = None,
+                       fitter: PartFitter | None = None) -> list[Detection]:
         """Pose of every instance with a known class.
 
         Args:
@@ -284,12 +306,19 @@ class PerceptionPipeline:
                 pose fit (``verify_accept_fitness``, ``verify_rmse_weight``).
             box_mode: regions are boxes, not masks (the paper's "GT box" setting).
             on_detection: called with each detection as soon as it is complete, so a node
-                can publish a part's pose without waiting for the rest of the frame.
+                can publish a part's pose without waiting for the rest of the frame (parts
+                fitted in parallel complete in any order).
+            fitter: runs the parts' fits (e.g. several at once in worker processes); by
+                default they run one after the other here, through :meth:`fit_part`.
+
+        Returns:
+            the detections in instance order.
         """
         if self.pose_estimator is None:
             raise ValueError('no template database loaded')
         database = self.pose_estimator.database
-        detections = []
+        detections, jobs = [], []
+        done = on_detection or (lambda detection: None)
         counts = label_counts(labels)
         for instance in _instance_ids(counts):
             candidates = classes.get(instance, UNKNOWN_ID)
@@ -301,6 +330,7 @@ class PerceptionPipeline:
             data = views[view]
             mask = labels[view] == instance
             detection = Detection(instance, candidates[0], view, mask_box(mask))
+            detections.append(detection)
             if data.depth_m is not None:
                 points = roi_cloud(data.depth_m, mask, data.intrinsics)
                 if box_mode and data.T_world_camera is not None:
@@ -308,25 +338,31 @@ class PerceptionPipeline:
                     points = points[height > self.params.table_clearance_m]
                 detection.n_points = len(points)
                 if len(points) >= self.params.min_roi_points:
-                    self._verified_pose(detection, points, candidates, data.T_world_camera)
-            detections.append(detection)
-            if on_detection is not None:
-                on_detection(detection)
+                    jobs.append(PartJob(detection, points, candidates, data.T_world_camera))
+                    continue
+            done(detection)
+        if fitter is None:
+            for job in jobs:
+                self.fit_part(job)
+                done(job.detection)
+        else:
+            fitter.fit_all(jobs, self.fit_part, lambda job: done(job.detection))
         return detections
 
-    def _verified_pose(self, detection: Detection, points: np.ndarray,
-                       candidates: tuple[int, ...], T_world_camera: np.ndarray | None) -> None:
-        """Fit the candidates in order and keep the best (fills the detection's class, rank
-        and poses); stop at the first whose fitness reaches ``verify_accept_fitness``.
+    def fit_part(self, job: PartJob) -> None:
+        """Fit one part's class candidates in order and keep the best (fills the detection's
+        class, rank and poses); stop at the first whose fitness reaches
+        ``verify_accept_fitness``.
 
         With several candidates and a table frame, each is fitted by the table path alone
         (a wrong class fits poorly, and the RANSAC fallback would spend its budget on it);
         the RANSAC fallback then runs once, for the winner, if its fit stays poor."""
         p = self.params
         estimator = self.pose_estimator
-        quick = len(candidates) > 1 and T_world_camera is not None
+        detection, points, T_world_camera = job.detection, job.points, job.T_world_camera
+        quick = len(job.candidates) > 1 and T_world_camera is not None
         best_value = None
-        for rank, obj_id in enumerate(candidates):
+        for rank, obj_id in enumerate(job.candidates):
             result = estimator.estimate(points, obj_id, T_world_camera=T_world_camera,
                                         fallback=False if quick else None)
             if result.best is None:

@@ -19,7 +19,8 @@ Parameters: ``templates_path`` (.npz from ``tlessbot templates``; default: the p
 ``output_frame`` ('camera' or 'world'), ``world_frame``, ``min_fitness``,
 ``verify_accept_fitness``, ``verify_rmse_weight`` and ``fallback_min_fitness`` (how candidates
 are verified), ``pose.*``
-(PoseParams), ``rig.CAMERA.*`` (extrinsics; the table path needs them), ``sync.*``.
+(PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
+fits others), ``rig.CAMERA.*`` (extrinsics; the table path needs them), ``sync.*``.
 """
 from __future__ import annotations
 
@@ -48,6 +49,7 @@ from tlessbot_ros.data import DEFAULT_TEMPLATES
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class, run_node
 from tlessbot_ros.nodes.stage import StageNode, declare_extrinsics, descriptor
+from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
 
 CLASS_ENCODINGS = ('16UC1', 'mono16', '16UC2', '16UC3', '16UC4')
 IMAGE = 'sensor_msgs/msg/Image'
@@ -89,13 +91,19 @@ class PoseEstimatorNode(StageNode):
                 'fitness below this): no known part on the table')).value
         pose_params = dataclasses.replace(PoseParams(), **declare_from_dataclass(
             self, PoseParams(), prefix='pose.'))
+        worker_params = dataclasses.replace(PoseWorkerParams(), **declare_from_dataclass(
+            self, PoseWorkerParams(), prefix='workers.'))
         self.extrinsics = declare_extrinsics(self)
         self.templates = TemplateDatabase.load(path)
-        self.pipeline = PerceptionPipeline(
-            templates=self.templates, pose=pose_params,
-            params=dataclasses.replace(defaults, verify_accept_fitness=float(accept),
-                                       verify_rmse_weight=float(rmse_weight),
-                                       fallback_min_fitness=float(fallback_floor)))
+        pipeline_params = dataclasses.replace(
+            defaults, verify_accept_fitness=float(accept), verify_rmse_weight=float(rmse_weight),
+            fallback_min_fitness=float(fallback_floor))
+        self.pipeline = PerceptionPipeline(templates=self.templates, pose=pose_params,
+                                           params=pipeline_params)
+        # Workers load their templates while this process builds its caches below.
+        self.workers = PoseWorkerPool(path, pose=pose_params, pipeline=pipeline_params,
+                                      params=worker_params) if worker_params.count else None
+        self._worker_errors_seen = 0
         self._factory = RclpyFactory()
         pose_class = message_class('geometry_msgs/msg/PoseStamped')
         self._pose_publishers = {obj_id: self.create_publisher(pose_class, pose_topic(obj_id),
@@ -105,15 +113,22 @@ class PoseEstimatorNode(StageNode):
             message_class('visualization_msgs/msg/MarkerArray'), 'objects/markers', RESULT_QOS)
         self._overlay = self.create_publisher(message_class(IMAGE), 'objects/debug_image',
                                               RESULT_QOS)
+        started = time.perf_counter()
+        self.pipeline.pose_estimator.warm_up()
+        if self.workers is not None and not self.workers.wait_ready():
+            self.get_logger().warning(
+                f'pose workers not ready ({"; ".join(self.workers.errors) or "still starting"}): '
+                'parts are fitted here until they are')
+        # Subscribed only now that the caches and workers are ready: a replay that waits for
+        # subscribers then starts when this node can take frames.
         self.setup_inputs({
             'depth': (IMAGE, '/{camera}/aligned_depth_to_color/image_raw'),
             'info': ('sensor_msgs/msg/CameraInfo', '/{camera}/aligned_depth_to_color/camera_info'),
             'classes': (IMAGE, '/classifier/{camera}/classes'),
         })
-        started = time.perf_counter()
-        self.pipeline.pose_estimator.warm_up()
         self.get_logger().info(f'templates for {len(self.templates.objects)} objects from {path}'
-                               f' (caches built in {time.perf_counter() - started:.1f} s)')
+                               f' (caches built in {time.perf_counter() - started:.1f} s; '
+                               f'{worker_params.count} worker processes)')
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         inputs, labels, classes = {}, {}, {}
@@ -143,14 +158,32 @@ class PoseEstimatorNode(StageNode):
                     detection, views[detection.view]['depth'].header.frame_id, stamp_ns))
                 published.append(detection)
 
-        self.pipeline.estimate_poses(inputs, labels, classes, on_detection=publish_pose)
+        self.pipeline.estimate_poses(inputs, labels, classes, on_detection=publish_pose,
+                                     fitter=self.workers)
+        self._log_worker_errors()
         if self._markers.get_subscription_count() > 0:
             self._markers.publish(self._marker_array(published, views, stamp_ns))
         if self._overlay.get_subscription_count() > 0:
             self._overlay.publish(self._overlay_image(published, views, inputs, labels, stamp_ns))
         fitness = [d.pose.fitness for d in published]
-        self.record_stats({'pose_objects': len(published),
-                                 'fitness_mean': float(np.mean(fitness)) if fitness else 0.0})
+        stats = {'pose_objects': len(published),
+                 'fitness_mean': float(np.mean(fitness)) if fitness else 0.0}
+        if self.workers is not None:
+            stats.update(workers_ready=self.workers.ready_count,
+                         workers_replaced=self.workers.replaced,
+                         worker_fits=self.workers.worker_fits)
+        self.record_stats(stats)
+
+    def _log_worker_errors(self) -> None:
+        if self.workers is not None and self.workers.failures != self._worker_errors_seen:
+            self._worker_errors_seen = self.workers.failures
+            self.get_logger().error(f'{self.workers.errors[-1]} (its parts are fitted here; a '
+                                    'new worker is starting)', throttle_duration_sec=5.0)
+
+    def destroy_node(self) -> None:
+        super().destroy_node()  # stops the frame worker thread first
+        if self.workers is not None:
+            self.workers.close()
 
     def _pose_in_output_frame(self, detection: Detection, camera_frame: str
                               ) -> tuple[np.ndarray, str]:

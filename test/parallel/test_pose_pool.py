@@ -1,0 +1,147 @@
+"""Parts fitted in worker processes: the same poses as in-process, and a broken worker costs
+time, never a pose."""
+from __future__ import annotations
+
+import io
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from tlessbot_ros.core import templates as tpl
+from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+from tlessbot_ros.core.pose import PoseCandidate, PoseParams
+from tlessbot_ros.core.rig import default_rig
+from tlessbot_ros.parallel import wire
+from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
+
+SIDE = default_rig()['side']
+
+
+@pytest.fixture(scope='module')
+def scene(part21_seen_from_the_side, tmp_path_factory):
+    """Part 21 on the table cut into three instances, so a frame has several parts to share
+    out, with the template database saved where the workers load it."""
+    db, depth, mask, _ = part21_seen_from_the_side
+    path = tmp_path_factory.mktemp('pool') / 'templates.npz'
+    db.save(path)
+    db = tpl.TemplateDatabase.load(path)   # what the workers fit with (saving rounds)
+    inputs = {'side': ViewInput(rgb=None, depth_m=depth, intrinsics=SIDE.intrinsics,
+                                T_world_camera=SIDE.T_world_camera)}
+    labels = mask.astype(np.uint16)
+    columns = np.flatnonzero(labels.any(axis=0))
+    for k, start in enumerate(np.array_split(columns, 3)):
+        labels[:, start[0]:start[-1] + 1] *= k + 1
+    classes = {1: (21, 5), 2: (5, 21), 3: (21,)}
+    return path, db, inputs, {'side': labels}, classes
+
+
+def _slow(pipeline, delay_s=0.3):
+    """fit_part of ``pipeline`` that takes at least ``delay_s``, counting its calls: the pool's
+    workers must take some jobs while the calling thread sleeps."""
+    calls, fit_part = [], pipeline.fit_part
+
+    def fit_here(job):
+        calls.append(job.detection.instance_id)
+        time.sleep(delay_s)
+        fit_part(job)
+    return fit_here, calls
+
+
+def _poses(detections):
+    return [(d.instance_id, d.obj_id, d.class_rank, d.pose.T_camera_object.tolist(),
+             d.pose.fitness, d.second and d.second.fitness) for d in detections]
+
+
+def _estimate(pipeline, scene, fitter, fit_here=None):
+    _, _, inputs, labels, classes = scene
+    done = []
+    if fit_here is not None:
+        pipeline_fit, pipeline.fit_part = pipeline.fit_part, fit_here
+    try:
+        detections = pipeline.estimate_poses(inputs, labels, classes, fitter=fitter,
+                                             on_detection=lambda d: done.append(d.instance_id))
+    finally:
+        if fit_here is not None:
+            pipeline.fit_part = pipeline_fit
+    return detections, done
+
+
+@pytest.fixture
+def pool(scene):
+    path = scene[0]
+    with PoseWorkerPool(path, pose=PoseParams(), pipeline=PipelineParams(),
+                        params=PoseWorkerParams(count=1, restart_delay_s=0.0,
+                                                         job_timeout_s=1.0)) as pool:
+        assert pool.wait_ready(120.0), list(pool.errors)
+        yield pool
+
+
+def test_workers_fit_exactly_what_the_node_fits(scene, pool):
+    pipeline = PerceptionPipeline(templates=scene[1])
+    alone, _ = _estimate(pipeline, scene, None)
+    fit_here, calls = _slow(pipeline)
+    shared, done = _estimate(pipeline, scene, pool, fit_here)
+    assert len(calls) < 3                        # the worker fitted at least one part
+    assert sorted(done) == [1, 2, 3]             # each part handed over once
+    assert _poses(shared) == _poses(alone)       # bit for bit, wherever it was fitted
+    assert all(d.pose is not None for d in shared)
+
+
+def test_a_hung_worker_costs_time_not_poses(scene, pool):
+    pipeline = PerceptionPipeline(templates=scene[1])
+    alone, _ = _estimate(pipeline, scene, None)
+    [worker] = pool._workers
+    os.kill(worker.process.pid, signal.SIGSTOP)   # alive, but it never answers
+    fit_here, calls = _slow(pipeline)
+    started = time.monotonic()
+    shared, done = _estimate(pipeline, scene, pool, fit_here)
+    assert time.monotonic() - started < 3 * 0.3 + pool.params.job_timeout_s + 2.0
+    assert sorted(calls) == [1, 2, 3]            # the worker's part was fitted here instead
+    assert sorted(done) == [1, 2, 3] and _poses(shared) == _poses(alone)
+    assert pool.failures == 1 and 'no answer' in pool.errors[-1]
+    # The next frame starts a new worker; once it is ready it takes parts again.
+    _estimate(pipeline, scene, pool)
+    assert pool.replaced == 1 and pool.failures == 1
+    assert pool.wait_ready(120.0) and pool.ready_count == 1
+    fit_here, calls = _slow(pipeline)
+    shared, _ = _estimate(pipeline, scene, pool, fit_here)
+    assert len(calls) < 3 and _poses(shared) == _poses(alone)
+
+
+def test_a_worker_that_cannot_start_leaves_the_fits_to_the_node(scene, tmp_path):
+    pipeline = PerceptionPipeline(templates=scene[1])
+    alone, _ = _estimate(pipeline, scene, None)
+    with PoseWorkerPool(tmp_path / 'missing.npz', pose=PoseParams(), pipeline=PipelineParams(),
+                        params=PoseWorkerParams(count=1)) as pool:
+        assert not pool.wait_ready(60.0)
+        shared, done = _estimate(pipeline, scene, pool)
+        assert sorted(done) == [1, 2, 3] and _poses(shared) == _poses(alone)
+        assert pool.failures == 1 and 'missing.npz' in pool.errors[-1]
+        _estimate(pipeline, scene, pool)         # within restart_delay_s: no new process
+        assert pool.replaced == 0 and pool.failures == 1
+
+
+def test_messages_and_poses_cross_the_pipe_exactly():
+    candidate = PoseCandidate(np.linalg.qr(np.random.default_rng(1).normal(size=(4, 4)))[0],
+                              np.float32(0.8125), 0.0012345678901234567, 0.3, 'ransac', 4, -1)
+    stream = io.BytesIO()
+    points = np.random.default_rng(2).normal(size=(7, 3))
+    wire.write_message(stream, {'pose': wire.candidate_to_json(candidate)},
+                       wire.points_to_bytes(points))
+    stream.seek(0)
+    header, payload = wire.read_message(stream)
+    back = wire.candidate_from_json(header['pose'])
+    assert np.array_equal(back.T_camera_object, candidate.T_camera_object)
+    assert (back.fitness, back.inlier_rmse_m, back.method) == (0.8125, candidate.inlier_rmse_m,
+                                                               'ransac')
+    assert np.array_equal(wire.points_from_bytes(payload), points)
+
+
+@pytest.mark.parametrize('data', [b'', b'\x05\x00\x00\x00{"a"', b'\x03\x00\x00\x00abc',
+                                  b'\xff\xff\xff\xff'])
+def test_a_broken_message_is_a_wire_error(data):
+    with pytest.raises(wire.WireError):
+        wire.read_message(io.BytesIO(data))
