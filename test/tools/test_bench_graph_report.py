@@ -34,3 +34,26 @@ def test_a_looped_replay_waits_one_frame_interval_between_passes(times, expected
     from tlessbot_ros.tools.replay import _loop_period_ns
 
     assert _loop_period_ns([SimpleNamespace(log_time_ns=t) for t in times]) == expected
+
+
+def test_a_nodes_memory_and_cpu_include_its_worker_processes():
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from tlessbot_ros.tools._graph_run import cpu_seconds, process_tree, rss_mb
+
+    alone_mb = rss_mb(os.getpid())
+    child = subprocess.Popen([sys.executable, '-c', 'x = bytearray(300 * 2**20)\n'
+                              'x[::4096] = b"1" * len(x[::4096])\nimport time\ntime.sleep(30)'])
+    try:
+        deadline = time.monotonic() + 20
+        while rss_mb(child.pid) < 300 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert child.pid in process_tree(os.getpid())
+        assert rss_mb(os.getpid()) - alone_mb > 250
+        assert cpu_seconds(os.getpid()) > cpu_seconds(os.getpid(), descendants=False)
+    finally:
+        child.kill()
+        child.wait()

@@ -126,3 +126,18 @@ def test_missing_templates_are_built_once_and_cached(dataset, tmp_path, capsys):
     assert (out / 'templates.npz').is_file() and (out / 'report.json').is_file()
     assert main(argv) == 0
     assert f'using cached {out / "templates.npz"}' in capsys.readouterr().out
+
+
+def test_pose_workers_give_the_same_estimates(dataset, tmp_path):
+    models, data = dataset
+    common = ['evaluate', '--models', str(models), '--dataset', str(data), '--oracle',
+              'boxes+classes', '--templates', str(tmp_path / 'templates.npz')]
+    assert main(['templates', '--models', str(models), '--out', str(tmp_path / 'templates.npz'),
+                 '--views', '4']) == 0
+    assert main([*common, '--out', str(tmp_path / 'alone')]) == 0
+    assert main([*common, '--pose-workers', '1', '--out', str(tmp_path / 'workers')]) == 0
+
+    def estimates(name):
+        lines = (tmp_path / name / 'estimates.csv').read_text().splitlines()
+        return [line.rsplit(',', 1)[0] for line in lines]   # all but the time column
+    assert len(estimates('alone')) > 3 and estimates('workers') == estimates('alone')

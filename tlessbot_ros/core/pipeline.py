@@ -382,15 +382,18 @@ class PerceptionPipeline:
                 detection.pose, detection.second = result.best, result.second
 
     # ---------------------------------------------------------------------------- all stages
-    def process(self, views: dict[str, ViewInput]) -> FrameResult:
-        """Localise, classify and estimate poses for one two-view frame, timing each stage."""
+    def process(self, views: dict[str, ViewInput], *,
+                fitter: PartFitter | None = None) -> FrameResult:
+        """Localise, classify and estimate poses for one two-view frame, timing each stage
+        (``fitter``: see :meth:`estimate_poses`)."""
         t0 = time.perf_counter()
         fusion = self.localise(views)
         t1 = time.perf_counter()
         guesses = self.classify({v: views[v].rgb for v in views}, fusion.labels, views=views)
         t2 = time.perf_counter()
         detections = self.estimate_poses(views, fusion.labels,
-                                         {i: g.candidates for i, g in guesses.items()})
+                                         {i: g.candidates for i, g in guesses.items()},
+                                         fitter=fitter)
         t3 = time.perf_counter()
         for detection in detections:
             guess = guesses[detection.instance_id]

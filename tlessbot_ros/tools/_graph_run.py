@@ -18,6 +18,7 @@ from tlessbot_ros.tools.launch import PERCEPTION_NODES, GraphProcesses, graph_pr
 
 ALL_OBJECT_IDS = range(1, 31)
 STAGE_OUTPUTS = {'localiser': '/localiser/side/labels', 'classifier': '/classifier/side/classes'}
+MONITOR = 'replay and monitor'
 READY_TOPIC = '/side/aligned_depth_to_color/image_raw'  # every perception node subscribes it
 
 
@@ -46,24 +47,47 @@ class GraphRunResult:
     node_output: str = ''
 
 
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time a process has used, seconds (Linux /proc)."""
-    try:
-        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
-    except (OSError, IndexError, ValueError):
-        return float('nan')
+def process_tree(pid: int) -> list[int]:
+    """``pid`` and all its descendants (a node's worker processes count as the node's)."""
+    parents: dict[int, list[int]] = {}
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            ppid = int(stat.read_text().rsplit(')', 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+        parents.setdefault(ppid, []).append(int(stat.parent.name))
+    tree, frontier = [pid], [pid]
+    while frontier:
+        frontier = [child for parent in frontier for child in parents.get(parent, [])]
+        tree += frontier
+    return tree
+
+
+def cpu_seconds(pid: int, *, descendants: bool = True) -> float:
+    """User + system CPU time used by a process (and its descendants), seconds (Linux /proc)."""
+    total = 0.0
+    for member in process_tree(pid) if descendants else [pid]:
+        try:
+            fields = Path(f'/proc/{member}/stat').read_text().rsplit(')', 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+        except (OSError, IndexError, ValueError):
+            if member == pid:
+                return float('nan')
+    return total
 
 
 def rss_mb(pid: int) -> float:
-    """Resident set size of a process in MiB (Linux /proc)."""
-    try:
-        for line in Path(f'/proc/{pid}/status').read_text().splitlines():
-            if line.startswith('VmRSS:'):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return float('nan')
+    """Resident set size of a process and its descendants in MiB (Linux /proc)."""
+    total, found = 0.0, False
+    for member in process_tree(pid):
+        try:
+            for line in Path(f'/proc/{member}/status').read_text().splitlines():
+                if line.startswith('VmRSS:'):
+                    total += int(line.split()[1]) / 1024.0
+                    found = True
+        except OSError:
+            pass
+    return total if found else float('nan')
 
 
 def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | None = None,
@@ -161,8 +185,11 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         time.sleep(1.0)  # let DDS match the remaining topics
         pids = {spec.label: graph.children[spec.label].pid for spec in specs}
         result.rss_mb_start = {label: rss_mb(pid) for label, pid in pids.items()}
-        cpu_pids = {**pids, 'replay and monitor': os.getpid()}
-        cpu_start = {label: cpu_seconds(pid) for label, pid in cpu_pids.items()}
+        cpu_pids = {**pids, MONITOR: os.getpid()}
+
+        def cpu_now(label: str) -> float:   # the monitor's children are the nodes
+            return cpu_seconds(cpu_pids[label], descendants=label != MONITOR)
+        cpu_start = {label: cpu_now(label) for label in cpu_pids}
         stop_at = time.monotonic() + duration_s if duration_s else None
         next_sample = [time.monotonic()]
 
@@ -180,8 +207,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             replay(player, str(bag), rate=rate, loop=loop, restamp=restamp,
                    on_publish=on_publish,
                    should_stop=(lambda: stop_at is not None and time.monotonic() > stop_at))
-        result.cpu_s = {label: cpu_seconds(pid) - cpu_start[label]
-                        for label, pid in cpu_pids.items()}
+        result.cpu_s = {label: cpu_now(label) - cpu_start[label] for label in cpu_pids}
         drain_until = time.monotonic() + drain_timeout_s
         with lock:
             last_pose[0] = time.monotonic()

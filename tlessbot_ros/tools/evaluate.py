@@ -62,6 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--poses', type=Path, help='only score these poses (BOP results CSV)')
     parser.add_argument('--limit', type=int, help='score at most N frames')
     parser.add_argument('--out', type=Path, default=Path('eval_out'), help='output folder')
+    parser.add_argument('--pose-workers', type=int, default=0, metavar='N',
+                        help='fit parts in N worker processes besides this one, as the pose '
+                             'node does (config/cell.yaml: 1); the poses are the same')
     parser.add_argument('--pose-param', action='append', metavar='NAME=VALUE',
                         help='override a PoseParams field, e.g. icp_iterations=6 (repeatable)')
     parser.add_argument('--pipeline-param', action='append', metavar='NAME=VALUE',
@@ -359,70 +362,83 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
     backgrounds = {v: read_split(args.dataset, f'background_{v}', limit=args.limit,
                                  load_masks=False)
                    for v in views if (args.dataset / f'background_{v}').is_dir()}
-    pipeline = None
-    for images in zip(*readers.values()):
-        by_view = dict(zip(views, images))
-        empty = {v: next(reader).rgb for v, reader in backgrounds.items()}
-        scored = by_view['side']
-        keys = {(im.scene_id, im.im_id) for im in images}
-        if len(keys) != 1:
-            raise DatasetError('test_top and test_side do not hold the same scene/image ids')
-        inputs = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera,
-                               background=empty.get(v))
-                  for v, im in by_view.items()}
-        if pipeline is None:
-            rig = None
-            if all(im.T_world_camera is not None for im in images):
-                rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
-                           for v, im in by_view.items()})
-            pipeline = PerceptionPipeline(
-                rig=rig, classifier=classifier, templates=templates,
-                pose=apply_overrides(PoseParams(), args.pose_param),
-                params=apply_overrides(PipelineParams(), args.pipeline_param))
-        output = FrameOutput()
-        t0 = time.perf_counter()
-        if args.oracle == 'none':
-            result = pipeline.process(inputs)
-            detections, labels = result.detections, result.labels
-            output.timings_ms.update(result.timings_ms)
-            output.classified = True
-            output.boxes = []
-            side_labels = labels.get('side')
-            by_instance = {d.instance_id: d.obj_id for d in detections}
-            if side_labels is not None:
-                for instance in np.unique(side_labels):
-                    if instance == 0:
-                        continue
-                    box = mask_box(side_labels == instance)
-                    output.boxes.append((*box, int(by_instance.get(int(instance), 0))))
-        else:
-            labels = _oracle_labels(by_view)
-            if args.oracle == 'boxes+classes':
-                classes = {k + 1: gt.obj_id for k, gt in enumerate(scored.gt)}
+    pose_params = apply_overrides(PoseParams(), args.pose_param)
+    pipeline_params = apply_overrides(PipelineParams(), args.pipeline_param)
+    workers = None
+    if args.pose_workers > 0:
+        from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
+        workers = PoseWorkerPool(args.templates, pose=pose_params, pipeline=pipeline_params,
+                                 params=PoseWorkerParams(count=args.pose_workers))
+        if not workers.wait_ready():
+            workers.close()
+            raise TlessbotError(f'pose workers did not start: {"; ".join(workers.errors)}')
+    try:
+        pipeline = None
+        for images in zip(*readers.values()):
+            by_view = dict(zip(views, images))
+            empty = {v: next(reader).rgb for v, reader in backgrounds.items()}
+            scored = by_view['side']
+            keys = {(im.scene_id, im.im_id) for im in images}
+            if len(keys) != 1:
+                raise DatasetError('test_top and test_side do not hold the same scene/image ids')
+            inputs = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera,
+                                   background=empty.get(v))
+                      for v, im in by_view.items()}
+            if pipeline is None:
+                rig = None
+                if all(im.T_world_camera is not None for im in images):
+                    rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
+                               for v, im in by_view.items()})
+                pipeline = PerceptionPipeline(rig=rig, classifier=classifier, templates=templates,
+                                              pose=pose_params, params=pipeline_params)
+            output = FrameOutput()
+            t0 = time.perf_counter()
+            if args.oracle == 'none':
+                result = pipeline.process(inputs, fitter=workers)
+                detections, labels = result.detections, result.labels
+                output.timings_ms.update(result.timings_ms)
+                output.classified = True
+                output.boxes = []
+                side_labels = labels.get('side')
+                by_instance = {d.instance_id: d.obj_id for d in detections}
+                if side_labels is not None:
+                    for instance in np.unique(side_labels):
+                        if instance == 0:
+                            continue
+                        box = mask_box(side_labels == instance)
+                        output.boxes.append((*box, int(by_instance.get(int(instance), 0))))
             else:
-                t1 = time.perf_counter()
-                guesses = pipeline.classify({v: im.rgb for v, im in by_view.items()}, labels,
-                                            views=inputs)
-                output.timings_ms['classification'] = 1e3 * (time.perf_counter() - t1)
-                classes = {i: g.candidates for i, g in guesses.items()}
-            t2 = time.perf_counter()
-            detections = pipeline.estimate_poses(inputs, labels, classes, box_mode=True)
-            if args.oracle == 'boxes':  # the class after verification by the pose fit
-                output.classes_by_gt = {i - 1: g.obj_id for i, g in guesses.items()}
-                output.classes_by_gt.update({d.instance_id - 1: d.obj_id for d in detections})
-            output.timings_ms['pose'] = 1e3 * (time.perf_counter() - t2)
-            output.timings_ms['frame'] = 1e3 * (time.perf_counter() - t0)
-        frame_s = output.timings_ms.get('frame', 1e3 * (time.perf_counter() - t0)) / 1e3
-        for d in detections:
-            if d.pose is None:
-                continue
-            T = d.pose.T_camera_object
-            if d.view != 'side':
-                src = by_view[d.view]
-                T = np.linalg.inv(scored.T_world_camera) @ src.T_world_camera @ T
-            output.poses.append(PoseResult(scored.scene_id, scored.im_id, d.obj_id,
-                                           float(d.pose.fitness), T, frame_s))
-        yield scored, output
+                labels = _oracle_labels(by_view)
+                if args.oracle == 'boxes+classes':
+                    classes = {k + 1: gt.obj_id for k, gt in enumerate(scored.gt)}
+                else:
+                    t1 = time.perf_counter()
+                    guesses = pipeline.classify({v: im.rgb for v, im in by_view.items()}, labels,
+                                                views=inputs)
+                    output.timings_ms['classification'] = 1e3 * (time.perf_counter() - t1)
+                    classes = {i: g.candidates for i, g in guesses.items()}
+                t2 = time.perf_counter()
+                detections = pipeline.estimate_poses(inputs, labels, classes, box_mode=True,
+                                                     fitter=workers)
+                if args.oracle == 'boxes':  # the class after verification by the pose fit
+                    output.classes_by_gt = {i - 1: g.obj_id for i, g in guesses.items()}
+                    output.classes_by_gt.update({d.instance_id - 1: d.obj_id for d in detections})
+                output.timings_ms['pose'] = 1e3 * (time.perf_counter() - t2)
+                output.timings_ms['frame'] = 1e3 * (time.perf_counter() - t0)
+            frame_s = output.timings_ms.get('frame', 1e3 * (time.perf_counter() - t0)) / 1e3
+            for d in detections:
+                if d.pose is None:
+                    continue
+                T = d.pose.T_camera_object
+                if d.view != 'side':
+                    src = by_view[d.view]
+                    T = np.linalg.inv(scored.T_world_camera) @ src.T_world_camera @ T
+                output.poses.append(PoseResult(scored.scene_id, scored.im_id, d.obj_id,
+                                               float(d.pose.fitness), T, frame_s))
+            yield scored, output
+    finally:
+        if workers is not None:
+            workers.close()
 
 
 def _cached_model(args: argparse.Namespace, command: str) -> Path:

@@ -4,7 +4,8 @@
 
 Stamps are shifted to now (replay --restamp), so latency is the time from a frame's source
 stamp to the arrival of its PoseStamped here (p50, p95). A frame is dropped when no pose comes
-back for its stamp. RSS of each node is sampled every second; the trend is a least-squares
+back for its stamp. RSS and CPU of each node include its child processes (the pose estimator's
+workers). RSS is sampled every second; the trend is a least-squares
 slope in MiB per minute, over the whole run and over its second half (allocator pools and caches
 fill during the first frames; a leak keeps its slope in the second half).
 """
