@@ -43,6 +43,10 @@ def test_candidates_round_trip_and_channel_zero_is_the_plain_image():
     broken[0, 1, 2] = 7002                           # channel 2 names another instance
     with pytest.raises(ValueError, match='channel 2'):
         decode_candidates(broken)
+    broken = encoded.copy()
+    broken[0, 0, 1] = 5003                           # labelled where channel 0 is background
+    with pytest.raises(ValueError, match='channel 1'):
+        decode_candidates(broken)
 
 
 def test_fast_paths_equal_the_whole_image_formulas():
