@@ -22,14 +22,13 @@ from __future__ import annotations
 from typing import Any
 
 from tlessbot_ros.conversions import (
-    array_to_image,
     camera_info_to_intrinsics,
     depth_image_to_metres,
     image_to_array,
     image_to_rgb,
     stamp_to_ns,
 )
-from tlessbot_ros.conversions.messages import RclpyFactory
+from tlessbot_ros.conversions.image_cdr import image_to_cdr
 from tlessbot_ros.core.classifier import LinearClassifier
 from tlessbot_ros.core.labels import encode_candidates
 from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
@@ -67,7 +66,6 @@ class ClassifierNode(StageNode):
             classifier=self.model,
             params=PipelineParams(min_instance_px=int(min_px), reject_margin=float(reject),
                                   class_candidates=self.candidates))
-        self._factory = RclpyFactory()
         self._class_publishers = {
             camera: self.create_publisher(message_class(IMAGE), f'classifier/{camera}/classes',
                                           RESULT_QOS) for camera in CAMERAS}
@@ -98,10 +96,9 @@ class ClassifierNode(StageNode):
         encoding = f'16UC{self.candidates}'
         for camera, msgs in views.items():
             header = msgs['labels'].header
-            self._class_publishers[camera].publish(array_to_image(
+            self._class_publishers[camera].publish(image_to_cdr(   # raw CDR: one copy
                 encode_candidates(labels[camera], candidates, self.candidates), encoding,
-                frame_id=header.frame_id,
-                stamp_ns=stamp_to_ns(header.stamp), factory=self._factory))
+                frame_id=header.frame_id, stamp_ns=stamp_to_ns(header.stamp)))
 
 
 def main(args: list[str] | None = None) -> None:

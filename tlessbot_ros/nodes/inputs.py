@@ -18,6 +18,7 @@ from typing import Any
 
 from rclpy.node import Node
 
+from tlessbot_ros.conversions.image_cdr import image_from_cdr
 from tlessbot_ros.core.sync import StampSynchroniser, SyncParams
 from tlessbot_ros.io.bags import header_stamp_ns
 from tlessbot_ros.nodes.common import SENSOR_QOS
@@ -33,9 +34,17 @@ class RawMessage:
     data: bytes
 
     def deserialise(self) -> Any:
+        """The message; an Image is read in place (:mod:`~tlessbot_ros.conversions.image_cdr`,
+        no copy of its pixels), any other type through rclpy."""
+        if _is_image(self.msg_class):
+            return image_from_cdr(self.data)
         from rclpy.serialization import deserialize_message
 
         return deserialize_message(self.data, self.msg_class)
+
+
+def _is_image(msg_class: type) -> bool:
+    return msg_class.__name__ == 'Image' and msg_class.__module__.startswith('sensor_msgs.')
 
 
 def deserialise_views(views: Views) -> Views:

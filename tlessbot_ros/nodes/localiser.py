@@ -21,13 +21,12 @@ from typing import Any
 import cv2
 
 from tlessbot_ros.conversions import (
-    array_to_image,
     camera_info_to_intrinsics,
     depth_image_to_metres,
     image_to_rgb,
     stamp_to_ns,
 )
-from tlessbot_ros.conversions.messages import RclpyFactory
+from tlessbot_ros.conversions.image_cdr import image_to_cdr
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 from tlessbot_ros.core.segmentation import SegmentationParams, prepare_background
 from tlessbot_ros.core.two_view import FusionParams
@@ -52,7 +51,6 @@ class LocaliserNode(StageNode):
             path = self.declare_parameter(f'background.{camera}', '').value
             if path:
                 self.backgrounds[camera] = self._load_background(path)
-        self._factory = RclpyFactory()
         self._label_publishers = {
             camera: self.create_publisher(message_class(IMAGE), f'localiser/{camera}/labels',
                                           RESULT_QOS) for camera in CAMERAS}
@@ -88,9 +86,9 @@ class LocaliserNode(StageNode):
         self.record_stats({f'{k}_ms': v for k, v in fusion.timings_ms.items()})
         for camera, msgs in views.items():
             header = msgs['color'].header
-            self._label_publishers[camera].publish(array_to_image(
+            self._label_publishers[camera].publish(image_to_cdr(   # raw CDR: one copy
                 fusion.labels[camera], '16UC1', frame_id=header.frame_id,
-                stamp_ns=stamp_to_ns(header.stamp), factory=self._factory))
+                stamp_ns=stamp_to_ns(header.stamp)))
 
 
 def main(args: list[str] | None = None) -> None:

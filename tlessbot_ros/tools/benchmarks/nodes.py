@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from tlessbot_ros.conversions.image_cdr import image_from_cdr
 from tlessbot_ros.tools.demo import DEFAULT_BAG
 
 INPUTS = {'color': '/{camera}/color/image_raw',
@@ -88,8 +89,8 @@ def run(args: argparse.Namespace) -> int:
                     node.process(views)
                     times[name].append(1e3 * (time.perf_counter() - t0))
                     if outputs is not None:
-                        for c in views:
-                            views[c][key] = outputs[c].last
+                        for c in views:   # the nodes publish images as CDR bytes
+                            views[c][key] = image_from_cdr(outputs[c].last)
         for node in (localiser, classifier, pose):
             node.destroy_node()
     finally:
