@@ -376,11 +376,12 @@ def _calibrated(top: Segmentation, side: Segmentation, rig: Rig,
     n_top = int(top_labels.max(initial=0))
     pred_area = np.bincount(pred.ravel(), minlength=n_top + 1)
     side_fg = side.labels > 0
-    n_blobs, blobs = cv2.connectedComponents(side_fg.astype(np.uint8), connectivity=8)
+    n_blobs, blobs, stats, _ = cv2.connectedComponentsWithStats(side_fg.astype(np.uint8),
+                                                                connectivity=8)
     # Overlap table: rows = side blobs, columns = predicted ids.
     both = side_fg & (pred > 0)
-    overlap = np.zeros((n_blobs, n_top + 1), np.int64)
-    np.add.at(overlap, (blobs[both], pred[both]), 1)
+    overlap = np.bincount(blobs[both].astype(np.int64) * (n_top + 1) + pred[both],
+                          minlength=n_blobs * (n_top + 1)).reshape(n_blobs, n_top + 1)
     side_labels = np.zeros(side.labels.shape, np.uint16)
     split_ids: set[int] = set()
     next_id = n_top + 1
@@ -391,24 +392,31 @@ def _calibrated(top: Segmentation, side: Segmentation, rig: Rig,
                   if overlap[b, k] >= params.min_overlap_px
                   and pred_area[k] >= params.min_visible_px
                   and overlap[b, k] >= params.min_overlap_fraction * pred_area[k]]
-        blob = blobs == b
+        # Work in the blob's box plus a 1-pixel margin (what _split_blob crops to) instead of
+        # the whole image: a few small parts cover a few % of it.
+        x, y, w, h = (int(v) for v in stats[b, :4])
+        window = (slice(max(y - 1, 0), y + h + 1), slice(max(x - 1, 0), x + w + 1))
+        blob = blobs[window] == b
+        out = side_labels[window]
         if not owners and n_top > 0:
             # A fragment (e.g. of a dark part on a dark square) lying inside one prediction.
             best = int(np.argmax(overlap[b, 1:])) + 1
-            if overlap[b, best] >= params.fragment_fraction * blob.sum():
+            if overlap[b, best] >= params.fragment_fraction * stats[b, cv2.CC_STAT_AREA]:
                 owners = [best]
         if not owners and params.drop_unpredicted:
             continue
         if not owners:
             # Not predicted from the top: keep the side segmentation's own instances.
-            for j in np.unique(side.labels[blob]):
+            own = side.labels[window]
+            for j in np.unique(own[blob]):
                 if j:
-                    side_labels[blob & (side.labels == j)] = next_id
+                    out[blob & (own == j)] = next_id
                     next_id += 1
         elif len(owners) == 1:
-            side_labels[blob] = owners[0]
+            out[blob] = owners[0]
         else:
-            side_labels[blob] = _split_blob(blob, pred, owners, side_rgb, kernel)
+            out[blob] = _split_blob(blob, pred[window], owners,
+                                    None if side_rgb is None else side_rgb[window], kernel)
             split_ids.update(owners)
     timings['split'] = (time.perf_counter() - t1) * 1e3
     labels = {'top': top_labels, 'side': side_labels}
