@@ -1,12 +1,13 @@
 """Node callbacks in-process: ms per frame of each stage node's process() on a bag's frames.
 
-    tlessbot bench nodes [--bag bags/demo] [--repeats 3]
+    tlessbot bench nodes [--bag bags/demo] [--repeats 3] [--pose-workers 1]
 
-The bag's camera messages are deserialised by rclpy, as a subscription would deliver them, and
-fed straight to LocaliserNode, ClassifierNode and PoseEstimatorNode (no DDS, no other process):
-each stage's labels or classes are the next one's input. The figure is the node's own cost per
-frame (conversions, core, building the outgoing messages); what the graph adds on top of it is
-transport and waiting (``tlessbot bench graph``).
+The bag's camera messages are read as a node's subscription delivers them (images in place,
+the rest through rclpy) and fed straight to LocaliserNode, ClassifierNode and PoseEstimatorNode
+(no DDS; the pose estimator's worker process is the only other process): each stage's labels or
+classes are the next one's input. The figure is the node's own cost per frame (conversions,
+core, building the outgoing messages); what the graph adds on top of it is transport, waiting
+and the other nodes' share of the CPU (``tlessbot bench graph``).
 """
 from __future__ import annotations
 
@@ -27,6 +28,8 @@ INPUTS = {'color': '/{camera}/color/image_raw',
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--bag', default=str(DEFAULT_BAG), help='bag with camera topics')
     parser.add_argument('--repeats', type=int, default=3, help='passes over the frames')
+    parser.add_argument('--pose-workers', type=int, default=1,
+                        help="the pose estimator's worker processes (config/cell.yaml: 1)")
 
 
 class _Captured:
@@ -43,16 +46,15 @@ class _Captured:
 
 
 def _frames(bag: str) -> list[dict[str, dict]]:
-    from rclpy.serialization import deserialize_message
-
     from tlessbot_ros.io.bags import read_bag
     from tlessbot_ros.nodes.common import message_class
+    from tlessbot_ros.nodes.inputs import RawMessage
 
     topics = [t.format(camera=c) for t in INPUTS.values() for c in ('top', 'side')]
     by_topic: dict[str, list] = {}
     for m in read_bag(bag, topics):
-        by_topic.setdefault(m.topic, []).append(deserialize_message(m.raw,
-                                                                    message_class(m.msgtype)))
+        by_topic.setdefault(m.topic, []).append(
+            RawMessage(message_class(m.msgtype), m.raw).deserialise())
     count = min((len(v) for v in by_topic.values()), default=0)
     return [{c: {k: by_topic[t.format(camera=c)][i] for k, t in INPUTS.items()}
              for c in ('top', 'side')} for i in range(count)]
@@ -72,7 +74,10 @@ def run(args: argparse.Namespace) -> int:
         return 1
     init_ros()
     try:
-        localiser, classifier, pose = LocaliserNode(), ClassifierNode(), PoseEstimatorNode()
+        from rclpy.parameter import Parameter
+        localiser, classifier = LocaliserNode(), ClassifierNode()
+        pose = PoseEstimatorNode(parameter_overrides=[
+            Parameter('workers.count', value=args.pose_workers)])
         labels = {c: _Captured() for c in ('top', 'side')}
         classes = {c: _Captured() for c in ('top', 'side')}
         localiser._label_publishers, classifier._class_publishers = labels, classes
