@@ -55,3 +55,34 @@ def test_missing_config_is_one_line():
     assert result.returncode == 1
     assert result.stderr.strip() == \
         'tlessbot launch: error: parameter file not found: /nonexistent.yaml'
+
+
+@pytest.mark.parametrize('how', ['SIGTERM', 'SIGINT'])
+def test_launch_stops_its_nodes_when_it_is_stopped(how, tmp_path):
+    """systemd and docker stop send SIGTERM; a shell's background job ignores SIGINT unless
+    launch handles it. Either way no node may outlive launch."""
+    import os
+    import signal
+    import time
+
+    script = tmp_path / 'child.py'     # stands in for a node: it prints its pid and waits
+    script.write_text('import os, time\nprint(os.getpid(), flush=True)\ntime.sleep(120)\n')
+    code = ('import sys\nfrom tlessbot_ros.tools import launch\n'
+            'launch.graph_processes = lambda *a, **k: [launch.ProcessSpec("fake", '
+            f'[sys.executable, {str(script)!r}])]\n'
+            'from tlessbot_ros.tools.cli import main\nsys.exit(main(["launch"]))\n')
+    process = subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        assert 'launched 1 processes' in process.stdout.readline()
+        child_pid = int(process.stdout.readline().split()[-1])
+        os.kill(process.pid, getattr(signal, how))
+        assert process.wait(timeout=20) == 0
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and os.path.exists(f'/proc/{child_pid}'):
+            time.sleep(0.1)
+        alive = os.path.exists(f'/proc/{child_pid}') and \
+            open(f'/proc/{child_pid}/stat').read().split()[2] != 'Z'
+        assert not alive
+    finally:
+        process.kill()

@@ -148,6 +148,10 @@ class GraphProcesses:
             thread.join(timeout=2)
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def run(args: argparse.Namespace) -> int:
     config = Path(args.config) if args.config else default_config_path()
     if not config.is_file():
@@ -158,6 +162,11 @@ def run(args: argparse.Namespace) -> int:
     specs = graph_processes(config, replay=args.replay, rate=args.rate, loop=args.loop,
                             nodes=args.nodes,
                             extra_ros_args=[a for o in args.param for a in ('-p', o)])
+    # Stop the graph on Ctrl-C and on SIGTERM (systemd, docker stop, kill), never leaving the
+    # nodes orphaned; SIGINT is handled even when a shell started launch in the background,
+    # which makes it ignore SIGINT.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _interrupt)
     graph = GraphProcesses(specs, env=dict(os.environ))
     graph.start()
     print(f'launched {len(specs)} processes: ' + ', '.join(s.label for s in specs), flush=True)
