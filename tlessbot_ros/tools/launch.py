@@ -5,8 +5,8 @@
     tlessbot launch --nodes localiser classifier # a subset
 
 Each node gets ``--ros-args --params-file <config>``; output lines are prefixed with the node's
-name. Ctrl-C is passed on to every node. If a node dies, the others are stopped and launch exits
-non-zero, naming the node and its exit code.
+name. Ctrl-C or SIGTERM is passed on to every node (as SIGINT). If a node dies, the others are
+stopped and launch exits non-zero, naming the node and its exit code.
 """
 from __future__ import annotations
 
