@@ -56,6 +56,10 @@ def test_bop_models_folder_with_info(tmp_path, tless_models_dir, two_models):
     (sym,) = loaded[19].symmetries_discrete
     assert sym[0, 3] == pytest.approx(0.002)
     assert loaded[19].symmetries_continuous == []
+    listed = loaded[19].listed_symmetries()        # the identity added, the flip kept
+    assert len(listed.discrete) == 2 and np.array_equal(listed.discrete[0], np.eye(4))
+    assert np.allclose(listed.discrete[1], sym) and listed.continuous == ()
+    assert m.listed_symmetries() is None           # an STL without info: unknown
 
 
 def test_stable_poses_rest_on_plane(two_models):

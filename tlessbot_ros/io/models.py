@@ -16,11 +16,15 @@ import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tlessbot_ros.core.geometry import point_set_diameter
 from tlessbot_ros.errors import ModelFileError
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.symmetry import Symmetries
 
 MODEL_SUFFIXES = ('.stl', '.ply', '.obj')
 _NAME = re.compile(r'^obj_(\d+)$')
@@ -59,6 +63,17 @@ class ObjectModel:
     @property
     def name(self) -> str:
         return f'obj_{self.obj_id:02d}'
+
+    def listed_symmetries(self) -> Symmetries | None:
+        """The symmetries ``models_info.json`` lists (the identity added), or None when there
+        was no info file: then they are unknown, not absent."""
+        from tlessbot_ros.core.symmetry import Symmetries  # Open3D: imported when needed
+
+        if self.symmetries_discrete is None and self.symmetries_continuous is None:
+            return None
+        return Symmetries(discrete=tuple(self.symmetries_discrete or ()),
+                          continuous=tuple((c['axis'], c['offset_m'])
+                                           for c in self.symmetries_continuous or ()))
 
 
 @dataclass

@@ -126,13 +126,8 @@ def load_scoring_models(folder: Path, ids: set[int]) -> dict[int, ScoringModel]:
     result = {}
     for obj_id in wanted:
         m = models[obj_id]
-        symmetries = None
-        if m.symmetries_discrete is not None or m.symmetries_continuous is not None:
-            symmetries = Symmetries(
-                discrete=tuple(m.symmetries_discrete or ()),
-                continuous=tuple((c['axis'], c['offset_m']) for c in
-                                 (m.symmetries_continuous or ())))
-        result[obj_id] = scoring_model(obj_id, m.vertices, m.faces, m.diameter_m, symmetries)
+        result[obj_id] = scoring_model(obj_id, m.vertices, m.faces, m.diameter_m,
+                                       m.listed_symmetries())
     return result
 
 

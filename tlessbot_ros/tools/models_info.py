@@ -23,13 +23,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def model_symmetries(model: ObjectModel) -> Symmetries:
     """The model's listed symmetries, or detected ones when the files list none."""
-    if model.symmetries_discrete is None and model.symmetries_continuous is None:
+    listed = model.listed_symmetries()
+    if listed is None:
         return detect_symmetries(model.vertices, model.faces, diameter=model.diameter_m)
-    import numpy as np
-
-    discrete = (np.eye(4), *(model.symmetries_discrete or []))
-    continuous = tuple((c['axis'], c['offset_m']) for c in model.symmetries_continuous or [])
-    return Symmetries(discrete=discrete, continuous=continuous)
+    return listed
 
 
 def models_info_entry(model: ObjectModel, symmetries: Symmetries) -> dict:
