@@ -392,8 +392,8 @@ def _calibrated(top: Segmentation, side: Segmentation, rig: Rig,
                   if overlap[b, k] >= params.min_overlap_px
                   and pred_area[k] >= params.min_visible_px
                   and overlap[b, k] >= params.min_overlap_fraction * pred_area[k]]
-        # Work in the blob's box plus a 1-pixel margin (what _split_blob crops to) instead of
-        # the whole image: a few small parts cover a few % of it.
+        # Work in the blob's box plus a 1-pixel margin instead of the whole image: a few small
+        # parts cover a few % of it.
         x, y, w, h = (int(v) for v in stats[b, :4])
         window = (slice(max(y - 1, 0), y + h + 1), slice(max(x - 1, 0), x + w + 1))
         blob = blobs[window] == b
@@ -427,27 +427,25 @@ def _calibrated(top: Segmentation, side: Segmentation, rig: Rig,
 
 def _split_blob(blob: np.ndarray, pred: np.ndarray, owners: list[int],
                 rgb: np.ndarray | None, kernel: np.ndarray) -> np.ndarray:
-    """Ids for the pixels of one side blob held by several predicted objects."""
-    ys, xs = np.nonzero(blob)
-    y0, y1, x0, x1 = ys.min() - 1, ys.max() + 2, xs.min() - 1, xs.max() + 2
-    y0, x0 = max(y0, 0), max(x0, 0)
-    crop = blob[y0:y1, x0:x1]
-    pcrop = pred[y0:y1, x0:x1]
-    markers = np.zeros(crop.shape, np.int32)
-    markers[~crop] = 1
+    """Ids for the pixels of one side blob held by several predicted objects.
+
+    ``blob``, ``pred`` and ``rgb`` are cut to the blob's box plus a 1-pixel margin (clipped at
+    the image border), so the watershed's background marker surrounds the blob."""
+    markers = np.zeros(blob.shape, np.int32)
+    markers[~blob] = 1
     for k in owners:
-        seed = cv2.erode(((pcrop == k) & crop).astype(np.uint8), kernel).astype(bool)
+        seed = cv2.erode(((pred == k) & blob).astype(np.uint8), kernel).astype(bool)
         if not seed.any():
-            seed = (pcrop == k) & crop
+            seed = (pred == k) & blob
         markers[seed] = k + 1
     if rgb is not None:
-        image = np.ascontiguousarray(cv2.GaussianBlur(rgb[y0:y1, x0:x1], (3, 3), 0))
+        image = np.ascontiguousarray(cv2.GaussianBlur(rgb, (3, 3), 0))
     else:
-        image = np.zeros(crop.shape + (3,), np.uint8)
+        image = np.zeros(blob.shape + (3,), np.uint8)
     cv2.watershed(image, markers)
-    ids = np.where(crop & (markers > 1), markers - 1, 0)
+    ids = np.where(blob & (markers > 1), markers - 1, 0)
     # Pixels left (watershed lines) take the nearest assigned id.
-    holes = crop & (ids == 0)
+    holes = blob & (ids == 0)
     if holes.any() and (ids > 0).any():
         _, nearest = cv2.distanceTransformWithLabels((ids == 0).astype(np.uint8), cv2.DIST_L2,
                                                      3, labelType=cv2.DIST_LABEL_PIXEL)
@@ -455,9 +453,7 @@ def _split_blob(blob: np.ndarray, pred: np.ndarray, owners: list[int],
         yy, xx = np.nonzero(ids)
         lut[nearest[yy, xx]] = ids[yy, xx]
         ids[holes] = lut[nearest[holes]]
-    full = np.zeros(blob.shape, np.uint16)
-    full[y0:y1, x0:x1] = ids.astype(np.uint16)
-    return full[blob]
+    return ids[blob].astype(np.uint16)
 
 
 __all__ = ['FUSION_METHODS', 'FusedInstance', 'FusionParams', 'FusionResult', 'fuse_views',
