@@ -95,6 +95,24 @@ def array_to_image(
         frame_id, stamp_ns: header contents.
         factory: message implementation (rclpy by default).
     """
+    data = little_endian_pixels(array, encoding)
+    height, width, channels = data.shape
+    factory = factory or default_factory()
+    return factory.new(
+        'sensor_msgs/msg/Image',
+        header=make_header(frame_id, stamp_ns, factory),
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=width * channels * data.itemsize,
+        data=factory.uint8_array(data),
+    )
+
+
+def little_endian_pixels(array: np.ndarray, encoding: str) -> np.ndarray:
+    """The (H, W, C) C-contiguous little-endian pixels of an image array, checked against
+    ``encoding`` (channel count, dtype, non-zero size); what an Image message carries."""
     dtype, channels = _check_encoding(encoding)
     array = np.asarray(array)
     if array.ndim == 2:
@@ -104,21 +122,9 @@ def array_to_image(
             f'encoding {encoding} needs {channels} channel(s), got shape {array.shape}')
     if array.dtype != dtype:
         raise ValueError(f'encoding {encoding} needs dtype {dtype}, got {array.dtype}')
-    height, width = array.shape[:2]
-    if height == 0 or width == 0:
-        raise ValueError(f'image has zero size ({width}x{height})')
-    data = np.ascontiguousarray(array, dtype=dtype.newbyteorder('<'))
-    factory = factory or default_factory()
-    return factory.new(
-        'sensor_msgs/msg/Image',
-        header=make_header(frame_id, stamp_ns, factory),
-        height=height,
-        width=width,
-        encoding=encoding,
-        is_bigendian=0,
-        step=width * channels * dtype.itemsize,
-        data=factory.uint8_array(data),
-    )
+    if array.shape[0] == 0 or array.shape[1] == 0:
+        raise ValueError(f'image has zero size ({array.shape[1]}x{array.shape[0]})')
+    return np.ascontiguousarray(array, dtype=dtype.newbyteorder('<'))
 
 
 def image_to_rgb(msg: Any) -> np.ndarray:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tlessbot_ros.conversions.image import _check_encoding
+from tlessbot_ros.conversions.image import little_endian_pixels
 
 _ENCAPSULATION = {b'\x00\x01': '<', b'\x00\x00': '>'}
 
@@ -111,16 +111,8 @@ def image_to_cdr(array: np.ndarray, encoding: str, *, frame_id: str = '',
     Args:
         array: (H, W) or (H, W, C) array whose dtype and channel count match ``encoding``.
     """
-    dtype, channels = _check_encoding(encoding)
-    array = np.asarray(array)
-    if array.ndim == 2:
-        array = array[:, :, None]
-    if array.ndim != 3 or array.shape[2] != channels or array.dtype != dtype:
-        raise ValueError(f'encoding {encoding} needs {channels} channel(s) of {dtype}, got '
-                         f'shape {array.shape} of {array.dtype}')
-    height, width = array.shape[:2]
-    if height == 0 or width == 0:
-        raise ValueError(f'image has zero size ({width}x{height})')
+    pixels = little_endian_pixels(array, encoding)
+    height, width, channels = pixels.shape
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
     parts = [b'\x00\x01\x00\x00']
     offset = 0
@@ -141,7 +133,6 @@ def image_to_cdr(array: np.ndarray, encoding: str, *, frame_id: str = '',
     put(struct.pack('<II', height, width), 4)
     put_string(encoding)
     put(b'\x00', 1)                                  # is_bigendian
-    pixels = np.ascontiguousarray(array, dtype=dtype.newbyteorder('<'))
-    put(struct.pack('<II', width * channels * dtype.itemsize, pixels.nbytes), 4)
-    parts.append(pixels.tobytes())
+    put(struct.pack('<II', width * channels * pixels.itemsize, pixels.nbytes), 4)
+    parts.append(memoryview(pixels).cast('B'))      # joined below: the pixels' only copy
     return b''.join(parts)
