@@ -65,6 +65,7 @@ class _Worker:
         self.process = subprocess.Popen(
             [sys.executable, '-m', 'tlessbot_ros.parallel.pose_worker'],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=_worker_environment())
+        self.started = time.monotonic()
         self.ready = threading.Event()
         self.failed = ''
         self.reported = False   # its failure is in the pool's errors
@@ -174,7 +175,6 @@ class PoseWorkerPool:
         self._config = {'templates': str(templates_path), 'pose': dataclasses.asdict(pose),
                         'pipeline': dataclasses.asdict(pipeline)}
         self._workers = [_Worker(self._config) for _ in range(params.count)]
-        self._started = [time.monotonic()] * params.count
         self.errors: deque[str] = deque(maxlen=20)   # the latest, for the logs
         self.failures = 0
         self.replaced = 0
@@ -187,9 +187,7 @@ class PoseWorkerPool:
         for worker in self._workers:
             while not worker.ready.wait(0.05):
                 if worker.failed or worker.process.poll() is not None:
-                    if not worker.reported:
-                        self._record(worker.failed or 'pose worker exited while starting')
-                        worker.reported = True
+                    self._report(worker, 'pose worker exited while starting')
                     return False
                 if time.monotonic() > deadline:
                     return False
@@ -235,8 +233,7 @@ class PoseWorkerPool:
                     finish(job)
                     continue
                 if worker.failed:
-                    self._record(worker.failed)
-                    worker.reported = True
+                    self._report(worker, worker.failed)
                 with take_lock:  # fitted again by the calling thread (one fit at a time)
                     pending.appendleft(job)
 
@@ -259,25 +256,24 @@ class PoseWorkerPool:
         now = time.monotonic()
         for k, worker in enumerate(self._workers):
             stuck = not worker.ready.is_set() and \
-                now - self._started[k] > self.params.start_timeout_s
+                now - worker.started > self.params.start_timeout_s
             if worker.alive and not stuck:
                 continue
-            if not worker.reported:
-                code = worker.process.poll()
-                self._record(worker.failed or (
-                    f'pose worker exited with code {code}' if code is not None else
-                    f'pose worker not ready after {self.params.start_timeout_s:.0f} s'))
-                worker.reported = True
-            if now - self._started[k] < self.params.restart_delay_s:
+            code = worker.process.poll()
+            self._report(worker, f'pose worker exited with code {code}' if code is not None
+                         else f'pose worker not ready after {self.params.start_timeout_s:.0f} s')
+            if now - worker.started < self.params.restart_delay_s:
                 continue
             worker.stop(timeout_s=0.0)
             self._workers[k] = _Worker(self._config)
-            self._started[k] = now
             self.replaced += 1
 
-    def _record(self, error: str) -> None:
-        self.errors.append(error)
-        self.failures += 1
+    def _report(self, worker: _Worker, why: str) -> None:
+        """Count and keep a worker's failure once (its own message when it has one)."""
+        if not worker.reported:
+            worker.reported = True
+            self.errors.append(worker.failed or why)
+            self.failures += 1
 
     def close(self) -> None:
         """Stop every worker."""

@@ -47,8 +47,8 @@ class GraphRunResult:
     node_output: str = ''
 
 
-def process_tree(pid: int) -> list[int]:
-    """``pid`` and all its descendants (a node's worker processes count as the node's)."""
+def children_by_parent() -> dict[int, list[int]]:
+    """{parent pid: child pids} of every process (one scan of Linux /proc)."""
     parents: dict[int, list[int]] = {}
     for stat in Path('/proc').glob('[0-9]*/stat'):
         try:
@@ -56,6 +56,13 @@ def process_tree(pid: int) -> list[int]:
         except (OSError, IndexError, ValueError):
             continue
         parents.setdefault(ppid, []).append(int(stat.parent.name))
+    return parents
+
+
+def process_tree(pid: int, parents: dict[int, list[int]] | None = None) -> list[int]:
+    """``pid`` and all its descendants (a node's worker processes count as the node's);
+    ``parents`` from :func:`children_by_parent`, scanned here when not given."""
+    parents = children_by_parent() if parents is None else parents
     tree, frontier = [pid], [pid]
     while frontier:
         frontier = [child for parent in frontier for child in parents.get(parent, [])]
@@ -76,10 +83,11 @@ def cpu_seconds(pid: int, *, descendants: bool = True) -> float:
     return total
 
 
-def rss_mb(pid: int) -> float:
-    """Resident set size of a process and its descendants in MiB (Linux /proc)."""
+def rss_mb(pid: int, parents: dict[int, list[int]] | None = None) -> float:
+    """Resident set size of a process and its descendants in MiB (Linux /proc; ``parents``
+    as for :func:`process_tree`)."""
     total, found = 0.0, False
-    for member in process_tree(pid):
+    for member in process_tree(pid, parents):
         try:
             for line in Path(f'/proc/{member}/status').read_text().splitlines():
                 if line.startswith('VmRSS:'):
@@ -197,8 +205,9 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             if message.topic == '/side/color/image_raw':
                 result.frames_replayed.append(header_stamp_ns(message.raw))
             if time.monotonic() >= next_sample[0]:
+                parents = children_by_parent()   # one /proc scan per sample: replay thread
                 for label, pid in pids.items():
-                    result.rss_mb_samples.setdefault(label, []).append(rss_mb(pid))
+                    result.rss_mb_samples.setdefault(label, []).append(rss_mb(pid, parents))
                 next_sample[0] = time.monotonic() + 1.0
 
         if lockstep:
