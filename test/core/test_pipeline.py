@@ -86,3 +86,39 @@ def test_a_region_no_candidate_fits_gets_no_ransac_fallback(scene):
     [detection] = pipeline.estimate_poses(views, {'side': junk}, {1: (5, 21)})
     assert calls == [5, 21]      # both verified, no third (fallback) call
     assert detection.pose.fitness < PipelineParams().fallback_min_fitness
+
+
+def test_both_views_segmented_at_once_give_the_labels_of_one_after_the_other(tless_models_dir):
+    from tlessbot_ros.io.models import load_models
+    from tlessbot_ros.sim.simulator import SimParams, Simulator
+
+    rig = default_rig()
+    sim = Simulator(load_models(tless_models_dir, ids=[5, 21]), rig=rig,
+                    params=SimParams(parts_min=2, parts_max=2), seed=11)
+    frame = sim.frame(0)
+    views = {name: ViewInput(view.rgb, view.depth_mm.astype(np.float32) / 1000.0,
+                             view.intrinsics, view.T_world_camera)
+             for name, view in frame.views.items()}
+    labels = {parallel: PerceptionPipeline(rig=rig, params=PipelineParams(
+        parallel_views=parallel)).localise(views).labels for parallel in (False, True)}
+    assert labels[True]['side'].max() >= 2
+    for camera in ('top', 'side'):
+        np.testing.assert_array_equal(labels[True][camera], labels[False][camera])
+
+
+def test_an_error_in_the_other_thread_reaches_the_caller():
+    from tlessbot_ros.core.pipeline import in_thread
+
+    def fails(value):
+        raise ValueError(f'bad {value}')
+
+    assert in_thread(lambda a, b: a + b, 2, 3)() == 5
+    with pytest.raises(ValueError, match='bad 7'):
+        in_thread(fails, 7)()
+
+
+def test_a_bad_top_view_fails_the_frame_with_its_own_error():
+    top = ViewInput(np.zeros((4, 4), np.uint8), None, SIDE.intrinsics)   # not (H, W, 3)
+    side = ViewInput(np.zeros((48, 64, 3), np.uint8), None, SIDE.intrinsics)
+    with pytest.raises(ValueError, match='rgb'):
+        PerceptionPipeline(rig=default_rig()).localise({'top': top, 'side': side})

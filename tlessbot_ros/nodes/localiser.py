@@ -8,8 +8,9 @@ Publishes (RELIABLE, depth 10):
     localiser/CAMERA/labels   sensor_msgs/Image 16UC1: 0 = background, 1..N instances; the same
                               id marks the same part in both views (header = colour header)
     /diagnostics              frames, failures, dropped, latency, stage times
-Parameters: ``segmentation.*`` (SegmentationParams), ``fusion.*`` (FusionParams: method
-calibrated | algorithm1 | side_only), ``sync.*`` (SyncParams), ``rig.CAMERA.*`` (extrinsics),
+Parameters: ``parallel_views`` (segment both views at once, in two threads),
+``segmentation.*`` (SegmentationParams), ``fusion.*`` (FusionParams: method calibrated |
+algorithm1 | side_only), ``sync.*`` (SyncParams), ``rig.CAMERA.*`` (extrinsics),
 ``background.CAMERA`` (path of an empty-table PNG for background subtraction; '' = none).
 Frames: outputs keep each source image's frame and stamp.
 """
@@ -27,11 +28,17 @@ from tlessbot_ros.conversions import (
     stamp_to_ns,
 )
 from tlessbot_ros.conversions.image_cdr import image_to_cdr
-from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
+from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
 from tlessbot_ros.core.segmentation import SegmentationParams, prepare_background
 from tlessbot_ros.core.two_view import FusionParams
 from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class, run_node
-from tlessbot_ros.nodes.stage import CAMERAS, StageNode, declare_extrinsics, rig_with_intrinsics
+from tlessbot_ros.nodes.stage import (
+    CAMERAS,
+    StageNode,
+    declare_extrinsics,
+    descriptor,
+    rig_with_intrinsics,
+)
 
 IMAGE = 'sensor_msgs/msg/Image'
 
@@ -45,6 +52,9 @@ class LocaliserNode(StageNode):
             self, SegmentationParams(), prefix='segmentation.'))
         self.fusion = dataclasses.replace(FusionParams(), **declare_from_dataclass(
             self, FusionParams(), prefix='fusion.'))
+        self.parallel_views = bool(self.declare_parameter(
+            'parallel_views', PipelineParams().parallel_views, descriptor(
+                'segment the top and side images at once, in two threads')).value)
         self.extrinsics = declare_extrinsics(self)
         self.backgrounds = {}
         for camera in CAMERAS:
@@ -81,7 +91,8 @@ class LocaliserNode(StageNode):
                                        T_world_camera=self.extrinsics[camera],
                                        background=self.backgrounds.get(camera))
         rig = rig_with_intrinsics(self.extrinsics, {c: v.intrinsics for c, v in inputs.items()})
-        pipeline = PerceptionPipeline(rig=rig, segmentation=self.segmentation, fusion=self.fusion)
+        pipeline = PerceptionPipeline(rig=rig, segmentation=self.segmentation, fusion=self.fusion,
+                                      params=PipelineParams(parallel_views=self.parallel_views))
         fusion = pipeline.localise(inputs)
         self.record_stats({f'{k}_ms': v for k, v in fusion.timings_ms.items()})
         for camera, msgs in views.items():
