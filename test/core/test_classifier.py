@@ -26,11 +26,12 @@ def _toy(n_per_class=60, ids=(2, 5, 19), seed=0):
     return x.astype(np.float32), y
 
 
+@pytest.mark.parametrize('average', [False, True])
 @pytest.mark.parametrize('kind', KINDS)
-def test_each_learner_separates_toy_problem(kind):
+def test_each_learner_separates_toy_problem(kind, average):
     x, y = _toy()
-    model = train_classifier(x, y, hog_params=HOG, params=ClassifierParams(kind=kind, epochs=3),
-                             seed=1)
+    model = train_classifier(x, y, hog_params=HOG, params=ClassifierParams(
+        kind=kind, epochs=3, average=average), seed=1)
     assert model.kind == kind and model.weights.shape == (HOG.feature_dim, 3)
     test_x, test_y = _toy(n_per_class=30, seed=0)
     rng = np.random.default_rng(9)
@@ -51,6 +52,13 @@ def test_numpy_prediction_matches_sklearn():
     model = trainer.model(HOG)
     assert isinstance(trainer._learner, SGDClassifier)
     np.testing.assert_array_equal(model.predict(x).class_ids, trainer._learner.predict(x))
+
+
+def test_averaged_weights_differ_from_the_last_ones():
+    x, y = _toy()
+    weights = {average: train_classifier(x, y, hog_params=HOG, seed=1, params=ClassifierParams(
+        epochs=3, average=average)).weights for average in (False, True)}
+    assert not np.allclose(weights[False], weights[True])
 
 
 def test_binary_and_reject_threshold():

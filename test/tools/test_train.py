@@ -40,6 +40,7 @@ def test_train_several_learners_from_images(tless_models_dir, tmp_path):
 @pytest.mark.parametrize('extra, message', [
     (['--classifier', 'svm'], 'unknown classifier'),
     (['--cell', '7'], 'multiple of cell_px'),
+    (['--alpha', '0'], 'alpha'),
 ])
 def test_user_errors(tmp_path, capsys, extra, message):
     (tmp_path / 'imgs').mkdir()
@@ -59,10 +60,11 @@ def test_train_adds_simulated_scene_crops(tless_models_dir, tmp_path):
     out = tmp_path / 'scenes.npz'
     argv = ['train', '--models', str(tless_models_dir), '--ids', '5', '19', '21',
             '--steps-deg', '90', '--positions', '1', '--scenes', '3', '--hog-weight', '0.3',
-            '--out', str(out)]
+            '--average', '--alpha', '1e-5', '--out', str(out)]
     assert main(argv) == 0
     model = LinearClassifier.load(out)
     assert model.info['scenes'] == 3 and model.info['scene_crops'] > 0
+    assert model.info['average'] is True and model.info['alpha'] == 1e-5
     assert model.info['samples'] > model.info['scene_crops']   # turntable crops too
     from tlessbot_ros.core.hog import HogParams
     from tlessbot_ros.core.shape_features import ShapeParams

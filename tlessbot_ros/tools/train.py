@@ -73,6 +73,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--hog-weight', type=float, default=ClassifierParams.hog_weight,
                         help='weight of the standardised HOG beside the shape features '
                              f'(default {ClassifierParams.hog_weight})')
+    parser.add_argument('--alpha', type=float, default=ClassifierParams.alpha,
+                        help=f"L2 regularisation of 'sgd' (default {ClassifierParams.alpha:g})")
+    parser.add_argument('--average', action=argparse.BooleanOptionalAction,
+                        default=ClassifierParams.average,
+                        help='keep the weights averaged over all updates (averaged SGD)')
     parser.add_argument('--reject-margin', type=float, default=0.0,
                         help='store this reject threshold in the model (0 = never reject)')
 
@@ -219,8 +224,11 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     kinds = parse_kinds(args.classifier)
-    try:
+    try:  # settings are checked before minutes of rendering
         hog = HogParams(cell_px=args.cell, bins=args.bins)
+        learners = {kind: ClassifierParams(
+            kind=kind, epochs=args.epochs, alpha=args.alpha, average=args.average,
+            reject_margin=args.reject_margin, hog_weight=args.hog_weight) for kind in kinds}
     except ValueError as error:
         raise TlessbotError(str(error)) from None
     started = time.perf_counter()
@@ -250,8 +258,7 @@ def run(args: argparse.Namespace) -> int:
     print(f'{len(labels)} crops of {len(ids)} objects in {data_s:.1f} s')
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for kind, path in output_paths(args.out, kinds).items():
-        params = ClassifierParams(kind=kind, epochs=args.epochs,
-                                  reject_margin=args.reject_margin, hog_weight=args.hog_weight)
+        params = learners[kind]
         batches = args.epochs * -(-len(labels) // params.batch_size)
         t0 = time.perf_counter()
         with tqdm(total=batches, desc=f'train {kind}', unit='batch') as bar:
@@ -265,7 +272,8 @@ def run(args: argparse.Namespace) -> int:
                                  np.concatenate([np.zeros(hog.feature_dim, np.float32),
                                                  model.shape_fill]))
         train_acc = float(np.mean(model.predict(filled_in).class_ids == labels))
-        info = dict(model.info, **source, data_s=round(data_s, 2), train_s=round(train_s, 2),
+        info = dict(model.info, **source, alpha=params.alpha, average=params.average,
+                    data_s=round(data_s, 2), train_s=round(train_s, 2),
                     train_accuracy=round(train_acc, 4))
         type(model)(weights=model.weights, intercepts=model.intercepts,
                     class_ids=model.class_ids, hog_params=hog, kind=kind,
