@@ -55,7 +55,11 @@ class PipelineParams:
             classifier alone decides, as in the paper; at most 4, the channels of a 16UC4
             image).
         verify_accept_fitness: the first candidate is kept without fitting the others when its
-            pose fitness reaches this.
+            pose fitness reaches this. 0.9 rather than 0.95: on 542 simulated parts (ground-
+            truth masks, seed 1000) 1.23 instead of 1.49 fits per part, 7.2 instead of 8.8 ms,
+            93.2 against 93.4 % right (one part); evaluate on sim50 0.901 against 0.905 at
+            5 cm/5° (one part of 222); in paired 60 s ``bench graph`` runs p95 133-145 against
+            141-156 ms.
         verify_rmse_weight: candidates are ranked by fitness - weight * inlier RMSE (1/m), so
             1 mm of RMSE costs 0.05 of fitness.
         fallback_min_fitness: after verification, the RANSAC fallback is not tried for a
@@ -72,7 +76,7 @@ class PipelineParams:
     table_clearance_m: float = 0.004
     reject_margin: float = 0.0
     class_candidates: int = 3
-    verify_accept_fitness: float = 0.95
+    verify_accept_fitness: float = 0.9
     verify_rmse_weight: float = 50.0
     fallback_min_fitness: float = 0.1
     parallel_views: bool = True
