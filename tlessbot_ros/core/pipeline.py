@@ -21,8 +21,9 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Protocol, TypeVar
+from typing import Protocol
 
 import numpy as np
 
@@ -37,7 +38,6 @@ from tlessbot_ros.core.templates import TemplateDatabase
 from tlessbot_ros.core.two_view import FusionParams, FusionResult, fuse_views
 
 PREFERRED_VIEWS = ('side', 'top')
-T = TypeVar('T')
 
 
 @dataclass(frozen=True)
@@ -173,28 +173,19 @@ class PartFitter(Protocol):
         job as soon as it is fitted, never from two threads at once."""
 
 
-def in_thread(function: Callable[..., T], *args) -> Callable[[], T]:
-    """Start ``function(*args)`` in a new thread; the returned callable waits for it and
-    returns its result, or raises its exception in the caller."""
-    outcome: dict[str, object] = {}
+_VIEW_THREAD: ThreadPoolExecutor | None = None
+_VIEW_THREAD_LOCK = threading.Lock()
 
-    def run() -> None:
-        try:
-            outcome['value'] = function(*args)
-        except BaseException as error:  # handed to the caller, which re-raises it
-            outcome['error'] = error
 
-    thread = threading.Thread(target=run, name=getattr(function, '__name__', 'in_thread'),
-                              daemon=True)
-    thread.start()
-
-    def result() -> T:
-        thread.join()
-        if 'error' in outcome:
-            raise outcome['error']
-        return outcome['value']
-
-    return result
+def _view_thread() -> ThreadPoolExecutor:
+    """One helper thread for the whole process, started on first use and kept (a thread per
+    frame would cost its start each time and spread the frames' arrays over malloc arenas).
+    Callers submit work and wait for it in the same call."""
+    global _VIEW_THREAD
+    with _VIEW_THREAD_LOCK:
+        if _VIEW_THREAD is None:
+            _VIEW_THREAD = ThreadPoolExecutor(1, thread_name_prefix='second_view')
+        return _VIEW_THREAD
 
 
 def _view_order(views) -> list[str]:
@@ -263,9 +254,9 @@ class PerceptionPipeline:
                            params=self.segmentation)
 
         if self.params.parallel_views:
-            top_result = in_thread(seg, views['top'])
+            top_future = _view_thread().submit(seg, views['top'])
             side = seg(views['side'])
-            top = top_result()
+            top = top_future.result()   # re-raises the top view's error here
         else:
             top, side = seg(views['top']), seg(views['side'])
         depth_top = views['top'].depth_m
