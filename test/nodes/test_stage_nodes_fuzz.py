@@ -182,6 +182,10 @@ def test_localiser_survives_malformed_input(sim_frame):
                   if m.header.stamp.sec == STAMP0 // 10**9]
         assert labels and labels[0].encoding == '16UC1'
         assert labels[0].header.frame_id == 'side_color_optical_frame'
+        # every frame's age at the start of its processing is measured for /diagnostics (the
+        # test stamps are from 2023, so years old)
+        assert len(node._input_ages_ms) == node.frames + node.failures
+        assert min(node._input_ages_ms) > 86_400_000
         harness.close()
     finally:
         rclpy.try_shutdown()

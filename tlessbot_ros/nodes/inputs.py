@@ -54,6 +54,13 @@ def deserialise_views(views: Views) -> Views:
                      for key, msg in msgs.items()} for camera, msgs in views.items()}
 
 
+def newest_stamp_ns(views: Views) -> int | None:
+    """The newest header stamp (ns) among the received messages of a frame (None: none raw)."""
+    stamps = [header_stamp_ns(msg.data) for msgs in views.values() for msg in msgs.values()
+              if isinstance(msg, RawMessage)]
+    return max(stamps) if stamps else None
+
+
 class TwoViewInputs:
     """Subscribes ``/<camera>/<topic>`` for every camera and topic, emits synchronised views.
 

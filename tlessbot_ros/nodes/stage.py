@@ -4,7 +4,8 @@ A stage node subscribes per-camera topics for the ``top`` and ``side`` cameras, 
 stamp (:class:`~tlessbot_ros.nodes.inputs.TwoViewInputs`), runs one stage, and publishes results
 stamped with the source images' stamps. It never dies on bad input: a callback failure is
 logged (throttled) and counted. ``/diagnostics`` gets, at 1 Hz, frames processed, failures,
-frames dropped by synchronisation, and the processing latency.
+frames dropped by synchronisation, the processing latency, and the input age: how old a frame
+(its newest stamp) is when its processing starts, i.e. transport, pairing and waiting.
 
 Threading (``sync.worker_thread``, on by default): the executor thread only takes messages and
 pairs them; one worker thread runs :meth:`StageNode.process`. A frame that completes while the
@@ -36,7 +37,7 @@ from tlessbot_ros.nodes.common import (
     message_class,
 )
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, WARN, diagnostic_array
-from tlessbot_ros.nodes.inputs import TwoViewInputs, Views, deserialise_views
+from tlessbot_ros.nodes.inputs import TwoViewInputs, Views, deserialise_views, newest_stamp_ns
 
 CAMERAS = ('top', 'side')
 
@@ -102,6 +103,7 @@ class StageNode(Node):
         self._worker: threading.Thread | None = None
         self.last_error = ''
         self._latencies_ms: deque[float] = deque(maxlen=100)
+        self._input_ages_ms: deque[float] = deque(maxlen=100)
         self._stats: dict[str, float] = {}
         self._inputs: TwoViewInputs | None = None
         self._diagnostics = self.create_publisher(
@@ -173,6 +175,10 @@ class StageNode(Node):
     def _process_safely(self, views: Views) -> None:
         start = time.perf_counter()
         try:
+            stamp_ns = newest_stamp_ns(views)
+            if stamp_ns is not None:
+                self._input_ages_ms.append(
+                    (self.get_clock().now().nanoseconds - stamp_ns) / 1e6)
             self.process(deserialise_views(views))
             self.frames += 1
         except Exception as error:  # a bad frame must never take the node down
@@ -194,13 +200,12 @@ class StageNode(Node):
         self._stats = dict(stats)
 
     def _publish_diagnostics(self) -> None:
-        latencies = np.asarray(self._latencies_ms) if self._latencies_ms else np.zeros(1)
         dropped = (self._inputs.dropped if self._inputs else 0) + self.rate_dropped + \
             self.busy_dropped
         level = OK if not self.failures else (ERROR if self.frames == 0 else WARN)
         values = {'frames': self.frames, 'failures': self.failures, 'dropped': dropped,
-                  'latency_ms_p50': f'{np.percentile(latencies, 50):.1f}',
-                  'latency_ms_p95': f'{np.percentile(latencies, 95):.1f}',
+                  **_percentiles('latency_ms', self._latencies_ms),
+                  **_percentiles('input_age_ms', self._input_ages_ms),
                   'zero_stamps': self._inputs.zero_stamps if self._inputs else 0,
                   'malformed': self._inputs.malformed if self._inputs else 0,
                   **{k: f'{v:.3g}' for k, v in self._stats.items()}}
@@ -209,3 +214,11 @@ class StageNode(Node):
         self._diagnostics.publish(diagnostic_array(
             self.get_clock().now().to_msg(), self.get_name(), level,
             'ok' if level == OK else self.last_error, values))
+
+
+def _percentiles(name: str, values: deque[float]) -> dict[str, str]:
+    """``{name_p50, name_p95}`` of recent values, formatted (empty before the first)."""
+    if not values:
+        return {}
+    p50, p95 = np.percentile(np.asarray(values), [50, 95])
+    return {f'{name}_p50': f'{p50:.1f}', f'{name}_p95': f'{p95:.1f}'}

@@ -104,7 +104,9 @@ def run(args: argparse.Namespace) -> int:
                      f'{100 * result.cpu_s[label] / max(args.duration, 1e-9):.0f} % of one core; '
                      f"{values.get('frames', '?')} / {values.get('dropped', '?')}; "
                      f"processing p50 {values.get('latency_ms_p50', '?')} ms, "
-                     f"p95 {values.get('latency_ms_p95', '?')} ms"))
+                     f"p95 {values.get('latency_ms_p95', '?')} ms; input age at its start "
+                     f"p50 {values.get('input_age_ms_p50', '?')} ms, "
+                     f"p95 {values.get('input_age_ms_p95', '?')} ms"))
     table = '| measure | value |\n|---|---|\n' + '\n'.join(f'| {k} | {v} |' for k, v in rows)
     print(table)
     if args.out:
