@@ -83,17 +83,14 @@ def points_from_bytes(data: bytes) -> np.ndarray:
 def candidate_to_json(candidate: PoseCandidate | None) -> dict[str, Any] | None:
     if candidate is None:
         return None
-    fields = asdict(candidate)
-    fields['T_camera_object'] = [float(v) for v in candidate.T_camera_object.ravel()]
-    return fields
+    return {**asdict(candidate), 'T_camera_object': matrix_to_json(candidate.T_camera_object)}
 
 
 def candidate_from_json(fields: dict[str, Any] | None) -> PoseCandidate | None:
     if fields is None:
         return None
-    fields = dict(fields)
-    fields['T_camera_object'] = np.asarray(fields['T_camera_object'], np.float64).reshape(4, 4)
-    return PoseCandidate(**fields)
+    return PoseCandidate(**{**fields,
+                            'T_camera_object': matrix_from_json(fields['T_camera_object'])})
 
 
 def matrix_to_json(T: np.ndarray | None) -> list[float] | None:
