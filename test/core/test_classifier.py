@@ -93,7 +93,8 @@ def test_npz_round_trip(tmp_path):
     assert loaded.hog_params == HOG and loaded.kind == 'sgd' and loaded.reject_margin == 0.5
     assert loaded.info['samples'] == len(y)
     with np.load(path, allow_pickle=False) as data:
-        assert int(data['format_version']) == 2 and str(data['shape_params']) == 'null'
+        assert int(data['format_version']) == 3 and str(data['shape_params']) == 'null'
+        assert float(data['map_gamma']) == 0.0
 
 
 def test_corrupt_files(tmp_path):

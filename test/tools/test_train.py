@@ -73,3 +73,29 @@ def test_train_adds_simulated_scene_crops(tless_models_dir, tmp_path):
     assert len(labels) == model.info['scene_crops'] and set(labels) <= {5, 19, 21}
     assert features.shape[1] == model.feature_dim
     assert np.isfinite(features[:, :HogParams().feature_dim]).all()
+
+
+def test_train_kernel_model_from_images_is_reproducible(tless_models_dir, tmp_path):
+    from tlessbot_ros.io.models import load_models
+
+    models = load_models(tless_models_dir, [5, 19, 21])
+    table = Turntable(models, params=TurntableParams(step_deg=45, positions=1,
+                                                     augmentations=1))
+    write_samples(table.samples(), tmp_path / 'crops')
+    argv = ['train', '--from-images', str(tmp_path / 'crops'), '--classifier', 'perceptron',
+            '--average', '--kernel', '30', '--kernel-axes', '16', '--kernel-gamma', '2']
+    assert main(argv + ['--out', str(tmp_path / 'a.npz')]) == 0
+    assert main(argv + ['--out', str(tmp_path / 'b.npz')]) == 0
+    a, b = LinearClassifier.load(tmp_path / 'a.npz'), LinearClassifier.load(tmp_path / 'b.npz')
+    assert a.feature_map is not None and a.feature_map.output_dim == 30
+    assert a.weights.shape == (30, 3) and a.info['kernel_components'] == 30
+    np.testing.assert_array_equal(a.weights, b.weights)
+    np.testing.assert_array_equal(a.feature_map.landmarks, b.feature_map.landmarks)
+    assert a.info['train_accuracy'] > 0.8
+
+
+def test_kernel_settings_are_checked_before_rendering(tmp_path, capsys):
+    (tmp_path / 'imgs').mkdir()
+    assert main(['train', '--from-images', str(tmp_path / 'imgs'), '--kernel', '-1',
+                 '--out', str(tmp_path / 'm.npz')]) == 1
+    assert 'kernel_components' in capsys.readouterr().err

@@ -13,9 +13,13 @@ part's silhouette; otherwise the whole image is the crop):
 --scenes N adds the crops of N simulated two-view table scenes (random parts, tables, lights
 and materials, cut by their ground-truth visible masks; simulator seed --seed + 1000003, apart
 from the seeds the benchmarks and the demo use). Scene crops carry what a turntable lacks:
-neighbours, the real camera angles, both tables. ``--scenes 2000 --hog-weight 0.3`` lifts the
-crop accuracy from 84.9 % to 89.6 %, but its candidate lists verify worse in the graph (see the
-README), so the packaged model is the turntable-only default.
+neighbours, the real camera angles, both tables.
+
+--kernel M learns on an RBF feature map of the descriptor (M landmarks, Nyström; see
+tlessbot_ros.core.feature_map) instead of the descriptor itself. The packaged model:
+
+    tlessbot train --models DIR --scenes 800 --kernel 4000 --kernel-axes 256 --hog-weight 0.3 \
+        --classifier perceptron --average --epochs 20 --out classifier.npz
 
 Several learners can share one rendering pass: --classifier all (or sgd,pa1) writes
 <out>_<kind>.npz per learner.
@@ -28,6 +32,7 @@ Image folders have no depth, so they always give paper-feature models.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -75,9 +80,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f'(default {ClassifierParams.hog_weight})')
     parser.add_argument('--alpha', type=float, default=ClassifierParams.alpha,
                         help=f"L2 regularisation of 'sgd' (default {ClassifierParams.alpha:g})")
+    parser.add_argument('--pa-c', type=float, default=ClassifierParams.pa_c,
+                        help=f'aggressiveness C of pa1 / pa2 (default {ClassifierParams.pa_c:g})')
     parser.add_argument('--average', action=argparse.BooleanOptionalAction,
                         default=ClassifierParams.average,
                         help='keep the weights averaged over all updates (averaged SGD)')
+    parser.add_argument('--kernel', type=int, default=ClassifierParams.kernel_components,
+                        metavar='M', help='learn on an RBF feature map with M landmarks '
+                        '(Nyström; 0 = on the descriptors, the paper; default '
+                        f'{ClassifierParams.kernel_components})')
+    parser.add_argument('--kernel-axes', type=int, default=ClassifierParams.kernel_axes,
+                        help='principal axes of the descriptor the map keeps (default '
+                             f'{ClassifierParams.kernel_axes})')
+    parser.add_argument('--kernel-gamma', type=float, default=ClassifierParams.kernel_gamma,
+                        help='RBF width, relative to the descriptor length (default '
+                             f'{ClassifierParams.kernel_gamma:g})')
     parser.add_argument('--reject-margin', type=float, default=0.0,
                         help='store this reject threshold in the model (0 = never reject)')
 
@@ -227,8 +244,11 @@ def run(args: argparse.Namespace) -> int:
     try:  # settings are checked before minutes of rendering
         hog = HogParams(cell_px=args.cell, bins=args.bins)
         learners = {kind: ClassifierParams(
-            kind=kind, epochs=args.epochs, alpha=args.alpha, average=args.average,
-            reject_margin=args.reject_margin, hog_weight=args.hog_weight) for kind in kinds}
+            kind=kind, epochs=args.epochs, alpha=args.alpha, pa_c=args.pa_c,
+            average=args.average,
+            reject_margin=args.reject_margin, hog_weight=args.hog_weight,
+            kernel_components=args.kernel, kernel_axes=args.kernel_axes,
+            kernel_gamma=args.kernel_gamma) for kind in kinds}
     except ValueError as error:
         raise TlessbotError(str(error)) from None
     started = time.perf_counter()
@@ -259,11 +279,11 @@ def run(args: argparse.Namespace) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for kind, path in output_paths(args.out, kinds).items():
         params = learners[kind]
-        batches = args.epochs * -(-len(labels) // params.batch_size)
         t0 = time.perf_counter()
-        with tqdm(total=batches, desc=f'train {kind}', unit='batch') as bar:
+        with tqdm(total=args.epochs * len(labels), desc=f'train {kind}', unit='sample',
+                  unit_scale=True) as bar:
             model = train_classifier(features, labels, hog_params=hog, params=params,
-                                     seed=args.seed, on_batch=lambda _n: bar.update(),
+                                     seed=args.seed, on_batch=bar.update,
                                      shape_params=shape)
         train_s = time.perf_counter() - t0
         filled_in = features
@@ -272,13 +292,14 @@ def run(args: argparse.Namespace) -> int:
                                  np.concatenate([np.zeros(hog.feature_dim, np.float32),
                                                  model.shape_fill]))
         train_acc = float(np.mean(model.predict(filled_in).class_ids == labels))
-        info = dict(model.info, **source, alpha=params.alpha, average=params.average,
+        info = dict(model.info, **source, alpha=params.alpha, pa_c=params.pa_c,
+                    average=params.average,
+                    kernel_components=params.kernel_components,
+                    kernel_axes=params.kernel_axes, kernel_gamma=params.kernel_gamma,
                     data_s=round(data_s, 2), train_s=round(train_s, 2),
                     train_accuracy=round(train_acc, 4))
-        type(model)(weights=model.weights, intercepts=model.intercepts,
-                    class_ids=model.class_ids, hog_params=hog, kind=kind,
-                    reject_margin=model.reject_margin, info=info, shape_params=shape,
-                    shape_fill=model.shape_fill).save(path)
+        dataclasses.replace(model, hog_params=hog, kind=kind, info=info,
+                            shape_params=shape).save(path)
         print(f'{kind}: trained in {train_s:.1f} s (data {data_s:.1f} s), training accuracy '
               f'{100 * train_acc:.1f} % -> {path}')
     return 0
