@@ -40,6 +40,7 @@ setup(
         'opencv-python-headless>=4.8,<5',  # 5.x moved HOGDescriptor to contrib
         'scikit-image>=0.22',
         'scikit-learn>=1.4',
+        'threadpoolctl>=3',  # one BLAS thread per node process (nodes/common.py)
         'open3d>=0.18',
         'trimesh>=4.0',
         'rosbags>=0.10',
