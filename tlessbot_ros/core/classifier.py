@@ -7,7 +7,8 @@ above the table, footprint, yaw-normalised height map), which give back the phys
 the 60×60 crop throws away. Where a region has no usable depth the shape part is filled with
 its training mean (``shape_fill``), so it adds a constant and the HOG decides alone.
 
-Training uses scikit-learn's online learners through ``partial_fit`` on shuffled mini-batches:
+Training uses scikit-learn's online learners through ``partial_fit`` on shuffled mini-batches
+(through one ``fit`` over all samples for feature-map models, see :meth:`OnlineTrainer.fit`):
 
 - ``'sgd'``: ``SGDClassifier`` (linear SVM, hinge loss, L2 penalty ``alpha``, optimal rate);
 - ``'perceptron'``: ``Perceptron`` (Rosenblatt's rule);
@@ -281,7 +282,7 @@ class LinearClassifier:
         empty = np.zeros(0, np.float32)
         shape_json = json.dumps(None if self.shape_params is None else
                                 self.shape_params.to_dict())
-        fill = np.zeros(0, np.float32) if self.shape_fill is None else self.shape_fill
+        fill = empty if self.shape_fill is None else self.shape_fill
         np.savez_compressed(
             Path(path), magic=np.array(FILE_MAGIC), format_version=np.array(FORMAT_VERSION),
             kind=np.array(self.kind), weights=self.weights.astype(np.float32),
@@ -426,7 +427,7 @@ class OnlineTrainer:
         (M, M) ``whitening`` is folded into the weights too.
         """
         if self.samples_seen == 0:
-            raise ValueError('partial_fit was never called: nothing learnt yet')
+            raise ValueError('nothing learnt yet: call partial_fit or fit first')
         coef = np.asarray(self._learner.coef_, dtype=np.float64)
         intercept = np.asarray(self._learner.intercept_, dtype=np.float64)
         if coef.shape[0] == 1:  # binary: scikit-learn keeps one hyperplane for class 1
@@ -463,7 +464,8 @@ def train_classifier(features: np.ndarray, labels: np.ndarray, *,
             (default ``HogParams()``).
         params: learner settings.
         seed: seeds the shuffling and the learner; same inputs and seed give the same model.
-        on_batch: called with the batch size after each ``partial_fit`` (e.g. a progress bar).
+        on_batch: called with the number of samples learnt after each ``partial_fit`` (with a
+            feature map: once, with ``epochs * N``, after ``fit``), e.g. a progress bar.
         shape_params: the shape feature settings ("ours"), or None for HOG only ("paper").
 
     Returns:

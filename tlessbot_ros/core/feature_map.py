@@ -5,13 +5,13 @@ The linear models of the paper (SGD, Perceptron, PA-I, PA-II) stay linear, but t
 ``l_j``, where ``P (x - mu)`` standardises the descriptor and projects it on its first principal
 axes. With the whitening of the Nyström method [1] (``K_LL^{-1/2}``, folded into the stored
 weights), ``phi(x) . phi(y)`` approximates the Gaussian kernel, so a linear model on ``phi``
-approximates a kernel SVM. On HOG + shape descriptors of simulated table scenes this lifts
-held-out accuracy from ~91 % (linear) towards the ~95 % of an exact RBF SVM (README,
-Recognition): the look-alike parts differ in a few descriptor values at once, which a single
-hyperplane per class cannot pick out.
+approximates a kernel SVM. On HOG + shape descriptors of simulated table scenes the packaged
+model (k = 256 axes, M = 4000 landmarks) gets 93.3 % of held-out crops, where the best linear
+model got 90.1 % and an exact RBF SVM 95.8 % of a similar set (README, Recognition).
 
-Cost at prediction: one (N, k) @ (k, M) product and M exponentials per crop (k = 128 axes,
-M = 3000 landmarks: ~0.4 M multiply-adds, well under 0.1 ms).
+Cost at prediction: a (N, D) @ (D, k) and a (N, k) @ (k, M) product and M exponentials per
+crop (D = 1655: ~1.4 M multiply-adds); with it, normalise + HOG + shape + predict measured
+0.63 ms per crop (``tlessbot bench recognition``).
 
 References:
     [1] C. Williams, M. Seeger, "Using the Nyström method to speed up kernel machines",
@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# Kernel eigenvalues below this share of the largest are dropped from the whitening. The small
+# directions carry detail: on 506 held-out crops 1e-6 gave 94.3 %, 1e-4 93.1 %, 1e-3 89.1 %.
 EIGEN_CUTOFF = 1e-6
 
 
@@ -109,7 +111,7 @@ def fit_rbf_map(standardised: np.ndarray, *, mean: np.ndarray, scale: np.ndarray
     Returns:
         (map, whitening): the map (its projection and landmarks rounded to float16
         precision) and the (M, M) float32 matrix ``K_LL^{-1/2}`` (pseudo-inverse
-        square root over eigenvalues above 1e-6 of the largest) such that
+        square root over eigenvalues above ``EIGEN_CUTOFF`` of the largest) such that
         ``map.transform(x) @ whitening`` are the Nyström features.
     """
     z = np.asarray(standardised, np.float32)
