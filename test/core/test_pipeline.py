@@ -117,3 +117,50 @@ def test_a_bad_top_view_fails_the_frame_with_its_own_error():
     # the helper thread still segments the next frame's top view
     labels = pipeline.localise({'top': blank, 'side': blank}).labels
     assert labels['side'].shape == (48, 64) and not labels['side'].any()
+
+
+@pytest.fixture(scope='module')
+def lookalikes(tless_models_dir):
+    """Database of the look-alikes obj_21 and obj_22 (side camera, 4 views) and obj_21 lying
+    on the table, seen by the side camera with 0.5 mm depth noise."""
+    from tlessbot_ros.core import templates as tpl
+    from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
+    from tlessbot_ros.core.render import MeshRenderer
+    from tlessbot_ros.io.models import load_models, stable_poses
+
+    models = load_models(tless_models_dir, ids=[21, 22])
+    db = tpl.build_database(
+        [(i, m.vertices, m.faces, [(p.T_table_object, p.probability) for p in stable_poses(m)],
+          m.diameter_m) for i, m in models.items()],
+        intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera,
+        params=tpl.TemplateParams(n_views=4))
+    T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(40)),
+                                    [0.01, 0.02, 0]) @ db[21].stable_poses[0]
+    renderer = MeshRenderer()
+    renderer.add_mesh(models[21].vertices, models[21].faces, T_world_object)
+    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
+    mask = view.instance == 0
+    depth = np.where(mask, view.depth_m + np.random.default_rng(1).normal(
+        0, 0.0005, mask.shape), 0).astype(np.float32)
+    inputs = {'side': ViewInput(rgb=None, depth_m=depth, intrinsics=SIDE.intrinsics,
+                                T_world_camera=SIDE.T_world_camera)}
+    return db, inputs, {'side': mask.astype(np.uint16)}, models
+
+
+def test_a_lookalike_is_named_by_the_depth_it_explains(lookalikes):
+    from tlessbot_ros.core.lookalike import visible_difference
+
+    db, inputs, labels, models = lookalikes
+    assert db[21].lookalikes == (22,) and db[22].lookalikes == (21,)
+    [detection] = PerceptionPipeline(templates=db).estimate_poses(inputs, labels, {1: (22,)})
+    assert detection.obj_id == 21 and detection.class_rank == 1   # overruled, not a candidate
+    # this view does show the difference, at the pose the fit found
+    shows = visible_difference((models[21].vertices, models[21].faces),
+                               (models[22].vertices, models[22].faces),
+                               detection.pose.T_camera_object, SIDE.intrinsics,
+                               labels['side'] > 0)
+    assert shows > 0.02
+    [kept] = PerceptionPipeline(templates=db).estimate_poses(inputs, labels, {1: (21,)})
+    assert kept.obj_id == 21 and kept.class_rank == 0
+    without = PerceptionPipeline(templates=db, params=PipelineParams(lookalike_check=False))
+    assert without.estimate_poses(inputs, labels, {1: (22,)})[0].obj_id == 22

@@ -12,7 +12,9 @@ Stages (each a method, each usable alone, so the ROS nodes and the evaluator run
    camera's optical frame. With several candidate classes, the first is accepted when its
    template fit is good (fitness >= ``verify_accept_fitness``); otherwise every candidate is
    fitted and the best fit names the part (verification by geometry, our addition: the
-   near-identical T-LESS parts differ by millimetres that a 60 px crop cannot show).
+   near-identical T-LESS parts differ by millimetres that a 60 px crop cannot show). A part
+   named as one of a look-alike pair (obj_21/22, obj_25/26) is then compared with its twin at
+   the fitted pose, pixel by pixel on the measured depth (:mod:`tlessbot_ros.core.lookalike`).
 
 Inputs per view are :class:`ViewInput`; a two-view frame is ``{'top': ..., 'side': ...}``.
 """
@@ -66,6 +68,12 @@ class PipelineParams:
             region that no candidate fits at all (best fitness below this): such a region is
             no known part on the table (an arm, a shadow) and the fallback would spend its
             whole budget on it.
+        lookalike_check: after the fit, a part whose class has a look-alike in the template
+            database is compared with it: both meshes are ray-cast at the fitted pose along
+            the ROI pixels, and the one that explains more of the measured depth names the
+            part (:class:`~tlessbot_ros.core.lookalike.LookalikeCheck`).
+        lookalike_tolerance_m: a pixel votes for one look-alike when it explains the depth
+            better by more than this (metres).
         parallel_views: :meth:`PerceptionPipeline.localise` segments the top view in a second
             thread while this one segments the side view (OpenCV and most numpy calls release
             the GIL: 20.6 -> 16.4 ms per frame for both views on 2 cores, same labels).
@@ -79,6 +87,8 @@ class PipelineParams:
     verify_accept_fitness: float = 0.9
     verify_rmse_weight: float = 50.0
     fallback_min_fitness: float = 0.1
+    lookalike_check: bool = True
+    lookalike_tolerance_m: float = 0.002
     parallel_views: bool = True
 
 
@@ -233,6 +243,8 @@ class PerceptionPipeline:
         self.segmentation = segmentation
         self.fusion = fusion
         self.pose_estimator = PoseEstimator(templates, params=pose) if templates else None
+        self.lookalike = templates.lookalike_check(tolerance_m=params.lookalike_tolerance_m) \
+            if templates and params.lookalike_check else None
 
     # ---------------------------------------------------------------------------- stage 1
     def localise(self, views: dict[str, ViewInput]) -> FusionResult:
@@ -386,7 +398,8 @@ class PerceptionPipeline:
 
         With several candidates and a table frame, each is fitted by the table path alone
         (a wrong class fits poorly, and the RANSAC fallback would spend its budget on it);
-        the RANSAC fallback then runs once, for the winner, if its fit stays poor."""
+        the RANSAC fallback then runs once, for the winner, if its fit stays poor. Last, a
+        part with a look-alike is compared with it at the fitted pose (``lookalike_check``)."""
         p = self.params
         estimator = self.pose_estimator
         detection, points, T_world_camera = job.detection, job.points, job.T_world_camera
@@ -410,6 +423,15 @@ class PerceptionPipeline:
             result = estimator.estimate(points, detection.obj_id, T_world_camera=T_world_camera)
             if result.best is not None and result.best.score > detection.pose.score:
                 detection.pose, detection.second = result.best, result.second
+        if self.lookalike is not None and detection.pose is not None and \
+                detection.obj_id in self.lookalike:
+            winner, _ = self.lookalike.resolve(detection.obj_id,
+                                               detection.pose.T_camera_object, points)
+            if winner != detection.obj_id:
+                # the twins share their model frame, so the fitted pose is the twin's too
+                detection.obj_id = winner
+                detection.class_rank = job.candidates.index(winner) \
+                    if winner in job.candidates else len(job.candidates)
 
     # ---------------------------------------------------------------------------- all stages
     def process(self, views: dict[str, ViewInput], *,

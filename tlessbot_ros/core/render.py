@@ -15,6 +15,17 @@ from tlessbot_ros.core.geometry import CameraIntrinsics, transform_points
 NO_HIT = -1
 
 
+def raycasting_scene(vertices: np.ndarray, faces: np.ndarray) -> o3d.t.geometry.RaycastingScene:
+    """An Open3D ray-casting scene of one mesh ((V, 3) vertices, metres; (F, 3) int faces) in
+    its own frame: for rays, exact point distances and closest points."""
+    mesh = o3d.t.geometry.TriangleMesh()
+    mesh.vertex.positions = o3d.core.Tensor(np.asarray(vertices, np.float32))
+    mesh.triangle.indices = o3d.core.Tensor(np.asarray(faces, np.int32))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(mesh)
+    return scene
+
+
 @dataclass
 class RenderResult:
     """One rendered view.

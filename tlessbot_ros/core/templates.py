@@ -40,10 +40,15 @@ from tlessbot_ros.core.geometry import (
     rotation_about_axis,
     transform_points,
 )
+from tlessbot_ros.core.lookalike import LookalikeCheck, lookalike_pairs
+from tlessbot_ros.core.render import raycasting_scene
 from tlessbot_ros.errors import ModelFileError
 
 FORMAT = 'tlessbot_templates'
-VERSION = 2
+VERSION = 3
+# Version 2 files (no look-alike meshes) still load; their parts are never checked as
+# look-alikes.
+READABLE_VERSIONS = (2, 3)
 MIN_VIEWS, MAX_VIEWS = 2, 18
 CONTINUOUS_YAW_PERIOD = 0.0
 # Storage: points as int16 multiples of 0.05 mm (10x below the sensor noise), unit normals as
@@ -66,6 +71,10 @@ class TemplateParams:
         min_stable_probability: stable poses less likely than this are ignored.
         model_samples: surface samples per object for the fast path and ICP.
         seed: seed of the surface sampling.
+        lookalike_min_shared, lookalike_tolerance_m: parts sharing at least this share of
+            their surface within this distance are look-alikes
+            (:func:`~tlessbot_ros.core.lookalike.lookalike_pairs`); their meshes are stored so
+            the pose stage can tell them apart.
     """
 
     n_views: int = 12
@@ -76,6 +85,8 @@ class TemplateParams:
     min_stable_probability: float = 0.02
     model_samples: int = 3000
     seed: int = 0
+    lookalike_min_shared: float = 0.8
+    lookalike_tolerance_m: float = 0.002
     cloud: CloudParams = field(default_factory=CloudParams)
 
     def __post_init__(self) -> None:
@@ -127,6 +138,10 @@ class ObjectTemplates:
         templates: the views.
         normal_radius_voxels, normal_max_nn, fpfh_radius_voxels, fpfh_max_nn: the feature
             settings of :meth:`features` (as when the templates were made).
+        lookalikes: ids of the parts that look like this one (see
+            :mod:`tlessbot_ros.core.lookalike`); empty for most.
+        mesh_vertices, mesh_faces: (V, 3) float32 metres and (F, 3) int32, the CAD mesh, kept
+            only for parts with look-alikes (None otherwise).
     """
 
     obj_id: int
@@ -142,6 +157,9 @@ class ObjectTemplates:
     normal_max_nn: int = 30
     fpfh_radius_voxels: float = 5.0
     fpfh_max_nn: int = 100
+    lookalikes: tuple[int, ...] = ()
+    mesh_vertices: np.ndarray | None = None
+    mesh_faces: np.ndarray | None = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def features(self, index: int) -> tuple[np.ndarray, np.ndarray]:
@@ -252,6 +270,13 @@ class TemplateDatabase:
     def __contains__(self, obj_id: object) -> bool:
         return obj_id in self.objects
 
+    def lookalike_check(self, *, tolerance_m: float = 0.002) -> LookalikeCheck:
+        """A :class:`~tlessbot_ros.core.lookalike.LookalikeCheck` over the stored look-alikes
+        (it checks nothing for a database without any)."""
+        objects = [o for o in self.objects.values() if o.lookalikes and o.mesh_faces is not None]
+        return LookalikeCheck({o.obj_id: (o.mesh_vertices, o.mesh_faces) for o in objects},
+                              {o.obj_id: o.lookalikes for o in objects}, tolerance_m=tolerance_m)
+
     def save(self, path: str | Path) -> None:
         """Write the database as a compressed ``.npz`` (no pickled objects; template normals and
         FPFH are not stored, see :meth:`ObjectTemplates.features`)."""
@@ -284,6 +309,10 @@ class TemplateDatabase:
                 [x.T_camera_object for x in t], np.float64).reshape(-1, 4, 4)
             arrays[p + 'stable_index'] = np.array([x.stable_index for x in t], np.int64)
             arrays[p + 'yaw_rad'] = np.array([x.yaw_rad for x in t], np.float64)
+            arrays[p + 'lookalikes'] = np.array(obj.lookalikes, np.int64)
+            if obj.mesh_vertices is not None and obj.mesh_faces is not None:
+                arrays[p + 'mesh_vertices'] = _quantise(obj.mesh_vertices, np.zeros(3))
+                arrays[p + 'mesh_faces'] = np.asarray(obj.mesh_faces, np.int32)
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(path, 'wb') as stream:
@@ -299,10 +328,11 @@ class TemplateDatabase:
             with np.load(path, allow_pickle=False) as data:
                 if 'format' not in data.files or str(data['format']) != FORMAT:
                     raise ModelFileError(f'{path} is not a tlessbot template database')
-                if int(data['version']) != VERSION:
+                if int(data['version']) not in READABLE_VERSIONS:
                     raise ModelFileError(f'{path}: template format version '
-                                         f'{int(data["version"])}, expected {VERSION}; '
-                                         'rebuild it with `tlessbot templates`')
+                                         f'{int(data["version"])}, expected one of '
+                                         f'{READABLE_VERSIONS}; rebuild it with '
+                                         '`tlessbot templates`')
                 db = cls(params=json.loads(str(data['params_json'])))
                 for obj_id in data['obj_ids'].tolist():
                     db.objects[int(obj_id)] = _read_object(data, int(obj_id))
@@ -341,6 +371,17 @@ def _read_object(data: np.lib.npyio.NpzFile, obj_id: int) -> ObjectTemplates:
     templates = [Template(points[a:b], None, None, poses[i], int(stable_index[i]),
                           float(yaw[i]))
                  for i, (a, b) in enumerate(zip(offsets[:-1], offsets[1:]))]
+    mesh_vertices = mesh_faces = None
+    if p + 'mesh_faces' in data.files:
+        mesh_vertices = (data[p + 'mesh_vertices'].astype(np.float64) * POINT_QUANTUM_M
+                         ).astype(np.float32)
+        mesh_faces = data[p + 'mesh_faces'].astype(np.int32)
+        if mesh_faces.ndim != 2 or mesh_faces.shape[1] != 3 or (
+                mesh_faces.size and not 0 <= mesh_faces.min() <= mesh_faces.max() <
+                len(mesh_vertices)):
+            raise ValueError(f'inconsistent mesh arrays of obj_{obj_id:02d}')
+    lookalikes = tuple(int(i) for i in data[p + 'lookalikes']) \
+        if p + 'lookalikes' in data.files else ()
     return ObjectTemplates(
         obj_id=obj_id, diameter_m=float(scalars[0]), voxel_size_m=float(scalars[1]),
         model_points=(data[p + 'model_points'].astype(np.float64) * POINT_QUANTUM_M
@@ -350,7 +391,8 @@ def _read_object(data: np.lib.npyio.NpzFile, obj_id: int) -> ObjectTemplates:
         stable_probabilities=data[p + 'stable_probabilities'],
         yaw_periods=data[p + 'yaw_periods'], templates=templates,
         normal_radius_voxels=float(scalars[2]), normal_max_nn=int(scalars[3]),
-        fpfh_radius_voxels=float(scalars[4]), fpfh_max_nn=int(scalars[5]))
+        fpfh_radius_voxels=float(scalars[4]), fpfh_max_nn=int(scalars[5]),
+        lookalikes=lookalikes, mesh_vertices=mesh_vertices, mesh_faces=mesh_faces)
 
 
 def compute_fpfh(points: np.ndarray, normals: np.ndarray, *, radius_m: float,
@@ -394,11 +436,7 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, *,
 
 
 def _mesh_distance(vertices: np.ndarray, faces: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
-    scene = o3d.t.geometry.RaycastingScene()
-    mesh = o3d.t.geometry.TriangleMesh()
-    mesh.vertex.positions = o3d.core.Tensor(np.asarray(vertices, np.float32))
-    mesh.triangle.indices = o3d.core.Tensor(np.asarray(faces, np.int32))
-    scene.add_triangles(mesh)
+    scene = raycasting_scene(vertices, faces)
 
     def distance(points: np.ndarray) -> np.ndarray:
         query = o3d.core.Tensor(np.asarray(points, np.float32))
@@ -570,6 +608,13 @@ def build_database(models: Iterable[tuple[int, np.ndarray, np.ndarray,
         db.objects[int(obj_id)] = build_object_templates(
             obj_id, vertices, faces, poses, intrinsics=intrinsics,
             T_world_camera=T_world_camera, params=params, diameter_m=diam)
+    meshes = {int(obj_id): (vertices, faces) for obj_id, vertices, faces, _, _ in items}
+    for obj_id, others in lookalike_pairs(meshes, tolerance_m=params.lookalike_tolerance_m,
+                                          min_shared=params.lookalike_min_shared).items():
+        obj = db.objects[obj_id]
+        obj.lookalikes = others
+        obj.mesh_vertices = np.asarray(meshes[obj_id][0], np.float32)
+        obj.mesh_faces = np.asarray(meshes[obj_id][1], np.int32)
     return db
 
 

@@ -1,0 +1,184 @@
+"""Look-alike parts: pairs whose surfaces nearly coincide, and whether a view shows the difference.
+
+T-LESS has pairs of parts that share one model frame and almost all of their surface (obj_21/22
+and obj_25/26: 93-95 % of each surface within 2 mm of the other's; they differ in features of
+5-15 mm that rise 2-11 mm). Lying on the table with those features down, or turned away from a
+camera, the two parts look the same in that view: no single-view classifier can tell them
+apart there, whatever its features. :func:`visible_difference` measures, for a view whose
+ground-truth pose is known, the share of the part's visible pixels where the look-alike would
+show another depth; the recognition benchmark uses it to report accuracy on the crops that do
+show the difference (the analogue, for classes, of BOP's visible-surface discrepancy).
+
+:func:`depth_vote` and :class:`LookalikeCheck` tell the two apart at run time, from a part's
+fitted pose and its ROI cloud: both meshes are ray-cast along the cloud's pixel rays and the
+pixels where one explains the measured depth better by more than a tolerance vote. The pose of
+either part fits the other (they share their frame and most of their surface), so one fit
+serves both.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import open3d as o3d
+
+from tlessbot_ros.core.geometry import CameraIntrinsics
+from tlessbot_ros.core.render import raycasting_scene
+from tlessbot_ros.core.symmetry import sample_surface
+
+Mesh = tuple[np.ndarray, np.ndarray]  # (V, 3) vertices in metres, (F, 3) int faces
+# A pixel the mesh does not cover counts as this far from the measured depth (m): as far as a
+# gross error, so that a missing feature weighs like a wrong one.
+MISS_ERROR_M = 0.01
+
+
+def shared_surface(mesh_a: Mesh, mesh_b: Mesh, *, tolerance_m: float = 0.002,
+                   samples: int = 20000, seed: int = 0) -> float:
+    """Share of each surface within ``tolerance_m`` of the other's, the smaller of the two.
+
+    Both meshes are taken in their own model frames (look-alike T-LESS parts share one), so
+    this is 1.0 for identical parts and falls with every feature one has and the other lacks.
+    Exact point-to-triangle distances of ``samples`` area-uniform points per surface.
+    """
+    shares = []
+    for source, target in ((mesh_a, mesh_b), (mesh_b, mesh_a)):
+        points = sample_surface(*source, samples, seed=seed).astype(np.float32)
+        distance = raycasting_scene(*target).compute_distance(o3d.core.Tensor(points)).numpy()
+        shares.append(float(np.mean(distance <= tolerance_m)))
+    return min(shares)
+
+
+def lookalike_pairs(meshes: Mapping[int, Mesh], *, tolerance_m: float = 0.002,
+                    min_shared: float = 0.8, extent_tolerance_m: float = 0.01
+                    ) -> dict[int, tuple[int, ...]]:
+    """{obj_id: look-alike ids} for parts that share at least ``min_shared`` of their surface
+    (:func:`shared_surface`). Only parts whose bounding-box extents agree within
+    ``extent_tolerance_m`` are compared: a feature that one part has and the other lacks
+    may stick out that far (1 cm; the T-LESS look-alikes differ by 1 mm in extent).
+
+    On the 23 T-LESS CAD models: obj_21/22 share 0.93, obj_25/26 0.93; the next pair, obj_19/20,
+    0.61.
+    """
+    ids = sorted(meshes)
+    extents = {i: np.ptp(np.asarray(meshes[i][0], np.float64), axis=0) for i in ids}
+    pairs: dict[int, list[int]] = {}
+    for k, a in enumerate(ids):
+        for b in ids[k + 1:]:
+            if np.max(np.abs(extents[a] - extents[b])) > extent_tolerance_m:
+                continue
+            if shared_surface(meshes[a], meshes[b], tolerance_m=tolerance_m) >= min_shared:
+                pairs.setdefault(a, []).append(b)
+                pairs.setdefault(b, []).append(a)
+    return {i: tuple(others) for i, others in pairs.items()}
+
+
+def _depth_along(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
+                 rays_c: np.ndarray) -> np.ndarray:
+    """Depth (m, inf where no hit) of a mesh at ``T_camera_object`` along (N, 3) camera rays
+    scaled to z = 1."""
+    T = np.asarray(T_camera_object, np.float64)
+    R, t = T[:3, :3], T[:3, 3]
+    rays = np.empty((len(rays_c), 6), np.float32)
+    rays[:, :3] = -R.T @ t          # the camera centre in the model frame
+    rays[:, 3:] = rays_c @ R        # z = 1 in the camera: the hit distance is the depth
+    return scene.cast_rays(o3d.core.Tensor(rays))['t_hit'].numpy()
+
+
+def visible_difference(mesh_a: Mesh, mesh_b: Mesh, T_camera_object: np.ndarray,
+                       intrinsics: CameraIntrinsics, mask: np.ndarray, *,
+                       tolerance_m: float = 0.002) -> float:
+    """Share of the ``mask`` pixels where parts a and b, both at ``T_camera_object``, would
+    show depths more than ``tolerance_m`` apart (or only one of them a surface).
+
+    Args:
+        mesh_a, mesh_b: the two parts in their (shared) model frame, metres.
+        T_camera_object: (4, 4) pose in the camera's optical frame.
+        intrinsics: the camera's pinhole intrinsics.
+        mask: (H, W) bool visible pixels of the part in this view.
+
+    Returns:
+        a fraction in [0, 1] (0 for an empty mask): 0 means this view cannot tell a from b.
+    """
+    rows, cols = np.nonzero(mask)
+    if len(rows) == 0:
+        return 0.0
+    rays_c = np.stack([(cols - intrinsics.cx) / intrinsics.fx,
+                       (rows - intrinsics.cy) / intrinsics.fy, np.ones(len(rows))], axis=1)
+    depth_a, depth_b = (_depth_along(raycasting_scene(*mesh), T_camera_object, rays_c)
+                        for mesh in (mesh_a, mesh_b))
+    hit_a, hit_b = np.isfinite(depth_a), np.isfinite(depth_b)
+    differs = hit_a != hit_b
+    both = hit_a & hit_b
+    differs[both] = np.abs(depth_a[both] - depth_b[both]) > tolerance_m
+    return float(np.mean(differs))
+
+
+def depth_errors(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
+                 points_c: np.ndarray) -> np.ndarray:
+    """(N,) |rendered - measured| depth (m) of a mesh at a pose along the pixel rays of an ROI
+    cloud ((N, 3) points, optical frame), at most ``MISS_ERROR_M`` (also where it misses)."""
+    points_c = np.asarray(points_c, np.float64)
+    z = points_c[:, 2]
+    depth = _depth_along(scene, T_camera_object, points_c / z[:, None])
+    return np.where(np.isfinite(depth), np.minimum(np.abs(depth - z), MISS_ERROR_M),
+                    MISS_ERROR_M)
+
+
+def depth_vote(errors_a: np.ndarray, errors_b: np.ndarray, tolerance_m: float) -> float:
+    """Share of the pixels that a explains better than b by more than ``tolerance_m``, minus
+    the share that b explains better: > 0 favours a. Counting pixels rather than summing errors
+    keeps the sensor noise (about 2 mm at 1 m on a D415) from deciding."""
+    gain = np.asarray(errors_b) - np.asarray(errors_a)
+    return float(np.mean(gain > tolerance_m) - np.mean(gain < -tolerance_m)) if len(gain) else 0.0
+
+
+class LookalikeCheck:
+    """Picks, among a part and its look-alikes, the one whose surface explains the ROI depth.
+
+    Args:
+        meshes: {obj_id: (vertices m, faces)} of the parts that have look-alikes.
+        lookalikes: {obj_id: look-alike ids} (:func:`lookalike_pairs`).
+        tolerance_m: see :func:`depth_vote`.
+
+    On simulated crops the check, run at the pose fitted for the classifier's choice, names
+    95.2 and 94.8 % of all crops (2694 and 2646 crops, two seeds) against 92.9 and 93.0 % for
+    the classifier alone; at the ground-truth pose it would reach 97.9 %.
+    """
+
+    def __init__(self, meshes: Mapping[int, Mesh], lookalikes: Mapping[int, tuple[int, ...]],
+                 *, tolerance_m: float = 0.002) -> None:
+        self._meshes = dict(meshes)
+        self.lookalikes = {int(k): tuple(int(i) for i in v) for k, v in lookalikes.items()
+                           if all(i in self._meshes for i in (k, *v))}
+        self.tolerance_m = float(tolerance_m)
+        self._scenes: dict[int, o3d.t.geometry.RaycastingScene] = {}
+
+    def __contains__(self, obj_id: object) -> bool:
+        return obj_id in self.lookalikes
+
+    def _scene(self, obj_id: int) -> o3d.t.geometry.RaycastingScene:
+        if obj_id not in self._scenes:
+            self._scenes[obj_id] = raycasting_scene(*self._meshes[obj_id])
+        return self._scenes[obj_id]
+
+    def resolve(self, obj_id: int, T_camera_object: np.ndarray, points_c: np.ndarray
+                ) -> tuple[int, float]:
+        """(winner, its vote against ``obj_id``): ``obj_id`` itself (vote 0) unless a
+        look-alike at the same pose explains the cloud better (vote > 0).
+
+        Args:
+            obj_id: the class the pose was fitted for.
+            T_camera_object: (4, 4) that fitted pose in the cloud's optical frame.
+            points_c: (N, 3) ROI cloud, metres, optical frame.
+        """
+        obj_id = int(obj_id)
+        if obj_id not in self.lookalikes or len(points_c) == 0:
+            return obj_id, 0.0
+        own = depth_errors(self._scene(obj_id), T_camera_object, points_c)
+        best, best_vote = obj_id, 0.0
+        for other in self.lookalikes[obj_id]:
+            vote = depth_vote(depth_errors(self._scene(other), T_camera_object, points_c), own,
+                              self.tolerance_m)
+            if vote > best_vote:
+                best, best_vote = other, vote
+        return best, best_vote
