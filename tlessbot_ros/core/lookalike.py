@@ -156,6 +156,11 @@ class LookalikeCheck:
     def __contains__(self, obj_id: object) -> bool:
         return obj_id in self.lookalikes
 
+    def warm_up(self) -> None:
+        """Build every part's ray-casting scene now (a few ms each) instead of on first use."""
+        for obj_id in self.lookalikes:
+            self._scene(obj_id)
+
     def _scene(self, obj_id: int) -> o3d.t.geometry.RaycastingScene:
         if obj_id not in self._scenes:
             self._scenes[obj_id] = raycasting_scene(*self._meshes[obj_id])

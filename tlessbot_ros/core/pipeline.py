@@ -246,6 +246,14 @@ class PerceptionPipeline:
         self.lookalike = templates.lookalike_check(tolerance_m=params.lookalike_tolerance_m) \
             if templates and params.lookalike_check else None
 
+    def warm_up(self) -> None:
+        """Build the pose stage's caches now (templates, look-alike meshes) so that the first
+        frame is not slower than the others."""
+        if self.pose_estimator is not None:
+            self.pose_estimator.warm_up()
+        if self.lookalike is not None:
+            self.lookalike.warm_up()
+
     # ---------------------------------------------------------------------------- stage 1
     def localise(self, views: dict[str, ViewInput]) -> FusionResult:
         """Instance label images of a two-view frame ('top' and 'side').

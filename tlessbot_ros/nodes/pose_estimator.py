@@ -18,7 +18,8 @@ Publishes (RELIABLE, depth 10):
 Parameters: ``templates_path`` (.npz from ``tlessbot templates``; default: the packaged one),
 ``output_frame`` ('camera' or 'world'), ``world_frame``, ``min_fitness``,
 ``verify_accept_fitness``, ``verify_rmse_weight`` and ``fallback_min_fitness`` (how candidates
-are verified), ``pose.*``
+are verified), ``lookalike_check`` and ``lookalike_tolerance_m`` (look-alike parts told apart by
+their depth at the fitted pose), ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
 fits others), ``rig.CAMERA.*`` (extrinsics; the table path needs them), ``sync.*``.
 """
@@ -89,6 +90,15 @@ class PoseEstimatorNode(StageNode):
             'fallback_min_fitness', defaults.fallback_min_fitness, descriptor(
                 'No RANSAC fallback for a region that no class candidate fits at all (best '
                 'fitness below this): no known part on the table')).value
+        lookalike_check = self.declare_parameter(
+            'lookalike_check', defaults.lookalike_check, descriptor(
+                'A part whose class has a look-alike in the templates (obj_21/22, obj_25/26) is '
+                'compared with it at the fitted pose: the mesh that explains more of the ROI '
+                'depth names it')).value
+        lookalike_tolerance = self.declare_parameter(
+            'lookalike_tolerance_m', defaults.lookalike_tolerance_m, descriptor(
+                'A pixel votes for one look-alike when it explains the depth better by more '
+                'than this (m)')).value
         pose_params = dataclasses.replace(PoseParams(), **declare_from_dataclass(
             self, PoseParams(), prefix='pose.'))
         worker_params = dataclasses.replace(PoseWorkerParams(), **declare_from_dataclass(
@@ -97,7 +107,8 @@ class PoseEstimatorNode(StageNode):
         self.templates = TemplateDatabase.load(path)
         pipeline_params = dataclasses.replace(
             defaults, verify_accept_fitness=float(accept), verify_rmse_weight=float(rmse_weight),
-            fallback_min_fitness=float(fallback_floor))
+            fallback_min_fitness=float(fallback_floor), lookalike_check=bool(lookalike_check),
+            lookalike_tolerance_m=float(lookalike_tolerance))
         self.pipeline = PerceptionPipeline(templates=self.templates, pose=pose_params,
                                            params=pipeline_params)
         # Workers load their templates while this process builds its caches below.
@@ -114,7 +125,7 @@ class PoseEstimatorNode(StageNode):
         self._overlay = self.create_publisher(message_class(IMAGE), 'objects/debug_image',
                                               RESULT_QOS)
         started = time.perf_counter()
-        self.pipeline.pose_estimator.warm_up()
+        self.pipeline.warm_up()
         if self.workers is not None and not self.workers.wait_ready():
             self.get_logger().warning(
                 f'pose workers not ready ({"; ".join(self.workers.errors) or "still starting"}): '

@@ -58,7 +58,7 @@ def serve(requests: BinaryIO, replies: BinaryIO) -> int:
     try:
         config, _ = read_message(requests)
         pipeline = pipeline_from_config(config)
-        pipeline.pose_estimator.warm_up()
+        pipeline.warm_up()
     except WireError:
         return 0
     except Exception as error:  # report why, so the node can log it
