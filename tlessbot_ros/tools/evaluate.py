@@ -15,7 +15,7 @@ import argparse
 import json
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -359,6 +359,9 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
                    for v in views if (args.dataset / f'background_{v}').is_dir()}
     pose_params = apply_overrides(PoseParams(), args.pose_param)
     pipeline_params = apply_overrides(PipelineParams(), args.pipeline_param)
+    if args.oracle == 'boxes+classes':
+        # the classes are the truth: nothing for the look-alike check to correct
+        pipeline_params = replace(pipeline_params, lookalike_check=False)
     workers = None
     if args.pose_workers > 0:
         from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
