@@ -97,6 +97,20 @@ def test_npz_round_trip(tmp_path):
         assert float(data['map_gamma']) == 0.0
 
 
+def test_margin_scale_is_the_median_training_margin(tmp_path):
+    x, y = _toy()
+    model = train_classifier(x, y, hog_params=HOG, params=ClassifierParams(epochs=3), seed=1)
+    assert model.margin_scale == pytest.approx(float(np.median(model.predict(x).margins)))
+    assert model.margin_scale > 0
+    path = tmp_path / 'm.npz'
+    model.save(path)
+    assert LinearClassifier.load(path).margin_scale == pytest.approx(model.margin_scale)
+    # files from before margin_scale was stored load with 0 (unknown)
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {k: v for k, v in data.items() if k != 'margin_scale'}
+    np.savez(path, **arrays)
+    assert LinearClassifier.load(path).margin_scale == 0.0
+
 def test_corrupt_files(tmp_path):
     x, y = _toy()
     good = tmp_path / 'good.npz'

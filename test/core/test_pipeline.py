@@ -164,3 +164,22 @@ def test_a_lookalike_is_named_by_the_depth_it_explains(lookalikes):
     assert kept.obj_id == 21 and kept.class_rank == 0
     without = PerceptionPipeline(templates=db, params=PipelineParams(lookalike_check=False))
     assert without.estimate_poses(inputs, labels, {1: (22,)})[0].obj_id == 22
+
+
+def test_a_sure_classifier_alone_names_a_part_seen_only_from_the_top():
+    from tlessbot_ros.core.classifier import UNKNOWN_ID, LinearClassifier
+    from tlessbot_ros.core.hog import HogParams
+
+    def pipeline(scale, **params):
+        model = LinearClassifier(np.zeros((HogParams().feature_dim, 3), np.float32),
+                                 np.zeros(3, np.float32), np.array([4, 7, 9]), margin_scale=scale)
+        return PerceptionPipeline(classifier=model, params=PipelineParams(**params))
+
+    sure = pipeline(10.0)   # top_view_verify_below_margin 0.25: unsure below a margin of 2.5
+    assert sure.verification_candidates(7, 2.0, [7, 4, 9], 'top') == (7, 4, 9)
+    assert sure.verification_candidates(7, 3.0, [7, 4, 9], 'top') == (7,)
+    assert sure.verification_candidates(7, 3.0, [7, 4, 9], 'side') == (7, 4, 9)
+    assert sure.verification_candidates(UNKNOWN_ID, 0.0, [7, 4, 9], 'top') == ()
+    assert pipeline(10.0, top_view_verify_below_margin=np.inf).verification_candidates(
+        7, 1e9, [7, 4], 'top') == (7, 4)
+    assert pipeline(0.0).verification_candidates(7, 1e9, [7, 4], 'top') == (7, 4)  # no scale

@@ -35,7 +35,7 @@ from __future__ import annotations
 import json
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import cv2
@@ -140,6 +140,9 @@ class LinearClassifier:
         shape_fill: (shape_params.feature_dim,) float32 value of the shape part for regions
             without usable depth (the training mean); required with ``shape_params``.
         feature_map: RBF map applied to the descriptors before the weights, or None.
+        margin_scale: median margin (best minus second-best score) of the model on its own
+            training crops, the unit in which the pipeline judges how sure a margin is (0 =
+            unknown, e.g. a model file from before it was stored).
     """
 
     weights: np.ndarray
@@ -152,6 +155,7 @@ class LinearClassifier:
     shape_params: ShapeParams | None = None
     shape_fill: np.ndarray | None = None
     feature_map: RbfFeatureMap | None = None
+    margin_scale: float = 0.0
 
     def __post_init__(self) -> None:
         w, b, ids = self.weights, self.intercepts, self.class_ids
@@ -276,7 +280,7 @@ class LinearClassifier:
         ``reject_margin``, ``info`` (JSON), ``shape_params`` (JSON, "null" for paper features),
         ``shape_fill`` (F,) float32 (empty for paper features), ``map_mean`` (D,) float32,
         ``map_projection`` (D, k) and ``map_landmarks`` (M, k) float16, ``map_gamma`` (all
-        empty / 0 without a feature map).
+        empty / 0 without a feature map), ``margin_scale`` (absent from older files: 0).
         """
         fmap = self.feature_map
         empty = np.zeros(0, np.float32)
@@ -295,7 +299,8 @@ class LinearClassifier:
             map_mean=empty if fmap is None else fmap.mean,
             map_projection=empty if fmap is None else fmap.projection.astype(np.float16),
             map_landmarks=empty if fmap is None else fmap.landmarks.astype(np.float16),
-            map_gamma=np.array(0.0 if fmap is None else fmap.gamma))
+            map_gamma=np.array(0.0 if fmap is None else fmap.gamma),
+            margin_scale=np.array(float(self.margin_scale)))
 
     @classmethod
     def load(cls, path: str | Path) -> LinearClassifier:
@@ -335,7 +340,8 @@ class LinearClassifier:
                        reject_margin=float(arrays['reject_margin']),
                        info=json.loads(str(arrays['info'])), shape_params=shape_params,
                        shape_fill=None if shape_params is None else
-                       arrays['shape_fill'].astype(np.float32), feature_map=feature_map)
+                       arrays['shape_fill'].astype(np.float32), feature_map=feature_map,
+                       margin_scale=float(arrays.get('margin_scale', 0.0)))
         except (KeyError, ValueError, TypeError) as error:
             raise ModelFileError(f'{path} is a corrupt classifier model: {error}') from None
 
@@ -491,6 +497,7 @@ def train_classifier(features: np.ndarray, labels: np.ndarray, *,
         if not known.all():
             features = features.copy()
             features[~known, hog_dim:] = shape_fill
+    descriptors = features  # as the model will see them at inference (shape gaps filled)
     mean = scale = None
     if params.standardise:
         mean = features.mean(axis=0)
@@ -526,10 +533,20 @@ def train_classifier(features: np.ndarray, labels: np.ndarray, *,
                 trainer.partial_fit(features[batch], labels[batch])
                 if on_batch is not None:
                     on_batch(len(batch))
-    return trainer.model(hog_params, info={'samples': int(len(labels)), 'seed': int(seed),
-                                           'epochs': params.epochs},
-                         shape_params=shape_params, shape_fill=shape_fill,
-                         feature_map=feature_map, whitening=whitening)
+    model = trainer.model(hog_params, info={'samples': int(len(labels)), 'seed': int(seed),
+                                            'epochs': params.epochs},
+                          shape_params=shape_params, shape_fill=shape_fill,
+                          feature_map=feature_map, whitening=whitening)
+    return replace(model, margin_scale=median_margin(model, descriptors))
+
+
+def median_margin(model: LinearClassifier, features: np.ndarray, *,
+                  chunk: int = 4096) -> float:
+    """Median of best minus second-best class score of ``model`` over (N, D) descriptors
+    (scored in chunks, so that a feature map's (chunk, M) block stays small)."""
+    margins = [model.predict_scores(model.decision_function(features[start:start + chunk])
+                                    ).margins for start in range(0, len(features), chunk)]
+    return float(np.median(np.concatenate(margins))) if margins else 0.0
 
 
 def _mask_box(mask: np.ndarray) -> tuple[int, int, int, int]:

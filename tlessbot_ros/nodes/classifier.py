@@ -14,8 +14,9 @@ Publishes (RELIABLE, depth 10):
     /diagnostics                 frames, failures, dropped, latency, last classes and margins
 Parameters: ``model_path`` (.npz from ``tlessbot train``; default: the packaged model),
 ``reject_margin`` (margin below which a part is 'unknown'; 0 = the model's own),
-``min_instance_px``, ``class_candidates``, ``rig.CAMERA.*`` (extrinsics: heights above the
-table), ``sync.*``.
+``min_instance_px``, ``class_candidates``, ``top_view_verify_below_margin`` (for a part only the
+top camera sees, the candidates after the first are sent only when the classifier is unsure),
+``rig.CAMERA.*`` (extrinsics: heights above the table), ``sync.*``.
 """
 from __future__ import annotations
 
@@ -60,12 +61,18 @@ class ClassifierNode(StageNode):
         if not 1 <= int(candidates) <= 4:
             raise TlessbotError(f'class_candidates must be 1..4, got {candidates}')
         self.candidates = int(candidates)
+        verify_below = self.declare_parameter(
+            'top_view_verify_below_margin', PipelineParams().top_view_verify_below_margin,
+            descriptor('For a part only the top camera sees, candidates after the first are '
+                       "sent only when the margin is below this many times the model's median "
+                       'training margin (inf: always)')).value
         self.extrinsics = declare_extrinsics(self)
         self.model = LinearClassifier.load(path)  # ModelFileError: one line, exit 1
         self.pipeline = PerceptionPipeline(
             classifier=self.model,
             params=PipelineParams(min_instance_px=int(min_px), reject_margin=float(reject),
-                                  class_candidates=self.candidates))
+                                  class_candidates=self.candidates,
+                                  top_view_verify_below_margin=float(verify_below)))
         self._class_publishers = {
             camera: self.create_publisher(message_class(IMAGE), f'classifier/{camera}/classes',
                                           RESULT_QOS) for camera in CAMERAS}
