@@ -140,9 +140,11 @@ class LookalikeCheck:
         lookalikes: {obj_id: look-alike ids} (:func:`lookalike_pairs`).
         tolerance_m: see :func:`depth_vote`.
 
-    On simulated crops the check, run at the pose fitted for the classifier's choice, names
-    95.2 and 94.8 % of all crops (2694 and 2646 crops, two seeds) against 92.9 and 93.0 % for
-    the classifier alone; at the ground-truth pose it would reach 97.9 %.
+    ``tlessbot bench recognition`` (simulated crops, each on its own view; the check run at the
+    pose fitted for the classifier's class): 94.5-95.3 % of all crops against 92.4-93.7 % for
+    the classifier alone (568, 2624 and 2595 crops). At the ground-truth pose the same check
+    would name 96.8 and 97.2 % (2694 and 2646 development crops, against 94.6 and 95.0 % at the
+    fitted pose): the fitted pose is what limits it.
     """
 
     def __init__(self, meshes: Mapping[int, Mesh], lookalikes: Mapping[int, tuple[int, ...]],

@@ -63,11 +63,11 @@ class PipelineParams:
             (``LinearClassifier.margin_scale``); above, its first class alone is fitted (and,
             if it has a look-alike, checked). Seen from straight above a part shows mostly
             one face, which the templates of many parts fit: verifying every top-view crop of
-            2 × 300 simulated scenes (seeds 2024, 3030) names 79-82 % of them right, against
-            93 % for the classifier alone, while its least sure 9 % (margin below 0.25 of the
-            median) are right at 50-58 % and verified at 70-81 %. Side-view parts are always
-            verified (96 % against 93 %). ``inf``: always verify (also when the model file has
-            no ``margin_scale``).
+            2 × 300 simulated scenes (seeds 2024, 3030; the previous packaged model) names
+            79-82 % of them right, against 93 % for the classifier alone, while its least
+            sure 9 % (margin below 0.25 of the median) are right at 50-58 % and verified at
+            70-81 %. Side-view parts are always verified (96 % against 93 %). ``inf``: always
+            verify (also when the model file has no ``margin_scale``).
         verify_accept_fitness: the first candidate is kept without fitting the others when its
             pose fitness reaches this. 0.9 rather than 0.95: on 542 simulated parts (ground-
             truth masks, seed 1000) 1.23 instead of 1.49 fits per part, 7.2 instead of 8.8 ms,
