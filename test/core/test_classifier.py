@@ -102,6 +102,8 @@ def test_margin_scale_is_the_median_training_margin(tmp_path):
     model = train_classifier(x, y, hog_params=HOG, params=ClassifierParams(epochs=3), seed=1)
     assert model.margin_scale == pytest.approx(float(np.median(model.predict(x).margins)))
     assert model.margin_scale > 0
+    assert model.info['train_accuracy'] == pytest.approx(
+        float(np.mean(model.predict(x).class_ids == y)), abs=1e-4)
     path = tmp_path / 'm.npz'
     model.save(path)
     assert LinearClassifier.load(path).margin_scale == pytest.approx(model.margin_scale)

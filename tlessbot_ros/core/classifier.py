@@ -537,16 +537,21 @@ def train_classifier(features: np.ndarray, labels: np.ndarray, *,
                                             'epochs': params.epochs},
                           shape_params=shape_params, shape_fill=shape_fill,
                           feature_map=feature_map, whitening=whitening)
-    return replace(model, margin_scale=median_margin(model, descriptors))
+    scale, accuracy = _training_fit(model, descriptors, labels)
+    return replace(model, margin_scale=scale,
+                   info=dict(model.info, train_accuracy=round(accuracy, 4)))
 
 
-def median_margin(model: LinearClassifier, features: np.ndarray, *,
-                  chunk: int = 4096) -> float:
-    """Median of best minus second-best class score of ``model`` over (N, D) descriptors
-    (scored in chunks, so that a feature map's (chunk, M) block stays small)."""
-    margins = [model.predict_scores(model.decision_function(features[start:start + chunk])
-                                    ).margins for start in range(0, len(features), chunk)]
-    return float(np.median(np.concatenate(margins))) if margins else 0.0
+def _training_fit(model: LinearClassifier, features: np.ndarray, labels: np.ndarray, *,
+                  chunk: int = 4096) -> tuple[float, float]:
+    """(median margin, accuracy) of ``model`` on its (N, D) training descriptors, scored in
+    chunks so that a feature map's (chunk, M) block stays small."""
+    margins, right = [], 0
+    for start in range(0, len(features), chunk):
+        prediction = model.predict_scores(model.decision_function(features[start:start + chunk]))
+        margins.append(prediction.margins)
+        right += int(np.sum(prediction.class_ids == labels[start:start + chunk]))
+    return float(np.median(np.concatenate(margins))), right / len(labels)
 
 
 def _mask_box(mask: np.ndarray) -> tuple[int, int, int, int]:

@@ -286,18 +286,12 @@ def run(args: argparse.Namespace) -> int:
                                      seed=args.seed, on_batch=bar.update,
                                      shape_params=shape)
         train_s = time.perf_counter() - t0
-        filled_in = features
-        if shape is not None:
-            filled_in = np.where(np.isfinite(features), features,
-                                 np.concatenate([np.zeros(hog.feature_dim, np.float32),
-                                                 model.shape_fill]))
-        train_acc = float(np.mean(model.predict(filled_in).class_ids == labels))
+        train_acc = model.info['train_accuracy']
         info = dict(model.info, **source, alpha=params.alpha, pa_c=params.pa_c,
                     average=params.average,
                     kernel_components=params.kernel_components,
                     kernel_axes=params.kernel_axes, kernel_gamma=params.kernel_gamma,
-                    data_s=round(data_s, 2), train_s=round(train_s, 2),
-                    train_accuracy=round(train_acc, 4))
+                    data_s=round(data_s, 2), train_s=round(train_s, 2))
         dataclasses.replace(model, hog_params=hog, kind=kind, info=info,
                             shape_params=shape).save(path)
         print(f'{kind}: trained in {train_s:.1f} s (data {data_s:.1f} s), training accuracy '
