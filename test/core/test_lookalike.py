@@ -14,7 +14,7 @@ from tlessbot_ros.core.lookalike import (
     shared_surface,
     visible_difference,
 )
-from tlessbot_ros.core.render import MeshRenderer
+from tlessbot_ros.core.render import MeshRenderer, raycasting_scene
 from tlessbot_ros.errors import ModelFileError
 
 CAMERA = CameraIntrinsics(320, 240, np.array([[600.0, 0.0, 160.0], [0.0, 600.0, 120.0],
@@ -72,12 +72,13 @@ def test_pairs_are_found_by_shared_surface():
 def test_a_view_shows_the_difference_only_when_it_sees_the_boss():
     _, mask_up = _seen_from_above(BOSSED, BOSS_UP)
     _, mask_down = _seen_from_above(BOSSED, BOSS_DOWN)
-    up = visible_difference(BOSSED, PLAIN, BOSS_UP, CAMERA, mask_up)
-    down = visible_difference(BOSSED, PLAIN, BOSS_DOWN, CAMERA, mask_down)
+    bossed, plain = raycasting_scene(*BOSSED), raycasting_scene(*PLAIN)
+    up = visible_difference(bossed, plain, BOSS_UP, CAMERA, mask_up)
+    down = visible_difference(bossed, plain, BOSS_DOWN, CAMERA, mask_down)
     # the boss covers 225 of the 2400 mm^2 of the top face that the camera sees
     assert 0.05 < up < 0.15
     assert down == 0.0
-    assert visible_difference(BOSSED, PLAIN, BOSS_UP, CAMERA, np.zeros_like(mask_up)) == 0.0
+    assert visible_difference(bossed, plain, BOSS_UP, CAMERA, np.zeros_like(mask_up)) == 0.0
 
 
 def test_depth_vote_counts_pixels_beyond_the_tolerance():

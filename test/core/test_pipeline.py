@@ -149,14 +149,15 @@ def lookalikes(tless_models_dir):
 
 def test_a_lookalike_is_named_by_the_depth_it_explains(lookalikes):
     from tlessbot_ros.core.lookalike import visible_difference
+    from tlessbot_ros.core.render import raycasting_scene
 
     db, inputs, labels, models = lookalikes
     assert db[21].lookalikes == (22,) and db[22].lookalikes == (21,)
     [detection] = PerceptionPipeline(templates=db).estimate_poses(inputs, labels, {1: (22,)})
     assert detection.obj_id == 21 and detection.class_rank == 1   # overruled, not a candidate
     # this view does show the difference, at the pose the fit found
-    shows = visible_difference((models[21].vertices, models[21].faces),
-                               (models[22].vertices, models[22].faces),
+    shows = visible_difference(raycasting_scene(models[21].vertices, models[21].faces),
+                               raycasting_scene(models[22].vertices, models[22].faces),
                                detection.pose.T_camera_object, SIDE.intrinsics,
                                labels['side'] > 0)
     assert shows > 0.02

@@ -84,14 +84,16 @@ def _depth_along(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndar
     return scene.cast_rays(o3d.core.Tensor(rays))['t_hit'].numpy()
 
 
-def visible_difference(mesh_a: Mesh, mesh_b: Mesh, T_camera_object: np.ndarray,
+def visible_difference(scene_a: o3d.t.geometry.RaycastingScene,
+                       scene_b: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
                        intrinsics: CameraIntrinsics, mask: np.ndarray, *,
                        tolerance_m: float = 0.002) -> float:
     """Share of the ``mask`` pixels where parts a and b, both at ``T_camera_object``, would
     show depths more than ``tolerance_m`` apart (or only one of them a surface).
 
     Args:
-        mesh_a, mesh_b: the two parts in their (shared) model frame, metres.
+        scene_a, scene_b: the two parts' meshes in their (shared) model frame, metres, as
+            :func:`~tlessbot_ros.core.render.raycasting_scene` (built once per part).
         T_camera_object: (4, 4) pose in the camera's optical frame.
         intrinsics: the camera's pinhole intrinsics.
         mask: (H, W) bool visible pixels of the part in this view.
@@ -104,8 +106,8 @@ def visible_difference(mesh_a: Mesh, mesh_b: Mesh, T_camera_object: np.ndarray,
         return 0.0
     rays_c = np.stack([(cols - intrinsics.cx) / intrinsics.fx,
                        (rows - intrinsics.cy) / intrinsics.fy, np.ones(len(rows))], axis=1)
-    depth_a, depth_b = (_depth_along(raycasting_scene(*mesh), T_camera_object, rays_c)
-                        for mesh in (mesh_a, mesh_b))
+    depth_a, depth_b = (_depth_along(scene, T_camera_object, rays_c)
+                        for scene in (scene_a, scene_b))
     hit_a, hit_b = np.isfinite(depth_a), np.isfinite(depth_b)
     differs = hit_a != hit_b
     both = hit_a & hit_b

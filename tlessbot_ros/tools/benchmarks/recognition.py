@@ -79,9 +79,11 @@ def lookalike_difference(models, frames, min_pixels: int, tolerance_m: float
     look-alike part, at the same ground-truth pose, would show another depth (NaN for parts
     without a look-alike), and the look-alike pairs found among the models."""
     from tlessbot_ros.core.lookalike import lookalike_pairs, visible_difference
+    from tlessbot_ros.core.render import raycasting_scene
 
     meshes = {i: (m.vertices, m.faces) for i, m in models.items()}
     pairs = lookalike_pairs(meshes, tolerance_m=tolerance_m)
+    scenes = {i: raycasting_scene(*meshes[i]) for i in pairs}
     shares = []
     for frame in frames:
         for view in frame.views.values():
@@ -90,7 +92,7 @@ def lookalike_difference(models, frames, min_pixels: int, tolerance_m: float
                     continue
                 others = pairs.get(gt.obj_id, ())
                 shares.append(min((visible_difference(
-                    meshes[gt.obj_id], meshes[other], gt.T_camera_object, view.intrinsics,
+                    scenes[gt.obj_id], scenes[other], gt.T_camera_object, view.intrinsics,
                     gt.mask_visib, tolerance_m=tolerance_m) for other in others), default=np.nan))
     return np.asarray(shares, np.float64), pairs
 
@@ -242,6 +244,7 @@ def crop_pose_stage(model, templates, frames, min_pixels: int, scores: np.ndarra
     pipeline = PerceptionPipeline(classifier=model, templates=templates,
                                   params=PipelineParams(min_instance_px=min_pixels,
                                                         class_candidates=candidates))
+    pipeline.warm_up()  # caches built now, not inside the first crop's timing
     prediction = model.predict_scores(scores, reject_margin=0.0)
     ranked = model.ranked_classes(scores, candidates)
     classes, times, k = prediction.class_ids.copy(), [], 0
