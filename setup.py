@@ -36,7 +36,7 @@ setup(
     install_requires=[
         'numpy>=1.24',
         'scipy>=1.10',
-        'numba>=0.60',  # fused grid kernels of the pose search (core/grid_kernels.py)
+        'numba>=0.60',  # fused grid kernels of the pose search (core/pose/grid_kernels.py)
         'opencv-python-headless>=4.8,<5',  # 5.x moved HOGDescriptor to contrib
         'scikit-image>=0.22',
         'scikit-learn>=1.4',

@@ -8,7 +8,7 @@ from tlessbot_ros.conversions import (
     pointcloud2_to_xyz,
 )
 from tlessbot_ros.conversions.camera import CAMERA_TOPICS, camera_frame_messages
-from tlessbot_ros.core.rig import d415_intrinsics
+from tlessbot_ros.core.common import d415_intrinsics
 
 
 def test_frame_messages_are_consistent():

@@ -9,7 +9,7 @@ from tlessbot_ros.conversions import (
     pose_stamped_to_transform,
     transform_to_pose_stamped,
 )
-from tlessbot_ros.core.geometry import (
+from tlessbot_ros.core.common import (
     CameraIntrinsics,
     RegionOfInterest,
     make_transform,

@@ -10,7 +10,7 @@ from tlessbot_ros.conversions import (
     pointcloud2_to_xyz,
     xyz_to_pointcloud2,
 )
-from tlessbot_ros.core.geometry import CameraIntrinsics
+from tlessbot_ros.core.common import CameraIntrinsics
 
 FACTORIES = [pytest.param(RosbagsFactory(), id='rosbags'),
              pytest.param(RclpyFactory(), id='rclpy', marks=pytest.mark.ros)]

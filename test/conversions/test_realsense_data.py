@@ -14,7 +14,7 @@ from tlessbot_ros.conversions import (
     intrinsics_to_camera_info,
     pointcloud2_to_xyz,
 )
-from tlessbot_ros.core.geometry import CameraIntrinsics, project_points
+from tlessbot_ros.core.common import CameraIntrinsics, project_points
 
 
 def read_visp_depth_bin(path: Path) -> np.ndarray:

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from tlessbot_ros.core.buckets import PointBuckets
+from tlessbot_ros.core.pose import PointBuckets
 
 
 @pytest.mark.parametrize('radius', [0.002, 0.005, 0.01])

@@ -3,15 +3,15 @@ import zipfile
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.classifier import (
+from tlessbot_ros.core.recognise import (
     KINDS,
     UNKNOWN_ID,
     ClassifierParams,
+    HogParams,
     LinearClassifier,
     OnlineTrainer,
     train_classifier,
 )
-from tlessbot_ros.core.hog import HogParams
 from tlessbot_ros.errors import ModelFileError
 
 HOG = HogParams(cell_px=20, bins=2)  # 2x2 blocks x 4 cells x 2 bins = 32 values
@@ -167,7 +167,7 @@ def test_errors():
 # ------------------------------------------------------------------ metric shape features ("ours")
 def _top_down_box(length=0.06, width=0.03, height=0.025, yaw=0.0, size=200):
     """Depth image of a box on the table seen straight down from 1 m, with K and the pose."""
-    from tlessbot_ros.core.geometry import make_transform
+    from tlessbot_ros.core.common import make_transform
 
     f = 600.0
     K = np.array([[f, 0, size / 2], [0, f, size / 2], [0, 0, 1.0]])
@@ -185,7 +185,11 @@ def _top_down_box(length=0.06, width=0.03, height=0.025, yaw=0.0, size=200):
 
 
 def test_shape_features_measure_the_part():
-    from tlessbot_ros.core.shape_features import ShapeParams, region_points_world, shape_features
+    from tlessbot_ros.core.recognise import (
+        ShapeParams,
+        region_points_world,
+        shape_features,
+    )
 
     params = ShapeParams()
     depth, mask, K, T = _top_down_box()
@@ -210,7 +214,7 @@ def test_shape_features_measure_the_part():
 
 
 def test_shape_features_tolerate_invalid_depth():
-    from tlessbot_ros.core.shape_features import region_points_world, shape_features
+    from tlessbot_ros.core.recognise import region_points_world, shape_features
 
     depth, mask, K, T = _top_down_box()
     rng = np.random.default_rng(0)
@@ -235,7 +239,7 @@ def test_shape_features_tolerate_invalid_depth():
 
 
 def test_model_with_shape_features_round_trip(tmp_path):
-    from tlessbot_ros.core.shape_features import ShapeParams
+    from tlessbot_ros.core.recognise import ShapeParams
 
     shape = ShapeParams()
     x, y = _toy()
@@ -265,7 +269,7 @@ def test_model_with_shape_features_round_trip(tmp_path):
 
 
 def test_shape_features_batch_matches_single_regions():
-    from tlessbot_ros.core.shape_features import shape_features, shape_features_batch
+    from tlessbot_ros.core.recognise import shape_features, shape_features_batch
 
     rng = np.random.default_rng(3)
     regions = [rng.normal(size=(50 + 40 * i, 3)) * [0.03, 0.015, 0.02] + [0.3, 0.1, 0.03]

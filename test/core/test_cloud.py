@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tlessbot_ros.core import cloud
-from tlessbot_ros.core.geometry import CameraIntrinsics
+from tlessbot_ros.core.common import CameraIntrinsics
+from tlessbot_ros.core.pose import cloud
 
 
 def _intrinsics(w: int = 80, h: int = 60) -> CameraIntrinsics:

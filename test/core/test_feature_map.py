@@ -1,9 +1,14 @@
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.classifier import ClassifierParams, LinearClassifier, train_classifier
-from tlessbot_ros.core.feature_map import RbfFeatureMap, fit_rbf_map
-from tlessbot_ros.core.hog import HogParams
+from tlessbot_ros.core.recognise import (
+    ClassifierParams,
+    HogParams,
+    LinearClassifier,
+    RbfFeatureMap,
+    fit_rbf_map,
+    train_classifier,
+)
 
 HOG = HogParams(cell_px=20, bins=2)  # 32 values
 

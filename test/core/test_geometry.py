@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.geometry import (
+from tlessbot_ros.core.common import (
     CameraIntrinsics,
     depth_to_points,
     invert_transform,
@@ -69,7 +69,7 @@ def test_bad_intrinsics_raise():
 @pytest.mark.parametrize('region', [(slice(100, 160), slice(200, 290)),
                                     (slice(0, 5), slice(630, 640)), (slice(0, 0), slice(0, 0))])
 def test_masked_back_projection_is_the_masked_part_of_the_whole(region):
-    from tlessbot_ros.core.geometry import depth_to_points
+    from tlessbot_ros.core.common import depth_to_points
 
     rng = np.random.default_rng(1)
     depth = rng.uniform(0.3, 1.0, (480, 640)).astype(np.float32)
@@ -88,7 +88,7 @@ def test_masked_back_projection_is_the_masked_part_of_the_whole(region):
 
 
 def test_mask_box_is_the_tight_box_and_empty_for_an_empty_mask():
-    from tlessbot_ros.core.geometry import mask_box
+    from tlessbot_ros.core.common import mask_box
 
     mask = np.zeros((20, 30), bool)
     assert mask_box(mask) == (0, 0, 0, 0)

@@ -4,8 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.grid_kernels import inlier_fraction, normal_equations, truncated_cost
-from tlessbot_ros.core.templates import NearestGrid
+from tlessbot_ros.core.pose import NearestGrid, inlier_fraction, normal_equations, truncated_cost
 
 
 @pytest.fixture(scope='module')
@@ -87,8 +86,8 @@ def test_cost_and_fitness_match_numpy(setup):
 def test_gauss_newton_equals_the_python_loop(setup, planar):
     """The fused iterations equal one normal_equations call, a numpy solve and the update per
     iteration, and a 6-DOF run converges towards the pose the scene was drawn from."""
-    from tlessbot_ros.core.grid_kernels import gauss_newton
-    from tlessbot_ros.core.pose import _rodrigues, _rz
+    from tlessbot_ros.core.pose import gauss_newton
+    from tlessbot_ros.core.pose.estimator import _rodrigues, _rz
 
     model, normals, grid, T, points = setup
     start = T.copy()
@@ -135,7 +134,7 @@ def _visible_reference(points_c, normals_c, cell_rad, depth_tolerance_m):
 
 
 def test_self_visible_equals_the_numpy_z_buffer(setup):
-    from tlessbot_ros.core.grid_kernels import self_visible
+    from tlessbot_ros.core.pose import self_visible
 
     model, normals, _, T, _ = setup
     for k in range(len(T)):

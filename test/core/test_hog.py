@@ -1,7 +1,12 @@
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.hog import HogParams, describe_regions, hog_features, normalise_crop
+from tlessbot_ros.core.recognise import (
+    HogParams,
+    describe_regions,
+    hog_features,
+    normalise_crop,
+)
 
 
 def _scene(brightness: float = 0.8, shift=(0, 0), size=(240, 320)):

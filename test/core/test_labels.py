@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.labels import (
+from tlessbot_ros.core.common import (
     decode_candidates,
     decode_classes,
     encode_candidates,

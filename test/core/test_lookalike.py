@@ -5,16 +5,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tlessbot_ros.core import templates as tpl
-from tlessbot_ros.core.geometry import CameraIntrinsics, depth_to_points, make_transform
-from tlessbot_ros.core.lookalike import (
+from tlessbot_ros.core.common import (
+    CameraIntrinsics,
+    MeshRenderer,
+    depth_to_points,
+    make_transform,
+    raycasting_scene,
+)
+from tlessbot_ros.core.pose import (
     LookalikeCheck,
     depth_vote,
     lookalike_pairs,
     shared_surface,
     visible_difference,
 )
-from tlessbot_ros.core.render import MeshRenderer, raycasting_scene
+from tlessbot_ros.core.pose import templates as tpl
 from tlessbot_ros.errors import ModelFileError
 
 CAMERA = CameraIntrinsics(320, 240, np.array([[600.0, 0.0, 160.0], [0.0, 600.0, 120.0],

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tlessbot_ros.core.common import default_rig
 from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
-from tlessbot_ros.core.rig import default_rig
 
 SIDE = default_rig()['side']
 
@@ -107,7 +107,7 @@ def test_both_views_segmented_at_once_give_the_labels_of_one_after_the_other(tle
 
 
 def test_a_bad_top_view_fails_the_frame_with_its_own_error():
-    from tlessbot_ros.core.two_view import FusionParams
+    from tlessbot_ros.core.localise import FusionParams
 
     blank = ViewInput(np.zeros((48, 64, 3), np.uint8), None, SIDE.intrinsics)
     bad_top = ViewInput(np.zeros((4, 4), np.uint8), None, SIDE.intrinsics)   # not (H, W, 3)
@@ -123,9 +123,8 @@ def test_a_bad_top_view_fails_the_frame_with_its_own_error():
 def lookalikes(tless_models_dir):
     """Database of the look-alikes obj_21 and obj_22 (side camera, 4 views) and obj_21 lying
     on the table, seen by the side camera with 0.5 mm depth noise."""
-    from tlessbot_ros.core import templates as tpl
-    from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
-    from tlessbot_ros.core.render import MeshRenderer
+    from tlessbot_ros.core.common import MeshRenderer, make_transform, rotation_about_axis
+    from tlessbot_ros.core.pose import templates as tpl
     from tlessbot_ros.io.models import load_models, stable_poses
 
     models = load_models(tless_models_dir, ids=[21, 22])
@@ -148,8 +147,8 @@ def lookalikes(tless_models_dir):
 
 
 def test_a_lookalike_is_named_by_the_depth_it_explains(lookalikes):
-    from tlessbot_ros.core.lookalike import visible_difference
-    from tlessbot_ros.core.render import raycasting_scene
+    from tlessbot_ros.core.common import raycasting_scene
+    from tlessbot_ros.core.pose import visible_difference
 
     db, inputs, labels, models = lookalikes
     assert db[21].lookalikes == (22,) and db[22].lookalikes == (21,)
@@ -168,8 +167,7 @@ def test_a_lookalike_is_named_by_the_depth_it_explains(lookalikes):
 
 
 def test_a_sure_classifier_alone_names_a_part_seen_only_from_the_top():
-    from tlessbot_ros.core.classifier import UNKNOWN_ID, LinearClassifier
-    from tlessbot_ros.core.hog import HogParams
+    from tlessbot_ros.core.recognise import UNKNOWN_ID, HogParams, LinearClassifier
 
     def pipeline(scale, **params):
         model = LinearClassifier(np.zeros((HogParams().feature_dim, 3), np.float32),

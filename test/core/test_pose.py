@@ -5,8 +5,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from tlessbot_ros.core import templates as tpl
-from tlessbot_ros.core.geometry import (
+from tlessbot_ros.core.common import (
+    MeshRenderer,
+    default_rig,
     depth_to_points,
     invert_transform,
     make_transform,
@@ -14,8 +15,7 @@ from tlessbot_ros.core.geometry import (
     rotation_angle_deg,
 )
 from tlessbot_ros.core.pose import PoseEstimator, PoseParams, table_frame_from_plane
-from tlessbot_ros.core.render import MeshRenderer
-from tlessbot_ros.core.rig import default_rig
+from tlessbot_ros.core.pose import templates as tpl
 
 SIDE = default_rig()['side']
 
@@ -120,7 +120,7 @@ def test_table_frame_from_plane_matches_the_rig():
 
 
 def test_fallback_is_bounded_and_can_be_switched_off(setup, monkeypatch):
-    from tlessbot_ros.core import pose as pose_module
+    from tlessbot_ros.core.pose import estimator as pose_module
     model, db = setup
     points = _view(model, _place(db, 0, 50.0, 0.0, 0.0))
     calls = []

@@ -1,8 +1,14 @@
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.geometry import CameraIntrinsics, depth_to_points, look_at, transform_points
-from tlessbot_ros.core.render import NO_HIT, MeshRenderer
+from tlessbot_ros.core.common import (
+    NO_HIT,
+    CameraIntrinsics,
+    MeshRenderer,
+    depth_to_points,
+    look_at,
+    transform_points,
+)
 
 
 def _box(size: float):

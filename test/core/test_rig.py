@@ -1,8 +1,13 @@
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.geometry import project_points, transform_points
-from tlessbot_ros.core.rig import default_rig, rig_from_params, side_camera_position
+from tlessbot_ros.core.common import (
+    default_rig,
+    project_points,
+    rig_from_params,
+    side_camera_position,
+    transform_points,
+)
 from tlessbot_ros.io.config import default_config_path, load_ros_params
 
 

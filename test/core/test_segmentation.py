@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.segmentation import (
+from tlessbot_ros.core.localise import (
     SegmentationParams,
     boxes_from_labels,
     histogram_background_peak,
@@ -194,9 +194,7 @@ def test_real_tless_crops_are_not_swamped(shared_data) -> None:
 # --------------------------------------------------------------------------- depth cue
 def _depth_scene(table_rgb, part_rgb, *, shadow: bool = False):
     """Top view (320x240) of a 120x90x25 mm box on the table: rgb, depth_m, truth, camera."""
-    from tlessbot_ros.core.geometry import make_transform
-    from tlessbot_ros.core.render import MeshRenderer
-    from tlessbot_ros.core.rig import default_rig
+    from tlessbot_ros.core.common import MeshRenderer, default_rig, make_transform
 
     cam = default_rig(320, 240)['top']
     v = np.array([[x, y, z] for x in (-0.06, 0.06) for y in (-0.045, 0.045) for z in (0, 0.025)])
@@ -224,7 +222,7 @@ def _depth_scene(table_rgb, part_rgb, *, shadow: bool = False):
 
 
 def test_height_above_table_of_plane_and_part() -> None:
-    from tlessbot_ros.core.segmentation import height_above_table
+    from tlessbot_ros.core.localise import height_above_table
 
     _, depth, truth, cam = _depth_scene((90, 90, 90), (30, 30, 30))
     h = height_above_table(depth, cam.intrinsics.K, cam.T_world_camera)

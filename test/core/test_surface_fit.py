@@ -1,7 +1,7 @@
 """The numba robust quadratic fit equals the least-squares passes it replaced."""
 import numpy as np
 
-from tlessbot_ros.core.surface_fit import robust_quadratic_fit
+from tlessbot_ros.core.localise import robust_quadratic_fit
 
 
 def _reference(sample, iterations):

@@ -1,6 +1,6 @@
 import pytest
 
-from tlessbot_ros.core.sync import StampSynchroniser
+from tlessbot_ros.core.common import StampSynchroniser
 
 MS = 1_000_000
 

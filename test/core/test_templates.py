@@ -4,9 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tlessbot_ros.core import templates as tpl
-from tlessbot_ros.core.geometry import invert_transform, transform_points
-from tlessbot_ros.core.rig import default_rig
+from tlessbot_ros.core.common import default_rig, invert_transform, transform_points
+from tlessbot_ros.core.pose import templates as tpl
 from tlessbot_ros.errors import ModelFileError
 
 

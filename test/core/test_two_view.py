@@ -4,11 +4,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
-from tlessbot_ros.core.render import MeshRenderer
-from tlessbot_ros.core.rig import default_rig
-from tlessbot_ros.core.segmentation import SegmentationParams, segment
-from tlessbot_ros.core.two_view import FusionParams, fuse_views, table_homography
+from tlessbot_ros.core.common import MeshRenderer, default_rig, make_transform, rotation_about_axis
+from tlessbot_ros.core.localise import (
+    FusionParams,
+    SegmentationParams,
+    fuse_views,
+    segment,
+    table_homography,
+)
 
 W, H = 320, 240
 TABLE = 160.0

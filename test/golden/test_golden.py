@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tlessbot_ros.core.common import default_rig
+from tlessbot_ros.core.localise import segment
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 from tlessbot_ros.core.pose import PoseEstimator, PoseParams
-from tlessbot_ros.core.rig import default_rig
-from tlessbot_ros.core.segmentation import segment
 from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_TEMPLATES
 
 GOLDEN = Path(__file__).resolve().parent / 'data'
@@ -71,8 +71,8 @@ def demo_frames() -> list[dict[str, ViewInput]]:
 
 @pytest.fixture(scope='module')
 def pipeline() -> PerceptionPipeline:
-    from tlessbot_ros.core.classifier import LinearClassifier
-    from tlessbot_ros.core.templates import TemplateDatabase
+    from tlessbot_ros.core.pose import TemplateDatabase
+    from tlessbot_ros.core.recognise import LinearClassifier
 
     return PerceptionPipeline(rig=default_rig(), classifier=LinearClassifier.load(
         DEFAULT_CLASSIFIER), templates=TemplateDatabase.load(DEFAULT_TEMPLATES),
@@ -109,7 +109,7 @@ def test_classifier_scores_on_stored_crops(demo_frames, pipeline):
     """Scores of the packaged classifier on every crop of the stored fused labels."""
     stored_labels = _golden_npz('fused_labels', {}) if not REGENERATE else None
     classifier = pipeline.classifier
-    from tlessbot_ros.core.geometry import mask_box
+    from tlessbot_ros.core.common import mask_box
 
     computed = {}
     for index, views in enumerate(demo_frames):
@@ -154,7 +154,7 @@ def test_classes_and_poses_of_the_whole_pipeline(demo_frames, pipeline):
 def test_one_fitted_pose_per_path(demo_frames, fused_labels, pipeline, path):
     """The first detected part of frame 0 fitted by the table path (with the camera's pose over
     the table) and by the paper's FPFH + RANSAC path (without it)."""
-    from tlessbot_ros.core.cloud import roi_cloud
+    from tlessbot_ros.core.pose import roi_cloud
 
     views, labels = demo_frames[0], fused_labels[0]
     side = views['side']

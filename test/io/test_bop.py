@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.rig import default_rig
+from tlessbot_ros.core.common import default_rig
 from tlessbot_ros.errors import DatasetError
 from tlessbot_ros.io.bop import BopWriter, list_splits, read_split
 from tlessbot_ros.io.models import load_models

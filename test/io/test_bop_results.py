@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
+from tlessbot_ros.core.common import make_transform, rotation_about_axis
 from tlessbot_ros.errors import DatasetError
 from tlessbot_ros.io.bop_results import PoseResult, read_results, write_results
 

@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.geometry import transform_points
+from tlessbot_ros.core.common import transform_points
 from tlessbot_ros.errors import ModelFileError
 from tlessbot_ros.io.models import centre_of_mass, load_models, stable_poses
 

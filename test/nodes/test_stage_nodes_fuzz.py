@@ -30,10 +30,9 @@ def sim_frame(tless_models_dir):
 @pytest.fixture(scope='module')
 def model_files(tmp_path_factory, tless_models_dir):
     """A random-weight classifier and a one-object template database, written by our code."""
-    from tlessbot_ros.core.classifier import LinearClassifier
-    from tlessbot_ros.core.hog import HogParams
-    from tlessbot_ros.core.rig import default_rig
-    from tlessbot_ros.core.templates import TemplateParams, build_database
+    from tlessbot_ros.core.common import default_rig
+    from tlessbot_ros.core.pose import TemplateParams, build_database
+    from tlessbot_ros.core.recognise import HogParams, LinearClassifier
     from tlessbot_ros.io.models import load_models, stable_poses
 
     folder = tmp_path_factory.mktemp('models')

@@ -10,10 +10,10 @@ import time
 import numpy as np
 import pytest
 
-from tlessbot_ros.core import templates as tpl
+from tlessbot_ros.core.common import default_rig
 from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
 from tlessbot_ros.core.pose import PoseCandidate, PoseParams
-from tlessbot_ros.core.rig import default_rig
+from tlessbot_ros.core.pose import templates as tpl
 from tlessbot_ros.parallel import wire
 from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
 

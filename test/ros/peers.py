@@ -18,7 +18,7 @@ from tlessbot_ros.conversions import (
     pose_stamped_to_transform,
     transform_to_pose_stamped,
 )
-from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
+from tlessbot_ros.core.common import make_transform, rotation_about_axis
 
 IMAGE_TOPIC = 'test/color/image_raw'
 POSE_TOPIC = 'test/objects/obj_05/pose'

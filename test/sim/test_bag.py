@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 
 from tlessbot_ros.conversions import image_to_array, pose_stamped_to_transform
-from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
-from tlessbot_ros.core.rig import d415_intrinsics
+from tlessbot_ros.core.common import d415_intrinsics, make_transform, rotation_about_axis
 from tlessbot_ros.errors import BagError
 from tlessbot_ros.io.bags import bag_topics, deserialize, read_bag
 from tlessbot_ros.sim.bag import BagParams, write_bag

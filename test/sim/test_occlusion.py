@@ -4,8 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.geometry import transform_points
-from tlessbot_ros.core.rig import default_rig
+from tlessbot_ros.core.common import default_rig, transform_points
 from tlessbot_ros.io.models import load_models
 from tlessbot_ros.sim.occlusion import ArmOcclusionParams, occlude_frame
 from tlessbot_ros.sim.simulator import SimParams, Simulator

@@ -27,8 +27,7 @@ def test_gamma_and_tables():
 
 
 def test_shade_render_of_a_core_render(tless_models_dir):
-    from tlessbot_ros.core.render import MeshRenderer
-    from tlessbot_ros.core.rig import default_rig
+    from tlessbot_ros.core.common import MeshRenderer, default_rig
     from tlessbot_ros.io.models import load_models
     from tlessbot_ros.sim.materials import BLACK, LIGHT_YELLOW, Light
     from tlessbot_ros.sim.shading import shade_render

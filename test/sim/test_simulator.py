@@ -2,8 +2,12 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from tlessbot_ros.core.geometry import depth_to_points, invert_transform, transform_points
-from tlessbot_ros.core.rig import default_rig
+from tlessbot_ros.core.common import (
+    default_rig,
+    depth_to_points,
+    invert_transform,
+    transform_points,
+)
 from tlessbot_ros.io.models import load_models
 from tlessbot_ros.sim.noise import DepthNoiseParams
 from tlessbot_ros.sim.simulator import SimParams, Simulator
@@ -176,7 +180,7 @@ def test_params_validation():
 
 
 def test_px_count_all_matches_rendering_the_part_alone(frames, models):
-    from tlessbot_ros.core.render import MeshRenderer
+    from tlessbot_ros.core.common import MeshRenderer
 
     frame = min(frames, key=lambda f: min(g.visib_fract for g in f.views['side'].gt))
     for view in frame.views.values():

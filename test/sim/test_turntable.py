@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.hog import normalise_crop
+from tlessbot_ros.core.recognise import normalise_crop
 from tlessbot_ros.io.models import load_models
 from tlessbot_ros.sim.turntable import Turntable, TurntableParams, square_crop, write_samples
 
@@ -67,7 +67,7 @@ def test_param_errors():
 
 
 def test_samples_carry_depth_and_pose(models):
-    from tlessbot_ros.core.shape_features import region_points_world
+    from tlessbot_ros.core.recognise import region_points_world
 
     params = TurntableParams(step_deg=120, positions=1, augmentations=2)
     for sample in Turntable(models, params=params, seed=2).views(5, 0):

@@ -1,7 +1,6 @@
 import numpy as np
 
-from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
-from tlessbot_ros.core.symmetry import Symmetries
+from tlessbot_ros.core.common import Symmetries, make_transform, rotation_about_axis
 from tlessbot_ros.io.ground_truth import GroundTruthInstance
 from tlessbot_ros.tools._bag_scoring import Estimate, score_frame
 

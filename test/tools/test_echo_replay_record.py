@@ -9,7 +9,7 @@ from bagutil import TYPESTORE, write_bag
 from rosbags.rosbag2 import StoragePlugin
 
 from tlessbot_ros.conversions import RosbagsFactory, array_to_image, transform_to_pose_stamped
-from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
+from tlessbot_ros.core.common import make_transform, rotation_about_axis
 from tlessbot_ros.io.bags import read_bag
 from tlessbot_ros.tools.echo import CSV_HEADER, format_pose, format_pose_csv
 

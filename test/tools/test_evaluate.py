@@ -7,7 +7,7 @@ import shutil
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.geometry import make_transform, rotation_about_axis
+from tlessbot_ros.core.common import make_transform, rotation_about_axis
 from tlessbot_ros.io.bop import read_split
 from tlessbot_ros.io.bop_results import PoseResult, write_results
 from tlessbot_ros.tools.cli import main

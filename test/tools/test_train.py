@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.classifier import LinearClassifier
+from tlessbot_ros.core.recognise import LinearClassifier
 from tlessbot_ros.sim.turntable import Turntable, TurntableParams, write_samples
 from tlessbot_ros.tools.cli import main
 
@@ -66,8 +66,7 @@ def test_train_adds_simulated_scene_crops(tless_models_dir, tmp_path):
     assert model.info['scenes'] == 3 and model.info['scene_crops'] > 0
     assert model.info['average'] is True and model.info['alpha'] == 1e-5
     assert model.info['samples'] > model.info['scene_crops']   # turntable crops too
-    from tlessbot_ros.core.hog import HogParams
-    from tlessbot_ros.core.shape_features import ShapeParams
+    from tlessbot_ros.core.recognise import HogParams, ShapeParams
     features, labels = scene_features(tless_models_dir, HogParams(), ShapeParams(),
                                       ids=[5, 19, 21], scenes=3, seed=0)
     assert len(labels) == model.info['scene_crops'] and set(labels) <= {5, 19, 21}

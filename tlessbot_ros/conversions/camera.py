@@ -14,7 +14,7 @@ from tlessbot_ros.conversions.camera_info import intrinsics_to_camera_info
 from tlessbot_ros.conversions.image import array_to_image
 from tlessbot_ros.conversions.messages import MessageFactory, default_factory
 from tlessbot_ros.conversions.pointcloud import xyz_to_pointcloud2
-from tlessbot_ros.core.geometry import CameraIntrinsics, depth_to_points
+from tlessbot_ros.core.common import CameraIntrinsics, depth_to_points
 
 COLOR_TOPIC = 'color/image_raw'
 COLOR_INFO_TOPIC = 'color/camera_info'

@@ -1,4 +1,4 @@
-"""sensor_msgs/CameraInfo <-> :class:`~tlessbot_ros.core.geometry.CameraIntrinsics`."""
+"""sensor_msgs/CameraInfo <-> :class:`~tlessbot_ros.core.common.CameraIntrinsics`."""
 from __future__ import annotations
 
 from typing import Any
@@ -6,7 +6,7 @@ from typing import Any
 import numpy as np
 
 from tlessbot_ros.conversions.messages import MessageFactory, default_factory, make_header
-from tlessbot_ros.core.geometry import CameraIntrinsics, RegionOfInterest
+from tlessbot_ros.core.common import CameraIntrinsics, RegionOfInterest
 
 
 def camera_info_to_intrinsics(msg: Any) -> CameraIntrinsics:

@@ -27,7 +27,7 @@ ENCODINGS: dict[str, tuple[np.dtype, int]] = {
     '8UC1': (np.dtype(np.uint8), 1),
     'mono16': (np.dtype(np.uint16), 1),
     '16UC1': (np.dtype(np.uint16), 1),
-    '16UC2': (np.dtype(np.uint16), 2),   # 16UC2..4: class candidates (core/labels.py)
+    '16UC2': (np.dtype(np.uint16), 2),   # 16UC2..4: class candidates (core/common/labels.py)
     '16UC3': (np.dtype(np.uint16), 3),
     '16UC4': (np.dtype(np.uint16), 4),
     '32FC1': (np.dtype(np.float32), 1),

@@ -20,7 +20,7 @@ from tlessbot_ros.conversions.messages import (
     message_bytes,
     stamp_to_ns,
 )
-from tlessbot_ros.core.geometry import depth_to_points
+from tlessbot_ros.core.common import depth_to_points
 
 # sensor_msgs/PointField datatype constants -> numpy dtype
 POINT_FIELD_DTYPES = {1: np.int8, 2: np.uint8, 3: np.int16, 4: np.uint16, 5: np.int32,

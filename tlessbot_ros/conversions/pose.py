@@ -11,7 +11,7 @@ from tlessbot_ros.conversions.messages import (
     make_header,
     stamp_to_ns,
 )
-from tlessbot_ros.core.geometry import (
+from tlessbot_ros.core.common import (
     make_transform,
     matrix_from_quaternion,
     quaternion_from_matrix,

@@ -11,7 +11,7 @@ References:
 
 Poses are (4, 4) float64 ``T_camera_object`` transforms in metres; model points are (N, 3)
 in metres in the model frame; depth images are (H, W) in metres with 0 (or NaN) = no data.
-Symmetries are :class:`~tlessbot_ros.core.symmetry.Symmetries`.
+Symmetries are :class:`~tlessbot_ros.core.common.Symmetries`.
 """
 from __future__ import annotations
 
@@ -20,15 +20,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tlessbot_ros.core.geometry import (
+from tlessbot_ros.core.common import (
     CameraIntrinsics,
+    MeshRenderer,
+    Symmetries,
     invert_transform,
     make_transform,
     project_points,
     rotation_about_axis,
 )
-from tlessbot_ros.core.render import MeshRenderer
-from tlessbot_ros.core.symmetry import Symmetries
 
 __all__ = [
     'Symmetries', 'PoseError', 'pose_error', 'is_correct_cm_deg', 'add', 'adds', 'mssd', 'mspd',

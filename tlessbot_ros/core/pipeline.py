@@ -14,7 +14,7 @@ Stages (each a method, each usable alone, so the ROS nodes and the evaluator run
    fitted and the best fit names the part (verification by geometry, our addition: the
    near-identical T-LESS parts differ by millimetres that a 60 px crop cannot show). A part
    named as one of a look-alike pair (obj_21/22, obj_25/26) is then compared with its twin at
-   the fitted pose, pixel by pixel on the measured depth (:mod:`tlessbot_ros.core.lookalike`).
+   the fitted pose, pixel by pixel on the measured depth (:mod:`tlessbot_ros.core.pose.lookalike`).
 
 Inputs per view are :class:`ViewInput`; a two-view frame is ``{'top': ..., 'side': ...}``.
 """
@@ -29,15 +29,29 @@ from typing import Protocol
 
 import numpy as np
 
-from tlessbot_ros.core.classifier import UNKNOWN_ID, LinearClassifier
-from tlessbot_ros.core.cloud import roi_cloud
-from tlessbot_ros.core.geometry import CameraIntrinsics, mask_box, transform_points
-from tlessbot_ros.core.labels import pixel_counts
-from tlessbot_ros.core.pose import PoseCandidate, PoseEstimator, PoseParams
-from tlessbot_ros.core.rig import Rig
-from tlessbot_ros.core.segmentation import BackgroundModel, SegmentationParams, segment
-from tlessbot_ros.core.templates import TemplateDatabase
-from tlessbot_ros.core.two_view import FusionParams, FusionResult, fuse_views
+from tlessbot_ros.core.common import (
+    CameraIntrinsics,
+    Rig,
+    mask_box,
+    pixel_counts,
+    transform_points,
+)
+from tlessbot_ros.core.localise import (
+    BackgroundModel,
+    FusionParams,
+    FusionResult,
+    SegmentationParams,
+    fuse_views,
+    segment,
+)
+from tlessbot_ros.core.pose import (
+    PoseCandidate,
+    PoseEstimator,
+    PoseParams,
+    TemplateDatabase,
+    roi_cloud,
+)
+from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
 
 PREFERRED_VIEWS = ('side', 'top')
 
@@ -83,7 +97,7 @@ class PipelineParams:
         lookalike_check: after the fit, a part whose class has a look-alike in the template
             database is compared with it: both meshes are ray-cast at the fitted pose along
             the ROI pixels, and the one that explains more of the measured depth names the
-            part (:class:`~tlessbot_ros.core.lookalike.LookalikeCheck`).
+            part (:class:`~tlessbot_ros.core.pose.LookalikeCheck`).
         lookalike_tolerance_m: a pixel votes for one look-alike when it explains the depth
             better by more than this (metres).
         parallel_views: :meth:`PerceptionPipeline.localise` segments the top view in a second
@@ -241,11 +255,12 @@ class PerceptionPipeline:
 
     Args:
         rig: calibrated cameras (needed for two-view fusion beyond 'side_only').
-        classifier: a trained :class:`LinearClassifier` (needed by :meth:`classify`).
+        classifier: a trained :class:`~tlessbot_ros.core.recognise.Classifier` (needed by
+            :meth:`classify`).
         templates: a :class:`TemplateDatabase` (needed by :meth:`estimate_poses`).
     """
 
-    def __init__(self, *, rig: Rig | None = None, classifier: LinearClassifier | None = None,
+    def __init__(self, *, rig: Rig | None = None, classifier: Classifier | None = None,
                  templates: TemplateDatabase | None = None,
                  params: PipelineParams = PipelineParams(),
                  segmentation: SegmentationParams = SegmentationParams(),

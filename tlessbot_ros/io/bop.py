@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.geometry import CameraIntrinsics, invert_transform
+from tlessbot_ros.core.common import CameraIntrinsics, invert_transform
 from tlessbot_ros.errors import DatasetError
 
 if TYPE_CHECKING:

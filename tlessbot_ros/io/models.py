@@ -20,11 +20,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tlessbot_ros.core.geometry import point_set_diameter
+from tlessbot_ros.core.common import point_set_diameter
 from tlessbot_ros.errors import ModelFileError
 
 if TYPE_CHECKING:
-    from tlessbot_ros.core.symmetry import Symmetries
+    from tlessbot_ros.core.common import Symmetries
 
 MODEL_SUFFIXES = ('.stl', '.ply', '.obj')
 _NAME = re.compile(r'^obj_(\d+)$')
@@ -67,7 +67,7 @@ class ObjectModel:
     def listed_symmetries(self) -> Symmetries | None:
         """The symmetries ``models_info.json`` lists (the identity added), or None when there
         was no info file: then they are unknown, not absent."""
-        from tlessbot_ros.core.symmetry import Symmetries  # Open3D: imported when needed
+        from tlessbot_ros.core.common import Symmetries  # Open3D: imported when needed
 
         if self.symmetries_discrete is None and self.symmetries_continuous is None:
             return None

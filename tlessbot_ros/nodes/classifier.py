@@ -30,9 +30,9 @@ from tlessbot_ros.conversions import (
     stamp_to_ns,
 )
 from tlessbot_ros.conversions.image_cdr import image_to_cdr
-from tlessbot_ros.core.classifier import LinearClassifier
-from tlessbot_ros.core.labels import encode_candidates
+from tlessbot_ros.core.common import encode_candidates
 from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+from tlessbot_ros.core.recognise import load_classifier
 from tlessbot_ros.data import DEFAULT_CLASSIFIER
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
@@ -67,7 +67,7 @@ class ClassifierNode(StageNode):
                        "sent only when the margin is below this many times the model's median "
                        'training margin (inf: always)')).value
         self.extrinsics = declare_extrinsics(self)
-        self.model = LinearClassifier.load(path)  # ModelFileError: one line, exit 1
+        self.model = load_classifier(path)  # ModelFileError: one line, exit 1
         self.pipeline = PerceptionPipeline(
             classifier=self.model,
             params=PipelineParams(min_instance_px=int(min_px), reject_margin=float(reject),

@@ -1,7 +1,7 @@
 """Two-view input synchronisation for the perception nodes.
 
 Each camera's topics (e.g. colour, aligned depth, camera_info) are paired by stamp through a
-bounded :class:`~tlessbot_ros.core.sync.StampSynchroniser`; complete per-camera sets are then
+bounded :class:`~tlessbot_ros.core.common.StampSynchroniser`; complete per-camera sets are then
 paired across cameras under ``max_age_s``. The callback gets
 ``{camera: {topic_key: RawMessage}}``; :func:`deserialise_views` turns them into messages.
 Everything is bounded: old frames are dropped and counted.
@@ -19,7 +19,7 @@ from typing import Any
 from rclpy.node import Node
 
 from tlessbot_ros.conversions.image_cdr import image_from_cdr
-from tlessbot_ros.core.sync import StampSynchroniser, SyncParams
+from tlessbot_ros.core.common import StampSynchroniser, SyncParams
 from tlessbot_ros.io.bags import header_stamp_ns
 from tlessbot_ros.nodes.common import SENSOR_QOS
 

@@ -28,9 +28,8 @@ from tlessbot_ros.conversions import (
     stamp_to_ns,
 )
 from tlessbot_ros.conversions.image_cdr import image_to_cdr
+from tlessbot_ros.core.localise import FusionParams, SegmentationParams, prepare_background
 from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
-from tlessbot_ros.core.segmentation import SegmentationParams, prepare_background
-from tlessbot_ros.core.two_view import FusionParams
 from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class, run_node
 from tlessbot_ros.nodes.stage import (
     CAMERAS,

@@ -41,11 +41,9 @@ from tlessbot_ros.conversions import (
     transform_to_pose_stamped,
 )
 from tlessbot_ros.conversions.messages import RclpyFactory
-from tlessbot_ros.core.geometry import project_points, transform_points
-from tlessbot_ros.core.labels import decode_candidates
+from tlessbot_ros.core.common import decode_candidates, project_points, transform_points
 from tlessbot_ros.core.pipeline import Detection, PerceptionPipeline, PipelineParams, ViewInput
-from tlessbot_ros.core.pose import PoseParams
-from tlessbot_ros.core.templates import TemplateDatabase
+from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
 from tlessbot_ros.data import DEFAULT_TEMPLATES
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class, run_node

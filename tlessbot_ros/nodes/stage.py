@@ -26,9 +26,7 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 
-from tlessbot_ros.core.geometry import look_at
-from tlessbot_ros.core.rig import CameraMount, Rig, default_rig
-from tlessbot_ros.core.sync import SyncParams
+from tlessbot_ros.core.common import CameraMount, Rig, SyncParams, default_rig, look_at
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.nodes.common import (
     RESULT_QOS,

@@ -18,10 +18,8 @@ import signal
 import sys
 from typing import Any, BinaryIO
 
-from tlessbot_ros.core.cloud import CloudParams
 from tlessbot_ros.core.pipeline import Detection, PartJob, PerceptionPipeline, PipelineParams
-from tlessbot_ros.core.pose import PoseParams
-from tlessbot_ros.core.templates import TemplateDatabase
+from tlessbot_ros.core.pose import CloudParams, PoseParams, TemplateDatabase
 from tlessbot_ros.parallel.wire import (
     WireError,
     candidate_to_json,

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from tlessbot_ros.core.geometry import CameraIntrinsics
+from tlessbot_ros.core.common import CameraIntrinsics
 from tlessbot_ros.errors import DeviceError
 
 

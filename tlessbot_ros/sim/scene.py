@@ -14,8 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tlessbot_ros.core.geometry import project_points, transform_points
-from tlessbot_ros.core.rig import Rig
+from tlessbot_ros.core.common import Rig, project_points, transform_points
 from tlessbot_ros.io.models import ObjectModel, stable_poses
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tlessbot_ros.core.geometry import CameraIntrinsics
+from tlessbot_ros.core.common import CameraIntrinsics
 from tlessbot_ros.sim.materials import Light, Material, Table
 
 
@@ -204,7 +204,7 @@ def material_arrays(materials: list[Material], instance: np.ndarray,
 def shade_render(result, T_world_camera: np.ndarray, materials: list[Material], light: Light,
                  *, background: np.ndarray | None = None, exposure: float = 1.0,
                  albedo_scale: np.ndarray | None = None, scene=None) -> np.ndarray:
-    """Colour image of a :class:`~tlessbot_ros.core.render.RenderResult`.
+    """Colour image of a :class:`~tlessbot_ros.core.common.RenderResult`.
 
     Args:
         result: the render (depth, instance, normals_c, ray_dirs_c) of a camera at

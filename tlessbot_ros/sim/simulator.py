@@ -5,8 +5,8 @@
 1-8 parts (:mod:`~tlessbot_ros.sim.scene`), picks a table (plain or textured) and a lamp
 (:mod:`~tlessbot_ros.sim.materials`), ray-casts depth and instances per camera
 (one Open3D ``RaycastingScene`` per frame shared by camera rays, shadow rays and the
-``px_count_all`` counts, same conventions as :mod:`tlessbot_ros.core.render`; the table is the
-analytic plane z = 0), shades
+``px_count_all`` counts, same conventions as :mod:`tlessbot_ros.core.common.render`; the
+table is the analytic plane z = 0), shades
 colour with cast shadows (:mod:`~tlessbot_ros.sim.shading`) and adds D415-like depth noise and
 colour sensor noise (:mod:`~tlessbot_ros.sim.noise`).
 
@@ -21,13 +21,15 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from tlessbot_ros.core.geometry import (
+from tlessbot_ros.core.common import (
     CameraIntrinsics,
+    CameraMount,
+    Rig,
+    default_rig,
     invert_transform,
     project_points,
     transform_points,
 )
-from tlessbot_ros.core.rig import CameraMount, Rig, default_rig
 from tlessbot_ros.io.models import ObjectModel
 from tlessbot_ros.sim import shading
 from tlessbot_ros.sim.materials import (

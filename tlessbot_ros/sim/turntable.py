@@ -33,8 +33,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.geometry import (
+from tlessbot_ros.core.common import (
     CameraIntrinsics,
+    MeshRenderer,
+    d415_intrinsics,
     invert_transform,
     look_at,
     make_transform,
@@ -42,8 +44,6 @@ from tlessbot_ros.core.geometry import (
     rotation_about_axis,
     transform_points,
 )
-from tlessbot_ros.core.render import MeshRenderer
-from tlessbot_ros.core.rig import d415_intrinsics
 from tlessbot_ros.io.models import ObjectModel, stable_poses
 from tlessbot_ros.sim.noise import DepthNoiseParams, add_depth_noise
 

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tlessbot_ros.core.common import Symmetries
 from tlessbot_ros.core.metrics import PoseError, is_correct_cm_deg, pose_error
-from tlessbot_ros.core.symmetry import Symmetries
 from tlessbot_ros.io.ground_truth import GroundTruthInstance
 
 MIN_VISIB_FRACT = 0.3

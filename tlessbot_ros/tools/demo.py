@@ -15,8 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tlessbot_ros.core.geometry import rpy_from_matrix
-from tlessbot_ros.core.symmetry import Symmetries, symmetries_from_models_info
+from tlessbot_ros.core.common import Symmetries, rpy_from_matrix, symmetries_from_models_info
 from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_MODELS_INFO, DEFAULT_TEMPLATES
 from tlessbot_ros.errors import ModelFileError, TlessbotError
 from tlessbot_ros.io.config import default_config_path, package_path

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from tlessbot_ros.core.geometry import matrix_from_quaternion, rpy_from_matrix
+from tlessbot_ros.core.common import matrix_from_quaternion, rpy_from_matrix
 from tlessbot_ros.errors import TlessbotError
 
 CSV_HEADER = 'stamp_s,frame_id,x,y,z,qx,qy,qz,qw,roll_deg,pitch_deg,yaw_deg'

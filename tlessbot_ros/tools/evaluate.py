@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tlessbot_ros.core.common import Symmetries, detect_symmetries
 from tlessbot_ros.core.metrics import (
     BOP19_MSPD_THRESHOLDS_PX,
     BOP19_THRESHOLDS,
@@ -33,7 +34,6 @@ from tlessbot_ros.core.metrics import (
     pose_error,
     vsd,
 )
-from tlessbot_ros.core.symmetry import Symmetries, detect_symmetries
 from tlessbot_ros.errors import DatasetError, ModelFileError, TlessbotError
 from tlessbot_ros.io.bop_results import PoseResult, read_results, write_results
 
@@ -339,12 +339,10 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
     if args.oracle == 'none' and not two_view:
         raise TlessbotError('--oracle none needs a two-view dataset (test_top + test_side); '
                             'use --oracle boxes or boxes+classes for a single split')
-    from tlessbot_ros.core.classifier import LinearClassifier
-    from tlessbot_ros.core.geometry import mask_box
+    from tlessbot_ros.core.common import CameraMount, Rig, mask_box
     from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
-    from tlessbot_ros.core.pose import PoseParams
-    from tlessbot_ros.core.rig import CameraMount, Rig
-    from tlessbot_ros.core.templates import TemplateDatabase
+    from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
+    from tlessbot_ros.core.recognise import LinearClassifier
     from tlessbot_ros.io.bop import read_split
     from tlessbot_ros.tools._overrides import apply_overrides
 
@@ -537,7 +535,7 @@ def _bag_frames(args: argparse.Namespace) -> list[tuple[object, FrameOutput]]:
     from types import SimpleNamespace
 
     from tlessbot_ros.conversions import camera_info_to_intrinsics, depth_image_to_metres
-    from tlessbot_ros.core.rig import rig_from_params
+    from tlessbot_ros.core.common import rig_from_params
     from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_TEMPLATES
     from tlessbot_ros.io.bags import deserialize, read_bag
     from tlessbot_ros.io.config import default_config_path, load_ros_params

@@ -11,7 +11,11 @@ import argparse
 import json
 from pathlib import Path
 
-from tlessbot_ros.core.symmetry import Symmetries, detect_symmetries, symmetries_to_models_info
+from tlessbot_ros.core.common import (
+    Symmetries,
+    detect_symmetries,
+    symmetries_to_models_info,
+)
 from tlessbot_ros.io.models import ObjectModel, load_models
 
 

@@ -54,8 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def load_rig(config: Path | None, width: int | None, height: int | None):
     """The rig of a parameter YAML, with intrinsics rescaled to ``width`` x ``height``."""
-    from tlessbot_ros.core.geometry import CameraIntrinsics
-    from tlessbot_ros.core.rig import CameraMount, Rig, rig_from_params
+    from tlessbot_ros.core.common import CameraIntrinsics, CameraMount, Rig, rig_from_params
     from tlessbot_ros.io.config import default_config_path, load_ros_params
 
     path = config or default_config_path()

@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _side_camera(config: Path | None):
-    from tlessbot_ros.core.rig import default_rig, rig_from_params
+    from tlessbot_ros.core.common import default_rig, rig_from_params
     from tlessbot_ros.io.config import default_config_path, load_ros_params
 
     path = config or default_config_path()
@@ -49,7 +49,7 @@ def _side_camera(config: Path | None):
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from tlessbot_ros.core.templates import TemplateParams, build_database
+    from tlessbot_ros.core.pose import TemplateParams, build_database
     from tlessbot_ros.io.models import load_models, stable_poses
 
     try:

@@ -16,7 +16,7 @@ from the seeds the benchmarks and the demo use). Scene crops carry what a turnta
 neighbours, the real camera angles, both tables.
 
 --kernel M learns on an RBF feature map of the descriptor (M landmarks, Nyström; see
-tlessbot_ros.core.feature_map) instead of the descriptor itself. The packaged model:
+tlessbot_ros.core.recognise.feature_map) instead of the descriptor itself. The packaged model:
 
     tlessbot train --models DIR --scenes 800 --kernel 4000 --kernel-axes 256 --hog-weight 0.3 \
         --classifier perceptron --average --epochs 20 --out classifier.npz
@@ -26,7 +26,8 @@ Several learners can share one rendering pass: --classifier all (or sgd,pa1) wri
 
 --features ours (the default in CAD mode) appends metric shape features from the rendered,
 D415-noised depth of each view (heights above the plate, footprint, height map; see
-tlessbot_ros.core.shape_features) to the HOG; --features paper keeps the paper's HOG only.
+tlessbot_ros.core.recognise.shape) to the HOG; --features paper keeps the paper's HOG
+only.
 Image folders have no depth, so they always give paper-feature models.
 """
 from __future__ import annotations
@@ -38,9 +39,17 @@ from pathlib import Path
 
 import numpy as np
 
-from tlessbot_ros.core.classifier import KINDS, ClassifierParams, train_classifier
-from tlessbot_ros.core.hog import HogParams, hog_features, normalise_crop
-from tlessbot_ros.core.shape_features import ShapeParams, region_points_world, shape_features
+from tlessbot_ros.core.recognise import (
+    KINDS,
+    ClassifierParams,
+    HogParams,
+    ShapeParams,
+    hog_features,
+    normalise_crop,
+    region_points_world,
+    shape_features,
+    train_classifier,
+)
 from tlessbot_ros.errors import DatasetError, TlessbotError
 
 DEFAULT_STEP_DEG = 8.0
@@ -175,8 +184,7 @@ def scene_features(models_dir: Path, hog: HogParams, shape: ShapeParams, *,
     (N,) int64 ids)."""
     from tqdm import tqdm
 
-    from tlessbot_ros.core.hog import describe_regions
-    from tlessbot_ros.core.shape_features import shape_features_batch
+    from tlessbot_ros.core.recognise import describe_regions, shape_features_batch
     from tlessbot_ros.io.models import load_models
     from tlessbot_ros.sim.simulator import Simulator
 

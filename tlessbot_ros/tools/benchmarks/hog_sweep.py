@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _crops(args: argparse.Namespace):
     from tqdm import tqdm
 
-    from tlessbot_ros.core.hog import normalise_crop
+    from tlessbot_ros.core.recognise import normalise_crop
     from tlessbot_ros.io.models import load_models
     from tlessbot_ros.sim.simulator import Simulator
     from tlessbot_ros.sim.turntable import Turntable, TurntableParams
@@ -62,8 +62,13 @@ def _crops(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from tlessbot_ros.core.classifier import KINDS, ClassifierParams, train_classifier
-    from tlessbot_ros.core.hog import HogParams, hog_features
+    from tlessbot_ros.core.recognise import (
+        KINDS,
+        ClassifierParams,
+        HogParams,
+        hog_features,
+        train_classifier,
+    )
     from tlessbot_ros.errors import TlessbotError
 
     for cell in args.cells:

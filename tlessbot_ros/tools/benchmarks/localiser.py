@@ -149,9 +149,8 @@ CUE_RUNS = (('RGB + empty table + depth (ours)', True, True),
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from tlessbot_ros.core.rig import CameraMount, Rig, default_rig
-    from tlessbot_ros.core.segmentation import prepare_background, segment
-    from tlessbot_ros.core.two_view import FusionParams, fuse_views
+    from tlessbot_ros.core.common import CameraMount, Rig, default_rig
+    from tlessbot_ros.core.localise import FusionParams, fuse_views, prepare_background, segment
     from tlessbot_ros.errors import TlessbotError
     from tlessbot_ros.io.models import load_models
     from tlessbot_ros.sim.occlusion import occlude_frame

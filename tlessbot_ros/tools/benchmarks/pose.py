@@ -69,9 +69,9 @@ class SymmetryAwareScorer:
     object; symmetries from the packaged models_info.json, else detected from the mesh."""
 
     def __init__(self, model, symmetries=None, *, samples: int = 1000):
+        from tlessbot_ros.core.common import Symmetries, detect_symmetries
         from tlessbot_ros.core.metrics import ModelDepthRenderer
-        from tlessbot_ros.core.symmetry import Symmetries, detect_symmetries
-        from tlessbot_ros.core.templates import sample_surface
+        from tlessbot_ros.core.pose import sample_surface
         self.points = sample_surface(model.vertices, model.faces, samples)[0].astype(np.float64)
         if symmetries is None:
             symmetries = detect_symmetries(model.vertices, model.faces,
@@ -107,7 +107,7 @@ def packaged_symmetries() -> dict:
     """{obj_id: Symmetries} from the packaged models_info.json ({} if missing)."""
     import json
 
-    from tlessbot_ros.core.symmetry import symmetries_from_models_info
+    from tlessbot_ros.core.common import symmetries_from_models_info
     from tlessbot_ros.data import DEFAULT_MODELS_INFO
     if not DEFAULT_MODELS_INFO.is_file():
         return {}
@@ -121,7 +121,7 @@ def collect_objects(models, *, per_class: int, noise_scale: float, min_visib: fl
     view) with at most ``per_class`` per class."""
     from tqdm import tqdm
 
-    from tlessbot_ros.core.cloud import roi_cloud
+    from tlessbot_ros.core.pose import roi_cloud
     from tlessbot_ros.sim.simulator import SimParams, Simulator
 
     simulator = Simulator(models, params=SimParams(noise_scale=noise_scale), seed=seed)
@@ -150,8 +150,8 @@ def template_database(models: dict, *, views: int, path: Path | None = None):
     """The shipped/given database (``path``) or one built from ``models`` with ``views``."""
     from tqdm import tqdm
 
-    from tlessbot_ros.core.rig import default_rig
-    from tlessbot_ros.core.templates import TemplateDatabase, TemplateParams, build_database
+    from tlessbot_ros.core.common import default_rig
+    from tlessbot_ros.core.pose import TemplateDatabase, TemplateParams, build_database
     from tlessbot_ros.io.models import stable_poses
     if path is not None:
         db = TemplateDatabase.load(path)

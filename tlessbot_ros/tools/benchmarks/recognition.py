@@ -78,8 +78,8 @@ def lookalike_difference(models, frames, min_pixels: int, tolerance_m: float
     """Per crop (in :func:`simulated_crops` order): the share of its visible pixels where its
     look-alike part, at the same ground-truth pose, would show another depth (NaN for parts
     without a look-alike), and the look-alike pairs found among the models."""
-    from tlessbot_ros.core.lookalike import lookalike_pairs, visible_difference
-    from tlessbot_ros.core.render import raycasting_scene
+    from tlessbot_ros.core.common import raycasting_scene
+    from tlessbot_ros.core.pose import lookalike_pairs, visible_difference
 
     meshes = {i: (m.vertices, m.faces) for i, m in models.items()}
     pairs = lookalike_pairs(meshes, tolerance_m=tolerance_m)
@@ -192,7 +192,7 @@ def confusion_png(path: Path, matrix: np.ndarray, ids: list[int], title: str) ->
 
 def lookalike_table(args, models, frames, labels, columns) -> list[str]:
     """Markdown: accuracy on the crops of look-alike parts, split by whether the view shows
-    what tells them apart (see :mod:`tlessbot_ros.core.lookalike`)."""
+    what tells them apart (see :mod:`tlessbot_ros.core.pose.lookalike`)."""
     share, pairs = lookalike_difference(models, frames, args.min_pixels, args.lookalike_tolerance)
     if not pairs:
         return []
@@ -273,7 +273,7 @@ def crop_pose_stage(model, templates, frames, min_pixels: int, scores: np.ndarra
 
 
 def run(args: argparse.Namespace) -> int:
-    from tlessbot_ros.core.classifier import LinearClassifier
+    from tlessbot_ros.core.recognise import LinearClassifier
     from tlessbot_ros.io.models import load_models
 
     classifiers = {path: LinearClassifier.load(path) for path in args.classifier}
@@ -285,7 +285,7 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     templates = None
     if args.templates is not None:
-        from tlessbot_ros.core.templates import TemplateDatabase
+        from tlessbot_ros.core.pose import TemplateDatabase
 
         templates = TemplateDatabase.load(args.templates)
     results = {}

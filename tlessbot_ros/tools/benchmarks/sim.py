@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from tlessbot_ros.core.rig import default_rig
+    from tlessbot_ros.core.common import default_rig
     from tlessbot_ros.errors import TlessbotError
     from tlessbot_ros.io.models import load_models
     from tlessbot_ros.sim.simulator import SimParams, Simulator

@@ -24,7 +24,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.geometry import mask_box
+from tlessbot_ros.core.common import mask_box
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Linear classifiers over HOG (+ metric shape) descriptors: SGD, Perceptron, PA-I and PA-II.
 
 After the paper (§3.2, §6.1) the descriptor of a crop is its HOG ("paper features"). A model may
-also carry :class:`~tlessbot_ros.core.shape_features.ShapeParams` ("ours"): then the vector
+also carry :class:`~tlessbot_ros.core.recognise.ShapeParams` ("ours"): then the vector
 is the HOG followed by metric shape features read from the aligned depth of the region (heights
 above the table, footprint, yaw-normalised height map), which give back the physical size that
 the 60×60 crop throws away. Where a region has no usable depth the shape part is filled with
@@ -21,7 +21,8 @@ Prediction does not use scikit-learn: the fitted one-vs-rest weights are kept as
 crop instead of 0.3 ms for ``predict``. The margin between the best and second-best class score
 is the confidence; a crop whose margin is below ``reject_margin`` is labelled ``UNKNOWN_ID``.
 
-A model may also put an RBF feature map (:mod:`~tlessbot_ros.core.feature_map`, Nyström) in
+A model may also put an RBF feature map
+(:mod:`~tlessbot_ros.core.recognise.feature_map`, Nyström) in
 front of the linear learner: the learner is still one of the four above, on ``phi(x)``.
 
 The model file is an ``.npz`` read with ``allow_pickle=False``; see :meth:`LinearClassifier.save`.
@@ -41,15 +42,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.feature_map import RbfFeatureMap, fit_rbf_map
-from tlessbot_ros.core.hog import HogParams, describe_regions
-from tlessbot_ros.core.shape_features import ShapeParams, region_points_world, shape_features_batch
+from tlessbot_ros.core.recognise.feature_map import RbfFeatureMap, fit_rbf_map
+from tlessbot_ros.core.recognise.hog import HogParams, describe_regions
+from tlessbot_ros.core.recognise.model import LOADERS, UNKNOWN_ID
+from tlessbot_ros.core.recognise.shape import (
+    ShapeParams,
+    region_points_world,
+    shape_features_batch,
+)
 from tlessbot_ros.errors import ModelFileError
 
 FORMAT_VERSION = 3  # 2 adds shape_params / shape_fill, 3 the feature map; 1 and 2 still load
 FILE_MAGIC = 'tlessbot_ros.linear_classifier'
 KINDS = ('sgd', 'perceptron', 'pa1', 'pa2')
-UNKNOWN_ID = 0  # T-LESS ids start at 1
 
 
 @dataclass(frozen=True)
@@ -75,7 +80,7 @@ class ClassifierParams:
             'perceptron' the averaged perceptron) instead of the last ones: less noisy
             weights, which carry better from the rendered training crops to the scenes.
         kernel_components: 0 learns on the descriptors themselves; M > 0 learns on an RBF
-            feature map with M landmarks (:func:`~tlessbot_ros.core.feature_map.fit_rbf_map`).
+            feature map with M landmarks (:func:`~tlessbot_ros.core.recognise.fit_rbf_map`).
         kernel_axes: principal axes of the standardised descriptor the map keeps.
         kernel_gamma: RBF width of the map, relative to the descriptor length.
     """
@@ -568,3 +573,6 @@ def _box_mask(box, shape: tuple[int, int]) -> np.ndarray:
     mask = np.zeros(shape, bool)
     mask[max(y, 0):max(y + h, 0), max(x, 0):max(x + w, 0)] = True
     return mask
+
+
+LOADERS[FILE_MAGIC] = LinearClassifier.load

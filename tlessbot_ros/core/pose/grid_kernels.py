@@ -1,7 +1,7 @@
 """Fused loops of the table-path pose search over a nearest-sample grid (numba).
 
 The table path scores and refines K poses of one object against N scene points through a
-:class:`~tlessbot_ros.core.templates.NearestGrid`. Written with numpy, each step builds several
+:class:`~tlessbot_ros.core.pose.NearestGrid`. Written with numpy, each step builds several
 (K, N, 3) temporaries and spends most of its time in small-array overhead; these kernels make
 one pass per pose and point, without temporaries. They compute exactly what the numpy
 formulation does (up to summation order): tests compare the two. They release the GIL, so a

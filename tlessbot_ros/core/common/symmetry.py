@@ -17,7 +17,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 
-from tlessbot_ros.core.geometry import make_transform, rotation_about_axis, rotation_angle_deg
+from tlessbot_ros.core.common.geometry import (
+    make_transform,
+    rotation_about_axis,
+    rotation_angle_deg,
+)
 
 
 def _as_transform(T: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from tlessbot_ros.core.geometry import CameraIntrinsics, transform_points
+from tlessbot_ros.core.common.geometry import CameraIntrinsics, transform_points
 
 NO_HIT = -1
 

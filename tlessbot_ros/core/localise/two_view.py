@@ -32,9 +32,8 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from tlessbot_ros.core.geometry import transform_points
-from tlessbot_ros.core.rig import Rig
-from tlessbot_ros.core.segmentation import Segmentation, boxes_from_labels
+from tlessbot_ros.core.common import Rig, transform_points
+from tlessbot_ros.core.localise.segmentation import Segmentation, boxes_from_labels
 
 FUSION_METHODS = ('side_only', 'algorithm1', 'calibrated')
 
@@ -151,7 +150,7 @@ def fuse_views(top: Segmentation, side: Segmentation, *, rig: Rig | None = None,
     """Give each object one id in both views (paper's Algorithm 1 or the calibrated fusion).
 
     Args:
-        top, side: :class:`~tlessbot_ros.core.segmentation.Segmentation` of each view.
+        top, side: :class:`~tlessbot_ros.core.localise.Segmentation` of each view.
         rig: the calibrated cameras (intrinsics + extrinsics, world z = 0 is the table);
             needed by 'algorithm1' (plane homography) and 'calibrated'.
         depth_top_m: optional (H, W) float32 top depth in metres (0 / NaN invalid), aligned to

@@ -38,8 +38,8 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.labels import pixel_counts
-from tlessbot_ros.core.surface_fit import robust_quadratic_fit
+from tlessbot_ros.core.common import pixel_counts
+from tlessbot_ros.core.localise.surface_fit import robust_quadratic_fit
 
 # Stain OD vectors (rows: haematoxylin, eosin, DAB) of Ruifrok & Johnston (2001), as used by
 # skimage.color.rgb2hed; the deconvolution matrix is their inverse.
@@ -828,7 +828,7 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
             with the colour cues: high pixels join the union, pixels with valid depth on the
             table plane veto colour candidates (shadows) and seed the watershed's background;
             pixels without valid depth are left to the colour cues.
-        intrinsics: :class:`~tlessbot_ros.core.geometry.CameraIntrinsics` or a (3, 3) K of
+        intrinsics: :class:`~tlessbot_ros.core.common.CameraIntrinsics` or a (3, 3) K of
             the image (needed with ``depth_m``).
         T_world_camera: (4, 4) camera pose in the table frame (needed with ``depth_m``).
         params: see :class:`SegmentationParams`.

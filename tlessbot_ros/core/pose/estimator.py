@@ -33,22 +33,22 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 
-from tlessbot_ros.core.buckets import PointBuckets
-from tlessbot_ros.core.cloud import (
+from tlessbot_ros.core.common import invert_transform, make_transform, transform_points
+from tlessbot_ros.core.pose.buckets import PointBuckets
+from tlessbot_ros.core.pose.cloud import (
     CloudParams,
     estimate_normals,
     remove_statistical_outliers,
     to_o3d,
     voxel_downsample,
 )
-from tlessbot_ros.core.geometry import invert_transform, make_transform, transform_points
-from tlessbot_ros.core.grid_kernels import (
+from tlessbot_ros.core.pose.grid_kernels import (
     gauss_newton,
     inlier_fraction,
     self_visible,
     truncated_cost,
 )
-from tlessbot_ros.core.templates import (
+from tlessbot_ros.core.pose.templates import (
     CONTINUOUS_YAW_PERIOD,
     ObjectTemplates,
     TemplateDatabase,
@@ -274,7 +274,7 @@ class PoseEstimator:
 
         Args:
             points_c: (N, 3) ROI points in the camera optical frame, metres (from
-                :func:`tlessbot_ros.core.cloud.roi_cloud`).
+                :func:`tlessbot_ros.core.pose.roi_cloud`).
             obj_id: the recognised T-LESS class.
             T_world_camera: (4, 4) camera pose in a world frame whose z = 0 plane is the table
                 (needed by the table path; without it RANSAC is used).
@@ -624,7 +624,7 @@ def register_templates(scene_c: np.ndarray, scene_normals: np.ndarray, scene_fpf
 
     Args:
         scene_c: (N, 3) voxelised scene points (camera frame); scene_normals (N, 3);
-            scene_fpfh (N, 33) float32 from :func:`~tlessbot_ros.core.templates.compute_fpfh`.
+            scene_fpfh (N, 33) float32 from :func:`~tlessbot_ros.core.pose.compute_fpfh`.
         obj: the object's templates.
         template_indices: templates to try (default all).
         max_iteration: RANSAC iterations per template (default ``params.ransac_max_iteration``).

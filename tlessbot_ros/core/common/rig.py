@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from tlessbot_ros.core.geometry import CameraIntrinsics, invert_transform, look_at
+from tlessbot_ros.core.common.geometry import CameraIntrinsics, invert_transform, look_at
 
 # D415 colour stream at 640x480 (4:3 crop of the sensor): fx ~ fy ~ 615 px.
 D415_FOCAL_PX_AT_640 = 615.0

@@ -22,9 +22,7 @@ from collections.abc import Mapping
 import numpy as np
 import open3d as o3d
 
-from tlessbot_ros.core.geometry import CameraIntrinsics
-from tlessbot_ros.core.render import raycasting_scene
-from tlessbot_ros.core.symmetry import sample_surface
+from tlessbot_ros.core.common import CameraIntrinsics, raycasting_scene, sample_surface
 
 Mesh = tuple[np.ndarray, np.ndarray]  # (V, 3) vertices in metres, (F, 3) int faces
 # A pixel the mesh does not cover counts as this far from the measured depth (m): as far as a
@@ -93,7 +91,7 @@ def visible_difference(scene_a: o3d.t.geometry.RaycastingScene,
 
     Args:
         scene_a, scene_b: the two parts' meshes in their (shared) model frame, metres, as
-            :func:`~tlessbot_ros.core.render.raycasting_scene` (built once per part).
+            :func:`~tlessbot_ros.core.common.raycasting_scene` (built once per part).
         T_camera_object: (4, 4) pose in the camera's optical frame.
         intrinsics: the camera's pinhole intrinsics.
         mask: (H, W) bool visible pixels of the part in this view.

@@ -22,7 +22,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from tlessbot_ros.core.geometry import CameraIntrinsics, depth_to_points, transform_points
+from tlessbot_ros.core.common import CameraIntrinsics, depth_to_points, transform_points
 
 
 @dataclass(frozen=True)

@@ -6,8 +6,9 @@ captured from real turntable clouds (:func:`template_from_cloud`). A template st
 voxelised cloud and the pose of the object in the template's camera frame; its normals (facing
 the camera) and FPFH features (Rusu 2009) are computed on first use by the RANSAC path and kept in
 memory, never stored (format version 2: FPFH was 90 % of a version-1 file). Per object the
-database also keeps what the fast table-plane path of :mod:`tlessbot_ros.core.pose` needs: surface
-samples with normals, the stable poses on the table, and the yaw period of each stable pose (its
+database also keeps what the fast table-plane path of
+:mod:`tlessbot_ros.core.pose.estimator` needs: surface samples with normals, the stable poses
+on the table, and the yaw period of each stable pose (its
 rotational symmetry about the table normal, detected from the mesh: 2π for none, π for a 180°
 flip, ~0 for a continuous axis).
 
@@ -29,19 +30,19 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from tlessbot_ros.core.buckets import PointBuckets
-from tlessbot_ros.core.cloud import CloudParams, estimate_normals, preprocess_roi, to_o3d
-from tlessbot_ros.core.geometry import (
+from tlessbot_ros.core.common import (
     CameraIntrinsics,
     depth_to_points,
     invert_transform,
     make_transform,
     point_set_diameter,
+    raycasting_scene,
     rotation_about_axis,
     transform_points,
 )
-from tlessbot_ros.core.lookalike import LookalikeCheck, lookalike_pairs
-from tlessbot_ros.core.render import raycasting_scene
+from tlessbot_ros.core.pose.buckets import PointBuckets
+from tlessbot_ros.core.pose.cloud import CloudParams, estimate_normals, preprocess_roi, to_o3d
+from tlessbot_ros.core.pose.lookalike import LookalikeCheck, lookalike_pairs
 from tlessbot_ros.errors import ModelFileError
 
 FORMAT = 'tlessbot_templates'
@@ -73,7 +74,7 @@ class TemplateParams:
         seed: seed of the surface sampling.
         lookalike_min_shared, lookalike_tolerance_m: parts sharing at least this share of
             their surface within this distance are look-alikes
-            (:func:`~tlessbot_ros.core.lookalike.lookalike_pairs`); their meshes are stored so
+            (:func:`~tlessbot_ros.core.pose.lookalike_pairs`); their meshes are stored so
             the pose stage can tell them apart.
     """
 
@@ -139,7 +140,7 @@ class ObjectTemplates:
         normal_radius_voxels, normal_max_nn, fpfh_radius_voxels, fpfh_max_nn: the feature
             settings of :meth:`features` (as when the templates were made).
         lookalikes: ids of the parts that look like this one (see
-            :mod:`tlessbot_ros.core.lookalike`); empty for most.
+            :mod:`tlessbot_ros.core.pose.lookalike`); empty for most.
         mesh_vertices, mesh_faces: (V, 3) float32 metres and (F, 3) int32, the CAD mesh, kept
             only for parts with look-alikes (None otherwise).
     """
@@ -271,7 +272,7 @@ class TemplateDatabase:
         return obj_id in self.objects
 
     def lookalike_check(self, *, tolerance_m: float = 0.002) -> LookalikeCheck:
-        """A :class:`~tlessbot_ros.core.lookalike.LookalikeCheck` over the stored look-alikes
+        """A :class:`~tlessbot_ros.core.pose.LookalikeCheck` over the stored look-alikes
         (it checks nothing for a database without any)."""
         objects = [o for o in self.objects.values() if o.lookalikes and o.mesh_faces is not None]
         return LookalikeCheck({o.obj_id: (o.mesh_vertices, o.mesh_faces) for o in objects},
@@ -543,7 +544,7 @@ def build_object_templates(
         diameter_m: the object's diameter (computed from the vertices if None).
         position_m: (3,) turntable centre on the table in world coordinates.
     """
-    from tlessbot_ros.core.render import MeshRenderer
+    from tlessbot_ros.core.common import MeshRenderer
 
     poses = sorted(((np.asarray(T, np.float64), float(p)) for T, p in stable_poses),
                    key=lambda pair: -pair[1])

@@ -1,0 +1,129 @@
+"""Pieces every stage shares: camera geometry, the rig, label images, frame pairing,
+mesh rendering and symmetries. Imports no stage.
+
+This package's public API; names load on first use, so importing one light module
+(geometry, say) does not import Open3D."""
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+# name -> the module of this package that defines it
+_HOME = {
+    'CameraIntrinsics': 'geometry',
+    'RegionOfInterest': 'geometry',
+    'depth_to_points': 'geometry',
+    'invert_transform': 'geometry',
+    'look_at': 'geometry',
+    'make_transform': 'geometry',
+    'mask_box': 'geometry',
+    'matrix_from_quaternion': 'geometry',
+    'point_set_diameter': 'geometry',
+    'project_points': 'geometry',
+    'quaternion_from_matrix': 'geometry',
+    'rotation_about_axis': 'geometry',
+    'rotation_angle_deg': 'geometry',
+    'rpy_from_matrix': 'geometry',
+    'transform_points': 'geometry',
+    'CLASS_STRIDE': 'labels',
+    'MAX_INSTANCES': 'labels',
+    'decode_candidates': 'labels',
+    'decode_classes': 'labels',
+    'encode_candidates': 'labels',
+    'encode_classes': 'labels',
+    'instance_masks': 'labels',
+    'pixel_counts': 'labels',
+    'MeshRenderer': 'render',
+    'NO_HIT': 'render',
+    'RenderResult': 'render',
+    'raycasting_scene': 'render',
+    'CameraMount': 'rig',
+    'D415_FOCAL_PX_AT_640': 'rig',
+    'Rig': 'rig',
+    'd415_intrinsics': 'rig',
+    'default_rig': 'rig',
+    'rig_from_params': 'rig',
+    'side_camera_position': 'rig',
+    'Symmetries': 'symmetry',
+    'SymmetryParams': 'symmetry',
+    'detect_symmetries': 'symmetry',
+    'sample_surface': 'symmetry',
+    'symmetries_from_models_info': 'symmetry',
+    'symmetries_to_models_info': 'symmetry',
+    'Item': 'sync',
+    'StampSynchroniser': 'sync',
+    'SyncParams': 'sync',
+}
+__all__ = sorted(_HOME)
+
+
+def __getattr__(name: str):
+    try:
+        module = _HOME[name]
+    except KeyError:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}') from None
+    value = getattr(importlib.import_module(f'{__name__}.{module}'), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.common.geometry import (  # noqa: F401
+        CameraIntrinsics,
+        RegionOfInterest,
+        depth_to_points,
+        invert_transform,
+        look_at,
+        make_transform,
+        mask_box,
+        matrix_from_quaternion,
+        point_set_diameter,
+        project_points,
+        quaternion_from_matrix,
+        rotation_about_axis,
+        rotation_angle_deg,
+        rpy_from_matrix,
+        transform_points,
+    )
+    from tlessbot_ros.core.common.labels import (  # noqa: F401
+        CLASS_STRIDE,
+        MAX_INSTANCES,
+        decode_candidates,
+        decode_classes,
+        encode_candidates,
+        encode_classes,
+        instance_masks,
+        pixel_counts,
+    )
+    from tlessbot_ros.core.common.render import (  # noqa: F401
+        NO_HIT,
+        MeshRenderer,
+        RenderResult,
+        raycasting_scene,
+    )
+    from tlessbot_ros.core.common.rig import (  # noqa: F401
+        D415_FOCAL_PX_AT_640,
+        CameraMount,
+        Rig,
+        d415_intrinsics,
+        default_rig,
+        rig_from_params,
+        side_camera_position,
+    )
+    from tlessbot_ros.core.common.symmetry import (  # noqa: F401
+        Symmetries,
+        SymmetryParams,
+        detect_symmetries,
+        sample_surface,
+        symmetries_from_models_info,
+        symmetries_to_models_info,
+    )
+    from tlessbot_ros.core.common.sync import (  # noqa: F401
+        Item,
+        StampSynchroniser,
+        SyncParams,
+    )

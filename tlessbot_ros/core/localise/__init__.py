@@ -1,0 +1,93 @@
+"""Stage 1, localisation: per-view segmentation (colour cues, depth, instance separation)
+and the two-view fusion that gives one id per part in both views.
+
+This package's public API; names load on first use, so importing one light module
+(geometry, say) does not import Open3D."""
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+# name -> the module of this package that defines it
+_HOME = {
+    'BackgroundModel': 'segmentation',
+    'METHODS': 'segmentation',
+    'Segmentation': 'segmentation',
+    'SegmentationParams': 'segmentation',
+    'background_mask': 'segmentation',
+    'boxes_from_labels': 'segmentation',
+    'hed_masks': 'segmentation',
+    'height_above_table': 'segmentation',
+    'histogram_background_peak': 'segmentation',
+    'lab_masks': 'segmentation',
+    'prepare_background': 'segmentation',
+    'relabel_sequential': 'segmentation',
+    'remove_trend': 'segmentation',
+    'rgb_to_hed': 'segmentation',
+    'rgb_to_lab': 'segmentation',
+    'segment': 'segmentation',
+    'sobel_magnitude': 'segmentation',
+    'split_touching': 'segmentation',
+    'watershed_refine': 'segmentation',
+    'robust_quadratic_fit': 'surface_fit',
+    'FUSION_METHODS': 'two_view',
+    'FusedInstance': 'two_view',
+    'FusionParams': 'two_view',
+    'FusionResult': 'two_view',
+    'fuse_views': 'two_view',
+    'lift_top_blobs': 'two_view',
+    'predict_side_regions': 'two_view',
+    'table_homography': 'two_view',
+}
+__all__ = sorted(_HOME)
+
+
+def __getattr__(name: str):
+    try:
+        module = _HOME[name]
+    except KeyError:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}') from None
+    value = getattr(importlib.import_module(f'{__name__}.{module}'), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.localise.segmentation import (  # noqa: F401
+        METHODS,
+        BackgroundModel,
+        Segmentation,
+        SegmentationParams,
+        background_mask,
+        boxes_from_labels,
+        hed_masks,
+        height_above_table,
+        histogram_background_peak,
+        lab_masks,
+        prepare_background,
+        relabel_sequential,
+        remove_trend,
+        rgb_to_hed,
+        rgb_to_lab,
+        segment,
+        sobel_magnitude,
+        split_touching,
+        watershed_refine,
+    )
+    from tlessbot_ros.core.localise.surface_fit import (  # noqa: F401
+        robust_quadratic_fit,
+    )
+    from tlessbot_ros.core.localise.two_view import (  # noqa: F401
+        FUSION_METHODS,
+        FusedInstance,
+        FusionParams,
+        FusionResult,
+        fuse_views,
+        lift_top_blobs,
+        predict_side_regions,
+        table_homography,
+    )

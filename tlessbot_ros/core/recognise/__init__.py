@@ -1,0 +1,89 @@
+"""Stage 2, recognition: HOG and metric shape features of a region, the RBF feature map and
+the linear classifiers over them.
+
+This package's public API; names load on first use, so importing one light module
+(geometry, say) does not import Open3D."""
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+# name -> the module of this package that defines it
+_HOME = {
+    'ClassifierParams': 'classifier',
+    'FILE_MAGIC': 'classifier',
+    'FORMAT_VERSION': 'classifier',
+    'KINDS': 'classifier',
+    'LinearClassifier': 'classifier',
+    'OnlineTrainer': 'classifier',
+    'Prediction': 'classifier',
+    'train_classifier': 'classifier',
+    'EIGEN_CUTOFF': 'feature_map',
+    'RbfFeatureMap': 'feature_map',
+    'fit_rbf_map': 'feature_map',
+    'HogParams': 'hog',
+    'describe_regions': 'hog',
+    'hog_features': 'hog',
+    'normalise_crop': 'hog',
+    'Classifier': 'model',
+    'LOADERS': 'model',
+    'UNKNOWN_ID': 'model',
+    'file_magic': 'model',
+    'load_classifier': 'model',
+    'ShapeParams': 'shape',
+    'region_points_world': 'shape',
+    'shape_features': 'shape',
+    'shape_features_batch': 'shape',
+}
+__all__ = sorted(_HOME)
+
+
+def __getattr__(name: str):
+    try:
+        module = _HOME[name]
+    except KeyError:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}') from None
+    value = getattr(importlib.import_module(f'{__name__}.{module}'), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.recognise.classifier import (  # noqa: F401
+        FILE_MAGIC,
+        FORMAT_VERSION,
+        KINDS,
+        ClassifierParams,
+        LinearClassifier,
+        OnlineTrainer,
+        Prediction,
+        train_classifier,
+    )
+    from tlessbot_ros.core.recognise.feature_map import (  # noqa: F401
+        EIGEN_CUTOFF,
+        RbfFeatureMap,
+        fit_rbf_map,
+    )
+    from tlessbot_ros.core.recognise.hog import (  # noqa: F401
+        HogParams,
+        describe_regions,
+        hog_features,
+        normalise_crop,
+    )
+    from tlessbot_ros.core.recognise.model import (  # noqa: F401
+        LOADERS,
+        UNKNOWN_ID,
+        Classifier,
+        file_magic,
+        load_classifier,
+    )
+    from tlessbot_ros.core.recognise.shape import (  # noqa: F401
+        ShapeParams,
+        region_points_world,
+        shape_features,
+        shape_features_batch,
+    )
