@@ -37,6 +37,7 @@ _HOME = {
     'NO_HIT': 'render',
     'RenderResult': 'render',
     'raycasting_scene': 'render',
+    'CAMERA_NAMES': 'rig',
     'CameraMount': 'rig',
     'D415_FOCAL_PX_AT_640': 'rig',
     'Rig': 'rig',
@@ -106,6 +107,7 @@ if TYPE_CHECKING:
         raycasting_scene,
     )
     from tlessbot_ros.core.common.rig import (  # noqa: F401
+        CAMERA_NAMES,
         D415_FOCAL_PX_AT_640,
         CameraMount,
         Rig,

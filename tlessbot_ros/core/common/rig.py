@@ -15,6 +15,11 @@ import numpy as np
 
 from tlessbot_ros.core.common.geometry import CameraIntrinsics, invert_transform, look_at
 
+# The cameras the two-view pipeline knows, by role: ``top`` looks down on the table, ``side``
+# sees the parts from the side. A rig (config/cell.yaml ``rig.cameras``) names these.
+TOP, SIDE = 'top', 'side'
+CAMERA_NAMES = (TOP, SIDE)
+
 # D415 colour stream at 640x480 (4:3 crop of the sensor): fx ~ fy ~ 615 px.
 D415_FOCAL_PX_AT_640 = 615.0
 
@@ -80,8 +85,8 @@ def default_rig(width: int = 640, height: int = 480) -> Rig:
     target = np.zeros(3)
     top = look_at([0.0, 0.0, 1.10], target, up=[0.0, 1.0, 0.0])
     side = look_at(side_camera_position(0.60, 70.0), target, up=[0.0, 0.0, 1.0])
-    return Rig(cameras={'top': CameraMount('top', intrinsics, top),
-                        'side': CameraMount('side', intrinsics, side)})
+    return Rig(cameras={TOP: CameraMount(TOP, intrinsics, top),
+                        SIDE: CameraMount(SIDE, intrinsics, side)})
 
 
 def rig_from_params(params: Mapping[str, Any], *, prefix: str = 'rig') -> Rig:

@@ -1,0 +1,46 @@
+"""Every topic name of the graph, defined once.
+
+Camera topics are relative to a camera's namespace and follow realsense-ros with
+``align_depth.enable:=true pointcloud.enable:=true``; :func:`camera_topic` gives the absolute
+name. The stage topics carry the camera's name in the middle (``/localiser/top/labels``).
+Camera names themselves come from the rig (:data:`~tlessbot_ros.core.common.CAMERA_NAMES`).
+"""
+from __future__ import annotations
+
+COLOR = 'color/image_raw'
+COLOR_INFO = 'color/camera_info'
+DEPTH = 'aligned_depth_to_color/image_raw'
+DEPTH_INFO = 'aligned_depth_to_color/camera_info'
+POINTS = 'depth/color/points'
+CAMERA_TOPICS = (COLOR, COLOR_INFO, DEPTH, DEPTH_INFO, POINTS)
+
+DIAGNOSTICS = '/diagnostics'
+MARKERS = '/objects/markers'
+DEBUG_IMAGE = '/objects/debug_image'
+GROUND_TRUTH_INFO = '/ground_truth/info'
+GROUND_TRUTH_POSE_PREFIX = '/ground_truth/obj_'
+
+
+def camera_topic(camera: str, relative: str) -> str:
+    """``/<camera>/<relative>``, e.g. ``camera_topic('top', COLOR)``."""
+    return f'/{camera}/{relative}'
+
+
+def labels_topic(camera: str) -> str:
+    """The localiser's instance label image of one camera."""
+    return f'/localiser/{camera}/labels'
+
+
+def classes_topic(camera: str) -> str:
+    """The classifier's class-instance image of one camera."""
+    return f'/classifier/{camera}/classes'
+
+
+def pose_topic(obj_id: int) -> str:
+    """The PoseStamped topic of one T-LESS object, ``/objects/obj_05/pose``."""
+    return f'/objects/obj_{obj_id:02d}/pose'
+
+
+def ground_truth_pose_topic(obj_id: int) -> str:
+    """A simulated bag's ground-truth PoseStamped topic of one object."""
+    return f'{GROUND_TRUTH_POSE_PREFIX}{obj_id:02d}'
