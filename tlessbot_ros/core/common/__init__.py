@@ -38,6 +38,8 @@ _HOME = {
     'RenderResult': 'render',
     'raycasting_scene': 'render',
     'CAMERA_NAMES': 'rig',
+    'SIDE': 'rig',
+    'TOP': 'rig',
     'CameraMount': 'rig',
     'D415_FOCAL_PX_AT_640': 'rig',
     'Rig': 'rig',
@@ -109,6 +111,8 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.common.rig import (  # noqa: F401
         CAMERA_NAMES,
         D415_FOCAL_PX_AT_640,
+        SIDE,
+        TOP,
         CameraMount,
         Rig,
         d415_intrinsics,
