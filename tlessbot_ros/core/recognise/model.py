@@ -1,12 +1,27 @@
 """What the pipeline and the classifier node need of a classifier: the seam for new models.
 
-:class:`~tlessbot_ros.core.recognise.classifier.LinearClassifier` is the one shipped. A new kind
-of model (a kernel SVM, a small network) implements :class:`Classifier` and registers a loader
-for its file magic in :data:`LOADERS`; :func:`load_classifier` then reads either from a path,
-and nothing above this package changes.
+:class:`~tlessbot_ros.core.recognise.classifier.LinearClassifier` is the one shipped: inference
+in :mod:`~tlessbot_ros.core.recognise.classifier`, training in
+:mod:`~tlessbot_ros.core.recognise.training`, its ``.npz`` file in
+:mod:`~tlessbot_ros.core.recognise.model_file`.
+
+To add a kind of model (a kernel SVM, a small network):
+
+1. implement :class:`Classifier` (a module of this package, e.g. ``kernel_classifier.py``);
+2. give its model file its own ``magic`` entry (read it with :func:`read_model_arrays`, so
+   ``allow_pickle=False`` and the ``ModelFileError`` messages hold) and, at the end of the
+   module that reads the file, register the reader: ``LOADERS[MY_MAGIC] = load_my_model``
+   (as ``model_file.py`` does for ``LinearClassifier``);
+3. add that module's name to :data:`_REGISTERING` below, so that :func:`load_classifier`
+   imports it (and so registers the reader) before it looks the magic up;
+4. export the new names in this package's ``__init__.py`` (``_HOME``).
+
+:func:`load_classifier` then reads either kind from a path, and nothing above this package
+changes.
 """
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
@@ -51,28 +66,37 @@ class Classifier(Protocol):
         """(N, k) int64 object ids, best first."""
 
 
-# file magic -> loader; filled by the modules that define models
+# file magic -> loader; filled by the modules that read model files, when imported
 LOADERS: dict[str, Callable[[Path], Classifier]] = {}
 
+# modules of this package that register a loader in LOADERS when imported
+_REGISTERING = ('model_file',)
 
-def file_magic(path: str | Path) -> str:
-    """The ``magic`` entry of a model ``.npz`` (read with ``allow_pickle=False``)."""
+
+def read_model_arrays(path: str | Path, keys: tuple[str, ...] | None = None
+                      ) -> dict[str, np.ndarray]:
+    """The arrays of a model ``.npz`` (all, or those of ``keys`` it holds), read with
+    ``allow_pickle=False``; ``ModelFileError`` if it is missing or not a readable ``.npz``."""
     path = Path(path)
     if not path.is_file():
         raise ModelFileError(f'classifier model {path} does not exist')
     try:
         with np.load(path, allow_pickle=False) as data:
-            return str(data['magic']) if 'magic' in data.files else ''
-    except (OSError, ValueError, EOFError) as error:
+            names = data.files if keys is None else [key for key in keys if key in data.files]
+            return {key: data[key] for key in names}
+    except Exception as error:  # OSError, ValueError (pickled), EOFError, BadZipFile and friends
         raise ModelFileError(f'{path} is not a readable classifier .npz ({error})') from None
-    except Exception as error:  # zipfile.BadZipFile and friends
-        raise ModelFileError(f'{path} is not a readable classifier .npz ({error})') from None
+
+
+def file_magic(path: str | Path) -> str:
+    """The ``magic`` entry of a model ``.npz`` (read with ``allow_pickle=False``); '' if none."""
+    return str(read_model_arrays(path, ('magic',)).get('magic', ''))
 
 
 def load_classifier(path: str | Path) -> Classifier:
     """Any registered kind of classifier from its model file; ``ModelFileError`` otherwise."""
-    from tlessbot_ros.core.recognise import classifier as _linear  # noqa: F401  registers
-
+    for module in _REGISTERING:
+        importlib.import_module(f'{__package__}.{module}')
     magic = file_magic(path)
     loader = LOADERS.get(magic)
     if loader is None:
