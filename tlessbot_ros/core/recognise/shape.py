@@ -28,6 +28,8 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
+from tlessbot_ros.core.common import mask_box
+
 
 @dataclass(frozen=True)
 class ShapeParams:
@@ -115,7 +117,7 @@ def region_points_world(depth_m: np.ndarray, mask: np.ndarray, K: np.ndarray,
         raise ValueError(f'depth shape {depth_m.shape} differs from mask shape {np.shape(mask)}')
     height, width = depth_m.shape
     if box is None:
-        x0, y0, w, h = cv2.boundingRect(_as_u8(mask))
+        x0, y0, w, h = mask_box(mask)
     else:
         x0, y0, w, h = (int(round(float(v))) for v in box)
     x0, y0 = max(x0, 0), max(y0, 0)
@@ -212,18 +214,44 @@ def shape_features_batch(points_list: Sequence[np.ndarray], *,
     start = np.concatenate([[0], np.cumsum(count)[:-1]])
     rows = np.empty((len(count), params.feature_dim))
     z_cm = points[:, 2] * 100.0
+    k = len(params.percentiles) + 2 + params.hist_bins
+    rows[:, :k] = _height_stats(z_cm, group, start, count, params)
+    xy, coords, footprint = _footprint(points, group, start, count, params)
+    rows[:, k:k + 4] = footprint
+    k += 4
+    n, half = params.map_cells, params.map_cells // 2
+    rows[:, k:k + n * n + half * half] = _height_maps(coords, z_cm, group, len(count), params)
+    k += n * n + half * half
+    rows[:, k:] = _ring_profile(xy, z_cm, group, count, params)
+    out[ok] = rows
+    return out.astype(np.float32)
+
+
+def _height_stats(z_cm: np.ndarray, group: np.ndarray, start: np.ndarray, count: np.ndarray,
+                  params: ShapeParams) -> np.ndarray:
+    """(G, P + 2 + hist_bins) per region: height percentiles, mean, spread and histogram."""
     k = len(params.percentiles)
+    bins = params.hist_bins
+    rows = np.empty((len(count), k + 2 + bins))
     rows[:, :k] = _group_quantiles(z_cm, group, start, count, params.percentiles)
     mean = np.bincount(group, z_cm) / count
     rows[:, k] = mean
     rows[:, k + 1] = np.sqrt(np.maximum(np.bincount(group, z_cm * z_cm) / count - mean ** 2,
                                         0.0))
     k += 2
-    bins = params.hist_bins
     hist_bin = np.minimum((z_cm / (params.hist_bin_m * 100.0)).astype(np.int64), bins - 1)
     rows[:, k:k + bins] = np.bincount(group * bins + hist_bin, minlength=len(count) * bins
                                       ).reshape(-1, bins) / count[:, None]
-    k += bins
+    return rows
+
+
+def _footprint(points: np.ndarray, group: np.ndarray, start: np.ndarray, count: np.ndarray,
+               params: ShapeParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The footprint on the table: (xy, coords, (G, 4) length, width, ratio, area).
+
+    ``xy`` (N, 2) are the points about their region's median, ``coords`` (N, 2) the same
+    along the region's principal axes (yaw-normalised).
+    """
     median = np.stack([_group_quantiles(points[:, i], group, start, count, (50.0,))[:, 0]
                        for i in (0, 1)], axis=1)
     xy = points[:, :2] - median[group]
@@ -249,32 +277,39 @@ def shape_features_batch(points_list: Sequence[np.ndarray], *,
     cells = np.clip(np.floor(xy / params.area_cell_m).astype(np.int64) + _HALF, 0, 2 * _HALF - 1)
     keys = np.unique((group << 42) | (cells[:, 0] << 21) | cells[:, 1])
     cell_count = np.bincount(keys >> 42, minlength=len(count))
-    rows[:, k:k + 4] = np.stack([length, width, width / np.maximum(length, 1e-3),
+    return xy, coords, np.stack([length, width, width / np.maximum(length, 1e-3),
                                  cell_count * (params.area_cell_m * 100.0) ** 2], axis=1)
-    k += 4
+
+
+def _height_maps(coords: np.ndarray, z_cm: np.ndarray, group: np.ndarray, regions: int,
+                 params: ShapeParams) -> np.ndarray:
+    """(G, n² + (n // 2)²): the n×n height map (largest height per cell) of each region, then
+    the same pooled 2×2."""
     n = params.map_cells
     index = np.floor((coords / params.map_size_m + 0.5) * n).astype(np.int64)
     inside = ((index >= 0) & (index < n)).all(axis=1)
-    height_map = np.zeros(len(count) * n * n)
+    height_map = np.zeros(regions * n * n)
     np.maximum.at(height_map, group[inside] * n * n + index[inside, 1] * n + index[inside, 0],
                   z_cm[inside])
     height_map = height_map.reshape(-1, n, n)
-    rows[:, k:k + n * n] = height_map.reshape(-1, n * n)
-    k += n * n
     half = n // 2
-    rows[:, k:k + half * half] = height_map[:, :2 * half, :2 * half].reshape(
+    pooled = height_map[:, :2 * half, :2 * half].reshape(
         -1, half, 2, half, 2).max(axis=(2, 4)).reshape(-1, half * half)
-    k += half * half
+    return np.hstack([height_map.reshape(-1, n * n), pooled])
+
+
+def _ring_profile(xy: np.ndarray, z_cm: np.ndarray, group: np.ndarray, count: np.ndarray,
+                  params: ShapeParams) -> np.ndarray:
+    """(G, 2 * rings): per ring around the footprint centre, the largest height, then the
+    share of points."""
     rings = params.rings
     ring = np.minimum((np.hypot(xy[:, 0], xy[:, 1]) / params.ring_m).astype(np.int64),
                       rings - 1)
     ring_max = np.zeros(len(count) * rings)
     np.maximum.at(ring_max, group * rings + ring, z_cm)
-    rows[:, k:k + rings] = ring_max.reshape(-1, rings)
-    rows[:, k + rings:] = np.bincount(group * rings + ring, minlength=len(count) * rings
-                                      ).reshape(-1, rings) / count[:, None]
-    out[ok] = rows
-    return out.astype(np.float32)
+    share = np.bincount(group * rings + ring, minlength=len(count) * rings
+                        ).reshape(-1, rings) / count[:, None]
+    return np.hstack([ring_max.reshape(-1, rings), share])
 
 
 def shape_features(points_w: np.ndarray, *, params: ShapeParams = ShapeParams()
