@@ -10,25 +10,23 @@ from typing import TYPE_CHECKING
 
 # name -> the module of this package that defines it
 _HOME = {
-    'BackgroundModel': 'segmentation',
-    'METHODS': 'segmentation',
+    'histogram_background_peak': 'colour',
+    'remove_trend': 'colour',
+    'rgb_to_hed': 'colour',
+    'rgb_to_lab': 'colour',
+    'BackgroundModel': 'cues',
+    'hed_masks': 'cues',
+    'height_above_table': 'cues',
+    'lab_masks': 'cues',
+    'prepare_background': 'cues',
+    'boxes_from_labels': 'instances',
+    'relabel_sequential': 'instances',
+    'split_touching': 'instances',
+    'watershed_refine': 'instances',
+    'METHODS': 'params',
+    'SegmentationParams': 'params',
     'Segmentation': 'segmentation',
-    'SegmentationParams': 'segmentation',
-    'background_mask': 'segmentation',
-    'boxes_from_labels': 'segmentation',
-    'hed_masks': 'segmentation',
-    'height_above_table': 'segmentation',
-    'histogram_background_peak': 'segmentation',
-    'lab_masks': 'segmentation',
-    'prepare_background': 'segmentation',
-    'relabel_sequential': 'segmentation',
-    'remove_trend': 'segmentation',
-    'rgb_to_hed': 'segmentation',
-    'rgb_to_lab': 'segmentation',
     'segment': 'segmentation',
-    'sobel_magnitude': 'segmentation',
-    'split_touching': 'segmentation',
-    'watershed_refine': 'segmentation',
     'robust_quadratic_fit': 'surface_fit',
     'FUSION_METHODS': 'two_view',
     'FusedInstance': 'two_view',
@@ -57,26 +55,32 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:
-    from tlessbot_ros.core.localise.segmentation import (  # noqa: F401
-        METHODS,
-        BackgroundModel,
-        Segmentation,
-        SegmentationParams,
-        background_mask,
-        boxes_from_labels,
-        hed_masks,
-        height_above_table,
+    from tlessbot_ros.core.localise.colour import (  # noqa: F401
         histogram_background_peak,
-        lab_masks,
-        prepare_background,
-        relabel_sequential,
         remove_trend,
         rgb_to_hed,
         rgb_to_lab,
-        segment,
-        sobel_magnitude,
+    )
+    from tlessbot_ros.core.localise.cues import (  # noqa: F401
+        BackgroundModel,
+        hed_masks,
+        height_above_table,
+        lab_masks,
+        prepare_background,
+    )
+    from tlessbot_ros.core.localise.instances import (  # noqa: F401
+        boxes_from_labels,
+        relabel_sequential,
         split_touching,
         watershed_refine,
+    )
+    from tlessbot_ros.core.localise.params import (  # noqa: F401
+        METHODS,
+        SegmentationParams,
+    )
+    from tlessbot_ros.core.localise.segmentation import (  # noqa: F401
+        Segmentation,
+        segment,
     )
     from tlessbot_ros.core.localise.surface_fit import (  # noqa: F401
         robust_quadratic_fit,

@@ -33,7 +33,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from tlessbot_ros.core.common import Rig, transform_points
-from tlessbot_ros.core.localise.segmentation import Segmentation, boxes_from_labels
+from tlessbot_ros.core.localise.instances import _fill_from_nearest, boxes_from_labels
+from tlessbot_ros.core.localise.segmentation import Segmentation
 
 FUSION_METHODS = ('side_only', 'algorithm1', 'calibrated')
 
@@ -414,8 +415,9 @@ def _calibrated(top: Segmentation, side: Segmentation, rig: Rig,
         elif len(owners) == 1:
             out[blob] = owners[0]
         else:
-            out[blob] = _split_blob(blob, pred[window], owners,
-                                    None if side_rgb is None else side_rgb[window], kernel)
+            out[blob] = _divide_among_owners(blob, pred[window], owners,
+                                             None if side_rgb is None else side_rgb[window],
+                                             kernel)
             split_ids.update(owners)
     timings['split'] = (time.perf_counter() - t1) * 1e3
     labels = {'top': top_labels, 'side': side_labels}
@@ -424,8 +426,8 @@ def _calibrated(top: Segmentation, side: Segmentation, rig: Rig,
                         timings_ms=timings)
 
 
-def _split_blob(blob: np.ndarray, pred: np.ndarray, owners: list[int],
-                rgb: np.ndarray | None, kernel: np.ndarray) -> np.ndarray:
+def _divide_among_owners(blob: np.ndarray, pred: np.ndarray, owners: list[int],
+                         rgb: np.ndarray | None, kernel: np.ndarray) -> np.ndarray:
     """Ids for the pixels of one side blob held by several predicted objects.
 
     ``blob``, ``pred`` and ``rgb`` are cut to the blob's box plus a 1-pixel margin (clipped at
@@ -446,12 +448,7 @@ def _split_blob(blob: np.ndarray, pred: np.ndarray, owners: list[int],
     # Pixels left (watershed lines) take the nearest assigned id.
     holes = blob & (ids == 0)
     if holes.any() and (ids > 0).any():
-        _, nearest = cv2.distanceTransformWithLabels((ids == 0).astype(np.uint8), cv2.DIST_L2,
-                                                     3, labelType=cv2.DIST_LABEL_PIXEL)
-        lut = np.zeros(int(nearest.max()) + 1, np.int64)
-        yy, xx = np.nonzero(ids)
-        lut[nearest[yy, xx]] = ids[yy, xx]
-        ids[holes] = lut[nearest[holes]]
+        _fill_from_nearest(ids, holes)
     return ids[blob].astype(np.uint16)
 
 

@@ -1,0 +1,282 @@
+"""The per-cue object masks of the segmentation (paper §3.1; the depth cue is ours).
+
+Every cue gives two (h, w) bool masks at the cue scale: *candidates* (pixels that may belong
+to a part) and *sure* object markers.
+
+* **Histogram cut-offs.** Each cue channel (grey level, the three HED stains, the CIE-LAB
+  chroma axes a and b), less a robust quadratic trend (uneven lighting), gets a cut-off read
+  from its histogram: the background is the dominant peak; pixels further than
+  ``cutoff_sigma`` robust standard deviations (and at least the channel's ``*_floor``) from it
+  are object candidates, pixels beyond ``sure_sigma`` are sure
+  object markers. With an empty-table image the same cut-offs are read on the difference to
+  it, which makes patterned tables as easy as plain ones (the paper's "first guess").
+* **Background subtraction** against an empty-table image: colour distance in LAB with a
+  shadow test (a cast shadow darkens the table but keeps its chromaticity).
+* **Depth** (not in the paper): height above the table plane; pixels with valid depth on the
+  plane are table, which vetoes colour candidates there (shadows, dark table squares).
+"""
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from tlessbot_ros.core.localise.colour import (
+    _check_rgb,
+    histogram_background_peak,
+    remove_trend,
+    rgb_to_hed,
+    rgb_to_lab,
+)
+from tlessbot_ros.core.localise.params import SegmentationParams
+
+
+# --------------------------------------------------------------------------- empty table
+@dataclass(frozen=True)
+class BackgroundModel:
+    """An empty-table image prepared once for :func:`~tlessbot_ros.core.localise.segment`
+    (colour spaces at cue scale).
+
+    Attributes:
+        rgb: (H, W, 3) uint8 full-resolution empty-table image.
+        lab, hed: (h, w, 3) float32 LAB and HED images at ``scale``.
+        scale: the cue scale they were computed at.
+    """
+
+    rgb: np.ndarray
+    lab: np.ndarray
+    hed: np.ndarray
+    scale: float
+
+
+def prepare_background(background: np.ndarray, *,
+                       params: SegmentationParams = SegmentationParams()) -> BackgroundModel:
+    """Convert an (H, W, 3) uint8 RGB empty-table image once, for repeated
+    :func:`~tlessbot_ros.core.localise.segment`."""
+    background = _check_rgb(background, 'background')
+    small = _downscale(background, params.cue_scale)
+    return BackgroundModel(rgb=background, lab=rgb_to_lab(small),
+                           hed=rgb_to_hed(small, dark_level=params.hed_dark_level),
+                           scale=params.cue_scale)
+
+
+def _downscale(rgb: np.ndarray, scale: float) -> np.ndarray:
+    if scale == 1.0:
+        return rgb
+    return cv2.resize(rgb, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+
+
+# --------------------------------------------------------------------------- histogram cut-offs
+def _cutoff_masks(channel: np.ndarray, floor: float, params: SegmentationParams,
+                  *, peak: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(candidate, sure) masks of pixels far from the background peak on either side."""
+    found_peak, sigma = histogram_background_peak(channel,
+                                                  border_fraction=params.border_fraction)
+    peak = found_peak if peak is None else peak
+    dev = np.abs(channel - np.float32(peak))
+    candidate = dev > max(params.cutoff_sigma * sigma, floor)
+    sure = dev > max(params.sure_sigma * sigma, 2.0 * floor)
+    return candidate, sure
+
+
+
+def _channel_cutoffs(image: np.ndarray, channels: Iterable[int], floor: float,
+                     params: SegmentationParams, reference: np.ndarray | None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Union of the (candidate, sure) cut-off masks of some channels of an (H, W, C) image.
+
+    Without ``reference`` each channel loses its trend and the background peak is read from
+    its histogram; with it (the empty table's image in the same space) the cut-offs apply to
+    the difference, whose background peak is 0.
+    """
+    cand = np.zeros(image.shape[:2], bool)
+    sure = np.zeros(image.shape[:2], bool)
+    peak = None if reference is None else 0.0
+    for c in channels:
+        channel = remove_trend(image[..., c]) if reference is None else \
+            image[..., c] - reference[..., c]
+        a, b = _cutoff_masks(channel, floor, params, peak=peak)
+        cand |= a
+        sure |= b
+    return cand, sure
+
+
+def hed_masks(hed: np.ndarray, params: SegmentationParams,
+              *, reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Union of the H, E and D histogram cut-offs: (candidate, sure) (H, W) bool masks.
+
+    With ``reference`` (the empty table's HED image) the cut-offs apply to the difference.
+    """
+    return _channel_cutoffs(hed, range(3), params.hed_floor, params, reference)
+
+
+def lab_masks(lab: np.ndarray, params: SegmentationParams,
+              *, reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Chroma (a, b) histogram cut-offs: (candidate, sure) (H, W) bool masks."""
+    return _channel_cutoffs(lab, (1, 2), params.lab_floor, params, reference)
+
+
+def _grey_cue(small: np.ndarray, lab: np.ndarray, bgm: BackgroundModel | None,
+              params: SegmentationParams) -> tuple[np.ndarray, np.ndarray]:
+    return _channel_cutoffs(lab, (0,), params.grey_floor, params,
+                            None if bgm is None else bgm.lab)
+
+
+def _hed_cue(small: np.ndarray, lab: np.ndarray, bgm: BackgroundModel | None,
+             params: SegmentationParams) -> tuple[np.ndarray, np.ndarray]:
+    hed = rgb_to_hed(small, dark_level=params.hed_dark_level)
+    return hed_masks(hed, params, reference=None if bgm is None else bgm.hed)
+
+
+def _lab_cue(small: np.ndarray, lab: np.ndarray, bgm: BackgroundModel | None,
+             params: SegmentationParams) -> tuple[np.ndarray, np.ndarray]:
+    return lab_masks(lab, params, reference=None if bgm is None else bgm.lab)
+
+
+# The colour cues of SegmentationParams.methods in the order segment() adds them, each
+# (RGB and LAB at cue scale, empty table or None, params) -> (candidate, sure) masks.
+# 'watershed' contributes the grey level (LAB's L) extremes.
+_COLOUR_CUES = (('watershed', _grey_cue), ('hed', _hed_cue), ('lab', _lab_cue))
+
+
+# --------------------------------------------------------------------------- depth
+_HEIGHT_COEF: dict[tuple, np.ndarray] = {}
+
+
+def height_above_table(depth_m: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray, *,
+                       scale: float = 1.0) -> np.ndarray:
+    """Height of every depth pixel's 3D point above the table plane (world z = 0).
+
+    A pixel (u, v) with z-depth d back-projects to ``d K^-1 (u, v, 1)`` in the optical frame;
+    its world height is ``d (r3 . K^-1 (u, v, 1)) + t_z`` with r3 the third row of the
+    camera's rotation, so one multiply-add per pixel with a cached coefficient image (lens
+    distortion is ignored: the D415 colour stream is nearly distortion-free).
+
+    Args:
+        depth_m: (H, W) float z-depth in metres aligned to the colour image; 0 or NaN =
+            invalid.
+        K: (3, 3) intrinsic matrix of that image.
+        T_world_camera: (4, 4) optical frame -> world (world z = 0 is the table, z up).
+        scale: output scale; pixel (r, c) of the output samples the input at
+            (floor(r / scale), floor(c / scale)) (the same pixels as ``cv2.INTER_NEAREST``).
+
+    Returns:
+        (round(H * scale), round(W * scale)) float32 heights in metres, NaN where invalid.
+    """
+    depth_m = np.asarray(depth_m)
+    if depth_m.ndim != 2:
+        raise ValueError(f'depth_m must be an (H, W) image, got shape {depth_m.shape}')
+    K = np.asarray(K, dtype=np.float64)
+    T = np.asarray(T_world_camera, dtype=np.float64)
+    if K.shape != (3, 3) or T.shape != (4, 4):
+        raise ValueError(f'K must be (3, 3) and T_world_camera (4, 4), got {K.shape} and '
+                         f'{T.shape}')
+    h, w = depth_m.shape
+    hs, ws = int(round(h * scale)), int(round(w * scale))
+    rows = np.minimum((np.arange(hs) / scale).astype(np.int64), h - 1)
+    cols = np.minimum((np.arange(ws) / scale).astype(np.int64), w - 1)
+    key = (K.tobytes(), T[2, :3].tobytes(), h, w, hs, ws)
+    coef = _HEIGHT_COEF.get(key)
+    if coef is None:
+        r3 = T[2, :3]
+        cu = (cols - K[0, 2]) / K[0, 0]
+        cv = (rows - K[1, 2]) / K[1, 1]
+        coef = (r3[0] * cu[None, :] + r3[1] * cv[:, None] + r3[2]).astype(np.float32)
+        if len(_HEIGHT_COEF) > 16:
+            _HEIGHT_COEF.clear()
+        _HEIGHT_COEF[key] = coef
+    step = 1.0 / scale
+    if (hs, ws) == (h, w):
+        d = depth_m
+    elif step == int(step) and rows[-1] == (hs - 1) * int(step):
+        d = depth_m[::int(step), ::int(step)][:hs, :ws]  # same pixels, cheaper than a gather
+    else:
+        d = depth_m[rows[:, None], cols[None, :]]
+    d = d.astype(np.float32)
+    d[~(d > 0)] = np.nan  # 0 and NaN invalid (NaN > 0 is False)
+    d *= coef
+    d += np.float32(T[2, 3])
+    return d
+
+
+@dataclass
+class _DepthCue:
+    candidate: np.ndarray  # object candidates (cue scale)
+    sure: np.ndarray  # sure object
+    table: np.ndarray  # valid depth on the table plane
+    sigma_m: float  # robust height noise of the table
+
+
+def _view_depth_cue(depth_m: np.ndarray, intrinsics, T_world_camera: np.ndarray,
+                    shape: tuple[int, ...], cue_shape: tuple[int, ...],
+                    params: SegmentationParams) -> _DepthCue:
+    """The depth cue at the cue scale of a view: ``shape`` is the colour image's, ``cue_shape``
+    the downscaled one's; ``intrinsics`` a CameraIntrinsics or a (3, 3) K."""
+    K = np.asarray(getattr(intrinsics, 'K', intrinsics))
+    height = height_above_table(depth_m, K, T_world_camera, scale=cue_shape[0] / shape[0])
+    if height.shape != cue_shape[:2]:
+        height = cv2.resize(height, (cue_shape[1], cue_shape[0]),
+                            interpolation=cv2.INTER_NEAREST)
+    return _depth_cue(height, params)
+
+def _depth_cue(height: np.ndarray, params: SegmentationParams) -> _DepthCue:
+    """Object / table masks from a (h, w) height map (NaN invalid)."""
+    valid = ~np.isnan(height)
+    filled = height.copy()
+    filled[~valid] = 0.0
+    sample = filled[::2, ::2][valid[::2, ::2]]
+    sample = sample[np.abs(sample) < 0.02]
+    sigma = 1.4826 * float(np.median(np.abs(sample))) if sample.size > 50 else 0.0
+    if params.depth_filter_px > 1:
+        filtered = cv2.medianBlur(filled, params.depth_filter_px)
+    else:
+        filtered = filled
+    k = params.depth_noise_k
+    low = max(params.depth_min_height_m, k * sigma)
+    high = max(params.depth_sure_height_m, 1.5 * k * sigma)
+    table_h = max(params.depth_table_height_m, 0.5 * k * sigma)
+    # The median over a hole's neighbours fills it (invalid pixels count as table height, so
+    # they never make an object on their own).
+    candidate = filtered > low
+    sure = filtered > high
+    table = valid & (filtered < table_h) & (filled < table_h)
+    return _DepthCue(candidate, sure, table, sigma)
+
+
+
+# --------------------------------------------------------------------------- empty-table change
+def _background_change(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams, *,
+                       shadow: np.ndarray | None = None) -> np.ndarray:
+    """LAB distance to the empty table above ``background_delta_e``, shadows excluded."""
+    diff = lab - bg_lab
+    delta_e_sq = np.einsum('ijk,ijk->ij', diff, diff)
+    if shadow is None:
+        shadow = _shadow(lab, bg_lab, params)
+    return (delta_e_sq > params.background_delta_e ** 2) & ~shadow
+
+
+def _shadow(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> np.ndarray:
+    """Pixels that look like the empty table darkened by a cast shadow.
+
+    A shadow scales the table's colour: the luminance ratio lies in ``shadow_ratio`` and the
+    chroma (a, b) shrinks roughly in proportion, so a / L and b / L stay close to the table's.
+    """
+    lo, hi = params.shadow_ratio
+    L, bL = lab[..., 0] + 1.0, bg_lab[..., 0] + 1.0
+    ratio = L / bL
+    da = np.abs(lab[..., 1] - bg_lab[..., 1] * ratio)
+    db = np.abs(lab[..., 2] - bg_lab[..., 2] * ratio)
+    return (ratio > lo) & (ratio < hi) & (np.maximum(da, db) < params.shadow_chroma)
+
+
+# --------------------------------------------------------------------------- morphology
+def _erode(mask: np.ndarray, radius: int) -> np.ndarray:
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    return cv2.erode(mask.view(np.uint8), kernel).astype(bool)
+
+
+def _open(mask: np.ndarray, radius: int) -> np.ndarray:
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    return cv2.morphologyEx(mask.view(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)

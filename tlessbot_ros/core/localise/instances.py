@@ -1,0 +1,317 @@
+"""Foreground -> instances: the marker-controlled watershed and touching-object separation.
+
+* **Watershed.** The union of the cues gives markers (sure object = union cores, sure
+  background = pixels far from every candidate); ``cv2.watershed`` floods between them.
+  OpenCV floods the largest absolute neighbour difference of its input; we feed it the image
+  smoothed by the 3x3 binomial kernel, so the flooded relief is the 3x3 Sobel gradient
+  magnitude (Sobel = binomial smoothing followed by a central difference).
+* **Instances.** Connected components, small-blob removal (``min_area_px``) and touching-object
+  separation: a blob of several materials is first divided by colour (2-means on chroma); the
+  distance transform of a blob is cut at a fraction of its maximum; two or more cores seed a
+  second watershed that divides the blob.
+
+Labels are (H, W) uint16 with 0 = background. Boxes are (x, y, w, h) int32 pixels, the usual
+OpenCV / BOP ``bbox`` convention.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+
+from tlessbot_ros.core.common import pixel_counts
+from tlessbot_ros.core.localise.cues import _open
+from tlessbot_ros.core.localise.params import SegmentationParams
+
+
+# --------------------------------------------------------------------------- watershed
+def watershed_refine(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray, *,
+                     band_px: int = 4, sure_background: np.ndarray | None = None) -> np.ndarray:
+    """Marker-controlled watershed between sure-object and sure-background markers.
+
+    Args:
+        rgb: (H, W, 3) uint8 image to flood (smoothed here by the 3x3 binomial kernel so the
+            relief is the Sobel gradient magnitude).
+        candidate: (H, W) bool object candidates; pixels further than ``band_px`` from any
+            candidate are sure background.
+        sure: (H, W) bool sure-object pixels (markers).
+        sure_background: optional (H, W) bool pixels known to be table (e.g. from depth);
+            they become background markers too (sure-object pixels win where both hold).
+
+    Returns:
+        (H, W) bool object mask.
+    """
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
+    out = np.zeros(candidate.shape, bool)
+    if not sure.any():
+        return out
+    near = cv2.dilate(candidate.view(np.uint8), kernel)
+    # Flood only the box around the candidates (the rest is background anyway).
+    x, y, w, h = cv2.boundingRect(near)
+    near_c = near[y:y + h, x:x + w].astype(bool)
+    markers = np.zeros((h, w), np.int32)
+    markers[~near_c] = 1
+    if sure_background is not None:
+        markers[sure_background[y:y + h, x:x + w]] = 1
+    markers[sure[y:y + h, x:x + w]] = 2
+    smooth = cv2.GaussianBlur(rgb[y:y + h, x:x + w], (3, 3), 0)
+    markers = _watershed_padded(smooth, markers)
+    # Watershed lines (-1) lie on the edge itself; they go to the background.
+    out[y:y + h, x:x + w] = markers == 2
+    return out
+
+
+def _watershed_padded(image: np.ndarray, markers: np.ndarray) -> np.ndarray:
+    """cv2.watershed without its artefact of marking the image's outer pixels as lines."""
+    image = cv2.copyMakeBorder(image, 1, 1, 1, 1, cv2.BORDER_REPLICATE)
+    padded = cv2.copyMakeBorder(markers, 1, 1, 1, 1, cv2.BORDER_REPLICATE)
+    cv2.watershed(image, padded)
+    return padded[1:-1, 1:-1]
+
+
+# --------------------------------------------------------------------------- instances
+def split_touching(mask: np.ndarray, rgb: np.ndarray | None = None, *,
+                   params: SegmentationParams = SegmentationParams()) -> np.ndarray:
+    """Label a foreground mask, dividing blobs whose distance transform has several cores.
+
+    Blobs of several materials are first divided by colour (2-means on a / L, b / L); then
+    a blob whose distance transform, cut at ``split_core_fraction`` of its maximum, has two
+    or more cores is divided by a watershed seeded with them.
+
+    Args:
+        mask: (H, W) bool foreground.
+        rgb: (H, W, 3) uint8 image; when given, the dividing lines follow its colour edges.
+
+    Returns:
+        (H, W) int32 labels, 0 = background, 1..N (blobs below ``min_area_px`` removed).
+    """
+    return _instances(mask, rgb, params)[0]
+
+
+def _instances(mask: np.ndarray, rgb: np.ndarray | None,
+               params: SegmentationParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(labels (H, W) int32, boxes (N, 4) int32, areas (N,) int64) of :func:`split_touching`.
+
+    Blobs are labelled by one look-up; only blobs that may hold several parts (deep enough
+    for a split) are looked at one by one, in a crop.
+    """
+    mask_u8 = np.ascontiguousarray(mask, dtype=np.uint8)
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask_u8, connectivity=8,
+                                                         ltype=cv2.CV_32S)
+    big = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= params.min_area_px) + 1
+    H, W = mask.shape
+    # pieces[i]: None = the blob stays whole; else (y0, x0, [bool piece masks in the crop]).
+    pieces: dict[int, tuple[int, int, list[np.ndarray]]] = {}
+    # A blob narrower than twice the smallest split depth has a distance transform below it.
+    deep = 2.0 * params.split_min_depth_px
+    for i in big if params.split_touching else ():
+        x, y, w, h, area = (int(v) for v in stats[i])
+        if min(w, h) < deep:
+            continue
+        x0, y0 = max(x - 1, 0), max(y - 1, 0)
+        x1, y1 = min(x + w + 1, W), min(y + h + 1, H)
+        blob = comp[y0:y1, x0:x1] == i
+        crop = None if rgb is None else rgb[y0:y1, x0:x1]
+        by_colour = [blob] if crop is None or params.colour_split_delta <= 0 else \
+            _colour_pieces(blob, crop, params)
+        found = []
+        for piece_mask in by_colour:
+            parts = _split_at_distance_cores(piece_mask, crop, params)
+            top = int(parts.max())
+            if top == 1 and len(by_colour) == 1:
+                break
+            found += [parts == k for k in range(1, top + 1)]
+        if found:
+            pieces[int(i)] = (y0, x0, [f for f in found
+                                       if cv2.countNonZero(f.view(np.uint8))
+                                       >= params.min_area_px])
+    lut = np.zeros(n, np.int32)
+    boxes: list[tuple[int, int, int, int]] = []
+    areas: list[int] = []
+    placed: list[tuple[int, int, np.ndarray, int]] = []
+    for i in big:
+        i = int(i)
+        if i not in pieces:
+            boxes.append(tuple(int(v) for v in stats[i, :4]))
+            areas.append(int(stats[i, cv2.CC_STAT_AREA]))
+            lut[i] = len(boxes)
+            continue
+        y0, x0, found = pieces[i]
+        for f in found:
+            bx, by, bw, bh = cv2.boundingRect(f.view(np.uint8))
+            boxes.append((bx + x0, by + y0, bw, bh))
+            areas.append(cv2.countNonZero(f.view(np.uint8)))
+            placed.append((y0, x0, f, len(boxes)))
+    labels = lut[comp]
+    for y0, x0, f, k in placed:
+        labels[y0:y0 + f.shape[0], x0:x0 + f.shape[1]][f] = k
+    return (labels, np.array(boxes, np.int32).reshape(-1, 4),
+            np.array(areas, np.int64))
+
+
+def _instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarray,
+                        params: SegmentationParams
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Instance separation at the cue scale, labels carried back to the full-resolution mask.
+
+    The blobs are divided on the ``small`` image (4x fewer pixels at half scale; the sizes in
+    ``params`` are scaled with it); every full-resolution foreground pixel then takes the
+    label of its low-resolution pixel, or of a neighbour on the thin rim that the reduction
+    lost. Returns uint16 labels, (N, 4) int32 boxes, (N,) int64 areas at full resolution.
+    """
+    h, w = small.shape[:2]
+    H, W = foreground.shape
+    if (h, w) == (H, W):
+        labels, boxes, areas = _instances(foreground, rgb, params)
+        return labels.astype(np.uint16), boxes, areas
+    s = h / H
+    small_params = replace(params, min_area_px=max(1, int(round(params.min_area_px * s * s))),
+                           split_min_depth_px=params.split_min_depth_px * s,
+                           split_min_core_px=max(1, int(round(params.split_min_core_px * s * s))))
+    fg_small = cv2.resize(foreground.view(np.uint8) * np.uint8(255), (w, h),
+                          interpolation=cv2.INTER_AREA) >= 128
+    labels_s, boxes_s, _ = _instances(fg_small, small, small_params)
+    labels_s = labels_s.astype(np.uint16)
+    n = len(boxes_s)
+    if n == 0:
+        return np.zeros((H, W), np.uint16), np.zeros((0, 4), np.int32), np.zeros(0, np.int64)
+    up = cv2.resize(labels_s, (W, H), interpolation=cv2.INTER_NEAREST)
+    labels = np.where(foreground, up, np.uint16(0))
+    rim = foreground & (up == 0)
+    if rim.any():
+        grown = cv2.dilate(up, np.ones((5, 5), np.uint8))
+        labels[rim] = grown[rim]
+    # Boxes and areas: look only near each low-resolution box.
+    boxes = np.zeros((n, 4), np.int32)
+    areas = np.zeros(n, np.int64)
+    pad = int(np.ceil(1.0 / s)) + 2
+    for k, (bx, by, bw, bh) in enumerate(boxes_s, start=1):
+        y0, y1 = max(int(by / s) - pad, 0), min(int((by + bh) / s) + pad, H)
+        x0, x1 = max(int(bx / s) - pad, 0), min(int((bx + bw) / s) + pad, W)
+        m = (labels[y0:y1, x0:x1] == k).view(np.uint8)
+        bx, by, bw, bh = cv2.boundingRect(m)
+        boxes[k - 1] = (bx + x0, by + y0, bw, bh)
+        areas[k - 1] = cv2.countNonZero(m)
+    if np.any(areas == 0):
+        labels = relabel_sequential(labels)
+        keep = areas > 0
+        boxes, areas = boxes[keep], areas[keep]
+    return labels, boxes, areas
+
+
+def _colour_pieces(blob: np.ndarray, rgb: np.ndarray, params: SegmentationParams,
+                   depth: int = 0) -> list[np.ndarray]:
+    """Divide a blob made of parts of different materials by 2-means on shading-invariant
+    chroma (a / L, b / L); recursive for three or more materials. Returns bool masks."""
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab)
+    ab = lab[blob].astype(np.float32)  # (N, 3)
+    L = np.maximum(ab[:, 0], np.float32(40.0))
+    feats = (ab[:, 1:] - np.float32(128.0)) * (np.float32(100.0) / L)[:, None]
+    min_piece = max(params.min_area_px, int(params.colour_split_min_share * len(feats)))
+    if len(feats) < 2 * min_piece:
+        return [blob]
+    # The test and the clustering use at most ~800 pixels; all pixels then take the nearer
+    # centre.
+    sample = np.ascontiguousarray(feats[::max(1, len(feats) // 800)])
+    if sample.std(axis=0).max() < params.colour_split_delta / 4:
+        return [blob]
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
+    cv2.setRNGSeed(0)
+    _, _, centres = cv2.kmeans(sample, 2, None, criteria, 1, cv2.KMEANS_PP_CENTERS)
+    if float(np.linalg.norm(centres[0] - centres[1])) < params.colour_split_delta:
+        return [blob]
+    which = (np.sum((feats - centres[1]) ** 2, axis=1)
+             < np.sum((feats - centres[0]) ** 2, axis=1)).astype(np.int32)
+    cluster = np.zeros(blob.shape, np.int32)
+    cluster[blob] = which.ravel() + 1
+    seeds = np.zeros(blob.shape, np.int32)
+    n_seeds = 0
+    for c in (1, 2):
+        m = _open((cluster == c), 1).view(np.uint8)
+        n, comp, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+        for j in range(1, n):
+            if stats[j, cv2.CC_STAT_AREA] >= min_piece:
+                n_seeds += 1
+                seeds[comp == j] = n_seeds
+    if n_seeds < 2:
+        return [blob]
+    # Every blob pixel joins the nearest seed piece (the seeds lie inside the blob).
+    owner = _fill_from_nearest(seeds, blob & (seeds == 0))
+    pieces = [owner == k for k in range(1, n_seeds + 1)]
+    if depth >= 1:
+        return pieces
+    return [q for p in pieces for q in _colour_pieces(p, rgb, params, depth + 1)]
+
+
+def _split_at_distance_cores(blob: np.ndarray, rgb: np.ndarray | None,
+                             params: SegmentationParams) -> np.ndarray:
+    """Labels 1..k of one blob (a crop with a one-pixel border): its distance transform, cut
+    at ``split_core_fraction`` of its maximum, gives k cores that seed a watershed (k = 1: the
+    blob stays whole)."""
+    dist = cv2.distanceTransform(blob.astype(np.uint8), cv2.DIST_L2, 3)
+    top = float(dist.max())
+    if top < params.split_min_depth_px:
+        return blob.astype(np.int32)
+    cores = (dist > params.split_core_fraction * top).astype(np.uint8)
+    n, core_labels, stats, _ = cv2.connectedComponentsWithStats(cores, connectivity=8)
+    keep = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= params.split_min_core_px]
+    if len(keep) < 2:
+        return blob.astype(np.int32)
+    markers = np.zeros(blob.shape, np.int32)
+    markers[~blob] = 1
+    for j, k in enumerate(keep):
+        markers[core_labels == k] = j + 2
+    if rgb is None:
+        # Flood the distance map itself: the dividing line runs along the neck.
+        relief = cv2.normalize(-dist, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+        image = cv2.merge([relief, relief, relief])
+    else:
+        image = np.ascontiguousarray(cv2.GaussianBlur(rgb, (3, 3), 0))
+    markers = _watershed_padded(image, markers)
+    out = np.where(blob, markers - 1, 0)
+    out[out < 0] = 0
+    # Watershed-line pixels inside the blob go to their nearest piece.
+    holes = blob & (out == 0)
+    if holes.any():
+        _fill_from_nearest(out, holes)
+    return out
+
+
+def _fill_from_nearest(labels: np.ndarray, holes: np.ndarray) -> np.ndarray:
+    """Give every ``holes`` pixel of an (H, W) integer label image the label of the nearest
+    labelled (non-zero) pixel, in place; returns ``labels``."""
+    _, nearest = cv2.distanceTransformWithLabels((labels == 0).astype(np.uint8), cv2.DIST_L2, 3,
+                                                 labelType=cv2.DIST_LABEL_PIXEL)
+    lut = np.zeros(int(nearest.max()) + 1, labels.dtype)
+    ys, xs = np.nonzero(labels)
+    lut[nearest[ys, xs]] = labels[ys, xs]
+    labels[holes] = lut[nearest[holes]]
+    return labels
+
+
+def boxes_from_labels(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y, w, h) int32 boxes (N, 4) and int64 areas (N,) of labels 1..N (empty ids: zeros)."""
+    from scipy import ndimage
+
+    n = int(labels.max()) if labels.size else 0
+    boxes = np.zeros((n, 4), np.int32)
+    if n == 0:
+        return boxes, np.zeros(0, np.int64)
+    areas = pixel_counts(labels, minlength=n + 1)[1:].astype(np.int64)
+    for i, sl in enumerate(ndimage.find_objects(labels.astype(np.int32, copy=False), n)):
+        if sl is not None:
+            boxes[i] = (sl[1].start, sl[0].start, sl[1].stop - sl[1].start,
+                        sl[0].stop - sl[0].start)
+    return boxes, areas
+
+
+def relabel_sequential(labels: np.ndarray) -> np.ndarray:
+    """Renumber labels to 1..N in order of first appearance id; returns uint16."""
+    ids = np.unique(labels)
+    ids = ids[ids > 0]
+    lut = np.zeros(int(labels.max()) + 1 if labels.size else 1, np.uint16)
+    lut[ids] = np.arange(1, ids.size + 1, dtype=np.uint16)
+    return lut[labels]
+
+

@@ -1,0 +1,113 @@
+"""Tuning of the per-view segmentation: :class:`SegmentationParams` and the cue names."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+METHODS = ('watershed', 'hed', 'lab', 'background', 'depth')
+
+
+@dataclass(frozen=True)
+class SegmentationParams:
+    """Tuning of :func:`~tlessbot_ros.core.localise.segment`. Defaults were chosen on simulated
+    two-view scenes.
+
+    Attributes:
+        methods: cues whose union forms the foreground; any of ``METHODS``. 'watershed' adds
+            the grey-level histogram extremes as markers *and* refines the union by flooding;
+            without it the union is used as is. 'background' is used only when an empty-table
+            image is given, 'depth' only when an aligned depth image and the camera pose are
+            given (leave 'depth' out for the paper's RGB-only method).
+        cutoff_sigma: candidate cut-off, in robust standard deviations of the background peak.
+        sure_sigma: sure-object marker cut-off (histogram extreme), same unit.
+        grey_floor, hed_floor, lab_floor: smallest cut-off distance from the background peak
+            per channel (grey in L units 0-100, HED in optical-density units, a/b in LAB
+            units); stops sensor noise on a very plain table from becoming objects.
+        hed_dark_level: intensities below this are clamped before the HED logarithm, so the
+            noise of near-black pixels does not swamp the stain channels.
+        border_fraction: the background peak of each histogram is read from a frame of this
+            width (fraction of the image size) along the image border, where the table is;
+            0 uses the whole image.
+        background_delta_e: LAB distance to the empty-table image above which a pixel differs.
+        shadow_ratio: (low, high) brightness ratio to the empty table treated as a cast shadow
+            when the chromaticity also stays within ``shadow_chroma``.
+        shadow_chroma: largest a/b change (LAB units) of a shadowed table pixel.
+        band_px: the watershed decides only within this distance of a candidate pixel.
+        min_area_px: blobs smaller than this (pixels) are dropped.
+        open_px: radius of the morphological opening that removes thin noise before labelling.
+        split_touching: separate touching objects (distance transform + watershed).
+        split_core_fraction: distance-transform cores are pixels above this fraction of the
+            blob's largest distance; two or more cores mean two or more objects.
+        split_min_core_px: cores smaller than this (pixels) are ignored.
+        split_min_depth_px: largest distance of a blob (pixels) below which it is never split.
+        cue_scale: image scale at which the colour cues are computed (1.0 = full resolution).
+        colour_split_delta: a blob whose pixels form two chroma clusters (a / L, b / L, x100)
+            further apart than this is divided between them first (touching parts of different
+            materials); 0 disables.
+        colour_split_min_share: smallest share of the blob for a colour piece (so specular
+            highlights do not become parts).
+        depth_min_height_m: depth cue: pixels whose back-projected point lies higher than
+            this above the table plane (world z) are object candidates...
+        depth_sure_height_m: ... and higher than this, sure object markers.
+        depth_noise_k: both heights are raised to this many robust standard deviations of
+            the table's measured height (the depth noise grows with distance).
+        depth_table_height_m: pixels with valid depth lower than this (and lower than
+            ``depth_noise_k / 2`` noise deviations) are table: colour candidates there are
+            dropped (cast shadows, dark table squares) and they seed the watershed's
+            background. Invalid depth (0 / NaN) votes for nothing, so the colour cues decide.
+        depth_filter_px: aperture of the median filter on the height map (1 = none).
+    """
+
+    methods: tuple[str, ...] = METHODS
+    cutoff_sigma: float = 5.0
+    sure_sigma: float = 9.0
+    grey_floor: float = 8.0
+    hed_floor: float = 0.04
+    lab_floor: float = 6.0
+    hed_dark_level: int = 10
+    border_fraction: float = 0.1
+    background_delta_e: float = 12.0
+    shadow_ratio: tuple[float, float] = (0.3, 0.97)
+    shadow_chroma: float = 4.0
+    band_px: int = 4
+    min_area_px: int = 80
+    open_px: int = 1
+    split_touching: bool = True
+    split_core_fraction: float = 0.55
+    split_min_core_px: int = 12
+    split_min_depth_px: float = 5.0
+    cue_scale: float = 0.5
+    colour_split_delta: float = 25.0
+    colour_split_min_share: float = 0.12
+    depth_min_height_m: float = 0.004
+    depth_sure_height_m: float = 0.010
+    depth_noise_k: float = 4.0
+    depth_table_height_m: float = 0.0025
+    depth_filter_px: int = 3
+
+    def __post_init__(self) -> None:
+        unknown = set(self.methods) - set(METHODS)
+        if unknown or not self.methods:
+            raise ValueError(f'methods must be a non-empty subset of {METHODS}, '
+                             f'got {self.methods}')
+        if not 0.0 < self.cutoff_sigma <= self.sure_sigma:
+            raise ValueError('need 0 < cutoff_sigma <= sure_sigma, got '
+                             f'{self.cutoff_sigma} and {self.sure_sigma}')
+        if self.min_area_px < 1:
+            raise ValueError(f'min_area_px must be >= 1, got {self.min_area_px}')
+        if not 0.0 < self.split_core_fraction < 1.0:
+            raise ValueError('split_core_fraction must be in (0, 1), got '
+                             f'{self.split_core_fraction}')
+        if not 0.0 <= self.border_fraction < 0.5:
+            raise ValueError(f'border_fraction must be in [0, 0.5), got {self.border_fraction}')
+        if not 0.0 < self.cue_scale <= 1.0:
+            raise ValueError(f'cue_scale must be in (0, 1], got {self.cue_scale}')
+        if not 0.0 < self.depth_min_height_m <= self.depth_sure_height_m:
+            raise ValueError('need 0 < depth_min_height_m <= depth_sure_height_m, got '
+                             f'{self.depth_min_height_m} and {self.depth_sure_height_m}')
+        if self.depth_filter_px not in (1, 3, 5):
+            raise ValueError(f'depth_filter_px must be 1, 3 or 5, got {self.depth_filter_px}')
+        lo, hi = self.shadow_ratio
+        if not 0.0 <= lo < hi <= 1.0:
+            raise ValueError(f'shadow_ratio must satisfy 0 <= low < high <= 1, got '
+                             f'{self.shadow_ratio}')
+
