@@ -5,7 +5,9 @@ import pytest
 
 from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_MODELS_INFO, DEFAULT_TEMPLATES
 from tlessbot_ros.io.config import default_config_path
-from tlessbot_ros.tools.demo import DEFAULT_BAG, load_symmetries, run_demo
+from tlessbot_ros.tools.commands.demo import run_demo
+from tlessbot_ros.tools.support.defaults import DEFAULT_BAG
+from tlessbot_ros.tools.support.models_info import load_symmetries
 
 pytestmark = [pytest.mark.ros, pytest.mark.rosbag, pytest.mark.slow]
 

@@ -6,13 +6,13 @@ import pytest
 
 from tlessbot_ros.core.common import make_transform, rotation_about_axis
 from tlessbot_ros.errors import DatasetError
-from tlessbot_ros.io.bop_results import PoseResult, read_results, write_results
+from tlessbot_ros.io.bop_results import BopEstimate, read_results, write_results
 
 
 def test_round_trip_keeps_metres_in_memory_and_mm_on_disk(tmp_path):
     T = make_transform(rotation_about_axis(np.array([1.0, 2, 3]), 0.7), [0.1, -0.02, 0.55])
     path = tmp_path / 'r.csv'
-    write_results(path, [PoseResult(1, 2, 5, 0.9, T, 0.25), PoseResult(1, 3, 11, 0.5, T)])
+    write_results(path, [BopEstimate(1, 2, 5, 0.9, T, 0.25), BopEstimate(1, 3, 11, 0.5, T)])
     text = path.read_text().splitlines()
     assert text[0] == 'scene_id,im_id,obj_id,score,R,t,time'
     assert '100.000000 -20.000000 550.000000' in text[1]

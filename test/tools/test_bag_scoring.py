@@ -2,7 +2,7 @@ import numpy as np
 
 from tlessbot_ros.core.common import Symmetries, make_transform, rotation_about_axis
 from tlessbot_ros.io.ground_truth import GroundTruthInstance
-from tlessbot_ros.tools._bag_scoring import Estimate, score_frame
+from tlessbot_ros.tools.support.bag_scoring import Estimate, score_frame
 
 SIDE = 'side_color_optical_frame'
 

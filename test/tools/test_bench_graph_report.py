@@ -7,8 +7,8 @@ import pytest
 
 
 def test_hop_latencies_split_each_posed_frame():
-    from tlessbot_ros.tools._graph_run import GraphRunResult, ReceivedPose
-    from tlessbot_ros.tools.benchmarks.graph import hop_latencies
+    from tlessbot_ros.tools.commands.bench.graph import hop_latencies
+    from tlessbot_ros.tools.support.graph_run import GraphRunResult, ReceivedPose
 
     ms = 1_000_000
     result = GraphRunResult()
@@ -31,7 +31,7 @@ def test_hop_latencies_split_each_posed_frame():
     ([5], 0),
 ])
 def test_a_looped_replay_waits_one_frame_interval_between_passes(times, expected):
-    from tlessbot_ros.tools.replay import _loop_period_ns
+    from tlessbot_ros.tools.support.replay import _loop_period_ns
 
     assert _loop_period_ns([SimpleNamespace(log_time_ns=t) for t in times]) == expected
 
@@ -42,7 +42,7 @@ def test_a_nodes_memory_and_cpu_include_its_worker_processes():
     import sys
     import time
 
-    from tlessbot_ros.tools._graph_run import cpu_seconds, process_tree, rss_mb
+    from tlessbot_ros.tools.support.graph_run import cpu_seconds, process_tree, rss_mb
 
     alone_mb = rss_mb(os.getpid())
     child = subprocess.Popen([sys.executable, '-c', 'x = bytearray(300 * 2**20)\n'

@@ -11,7 +11,7 @@ from rosbags.rosbag2 import StoragePlugin
 from tlessbot_ros.conversions import RosbagsFactory, array_to_image, transform_to_pose_stamped
 from tlessbot_ros.core.common import make_transform, rotation_about_axis
 from tlessbot_ros.io.bags import read_bag
-from tlessbot_ros.tools.echo import CSV_HEADER, format_pose, format_pose_csv
+from tlessbot_ros.tools.commands.echo import CSV_HEADER, format_pose, format_pose_csv
 
 CLI = [sys.executable, '-m', 'tlessbot_ros.tools.cli']
 POSE_TOPIC = '/objects/obj_05/pose'
@@ -144,7 +144,7 @@ def test_restamp_rewrites_only_the_stamp(pose_bag):
 
 
 def test_restamped_replay_stamps_a_frame_when_it_goes_out():
-    from tlessbot_ros.tools.replay import FrameRestamper
+    from tlessbot_ros.tools.support.replay import FrameRestamper
 
     restamper = FrameRestamper()
     first = restamper.stamp(1_000, now_ns=5_000)

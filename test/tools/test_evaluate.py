@@ -9,7 +9,7 @@ import pytest
 
 from tlessbot_ros.core.common import make_transform, rotation_about_axis
 from tlessbot_ros.io.bop import read_split
-from tlessbot_ros.io.bop_results import PoseResult, write_results
+from tlessbot_ros.io.bop_results import BopEstimate, write_results
 from tlessbot_ros.tools.cli import main
 
 IDS = (5, 11)
@@ -44,7 +44,7 @@ def _estimates(data):
             elif image.im_id == 2 and gt.obj_id == 5:
                 T[:3, 3] += [0.03, 0.0, 0.0]
                 ok_1cm = False
-            results.append(PoseResult(image.scene_id, image.im_id, gt.obj_id, 1.0, T, 0.05))
+            results.append(BopEstimate(image.scene_id, image.im_id, gt.obj_id, 1.0, T, 0.05))
             expected['targets'] += counted
             expected['ok'] += counted and ok
             expected['ok_1cm'] += counted and ok_1cm

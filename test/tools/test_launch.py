@@ -7,7 +7,7 @@ import pytest
 
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.io.config import default_config_path
-from tlessbot_ros.tools.launch import GraphProcesses, ProcessSpec, graph_processes
+from tlessbot_ros.tools.support.processes import GraphProcesses, ProcessSpec, graph_processes
 
 
 def test_camera_drivers_are_namespaced_per_camera():
@@ -67,8 +67,9 @@ def test_launch_stops_its_nodes_when_it_is_stopped(how, tmp_path):
 
     script = tmp_path / 'child.py'     # stands in for a node: it prints its pid and waits
     script.write_text('import os, time\nprint(os.getpid(), flush=True)\ntime.sleep(120)\n')
-    code = ('import sys\nfrom tlessbot_ros.tools import launch\n'
-            'launch.graph_processes = lambda *a, **k: [launch.ProcessSpec("fake", '
+    code = ('import sys\nfrom tlessbot_ros.tools.commands import launch\n'
+            'from tlessbot_ros.tools.support.processes import ProcessSpec\n'
+            'launch.graph_processes = lambda *a, **k: [ProcessSpec("fake", '
             f'[sys.executable, {str(script)!r}])]\n'
             'from tlessbot_ros.tools.cli import main\nsys.exit(main(["launch"]))\n')
     process = subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE, text=True,

@@ -55,7 +55,7 @@ def test_empty_image_folder(tmp_path, capsys):
 
 
 def test_train_adds_simulated_scene_crops(tless_models_dir, tmp_path):
-    from tlessbot_ros.tools.train import scene_features
+    from tlessbot_ros.tools.commands.train import scene_features
 
     out = tmp_path / 'scenes.npz'
     argv = ['train', '--models', str(tless_models_dir), '--ids', '5', '19', '21',

@@ -20,8 +20,8 @@ HEADER = ('scene_id', 'im_id', 'obj_id', 'score', 'R', 't', 'time')
 
 
 @dataclass
-class PoseResult:
-    """One estimated pose.
+class BopEstimate:
+    """One row of a BOP results file: an estimated pose of one object in one image.
 
     Attributes:
         scene_id, im_id, obj_id: BOP identifiers.
@@ -48,7 +48,7 @@ def _numbers(text: str, count: int, what: str, where: str) -> np.ndarray:
     return values
 
 
-def read_results(path: str | Path) -> list[PoseResult]:
+def read_results(path: str | Path) -> list[BopEstimate]:
     """Read a BOP results CSV (a header line is optional).
 
     Raises:
@@ -81,11 +81,11 @@ def read_results(path: str | Path) -> list[PoseResult]:
         T = np.eye(4)
         T[:3, :3] = R
         T[:3, 3] = t_mm / 1000.0
-        results.append(PoseResult(scene_id, im_id, obj_id, score, T, time_s))
+        results.append(BopEstimate(scene_id, im_id, obj_id, score, T, time_s))
     return results
 
 
-def write_results(path: str | Path, results: Iterable[PoseResult]) -> None:
+def write_results(path: str | Path, results: Iterable[BopEstimate]) -> None:
     """Write a BOP results CSV with a header line (t in mm, R row-major)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,37 +1,33 @@
 """``tlessbot <command> ...``: one executable for every tool.
 
-A command is a module ``tlessbot_ros/tools/<command>.py`` that defines::
+A command is a module ``tlessbot_ros/tools/commands/<command>.py`` (or a package
+``commands/<command>/``, as ``bench`` with its subcommands) that defines::
 
     def add_arguments(parser: argparse.ArgumentParser) -> None: ...
     def run(args: argparse.Namespace) -> int: ...
 
 Its module docstring's first line is the command's help. Only the chosen command's module is
 imported, so ``tlessbot --help`` stays fast and one broken tool cannot break the others.
+Code the commands share lives in ``tlessbot_ros/tools/support/``; commands never import each
+other.
 """
 from __future__ import annotations
 
 import argparse
-import ast
 import importlib
 import sys
 from pathlib import Path
 
 from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.tools.support.discovery import discover, first_doc_line
 
-_TOOLS_DIR = Path(__file__).resolve().parent
-_NOT_COMMANDS = {'__init__', 'cli'}
+_COMMANDS_DIR = Path(__file__).resolve().parent / 'commands'
+_COMMANDS_PACKAGE = 'tlessbot_ros.tools.commands'
 
 
 def available_commands() -> dict[str, str]:
     """Command name -> one-line help, read from the module docstrings without importing them."""
-    commands = {}
-    for path in sorted(_TOOLS_DIR.glob('*.py')):
-        name = path.stem
-        if name in _NOT_COMMANDS or name.startswith('_'):
-            continue
-        doc = ast.get_docstring(ast.parse(path.read_text(encoding='utf-8'))) or ''
-        commands[name.replace('_', '-')] = doc.strip().splitlines()[0] if doc.strip() else ''
-    return commands
+    return {name: first_doc_line(path) for name, path in discover(_COMMANDS_DIR).items()}
 
 
 def _usage(commands: dict[str, str]) -> str:
@@ -52,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     if command not in commands:
         print(f'tlessbot: unknown command {command!r}\n\n{_usage(commands)}', file=sys.stderr)
         return 2
-    module = importlib.import_module(f'tlessbot_ros.tools.{command.replace("-", "_")}')
+    module = importlib.import_module(f'{_COMMANDS_PACKAGE}.{command.replace("-", "_")}')
     parser = argparse.ArgumentParser(prog=f'tlessbot {command}', description=module.__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     module.add_arguments(parser)

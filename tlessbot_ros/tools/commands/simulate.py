@@ -16,9 +16,9 @@ import json
 from collections.abc import Iterator
 from pathlib import Path
 
-import numpy as np
-
 from tlessbot_ros.errors import DatasetError, TlessbotError
+from tlessbot_ros.tools.support.models_info import model_geometry_mm
+from tlessbot_ros.tools.support.rig import load_rig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,47 +52,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--no-progress', action='store_true')
 
 
-def load_rig(config: Path | None, width: int | None, height: int | None):
-    """The rig of a parameter YAML, with intrinsics rescaled to ``width`` x ``height``."""
-    from tlessbot_ros.core.common import CameraIntrinsics, CameraMount, Rig, rig_from_params
-    from tlessbot_ros.io.config import default_config_path, load_ros_params
-
-    path = config or default_config_path()
-    try:
-        rig = rig_from_params(load_ros_params(path))
-    except ValueError as error:
-        raise TlessbotError(f'{path}: {error}') from None
-    if width is None and height is None:
-        return rig
-    cameras = {}
-    for name, cam in rig.cameras.items():
-        w = width or cam.intrinsics.width
-        h = height or cam.intrinsics.height
-        sx, sy = w / cam.intrinsics.width, h / cam.intrinsics.height
-        if abs(sx - sy) > 1e-6 and (width is None or height is None):
-            raise TlessbotError('give both --width and --height when changing the aspect ratio')
-        K = np.array(cam.intrinsics.K, dtype=np.float64)
-        s = min(sx, sy)  # keep square pixels; a wider/taller image adds field of view
-        K[0, 0] *= s
-        K[1, 1] *= s
-        K[0, 2] = (K[0, 2] + 0.5) * s - 0.5 + (w - cam.intrinsics.width * s) / 2
-        K[1, 2] = (K[1, 2] + 0.5) * s - 0.5 + (h - cam.intrinsics.height * s) / 2
-        cameras[name] = CameraMount(name, CameraIntrinsics(width=w, height=h, K=K),
-                                    cam.T_world_camera)
-    return Rig(cameras=cameras, world_frame=rig.world_frame)
-
-
-def _models_info(models: dict) -> dict:
-    info = {}
-    for obj_id, m in models.items():
-        lo = m.vertices.min(axis=0) * 1000.0
-        size = m.extent_m * 1000.0
-        info[str(obj_id)] = {'diameter': m.diameter_m * 1000.0,
-                             'min_x': lo[0], 'min_y': lo[1], 'min_z': lo[2],
-                             'size_x': size[0], 'size_y': size[1], 'size_z': size[2]}
-    return info
-
-
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -115,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise TlessbotError(str(error)) from None
     models = load_models(args.models, args.ids, progress=not args.no_progress)
-    rig = load_rig(args.config, args.width, args.height)
+    rig = load_rig(args.config, width=args.width, height=args.height)
     sim = Simulator(models, rig=rig, params=params, seed=args.seed)
     sim.prepare(progress=not args.no_progress)
 
@@ -129,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
             if args.backgrounds:
                 backgrounds[name] = BopWriter(args.out, f'background_{name}')
             write_camera_json(args.out / f'camera_{name}.json', cam.intrinsics)
-        (args.out / 'models_info.json').write_text(json.dumps(_models_info(models), indent=1))
+        (args.out / 'models_info.json').write_text(json.dumps(
+            {str(i): model_geometry_mm(m) for i, m in models.items()}, indent=1))
 
     indices = range(args.first, args.first + args.frames)
     bar = tqdm(indices, desc='simulate', unit='frame', disable=args.no_progress)

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tlessbot_ros.core.common import SIDE
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--models', type=Path, required=True, help='CAD model folder')
@@ -117,19 +119,19 @@ def part_recognition(model, templates, frames, min_pixels: int, candidates: int
             rgb[name] = view.rgb
             inputs[name] = ViewInput(view.rgb, view.depth_mm.astype(np.float32) / 1000.0,
                                      view.intrinsics, view.T_world_camera)
-        side_only = {'side': labels['side']}
-        seen = [i for i in np.unique(labels['side']) if i and
-                np.count_nonzero(labels['side'] == i) >= min_pixels]
+        side_only = {SIDE: labels[SIDE]}
+        seen = [i for i in np.unique(labels[SIDE]) if i and
+                np.count_nonzero(labels[SIDE] == i) >= min_pixels]
         if not seen:
             continue
-        side_guess = pipeline.classify({'side': rgb['side']}, side_only, views=inputs)
+        side_guess = pipeline.classify({SIDE: rgb[SIDE]}, side_only, views=inputs)
         vote = pipeline.classify(rgb, labels, views=inputs)
         t0 = time.perf_counter()
         detections = {d.instance_id: d for d in pipeline.estimate_poses(
             inputs, side_only, {i: vote[i].candidates for i in seen if i in vote})}
         per_part_ms = 1e3 * (time.perf_counter() - t0) / len(seen)
         for instance in seen:
-            truth = frame.views['side'].gt[instance - 1].obj_id
+            truth = frame.views[SIDE].gt[instance - 1].obj_id
             rows['truth'].append(truth)
             rows['side'].append(side_guess[instance].obj_id if instance in side_guess else 0)
             rows['vote'].append(vote[instance].obj_id if instance in vote else 0)
@@ -190,25 +192,27 @@ def confusion_png(path: Path, matrix: np.ndarray, ids: list[int], title: str) ->
     plt.close(fig)
 
 
-def lookalike_table(args, models, frames, labels, columns) -> list[str]:
+def lookalike_table(models, frames, labels, columns, *, min_pixels: int, tolerance_m: float,
+                    min_difference: float) -> list[str]:
     """Markdown: accuracy on the crops of look-alike parts, split by whether the view shows
-    what tells them apart (see :mod:`tlessbot_ros.core.pose.lookalike`)."""
-    share, pairs = lookalike_difference(models, frames, args.min_pixels, args.lookalike_tolerance)
+    what tells them apart (see :mod:`tlessbot_ros.core.pose.lookalike`): a view shows it when
+    at least ``min_difference`` of its visible pixels differ by more than ``tolerance_m``."""
+    share, pairs = lookalike_difference(models, frames, min_pixels, tolerance_m)
     if not pairs:
         return []
     has_twin = np.isfinite(share)
-    shows = has_twin & (share >= args.min_difference)
+    shows = has_twin & (share >= min_difference)
     hidden = has_twin & ~shows
     names = ', '.join(f'obj_{a:02d}/obj_{b:02d}' for a, others in sorted(pairs.items())
                       for b in others if a < b)
     rows = [('all crops', np.ones(len(labels), bool)),
             ('crops of look-alike parts', has_twin),
-            (f'... whose view shows the difference (>= {100 * args.min_difference:.1f} % of '
-             f'the visible pixels, > {1e3 * args.lookalike_tolerance:.0f} mm)', shows),
+            (f'... whose view shows the difference (>= {100 * min_difference:.1f} % of '
+             f'the visible pixels, > {1e3 * tolerance_m:.0f} mm)', shows),
             ('... whose view does not (the look-alike would look the same)', hidden),
             ('all crops but those', ~hidden)]
     lines = ['', '## Look-alike parts', '',
-             f'Pairs sharing >= 80 % of their surface within {1e3 * args.lookalike_tolerance:.0f}'
+             f'Pairs sharing >= 80 % of their surface within {1e3 * tolerance_m:.0f}'
              f' mm: {names}. A crop of one of them is checked by rendering the other at the '
              'same ground-truth pose over its visible mask.', '',
              '| crops | n | ' + ' | '.join(header for header, _, _ in columns) + ' |',
@@ -345,7 +349,9 @@ def run(args: argparse.Namespace) -> int:
     lines += ['', f'Best classifier: **{results[best][0].kind}** ({best.name}) with '
               f'{100 * overall_by_path[best]:.1f} % top-1 over all crops '
               '(paper: 70.43 % on its own scenes).']
-    lines += lookalike_table(args, models, frames, labels, columns)
+    lines += lookalike_table(models, frames, labels, columns, min_pixels=args.min_pixels,
+                             tolerance_m=args.lookalike_tolerance,
+                             min_difference=args.min_difference)
     for path, (model, predicted, _) in results.items():
         matrix = np.zeros((len(ids), len(ids)), np.int64)
         index = {obj_id: k for k, obj_id in enumerate(ids)}

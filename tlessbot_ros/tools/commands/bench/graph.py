@@ -19,7 +19,8 @@ import numpy as np
 from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_TEMPLATES
 from tlessbot_ros.io.bags import read_bag
 from tlessbot_ros.io.config import default_config_path
-from tlessbot_ros.tools.demo import DEFAULT_BAG
+from tlessbot_ros.tools.support.defaults import DEFAULT_BAG
+from tlessbot_ros.tools.support.graph_run import FRAME_TOPIC
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def bag_frame_interval_s(bag: str) -> float:
     """Median interval between the side colour frames of a bag."""
-    times = [m.log_time_ns for m in read_bag(bag, ['/side/color/image_raw'])]
+    times = [m.log_time_ns for m in read_bag(bag, [FRAME_TOPIC])]
     if len(times) < 2:
         return 1.0 / 15.0
     return float(np.median(np.diff(times))) / 1e9
@@ -68,7 +69,7 @@ def hop_latencies(result) -> list[tuple[str, str]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tlessbot_ros.tools._graph_run import run_graph_on_bag
+    from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
 
     interval = bag_frame_interval_s(args.bag)
     rate = args.fps * interval

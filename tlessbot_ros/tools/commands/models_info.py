@@ -17,6 +17,7 @@ from tlessbot_ros.core.common import (
     symmetries_to_models_info,
 )
 from tlessbot_ros.io.models import ObjectModel, load_models
+from tlessbot_ros.tools.support.models_info import model_geometry_mm
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,13 +35,8 @@ def model_symmetries(model: ObjectModel) -> Symmetries:
 
 
 def models_info_entry(model: ObjectModel, symmetries: Symmetries) -> dict:
-    """One BOP models_info.json entry (mm)."""
-    low = model.vertices.min(axis=0) * 1000.0
-    size = model.extent_m * 1000.0
-    entry = {'diameter': round(model.diameter_m * 1000.0, 4),
-             'min_x': round(float(low[0]), 4), 'min_y': round(float(low[1]), 4),
-             'min_z': round(float(low[2]), 4), 'size_x': round(float(size[0]), 4),
-             'size_y': round(float(size[1]), 4), 'size_z': round(float(size[2]), 4)}
+    """One BOP models_info.json entry (mm, rounded to 0.1 µm)."""
+    entry = {key: round(float(value), 4) for key, value in model_geometry_mm(model).items()}
     entry.update(symmetries_to_models_info(symmetries))
     return entry
 

@@ -32,7 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--out', type=Path, default=Path('reports/hog_sweep'))
 
 
-def _crops(args: argparse.Namespace):
+def _crops(models_dir: Path, ids: list[int] | None, *, steps_deg: float, augmentations: int,
+           scenes: int, seed: int):
     from tqdm import tqdm
 
     from tlessbot_ros.core.recognise import normalise_crop
@@ -40,17 +41,17 @@ def _crops(args: argparse.Namespace):
     from tlessbot_ros.sim.simulator import Simulator
     from tlessbot_ros.sim.turntable import Turntable, TurntableParams
 
-    models = load_models(args.models, args.ids)
-    table = Turntable(models, params=TurntableParams(step_deg=args.steps_deg,
-                                                     augmentations=args.augmentations),
-                      seed=args.seed)
+    models = load_models(models_dir, ids)
+    table = Turntable(models, params=TurntableParams(step_deg=steps_deg,
+                                                     augmentations=augmentations),
+                      seed=seed)
     train, train_y = [], []
     for sample in tqdm(table.samples(), total=len(table), desc='turntable', unit='crop'):
         train.append(normalise_crop(sample.rgb, mask=sample.mask))
         train_y.append(sample.obj_id)
-    simulator = Simulator(models, seed=args.seed + 1000)
+    simulator = Simulator(models, seed=seed + 1000)
     test, test_y = [], []
-    for index in tqdm(range(args.scenes), desc='simulate', unit='frame'):
+    for index in tqdm(range(scenes), desc='simulate', unit='frame'):
         for view in simulator.frame(index).views.values():
             for gt in view.gt:
                 if gt.px_count_visib >= 100:
@@ -74,7 +75,9 @@ def run(args: argparse.Namespace) -> int:
     for cell in args.cells:
         if 60 % cell or cell < 2 or cell > 30:
             raise TlessbotError(f'cell size {cell} does not divide the 60 px crop')
-    train, train_y, test, test_y = _crops(args)
+    train, train_y, test, test_y = _crops(args.models, args.ids, steps_deg=args.steps_deg,
+                                          augmentations=args.augmentations,
+                                          scenes=args.scenes, seed=args.seed)
     rows = []  # (cell, bins, kind, dim, accuracy, train_s)
     grid = [(c, b) for c in args.cells for b in args.bins]
     for cell, bins in tqdm(grid, desc='sweep', unit='setting'):

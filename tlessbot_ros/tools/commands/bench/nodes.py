@@ -18,11 +18,11 @@ import time
 import numpy as np
 
 from tlessbot_ros.conversions.image_cdr import image_from_cdr
-from tlessbot_ros.tools.demo import DEFAULT_BAG
+from tlessbot_ros.conversions.topics import COLOR, DEPTH, DEPTH_INFO, camera_topic
+from tlessbot_ros.core.common import CAMERA_NAMES
+from tlessbot_ros.tools.support.defaults import DEFAULT_BAG
 
-INPUTS = {'color': '/{camera}/color/image_raw',
-          'depth': '/{camera}/aligned_depth_to_color/image_raw',
-          'info': '/{camera}/aligned_depth_to_color/camera_info'}
+INPUTS = {'color': COLOR, 'depth': DEPTH, 'info': DEPTH_INFO}   # input name: camera-relative topic
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,14 +50,14 @@ def _frames(bag: str) -> list[dict[str, dict]]:
     from tlessbot_ros.nodes.common import message_class
     from tlessbot_ros.nodes.inputs import RawMessage
 
-    topics = [t.format(camera=c) for t in INPUTS.values() for c in ('top', 'side')]
+    topics = [camera_topic(c, t) for t in INPUTS.values() for c in CAMERA_NAMES]
     by_topic: dict[str, list] = {}
     for m in read_bag(bag, topics):
         by_topic.setdefault(m.topic, []).append(
             RawMessage(message_class(m.msgtype), m.raw).deserialise())
     count = min((len(v) for v in by_topic.values()), default=0)
-    return [{c: {k: by_topic[t.format(camera=c)][i] for k, t in INPUTS.items()}
-             for c in ('top', 'side')} for i in range(count)]
+    return [{c: {k: by_topic[camera_topic(c, t)][i] for k, t in INPUTS.items()}
+             for c in CAMERA_NAMES} for i in range(count)]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -78,8 +78,8 @@ def run(args: argparse.Namespace) -> int:
         localiser, classifier = LocaliserNode(), ClassifierNode()
         pose = PoseEstimatorNode(parameter_overrides=[
             Parameter('workers.count', value=args.pose_workers)])
-        labels = {c: _Captured() for c in ('top', 'side')}
-        classes = {c: _Captured() for c in ('top', 'side')}
+        labels = {c: _Captured() for c in CAMERA_NAMES}
+        classes = {c: _Captured() for c in CAMERA_NAMES}
         localiser._label_publishers, classifier._class_publishers = labels, classes
         pose._pose_publishers = {k: _Captured() for k in pose._pose_publishers}
         pose._markers, pose._overlay = _Captured(), _Captured()

@@ -42,10 +42,10 @@ def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.core.pose import PoseEstimator, PoseParams
     from tlessbot_ros.errors import TlessbotError
     from tlessbot_ros.io.models import load_models
-    from tlessbot_ros.tools.benchmarks.pose import (
+    from tlessbot_ros.tools.support.models_info import packaged_symmetries
+    from tlessbot_ros.tools.support.pose_bench import (
         SymmetryAwareScorer,
         collect_objects,
-        packaged_symmetries,
         score_methods,
         template_database,
         warm,

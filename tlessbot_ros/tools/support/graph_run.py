@@ -1,7 +1,8 @@
 """Run the perception graph on a bag and collect what it publishes (demo, bench graph, e2e).
 
 The three perception nodes run as separate processes (as ``tlessbot launch`` starts them);
-this process replays the bag's raw CDR and listens to ``/objects/obj_NN/pose`` over DDS.
+this process replays the bag's raw CDR and listens to the pose topics
+(:func:`~tlessbot_ros.conversions.topics.pose_topic`) over DDS.
 """
 from __future__ import annotations
 
@@ -13,13 +14,24 @@ from pathlib import Path
 
 import numpy as np
 
+from tlessbot_ros.conversions.topics import (
+    COLOR,
+    DEPTH,
+    DIAGNOSTICS,
+    camera_topic,
+    classes_topic,
+    labels_topic,
+    pose_topic,
+)
+from tlessbot_ros.core.common import SIDE
 from tlessbot_ros.errors import TlessbotError
-from tlessbot_ros.tools.launch import PERCEPTION_NODES, GraphProcesses, graph_processes
+from tlessbot_ros.tools.support.processes import PERCEPTION_NODES, GraphProcesses, graph_processes
 
 ALL_OBJECT_IDS = range(1, 31)
-STAGE_OUTPUTS = {'localiser': '/localiser/side/labels', 'classifier': '/classifier/side/classes'}
+STAGE_OUTPUTS = {'localiser': labels_topic(SIDE), 'classifier': classes_topic(SIDE)}
 MONITOR = 'replay and monitor'
-READY_TOPIC = '/side/aligned_depth_to_color/image_raw'  # every perception node subscribes it
+READY_TOPIC = camera_topic(SIDE, DEPTH)  # every perception node subscribes it
+FRAME_TOPIC = camera_topic(SIDE, COLOR)  # one message per replayed frame
 
 
 @dataclass
@@ -122,7 +134,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
     from tlessbot_ros.conversions.pose import pose_stamped_to_transform
     from tlessbot_ros.io.bags import header_stamp_ns
     from tlessbot_ros.nodes.common import RESULT_QOS, init_ros, message_class
-    from tlessbot_ros.tools.replay import replay
+    from tlessbot_ros.tools.support.replay import replay
 
     if lockstep:  # one frame at a time: no frame may be skipped by a rate cap
         ros_args = [*(ros_args or []), '-p', 'sync.max_rate_hz:=0.0']
@@ -157,7 +169,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
                 handled[0] = int(values.get('frames', 0)) + int(values.get('failures', 0))
 
     monitor.create_subscription(message_class('diagnostic_msgs/msg/DiagnosticArray'),
-                                '/diagnostics', on_diagnostics, RESULT_QOS)
+                                DIAGNOSTICS, on_diagnostics, RESULT_QOS)
     def on_stage_output(stage: str):
         arrivals = result.stage_arrivals.setdefault(stage, {})
 
@@ -171,8 +183,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
                                     raw=True)
     pose_class = message_class('geometry_msgs/msg/PoseStamped')
     for obj_id in ALL_OBJECT_IDS:
-        monitor.create_subscription(pose_class, f'/objects/obj_{obj_id:02d}/pose',
-                                    on_pose(obj_id), RESULT_QOS)
+        monitor.create_subscription(pose_class, pose_topic(obj_id), on_pose(obj_id), RESULT_QOS)
     try:
         if quiet:
             graph.start_capturing(output)
@@ -202,7 +213,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         next_sample = [time.monotonic()]
 
         def on_publish(message) -> None:
-            if message.topic == '/side/color/image_raw':
+            if message.topic == FRAME_TOPIC:
                 result.frames_replayed.append(header_stamp_ns(message.raw))
             if time.monotonic() >= next_sample[0]:
                 parents = children_by_parent()   # one /proc scan per sample: replay thread

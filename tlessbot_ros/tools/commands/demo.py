@@ -15,13 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tlessbot_ros.core.common import Symmetries, rpy_from_matrix, symmetries_from_models_info
+from tlessbot_ros.core.common import Symmetries, rpy_from_matrix
 from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_MODELS_INFO, DEFAULT_TEMPLATES
 from tlessbot_ros.errors import ModelFileError, TlessbotError
-from tlessbot_ros.io.config import default_config_path, package_path
+from tlessbot_ros.io.config import default_config_path
 from tlessbot_ros.io.ground_truth import read_ground_truth
-
-DEFAULT_BAG = package_path('bags', 'demo')
+from tlessbot_ros.tools.support.defaults import DEFAULT_BAG
+from tlessbot_ros.tools.support.models_info import load_symmetries
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -40,24 +40,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--json', default=None, help='also write the summary here')
 
 
-def load_symmetries(path: str | Path) -> dict[int, Symmetries]:
-    """{obj_id: Symmetries} from a BOP models_info.json."""
-    path = Path(path)
-    if not path.is_file():
-        raise ModelFileError(f'models_info not found: {path}')
-    try:
-        info = json.loads(path.read_text())
-        return {int(k): symmetries_from_models_info(v) for k, v in info.items()}
-    except (ValueError, TypeError, AttributeError) as error:
-        raise ModelFileError(f'{path} is not a BOP models_info.json: {error}') from None
-
-
 def run_demo(bag: str, *, config: Path, classifier: str, templates: str,
              symmetries: dict[int, Symmetries], rate: float = 1.0, lockstep: bool = True,
              echo: bool = True) -> dict:
     """Replay, collect, score; returns the summary (also printed when ``echo``)."""
-    from tlessbot_ros.tools._bag_scoring import Estimate, score_frame
-    from tlessbot_ros.tools._graph_run import run_graph_on_bag
+    from tlessbot_ros.tools.support.bag_scoring import Estimate, score_frame
+    from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
 
     for path in (classifier, templates):
         if not Path(path).is_file():

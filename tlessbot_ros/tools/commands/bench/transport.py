@@ -21,8 +21,13 @@ import time
 
 import numpy as np
 
-TOPICS = {'/top/color': ('rgb8', 3), '/top/depth': ('16UC1', 2),
-          '/side/color': ('rgb8', 3), '/side/depth': ('16UC1', 2)}
+from tlessbot_ros.conversions.topics import COLOR, DEPTH, camera_topic
+from tlessbot_ros.core.common import CAMERA_NAMES
+
+# The cameras' colour and aligned-depth topics: (encoding, bytes per pixel).
+TOPICS = {camera_topic(camera, relative): image
+          for camera in CAMERA_NAMES
+          for relative, image in ((COLOR, ('rgb8', 3)), (DEPTH, ('16UC1', 2)))}
 SETUPS = (('Fast DDS defaults, deserialised', False, False, False),
           ('package profile, deserialised', True, False, False),
           ('package profile, raw', True, True, False),
@@ -37,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--keep-buffers', action='store_true', help=argparse.SUPPRESS)
 
 
-def _publisher(args: argparse.Namespace) -> None:
+def _publisher(*, fps: float, duration_s: float) -> None:
     import rclpy
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import Image
@@ -55,9 +60,9 @@ def _publisher(args: argparse.Namespace) -> None:
                            serialize_message(msg))
     time.sleep(2.0)  # discovery
     start = time.monotonic()
-    frames = int(args.duration * args.fps)
+    frames = int(duration_s * fps)
     for k in range(frames):
-        delay = start + k / args.fps - time.monotonic()
+        delay = start + k / fps - time.monotonic()
         if delay > 0:
             time.sleep(delay)
         now = node.get_clock().now().nanoseconds
@@ -68,7 +73,7 @@ def _publisher(args: argparse.Namespace) -> None:
     rclpy.try_shutdown()
 
 
-def _subscriber(args: argparse.Namespace) -> None:
+def _subscriber(*, duration_s: float, raw: bool) -> None:
     import rclpy
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
@@ -85,14 +90,14 @@ def _subscriber(args: argparse.Namespace) -> None:
 
     def on_message(topic: str):
         def callback(msg) -> None:
-            stamp = header_stamp_ns(msg) if args.raw else stamp_to_ns(msg.header.stamp)
+            stamp = header_stamp_ns(msg) if raw else stamp_to_ns(msg.header.stamp)
             latencies.append((node.get_clock().now().nanoseconds - stamp) / 1e6)
             received[topic] += 1
         return callback
 
     for topic in TOPICS:
-        node.create_subscription(Image, topic, on_message(topic), qos, raw=args.raw)
-    deadline = time.monotonic() + args.duration + 4.0
+        node.create_subscription(Image, topic, on_message(topic), qos, raw=raw)
+    deadline = time.monotonic() + duration_s + 4.0
     cpu_start, cpu_from = None, time.monotonic() + 3.0   # CPU while frames flow
     while time.monotonic() < deadline:
         rclpy.spin_once(node, timeout_sec=0.05)
@@ -106,10 +111,10 @@ def _subscriber(args: argparse.Namespace) -> None:
     rclpy.try_shutdown()
 
 
-def _child(role: str, args: argparse.Namespace, env: dict[str, str], raw: bool,
-           keep_buffers: bool):
+def _child(role: str, *, fps: float, duration_s: float, env: dict[str, str], raw: bool,
+           keep_buffers: bool) -> subprocess.Popen:
     command = [sys.executable, '-m', 'tlessbot_ros.tools.cli', 'bench', 'transport',
-               '--role', role, '--fps', str(args.fps), '--duration', str(args.duration)]
+               '--role', role, '--fps', str(fps), '--duration', str(duration_s)]
     command += (['--raw'] if raw else []) + (['--keep-buffers'] if keep_buffers else [])
     return subprocess.Popen(command, env=env, stdout=subprocess.PIPE, text=True)
 
@@ -125,10 +130,10 @@ def run(args: argparse.Namespace) -> int:
         from tlessbot_ros.nodes.common import keep_freed_buffers
         keep_freed_buffers()
     if args.role == 'publisher':
-        _publisher(args)
+        _publisher(fps=args.fps, duration_s=args.duration)
         return 0
     if args.role == 'subscriber':
-        _subscriber(args)
+        _subscriber(duration_s=args.duration, raw=args.raw)
         return 0
     from tlessbot_ros.nodes.common import DDS_PROFILE_VARIABLES, use_package_dds_profile
 
@@ -141,8 +146,10 @@ def run(args: argparse.Namespace) -> int:
                                                           'LOCALHOST'))
         if with_profile:   # else no profile variable: Fast DDS's built-in transports
             use_package_dds_profile(env)
-        subscriber = _child('subscriber', args, env, raw, keep_buffers)
-        publisher = _child('publisher', args, env, raw, keep_buffers)
+        subscriber = _child('subscriber', fps=args.fps, duration_s=args.duration, env=env,
+                            raw=raw, keep_buffers=keep_buffers)
+        publisher = _child('publisher', fps=args.fps, duration_s=args.duration, env=env,
+                           raw=raw, keep_buffers=keep_buffers)
         sent = _last_json(publisher).get('published', 0)
         got = _last_json(subscriber)
         counts = got.get('received', {})

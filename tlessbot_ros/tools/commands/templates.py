@@ -31,19 +31,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _side_camera(config: Path | None):
-    from tlessbot_ros.core.common import default_rig, rig_from_params
+    from tlessbot_ros.core.common import SIDE, default_rig, rig_from_params
     from tlessbot_ros.io.config import default_config_path, load_ros_params
 
     path = config or default_config_path()
     if config is None and (path is None or not Path(path).is_file()):
-        return default_rig()['side']
+        return default_rig()[SIDE]
     try:
         rig = rig_from_params(load_ros_params(path, 'pose_estimator'))
     except (ValueError, KeyError, OSError):
         if config is not None:
             raise TlessbotError(f'no usable rig in {config}') from None
-        return default_rig()['side']
-    return rig['side']
+        return default_rig()[SIDE]
+    return rig[SIDE]
 
 
 def run(args: argparse.Namespace) -> int:

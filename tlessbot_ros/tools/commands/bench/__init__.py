@@ -2,22 +2,17 @@
 from __future__ import annotations
 
 import argparse
-import ast
 import importlib
 from pathlib import Path
 
-_BENCH_DIR = Path(__file__).resolve().parent / 'benchmarks'
+from tlessbot_ros.tools.support.discovery import discover, first_doc_line
+
+_BENCH_DIR = Path(__file__).resolve().parent
 
 
 def available_benchmarks() -> dict[str, str]:
     """Benchmark name -> one-line help, from module docstrings (nothing is imported)."""
-    found = {}
-    for path in sorted(_BENCH_DIR.glob('*.py')):
-        if path.stem.startswith('_'):
-            continue
-        doc = ast.get_docstring(ast.parse(path.read_text(encoding='utf-8'))) or ''
-        found[path.stem.replace('_', '-')] = doc.strip().splitlines()[0] if doc.strip() else ''
-    return found
+    return {name: first_doc_line(path) for name, path in discover(_BENCH_DIR).items()}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,9 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         module = name.replace('-', '_')
         sub.set_defaults(_bench_module=module)
         # Each benchmark adds its own options; import only to build its parser.
-        importlib.import_module(f'tlessbot_ros.tools.benchmarks.{module}').add_arguments(sub)
+        importlib.import_module(f'{__name__}.{module}').add_arguments(sub)
 
 
 def run(args: argparse.Namespace) -> int:
-    module = importlib.import_module(f'tlessbot_ros.tools.benchmarks.{args._bench_module}')
+    module = importlib.import_module(f'{__name__}.{args._bench_module}')
     return int(module.run(args) or 0)

@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tlessbot_ros.core.common import SIDE, TOP
+
 IOU = 0.7
 METHODS = (('side only', 'side_only', False), ('Algorithm 1 (paper)', 'algorithm1', False),
            ('calibrated, table plane', 'calibrated', False),
@@ -59,20 +61,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              '(default bench_out/localiser)')
 
 
-def _box_iou(a, b) -> float:
-    ax, ay, aw, ah = a
-    bx, by, bw, bh = b
-    iw = min(ax + aw, bx + bw) - max(ax, bx)
-    ih = min(ay + ah, by + bh) - max(ay, by)
-    if iw <= 0 or ih <= 0:
-        return 0.0
-    inter = iw * ih
-    return inter / float(aw * ah + bw * bh - inter)
-
-
 def _match(gt_boxes: list, pred_boxes: list) -> dict[int, int]:
     """Greedy one-to-one matching at IoU > 0.7: gt index -> pred index."""
-    pairs = [(_box_iou(g, p), i, j) for i, g in enumerate(gt_boxes)
+    from tlessbot_ros.core.metrics import box_iou
+
+    pairs = [(box_iou(g, p), i, j) for i, g in enumerate(gt_boxes)
              for j, p in enumerate(pred_boxes)]
     pairs = sorted((p for p in pairs if p[0] > IOU), reverse=True)
     used_g, used_p, out = set(), set(), {}
@@ -85,7 +78,9 @@ def _match(gt_boxes: list, pred_boxes: list) -> dict[int, int]:
 
 
 def _score_frame(frame, result, side_blobs, min_visib: float, stats: dict, key: str) -> None:
-    side, top = frame.views['side'], frame.views['top']
+    from tlessbot_ros.core.metrics import box_iou
+
+    side, top = frame.views[SIDE], frame.views[TOP]
     targets = [k for k, g in enumerate(side.gt) if g.visib_fract >= min_visib]
     inst = [i for i in result.instances if i.in_side]
     pred_boxes = [i.box_side for i in inst]
@@ -100,7 +95,7 @@ def _score_frame(frame, result, side_blobs, min_visib: float, stats: dict, key: 
         s[f'detected:{mat}'] += k in detected
     s['frames'] += 1
     on_part = side.instance >= 0
-    labels = result.labels['side']
+    labels = result.labels[SIDE]
     for i in inst:
         m = labels == i.instance_id
         if on_part[m].mean() < 0.5:
@@ -119,13 +114,13 @@ def _score_frame(frame, result, side_blobs, min_visib: float, stats: dict, key: 
         if g.visib_fract >= min_visib or top.gt[k].visib_fract < min_visib:
             continue
         s['occluded'] += 1
-        s['recovered'] += any(_box_iou(top.gt[k].bbox_visib, b) > IOU for b in top_boxes)
+        s['recovered'] += any(box_iou(top.gt[k].bbox_visib, b) > IOU for b in top_boxes)
 
 
 def _merged_blobs(frame, seg, min_visib: float) -> list[list[int]]:
     import cv2
 
-    side = frame.views['side']
+    side = frame.views[SIDE]
     n, comp = cv2.connectedComponents(seg.foreground.astype(np.uint8), connectivity=8)
     out = []
     for b in range(1, n):
@@ -177,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
         for index in tqdm(range(count), desc=f'localiser ({set_name})', unit='scene'):
             frame = sim.frame(index)
             if set_name == 'arm':
-                frame, _ = occlude_frame(frame, 'side', np.random.default_rng([args.seed, index]))
+                frame, _ = occlude_frame(frame, SIDE, np.random.default_rng([args.seed, index]))
             empty = sim.empty_table(index)
             table_kind = sim._environment(index).table.kind  # the frame does not carry it
             if set_name == 'random':
@@ -196,11 +191,11 @@ def run(args: argparse.Namespace) -> int:
                                          **extra)
                     if set_name == 'random':
                         seg_ms[cues].append(segs[name].timings_ms['total'])
-                blobs = _merged_blobs(frame, segs['side'], args.min_visib)
+                blobs = _merged_blobs(frame, segs[SIDE], args.min_visib)
                 for label, method, use_depth in METHODS:
-                    result = fuse_views(segs['top'], segs['side'], rig=frame_rig,
-                                        depth_top_m=depth['top'] if use_depth else None,
-                                        side_rgb=frame.views['side'].rgb,
+                    result = fuse_views(segs[TOP], segs[SIDE], rig=frame_rig,
+                                        depth_top_m=depth[TOP] if use_depth else None,
+                                        side_rgb=frame.views[SIDE].rgb,
                                         params=FusionParams(method=method))
                     key = f'{set_name}|{cues}|{label}'
                     fuse_ms[key].append(result.timings_ms['total'])

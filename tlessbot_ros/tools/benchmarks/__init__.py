@@ -1,1 +1,0 @@
-"""Benchmarks run by ``tlessbot bench <name>``; each module defines add_arguments() and run()."""

@@ -1,0 +1,1 @@
+"""The `tlessbot` commands: one module (or package) per `tlessbot <command>`."""

@@ -1,0 +1,166 @@
+"""Score the pipeline (or given poses) on a BOP-format dataset: report.json, report.md, plots.
+
+  tlessbot evaluate --dataset DIR --models DIR [--split NAME] [--classifier FILE]
+                    [--templates FILE] [--oracle none|boxes|boxes+classes]
+                    [--poses RESULTS.csv] [--limit N] [--out DIR]
+
+With --poses the given BOP results are only scored. Otherwise the perception pipeline
+(core.pipeline) runs on every frame; --oracle feeds ground-truth boxes (and classes) instead of
+the localiser (and classifier). A dataset with test_top/ and test_side/ is evaluated as two views
+and scored in the side camera. Parts with visib_fract >= 0.3 are the targets.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from tlessbot_ros.core.common import SIDE
+from tlessbot_ros.errors import DatasetError, ModelFileError, TlessbotError
+from tlessbot_ros.io.bop_results import read_results, write_results
+from tlessbot_ros.tools.support.eval_frames import TWO_VIEW_SPLITS, bag_frames, pipeline_frames
+from tlessbot_ros.tools.support.eval_scoring import FrameOutput, load_scoring_models, score_frames
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--dataset', type=Path, help='BOP dataset root')
+    parser.add_argument('--bag', type=Path,
+                        help='instead of --dataset: a bag with /ground_truth topics, replayed '
+                             'through the ROS graph (each node its own process)')
+    parser.add_argument('--models', required=True, type=Path,
+                        help='CAD models: obj_NN.stl folder or BOP models/ with models_info.json')
+    parser.add_argument('--split', help='evaluate this single split (default: test_top + '
+                        'test_side when both exist, else the only split)')
+    parser.add_argument('--classifier', type=Path, help='classifier .npz (tlessbot train)')
+    parser.add_argument('--templates', type=Path, help='template database .npz '
+                        '(tlessbot templates)')
+    parser.add_argument('--oracle', choices=('none', 'boxes', 'boxes+classes'), default='none',
+                        help='feed ground-truth boxes (and classes) to the pipeline')
+    parser.add_argument('--poses', type=Path, help='only score these poses (BOP results CSV)')
+    parser.add_argument('--limit', type=int, help='score at most N frames')
+    parser.add_argument('--out', type=Path, default=Path('eval_out'), help='output folder')
+    parser.add_argument('--pose-workers', type=int, default=0, metavar='N',
+                        help='fit parts in N worker processes besides this one, as the pose '
+                             'node does (config/cell.yaml: 1); the poses are the same')
+    parser.add_argument('--pose-param', action='append', metavar='NAME=VALUE',
+                        help='override a PoseParams field, e.g. icp_iterations=6 (repeatable)')
+    parser.add_argument('--pipeline-param', action='append', metavar='NAME=VALUE',
+                        help='override a PipelineParams field, e.g. verify_accept_fitness=0.9 '
+                             '(repeatable)')
+
+
+def _scored_split(dataset: Path, split: str | None) -> tuple[str, bool]:
+    """(split to score, two-view?) after checking the dataset layout."""
+    from tlessbot_ros.io.bop import list_splits
+    splits = list_splits(dataset)
+    if split is not None:
+        if split not in splits:
+            raise DatasetError(f'{dataset} has no split {split!r} (available: '
+                               f'{", ".join(splits)})')
+        return split, False
+    if all(s in splits for s in TWO_VIEW_SPLITS):
+        return f'test_{SIDE}', True
+    if len(splits) == 1:
+        return splits[0], False
+    raise DatasetError(f'{dataset} has several splits ({", ".join(splits)}); choose one with '
+                       '--split')
+
+
+def _given_poses(path: Path) -> dict[tuple[int, int], FrameOutput]:
+    outputs: dict[tuple[int, int], FrameOutput] = {}
+    for result in read_results(path):
+        output = outputs.setdefault((result.scene_id, result.im_id), FrameOutput())
+        output.poses.append(result)
+        if result.time_s >= 0:
+            output.timings_ms['frame'] = 1e3 * result.time_s
+    return outputs
+
+
+def _cached_model(command: str, *, models: Path, out: Path) -> Path:
+    """``<out>/templates.npz`` or ``<out>/classifier.npz`` built from ``models`` with the
+    default settings (``tlessbot templates`` / ``tlessbot train``, progress bar shown) unless
+    an earlier run cached it."""
+    import subprocess
+    import sys
+
+    name = 'templates.npz' if command == 'templates' else 'classifier.npz'
+    path = out / name
+    if path.is_file():
+        print(f'using cached {path}')
+        return path
+    out.mkdir(parents=True, exist_ok=True)
+    print(f'no --{"templates" if command == "templates" else "classifier"} given: building '
+          f'{path} from {models} with the default settings')
+    result = subprocess.run([sys.executable, '-m', 'tlessbot_ros.tools.cli', command,
+                             '--models', str(models), '--out', str(path)])
+    if result.returncode != 0 or not path.is_file():
+        raise TlessbotError(f'building {path} failed (tlessbot {command} exited with '
+                            f'{result.returncode})')
+    return path
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from tlessbot_ros.io.bop import read_split
+    from tlessbot_ros.tools.support.report import write_report
+
+    if args.limit is not None and args.limit <= 0:
+        raise TlessbotError('--limit must be positive')
+    if not args.models.is_dir():
+        raise ModelFileError(f'models folder not found: {args.models}')
+    if (args.dataset is None) == (args.bag is None):
+        raise TlessbotError('give exactly one of --dataset DIR and --bag FILE')
+    started = time.perf_counter()
+    frames: list[tuple[object, FrameOutput]] = []
+    if args.bag is not None:
+        frames = bag_frames(args.bag, classifier=args.classifier, templates=args.templates,
+                            limit=args.limit)
+        split, two_view = 'bag (side camera)', True
+        mode = f'ROS graph on {args.bag.name}'
+    elif args.poses is not None:
+        split, two_view = _scored_split(args.dataset, args.split)
+        given = _given_poses(args.poses)
+        images = read_split(args.dataset, split, limit=args.limit, load_masks=False)
+        for image in tqdm(images, desc='scoring', unit='frame', total=args.limit):
+            frames.append((image, given.get((image.scene_id, image.im_id), FrameOutput())))
+        mode = f'given poses ({args.poses.name})'
+    else:
+        split, two_view = _scored_split(args.dataset, args.split)
+        templates = args.templates or _cached_model('templates', models=args.models,
+                                                    out=args.out)
+        classifier = args.classifier
+        if args.oracle != 'boxes+classes' and classifier is None:
+            classifier = _cached_model('train', models=args.models, out=args.out)
+        iterator = pipeline_frames(
+            args.dataset, split, two_view, templates=templates, classifier=classifier,
+            oracle=args.oracle, limit=args.limit, pose_overrides=args.pose_param,
+            pipeline_overrides=args.pipeline_param, pose_workers=args.pose_workers)
+        for item in tqdm(iterator, desc='pipeline', unit='frame', total=args.limit):
+            frames.append(item)
+        mode = f'pipeline, oracle {args.oracle}'
+    if not frames:
+        raise DatasetError(f'{args.dataset or args.bag}: {split} has no images')
+    ids = {gt.obj_id for image, _ in frames for gt in image.gt}
+    ids |= {p.obj_id for _, o in frames for p in o.poses}
+    models = load_scoring_models(args.models, ids)
+    report = score_frames(frames, models)
+    report['mode'] = mode
+    report['dataset'] = str(args.dataset or args.bag)
+    report['split'] = ' + '.join(TWO_VIEW_SPLITS) if two_view else split
+    report['run_time_s'] = time.perf_counter() - started
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_results(args.out / 'estimates.csv', [p for _, o in frames for p in o.poses])
+    (args.out / 'report.json').write_text(json.dumps(report, indent=2) + '\n')
+    write_report(report, args.out)
+    pose = report['pose']
+    print(f'{report["frames"]} frames, {report["objects_gt"]} parts: '
+          f'5cm5deg {_fmt(pose["recall_5cm5deg"])}, VSD<0.3 {_fmt(pose["recall_vsd03"])}, '
+          f'ADD-S {_fmt(pose["recall_adds01d"])}, MSSD AR {_fmt(pose["mssd_recall"])} '
+          f'-> {args.out}')
+    return 0
+
+
+def _fmt(value: float | None) -> str:
+    return 'n/a' if value is None else f'{value:.3f}'

@@ -1,0 +1,47 @@
+"""Publish a rosbag2 bag (mcap or sqlite3) into the ROS graph as raw CDR, at the recorded rate.
+
+    tlessbot replay bags/demo.mcap
+    tlessbot replay bags/demo.mcap --rate 0.5 --loop --topics /side/color/image_raw
+"""
+from __future__ import annotations
+
+import argparse
+
+from tlessbot_ros.io.bags import bag_topics
+from tlessbot_ros.tools.support.replay import replay
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('bag', help='bag folder or .mcap / .db3 file')
+    parser.add_argument('--rate', type=float, default=1.0, help='playback speed factor')
+    parser.add_argument('--loop', action='store_true', help='start again at the end')
+    parser.add_argument('--topics', nargs='+', default=None, help='only these topics')
+    parser.add_argument('--wait-for-subscribers', type=float, default=0.0, metavar='S',
+                        help='wait up to S seconds for a subscriber on every image topic')
+    parser.add_argument('--qos', choices=('reliable', 'sensor'), default='reliable',
+                        help='QoS of the publishers')
+    parser.add_argument('--restamp', action='store_true',
+                        help='stamp each frame with the ROS time at which it is published '
+                             '(its messages share the stamp; later loops move forward)')
+
+
+def run(args: argparse.Namespace) -> int:
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    from tlessbot_ros.nodes.common import init_ros
+
+    bag_topics(args.bag)  # fail with one clear line before touching ROS
+    init_ros()
+    node = rclpy.create_node('tlessbot_replay')
+    try:
+        count = replay(node, args.bag, rate=args.rate, loop=args.loop, topics=args.topics,
+                       qos=args.qos, wait_for_subscribers_s=args.wait_for_subscribers,
+                       restamp=args.restamp)
+        print(f'replayed {count} messages from {args.bag}')
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

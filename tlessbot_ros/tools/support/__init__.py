@@ -1,0 +1,1 @@
+"""Code the `tlessbot` commands share; never a command itself."""

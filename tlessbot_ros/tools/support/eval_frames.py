@@ -1,0 +1,206 @@
+"""Where ``tlessbot evaluate`` gets its frames: the pipeline on a BOP dataset (or its oracle
+variants) and the ROS graph on a bag. Each yields (image, FrameOutput) pairs for
+:func:`~tlessbot_ros.tools.support.eval_scoring.score_frames`, poses in the side camera.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from tlessbot_ros.core.common import CAMERA_NAMES, SIDE, TOP
+from tlessbot_ros.errors import DatasetError, ModelFileError, TlessbotError
+from tlessbot_ros.io.bop_results import BopEstimate
+from tlessbot_ros.tools.support.eval_scoring import FrameOutput
+
+TWO_VIEW_SPLITS = tuple(f'test_{camera}' for camera in CAMERA_NAMES)
+
+
+def pipeline_frames(dataset: Path, split: str, two_view: bool, *, templates: Path,
+                    classifier: Path | None, oracle: str = 'none', limit: int | None = None,
+                    pose_overrides: list[str] | None = None,
+                    pipeline_overrides: list[str] | None = None, pose_workers: int = 0,
+                    ) -> Iterator[tuple[object, FrameOutput]]:
+    """Run core.pipeline on every frame of ``split`` (both camera splits when ``two_view``).
+
+    Args:
+        templates, classifier: model files (the classifier may be None with
+            ``oracle='boxes+classes'``).
+        oracle: ``none`` (localiser and classifier run), ``boxes`` (ground-truth boxes) or
+            ``boxes+classes`` (ground-truth boxes and classes).
+        limit: at most this many frames.
+        pose_overrides, pipeline_overrides: ``NAME=VALUE`` overrides of PoseParams and
+            PipelineParams fields.
+        pose_workers: fit parts in this many worker processes besides this one.
+    """
+    if oracle == 'none' and not two_view:
+        raise TlessbotError('--oracle none needs a two-view dataset (test_top + test_side); '
+                            'use --oracle boxes or boxes+classes for a single split')
+    from tlessbot_ros.core.common import CameraMount, Rig, mask_box
+    from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+    from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
+    from tlessbot_ros.core.recognise import LinearClassifier
+    from tlessbot_ros.io.bop import read_split
+    from tlessbot_ros.tools.support.overrides import apply_overrides
+
+    templates_path = templates
+    templates = TemplateDatabase.load(templates_path)
+    classifier = LinearClassifier.load(classifier) if classifier else None
+    views = (TOP, SIDE) if two_view else (SIDE,)
+    splits = {v: f'test_{v}' for v in views} if two_view else {SIDE: split}
+    readers = {v: read_split(dataset, splits[v], limit=limit) for v in views}
+    # Empty-table images (``tlessbot simulate --backgrounds``) feed background subtraction.
+    backgrounds = {v: read_split(dataset, f'background_{v}', limit=limit, load_masks=False)
+                   for v in views if (dataset / f'background_{v}').is_dir()}
+    pose_params = apply_overrides(PoseParams(), pose_overrides)
+    pipeline_params = apply_overrides(PipelineParams(), pipeline_overrides)
+    if oracle == 'boxes+classes':
+        # the classes are the truth: nothing for the look-alike check to correct
+        pipeline_params = replace(pipeline_params, lookalike_check=False)
+    workers = None
+    if pose_workers > 0:
+        from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
+        workers = PoseWorkerPool(templates_path, pose=pose_params, pipeline=pipeline_params,
+                                 params=PoseWorkerParams(count=pose_workers))
+        if not workers.wait_ready():
+            workers.close()
+            raise TlessbotError(f'pose workers did not start: {"; ".join(workers.errors)}')
+    try:
+        pipeline = None
+        for images in zip(*readers.values()):
+            by_view = dict(zip(views, images))
+            empty = {v: next(reader).rgb for v, reader in backgrounds.items()}
+            scored = by_view[SIDE]
+            keys = {(im.scene_id, im.im_id) for im in images}
+            if len(keys) != 1:
+                raise DatasetError('test_top and test_side do not hold the same scene/image ids')
+            inputs = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera,
+                                   background=empty.get(v))
+                      for v, im in by_view.items()}
+            if pipeline is None:
+                rig = None
+                if all(im.T_world_camera is not None for im in images):
+                    rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
+                               for v, im in by_view.items()})
+                pipeline = PerceptionPipeline(rig=rig, classifier=classifier, templates=templates,
+                                              pose=pose_params, params=pipeline_params)
+            output = FrameOutput()
+            t0 = time.perf_counter()
+            if oracle == 'none':
+                result = pipeline.process(inputs, fitter=workers)
+                detections, labels = result.detections, result.labels
+                output.timings_ms.update(result.timings_ms)
+                output.classified = True
+                output.boxes = []
+                side_labels = labels.get(SIDE)
+                by_instance = {d.instance_id: d.obj_id for d in detections}
+                if side_labels is not None:
+                    for instance in np.unique(side_labels):
+                        if instance == 0:
+                            continue
+                        box = mask_box(side_labels == instance)
+                        output.boxes.append((*box, int(by_instance.get(int(instance), 0))))
+            else:
+                labels = oracle_labels(by_view)
+                if oracle == 'boxes+classes':
+                    classes = {k + 1: gt.obj_id for k, gt in enumerate(scored.gt)}
+                else:
+                    t1 = time.perf_counter()
+                    guesses = pipeline.classify({v: im.rgb for v, im in by_view.items()}, labels,
+                                                views=inputs)
+                    output.timings_ms['classification'] = 1e3 * (time.perf_counter() - t1)
+                    classes = {i: g.candidates for i, g in guesses.items()}
+                t2 = time.perf_counter()
+                detections = pipeline.estimate_poses(inputs, labels, classes, box_mode=True,
+                                                     fitter=workers)
+                if oracle == 'boxes':  # the class after verification by the pose fit
+                    output.classes_by_gt = {i - 1: g.obj_id for i, g in guesses.items()}
+                    output.classes_by_gt.update({d.instance_id - 1: d.obj_id for d in detections})
+                output.timings_ms['pose'] = 1e3 * (time.perf_counter() - t2)
+                output.timings_ms['frame'] = 1e3 * (time.perf_counter() - t0)
+            frame_s = output.timings_ms.get('frame', 1e3 * (time.perf_counter() - t0)) / 1e3
+            for d in detections:
+                if d.pose is None:
+                    continue
+                T = d.pose.T_camera_object
+                if d.view != SIDE:
+                    src = by_view[d.view]
+                    T = np.linalg.inv(scored.T_world_camera) @ src.T_world_camera @ T
+                output.poses.append(BopEstimate(scored.scene_id, scored.im_id, d.obj_id,
+                                               float(d.pose.fitness), T, frame_s))
+            yield scored, output
+    finally:
+        if workers is not None:
+            workers.close()
+
+
+def oracle_labels(by_view: dict) -> dict[str, np.ndarray]:
+    """Instance label images from the GT visible boxes (instance k + 1 = GT k), small on top."""
+    labels = {}
+    for view, image in by_view.items():
+        label = np.zeros((image.intrinsics.height, image.intrinsics.width), np.uint16)
+        boxes = [(k, gt.bbox_visib) for k, gt in enumerate(image.gt)
+                 if gt.bbox_visib is not None and gt.bbox_visib[2] > 0
+                 and (gt.visib_fract or 0) > 0]
+        for k, (x, y, w, h) in sorted(boxes, key=lambda b: -b[1][2] * b[1][3]):
+            label[y:y + h, x:x + w] = k + 1
+        labels[view] = label
+    return labels
+
+
+def bag_frames(bag: Path, *, classifier: Path | None = None, templates: Path | None = None,
+               limit: int | None = None) -> list[tuple[object, FrameOutput]]:
+    """Replay a simulated bag through the graph (lock-step) and pair its poses with the bag's
+    ground truth, all in the side camera (top-view poses through the rig extrinsics).
+
+    ``classifier`` and ``templates`` default to the packaged models; ``limit`` keeps the
+    first frames."""
+    from types import SimpleNamespace
+
+    from tlessbot_ros.conversions import camera_info_to_intrinsics, depth_image_to_metres
+    from tlessbot_ros.conversions.topics import DEPTH, DEPTH_INFO, camera_topic
+    from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_TEMPLATES
+    from tlessbot_ros.io.bags import deserialize, read_bag
+    from tlessbot_ros.io.config import default_config_path
+    from tlessbot_ros.io.ground_truth import read_ground_truth
+    from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
+    from tlessbot_ros.tools.support.rig import load_rig
+
+    config = default_config_path()
+    rig = load_rig(config)
+    T_side_top = rig.T_a_b(SIDE, TOP)
+    side_frame = rig[SIDE].optical_frame
+    truth = read_ground_truth(bag)
+    depth, intrinsics = {}, {}
+    for message in read_bag(bag, [camera_topic(SIDE, DEPTH), camera_topic(SIDE, DEPTH_INFO)]):
+        msg = deserialize(message)
+        if message.msgtype == 'sensor_msgs/msg/Image':
+            depth[message.log_time_ns] = depth_image_to_metres(msg)
+        else:
+            intrinsics[message.log_time_ns] = camera_info_to_intrinsics(msg)
+    classifier = classifier or DEFAULT_CLASSIFIER
+    templates = templates or DEFAULT_TEMPLATES
+    for path in (classifier, templates):
+        if not Path(path).is_file():
+            raise ModelFileError(f'model file not found: {path}')
+    run = run_graph_on_bag(bag, config=config, lockstep=True, ros_args=[
+        '-p', f'model_path:={classifier}', '-p', f'templates_path:={templates}'])
+    poses: dict[int, list[BopEstimate]] = {}
+    for pose in run.poses:
+        T = pose.T if pose.frame_id.startswith(SIDE) else T_side_top @ pose.T
+        poses.setdefault(pose.stamp_ns, []).append(BopEstimate(0, 0, pose.obj_id, 1.0, T))
+    frames = []
+    for index, stamp in enumerate(sorted(truth)[:limit]):
+        gt = [SimpleNamespace(obj_id=p.obj_id, visib_fract=p.visib_fract.get(SIDE, 0.0),
+                              bbox_visib=p.bbox_visib.get(SIDE),
+                              T_camera_object=p.T_camera_object[side_frame])
+              for p in truth[stamp] if side_frame in p.T_camera_object]
+        image = SimpleNamespace(scene_id=0, im_id=index, gt=gt, depth_m=depth.get(stamp),
+                                intrinsics=intrinsics.get(stamp))
+        for estimate in poses.get(stamp, []):
+            estimate.im_id = index
+        frames.append((image, FrameOutput(poses=poses.get(stamp, []))))
+    return frames

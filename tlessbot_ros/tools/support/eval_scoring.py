@@ -1,0 +1,261 @@
+"""Scoring evaluated frames against BOP ground truth (``tlessbot evaluate``): the report.
+
+Targets are the parts with visib_fract >= 0.3. Poses are matched to ground truth greedily by
+score, boxes by IoU >= 0.7; the measures are n cm / n° recall, VSD, ADD-S and the BOP'19
+MSSD / MSPD average recalls (:mod:`tlessbot_ros.core.metrics`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tlessbot_ros.core.common import Symmetries, detect_symmetries
+from tlessbot_ros.core.metrics import (
+    BOP19_MSPD_THRESHOLDS_PX,
+    BOP19_THRESHOLDS,
+    ModelDepthRenderer,
+    adds,
+    average_recall,
+    box_iou,
+    is_correct_cm_deg,
+    mspd,
+    mssd,
+    pose_error,
+    vsd,
+)
+from tlessbot_ros.errors import ModelFileError
+from tlessbot_ros.io.bop_results import BopEstimate
+
+MIN_VISIB_FRACT = 0.3
+IOU_THRESHOLD = 0.7
+VSD_THRESHOLD = 0.3
+ADDS_THRESHOLD = 0.1  # × diameter
+_MAX_METRIC_POINTS = 1000
+
+
+# ------------------------------------------------------------------------------------------------
+# Models
+
+
+@dataclass
+class ScoringModel:
+    """What scoring needs of one object (metres)."""
+
+    obj_id: int
+    vertices: np.ndarray
+    faces: np.ndarray
+    diameter_m: float
+    symmetries: Symmetries
+    points: np.ndarray
+    _renderer: ModelDepthRenderer | None = None
+    _sym_stack: np.ndarray | None = None
+
+    @property
+    def renderer(self) -> ModelDepthRenderer:
+        if self._renderer is None:
+            self._renderer = ModelDepthRenderer(self.vertices, self.faces)
+        return self._renderer
+
+    @property
+    def symmetry_stack(self) -> np.ndarray:
+        if self._sym_stack is None:
+            self._sym_stack = self.symmetries.transforms(step_rad=np.radians(2.0))
+        return self._sym_stack
+
+
+def scoring_model(obj_id: int, vertices: np.ndarray, faces: np.ndarray, diameter_m: float,
+                  symmetries: Symmetries | None = None) -> ScoringModel:
+    """A :class:`ScoringModel`; symmetries are detected from the mesh when not given."""
+    if symmetries is None:
+        symmetries = detect_symmetries(vertices, faces, diameter=diameter_m)
+    points = np.asarray(vertices, dtype=np.float64)
+    if len(points) > _MAX_METRIC_POINTS:
+        points = points[np.random.default_rng(obj_id).choice(len(points), _MAX_METRIC_POINTS,
+                                                              replace=False)]
+    return ScoringModel(obj_id, np.asarray(vertices, np.float64), np.asarray(faces),
+                        float(diameter_m), symmetries, points)
+
+
+def load_scoring_models(folder: Path, ids: set[int]) -> dict[int, ScoringModel]:
+    """Models of ``ids`` from ``folder``; symmetries from models_info.json, else detected."""
+    from tlessbot_ros.io.models import load_models
+    wanted = sorted(ids)
+    models = load_models(folder, wanted)  # ModelFileError names a missing id
+    missing = [i for i in wanted if i not in models]
+    if missing:
+        raise ModelFileError(f'no model for obj_{missing[0]:02d} in {folder}')
+    result = {}
+    for obj_id in wanted:
+        m = models[obj_id]
+        result[obj_id] = scoring_model(obj_id, m.vertices, m.faces, m.diameter_m,
+                                       m.listed_symmetries())
+    return result
+
+
+# ------------------------------------------------------------------------------------------------
+# Scoring
+
+
+@dataclass
+class FrameOutput:
+    """What the pipeline (or a results file) produced for one scored image.
+
+    Attributes:
+        poses: estimates in the scored camera's frame.
+        boxes: (x, y, w, h, obj_id (0 = unknown)) detections in the scored view, or None when
+            the localiser did not run (oracle boxes or --poses).
+        classified: True when the classes of ``boxes`` came from the classifier.
+        classes_by_gt: {GT index: class} when the classifier ran on ground-truth boxes
+            (``--oracle boxes``), else None.
+        timings_ms: per-stage wall times of this frame.
+    """
+
+    poses: list[BopEstimate] = field(default_factory=list)
+    boxes: list[tuple[int, int, int, int, int]] | None = None
+    classified: bool = False
+    classes_by_gt: dict[int, int] | None = None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class _Target:
+    obj_id: int
+    pose_5cm5deg: bool = False
+    pose_1cm5deg: bool = False
+    vsd_ok: bool = False
+    adds_ok: bool = False
+    mssd_error: float = np.inf
+    mspd_error: float = np.inf
+    mspd_scale: float = 1.0
+    detected: bool | None = None
+    recognised: bool | None = None
+
+
+def _match_poses(image, poses: list[BopEstimate]) -> dict[int, BopEstimate]:
+    """Greedy by score: each estimate takes the nearest unmatched GT of its class."""
+    taken: dict[int, BopEstimate] = {}
+    for est in sorted(poses, key=lambda p: -p.score):
+        best, best_d = None, np.inf
+        for k, gt in enumerate(image.gt):
+            if k in taken or gt.obj_id != est.obj_id:
+                continue
+            d = float(np.linalg.norm(gt.T_camera_object[:3, 3] - est.T_camera_object[:3, 3]))
+            if d < best_d:
+                best, best_d = k, d
+        if best is not None:
+            taken[best] = est
+    return taken
+
+
+def _match_boxes(image, boxes) -> tuple[dict[int, int], int]:
+    """Greedy by IoU >= 0.7: {gt index: box index}, and the count of unmatched boxes."""
+    pairs = []
+    for k, gt in enumerate(image.gt):
+        if gt.bbox_visib is None or gt.bbox_visib[2] <= 0:
+            continue
+        for j, box in enumerate(boxes):
+            iou = box_iou(gt.bbox_visib, box[:4])
+            if iou >= IOU_THRESHOLD:
+                pairs.append((iou, k, j))
+    matched: dict[int, int] = {}
+    used: set[int] = set()
+    for _, k, j in sorted(pairs, reverse=True):
+        if k not in matched and j not in used:
+            matched[k] = j
+            used.add(j)
+    return matched, len(boxes) - len(used)
+
+
+def score_frames(frames: list[tuple[object, FrameOutput]],
+                 models: dict[int, ScoringModel]) -> dict:
+    """The report dictionary (see issue 8) from (BopImage, FrameOutput) pairs."""
+    targets: list[_Target] = []
+    false_pos = 0
+    detection_ran = recognition_ran = False
+    for image, output in frames:
+        matches = _match_poses(image, output.poses)
+        box_matches: dict[int, int] = {}
+        if output.boxes is not None:
+            detection_ran = True
+            box_matches, unmatched = _match_boxes(image, output.boxes)
+            false_pos += unmatched
+        recognition_ran |= output.classified or output.classes_by_gt is not None
+        for k, gt in enumerate(image.gt):
+            if gt.visib_fract is None or gt.visib_fract < MIN_VISIB_FRACT:
+                continue
+            if gt.obj_id not in models:
+                raise ModelFileError(f'no model for obj_{gt.obj_id:02d}')
+            model = models[gt.obj_id]
+            target = _Target(gt.obj_id, mspd_scale=640.0 / image.intrinsics.width)
+            if output.boxes is not None:
+                target.detected = k in box_matches
+                if output.classified and target.detected:
+                    target.recognised = output.boxes[box_matches[k]][4] == gt.obj_id
+            elif output.classes_by_gt is not None:
+                target.detected = True  # the box is given
+                target.recognised = output.classes_by_gt.get(k) == gt.obj_id
+            est = matches.get(k)
+            if est is not None:
+                T_est, T_gt = est.T_camera_object, gt.T_camera_object
+                error = pose_error(T_est, T_gt, model.symmetries)
+                target.pose_5cm5deg = is_correct_cm_deg(error)
+                target.pose_1cm5deg = is_correct_cm_deg(error, translation_m=0.01)
+                target.adds_ok = adds(T_est, T_gt, model.points) \
+                    < ADDS_THRESHOLD * model.diameter_m
+                target.mssd_error = mssd(T_est, T_gt, model.points, model.symmetry_stack)
+                target.mspd_error = mspd(T_est, T_gt, model.points, image.intrinsics.K,
+                                         model.symmetry_stack)
+                if image.depth_m is not None:
+                    target.vsd_ok = bool(vsd(T_est, T_gt, image.depth_m, image.intrinsics,
+                                             model.renderer)[0] < VSD_THRESHOLD)
+            targets.append(target)
+    has_depth = all(image.depth_m is not None for image, _ in frames)
+
+    def measures(group: list[_Target]) -> dict:
+        n = len(group)
+        if n == 0:
+            return {'objects_gt': 0}
+        diam = np.array([models[t.obj_id].diameter_m for t in group])
+        mssd_rel = np.array([t.mssd_error for t in group]) / diam
+        mspd_px = np.array([t.mspd_error * t.mspd_scale for t in group])
+        out = {
+            'objects_gt': n,
+            'recall_5cm5deg': sum(t.pose_5cm5deg for t in group) / n,
+            'recall_1cm5deg': sum(t.pose_1cm5deg for t in group) / n,
+            'recall_vsd03': sum(t.vsd_ok for t in group) / n if has_depth else None,
+            'recall_adds01d': sum(t.adds_ok for t in group) / n,
+            'mssd_recall': average_recall(mssd_rel, BOP19_THRESHOLDS),
+            'mspd_recall': average_recall(mspd_px, BOP19_MSPD_THRESHOLDS_PX),
+            'iou07_rate': (sum(bool(t.detected) for t in group) / n) if detection_ran else None,
+        }
+        detected = [t for t in group if t.detected or t.recognised is not None]
+        out['top1'] = (sum(bool(t.recognised) for t in detected) / len(detected)
+                       if recognition_ran and detected else None)
+        return out
+
+    overall = measures(targets)
+    per_object = {}
+    for obj_id in sorted({t.obj_id for t in targets}):
+        per_object[str(obj_id)] = measures([t for t in targets if t.obj_id == obj_id])
+
+    def median(stage: str) -> float | None:
+        values = [o.timings_ms[stage] for _, o in frames if stage in o.timings_ms]
+        return float(np.median(values)) if values else None
+
+    return {
+        'frames': len(frames),
+        'objects_gt': len(targets),
+        'detection': {
+            'iou07_rate': overall.get('iou07_rate'),
+            'false_pos_per_frame': (false_pos / len(frames)
+                                    if detection_ran and frames else None)},
+        'recognition': {'top1': overall.get('top1')},
+        'pose': {key: overall.get(key) for key in (
+            'recall_5cm5deg', 'recall_1cm5deg', 'recall_vsd03', 'recall_adds01d',
+            'mssd_recall', 'mspd_recall')},
+        'timing_ms': {stage: median(stage) for stage in (
+            'segmentation', 'classification', 'pose', 'frame')},
+        'per_object': per_object,
+    }
