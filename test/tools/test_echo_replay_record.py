@@ -155,3 +155,39 @@ def test_restamped_replay_stamps_a_frame_when_it_goes_out():
     for original in range(2_000, 2_000 + 1_500):                     # a long bag: bounded,
         restamper.stamp(original, now_ns=original)                    # but the newest frame
     assert restamper.stamp(3_499, now_ns=0) == 3_499                  # keeps its stamp
+
+
+_LISTENER = '''
+import sys, time
+import rclpy
+from tlessbot_ros.nodes.common import RESULT_QOS, init_ros, message_class
+init_ros()
+node = rclpy.create_node('replay_listener')
+stamps = []
+node.create_subscription(message_class('geometry_msgs/msg/PoseStamped'), sys.argv[1],
+                         lambda m: stamps.append(m.header.stamp.nanosec), RESULT_QOS)
+print('subscribed', flush=True)
+deadline = time.monotonic() + 60
+while len(stamps) < int(sys.argv[2]) and time.monotonic() < deadline:
+    rclpy.spin_once(node, timeout_sec=0.1)
+print(' '.join(map(str, stamps)), flush=True)
+'''
+
+
+@pytest.mark.ros
+@pytest.mark.rosbag
+def test_replay_waits_until_the_existing_subscribers_have_matched(pose_bag):
+    """Started right after a subscriber, a replay (no loop) loses not even its first message,
+    and names the bag's topics nobody subscribes."""
+    listener = subprocess.Popen([sys.executable, '-c', _LISTENER, POSE_TOPIC, '5'],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert listener.stdout.readline().strip() == 'subscribed'
+        replay = _run('replay', str(pose_bag), '--rate', '4')
+        out, err = listener.communicate(timeout=90)
+    finally:
+        listener.kill()
+    assert replay.returncode == 0, replay.stderr
+    assert 'no subscriber on 1 topic(s): /side/color/image_raw' in replay.stdout
+    assert POSE_TOPIC not in replay.stdout.split('replayed')[0]
+    assert out.split() == [str((i + 1) * 50_000_000) for i in range(5)], err

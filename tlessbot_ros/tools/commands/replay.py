@@ -16,8 +16,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--rate', type=float, default=1.0, help='playback speed factor')
     parser.add_argument('--loop', action='store_true', help='start again at the end')
     parser.add_argument('--topics', nargs='+', default=None, help='only these topics')
-    parser.add_argument('--wait-for-subscribers', type=float, default=0.0, metavar='S',
-                        help='wait up to S seconds for a subscriber on every image topic')
+    parser.add_argument('--wait-for-subscribers', type=float, default=10.0, metavar='S',
+                        help='before the first message, wait up to S seconds until every '
+                             "subscriber the graph has on the bag's topics has matched (default "
+                             '10); then name the topics that still have none')
+    parser.add_argument('--no-wait', action='store_true',
+                        help='start publishing at once (messages sent before a subscriber '
+                             'has matched are lost to it)')
     parser.add_argument('--qos', choices=('reliable', 'sensor'), default='reliable',
                         help='QoS of the publishers')
     parser.add_argument('--restamp', action='store_true',
@@ -35,9 +40,10 @@ def run(args: argparse.Namespace) -> int:
     init_ros()
     node = rclpy.create_node('tlessbot_replay')
     try:
+        wait_s = 0.0 if args.no_wait else args.wait_for_subscribers
         count = replay(node, args.bag, rate=args.rate, loop=args.loop, topics=args.topics,
-                       qos=args.qos, wait_for_subscribers_s=args.wait_for_subscribers,
-                       restamp=args.restamp)
+                       qos=args.qos, wait_for_subscribers_s=wait_s, restamp=args.restamp,
+                       report=lambda line: print(line, flush=True))
         print(f'replayed {count} messages from {args.bag}')
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -52,9 +52,57 @@ class FrameRestamper:
         self._assigned.clear()
 
 
+def wait_for_matches(node: Any, publishers: dict[str, Any], *, timeout_s: float,
+                     settle_s: float = 0.3) -> dict[str, tuple[int, int]]:
+    """Wait until every subscription the graph knows of on the publishers' topics has matched
+    its publisher, up to ``timeout_s``; a first message sent before that is lost for a
+    subscriber that has not matched yet (DDS discovery takes a moment).
+
+    Waits for at least one subscriber somewhere (the graph may still be starting), and then
+    ``settle_s`` more for late discoveries. Returns ``{topic: (matched, known)}`` for the topics
+    still short of subscribers at the end: ``known == 0`` means nobody subscribes the topic;
+    ``matched < known`` usually means a subscriber with an incompatible QoS.
+    """
+    import rclpy
+
+    deadline = time.monotonic() + timeout_s
+    settled_at = None
+
+    def shortfall() -> dict[str, tuple[int, int]]:
+        counts = {topic: (publisher.get_subscription_count(), node.count_subscribers(topic))
+                  for topic, publisher in publishers.items()}
+        return {t: c for t, c in counts.items() if c[0] < c[1] or c[1] == 0}
+
+    while time.monotonic() < deadline:
+        short = shortfall()
+        anyone = any(node.count_subscribers(topic) for topic in publishers)
+        if anyone and all(known == 0 for _, known in short.values()):
+            settled_at = settled_at or time.monotonic() + settle_s
+            if time.monotonic() >= settled_at:
+                break
+        else:
+            settled_at = None
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return shortfall()
+
+
+def describe_unmatched(unmatched: dict[str, tuple[int, int]]) -> str:
+    """One line naming the topics :func:`wait_for_matches` left short of subscribers."""
+    nobody = sorted(t for t, (_, known) in unmatched.items() if known == 0)
+    partial = sorted(f'{t} ({m} of {k} matched: incompatible QoS?)'
+                     for t, (m, k) in unmatched.items() if k)
+    parts = []
+    if partial:
+        parts.append('not every subscriber matched on ' + ', '.join(partial))
+    if nobody:
+        parts.append(f'no subscriber on {len(nobody)} topic(s): ' + ', '.join(nobody))
+    return 'replay: ' + '; '.join(parts)
+
+
 def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
            topics: list[str] | None = None, qos: str = 'reliable',
            wait_for_subscribers_s: float = 0.0, restamp: bool = False,
+           report: Callable[[str], None] | None = None,
            on_publish: Callable[[BagMessage], None] | None = None,
            should_stop: Callable[[], bool] = lambda: False) -> int:
     """Publish the bag's raw messages through ``node``; returns the number published.
@@ -62,7 +110,6 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
     With ``restamp``, a header stamp becomes the ROS time at which its frame is published
     (:class:`FrameRestamper`).
     """
-    import rclpy
 
     from tlessbot_ros.nodes.common import RESULT_QOS, SENSOR_QOS, message_class
 
@@ -78,10 +125,9 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
     publishers = {topic: node.create_publisher(message_class(msgtype), topic, profile)
                   for topic, msgtype in types.items()}
     if wait_for_subscribers_s > 0:
-        deadline = time.monotonic() + wait_for_subscribers_s
-        watched = [p for t, p in publishers.items() if types[t] == 'sensor_msgs/msg/Image']
-        while time.monotonic() < deadline and not all(p.get_subscription_count() for p in watched):
-            rclpy.spin_once(node, timeout_sec=0.05)
+        unmatched = wait_for_matches(node, publishers, timeout_s=wait_for_subscribers_s)
+        if unmatched and report is not None:
+            report(describe_unmatched(unmatched))
     published = 0
     # A looped bag is read once and kept in memory (decompressing it every pass would cap the
     # replay rate); bags are demo-sized here.
