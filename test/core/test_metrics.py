@@ -164,3 +164,16 @@ def test_recalls():
     assert recall(errors, 0.3, strict=False) == 0.75
     assert np.isnan(recall([], 0.3))
     assert average_recall(np.array([0.07, 0.5]), BOP19_THRESHOLDS) == pytest.approx(0.9 / 2)
+
+
+def test_duplicates_count_poses_of_one_part_whatever_their_class():
+    from tlessbot_ros.core.metrics import count_duplicates
+
+    apart = np.array([[0.0, 0, 0.6], [0.08, 0, 0.6], [0, 0.1, 0.6]])
+    assert count_duplicates(apart) == 0
+    assert count_duplicates(apart[:1]) == 0 and count_duplicates(np.zeros((0, 3))) == 0
+    twice = np.vstack([apart, apart[1] + [0.004, -0.003, 0.002]])
+    assert count_duplicates(twice) == 1
+    thrice = np.vstack([twice, apart[1] + [-0.01, 0.0, 0.0]])
+    assert count_duplicates(thrice) == 2
+    assert count_duplicates(thrice, radius_m=0.001) == 0

@@ -36,3 +36,18 @@ def test_symmetric_part_is_correct_when_turned_about_its_axis():
     estimate = [Estimate(0, 2, turned, SIDE)]
     assert not score_frame(truth, estimate, {})[0][0].correct
     assert score_frame(truth, estimate, {2: axis_sym})[0][0].correct
+
+
+def test_frame_duplicates_compare_poses_across_camera_frames():
+    from tlessbot_ros.core.common import default_rig
+    from tlessbot_ros.tools.support.bag_scoring import Estimate, frame_duplicates
+
+    rig = default_rig()
+    T_world_object = np.eye(4)
+    T_world_object[:3, 3] = [0.05, 0.02, 0.01]
+    side, top = rig['side'], rig['top']
+    seen_from_side = Estimate(1, 8, side.T_camera_world @ T_world_object, side.optical_frame)
+    seen_from_top = Estimate(1, 22, top.T_camera_world @ T_world_object, top.optical_frame)
+    elsewhere = Estimate(1, 5, np.eye(4), 'world')
+    assert frame_duplicates([seen_from_side, elsewhere], rig) == 0
+    assert frame_duplicates([seen_from_side, seen_from_top, elsewhere], rig) == 1

@@ -401,3 +401,30 @@ def recall(errors: np.ndarray, threshold: float, *, strict: bool = True) -> floa
 def average_recall(errors: np.ndarray, thresholds: np.ndarray) -> float:
     """BOP'19 Average Recall: the mean of :func:`recall` over the thresholds."""
     return float(np.mean([recall(errors, t) for t in np.asarray(thresholds)]))
+
+
+# Two T-LESS parts lying on a table cannot have model origins (their bounding-box centres)
+# this close: the smallest part is about 4 cm across.
+DUPLICATE_RADIUS_M = 0.03
+
+
+def count_duplicates(positions_m: np.ndarray, *, radius_m: float = DUPLICATE_RADIUS_M) -> int:
+    """How many of one frame's poses repeat another: one part reported more than once.
+
+    Poses whose translations lie within ``radius_m`` of each other (single linkage) count as
+    one part; the count is the number of poses minus the number of such groups. Classes are
+    ignored on purpose: a part published as obj_08 and again as obj_22 is still one part.
+
+    Args:
+        positions_m: (N, 3) translations of the frame's poses in one frame of reference
+            (distances do not depend on which), metres.
+    """
+    points = np.asarray(positions_m, np.float64).reshape(-1, 3)
+    if len(points) < 2:
+        return 0
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial.distance import cdist
+
+    near = cdist(points, points) < radius_m
+    groups, _ = connected_components(near, directed=False)
+    return int(len(points) - groups)

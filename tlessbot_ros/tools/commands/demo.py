@@ -44,8 +44,9 @@ def run_demo(bag: str, *, config: Path, classifier: str, templates: str,
              symmetries: dict[int, Symmetries], rate: float = 1.0, lockstep: bool = True,
              echo: bool = True) -> dict:
     """Replay, collect, score; returns the summary (also printed when ``echo``)."""
-    from tlessbot_ros.tools.support.bag_scoring import Estimate, score_frame
+    from tlessbot_ros.tools.support.bag_scoring import Estimate, frame_duplicates, score_frame
     from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
+    from tlessbot_ros.tools.support.rig import load_rig
 
     for path in (classifier, templates):
         if not Path(path).is_file():
@@ -57,14 +58,18 @@ def run_demo(bag: str, *, config: Path, classifier: str, templates: str,
     for pose in run.poses:
         estimates.setdefault(pose.stamp_ns, []).append(
             Estimate(pose.stamp_ns, pose.obj_id, pose.T, pose.frame_id))
-    scored = correct = false_pos = 0
+    rig = load_rig(config)
+    scored = correct = false_pos = duplicates = 0
     t_err, r_err = [], []
     for index, stamp in enumerate(sorted(truth)):
         matches, extra = score_frame(truth[stamp], estimates.get(stamp, []), symmetries)
         false_pos += len(extra)
+        repeated = frame_duplicates(estimates.get(stamp, []), rig)
+        duplicates += repeated
         if echo:
             print(f'frame {index} (stamp {stamp / 1e9:.3f}): {len(matches)} parts >= 30 % '
-                  f'visible, {len(estimates.get(stamp, []))} poses published')
+                  f'visible, {len(estimates.get(stamp, []))} poses published'
+                  + (f', {repeated} of them repeat a part' if repeated else ''))
         for match in matches:
             scored += 1
             part = match.truth
@@ -90,13 +95,17 @@ def run_demo(bag: str, *, config: Path, classifier: str, templates: str,
         'frames': len(truth), 'parts_scored': scored, 'correct_5cm5deg': correct,
         'recall_5cm5deg': correct / scored if scored else 0.0,
         'false_positives': false_pos, 'poses_published': len(run.poses),
+        'frames_answered': sum(1 for stamp in truth if estimates.get(stamp)),
+        'duplicates': duplicates,
+        'duplicates_per_frame': duplicates / len(truth) if truth else 0.0,
         'median_translation_error_mm': float(1e3 * np.median(t_err)) if t_err else None,
         'median_rotation_error_deg': float(np.median(r_err)) if r_err else None,
     }
     if echo:
         print(f'summary: {correct}/{scored} parts within 5 cm / 5 deg '
               f'({100 * summary["recall_5cm5deg"]:.1f} %), {false_pos} false positives, '
-              f'{len(truth)} frames')
+              f'{duplicates} duplicates, {summary["frames_answered"]}/{len(truth)} frames '
+              'answered')
     return summary
 
 

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tlessbot_ros.core.common import Symmetries
-from tlessbot_ros.core.metrics import PoseError, is_correct_cm_deg, pose_error
+from tlessbot_ros.core.common import Rig, Symmetries, transform_points
+from tlessbot_ros.core.metrics import PoseError, count_duplicates, is_correct_cm_deg, pose_error
 from tlessbot_ros.io.ground_truth import GroundTruthInstance
 
 MIN_VISIB_FRACT = 0.3
@@ -75,3 +75,14 @@ def score_frame(truth: Sequence[GroundTruthInstance], estimates: Sequence[Estima
     false_positives = [e for i, e in enumerate(estimates)
                        if i not in used_estimates and i not in ignored]
     return matches, false_positives
+
+
+def frame_duplicates(estimates: Sequence[Estimate], rig: Rig) -> int:
+    """Poses of one frame that repeat another
+    (:func:`~tlessbot_ros.core.metrics.count_duplicates`), each taken into the world frame
+    through the rig of its ``frame_id`` (an optical frame of the rig or its world frame)."""
+    frames = {cam.optical_frame: cam.T_world_camera for cam in rig.cameras.values()}
+    frames[rig.world_frame] = np.eye(4)
+    positions = [transform_points(frames[e.frame_id], e.T[:3, 3][None])[0]
+                 for e in estimates if e.frame_id in frames]
+    return count_duplicates(np.asarray(positions).reshape(-1, 3))

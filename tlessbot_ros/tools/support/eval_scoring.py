@@ -19,6 +19,7 @@ from tlessbot_ros.core.metrics import (
     adds,
     average_recall,
     box_iou,
+    count_duplicates,
     is_correct_cm_deg,
     mspd,
     mssd,
@@ -172,10 +173,12 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
                  models: dict[int, ScoringModel]) -> dict:
     """The report dictionary (see issue 8) from (BopImage, FrameOutput) pairs."""
     targets: list[_Target] = []
-    false_pos = 0
+    false_pos = duplicates = 0
     detection_ran = recognition_ran = False
     for image, output in frames:
         matches = _match_poses(image, output.poses)
+        duplicates += count_duplicates(
+            np.array([p.T_camera_object[:3, 3] for p in output.poses]).reshape(-1, 3))
         box_matches: dict[int, int] = {}
         if output.boxes is not None:
             detection_ran = True
@@ -250,7 +253,8 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
         'detection': {
             'iou07_rate': overall.get('iou07_rate'),
             'false_pos_per_frame': (false_pos / len(frames)
-                                    if detection_ran and frames else None)},
+                                    if detection_ran and frames else None),
+            'duplicates_per_frame': duplicates / len(frames) if frames else None},
         'recognition': {'top1': overall.get('top1')},
         'pose': {key: overall.get(key) for key in (
             'recall_5cm5deg', 'recall_1cm5deg', 'recall_vsd03', 'recall_adds01d',

@@ -23,7 +23,8 @@ def markdown(report: dict) -> str:
              f'- frames: {report["frames"]}, parts with visib_fract >= 0.3: '
              f'{report["objects_gt"]}',
              f'- detection: IoU >= 0.7 rate {_cell(report["detection"]["iou07_rate"])}, '
-             f'false positives per frame {_cell(report["detection"]["false_pos_per_frame"])}',
+             f'false positives per frame {_cell(report["detection"]["false_pos_per_frame"])}, '
+             f'duplicates per frame {_cell(report["detection"].get("duplicates_per_frame"))}',
              f'- recognition top-1: {_cell(report["recognition"]["top1"])}']
     if 'run_time_s' in report:
         lines.append(f'- run time: {report["run_time_s"]:.1f} s')

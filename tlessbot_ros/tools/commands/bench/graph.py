@@ -69,12 +69,15 @@ def hop_latencies(result) -> list[tuple[str, str]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from tlessbot_ros.tools.support.bag_scoring import Estimate, frame_duplicates
     from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
+    from tlessbot_ros.tools.support.rig import load_rig
 
     interval = bag_frame_interval_s(args.bag)
     rate = args.fps * interval
+    config = Path(args.config) if args.config else default_config_path()
     result = run_graph_on_bag(
-        args.bag, config=Path(args.config) if args.config else default_config_path(),
+        args.bag, config=config,
         rate=rate, loop=True, duration_s=args.duration, restamp=True, settle_s=3.0,
         ros_args=['-p', f'model_path:={args.classifier}',
                   '-p', f'templates_path:={args.templates}'])
@@ -82,6 +85,11 @@ def run(args: argparse.Namespace) -> int:
     answered = {p.stamp_ns for p in result.poses}
     replayed = result.frames_replayed
     dropped = sum(1 for stamp in replayed if stamp not in answered)
+    by_frame: dict[int, list[Estimate]] = {}
+    for p in result.poses:
+        by_frame.setdefault(p.stamp_ns, []).append(Estimate(p.stamp_ns, p.obj_id, p.T, p.frame_id))
+    rig = load_rig(config)
+    duplicates = sum(frame_duplicates(poses, rig) for poses in by_frame.values())
     rows = [
         ('frames replayed', f'{len(replayed)} in {args.duration:.0f} s at {args.fps:.0f} fps'),
         ('poses received', str(len(result.poses))),
@@ -90,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
         ('latency p95', f'{np.percentile(latencies, 95):.1f} ms' if len(latencies) else 'n/a'),
         ('frames dropped (no pose back)',
          f'{dropped} ({100 * dropped / max(1, len(replayed)):.1f} %)'),
+        ('duplicates per answered frame (one part, several poses)',
+         f'{duplicates / max(1, len(by_frame)):.3f} ({duplicates} in {len(by_frame)} frames)'),
     ]
     for label in sorted(result.rss_mb_start):
         samples = result.rss_mb_samples.get(label, [])
