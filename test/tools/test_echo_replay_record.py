@@ -157,7 +157,7 @@ def test_restamped_replay_stamps_a_frame_when_it_goes_out():
     assert restamper.stamp(3_499, now_ns=0) == 3_499                  # keeps its stamp
 
 
-_LISTENER = '''
+_LISTENER = """
 import sys, time
 import rclpy
 from tlessbot_ros.nodes.common import RESULT_QOS, init_ros, message_class
@@ -171,7 +171,7 @@ deadline = time.monotonic() + 60
 while len(stamps) < int(sys.argv[2]) and time.monotonic() < deadline:
     rclpy.spin_once(node, timeout_sec=0.1)
 print(' '.join(map(str, stamps)), flush=True)
-'''
+"""
 
 
 @pytest.mark.ros
