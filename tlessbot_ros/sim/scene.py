@@ -51,9 +51,7 @@ class _HullInfo:
 
 
 def _hull_info(model: ObjectModel, samples: int) -> _HullInfo:
-    key = ('hull_info', samples)
-    info = model._cache.get(key)
-    if info is None:
+    def build() -> _HullInfo:
         from scipy.spatial import ConvexHull
 
         hull = ConvexHull(model.vertices)
@@ -69,10 +67,9 @@ def _hull_info(model: ObjectModel, samples: int) -> _HullInfo:
         verts = hull.points[hull.vertices]
         # Coplanar hull triangles share a plane: keep each plane once.
         eq = np.unique(np.round(hull.equations, 9), axis=0)
-        info = _HullInfo(eq, np.vstack([verts, pts]), verts,
+        return _HullInfo(eq, np.vstack([verts, pts]), verts,
                          float(np.linalg.norm(verts, axis=1).max()))
-        model._cache[key] = info
-    return info
+    return model.cached(('hull_info', samples), build)
 
 
 def _penetrates(a: _HullInfo, T_a: np.ndarray, b: _HullInfo, T_b: np.ndarray,
