@@ -1,8 +1,8 @@
 """Area-weighted uniform random points on a triangle mesh.
 
 The one surface sampler of the package: the template database's model samples, the symmetry
-detector's query and reference sets, the look-alike surface comparison and the benchmarks'
-metric points all come from :func:`sample_surface`.
+detector's query and reference sets, the look-alike surface comparison, the simulator's
+convex-hull samples and the benchmarks' metric points all come from :func:`sample_surface`.
 
 A point in a triangle (a, b, c) is ``a + u (b - a) + v (c - a)`` with (u, v) uniform in the
 unit triangle. Two classic ways to draw (u, v) are kept, because stored results depend on them
@@ -11,8 +11,8 @@ unit triangle. Two classic ways to draw (u, v) are kept, because stored results 
 * ``'reflect'``: u, v uniform in the unit square, reflected into the triangle when
   u + v > 1 (the template database, ``tlessbot templates``);
 * ``'sqrt'``: barycentric (1 - sqrt(r1), sqrt(r1) (1 - r2), sqrt(r1) r2) of uniform r1, r2
-  (Osada et al., "Shape distributions", ACM TOG 21(4), 2002, eq. 1); the symmetry detector and
-  the look-alike comparison.
+  (Osada et al., "Shape distributions", ACM TOG 21(4), 2002, eq. 1); the symmetry detector,
+  the look-alike comparison and the simulator.
 """
 from __future__ import annotations
 
