@@ -77,13 +77,13 @@ def part21_seen_from_the_side(tless_models_dir: Path):
     the part, part mask (H, W) bool, T_camera_object (4, 4))."""
     import numpy as np
 
+    from tlessbot_ros.core import pose as tpl
     from tlessbot_ros.core.common import (
         MeshRenderer,
         default_rig,
         make_transform,
         rotation_about_axis,
     )
-    from tlessbot_ros.core.pose import templates as tpl
     from tlessbot_ros.io.models import load_models, stable_poses
 
     side = default_rig()['side']

@@ -13,13 +13,15 @@ from tlessbot_ros.core.common import (
     raycasting_scene,
 )
 from tlessbot_ros.core.pose import (
+    POINT_QUANTUM_M,
     LookalikeCheck,
+    ObjectTemplates,
+    TemplateDatabase,
     depth_vote,
     lookalike_pairs,
     shared_surface,
     visible_difference,
 )
-from tlessbot_ros.core.pose import templates as tpl
 from tlessbot_ros.errors import ModelFileError
 
 CAMERA = CameraIntrinsics(320, 240, np.array([[600.0, 0.0, 160.0], [0.0, 600.0, 120.0],
@@ -112,7 +114,7 @@ def test_check_names_the_part_whose_surface_explains_the_depth(truth):
 
 def _object(obj_id, mesh=None, lookalikes=()):
     points = np.random.default_rng(obj_id).normal(0, 0.01, (50, 3)).astype(np.float32)
-    return tpl.ObjectTemplates(
+    return ObjectTemplates(
         obj_id=obj_id, diameter_m=0.08, voxel_size_m=0.003, model_points=points,
         model_normals=points / np.linalg.norm(points, axis=1, keepdims=True),
         stable_poses=np.eye(4)[None], stable_probabilities=np.ones(1),
@@ -122,15 +124,15 @@ def _object(obj_id, mesh=None, lookalikes=()):
 
 
 def test_database_keeps_lookalike_meshes(tmp_path):
-    db = tpl.TemplateDatabase({1: _object(1, PLAIN, (2,)), 2: _object(2, BOSSED, (1,)),
-                               3: _object(3)})
+    db = TemplateDatabase({1: _object(1, PLAIN, (2,)), 2: _object(2, BOSSED, (1,)),
+                           3: _object(3)})
     path = tmp_path / 'db.npz'
     db.save(path)
-    loaded = tpl.TemplateDatabase.load(path)
+    loaded = TemplateDatabase.load(path)
     assert loaded[1].lookalikes == (2,) and loaded[2].lookalikes == (1,)
     assert loaded[3].lookalikes == () and loaded[3].mesh_faces is None
     np.testing.assert_array_equal(loaded[2].mesh_faces, BOSSED[1])
-    np.testing.assert_allclose(loaded[2].mesh_vertices, BOSSED[0], atol=tpl.POINT_QUANTUM_M)
+    np.testing.assert_allclose(loaded[2].mesh_vertices, BOSSED[0], atol=POINT_QUANTUM_M)
     check = loaded.lookalike_check()
     assert 1 in check and 2 in check and 3 not in check
     points, _ = _seen_from_above(BOSSED, BOSS_UP)
@@ -139,22 +141,22 @@ def test_database_keeps_lookalike_meshes(tmp_path):
 
 def test_database_with_a_broken_mesh_is_refused(tmp_path):
     path = tmp_path / 'db.npz'
-    tpl.TemplateDatabase({2: _object(2, BOSSED, ())}).save(path)
+    TemplateDatabase({2: _object(2, BOSSED, ())}).save(path)
     with np.load(path) as data:
         arrays = dict(data)
     arrays['o2_mesh_faces'] = arrays['o2_mesh_faces'] + 1000   # indices past the vertices
     np.savez(path, **arrays)
     with pytest.raises(ModelFileError, match='inconsistent mesh'):
-        tpl.TemplateDatabase.load(path)
+        TemplateDatabase.load(path)
 
 
 def test_version_2_database_loads_without_lookalikes(tmp_path):
     path = tmp_path / 'db.npz'
-    tpl.TemplateDatabase({1: _object(1, PLAIN, (2,)), 2: _object(2, BOSSED, (1,))}).save(path)
+    TemplateDatabase({1: _object(1, PLAIN, (2,)), 2: _object(2, BOSSED, (1,))}).save(path)
     with np.load(path) as data:
         arrays = {k: v for k, v in data.items() if 'mesh' not in k and 'lookalikes' not in k}
     arrays['version'] = np.array(2)
     np.savez(path, **arrays)
-    loaded = tpl.TemplateDatabase.load(path)
+    loaded = TemplateDatabase.load(path)
     assert loaded[1].lookalikes == () and loaded[1].mesh_faces is None
     assert 1 not in loaded.lookalike_check()

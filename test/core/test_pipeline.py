@@ -123,8 +123,8 @@ def test_a_bad_top_view_fails_the_frame_with_its_own_error():
 def lookalikes(tless_models_dir):
     """Database of the look-alikes obj_21 and obj_22 (side camera, 4 views) and obj_21 lying
     on the table, seen by the side camera with 0.5 mm depth noise."""
+    from tlessbot_ros.core import pose as tpl
     from tlessbot_ros.core.common import MeshRenderer, make_transform, rotation_about_axis
-    from tlessbot_ros.core.pose import templates as tpl
     from tlessbot_ros.io.models import load_models, stable_poses
 
     models = load_models(tless_models_dir, ids=[21, 22])

@@ -14,8 +14,12 @@ from tlessbot_ros.core.common import (
     rotation_about_axis,
     rotation_angle_deg,
 )
-from tlessbot_ros.core.pose import PoseEstimator, PoseParams, table_frame_from_plane
-from tlessbot_ros.core.pose import templates as tpl
+from tlessbot_ros.core.pose import (
+    PoseEstimator,
+    PoseParams,
+    build_database,
+    table_frame_from_plane,
+)
 
 SIDE = default_rig()['side']
 
@@ -25,8 +29,8 @@ def setup(tless_models_dir):
     from tlessbot_ros.io.models import load_models, stable_poses
     model = load_models(tless_models_dir, ids=[21])[21]   # no symmetry (BOP)
     poses = [(p.T_table_object, p.probability) for p in stable_poses(model)]
-    db = tpl.build_database([(21, model.vertices, model.faces, poses, model.diameter_m)],
-                            intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera)
+    db = build_database([(21, model.vertices, model.faces, poses, model.diameter_m)],
+                        intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera)
     return model, db
 
 
@@ -120,17 +124,17 @@ def test_table_frame_from_plane_matches_the_rig():
 
 
 def test_fallback_is_bounded_and_can_be_switched_off(setup, monkeypatch):
-    from tlessbot_ros.core.pose import estimator as pose_module
+    from tlessbot_ros.core.pose import ransac as ransac_module
     model, db = setup
     points = _view(model, _place(db, 0, 50.0, 0.0, 0.0))
     calls = []
-    original = pose_module.register_templates
+    original = ransac_module.register_templates
 
     def spy(*args, **kwargs):
         out = original(*args, **kwargs)
         calls.append((kwargs.get('template_indices'), kwargs.get('max_iteration'), len(out)))
         return out
-    monkeypatch.setattr(pose_module, 'register_templates', spy)
+    monkeypatch.setattr(ransac_module, 'register_templates', spy)
     forced = PoseParams(fallback_fitness=1.01, fallback_templates=2, fallback_max_iteration=500,
                         fallback_budget_ms=0.0)   # the table fit never suffices; no time left
     result = PoseEstimator(db, params=forced).estimate(points, 21,

@@ -75,10 +75,24 @@ def test_models_info_round_trip_in_mm():
 
 def test_sample_surface_lies_on_the_box():
     v, f = _box_mesh((0.1, 0.06, 0.04))
-    p = sample_surface(v, f, 2000, seed=1)
+    p, n = sample_surface(v, f, 2000, seed=1, scheme='sqrt')
     on_face = np.isclose(np.abs(p), [0.05, 0.03, 0.02], atol=1e-9).any(axis=1)
     assert on_face.all()
     assert np.all(np.abs(p) <= [0.05 + 1e-9, 0.03 + 1e-9, 0.02 + 1e-9])
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
+
+
+def test_sample_surface_schemes_are_uniform_and_seeded():
+    v, f = _box_mesh((0.1, 0.06, 0.04))
+    reflect, _ = sample_surface(v, f, 20000, seed=3)
+    sqrt, _ = sample_surface(v, f, 20000, seed=3, scheme='sqrt')
+    assert not np.allclose(reflect, sqrt)     # the same seed, other points
+    for p in (reflect, sqrt):                  # both uniform: the box centre is the mean
+        np.testing.assert_allclose(p.mean(axis=0), 0.0, atol=1.5e-3)
+    np.testing.assert_array_equal(sample_surface(v, f, 50, seed=3)[0],
+                                  sample_surface(v, f, 50, seed=3)[0])
+    with pytest.raises(ValueError, match='scheme'):
+        sample_surface(v, f, 10, scheme='grid')
 
 
 def test_detects_the_three_flips_of_a_box():

@@ -5,7 +5,15 @@ import numpy as np
 import pytest
 
 from tlessbot_ros.core.common import default_rig, invert_transform, transform_points
-from tlessbot_ros.core.pose import templates as tpl
+from tlessbot_ros.core.pose import (
+    FORMAT,
+    POINT_QUANTUM_M,
+    TemplateDatabase,
+    TemplateParams,
+    build_database,
+    resting_pose,
+    yaw_period,
+)
 from tlessbot_ros.errors import ModelFileError
 
 
@@ -15,9 +23,9 @@ def obj21(tless_models_dir):
     model = load_models(tless_models_dir, ids=[21])[21]
     side = default_rig()['side']
     poses = [(p.T_table_object, p.probability) for p in stable_poses(model)]
-    db = tpl.build_database([(21, model.vertices, model.faces, poses, model.diameter_m)],
-                            intrinsics=side.intrinsics, T_world_camera=side.T_world_camera,
-                            params=tpl.TemplateParams(n_views=4))
+    db = build_database([(21, model.vertices, model.faces, poses, model.diameter_m)],
+                        intrinsics=side.intrinsics, T_world_camera=side.T_world_camera,
+                        params=TemplateParams(n_views=4))
     return model, db
 
 
@@ -46,17 +54,17 @@ def test_npz_round_trip(obj21, tmp_path):
     _, db = obj21
     path = tmp_path / 'templates.npz'
     db.save(path)
-    loaded = tpl.TemplateDatabase.load(path)
+    loaded = TemplateDatabase.load(path)
     a, b = db[21], loaded[21]
     assert len(a.templates) == len(b.templates)
     for i, (ta, tb) in enumerate(zip(a.templates, b.templates)):
         # points are stored as 0.05 mm steps; features are recomputed alike after loading
-        np.testing.assert_allclose(ta.points, tb.points, atol=tpl.POINT_QUANTUM_M)
+        np.testing.assert_allclose(ta.points, tb.points, atol=POINT_QUANTUM_M)
         assert tb.normals is None and tb.fpfh is None
         # FPFH bins shift a little when a neighbour crosses the search radius
         assert np.median(np.abs(a.features(i)[1] - b.features(i)[1])) < 0.5
         np.testing.assert_allclose(ta.T_camera_object, tb.T_camera_object)
-    np.testing.assert_allclose(a.model_points, b.model_points, atol=tpl.POINT_QUANTUM_M)
+    np.testing.assert_allclose(a.model_points, b.model_points, atol=POINT_QUANTUM_M)
     assert np.degrees(np.arccos(np.min(np.sum(a.model_normals * b.model_normals, axis=1)))) < 1
     np.testing.assert_allclose(a.stable_poses, b.stable_poses)
     assert b.fpfh_radius_voxels == a.fpfh_radius_voxels
@@ -67,36 +75,36 @@ def test_npz_round_trip(obj21, tmp_path):
 
 def test_old_format_version_is_refused(tmp_path):
     old = tmp_path / 'v1.npz'
-    np.savez(old, format=np.array(tpl.FORMAT), version=np.array(1))
+    np.savez(old, format=np.array(FORMAT), version=np.array(1))
     with pytest.raises(ModelFileError,
                        match=r'version 1, expected one of \(2, 3\).*tlessbot templates'):
-        tpl.TemplateDatabase.load(old)
+        TemplateDatabase.load(old)
 
 
 def test_missing_and_corrupt_files(tmp_path):
     with pytest.raises(ModelFileError, match='not found'):
-        tpl.TemplateDatabase.load(tmp_path / 'nope.npz')
+        TemplateDatabase.load(tmp_path / 'nope.npz')
     bad = tmp_path / 'bad.npz'
     bad.write_bytes(b'not a zip file at all')
     with pytest.raises(ModelFileError, match='corrupt'):
-        tpl.TemplateDatabase.load(bad)
+        TemplateDatabase.load(bad)
     other = tmp_path / 'other.npz'
     np.savez(other, weights=np.zeros(3))
     with pytest.raises(ModelFileError, match='not a tlessbot template'):
-        tpl.TemplateDatabase.load(other)
+        TemplateDatabase.load(other)
     truncated = tmp_path / 'truncated.npz'
     good = tmp_path / 'good.npz'
-    tpl.TemplateDatabase().save(good)
+    TemplateDatabase().save(good)
     truncated.write_bytes(good.read_bytes()[:40])
     with pytest.raises(ModelFileError):
-        tpl.TemplateDatabase.load(truncated)
+        TemplateDatabase.load(truncated)
 
 
 def test_params_validated():
     with pytest.raises(ValueError, match='n_views'):
-        tpl.TemplateParams(n_views=1)
+        TemplateParams(n_views=1)
     with pytest.raises(ValueError, match='n_views'):
-        tpl.TemplateParams(n_views=19)
+        TemplateParams(n_views=19)
 
 
 def test_yaw_period_of_simple_shapes():
@@ -105,23 +113,23 @@ def test_yaw_period_of_simple_shapes():
     box = o3d.geometry.TriangleMesh.create_box(0.04, 0.04, 0.02)
     box.translate([-0.02, -0.02, -0.01])
     v, f = np.asarray(box.vertices), np.asarray(box.triangles)
-    rest = tpl.resting_pose(v)
-    assert tpl.yaw_period(v, f, rest, tolerance_m=4e-4) == pytest.approx(np.pi / 2)
+    rest = resting_pose(v)
+    assert yaw_period(v, f, rest, tolerance_m=4e-4) == pytest.approx(np.pi / 2)
     cyl = o3d.geometry.TriangleMesh.create_cylinder(radius=0.02, height=0.05, resolution=72)
     v, f = np.asarray(cyl.vertices), np.asarray(cyl.triangles)
-    assert tpl.yaw_period(v, f, tpl.resting_pose(v), tolerance_m=4e-4) == 0.0
+    assert yaw_period(v, f, resting_pose(v), tolerance_m=4e-4) == 0.0
     # Lying on its side the cylinder has no yaw symmetry but a 180° one.
     side = np.eye(4)
     side[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
     side[2, 3] = 0.02
-    assert tpl.yaw_period(v, f, side, tolerance_m=4e-4) == pytest.approx(np.pi)
+    assert yaw_period(v, f, side, tolerance_m=4e-4) == pytest.approx(np.pi)
 
 
 def test_precompute_features_fills_every_template(obj21, tmp_path):
     _, db = obj21
     path = tmp_path / 't.npz'
     db.save(path)
-    loaded = tpl.TemplateDatabase.load(path)
+    loaded = TemplateDatabase.load(path)
     assert all(t.fpfh is None for t in loaded[21].templates)
     loaded.precompute_features([21])
     assert all(t.fpfh is not None and t.fpfh.shape == (len(t.points), 33)
@@ -133,6 +141,6 @@ def test_precompute_features_fills_every_template(obj21, tmp_path):
 def test_shipped_database_is_small_and_complete():
     from tlessbot_ros.data import DEFAULT_TEMPLATES
     assert DEFAULT_TEMPLATES.stat().st_size < 3_000_000
-    db = tpl.TemplateDatabase.load(DEFAULT_TEMPLATES)
+    db = TemplateDatabase.load(DEFAULT_TEMPLATES)
     assert sorted(db.objects) == [2] + list(range(4, 17)) + list(range(19, 27)) + [30]
     assert all(len(o.templates) == 12 for o in db.objects.values())

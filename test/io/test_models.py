@@ -118,3 +118,15 @@ def test_merge_rolling_poses_of_a_cylinder():
     assert abs(side[2, 2]) < 1e-6 and merged[0].probability > 0.5
     for pose in merged[1:]:
         assert abs(pose.T_table_object[2, 2]) == pytest.approx(1.0)
+
+
+def test_cached_builds_once_per_key():
+    from tlessbot_ros.io.models import ObjectModel
+
+    v = np.eye(3)
+    model = ObjectModel(obj_id=1, vertices=v, faces=np.array([[0, 1, 2]]), diameter_m=1.0,
+                        extent_m=np.ones(3))
+    calls = []
+    first = model.cached('thing', lambda: calls.append(1) or [1, 2])
+    assert model.cached('thing', lambda: calls.append(1) or [3]) is first and calls == [1]
+    assert model.cached(('other', 2), lambda: 5) == 5

@@ -12,8 +12,7 @@ import pytest
 
 from tlessbot_ros.core.common import default_rig
 from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
-from tlessbot_ros.core.pose import PoseCandidate, PoseParams
-from tlessbot_ros.core.pose import templates as tpl
+from tlessbot_ros.core.pose import PoseCandidate, PoseParams, TemplateDatabase
 from tlessbot_ros.parallel import wire
 from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
 
@@ -27,7 +26,7 @@ def scene(part21_seen_from_the_side, tmp_path_factory):
     db, depth, mask, _ = part21_seen_from_the_side
     path = tmp_path_factory.mktemp('pool') / 'templates.npz'
     db.save(path)
-    db = tpl.TemplateDatabase.load(path)   # what the workers fit with (saving rounds)
+    db = TemplateDatabase.load(path)   # what the workers fit with (saving rounds)
     inputs = {'side': ViewInput(rgb=None, depth_m=depth, intrinsics=SIDE.intrinsics,
                                 T_world_camera=SIDE.T_world_camera)}
     labels = mask.astype(np.uint16)

@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
@@ -26,6 +27,7 @@ from tlessbot_ros.errors import ModelFileError
 if TYPE_CHECKING:
     from tlessbot_ros.core.common import Symmetries
 
+_T = TypeVar('_T')
 MODEL_SUFFIXES = ('.stl', '.ply', '.obj')
 _NAME = re.compile(r'^obj_(\d+)$')
 
@@ -63,6 +65,13 @@ class ObjectModel:
     @property
     def name(self) -> str:
         return f'obj_{self.obj_id:02d}'
+
+    def cached(self, key: Hashable, build: Callable[[], _T]) -> _T:
+        """The value kept on this model under ``key``; ``build()`` makes it on the first call
+        (derived data that costs time: stable poses, hulls, ray-casting scenes)."""
+        if key not in self._cache:
+            self._cache[key] = build()
+        return self._cache[key]
 
     def listed_symmetries(self) -> Symmetries | None:
         """The symmetries ``models_info.json`` lists (the identity added), or None when there
@@ -137,17 +146,13 @@ def diameter(vertices: np.ndarray) -> float:
 
 
 def _symmetries(entry: dict) -> tuple[list[np.ndarray], list[dict[str, np.ndarray]]]:
-    discrete = []
-    for flat in entry.get('symmetries_discrete', []) or []:
-        T = np.asarray(flat, dtype=np.float64).reshape(4, 4).copy()
-        T[:3, 3] /= 1000.0
-        discrete.append(T)
-    continuous = []
-    for sym in entry.get('symmetries_continuous', []) or []:
-        axis = np.asarray(sym['axis'], dtype=np.float64)
-        continuous.append({'axis': axis / np.linalg.norm(axis),
-                           'offset_m': np.asarray(sym.get('offset', [0, 0, 0]), float) / 1000.0})
-    return discrete, continuous
+    """The listed symmetries of one ``models_info.json`` entry (metres; identity not listed),
+    parsed by :func:`~tlessbot_ros.core.common.symmetries_from_models_info`."""
+    from tlessbot_ros.core.common import symmetries_from_models_info  # Open3D: when needed
+
+    symmetries = symmetries_from_models_info(entry)
+    return (list(symmetries.discrete[1:]),
+            [{'axis': axis, 'offset_m': offset} for axis, offset in symmetries.continuous])
 
 
 def load_model(path: str | Path, obj_id: int | None = None,

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tlessbot_ros.core.common import Rig, project_points, transform_points
+from tlessbot_ros.core.common import Rig, project_points, sample_surface, transform_points
 from tlessbot_ros.io.models import ObjectModel, stable_poses
 
 
@@ -51,28 +51,19 @@ class _HullInfo:
 
 
 def _hull_info(model: ObjectModel, samples: int) -> _HullInfo:
-    key = ('hull_info', samples)
-    info = model._cache.get(key)
-    if info is None:
+    def build() -> _HullInfo:
         from scipy.spatial import ConvexHull
 
         hull = ConvexHull(model.vertices)
-        tris = hull.points[hull.simplices]
-        area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]),
-                                    axis=1)
-        rng = np.random.default_rng(model.obj_id)  # fixed per model: placement stays seeded
-        pick = rng.choice(len(tris), size=samples, p=area / area.sum())
-        r1, r2 = rng.random((2, samples, 1))
-        s = np.sqrt(r1)
-        pts = ((1 - s) * tris[pick, 0] + s * (1 - r2) * tris[pick, 1]
-               + s * r2 * tris[pick, 2])
+        # seeded by the model id: placement stays reproducible
+        pts, _ = sample_surface(hull.points, hull.simplices, samples, seed=model.obj_id,
+                                scheme='sqrt')
         verts = hull.points[hull.vertices]
         # Coplanar hull triangles share a plane: keep each plane once.
         eq = np.unique(np.round(hull.equations, 9), axis=0)
-        info = _HullInfo(eq, np.vstack([verts, pts]), verts,
+        return _HullInfo(eq, np.vstack([verts, pts]), verts,
                          float(np.linalg.norm(verts, axis=1).max()))
-        model._cache[key] = info
-    return info
+    return model.cached(('hull_info', samples), build)
 
 
 def _penetrates(a: _HullInfo, T_a: np.ndarray, b: _HullInfo, T_b: np.ndarray,

@@ -175,8 +175,7 @@ def _box(mask_rows: np.ndarray, mask_cols: np.ndarray) -> tuple[int, int, int, i
 def _model_scene(model: ObjectModel):
     """Open3D ray-casting scene of one model in its own frame, cached on the model (its BVH is
     built once, not per frame)."""
-    scene = model._cache.get('o3d_scene')
-    if scene is None:
+    def build():
         import open3d as o3d
 
         scene = o3d.t.geometry.RaycastingScene()
@@ -184,8 +183,8 @@ def _model_scene(model: ObjectModel):
         mesh.vertex.positions = o3d.core.Tensor(np.ascontiguousarray(model.vertices, np.float32))
         mesh.triangle.indices = o3d.core.Tensor(np.ascontiguousarray(model.faces, np.int32))
         scene.add_triangles(mesh)
-        model._cache['o3d_scene'] = scene
-    return scene
+        return scene
+    return model.cached('o3d_scene', build)
 
 
 class _Parts:

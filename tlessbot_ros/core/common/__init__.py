@@ -1,5 +1,5 @@
 """Pieces every stage shares: camera geometry, the rig, label images, frame pairing,
-mesh rendering and symmetries. Imports no stage.
+mesh rendering, surface sampling and symmetries. Imports no stage.
 
 This package's public API; names load on first use, so importing one light module
 (geometry, say) does not import Open3D."""
@@ -47,10 +47,11 @@ _HOME = {
     'default_rig': 'rig',
     'rig_from_params': 'rig',
     'side_camera_position': 'rig',
+    'SAMPLING_SCHEMES': 'sampling',
+    'sample_surface': 'sampling',
     'Symmetries': 'symmetry',
     'SymmetryParams': 'symmetry',
     'detect_symmetries': 'symmetry',
-    'sample_surface': 'symmetry',
     'symmetries_from_models_info': 'symmetry',
     'symmetries_to_models_info': 'symmetry',
     'Item': 'sync',
@@ -120,11 +121,14 @@ if TYPE_CHECKING:
         rig_from_params,
         side_camera_position,
     )
+    from tlessbot_ros.core.common.sampling import (  # noqa: F401
+        SAMPLING_SCHEMES,
+        sample_surface,
+    )
     from tlessbot_ros.core.common.symmetry import (  # noqa: F401
         Symmetries,
         SymmetryParams,
         detect_symmetries,
-        sample_surface,
         symmetries_from_models_info,
         symmetries_to_models_info,
     )

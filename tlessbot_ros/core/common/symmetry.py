@@ -7,8 +7,9 @@ on the axis); see Hodaň et al., "BOP Challenge 2020 on 6D Object Localization",
 and bop_toolkit ``misc.get_symmetry_transformations``.
 
 Detection (:func:`detect_symmetries`) tests candidate rotations about the principal axes of the
-surface: the surface is sampled uniformly, rotated, and compared with itself by nearest-neighbour
-distance (``scipy.spatial.cKDTree``) against a tolerance relative to the model diameter.
+surface: the surface is sampled uniformly
+(:func:`~tlessbot_ros.core.common.sampling.sample_surface`), rotated, and compared with itself by
+nearest-neighbour distance against a tolerance relative to the model diameter.
 """
 from __future__ import annotations
 
@@ -22,6 +23,13 @@ from tlessbot_ros.core.common.geometry import (
     rotation_about_axis,
     rotation_angle_deg,
 )
+from tlessbot_ros.core.common.sampling import sample_surface
+
+# The sampling scheme of the detector (see tlessbot_ros.core.common.sampling). 'reflect' finds
+# the same groups on the 23 T-LESS CAD models, but the refined transforms move by up to 0.1°
+# and 0.85 mm, so the detected symmetries (and models-info output) would no longer be the
+# same numbers.
+_SCHEME = 'sqrt'
 
 
 def _as_transform(T: np.ndarray) -> np.ndarray:
@@ -181,36 +189,6 @@ class SymmetryParams:
     seed: int = 0
 
 
-def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, *,
-                   seed: int = 0) -> np.ndarray:
-    """Uniform (area-weighted) random points on a triangle mesh.
-
-    Args:
-        vertices: (V, 3) vertex positions (any unit).
-        faces: (F, 3) int vertex indices.
-        count: number of points.
-        seed: seed of the random generator.
-
-    Returns:
-        (count, 3) float64 points on the surface, in the unit of ``vertices``.
-    """
-    vertices = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
-    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
-        raise ValueError('vertices must be (V, 3) and faces (F, 3)')
-    tri = vertices[faces]
-    areas = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    if areas.sum() <= 0:
-        raise ValueError('the mesh has no area')
-    rng = np.random.default_rng(seed)
-    index = rng.choice(len(faces), size=count, p=areas / areas.sum())
-    r1 = np.sqrt(rng.random(count))
-    r2 = rng.random(count)
-    t = tri[index]
-    return ((1 - r1)[:, None] * t[:, 0] + (r1 * (1 - r2))[:, None] * t[:, 1]
-            + (r1 * r2)[:, None] * t[:, 2])
-
-
 def _kabsch(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares rotation and translation mapping (N, 3) source onto (N, 3) target."""
     mu_s, mu_t = source.mean(0), target.mean(0)
@@ -334,8 +312,10 @@ def detect_symmetries(vertices: np.ndarray, faces: np.ndarray, *,
     Returns:
         :class:`Symmetries` with transforms about the surface centroid (metres).
     """
-    reference = sample_surface(vertices, faces, params.reference_samples, seed=params.seed)
-    query = sample_surface(vertices, faces, params.samples, seed=params.seed + 1)
+    reference, _ = sample_surface(vertices, faces, params.reference_samples, seed=params.seed,
+                                  scheme=_SCHEME)
+    query, _ = sample_surface(vertices, faces, params.samples, seed=params.seed + 1,
+                              scheme=_SCHEME)
     if diameter is None:
         far = reference[np.argsort(np.linalg.norm(reference - reference.mean(0), axis=1))
                         [-min(len(reference), 500):]]
@@ -352,57 +332,21 @@ def detect_symmetries(vertices: np.ndarray, faces: np.ndarray, *,
         if all(abs(axis @ c) < np.cos(np.radians(3.0)) for c in candidates):
             candidates.append(axis / np.linalg.norm(axis))
 
-    continuous_axis = None
-    for axis in candidates:
-        found = []
-        for angle in params.continuous_angles_deg:
-            T = test.check(axis, np.radians(angle), centre, deviation,
-                           threshold=params.continuous_tolerance * diameter)
-            if T is None:
-                break
-            found.append(T)
-        else:
-            continuous_axis = _mean_axis([T[:3, :3] for T in found], axis)
-            centre = np.mean([_axis_point(T) for T in found if _angle(T) > 0.3], axis=0) \
-                if any(_angle(T) > 0.3 for T in found) else centre
-            break
-
+    continuous_axis, centre = _continuous_axis(test, candidates, centre, deviation,
+                                               params.continuous_angles_deg,
+                                               params.continuous_tolerance * diameter)
     generators: list[np.ndarray] = []
     special = continuous_axis
     fold_of_special = 0
     if continuous_axis is None:
-        for axis in candidates:
-            fold = 0
-            found = None
-            for n in (2, 3):
-                T = test.check(axis, 2 * np.pi / n, centre, deviation)
-                if T is not None:
-                    fold, found = n, T
-            if fold and test.check(axis, np.pi / fold, centre, deviation) is not None:
-                fold *= 2  # 4-fold or 6-fold
-            if fold:
-                refined = _mean_axis([found[:3, :3]], axis)
-                generators.append(rotation_about_axis(refined, 2 * np.pi / fold))
-                if fold > fold_of_special and fold > 2:
-                    special, fold_of_special = refined, fold
+        generators, special, fold_of_special = _n_fold_generators(test, candidates, centre,
+                                                                  deviation)
     if special is not None:
-        # 2-fold axes perpendicular to a continuous or n-fold (n >= 3) axis: with a continuous
-        # axis any one of them will do; with an n-fold axis they repeat every 180°/n.
-        u = _perpendicular(special)
-        v = np.cross(special, u)
-        span = 1.0 if continuous_axis is not None else 180.0 / max(fold_of_special, 2)
-        best_flip = None
-        for a in np.arange(0.0, span, params.plane_scan_step_deg):
-            flip_axis = np.cos(np.radians(a)) * u + np.sin(np.radians(a)) * v
-            error = test.error(rotation_about_axis(flip_axis, np.pi), centre)
-            if best_flip is None or error < best_flip[0]:
-                best_flip = (error, flip_axis)
-        if best_flip is not None:
-            T = test.check(best_flip[1], np.pi, centre, deviation)
-            if T is not None:
-                flip = _mean_axis([T[:3, :3]], best_flip[1])
-                flip = flip - (flip @ special) * special  # exactly perpendicular
-                generators.append(rotation_about_axis(flip / np.linalg.norm(flip), np.pi))
+        flip = _perpendicular_flip(test, special, centre, deviation,
+                                   continuous=continuous_axis is not None,
+                                   fold=fold_of_special, step_deg=params.plane_scan_step_deg)
+        if flip is not None:
+            generators.append(flip)
     group = _close_group(generators)
     discrete = tuple(make_transform(R, centre - R @ centre) for R in group)
     if continuous_axis is not None:
@@ -410,6 +354,75 @@ def detect_symmetries(vertices: np.ndarray, faces: np.ndarray, *,
             continuous_axis))] > 0 else -1)
     continuous = ((continuous_axis, centre),) if continuous_axis is not None else ()
     return Symmetries(discrete=discrete, continuous=continuous)
+
+
+def _continuous_axis(test: _SurfaceTest, candidates: list[np.ndarray], centre: np.ndarray,
+                     deviation: float, angles_deg: tuple[float, ...], threshold: float
+                     ) -> tuple[np.ndarray | None, np.ndarray]:
+    """The first candidate axis the surface turns about by every one of ``angles_deg`` (its
+    refined direction, or None), and the centre: on that axis when one is found."""
+    for axis in candidates:
+        found = []
+        for angle in angles_deg:
+            T = test.check(axis, np.radians(angle), centre, deviation, threshold=threshold)
+            if T is None:
+                break
+            found.append(T)
+        else:
+            continuous_axis = _mean_axis([T[:3, :3] for T in found], axis)
+            centre = np.mean([_axis_point(T) for T in found if _angle(T) > 0.3], axis=0) \
+                if any(_angle(T) > 0.3 for T in found) else centre
+            return continuous_axis, centre
+    return None, centre
+
+
+def _n_fold_generators(test: _SurfaceTest, candidates: list[np.ndarray], centre: np.ndarray,
+                       deviation: float) -> tuple[list[np.ndarray], np.ndarray | None, int]:
+    """Rotations by 360°/n (n in 2, 3, 4, 6) about the candidate axes that map the surface onto
+    itself, and the axis of the highest fold above 2 (None) with that fold (0)."""
+    generators: list[np.ndarray] = []
+    special, fold_of_special = None, 0
+    for axis in candidates:
+        fold = 0
+        found = None
+        for n in (2, 3):
+            T = test.check(axis, 2 * np.pi / n, centre, deviation)
+            if T is not None:
+                fold, found = n, T
+        if fold and test.check(axis, np.pi / fold, centre, deviation) is not None:
+            fold *= 2  # 4-fold or 6-fold
+        if fold:
+            refined = _mean_axis([found[:3, :3]], axis)
+            generators.append(rotation_about_axis(refined, 2 * np.pi / fold))
+            if fold > fold_of_special and fold > 2:
+                special, fold_of_special = refined, fold
+    return generators, special, fold_of_special
+
+
+def _perpendicular_flip(test: _SurfaceTest, special: np.ndarray, centre: np.ndarray,
+                        deviation: float, *, continuous: bool, fold: int,
+                        step_deg: float) -> np.ndarray | None:
+    """A 2-fold rotation about an axis perpendicular to a continuous or n-fold (n >= 3) axis
+    that maps the surface onto itself, or None."""
+    # With a continuous axis any one of them will do; with an n-fold axis they repeat every
+    # 180°/n.
+    u = _perpendicular(special)
+    v = np.cross(special, u)
+    span = 1.0 if continuous else 180.0 / max(fold, 2)
+    best_flip = None
+    for a in np.arange(0.0, span, step_deg):
+        flip_axis = np.cos(np.radians(a)) * u + np.sin(np.radians(a)) * v
+        error = test.error(rotation_about_axis(flip_axis, np.pi), centre)
+        if best_flip is None or error < best_flip[0]:
+            best_flip = (error, flip_axis)
+    if best_flip is None:
+        return None
+    T = test.check(best_flip[1], np.pi, centre, deviation)
+    if T is None:
+        return None
+    flip = _mean_axis([T[:3, :3]], best_flip[1])
+    flip = flip - (flip @ special) * special  # exactly perpendicular
+    return rotation_about_axis(flip / np.linalg.norm(flip), np.pi)
 
 
 def _angle(T: np.ndarray) -> float:

@@ -1,6 +1,14 @@
 """Stage 3, pose: region clouds, the template database, the table-plane and RANSAC pose
 searches with their refinement, and the look-alike check.
 
+Modules: ``cloud`` (ROI clouds, normals, FPFH), ``database`` (what the templates store, the
+file format), ``building`` (rendering and building the templates), ``params`` and
+``candidates`` (the settings and results of the pose search), ``estimator`` (the table-plane
+search and the orchestration), ``refinement`` (ICP, planar Gauss-Newton, scoring: swap it with
+``PoseEstimator(refiner=...)``), ``ransac`` (the paper's FPFH + RANSAC path), ``grid_kernels``
+and ``buckets`` (the fast lookups), ``lookalike``. ``sample_surface`` is
+:func:`tlessbot_ros.core.common.sample_surface`.
+
 This package's public API; names load on first use, so importing one light module
 (geometry, say) does not import Open3D."""
 from __future__ import annotations
@@ -11,7 +19,20 @@ from typing import TYPE_CHECKING
 # name -> the module of this package that defines it
 _HOME = {
     'PointBuckets': 'buckets',
+    'TemplateParams': 'building',
+    'build_database': 'building',
+    'build_object_templates': 'building',
+    'diameter': 'building',
+    'merge_equivalent_poses': 'building',
+    'resting_pose': 'building',
+    'sample_surface': 'building',  # tlessbot_ros.core.common's, used there
+    'template_from_cloud': 'building',
+    'yaw_period': 'building',
+    'COVERAGE_WEIGHT': 'candidates',
+    'PoseCandidate': 'candidates',
+    'PoseResult': 'candidates',
     'CloudParams': 'cloud',
+    'compute_fpfh': 'cloud',
     'crop_box': 'cloud',
     'estimate_normals': 'cloud',
     'fit_plane': 'cloud',
@@ -22,13 +43,17 @@ _HOME = {
     'subtract_background': 'cloud',
     'to_o3d': 'cloud',
     'voxel_downsample': 'cloud',
-    'COVERAGE_WEIGHT': 'estimator',
-    'METHODS': 'estimator',
-    'PoseCandidate': 'estimator',
+    'CONTINUOUS_YAW_PERIOD': 'database',
+    'FORMAT': 'database',
+    'NORMAL_SCALE': 'database',
+    'NearestGrid': 'database',
+    'ObjectTemplates': 'database',
+    'POINT_QUANTUM_M': 'database',
+    'READABLE_VERSIONS': 'database',
+    'Template': 'database',
+    'TemplateDatabase': 'database',
+    'VERSION': 'database',
     'PoseEstimator': 'estimator',
-    'PoseParams': 'estimator',
-    'PoseResult': 'estimator',
-    'register_templates': 'estimator',
     'table_frame_from_plane': 'estimator',
     'gauss_newton': 'grid_kernels',
     'inlier_fraction': 'grid_kernels',
@@ -43,26 +68,11 @@ _HOME = {
     'lookalike_pairs': 'lookalike',
     'shared_surface': 'lookalike',
     'visible_difference': 'lookalike',
-    'CONTINUOUS_YAW_PERIOD': 'templates',
-    'FORMAT': 'templates',
-    'NORMAL_SCALE': 'templates',
-    'NearestGrid': 'templates',
-    'ObjectTemplates': 'templates',
-    'POINT_QUANTUM_M': 'templates',
-    'READABLE_VERSIONS': 'templates',
-    'Template': 'templates',
-    'TemplateDatabase': 'templates',
-    'TemplateParams': 'templates',
-    'VERSION': 'templates',
-    'build_database': 'templates',
-    'build_object_templates': 'templates',
-    'compute_fpfh': 'templates',
-    'diameter': 'templates',
-    'merge_equivalent_poses': 'templates',
-    'resting_pose': 'templates',
-    'sample_surface': 'templates',
-    'template_from_cloud': 'templates',
-    'yaw_period': 'templates',
+    'METHODS': 'params',
+    'PoseParams': 'params',
+    'ransac_candidates': 'ransac',
+    'register_templates': 'ransac',
+    'Refiner': 'refinement',
 }
 __all__ = sorted(_HOME)
 
@@ -85,8 +95,25 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.pose.buckets import (  # noqa: F401
         PointBuckets,
     )
+    from tlessbot_ros.core.pose.building import (  # noqa: F401
+        TemplateParams,
+        build_database,
+        build_object_templates,
+        diameter,
+        merge_equivalent_poses,
+        resting_pose,
+        sample_surface,
+        template_from_cloud,
+        yaw_period,
+    )
+    from tlessbot_ros.core.pose.candidates import (  # noqa: F401
+        COVERAGE_WEIGHT,
+        PoseCandidate,
+        PoseResult,
+    )
     from tlessbot_ros.core.pose.cloud import (  # noqa: F401
         CloudParams,
+        compute_fpfh,
         crop_box,
         estimate_normals,
         fit_plane,
@@ -98,14 +125,20 @@ if TYPE_CHECKING:
         to_o3d,
         voxel_downsample,
     )
+    from tlessbot_ros.core.pose.database import (  # noqa: F401
+        CONTINUOUS_YAW_PERIOD,
+        FORMAT,
+        NORMAL_SCALE,
+        POINT_QUANTUM_M,
+        READABLE_VERSIONS,
+        VERSION,
+        NearestGrid,
+        ObjectTemplates,
+        Template,
+        TemplateDatabase,
+    )
     from tlessbot_ros.core.pose.estimator import (  # noqa: F401
-        COVERAGE_WEIGHT,
-        METHODS,
-        PoseCandidate,
         PoseEstimator,
-        PoseParams,
-        PoseResult,
-        register_templates,
         table_frame_from_plane,
     )
     from tlessbot_ros.core.pose.grid_kernels import (  # noqa: F401
@@ -125,25 +158,14 @@ if TYPE_CHECKING:
         shared_surface,
         visible_difference,
     )
-    from tlessbot_ros.core.pose.templates import (  # noqa: F401
-        CONTINUOUS_YAW_PERIOD,
-        FORMAT,
-        NORMAL_SCALE,
-        POINT_QUANTUM_M,
-        READABLE_VERSIONS,
-        VERSION,
-        NearestGrid,
-        ObjectTemplates,
-        Template,
-        TemplateDatabase,
-        TemplateParams,
-        build_database,
-        build_object_templates,
-        compute_fpfh,
-        diameter,
-        merge_equivalent_poses,
-        resting_pose,
-        sample_surface,
-        template_from_cloud,
-        yaw_period,
+    from tlessbot_ros.core.pose.params import (  # noqa: F401
+        METHODS,
+        PoseParams,
+    )
+    from tlessbot_ros.core.pose.ransac import (  # noqa: F401
+        ransac_candidates,
+        register_templates,
+    )
+    from tlessbot_ros.core.pose.refinement import (  # noqa: F401
+        Refiner,
     )

@@ -40,7 +40,7 @@ def shared_surface(mesh_a: Mesh, mesh_b: Mesh, *, tolerance_m: float = 0.002,
     """
     shares = []
     for source, target in ((mesh_a, mesh_b), (mesh_b, mesh_a)):
-        points = sample_surface(*source, samples, seed=seed).astype(np.float32)
+        points = sample_surface(*source, samples, seed=seed, scheme='sqrt')[0].astype(np.float32)
         distance = raycasting_scene(*target).compute_distance(o3d.core.Tensor(points)).numpy()
         shares.append(float(np.mean(distance <= tolerance_m)))
     return min(shares)

@@ -1,0 +1,50 @@
+"""What the pose paths return: refined candidates (:class:`PoseCandidate`) and the stage's
+answer per object (:class:`PoseResult`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+COVERAGE_WEIGHT = 0.3
+
+
+@dataclass
+class PoseCandidate:
+    """One pose hypothesis after refinement.
+
+    Attributes:
+        T_camera_object: (4, 4) float64 pose in the ROI cloud's camera frame.
+        fitness: fraction of scene points within ``inlier_voxels`` of the model surface.
+        inlier_rmse_m: RMS point-to-model distance of those inliers, metres.
+        coverage: fraction of the model surface facing the camera that has a scene point
+            nearby (1 when unknown).
+        method: 'table' or 'ransac'.
+        template_index: the template a RANSAC candidate came from (-1 for the table path).
+        stable_index: the stable pose of a table candidate (-1 otherwise).
+    """
+
+    T_camera_object: np.ndarray
+    fitness: float
+    inlier_rmse_m: float
+    coverage: float = 1.0
+    method: str = 'table'
+    template_index: int = -1
+    stable_index: int = -1
+
+    @property
+    def score(self) -> float:
+        """Ranking score: fitness, plus a weaker coverage term (the back-face visibility test
+        behind coverage ignores self-occlusion, so it only breaks near-ties)."""
+        return self.fitness + COVERAGE_WEIGHT * self.coverage
+
+
+@dataclass
+class PoseResult:
+    """Best and second-best candidates (paper: two templates) and per-stage times in ms."""
+
+    obj_id: int
+    best: PoseCandidate | None
+    second: PoseCandidate | None
+    n_points: int
+    timings_ms: dict[str, float] = field(default_factory=dict)
