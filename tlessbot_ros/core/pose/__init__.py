@@ -6,7 +6,7 @@ file format), ``building`` (rendering and building the templates), ``params`` an
 ``candidates`` (the settings and results of the pose search), ``estimator`` (the table-plane
 search and the orchestration), ``refinement`` (ICP, planar Gauss-Newton, scoring: swap it with
 ``PoseEstimator(refiner=...)``), ``ransac`` (the paper's FPFH + RANSAC path), ``grid_kernels``
-and ``buckets`` (the fast lookups), ``lookalike``. ``sample_surface`` is
+and ``buckets`` (the fast lookups), ``lookalike``. Surface sampling is
 :func:`tlessbot_ros.core.common.sample_surface`.
 
 This package's public API; names load on first use, so importing one light module
@@ -25,7 +25,6 @@ _HOME = {
     'diameter': 'building',
     'merge_equivalent_poses': 'building',
     'resting_pose': 'building',
-    'sample_surface': 'building',  # tlessbot_ros.core.common's, used there
     'template_from_cloud': 'building',
     'yaw_period': 'building',
     'COVERAGE_WEIGHT': 'candidates',
@@ -102,7 +101,6 @@ if TYPE_CHECKING:
         diameter,
         merge_equivalent_poses,
         resting_pose,
-        sample_surface,
         template_from_cloud,
         yaw_period,
     )

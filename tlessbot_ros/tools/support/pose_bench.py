@@ -37,9 +37,8 @@ class SymmetryAwareScorer:
     object; symmetries from the packaged models_info.json, else detected from the mesh."""
 
     def __init__(self, model, symmetries=None, *, samples: int = 1000):
-        from tlessbot_ros.core.common import Symmetries, detect_symmetries
+        from tlessbot_ros.core.common import Symmetries, detect_symmetries, sample_surface
         from tlessbot_ros.core.metrics import ModelDepthRenderer
-        from tlessbot_ros.core.pose import sample_surface
         self.points = sample_surface(model.vertices, model.faces, samples)[0].astype(np.float64)
         if symmetries is None:
             symmetries = detect_symmetries(model.vertices, model.faces,
