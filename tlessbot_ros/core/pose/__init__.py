@@ -6,8 +6,8 @@ file format), ``building`` (rendering and building the templates), ``params`` an
 ``candidates`` (the settings and results of the pose search), ``estimator`` (the table-plane
 search and the orchestration), ``refinement`` (ICP, planar Gauss-Newton, scoring: swap it with
 ``PoseEstimator(refiner=...)``), ``ransac`` (the paper's FPFH + RANSAC path), ``grid_kernels``
-and ``buckets`` (the fast lookups), ``lookalike``. Surface sampling is
-:func:`tlessbot_ros.core.common.sample_surface`.
+and ``buckets`` (the fast lookups), ``lookalike``, ``derived`` (start-up arrays to cache).
+Surface sampling is :func:`tlessbot_ros.core.common.sample_surface`.
 
 This package's public API; names load on first use, so importing one light module
 (geometry, say) does not import Open3D."""
@@ -18,6 +18,9 @@ from typing import TYPE_CHECKING
 
 # name -> the module of this package that defines it
 _HOME = {
+    'DERIVED_VERSION': 'derived',
+    'derived_arrays': 'derived',
+    'restore_derived': 'derived',
     'PointBuckets': 'buckets',
     'TemplateParams': 'building',
     'build_database': 'building',
@@ -134,6 +137,11 @@ if TYPE_CHECKING:
         ObjectTemplates,
         Template,
         TemplateDatabase,
+    )
+    from tlessbot_ros.core.pose.derived import (  # noqa: F401
+        DERIVED_VERSION,
+        derived_arrays,
+        restore_derived,
     )
     from tlessbot_ros.core.pose.estimator import (  # noqa: F401
         PoseEstimator,

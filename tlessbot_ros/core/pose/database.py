@@ -159,12 +159,21 @@ class ObjectTemplates:
     def nearest_grid(self, spacing_m: float | None = None) -> NearestGrid:
         """A voxel grid of the nearest model sample of every cell (built once per spacing)."""
         spacing = float(spacing_m or self.voxel_size_m / 2.0)
-        key = ('grid', round(spacing, 6))
+        key = self._grid_key(spacing)
         if key not in self._cache:
             self._cache[key] = NearestGrid.build(self.model_points, spacing,
                                                  margin_m=4.0 * self.voxel_size_m,
                                                  tree=self.model_tree())
         return self._cache[key]
+
+    def adopt_nearest_grid(self, grid: NearestGrid) -> None:
+        """Use ``grid`` (built earlier by :meth:`nearest_grid` for these samples, e.g. read
+        back from a cache) as the grid of its spacing."""
+        self._cache[self._grid_key(grid.spacing)] = grid
+
+    @staticmethod
+    def _grid_key(spacing_m: float) -> tuple[str, float]:
+        return 'grid', round(float(spacing_m), 6)
 
 
 @dataclass
