@@ -42,5 +42,9 @@ quiet_pip() {
 }
 quiet_pip install -q -c constraints.txt \
     -r requirements/ros-pypi.txt -r requirements/dev.txt -e '.[realsense]'
+# Compile the pose kernels and build the pose stage's start-up caches now, so that the first
+# start of a node after set-up is as fast as the next (tlessbot warm-up; safe to repeat).
+"$VENV/bin/python" -m tlessbot_ros.tools.cli warm-up \
+    || echo "setup: warm-up failed; the nodes build their caches at their first start" >&2
 echo "$stamp" > "$stamp_file"
 echo "setup: done"

@@ -87,6 +87,7 @@ def store_derived(database: TemplateDatabase, templates_path: str | Path, *,
         path.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=path.parent, suffix='.tmp', delete=False) as tmp:
             np.savez(tmp, **arrays)
+        os.chmod(tmp.name, 0o644)   # readable by the user's other tools, like any cache
         os.replace(tmp.name, path)
     except OSError:
         return None
