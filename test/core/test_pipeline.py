@@ -5,7 +5,13 @@ import numpy as np
 import pytest
 
 from tlessbot_ros.core.common import default_rig
-from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+from tlessbot_ros.core.pipeline import (
+    ClassifyParams,
+    FitParams,
+    LocaliseParams,
+    PerceptionPipeline,
+    ViewInput,
+)
 
 SIDE = default_rig()['side']
 
@@ -61,7 +67,7 @@ def test_a_good_first_fit_is_accepted_without_trying_the_others(scene):
     pipeline = PerceptionPipeline(templates=db)
     calls = _counting(pipeline)
     [detection] = pipeline.estimate_poses(inputs, labels, {1: (21, 5)})
-    assert calls == [21] and detection.pose.fitness >= PipelineParams().verify_accept_fitness
+    assert calls == [21] and detection.pose.fitness >= FitParams().verify_accept_fitness
     assert detection.obj_id == 21 and detection.class_rank == 0
 
 
@@ -85,7 +91,7 @@ def test_a_region_no_candidate_fits_gets_no_ransac_fallback(scene):
     calls = _counting(pipeline)
     [detection] = pipeline.estimate_poses(views, {'side': junk}, {1: (5, 21)})
     assert calls == [5, 21]      # both verified, no third (fallback) call
-    assert detection.pose.fitness < PipelineParams().fallback_min_fitness
+    assert detection.pose.fitness < FitParams().fallback_min_fitness
 
 
 def test_both_views_segmented_at_once_give_the_labels_of_one_after_the_other(tless_models_dir):
@@ -99,7 +105,7 @@ def test_both_views_segmented_at_once_give_the_labels_of_one_after_the_other(tle
     views = {name: ViewInput(view.rgb, view.depth_mm.astype(np.float32) / 1000.0,
                              view.intrinsics, view.T_world_camera)
              for name, view in frame.views.items()}
-    labels = {parallel: PerceptionPipeline(rig=rig, params=PipelineParams(
+    labels = {parallel: PerceptionPipeline(rig=rig, localise_params=LocaliseParams(
         parallel_views=parallel)).localise(views).labels for parallel in (False, True)}
     assert labels[True]['side'].max() >= 2
     for camera in ('top', 'side'):
@@ -162,7 +168,7 @@ def test_a_lookalike_is_named_by_the_depth_it_explains(lookalikes):
     assert shows > 0.02
     [kept] = PerceptionPipeline(templates=db).estimate_poses(inputs, labels, {1: (21,)})
     assert kept.obj_id == 21 and kept.class_rank == 0
-    without = PerceptionPipeline(templates=db, params=PipelineParams(lookalike_check=False))
+    without = PerceptionPipeline(templates=db, fit_params=FitParams(lookalike_check=False))
     assert without.estimate_poses(inputs, labels, {1: (22,)})[0].obj_id == 22
 
 
@@ -172,7 +178,7 @@ def test_a_sure_classifier_alone_names_a_part_seen_only_from_the_top():
     def pipeline(scale, **params):
         model = LinearClassifier(np.zeros((HogParams().feature_dim, 3), np.float32),
                                  np.zeros(3, np.float32), np.array([4, 7, 9]), margin_scale=scale)
-        return PerceptionPipeline(classifier=model, params=PipelineParams(**params))
+        return PerceptionPipeline(classifier=model, classify_params=ClassifyParams(**params))
 
     sure = pipeline(10.0)   # top_view_verify_below_margin 0.25: unsure below a margin of 2.5
     assert sure.verification_candidates(7, 2.0, [7, 4, 9], 'top') == (7, 4, 9)

@@ -17,6 +17,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -68,9 +69,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--pose-param', action='append', metavar='NAME=VALUE',
                         help='override a PoseParams field, e.g. icp_iterations=6 (repeatable)')
     parser.add_argument('--pipeline-param', action='append', metavar='NAME=VALUE',
-                        help='override a PipelineParams field, e.g. verify_accept_fitness=0.9 '
+                        help='override a LocaliseParams, ClassifyParams or FitParams field, e.g. '
+                             'verify_accept_fitness=0.9 '
                              '(repeatable)')
 
+
+
+def _stage_params(assignments: list[str] | None) -> dict[str, Any]:
+    """``--pipeline-param NAME=VALUE`` applied to the stage dataclass with field NAME, as
+    PerceptionPipeline keyword arguments."""
+    import dataclasses
+
+    from tlessbot_ros.core.pipeline import ClassifyParams, FitParams, LocaliseParams
+    from tlessbot_ros.tools._overrides import apply_overrides
+
+    stages = {'localise_params': LocaliseParams(), 'classify_params': ClassifyParams(),
+              'fit_params': FitParams()}
+    owner = {f.name: key for key, params in stages.items() for f in dataclasses.fields(params)}
+    for assignment in assignments or []:
+        key = owner.get(assignment.partition('=')[0])
+        if key is None:
+            raise TlessbotError(f'expected NAME=VALUE with NAME one of '
+                                f'{", ".join(sorted(owner))}; got {assignment!r}')
+        stages[key] = apply_overrides(stages[key], [assignment])
+    return stages
 
 # ------------------------------------------------------------------------------------------------
 # Models
@@ -340,7 +362,7 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
         raise TlessbotError('--oracle none needs a two-view dataset (test_top + test_side); '
                             'use --oracle boxes or boxes+classes for a single split')
     from tlessbot_ros.core.common import CameraMount, Rig, mask_box
-    from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+    from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
     from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
     from tlessbot_ros.core.recognise import LinearClassifier
     from tlessbot_ros.io.bop import read_split
@@ -356,14 +378,14 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
                                  load_masks=False)
                    for v in views if (args.dataset / f'background_{v}').is_dir()}
     pose_params = apply_overrides(PoseParams(), args.pose_param)
-    pipeline_params = apply_overrides(PipelineParams(), args.pipeline_param)
+    stage_params = _stage_params(args.pipeline_param)
     if args.oracle == 'boxes+classes':
         # the classes are the truth: nothing for the look-alike check to correct
-        pipeline_params = replace(pipeline_params, lookalike_check=False)
+        stage_params['fit_params'] = replace(stage_params['fit_params'], lookalike_check=False)
     workers = None
     if args.pose_workers > 0:
         from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
-        workers = PoseWorkerPool(args.templates, pose=pose_params, pipeline=pipeline_params,
+        workers = PoseWorkerPool(args.templates, pose=pose_params, fit=stage_params['fit_params'],
                                  params=PoseWorkerParams(count=args.pose_workers))
         if not workers.wait_ready():
             workers.close()
@@ -386,7 +408,7 @@ def _pipeline_frames(args: argparse.Namespace, split: str, two_view: bool,
                     rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
                                for v, im in by_view.items()})
                 pipeline = PerceptionPipeline(rig=rig, classifier=classifier, templates=templates,
-                                              pose=pose_params, params=pipeline_params)
+                                              pose=pose_params, **stage_params)
             output = FrameOutput()
             t0 = time.perf_counter()
             if args.oracle == 'none':
