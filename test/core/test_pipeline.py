@@ -1,6 +1,8 @@
 """Class verification by the pose fit (PerceptionPipeline.estimate_poses with candidates)."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -188,3 +190,27 @@ def test_a_sure_classifier_alone_names_a_part_seen_only_from_the_top():
     assert pipeline(10.0, top_view_verify_below_margin=np.inf).verification_candidates(
         7, 1e9, [7, 4], 'top') == (7, 4)
     assert pipeline(0.0).verification_candidates(7, 1e9, [7, 4], 'top') == (7, 4)  # no scale
+
+
+@pytest.mark.parametrize('params_class, field, value, fix', [
+    (ClassifyParams, 'class_candidates', 5, '1..4'),
+    (ClassifyParams, 'min_instance_px', 0, 'at least 1'),
+    (ClassifyParams, 'top_view_verify_below_margin', -1.0, 'inf: always verify'),
+    (FitParams, 'lookalike_tolerance_m', 0.0, '> 0 m'),
+    (FitParams, 'fallback_min_fitness', 1.5, '0..1'),
+    (FitParams, 'min_roi_points', 2, 'at least 3'),
+])
+def test_stage_params_reject_values_and_say_how_to_fix_them(params_class, field, value, fix):
+    with pytest.raises(ValueError, match=f'{field} must .*{re.escape(fix)}.*got {value}'):
+        params_class(**{field: value})
+
+
+def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
+    from dataclasses import fields
+
+    names = [f.name for cls in (LocaliseParams, ClassifyParams, FitParams) for f in fields(cls)]
+    assert sorted(names) == sorted([
+        'min_instance_px', 'min_roi_points', 'table_clearance_m', 'reject_margin',
+        'class_candidates', 'top_view_verify_below_margin', 'verify_accept_fitness',
+        'verify_rmse_weight', 'fallback_min_fitness', 'lookalike_check',
+        'lookalike_tolerance_m', 'parallel_views'])
