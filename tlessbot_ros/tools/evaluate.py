@@ -91,7 +91,10 @@ def _stage_params(assignments: list[str] | None) -> dict[str, Any]:
         if key is None:
             raise TlessbotError(f'expected NAME=VALUE with NAME one of '
                                 f'{", ".join(sorted(owner))}; got {assignment!r}')
-        stages[key] = apply_overrides(stages[key], [assignment])
+        try:
+            stages[key] = apply_overrides(stages[key], [assignment])
+        except ValueError as error:   # the dataclass's validation: says how to fix it
+            raise TlessbotError(f'--pipeline-param {error}') from None
     return stages
 
 # ------------------------------------------------------------------------------------------------
