@@ -7,7 +7,8 @@ from tlessbot_ros.conversions import (
     image_to_array,
     pointcloud2_to_xyz,
 )
-from tlessbot_ros.conversions.camera import CAMERA_TOPICS, camera_frame_messages
+from tlessbot_ros.conversions.camera import camera_frame_messages
+from tlessbot_ros.conversions.topics import CAMERA_TOPICS
 from tlessbot_ros.core.common import d415_intrinsics
 
 

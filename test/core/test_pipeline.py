@@ -1,11 +1,19 @@
 """Class verification by the pose fit (PerceptionPipeline.estimate_poses with candidates)."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
 from tlessbot_ros.core.common import default_rig
-from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+from tlessbot_ros.core.pipeline import (
+    ClassifyParams,
+    FitParams,
+    LocaliseParams,
+    PerceptionPipeline,
+    ViewInput,
+)
 
 SIDE = default_rig()['side']
 
@@ -61,7 +69,7 @@ def test_a_good_first_fit_is_accepted_without_trying_the_others(scene):
     pipeline = PerceptionPipeline(templates=db)
     calls = _counting(pipeline)
     [detection] = pipeline.estimate_poses(inputs, labels, {1: (21, 5)})
-    assert calls == [21] and detection.pose.fitness >= PipelineParams().verify_accept_fitness
+    assert calls == [21] and detection.pose.fitness >= FitParams().verify_accept_fitness
     assert detection.obj_id == 21 and detection.class_rank == 0
 
 
@@ -85,7 +93,7 @@ def test_a_region_no_candidate_fits_gets_no_ransac_fallback(scene):
     calls = _counting(pipeline)
     [detection] = pipeline.estimate_poses(views, {'side': junk}, {1: (5, 21)})
     assert calls == [5, 21]      # both verified, no third (fallback) call
-    assert detection.pose.fitness < PipelineParams().fallback_min_fitness
+    assert detection.pose.fitness < FitParams().fallback_min_fitness
 
 
 def test_both_views_segmented_at_once_give_the_labels_of_one_after_the_other(tless_models_dir):
@@ -99,7 +107,7 @@ def test_both_views_segmented_at_once_give_the_labels_of_one_after_the_other(tle
     views = {name: ViewInput(view.rgb, view.depth_mm.astype(np.float32) / 1000.0,
                              view.intrinsics, view.T_world_camera)
              for name, view in frame.views.items()}
-    labels = {parallel: PerceptionPipeline(rig=rig, params=PipelineParams(
+    labels = {parallel: PerceptionPipeline(rig=rig, localise_params=LocaliseParams(
         parallel_views=parallel)).localise(views).labels for parallel in (False, True)}
     assert labels[True]['side'].max() >= 2
     for camera in ('top', 'side'):
@@ -162,7 +170,7 @@ def test_a_lookalike_is_named_by_the_depth_it_explains(lookalikes):
     assert shows > 0.02
     [kept] = PerceptionPipeline(templates=db).estimate_poses(inputs, labels, {1: (21,)})
     assert kept.obj_id == 21 and kept.class_rank == 0
-    without = PerceptionPipeline(templates=db, params=PipelineParams(lookalike_check=False))
+    without = PerceptionPipeline(templates=db, fit_params=FitParams(lookalike_check=False))
     assert without.estimate_poses(inputs, labels, {1: (22,)})[0].obj_id == 22
 
 
@@ -172,7 +180,7 @@ def test_a_sure_classifier_alone_names_a_part_seen_only_from_the_top():
     def pipeline(scale, **params):
         model = LinearClassifier(np.zeros((HogParams().feature_dim, 3), np.float32),
                                  np.zeros(3, np.float32), np.array([4, 7, 9]), margin_scale=scale)
-        return PerceptionPipeline(classifier=model, params=PipelineParams(**params))
+        return PerceptionPipeline(classifier=model, classify_params=ClassifyParams(**params))
 
     sure = pipeline(10.0)   # top_view_verify_below_margin 0.25: unsure below a margin of 2.5
     assert sure.verification_candidates(7, 2.0, [7, 4, 9], 'top') == (7, 4, 9)
@@ -182,3 +190,27 @@ def test_a_sure_classifier_alone_names_a_part_seen_only_from_the_top():
     assert pipeline(10.0, top_view_verify_below_margin=np.inf).verification_candidates(
         7, 1e9, [7, 4], 'top') == (7, 4)
     assert pipeline(0.0).verification_candidates(7, 1e9, [7, 4], 'top') == (7, 4)  # no scale
+
+
+@pytest.mark.parametrize('params_class, field, value, fix', [
+    (ClassifyParams, 'class_candidates', 5, '1..4'),
+    (ClassifyParams, 'min_instance_px', 0, 'at least 1'),
+    (ClassifyParams, 'top_view_verify_below_margin', -1.0, 'inf: always verify'),
+    (FitParams, 'lookalike_tolerance_m', 0.0, '> 0 m'),
+    (FitParams, 'fallback_min_fitness', 1.5, '0..1'),
+    (FitParams, 'min_roi_points', 2, 'at least 3'),
+])
+def test_stage_params_reject_values_and_say_how_to_fix_them(params_class, field, value, fix):
+    with pytest.raises(ValueError, match=f'{field} must .*{re.escape(fix)}.*got {value}'):
+        params_class(**{field: value})
+
+
+def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
+    from dataclasses import fields
+
+    names = [f.name for cls in (LocaliseParams, ClassifyParams, FitParams) for f in fields(cls)]
+    assert sorted(names) == sorted([
+        'min_instance_px', 'min_roi_points', 'table_clearance_m', 'reject_margin',
+        'class_candidates', 'top_view_verify_below_margin', 'verify_accept_fitness',
+        'verify_rmse_weight', 'fallback_min_fitness', 'lookalike_check',
+        'lookalike_tolerance_m', 'parallel_views'])

@@ -2,12 +2,15 @@ import numpy as np
 import pytest
 
 from tlessbot_ros.core.common import (
+    CAMERA_NAMES,
+    check_camera_roles,
     default_rig,
     project_points,
     rig_from_params,
     side_camera_position,
     transform_points,
 )
+from tlessbot_ros.errors import CalibrationError
 from tlessbot_ros.io.config import default_config_path, load_ros_params
 
 
@@ -44,3 +47,11 @@ def test_bad_tilt_and_missing_params_raise():
         side_camera_position(0.6, 0.0)
     with pytest.raises(ValueError, match='rig.side.fx'):
         rig_from_params({'rig.cameras': ['side']})
+
+
+def test_the_rig_of_the_config_file_names_the_two_roles():
+    params = load_ros_params(default_config_path(), 'pose_estimator')
+    assert check_camera_roles(params['rig.cameras']) == CAMERA_NAMES
+    assert check_camera_roles(['side', 'top']) == ('side', 'top')
+    with pytest.raises(CalibrationError, match=r"rig.cameras is \['top', 'left'\].*'top', 'side'"):
+        check_camera_roles(['top', 'left'])

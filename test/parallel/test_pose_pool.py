@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tlessbot_ros.core.common import default_rig
-from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+from tlessbot_ros.core.pipeline import FitParams, PerceptionPipeline, ViewInput
 from tlessbot_ros.core.pose import PoseCandidate, PoseParams, TemplateDatabase
 from tlessbot_ros.parallel import wire
 from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
@@ -71,7 +71,7 @@ def _estimate(pipeline, scene, fitter, fit_here=None):
 @pytest.fixture
 def pool(scene):
     path = scene[0]
-    with PoseWorkerPool(path, pose=PoseParams(), pipeline=PipelineParams(),
+    with PoseWorkerPool(path, pose=PoseParams(), fit=FitParams(),
                         params=PoseWorkerParams(count=1, restart_delay_s=0.0,
                                                          job_timeout_s=1.0)) as pool:
         assert pool.wait_ready(120.0), list(pool.errors)
@@ -113,7 +113,7 @@ def test_a_hung_worker_costs_time_not_poses(scene, pool):
 def test_a_worker_that_cannot_start_leaves_the_fits_to_the_node(scene, tmp_path):
     pipeline = PerceptionPipeline(templates=scene[1])
     alone, _ = _estimate(pipeline, scene, None)
-    with PoseWorkerPool(tmp_path / 'missing.npz', pose=PoseParams(), pipeline=PipelineParams(),
+    with PoseWorkerPool(tmp_path / 'missing.npz', pose=PoseParams(), fit=FitParams(),
                         params=PoseWorkerParams(count=1)) as pool:
         assert not pool.wait_ready(60.0)
         shared, done = _estimate(pipeline, scene, pool)

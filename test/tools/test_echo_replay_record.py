@@ -128,7 +128,7 @@ def test_sqlite_bags_read_too(tmp_path):
 
 
 def test_restamp_rewrites_only_the_stamp(pose_bag):
-    from tlessbot_ros.io.bags import header_stamp_ns, restamp_cdr, starts_with_header
+    from tlessbot_ros.conversions.cdr import header_stamp_ns, restamp_cdr, starts_with_header
 
     for message in read_bag(pose_bag):
         assert starts_with_header(message.msgtype)

@@ -1,7 +1,8 @@
 """One RGB-D camera frame as the realsense-ros set of messages.
 
-Topic names are relative to the camera's namespace (``/top``, ``/side``) and follow
-realsense-ros with ``align_depth.enable:=true pointcloud.enable:=true``. Everything is in
+Topic names (:mod:`~tlessbot_ros.conversions.topics`) are relative to the camera's namespace
+(``/top``, ``/side``) and follow realsense-ros with ``align_depth.enable:=true
+pointcloud.enable:=true``. Everything is in
 ``<camera>_color_optical_frame``, stamped with the frame's stamp.
 """
 from __future__ import annotations
@@ -14,14 +15,8 @@ from tlessbot_ros.conversions.camera_info import intrinsics_to_camera_info
 from tlessbot_ros.conversions.image import array_to_image
 from tlessbot_ros.conversions.messages import MessageFactory, default_factory
 from tlessbot_ros.conversions.pointcloud import xyz_to_pointcloud2
+from tlessbot_ros.conversions.topics import COLOR, COLOR_INFO, DEPTH, DEPTH_INFO, POINTS
 from tlessbot_ros.core.common import CameraIntrinsics, depth_to_points
-
-COLOR_TOPIC = 'color/image_raw'
-COLOR_INFO_TOPIC = 'color/camera_info'
-DEPTH_TOPIC = 'aligned_depth_to_color/image_raw'
-DEPTH_INFO_TOPIC = 'aligned_depth_to_color/camera_info'
-POINTS_TOPIC = 'depth/color/points'
-CAMERA_TOPICS = (COLOR_TOPIC, COLOR_INFO_TOPIC, DEPTH_TOPIC, DEPTH_INFO_TOPIC, POINTS_TOPIC)
 
 
 def optical_frame(camera_name: str) -> str:
@@ -59,12 +54,12 @@ def camera_frame_messages(
     info = intrinsics_to_camera_info(intrinsics, frame_id=frame, stamp_ns=stamp_ns,
                                      factory=factory)
     messages = {
-        COLOR_TOPIC: array_to_image(rgb, 'rgb8', frame_id=frame, stamp_ns=stamp_ns,
+        COLOR: array_to_image(rgb, 'rgb8', frame_id=frame, stamp_ns=stamp_ns,
                                     factory=factory),
-        COLOR_INFO_TOPIC: info,
-        DEPTH_TOPIC: array_to_image(depth_mm, '16UC1', frame_id=frame, stamp_ns=stamp_ns,
+        COLOR_INFO: info,
+        DEPTH: array_to_image(depth_mm, '16UC1', frame_id=frame, stamp_ns=stamp_ns,
                                     factory=factory),
-        DEPTH_INFO_TOPIC: intrinsics_to_camera_info(intrinsics, frame_id=frame,
+        DEPTH_INFO: intrinsics_to_camera_info(intrinsics, frame_id=frame,
                                                     stamp_ns=stamp_ns, factory=factory),
     }
     if with_cloud:
@@ -73,6 +68,6 @@ def camera_frame_messages(
         depth_m = depth_mm.astype(np.float32) * np.float32(0.001)
         xyz, pixels = depth_to_points(depth_m, intrinsics.K, mask=mask)
         colours = rgb[pixels[:, 0], pixels[:, 1]]
-        messages[POINTS_TOPIC] = xyz_to_pointcloud2(xyz, colours, frame_id=frame,
+        messages[POINTS] = xyz_to_pointcloud2(xyz, colours, frame_id=frame,
                                                     stamp_ns=stamp_ns, factory=factory)
     return messages

@@ -7,11 +7,11 @@ once when a message is built, and not at all when one is read: :func:`image_from
 a duck-typed Image whose ``data`` is a read-only view of the received bytes, which every reader
 in this package accepts. ``Publisher.publish(bytes)`` sends such bytes as they are.
 
-Layout (OMG CDR, ROS 2 XCDR1 plain encoding): a 4-byte encapsulation header (``00 01``:
-little-endian), then, aligned to each field's size from the end of that header: Header (int32
-sec, uint32 nanosec, string frame_id), uint32 height, uint32 width, string encoding, uint8
-is_bigendian, uint32 step, sequence<uint8> data. A string is a uint32 length counting its
-terminating NUL, then the bytes and the NUL.
+Layout (OMG CDR, ROS 2 XCDR1 plain encoding, read by :class:`~tlessbot_ros.conversions.cdr.
+CdrReader`): a 4-byte encapsulation header (``00 01``: little-endian), then, aligned to each
+field's size from the end of that header: Header (int32 sec, uint32 nanosec, string frame_id),
+uint32 height, uint32 width, string encoding, uint8 is_bigendian, uint32 step, sequence<uint8>
+data. A string is a uint32 length counting its terminating NUL, then the bytes and the NUL.
 """
 from __future__ import annotations
 
@@ -20,9 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tlessbot_ros.conversions.cdr import CdrReader
 from tlessbot_ros.conversions.image import little_endian_pixels
-
-_ENCAPSULATION = {b'\x00\x01': '<', b'\x00\x00': '>'}
 
 
 @dataclass(frozen=True)
@@ -50,46 +49,13 @@ class CdrImage:
     data: np.ndarray
 
 
-class _Reader:
-    def __init__(self, raw: bytes) -> None:
-        if len(raw) < 4 or bytes(raw[:2]) not in _ENCAPSULATION:
-            raise ValueError('not a CDR message (bad encapsulation header)')
-        self.raw, self.order, self.offset = raw, _ENCAPSULATION[bytes(raw[:2])], 0
-
-    def _take(self, size: int, align: int) -> int:
-        self.offset += -self.offset % align
-        start = 4 + self.offset
-        if start + size > len(self.raw):
-            raise ValueError(f'Image CDR is truncated: {len(self.raw)} bytes, a field needs '
-                             f'{start + size}')
-        self.offset += size
-        return start
-
-    def u32(self) -> int:
-        return struct.unpack_from(self.order + 'I', self.raw, self._take(4, 4))[0]
-
-    def i32(self) -> int:
-        return struct.unpack_from(self.order + 'i', self.raw, self._take(4, 4))[0]
-
-    def u8(self) -> int:
-        return self.raw[self._take(1, 1)]
-
-    def string(self) -> str:
-        length = self.u32()
-        start = self._take(length, 1)
-        text = bytes(self.raw[start:start + length])
-        if length == 0 or text[-1:] != b'\x00':
-            raise ValueError('Image CDR holds a string without its terminating NUL')
-        return text[:-1].decode('utf-8', errors='replace')
-
-
 def image_from_cdr(raw: bytes) -> CdrImage:
     """Read a serialised sensor_msgs/Image without copying its pixels.
 
     Raises:
         ValueError: not CDR, or truncated (the pixel checks are :func:`image_to_array`'s).
     """
-    reader = _Reader(raw)
+    reader = CdrReader(raw, what='Image CDR')
     stamp = Stamp(reader.i32(), reader.u32())
     frame_id = reader.string()
     height, width = reader.u32(), reader.u32()
@@ -97,7 +63,7 @@ def image_from_cdr(raw: bytes) -> CdrImage:
     is_bigendian = reader.u8()
     step = reader.u32()
     size = reader.u32()
-    start = reader._take(size, 1)
+    start = reader.take(size, 1)
     data = np.frombuffer(raw, np.uint8, count=size, offset=start)
     return CdrImage(Header(stamp, frame_id), height, width, encoding, is_bigendian, step, data)
 

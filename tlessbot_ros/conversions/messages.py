@@ -31,26 +31,38 @@ class MessageFactory(Protocol):
         ...
 
 
+_CLASSES: dict[str, type] = {}
+
+
+def message_class(type_name: str) -> type:
+    """rclpy message class of 'pkg/msg/Name' (also accepts 'pkg/Name'; cached).
+
+    Raises:
+        ValueError: a malformed name, or a type this environment does not have.
+    """
+    cls = _CLASSES.get(type_name)
+    if cls is not None:
+        return cls
+    parts = type_name.split('/')
+    if len(parts) == 2:
+        parts = [parts[0], 'msg', parts[1]]
+    if len(parts) != 3:
+        raise ValueError(f"message type must look like 'pkg/msg/Name', got {type_name!r}")
+    package, kind, name = parts
+    try:
+        cls = getattr(importlib.import_module(f'{package}.{kind}'), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f'message type {type_name!r} is not available in this environment') \
+            from None
+    _CLASSES[type_name] = cls
+    return cls
+
+
 class RclpyFactory:
     """Factory for rclpy (rosidl_generator_py) messages. Unset fields keep their defaults."""
 
-    def __init__(self) -> None:
-        self._classes: dict[str, type] = {}
-
-    def _class(self, msgtype: str) -> type:
-        cls = self._classes.get(msgtype)
-        if cls is None:
-            try:
-                package, kind, name = msgtype.split('/')
-            except ValueError:
-                raise ValueError(
-                    f"message type must look like 'pkg/msg/Name', got {msgtype!r}") from None
-            cls = getattr(importlib.import_module(f'{package}.{kind}'), name)
-            self._classes[msgtype] = cls
-        return cls
-
     def new(self, msgtype: str, **fields: Any) -> Any:
-        return self._class(msgtype)(**fields)
+        return message_class(msgtype)(**fields)
 
     def uint8_array(self, data: bytes | np.ndarray) -> Any:
         # array.array('B') is stored without per-element checks by rclpy's setters. frombytes

@@ -21,6 +21,12 @@ GROUND_TRUTH_INFO = '/ground_truth/info'
 GROUND_TRUTH_POSE_PREFIX = '/ground_truth/obj_'
 
 
+def node_relative(topic: str) -> str:
+    """A graph topic as a name relative to the publishing node's namespace (the perception
+    nodes publish their results so: in the root namespace, the absolute name)."""
+    return topic.lstrip('/')
+
+
 def camera_topic(camera: str, relative: str) -> str:
     """``/<camera>/<relative>``, e.g. ``camera_topic('top', COLOR)``."""
     return f'/{camera}/{relative}'

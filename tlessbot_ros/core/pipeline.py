@@ -30,6 +30,9 @@ from typing import Protocol
 import numpy as np
 
 from tlessbot_ros.core.common import (
+    CAMERA_NAMES,
+    SIDE,
+    TOP,
     CameraIntrinsics,
     Rig,
     mask_box,
@@ -44,6 +47,7 @@ from tlessbot_ros.core.localise import (
     fuse_views,
     segment,
 )
+from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
 from tlessbot_ros.core.pose import (
     PoseCandidate,
     PoseEstimator,
@@ -53,70 +57,7 @@ from tlessbot_ros.core.pose import (
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
 
-PREFERRED_VIEWS = ('side', 'top')
-
-
-@dataclass(frozen=True)
-class PipelineParams:
-    """Thresholds of the composed pipeline (the stage parameters live in their own dataclasses).
-
-    Attributes:
-        min_instance_px: instances with fewer pixels in a view do not count as seen there.
-        min_roi_points: fewer valid depth points than this: the pose is not estimated.
-        table_clearance_m: in box mode, ROI points closer than this to the table plane are
-            dropped (the box holds table pixels around the part).
-        reject_margin: classifier margin below which the class is 'unknown' (0 = never); the
-            margin is read on the scores summed over the views that see the part.
-        class_candidates: classes per part handed to the pose stage, best first (1 = the
-            classifier alone decides, as in the paper; at most 4, the channels of a 16UC4
-            image).
-        top_view_verify_below_margin: for a part whose pose is read in the top view (the side
-            camera does not see it), the classifier's other candidates are fitted only when
-            its margin (best minus second-best score, summed over the views) is below this
-            many times its median margin on its training crops
-            (``LinearClassifier.margin_scale``); above, its first class alone is fitted (and,
-            if it has a look-alike, checked). Seen from straight above a part shows mostly
-            one face, which the templates of many parts fit: verifying every top-view crop of
-            2 × 300 simulated scenes (seeds 2024, 3030; the previous packaged model) names
-            79-82 % of them right, against 93 % for the classifier alone, while its least
-            sure 9 % (margin below 0.25 of the median) are right at 50-58 % and verified at
-            70-81 %. Side-view parts are always verified (96 % against 93 %). ``inf``: always
-            verify (also when the model file has no ``margin_scale``).
-        verify_accept_fitness: the first candidate is kept without fitting the others when its
-            pose fitness reaches this. 0.9 rather than 0.95: on 542 simulated parts (ground-
-            truth masks, seed 1000) 1.23 instead of 1.49 fits per part, 7.2 instead of 8.8 ms,
-            93.2 against 93.4 % right (one part); evaluate on sim50 0.901 against 0.905 at
-            5 cm/5° (one part of 222); in paired 60 s ``bench graph`` runs p95 133-145 against
-            141-156 ms.
-        verify_rmse_weight: candidates are ranked by fitness - weight * inlier RMSE (1/m), so
-            1 mm of RMSE costs 0.05 of fitness.
-        fallback_min_fitness: after verification, the RANSAC fallback is not tried for a
-            region that no candidate fits at all (best fitness below this): such a region is
-            no known part on the table (an arm, a shadow) and the fallback would spend its
-            whole budget on it.
-        lookalike_check: after the fit, a part whose class has a look-alike in the template
-            database is compared with it: both meshes are ray-cast at the fitted pose along
-            the ROI pixels, and the one that explains more of the measured depth names the
-            part (:class:`~tlessbot_ros.core.pose.LookalikeCheck`).
-        lookalike_tolerance_m: a pixel votes for one look-alike when it explains the depth
-            better by more than this (metres).
-        parallel_views: :meth:`PerceptionPipeline.localise` segments the top view in a second
-            thread while this one segments the side view (OpenCV and most numpy calls release
-            the GIL: 20.6 -> 16.4 ms per frame for both views on 2 cores, same labels).
-    """
-
-    min_instance_px: int = 60
-    min_roi_points: int = 30
-    table_clearance_m: float = 0.004
-    reject_margin: float = 0.0
-    class_candidates: int = 3
-    top_view_verify_below_margin: float = 0.25
-    verify_accept_fitness: float = 0.9
-    verify_rmse_weight: float = 50.0
-    fallback_min_fitness: float = 0.1
-    lookalike_check: bool = True
-    lookalike_tolerance_m: float = 0.002
-    parallel_views: bool = True
+PREFERRED_VIEWS = (SIDE, TOP)
 
 
 @dataclass
@@ -258,22 +199,29 @@ class PerceptionPipeline:
         classifier: a trained :class:`~tlessbot_ros.core.recognise.Classifier` (needed by
             :meth:`classify`).
         templates: a :class:`TemplateDatabase` (needed by :meth:`estimate_poses`).
+        localise_params, classify_params, fit_params: the options of each stage
+            (:mod:`tlessbot_ros.core.params`).
     """
 
     def __init__(self, *, rig: Rig | None = None, classifier: Classifier | None = None,
                  templates: TemplateDatabase | None = None,
-                 params: PipelineParams = PipelineParams(),
+                 localise_params: LocaliseParams = LocaliseParams(),
+                 classify_params: ClassifyParams = ClassifyParams(),
+                 fit_params: FitParams = FitParams(),
                  segmentation: SegmentationParams = SegmentationParams(),
                  fusion: FusionParams = FusionParams(),
                  pose: PoseParams = PoseParams()) -> None:
         self.rig = rig
         self.classifier = classifier
-        self.params = params
+        self.localise_params = localise_params
+        self.classify_params = classify_params
+        self.fit_params = fit_params
         self.segmentation = segmentation
         self.fusion = fusion
         self.pose_estimator = PoseEstimator(templates, params=pose) if templates else None
-        self.lookalike = templates.lookalike_check(tolerance_m=params.lookalike_tolerance_m) \
-            if templates and params.lookalike_check else None
+        self.lookalike = templates.lookalike_check(
+            tolerance_m=fit_params.lookalike_tolerance_m) \
+            if templates and fit_params.lookalike_check else None
 
     def warm_up(self) -> None:
         """Build the pose stage's caches now (templates, look-alike meshes) so that the first
@@ -290,7 +238,7 @@ class PerceptionPipeline:
         A view with aligned depth and a camera pose is segmented with the depth cue (height
         above the table) fused with the colour cues; otherwise from colour alone (the paper).
         """
-        missing = {'top', 'side'} - set(views)
+        missing = set(CAMERA_NAMES) - set(views)
         if missing:
             raise ValueError(f'localise needs the top and side views; missing {sorted(missing)}')
 
@@ -302,14 +250,14 @@ class PerceptionPipeline:
                            T_world_camera=view.T_world_camera if with_depth else None,
                            params=self.segmentation)
 
-        if self.params.parallel_views:
-            top_future = _view_thread().submit(seg, views['top'])
-            side = seg(views['side'])
+        if self.localise_params.parallel_views:
+            top_future = _view_thread().submit(seg, views[TOP])
+            side = seg(views[SIDE])
             top = top_future.result()   # re-raises the top view's error here
         else:
-            top, side = seg(views['top']), seg(views['side'])
-        depth_top = views['top'].depth_m
-        return fuse_views(top, side, rig=self.rig, side_rgb=views['side'].rgb,
+            top, side = seg(views[TOP]), seg(views[SIDE])
+        depth_top = views[TOP].depth_m
+        return fuse_views(top, side, rig=self.rig, side_rgb=views[SIDE].rgb,
                           depth_top_m=None if depth_top is None else np.nan_to_num(depth_top),
                           params=self.fusion)
 
@@ -332,7 +280,7 @@ class PerceptionPipeline:
         if self.classifier is None:
             raise ValueError('no classifier loaded')
         counts = label_counts(labels)
-        min_px = self.params.min_instance_px
+        min_px = self.classify_params.min_instance_px
         # per view, the instances with enough pixels there
         seen = {view: [int(i) for i in np.flatnonzero(view_counts >= min_px) if i]
                 for view, view_counts in counts.items()}
@@ -356,8 +304,8 @@ class PerceptionPipeline:
         instances = sorted(summed)
         scores = np.stack([summed[i] for i in instances])
         prediction = self.classifier.predict_scores(
-            scores, reject_margin=self.params.reject_margin or None)
-        ranked = self.classifier.ranked_classes(scores, max(1, self.params.class_candidates))
+            scores, reject_margin=self.classify_params.reject_margin or None)
+        ranked = self.classifier.ranked_classes(scores, self.classify_params.class_candidates)
         guesses = {}
         for k, instance in enumerate(instances):
             obj_id = int(prediction.class_ids[k])
@@ -377,8 +325,8 @@ class PerceptionPipeline:
         if obj_id == UNKNOWN_ID:
             return ()
         scale = self.classifier.margin_scale if self.classifier is not None else 0.0
-        limit = self.params.top_view_verify_below_margin * scale \
-            if view == 'top' and scale > 0 else np.inf
+        limit = self.classify_params.top_view_verify_below_margin * scale \
+            if view == TOP and scale > 0 else np.inf
         return tuple(int(c) for c in ranked) if margin < limit else (int(obj_id),)
 
     # ---------------------------------------------------------------------------- stage 3
@@ -417,7 +365,7 @@ class PerceptionPipeline:
             candidates = classes.get(instance, UNKNOWN_ID)
             candidates = (candidates,) if np.isscalar(candidates) else tuple(candidates)
             candidates = tuple(int(c) for c in candidates if c != UNKNOWN_ID and c in database)
-            view = preferred_view(counts, instance, min_px=self.params.min_instance_px)
+            view = preferred_view(counts, instance, min_px=self.classify_params.min_instance_px)
             if not candidates or view is None:
                 continue
             data = views[view]
@@ -428,9 +376,9 @@ class PerceptionPipeline:
                 points = roi_cloud(data.depth_m, mask, data.intrinsics)
                 if box_mode and data.T_world_camera is not None:
                     height = transform_points(data.T_world_camera, points)[:, 2]
-                    points = points[height > self.params.table_clearance_m]
+                    points = points[height > self.fit_params.table_clearance_m]
                 detection.n_points = len(points)
-                if len(points) >= self.params.min_roi_points:
+                if len(points) >= self.fit_params.min_roi_points:
                     jobs.append(PartJob(detection, points, candidates, data.T_world_camera))
                     continue
             done(detection)
@@ -451,7 +399,7 @@ class PerceptionPipeline:
         (a wrong class fits poorly, and the RANSAC fallback would spend its budget on it);
         the RANSAC fallback then runs once, for the winner, if its fit stays poor. Last, a
         part with a look-alike is compared with it at the fitted pose (``lookalike_check``)."""
-        p = self.params
+        p = self.fit_params
         estimator = self.pose_estimator
         detection, points, T_world_camera = job.detection, job.points, job.T_world_camera
         quick = len(job.candidates) > 1 and T_world_camera is not None

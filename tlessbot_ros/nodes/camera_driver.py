@@ -24,8 +24,17 @@ from typing import Any
 
 from rclpy.node import Node
 
-from tlessbot_ros.conversions.camera import CAMERA_TOPICS, POINTS_TOPIC, camera_frame_messages
+from tlessbot_ros.conversions.camera import camera_frame_messages
 from tlessbot_ros.conversions.messages import RclpyFactory
+from tlessbot_ros.conversions.topics import (
+    CAMERA_TOPICS,
+    COLOR,
+    COLOR_INFO,
+    DEPTH,
+    DEPTH_INFO,
+    DIAGNOSTICS,
+    POINTS,
+)
 from tlessbot_ros.errors import DeviceError
 from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class, run_node
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, diagnostic_array
@@ -45,10 +54,9 @@ DESCRIPTIONS = {
     'frame_timeout_ms': 'Frame wait before the device counts as lost, in milliseconds',
 }
 TOPIC_TYPES = {
-    'color/image_raw': 'sensor_msgs/msg/Image', 'color/camera_info': 'sensor_msgs/msg/CameraInfo',
-    'aligned_depth_to_color/image_raw': 'sensor_msgs/msg/Image',
-    'aligned_depth_to_color/camera_info': 'sensor_msgs/msg/CameraInfo',
-    'depth/color/points': 'sensor_msgs/msg/PointCloud2',
+    COLOR: 'sensor_msgs/msg/Image', COLOR_INFO: 'sensor_msgs/msg/CameraInfo',
+    DEPTH: 'sensor_msgs/msg/Image', DEPTH_INFO: 'sensor_msgs/msg/CameraInfo',
+    POINTS: 'sensor_msgs/msg/PointCloud2',
 }
 
 
@@ -65,9 +73,9 @@ class CameraDriverNode(Node):
         self._camera_publishers = {topic: self.create_publisher(message_class(TOPIC_TYPES[topic]),
                                                          topic, RESULT_QOS)
                             for topic in CAMERA_TOPICS
-                            if topic != POINTS_TOPIC or self.params.pointcloud}
+                            if topic != POINTS or self.params.pointcloud}
         self._diagnostics = self.create_publisher(message_class(
-            'diagnostic_msgs/msg/DiagnosticArray'), '/diagnostics', RESULT_QOS)
+            'diagnostic_msgs/msg/DiagnosticArray'), DIAGNOSTICS, RESULT_QOS)
         self._camera = RealSenseCamera(self.params)
         self._status = (ERROR, 'starting')
         self.frames_published = 0
@@ -99,7 +107,7 @@ class CameraDriverNode(Node):
         """Publish one aligned RealSenseFrame, stamped with the ROS time now."""
         stamp_ns = self.get_clock().now().nanoseconds
         # The cloud costs ~10 ms in Python at 640x480: build it only while someone listens.
-        cloud_publisher = self._camera_publishers.get(POINTS_TOPIC)
+        cloud_publisher = self._camera_publishers.get(POINTS)
         with_cloud = cloud_publisher is not None and cloud_publisher.get_subscription_count() > 0
         messages = camera_frame_messages(
             self.params.camera_name, frame.rgb, frame.depth_mm, frame.intrinsics, stamp_ns,

@@ -2,20 +2,23 @@
 
 - QoS profiles: sensor data in (best effort, shallow), results out (reliable, depth 10).
 - Parameter declaration from a core ``*Params`` dataclass, so code and YAML share one truth.
-- Message classes by ROS type name, and rosbags <-> rclpy type-name mapping.
+- :func:`params_from_node`: a validated ``*Params`` dataclass from declared parameters.
+- ``message_class`` (rclpy class by ROS type name), re-exported from
+  :mod:`tlessbot_ros.conversions.messages`.
 - :func:`init_ros`: ``rclpy.init`` with the package's Fast DDS profile (config/fastdds.xml)
   and glibc's allocator told to keep image-sized buffers (:func:`keep_freed_buffers`).
 """
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import os
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+from tlessbot_ros.conversions.messages import message_class  # noqa: F401 (re-exported)
 
 SENSOR_QOS = qos_profile_sensor_data
 RESULT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
@@ -89,21 +92,6 @@ def init_ros(args: list[str] | None = None) -> None:
     rclpy.init(args=args)
 
 
-def message_class(type_name: str) -> type:
-    """rclpy message class of 'pkg/msg/Name' (also accepts 'pkg/Name')."""
-    parts = type_name.split('/')
-    if len(parts) == 2:
-        parts = [parts[0], 'msg', parts[1]]
-    if len(parts) != 3:
-        raise ValueError(f"message type must look like 'pkg/msg/Name', got {type_name!r}")
-    package, kind, name = parts
-    try:
-        return getattr(importlib.import_module(f'{package}.{kind}'), name)
-    except (ImportError, AttributeError):
-        raise ValueError(f'message type {type_name!r} is not available in this environment') \
-            from None
-
-
 def attribute_docs(cls: type) -> dict[str, str]:
     """Field descriptions from a dataclass docstring's ``Attributes:`` section.
 
@@ -174,6 +162,25 @@ def declare_from_dataclass(node: Node, params: Any, *, prefix: str = '',
         values[field.name] = tuple(value) if isinstance(getattr(params, field.name), tuple) \
             else value
     return values
+
+
+def params_from_node(node: Node, params_class: type, *, prefix: str = '') -> Any:
+    """A frozen ``*Params`` dataclass from ROS parameters: its fields are declared as
+    ``<prefix><field>`` (:func:`declare_from_dataclass`, defaults and descriptions from the
+    dataclass) and their values validated by it.
+
+    Raises:
+        TlessbotError: a value the dataclass rejects (its message says how to fix it), so the
+            node stops at start-up with one line (:func:`run_node`).
+    """
+    from tlessbot_ros.errors import TlessbotError
+
+    defaults = params_class()
+    values = declare_from_dataclass(node, defaults, prefix=prefix)
+    try:
+        return dataclasses.replace(defaults, **values)
+    except ValueError as error:
+        raise TlessbotError(f'{node.get_name()}: parameter {prefix}{error}') from None
 
 
 def format_message(msg: Any, *, max_array: int = 16, indent: int = 0) -> str:

@@ -18,9 +18,9 @@ from typing import Any
 
 from rclpy.node import Node
 
+from tlessbot_ros.conversions.cdr import header_stamp_ns
 from tlessbot_ros.conversions.image_cdr import image_from_cdr
 from tlessbot_ros.core.common import StampSynchroniser, SyncParams
-from tlessbot_ros.io.bags import header_stamp_ns
 from tlessbot_ros.nodes.common import SENSOR_QOS
 
 Views = dict[str, dict[str, Any]]
@@ -66,15 +66,16 @@ class TwoViewInputs:
 
     Args:
         node: the owning node (subscriptions are created on it).
-        topics: topic key -> (message class, topic template with ``{camera}``), e.g.
-            ``{'color': (Image, '/{camera}/color/image_raw')}``.
+        topics: topic key -> (message class, camera name -> topic name), e.g.
+            ``{'color': (Image, lambda camera: camera_topic(camera, COLOR))}``
+            (:mod:`tlessbot_ros.conversions.topics`).
         cameras: camera names; all must contribute to a view set.
         sync: thresholds; ``slop_s`` within a camera, ``max_age_s`` across cameras.
         callback: called with the views of one two-view frame.
         qos: subscription QoS (sensor data by default).
     """
 
-    def __init__(self, node: Node, topics: dict[str, tuple[type, str]],
+    def __init__(self, node: Node, topics: dict[str, tuple[type, Callable[[str], str]]],
                  cameras: Sequence[str], sync: SyncParams,
                  callback: Callable[[Views], None], *, qos: Any = SENSOR_QOS) -> None:
         self._callback = callback
@@ -86,8 +87,8 @@ class TwoViewInputs:
         self.zero_stamps = 0
         self.malformed = 0
         for camera in cameras:
-            for key, (msg_class, template) in topics.items():
-                node.create_subscription(msg_class, template.format(camera=camera),
+            for key, (msg_class, topic) in topics.items():
+                node.create_subscription(msg_class, topic(camera),
                                          self._handler(camera, key, msg_class), qos, raw=True)
 
     def _handler(self, camera: str, key: str, msg_class: type) -> Callable[[bytes], None]:

@@ -1,6 +1,7 @@
 """The shared skeleton of the perception stage nodes (localiser, classifier, pose_estimator).
 
-A stage node subscribes per-camera topics for the ``top`` and ``side`` cameras, pairs them by
+A stage node subscribes per-camera topics for the cameras of ``rig.cameras`` (the ``top`` and
+``side`` roles, :func:`~tlessbot_ros.core.common.check_camera_roles`), pairs them by
 stamp (:class:`~tlessbot_ros.nodes.inputs.TwoViewInputs`), runs one stage, and publishes results
 stamped with the source images' stamps. It never dies on bad input: a callback failure is
 logged (throttled) and counted. ``/diagnostics`` gets, at 1 Hz, frames processed, failures,
@@ -15,37 +16,66 @@ comes in.
 """
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
 import traceback
 from collections import deque
+from collections.abc import Callable, Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 
-from tlessbot_ros.core.common import CameraMount, Rig, SyncParams, default_rig, look_at
-from tlessbot_ros.errors import TlessbotError
-from tlessbot_ros.nodes.common import (
-    RESULT_QOS,
-    SENSOR_QOS,
-    declare_from_dataclass,
-    message_class,
+from tlessbot_ros.conversions.topics import (
+    COLOR,
+    DEPTH,
+    DEPTH_INFO,
+    DIAGNOSTICS,
+    camera_topic,
 )
+from tlessbot_ros.core.common import (
+    CAMERA_NAMES,
+    TOP,
+    CameraMount,
+    Rig,
+    SyncParams,
+    check_camera_roles,
+    default_rig,
+    look_at,
+)
+from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.nodes.common import RESULT_QOS, SENSOR_QOS, message_class, params_from_node
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, WARN, diagnostic_array
 from tlessbot_ros.nodes.inputs import TwoViewInputs, Views, deserialise_views, newest_stamp_ns
 
-CAMERAS = ('top', 'side')
+IMAGE = 'sensor_msgs/msg/Image'
+CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
+# StageNode.setup_inputs entries of the camera topics
+COLOR_INPUT = (IMAGE, partial(camera_topic, relative=COLOR))
+DEPTH_INPUTS = {'depth': (IMAGE, partial(camera_topic, relative=DEPTH)),
+                'info': (CAMERA_INFO, partial(camera_topic, relative=DEPTH_INFO))}
 
 
-def declare_extrinsics(node: Node) -> dict[str, np.ndarray]:
+def declare_cameras(node: Node) -> tuple[str, ...]:
+    """Declare ``rig.cameras`` (default :data:`~tlessbot_ros.core.common.CAMERA_NAMES`) and
+    return it.
+
+    Raises:
+        CalibrationError: names other than the two roles the pipeline fuses.
+    """
+    names = node.declare_parameter('rig.cameras', list(CAMERA_NAMES), descriptor(
+        f'names of the cameras of the rig: the roles {list(CAMERA_NAMES)}, in any order')).value
+    return check_camera_roles(names)
+
+
+def declare_extrinsics(node: Node, cameras: Sequence[str]) -> dict[str, np.ndarray]:
     """Declare ``rig.<camera>.{position_m, look_at_m, up}`` (defaults: the paper's cell) and
     return {camera: T_world_camera}. Intrinsics come from the live CameraInfo instead."""
     defaults = default_rig()
     extrinsics = {}
-    for camera in CAMERAS:
+    for camera in cameras:
         T = defaults[camera].T_world_camera
         position = node.declare_parameter(
             f'rig.{camera}.position_m', [float(v) for v in T[:3, 3]],
@@ -54,7 +84,7 @@ def declare_extrinsics(node: Node) -> dict[str, np.ndarray]:
             f'rig.{camera}.look_at_m', [0.0, 0.0, 0.0],
             descriptor(f'point the {camera} camera looks at, world frame, metres')).value
         up = node.declare_parameter(
-            f'rig.{camera}.up', [0.0, 1.0, 0.0] if camera == 'top' else [0.0, 0.0, 1.0],
+            f'rig.{camera}.up', [0.0, 1.0, 0.0] if camera == TOP else [0.0, 0.0, 1.0],
             descriptor(f'world direction shown at the top of the {camera} image')).value
         extrinsics[camera] = look_at(np.asarray(position, float), np.asarray(target, float),
                                      np.asarray(up, float))
@@ -78,8 +108,9 @@ class StageNode(Node):
 
     def __init__(self, name: str, **kwargs: Any) -> None:
         super().__init__(name, **kwargs)
-        values = declare_from_dataclass(self, SyncParams(), prefix='sync.')
-        self.sync_params = dataclasses.replace(SyncParams(), **values)
+        self.cameras = declare_cameras(self)
+        self.extrinsics = declare_extrinsics(self, self.cameras)
+        self.sync_params = params_from_node(self, SyncParams, prefix='sync.')
         self.input_qos = self.declare_parameter('input_qos', 'sensor_data', descriptor(
             "QoS of the subscriptions: 'sensor_data' (best effort, the ROS convention for "
             "camera streams) or 'reliable' (no loss of large images under CPU load)")).value
@@ -105,18 +136,18 @@ class StageNode(Node):
         self._stats: dict[str, float] = {}
         self._inputs: TwoViewInputs | None = None
         self._diagnostics = self.create_publisher(
-            message_class('diagnostic_msgs/msg/DiagnosticArray'), '/diagnostics', RESULT_QOS)
+            message_class('diagnostic_msgs/msg/DiagnosticArray'), DIAGNOSTICS, RESULT_QOS)
         self.create_timer(1.0, self._publish_diagnostics)
         if self.sync_params.worker_thread:
             self._worker = threading.Thread(target=self._work, name=f'{name}_worker',
                                             daemon=True)
             self._worker.start()
 
-    def setup_inputs(self, topics: dict[str, tuple[str, str]]) -> None:
-        """Subscribe ``{key: (ROS type name, '/{camera}/...' template)}`` for both cameras."""
+    def setup_inputs(self, topics: dict[str, tuple[str, Callable[[str], str]]]) -> None:
+        """Subscribe ``{key: (ROS type name, camera -> topic name)}`` for both cameras."""
         self._inputs = TwoViewInputs(
-            self, {k: (message_class(t), template) for k, (t, template) in topics.items()},
-            CAMERAS, self.sync_params, self._on_views, qos=self._input_profile())
+            self, {k: (message_class(t), topic) for k, (t, topic) in topics.items()},
+            self.cameras, self.sync_params, self._on_views, qos=self._input_profile())
 
     def _input_profile(self) -> QoSProfile:
         """The subscriptions' QoS: ``input_qos`` reliability with ``input_depth`` history."""

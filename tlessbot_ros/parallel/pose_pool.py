@@ -10,7 +10,6 @@ worker costs time, never a pose.
 """
 from __future__ import annotations
 
-import dataclasses
 import os
 import select
 import subprocess
@@ -23,13 +22,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tlessbot_ros.core.pipeline import PartJob, PipelineParams
+from tlessbot_ros.core.pipeline import FitParams, PartJob
 from tlessbot_ros.core.pose import PoseParams
 from tlessbot_ros.parallel.wire import (
     WireError,
     candidate_from_json,
     encode_message,
     matrix_to_json,
+    params_to_json,
     points_to_bytes,
     read_message,
     write_message,
@@ -159,7 +159,7 @@ class PoseWorkerPool:
 
     Example:
         >>> pool = PoseWorkerPool('templates.npz', pose=PoseParams(),
-        ...                       pipeline=PipelineParams(), params=PoseWorkerParams(count=1))
+        ...                       fit=FitParams(), params=PoseWorkerParams(count=1))
         >>> pipeline.estimate_poses(views, labels, classes, fitter=pool)
         >>> pool.close()
 
@@ -168,12 +168,12 @@ class PoseWorkerPool:
     """
 
     def __init__(self, templates_path: str | Path, *, pose: PoseParams,
-                 pipeline: PipelineParams, params: PoseWorkerParams) -> None:
+                 fit: FitParams, params: PoseWorkerParams) -> None:
         if params.count < 0:
             raise ValueError(f'count must be >= 0, got {params.count}')
         self.params = params
-        self._config = {'templates': str(templates_path), 'pose': dataclasses.asdict(pose),
-                        'pipeline': dataclasses.asdict(pipeline)}
+        self._config = {'templates': str(templates_path), 'pose': params_to_json(pose),
+                        'fit': params_to_json(fit)}
         self._workers = [_Worker(self._config) for _ in range(params.count)]
         self.errors: deque[str] = deque(maxlen=20)   # the latest, for the logs
         self.failures = 0

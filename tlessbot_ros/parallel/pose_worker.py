@@ -2,7 +2,7 @@
 
 Reads messages (:mod:`~tlessbot_ros.parallel.wire`) on stdin, answers on stdout:
 
-1. ``{"templates": path, "pose": {PoseParams}, "pipeline": {PipelineParams}}`` -> loads the
+1. ``{"templates": path, "pose": {PoseParams}, "fit": {FitParams}}`` -> loads the
    template database, builds every cache, answers ``{"ready": n_objects}`` (or ``{"error":
    text}`` and exits 1);
 2. then per part ``{"job": id, "candidates": [...], "T_world_camera": [16] | null}`` with the
@@ -18,12 +18,13 @@ import signal
 import sys
 from typing import Any, BinaryIO
 
-from tlessbot_ros.core.pipeline import Detection, PartJob, PerceptionPipeline, PipelineParams
-from tlessbot_ros.core.pose import CloudParams, PoseParams, TemplateDatabase
+from tlessbot_ros.core.pipeline import Detection, FitParams, PartJob, PerceptionPipeline
+from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
 from tlessbot_ros.parallel.wire import (
     WireError,
     candidate_to_json,
     matrix_from_json,
+    params_from_json,
     points_from_bytes,
     read_message,
     write_message,
@@ -32,11 +33,9 @@ from tlessbot_ros.parallel.wire import (
 
 def pipeline_from_config(config: dict[str, Any]) -> PerceptionPipeline:
     """The pipeline a worker fits with, from its start-up message."""
-    pose = dict(config.get('pose', {}))
-    pose['cloud'] = CloudParams(**pose.get('cloud', {}))
     return PerceptionPipeline(templates=TemplateDatabase.load(config['templates']),
-                              pose=PoseParams(**pose),
-                              params=PipelineParams(**config.get('pipeline', {})))
+                              pose=params_from_json(PoseParams, config.get('pose', {})),
+                              fit_params=params_from_json(FitParams, config.get('fit', {})))
 
 
 def fit(pipeline: PerceptionPipeline, header: dict[str, Any], payload: bytes) -> dict[str, Any]:

@@ -7,6 +7,7 @@ writes Python's shortest repr of a float64).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import struct
 from dataclasses import asdict
@@ -66,6 +67,34 @@ def _read_exactly(stream: BinaryIO, size: int) -> bytes:
             raise WireError('the other end closed the pipe')
         data += chunk
     return data
+
+
+def params_to_json(params: Any) -> dict[str, Any]:
+    """A frozen ``*Params`` dataclass (nested ones too) as JSON fields."""
+    return asdict(params)
+
+
+def params_from_json(params_class: type, fields: dict[str, Any]) -> Any:
+    """Inverse of :func:`params_to_json`: missing fields keep their defaults, nested
+    dataclasses and tuples are rebuilt, and the dataclass validates the values.
+
+    Raises:
+        WireError: a field ``params_class`` does not have.
+    """
+    defaults = params_class()
+    names = {f.name for f in dataclasses.fields(defaults)}
+    unknown = sorted(set(fields) - names)
+    if unknown:
+        raise WireError(f'{params_class.__name__} has no field(s) {unknown}')
+    values = {}
+    for name, value in fields.items():
+        default = getattr(defaults, name)
+        if dataclasses.is_dataclass(default) and isinstance(value, dict):
+            value = params_from_json(type(default), value)
+        elif isinstance(default, tuple):
+            value = tuple(value)
+        values[name] = value
+    return dataclasses.replace(defaults, **values)
 
 
 def points_to_bytes(points: np.ndarray) -> bytes:

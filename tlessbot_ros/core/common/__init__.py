@@ -33,6 +33,8 @@ _HOME = {
     'encode_classes': 'labels',
     'instance_masks': 'labels',
     'pixel_counts': 'labels',
+    'OverlayPart': 'overlay',
+    'depth_overlay': 'overlay',
     'MeshRenderer': 'render',
     'NO_HIT': 'render',
     'RenderResult': 'render',
@@ -43,6 +45,7 @@ _HOME = {
     'CameraMount': 'rig',
     'D415_FOCAL_PX_AT_640': 'rig',
     'Rig': 'rig',
+    'check_camera_roles': 'rig',
     'd415_intrinsics': 'rig',
     'default_rig': 'rig',
     'rig_from_params': 'rig',
@@ -103,6 +106,7 @@ if TYPE_CHECKING:
         instance_masks,
         pixel_counts,
     )
+    from tlessbot_ros.core.common.overlay import OverlayPart, depth_overlay  # noqa: F401
     from tlessbot_ros.core.common.render import (  # noqa: F401
         NO_HIT,
         MeshRenderer,
@@ -116,6 +120,7 @@ if TYPE_CHECKING:
         TOP,
         CameraMount,
         Rig,
+        check_camera_roles,
         d415_intrinsics,
         default_rig,
         rig_from_params,

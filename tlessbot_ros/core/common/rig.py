@@ -7,18 +7,38 @@ its optical axis at 70° to the table plane, both aimed at the centre of the wor
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from tlessbot_ros.core.common.geometry import CameraIntrinsics, invert_transform, look_at
+from tlessbot_ros.errors import CalibrationError
 
 # The cameras the two-view pipeline knows, by role: ``top`` looks down on the table, ``side``
 # sees the parts from the side. A rig (config/cell.yaml ``rig.cameras``) names these.
 TOP, SIDE = 'top', 'side'
 CAMERA_NAMES = (TOP, SIDE)
+
+
+
+def check_camera_roles(names: Sequence[str]) -> tuple[str, ...]:
+    """The camera names of a rig (``rig.cameras``) if they are the two roles the pipeline
+    fuses, :data:`CAMERA_NAMES` in any order.
+
+    Raises:
+        CalibrationError: other names, a missing role or a repeated one; the message names
+            what was found and what is supported.
+    """
+    names = tuple(str(name) for name in names)
+    if len(names) != len(CAMERA_NAMES) or set(names) != set(CAMERA_NAMES):
+        raise CalibrationError(
+            f'rig.cameras is {list(names)}, but the pipeline fuses exactly two cameras named '
+            f'{list(CAMERA_NAMES)} ({TOP!r} looks down on the table, {SIDE!r} from the side); '
+            'name the cameras of config/cell.yaml so')
+    return names
+
 
 # D415 colour stream at 640x480 (4:3 crop of the sensor): fx ~ fy ~ 615 px.
 D415_FOCAL_PX_AT_640 = 615.0

@@ -46,7 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--pose-param', action='append', metavar='NAME=VALUE',
                         help='override a PoseParams field, e.g. icp_iterations=6 (repeatable)')
     parser.add_argument('--pipeline-param', action='append', metavar='NAME=VALUE',
-                        help='override a PipelineParams field, e.g. verify_accept_fitness=0.9 '
+                        help='override a field of a pipeline stage (LocaliseParams, '
+                             'ClassifyParams, FitParams), e.g. verify_accept_fitness=0.9 '
                              '(repeatable)')
 
 

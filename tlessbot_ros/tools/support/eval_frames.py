@@ -32,19 +32,19 @@ def pipeline_frames(dataset: Path, split: str, two_view: bool, *, templates: Pat
         oracle: ``none`` (localiser and classifier run), ``boxes`` (ground-truth boxes) or
             ``boxes+classes`` (ground-truth boxes and classes).
         limit: at most this many frames.
-        pose_overrides, pipeline_overrides: ``NAME=VALUE`` overrides of PoseParams and
-            PipelineParams fields.
+        pose_overrides, pipeline_overrides: ``NAME=VALUE`` overrides of PoseParams and of
+            the stage dataclasses' fields (LocaliseParams, ClassifyParams, FitParams).
         pose_workers: fit parts in this many worker processes besides this one.
     """
     if oracle == 'none' and not two_view:
         raise TlessbotError('--oracle none needs a two-view dataset (test_top + test_side); '
                             'use --oracle boxes or boxes+classes for a single split')
     from tlessbot_ros.core.common import CameraMount, Rig, mask_box
-    from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+    from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
     from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
     from tlessbot_ros.core.recognise import LinearClassifier
     from tlessbot_ros.io.bop import read_split
-    from tlessbot_ros.tools.support.overrides import apply_overrides
+    from tlessbot_ros.tools.support.overrides import apply_overrides, stage_overrides
 
     templates_path = templates
     templates = TemplateDatabase.load(templates_path)
@@ -56,14 +56,14 @@ def pipeline_frames(dataset: Path, split: str, two_view: bool, *, templates: Pat
     backgrounds = {v: read_split(dataset, f'background_{v}', limit=limit, load_masks=False)
                    for v in views if (dataset / f'background_{v}').is_dir()}
     pose_params = apply_overrides(PoseParams(), pose_overrides)
-    pipeline_params = apply_overrides(PipelineParams(), pipeline_overrides)
+    stage_params = stage_overrides(pipeline_overrides)
     if oracle == 'boxes+classes':
         # the classes are the truth: nothing for the look-alike check to correct
-        pipeline_params = replace(pipeline_params, lookalike_check=False)
+        stage_params['fit_params'] = replace(stage_params['fit_params'], lookalike_check=False)
     workers = None
     if pose_workers > 0:
         from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
-        workers = PoseWorkerPool(templates_path, pose=pose_params, pipeline=pipeline_params,
+        workers = PoseWorkerPool(templates_path, pose=pose_params, fit=stage_params['fit_params'],
                                  params=PoseWorkerParams(count=pose_workers))
         if not workers.wait_ready():
             workers.close()
@@ -86,7 +86,7 @@ def pipeline_frames(dataset: Path, split: str, two_view: bool, *, templates: Pat
                     rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
                                for v, im in by_view.items()})
                 pipeline = PerceptionPipeline(rig=rig, classifier=classifier, templates=templates,
-                                              pose=pose_params, params=pipeline_params)
+                                              pose=pose_params, **stage_params)
             output = FrameOutput()
             t0 = time.perf_counter()
             if oracle == 'none':

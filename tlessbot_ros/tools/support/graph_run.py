@@ -131,8 +131,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
+    from tlessbot_ros.conversions.cdr import header_stamp_ns
     from tlessbot_ros.conversions.pose import pose_stamped_to_transform
-    from tlessbot_ros.io.bags import header_stamp_ns
     from tlessbot_ros.nodes.common import RESULT_QOS, init_ros, message_class
     from tlessbot_ros.tools.support.replay import replay
 

@@ -32,3 +32,24 @@ def apply_overrides(params: Params, assignments: Iterable[str] | None) -> Params
                                 f'{", ".join(sorted(fields))}; got {assignment!r}')
         changes[name] = _parse(text, getattr(params, name), name)
     return dataclasses.replace(params, **changes)
+
+
+def stage_overrides(assignments: Iterable[str] | None) -> dict[str, Any]:
+    """``NAME=VALUE`` overrides sent each to the pipeline stage dataclass that has the field
+    NAME (LocaliseParams, ClassifyParams, FitParams), as PerceptionPipeline keyword arguments;
+    a value the dataclass rejects is reported in one line, with its reason."""
+    from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
+
+    stages: dict[str, Any] = {'localise_params': LocaliseParams(),
+                              'classify_params': ClassifyParams(), 'fit_params': FitParams()}
+    owner = {f.name: key for key, params in stages.items() for f in dataclasses.fields(params)}
+    for assignment in assignments or []:
+        key = owner.get(assignment.partition('=')[0])
+        if key is None:
+            raise TlessbotError(f'expected NAME=VALUE with NAME one of '
+                                f'{", ".join(sorted(owner))}; got {assignment!r}')
+        try:
+            stages[key] = apply_overrides(stages[key], [assignment])
+        except ValueError as error:   # the dataclass's validation says how to fix it
+            raise TlessbotError(f'{assignment}: {error}') from None
+    return stages

@@ -9,15 +9,9 @@ from typing import Any
 
 import numpy as np
 
+from tlessbot_ros.conversions.cdr import header_stamp_ns, restamp_cdr, starts_with_header
 from tlessbot_ros.errors import BagError
-from tlessbot_ros.io.bags import (
-    BagMessage,
-    bag_topics,
-    header_stamp_ns,
-    read_bag,
-    restamp_cdr,
-    starts_with_header,
-)
+from tlessbot_ros.io.bags import BagMessage, bag_topics, read_bag
 
 
 def _loop_period_ns(messages: list[BagMessage]) -> int:

@@ -105,11 +105,11 @@ def part_recognition(model, templates, frames, min_pixels: int, candidates: int
     and the verification time in ms. Ground-truth masks are the instance labels."""
     from tqdm import tqdm
 
-    from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+    from tlessbot_ros.core.pipeline import ClassifyParams, PerceptionPipeline, ViewInput
 
     pipeline = PerceptionPipeline(classifier=model, templates=templates,
-                                  params=PipelineParams(min_instance_px=min_pixels,
-                                                        class_candidates=candidates))
+                                  classify_params=ClassifyParams(min_instance_px=min_pixels,
+                                                                 class_candidates=candidates))
     pipeline.pose_estimator.warm_up()
     rows = {'truth': [], 'side': [], 'vote': [], 'verified': [], 'ms': []}
     for frame in tqdm(frames, desc='verify', unit='frame'):
@@ -243,11 +243,11 @@ def crop_pose_stage(model, templates, frames, min_pixels: int, scores: np.ndarra
 
     (Fitting every crop's best three classes, top-view crops too, gets 88-89 % of the crops of
     300 scenes: a top view's cloud, mostly one face, fits many parts.)"""
-    from tlessbot_ros.core.pipeline import PerceptionPipeline, PipelineParams, ViewInput
+    from tlessbot_ros.core.pipeline import ClassifyParams, PerceptionPipeline, ViewInput
 
     pipeline = PerceptionPipeline(classifier=model, templates=templates,
-                                  params=PipelineParams(min_instance_px=min_pixels,
-                                                        class_candidates=candidates))
+                                  classify_params=ClassifyParams(min_instance_px=min_pixels,
+                                                                 class_candidates=candidates))
     pipeline.warm_up()  # caches built now, not inside the first crop's timing
     prediction = model.predict_scores(scores, reject_margin=0.0)
     ranked = model.ranked_classes(scores, candidates)

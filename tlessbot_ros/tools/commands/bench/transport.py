@@ -47,7 +47,7 @@ def _publisher(*, fps: float, duration_s: float) -> None:
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import Image
 
-    from tlessbot_ros.io.bags import restamp_cdr
+    from tlessbot_ros.conversions.cdr import restamp_cdr
     from tlessbot_ros.nodes.common import RESULT_QOS
 
     rclpy.init()
@@ -78,8 +78,8 @@ def _subscriber(*, duration_s: float, raw: bool) -> None:
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
 
+    from tlessbot_ros.conversions.cdr import header_stamp_ns
     from tlessbot_ros.conversions.messages import stamp_to_ns
-    from tlessbot_ros.io.bags import header_stamp_ns
 
     rclpy.init()
     node = rclpy.create_node('transport_subscriber')

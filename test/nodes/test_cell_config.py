@@ -1,0 +1,84 @@
+"""config/cell.yaml loads into every perception node; ``rig.cameras`` must name the two roles the
+pipeline fuses; a stage parameter out of range stops a node at start-up with one clear error."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+CELL_YAML = Path(__file__).resolve().parents[2] / 'config' / 'cell.yaml'
+
+
+@pytest.fixture
+def ros():
+    import rclpy
+
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()
+
+
+def _cell_args() -> list[str]:
+    return ['--ros-args', '--params-file', str(CELL_YAML)]
+
+
+def test_cell_yaml_loads_into_every_perception_node(ros):
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.core.common import CAMERA_NAMES
+    from tlessbot_ros.nodes.classifier import ClassifierNode
+    from tlessbot_ros.nodes.localiser import LocaliserNode
+    from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
+
+    localiser = LocaliserNode(cli_args=_cell_args())
+    assert set(localiser.cameras) == set(CAMERA_NAMES)
+    assert localiser.sync_params.max_rate_hz == 6.0 and localiser.input_qos == 'reliable'
+    assert localiser.localise_params.parallel_views is True
+    localiser.destroy_node()
+    classifier = ClassifierNode(cli_args=_cell_args())
+    assert classifier.classify_params.class_candidates == 3
+    assert classifier.get_parameter('top_view_verify_below_margin').value == 0.25
+    classifier.destroy_node()
+    # workers.count (1 in cell.yaml) is overridden: the parameter file still has to load
+    pose = PoseEstimatorNode(cli_args=_cell_args(),
+                             parameter_overrides=[Parameter('workers.count', value=0)])
+    assert pose.pipeline.fit_params.verify_accept_fitness == 0.9
+    assert pose.get_parameter('lookalike_check').value is True
+    assert pose.world_frame == 'world' and pose.workers is None
+    pose.destroy_node()
+
+
+@pytest.mark.parametrize('cameras', [['top', 'left'], ['top'], ['side', 'side'],
+                                     ['top', 'side', 'left']])
+def test_a_rig_without_exactly_the_top_and_side_roles_is_rejected(ros, cameras):
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.errors import CalibrationError
+    from tlessbot_ros.nodes.localiser import LocaliserNode
+
+    with pytest.raises(CalibrationError) as error:
+        LocaliserNode(parameter_overrides=[Parameter('rig.cameras', value=cameras)])
+    message = str(error.value)
+    assert str(cameras) in message and "['top', 'side']" in message
+
+
+def test_cameras_in_either_order_are_accepted(ros):
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.nodes.localiser import LocaliserNode
+
+    node = LocaliserNode(parameter_overrides=[Parameter('rig.cameras', value=['side', 'top'])])
+    assert node.cameras == ('side', 'top') and set(node.extrinsics) == {'top', 'side'}
+    node.destroy_node()
+
+
+def test_a_stage_parameter_out_of_range_is_one_clear_error(ros):
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.errors import TlessbotError
+    from tlessbot_ros.nodes.classifier import ClassifierNode
+
+    with pytest.raises(TlessbotError, match=r'class_candidates must be 1\.\.4.*got 5'):
+        ClassifierNode(parameter_overrides=[Parameter('class_candidates', value=5)])
