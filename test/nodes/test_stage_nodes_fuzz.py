@@ -160,6 +160,7 @@ def test_localiser_survives_malformed_input(sim_frame):
     rclpy.init()
     try:
         node = LocaliserNode()
+        assert node.wait_ready()   # subscribed once warmed up
         harness = Harness(node, {'/{camera}/color/image_raw': 'sensor_msgs/msg/Image',
                                  '/{camera}/aligned_depth_to_color/image_raw':
                                      'sensor_msgs/msg/Image',
@@ -213,6 +214,7 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
                 frame_id=header.frame_id, stamp_ns=STAMP0)
         node = ClassifierNode(parameter_overrides=[Parameter('model_path',
                                                              value=str(classifier_path))])
+        assert node.wait_ready()
         harness = Harness(node, {
             '/{camera}/color/image_raw': 'sensor_msgs/msg/Image',
             '/{camera}/aligned_depth_to_color/image_raw': 'sensor_msgs/msg/Image',
@@ -233,6 +235,7 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
         node = PoseEstimatorNode(parameter_overrides=[
             Parameter('templates_path', value=str(templates_path)),
             Parameter('workers.count', value=1)])      # malformed frames reach the worker too
+        assert node.wait_ready()
         workers = list(node.workers._workers)
         harness = Harness(node, {
             '/{camera}/color/image_raw': 'sensor_msgs/msg/Image',

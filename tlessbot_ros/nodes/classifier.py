@@ -58,10 +58,15 @@ class ClassifierNode(StageNode):
             camera: self.create_publisher(message_class(IMAGE),
                                           node_relative(classes_topic(camera)), RESULT_QOS)
             for camera in self.cameras}
-        self.setup_inputs({'color': COLOR_INPUT, **DEPTH_INPUTS,
-                           'labels': (IMAGE, labels_topic)})
         self.get_logger().info(f'loaded {self.model.kind} classifier for '
                                f'{len(self.model.class_ids)} objects from {path}')
+        self.start_when_ready(self._warm_up, {'color': COLOR_INPUT, **DEPTH_INPUTS,
+                                              'labels': (IMAGE, labels_topic)})
+
+    def _warm_up(self) -> None:
+        """Classify the box of a synthetic frame once (HOG, shape features, feature map)."""
+        views, labels = self.warm_up_frame()
+        self.pipeline.classify({c: v.rgb for c, v in views.items()}, labels, views=views)
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         rgb = {camera: image_to_rgb(msgs['color']) for camera, msgs in views.items()}

@@ -58,7 +58,17 @@ class LocaliserNode(StageNode):
             camera: self.create_publisher(message_class(IMAGE),
                                           node_relative(labels_topic(camera)), RESULT_QOS)
             for camera in self.cameras}
-        self.setup_inputs({'color': COLOR_INPUT, **DEPTH_INPUTS})
+        self.start_when_ready(self._warm_up, {'color': COLOR_INPUT, **DEPTH_INPUTS})
+
+    def _warm_up(self) -> None:
+        """Segment and fuse a synthetic frame once (first calls, lazy imports)."""
+        views, _ = self.warm_up_frame(self.backgrounds)
+        self._pipeline(views).localise(views)
+
+    def _pipeline(self, views: dict[str, ViewInput]) -> PerceptionPipeline:
+        rig = rig_with_intrinsics(self.extrinsics, {c: v.intrinsics for c, v in views.items()})
+        return PerceptionPipeline(rig=rig, segmentation=self.segmentation, fusion=self.fusion,
+                                  localise_params=self.localise_params)
 
     def _load_background(self, path: str) -> Any:
         bgr = cv2.imread(path, cv2.IMREAD_COLOR)
@@ -70,10 +80,7 @@ class LocaliserNode(StageNode):
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         inputs = {camera: self._view_input(camera, msgs) for camera, msgs in views.items()}
-        rig = rig_with_intrinsics(self.extrinsics, {c: v.intrinsics for c, v in inputs.items()})
-        pipeline = PerceptionPipeline(rig=rig, segmentation=self.segmentation, fusion=self.fusion,
-                                      localise_params=self.localise_params)
-        fusion = pipeline.localise(inputs)
+        fusion = self._pipeline(inputs).localise(inputs)
         self.record_stats({f'{k}_ms': v for k, v in fusion.timings_ms.items()})
         for camera, msgs in views.items():
             header = msgs['color'].header

@@ -27,7 +27,6 @@ fits others), ``rig.cameras`` (the names of the top and side cameras), ``rig.CAM
 """
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
@@ -54,6 +53,7 @@ from tlessbot_ros.core.pipeline import Detection, FitParams, PerceptionPipeline,
 from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
 from tlessbot_ros.data import DEFAULT_TEMPLATES
 from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.io.cache import warm_pose_stage
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, params_from_node, run_node
 from tlessbot_ros.nodes.stage import DEPTH_INPUTS, IMAGE, StageNode, descriptor
 from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
@@ -90,15 +90,9 @@ class PoseEstimatorNode(StageNode):
                                       params=worker_params) if worker_params.count else None
         self._worker_errors_seen = 0
         self._factory = RclpyFactory()
+        self._templates_path = path
         self._create_publishers()
-        started = time.perf_counter()
-        self._warm_up()
-        # Subscribed only now that the caches and workers are ready: a replay that waits for
-        # subscribers then starts when this node can take frames.
-        self.setup_inputs({**DEPTH_INPUTS, 'classes': (IMAGE, classes_topic)})
-        self.get_logger().info(f'templates for {len(self.templates.objects)} objects from {path}'
-                               f' (caches built in {time.perf_counter() - started:.1f} s; '
-                               f'{worker_params.count} worker processes)')
+        self.start_when_ready(self._warm_up, {**DEPTH_INPUTS, 'classes': (IMAGE, classes_topic)})
 
     def _create_publishers(self) -> None:
         pose_class = message_class('geometry_msgs/msg/PoseStamped')
@@ -112,7 +106,12 @@ class PoseEstimatorNode(StageNode):
                                               RESULT_QOS)
 
     def _warm_up(self) -> None:
-        self.pipeline.warm_up()
+        """Every cache the first frame would build (from the start-up cache when it has them,
+        :func:`~tlessbot_ros.io.cache.warm_pose_stage`), the numba kernels, and the workers."""
+        report = warm_pose_stage(self.pipeline, self._templates_path)
+        self.get_logger().info(
+            f'templates for {len(self.templates.objects)} objects from {self._templates_path}: '
+            f'caches {"read" if report.from_cache else "built"} in {report.seconds:.1f} s')
         if self.workers is not None and not self.workers.wait_ready():
             self.get_logger().warning(
                 f'pose workers not ready ({"; ".join(self.workers.errors) or "still starting"}): '

@@ -42,9 +42,12 @@ from tlessbot_ros.core.common import (
     Rig,
     SyncParams,
     check_camera_roles,
+    d415_intrinsics,
     default_rig,
     look_at,
+    table_with_box,
 )
+from tlessbot_ros.core.pipeline import ViewInput
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.nodes.common import RESULT_QOS, SENSOR_QOS, message_class, params_from_node
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, WARN, diagnostic_array
@@ -107,7 +110,12 @@ class StageNode(Node):
     :meth:`process`."""
 
     def __init__(self, name: str, **kwargs: Any) -> None:
+        self._created = time.monotonic()
         super().__init__(name, **kwargs)
+        self.ready = threading.Event()
+        self.ready_after_s: float | None = None   # from construction to ready
+        self.warm_up_s: float | None = None
+        self._warm_thread: threading.Thread | None = None
         self.cameras = declare_cameras(self)
         self.extrinsics = declare_extrinsics(self, self.cameras)
         self.sync_params = params_from_node(self, SyncParams, prefix='sync.')
@@ -142,6 +150,62 @@ class StageNode(Node):
             self._worker = threading.Thread(target=self._work, name=f'{name}_worker',
                                             daemon=True)
             self._worker.start()
+
+    def start_when_ready(self, warm_up: Callable[[], None],
+                         topics: dict[str, tuple[str, Callable[[str], str]]]) -> None:
+        """Run ``warm_up`` on a thread, then subscribe ``topics`` and report ready.
+
+        The executor spins meanwhile, so ``/diagnostics`` says WARN 'starting' until the stage
+        is ready and OK with ``ready: true`` and the warm-up time after. Subscribing only once
+        ready means a replay that waits for subscribers starts when this node can take frames.
+        A warm-up that fails leaves the node reporting ERROR with the reason, unsubscribed.
+        """
+        def run() -> None:
+            started = time.monotonic()
+            try:
+                warm_up()
+            except Exception as error:  # reported, never raised into a dead thread
+                self.last_error = f'warm-up failed: {type(error).__name__}: {error}'
+                if not self._stopping:
+                    self.get_logger().error(self.last_error)
+                    self.get_logger().debug(traceback.format_exc())
+                    self._publish_diagnostics()
+                return
+            with self._wakeup:   # a node shut down meanwhile (Ctrl-C) subscribes nothing
+                if self._stopping:
+                    return
+                self.setup_inputs(topics)
+            now = time.monotonic()
+            self.warm_up_s, self.ready_after_s = now - started, now - self._created
+            self.ready.set()
+            self.get_logger().info(f'ready {self.ready_after_s:.1f} s after start '
+                                   f'(warm-up {self.warm_up_s:.1f} s)')
+            self._publish_diagnostics()
+
+        self._warm_thread = threading.Thread(target=run, name=f'{self.get_name()}_warm_up',
+                                             daemon=True)
+        self._warm_thread.start()
+
+    def warm_up_frame(self, backgrounds: dict[str, Any] | None = None
+                      ) -> tuple[dict[str, ViewInput], dict[str, np.ndarray]]:
+        """A synthetic two-view frame for the warm-up: per camera, a box on the table seen
+        from the configured extrinsics at the D415's 640x480 (the background's size when one
+        is set), and its (H, W) uint16 instance labels (the box is instance 1)."""
+        views, labels = {}, {}
+        for camera in self.cameras:
+            background = (backgrounds or {}).get(camera)
+            shape = getattr(background, 'shape', None) or (480, 640)
+            intrinsics = d415_intrinsics(shape[1], shape[0])
+            rgb, depth, box = table_with_box(intrinsics, self.extrinsics[camera])
+            views[camera] = ViewInput(rgb=rgb, depth_m=depth, intrinsics=intrinsics,
+                                      T_world_camera=self.extrinsics[camera],
+                                      background=background)
+            labels[camera] = box.astype(np.uint16)
+        return views, labels
+
+    def wait_ready(self, timeout_s: float = 300.0) -> bool:
+        """Block until the stage is ready (in-process tests and tools); False on timeout."""
+        return self.ready.wait(timeout_s)
 
     def setup_inputs(self, topics: dict[str, tuple[str, Callable[[str], str]]]) -> None:
         """Subscribe ``{key: (ROS type name, camera -> topic name)}`` for both cameras."""
@@ -232,7 +296,13 @@ class StageNode(Node):
         dropped = (self._inputs.dropped if self._inputs else 0) + self.rate_dropped + \
             self.busy_dropped
         level = OK if not self.failures else (ERROR if self.frames == 0 else WARN)
-        values = {'frames': self.frames, 'failures': self.failures, 'dropped': dropped,
+        readiness = {'ready': 'true', 'ready_after_s': f'{self.ready_after_s:.2f}',
+                     'warm_up_s': f'{self.warm_up_s:.2f}'} if self.ready.is_set() else \
+            {'ready': 'false', 'starting_s': f'{time.monotonic() - self._created:.1f}'}
+        if not self.ready.is_set():
+            level = ERROR if self.last_error else WARN
+        values = {**readiness, 'frames': self.frames, 'failures': self.failures,
+                  'dropped': dropped,
                   **_percentiles('latency_ms', self._latencies_ms),
                   **_percentiles('input_age_ms', self._input_ages_ms),
                   'zero_stamps': self._inputs.zero_stamps if self._inputs else 0,
@@ -240,9 +310,9 @@ class StageNode(Node):
                   **{k: f'{v:.3g}' for k, v in self._stats.items()}}
         if self.last_error:
             values['last_error'] = self.last_error
+        message = 'ok' if level == OK else (self.last_error or 'starting')
         self._diagnostics.publish(diagnostic_array(
-            self.get_clock().now().to_msg(), self.get_name(), level,
-            'ok' if level == OK else self.last_error, values))
+            self.get_clock().now().to_msg(), self.get_name(), level, message, values))
 
 
 def _percentiles(name: str, values: deque[float]) -> dict[str, str]:

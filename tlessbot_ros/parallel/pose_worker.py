@@ -20,6 +20,7 @@ from typing import Any, BinaryIO
 
 from tlessbot_ros.core.pipeline import Detection, FitParams, PartJob, PerceptionPipeline
 from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
+from tlessbot_ros.io.cache import warm_pose_stage
 from tlessbot_ros.parallel.wire import (
     WireError,
     candidate_to_json,
@@ -55,7 +56,7 @@ def serve(requests: BinaryIO, replies: BinaryIO) -> int:
     try:
         config, _ = read_message(requests)
         pipeline = pipeline_from_config(config)
-        pipeline.warm_up()
+        warm_pose_stage(pipeline, config['templates'])   # the node's start-up cache, if any
     except WireError:
         return 0
     except Exception as error:  # report why, so the node can log it

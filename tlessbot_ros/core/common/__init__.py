@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 # name -> the module of this package that defines it
 _HOME = {
+    'table_with_box': 'warm_frame',
     'CameraIntrinsics': 'geometry',
     'RegionOfInterest': 'geometry',
     'depth_to_points': 'geometry',
@@ -142,3 +143,4 @@ if TYPE_CHECKING:
         StampSynchroniser,
         SyncParams,
     )
+    from tlessbot_ros.core.common.warm_frame import table_with_box  # noqa: F401

@@ -5,8 +5,11 @@
     tlessbot launch --nodes localiser classifier # a subset
 
 Each node gets ``--ros-args --params-file <config>``; output lines are prefixed with the node's
-name. Ctrl-C or SIGTERM is passed on to every node (as SIGINT). If a node dies, the others are
-stopped and launch exits non-zero, naming the node and its exit code.
+name. Once every stage node reports ready on /diagnostics, launch prints one line
+(``[launch] graph ready in 6.2 s (localiser 1.9 s, ...)``); with ``--replay`` the bag starts
+only then, so no frame is sent to a node that cannot take it yet. Ctrl-C or SIGTERM is passed
+on to every node (as SIGINT). If a node dies, the others are stopped and launch exits
+non-zero, naming the node and its exit code.
 """
 from __future__ import annotations
 
@@ -19,7 +22,11 @@ from pathlib import Path
 
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.io.config import default_config_path
-from tlessbot_ros.tools.support.processes import GraphProcesses, graph_processes
+from tlessbot_ros.tools.support.processes import (
+    PERCEPTION_NODES,
+    GraphProcesses,
+    graph_processes,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,9 +63,13 @@ def run(args: argparse.Namespace) -> int:
     # which makes it ignore SIGINT.
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, _interrupt)
-    graph = GraphProcesses(specs, env=dict(os.environ))
+    replay_specs = [s for s in specs if s.label == 'replay']
+    graph = GraphProcesses([s for s in specs if s.label != 'replay'], env=dict(os.environ))
     graph.start()
-    print(f'launched {len(specs)} processes: ' + ', '.join(s.label for s in specs), flush=True)
+    print(f'launched {len(graph.specs)} processes: ' + ', '.join(s.label for s in graph.specs),
+          flush=True)
+    stages = [s.label for s in graph.specs if s.label in PERCEPTION_NODES]
+    monitor = _readiness_monitor(stages)
     try:
         while True:
             exited = graph.first_exited()
@@ -72,7 +83,32 @@ def run(args: argparse.Namespace) -> int:
                       file=sys.stderr, flush=True)
                 graph.stop()
                 return 1
-            time.sleep(0.2)
+            if monitor is None:
+                time.sleep(0.2)
+                continue
+            monitor.poll(0.2)
+            for name, error in monitor.errors.items():
+                print(f'[launch] ERROR: {name}: {error}', file=sys.stderr, flush=True)
+            monitor.errors.clear()
+            if monitor.all_ready:
+                print(f'[launch] {monitor.summary()}', flush=True)
+                monitor.close()
+                monitor = None
+                graph.add(replay_specs)   # the bag starts once every stage can take frames
     except KeyboardInterrupt:
         graph.stop()
         return 0
+    finally:
+        if monitor is not None:
+            monitor.close()
+
+
+def _readiness_monitor(stages: list[str]):
+    """A :class:`ReadinessMonitor` of ``stages`` (rclpy initialised here), or None."""
+    if not stages:
+        return None
+    from tlessbot_ros.nodes.common import init_ros
+    from tlessbot_ros.tools.support.readiness import ReadinessMonitor
+
+    init_ros()
+    return ReadinessMonitor(stages, node_name='tlessbot_launch')

@@ -65,6 +65,7 @@ class GraphProcesses:
         self.env = env
         self.children: dict[str, subprocess.Popen] = {}
         self._threads: list[threading.Thread] = []
+        self._sink: list[str] | None = None
 
     def start(self) -> None:
         """Start every process; their output is echoed with a ``[label]`` prefix."""
@@ -74,8 +75,14 @@ class GraphProcesses:
         """Start every process; their prefixed output lines are appended to ``sink``."""
         self._start(sink=sink)
 
-    def _start(self, sink: list[str] | None) -> None:
-        for spec in self.specs:
+    def add(self, specs: list[ProcessSpec]) -> None:
+        """Start more processes into the running graph (output as :meth:`start`'s)."""
+        self.specs = [*self.specs, *specs]
+        self._start(sink=self._sink, specs=specs)
+
+    def _start(self, sink: list[str] | None, specs: list[ProcessSpec] | None = None) -> None:
+        self._sink = sink
+        for spec in self.specs if specs is None else specs:
             child = subprocess.Popen(spec.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True, bufsize=1, env=self.env)
             self.children[spec.label] = child

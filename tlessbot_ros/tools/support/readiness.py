@@ -1,0 +1,59 @@
+"""Waiting for the stage nodes to say they are ready (their ``ready`` key on /diagnostics)."""
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable
+
+
+class ReadinessMonitor:
+    """Listens to /diagnostics for the named stage nodes' readiness.
+
+    Each stage node reports WARN 'starting' with ``ready: false`` while it warms up, then OK
+    with ``ready: true`` and ``ready_after_s`` (seconds from its start). Create after
+    ``rclpy.init``; call :meth:`poll` from the thread that owns it.
+    """
+
+    def __init__(self, names: Iterable[str], *, node_name: str = 'tlessbot_readiness') -> None:
+        import rclpy
+
+        from tlessbot_ros.conversions.messages import message_class
+        from tlessbot_ros.conversions.topics import DIAGNOSTICS
+        from tlessbot_ros.nodes.common import RESULT_QOS
+
+        self.expected = tuple(names)
+        self.ready_after_s: dict[str, float] = {}
+        self.errors: dict[str, str] = {}
+        self.started = time.monotonic()
+        self._node = rclpy.create_node(node_name)
+        self._node.create_subscription(message_class('diagnostic_msgs/msg/DiagnosticArray'),
+                                       DIAGNOSTICS, self._on_diagnostics, RESULT_QOS)
+
+    def _on_diagnostics(self, msg) -> None:
+        for status in msg.status:
+            if status.name not in self.expected:
+                continue
+            values = {kv.key: kv.value for kv in status.values}
+            if values.get('ready') == 'true':
+                self.ready_after_s.setdefault(status.name, float(values.get('ready_after_s',
+                                                                            'nan')))
+            elif status.message.startswith('warm-up failed'):
+                self.errors[status.name] = status.message
+
+    @property
+    def all_ready(self) -> bool:
+        return all(name in self.ready_after_s for name in self.expected)
+
+    def poll(self, timeout_s: float = 0.1) -> None:
+        """Handle what has arrived, waiting up to ``timeout_s``."""
+        import rclpy
+
+        rclpy.spin_once(self._node, timeout_sec=timeout_s)
+
+    def summary(self) -> str:
+        """One line: how long the whole graph took to get ready, and each node."""
+        nodes = ', '.join(f'{name} {self.ready_after_s[name]:.1f} s' for name in self.expected
+                          if name in self.ready_after_s)
+        return f'graph ready in {time.monotonic() - self.started:.1f} s ({nodes})'
+
+    def close(self) -> None:
+        self._node.destroy_node()
