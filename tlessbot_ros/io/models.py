@@ -298,12 +298,34 @@ def stable_poses(model: ObjectModel, *, min_probability: float = 0.0,
         sum to 1).
     """
     key = ('stable_poses', float(min_probability), bool(merge_rolling), float(rolling_angle_deg))
-    if key in model._cache:
-        return model._cache[key]
+    return model.cached(key, lambda: _build_stable_poses(model, min_probability, merge_rolling,
+                                                         rolling_angle_deg))
+
+
+@dataclass(frozen=True)
+class _HullGeometry:
+    """The convex hull seen from the centre of mass: F facets, T triangles, 3 edges each."""
+
+    label: np.ndarray        # (T,) facet of each triangle
+    normals: np.ndarray      # (F, 3) outward unit facet normals
+    offsets: np.ndarray      # (F,) facet planes: normals @ x + offsets = 0
+    facet_omega: np.ndarray  # (F,) solid angle (sr) of each facet seen from the centre of mass
+    tri_pts: np.ndarray      # (T, 3, 3) triangle corners
+    n_t: np.ndarray          # (T, 3) normal of each triangle's facet
+    p_t: np.ndarray          # (T, 3) centre of mass projected onto each triangle's plane
+    a: np.ndarray            # (T, 3, 3) start of each edge
+    ab: np.ndarray           # (T, 3, 3) edge vectors
+    ap: np.ndarray           # (T, 3, 3) from each edge's start to p_t
+    edge_len: np.ndarray     # (T, 3) edge lengths
+    nbr_f: np.ndarray        # (T, 3) facet across each edge
+    interior: np.ndarray     # (T, 3) bool: edge between two triangles of the same facet
+
+
+def _hull_geometry(vertices: np.ndarray, com: np.ndarray) -> _HullGeometry:
+    """The :class:`_HullGeometry` of the convex hull of (V, 3) ``vertices`` about (3,) ``com``."""
     from scipy.spatial import ConvexHull
 
-    com = centre_of_mass(model.vertices, model.faces)
-    hull = ConvexHull(model.vertices)
+    hull = ConvexHull(vertices)
     label, first_tri = _facets(hull)
     n_facets = len(first_tri)
     points = hull.points
@@ -321,37 +343,56 @@ def stable_poses(model: ObjectModel, *, min_probability: float = 0.0,
     ab = b - a
     ap = p_t[:, None, :] - a
     edge_len = np.linalg.norm(ab, axis=2)
-    # qhull does not orient its simplices: measure sides relative to each triangle's winding.
-    winding = np.sign(np.einsum('tj,tj->t', np.cross(tri_pts[:, 1] - tri_pts[:, 0],
-                                                     tri_pts[:, 2] - tri_pts[:, 0]), n_t))
-    side = np.einsum('tij,tj->ti', np.cross(ab, ap), n_t) * winding[:, None]
     nbr_f = label[hull.neighbors]
     interior = nbr_f == label[:, None]  # edges between two triangles of the same facet
-    margin = np.where(interior, -1e-6, 1e-6) * model.diameter_m * edge_len
+    return _HullGeometry(label, normals, offsets, facet_omega, tri_pts, n_t, p_t, a, ab, ap,
+                         edge_len, nbr_f, interior)
+
+
+def _stable_facets(g: _HullGeometry, diameter_m: float) -> np.ndarray:
+    """(F,) bool: the centre of mass projects inside the facet (a stable resting face)."""
+    # qhull does not orient its simplices: measure sides relative to each triangle's winding.
+    tri_pts, n_t = g.tri_pts, g.n_t
+    winding = np.sign(np.einsum('tj,tj->t', np.cross(tri_pts[:, 1] - tri_pts[:, 0],
+                                                     tri_pts[:, 2] - tri_pts[:, 0]), n_t))
+    side = np.einsum('tij,tj->ti', np.cross(g.ab, g.ap), n_t) * winding[:, None]
+    margin = np.where(g.interior, -1e-6, 1e-6) * diameter_m * g.edge_len
     inside_t = np.all(side >= margin, axis=1)
-    stable_f = np.bincount(label, weights=inside_t, minlength=n_facets) > 0
+    return np.bincount(g.label, weights=inside_t, minlength=len(g.normals)) > 0
+
+
+def _tipping_targets(g: _HullGeometry, stable_f: np.ndarray, diameter_m: float) -> np.ndarray:
+    """(F,) int: the facet each facet tips onto (a stable facet: itself)."""
+    n_facets = len(g.normals)
+    label, p_t, a, ab, ap, edge_len = g.label, g.p_t, g.a, g.ab, g.ap, g.edge_len
     # Unstable facet: it tips over the boundary edge nearest to the projected centre of mass
     # onto the neighbouring facet across it (ties at a corner: the neighbour whose normal leans
     # most toward the centre of mass).
     t = np.clip(np.einsum('tij,tij->ti', ap, ab) / np.maximum(edge_len ** 2, 1e-30), 0.0, 1.0)
     q = a + t[..., None] * ab
     dist = np.linalg.norm(p_t[:, None, :] - q, axis=2)
-    dist[interior] = np.inf
+    dist[g.interior] = np.inf
     facet_of_edge = np.repeat(label, 3)
     nearest = np.full(n_facets, np.inf)
     np.minimum.at(nearest, facet_of_edge, dist.ravel())
-    cand = dist.ravel() <= nearest[facet_of_edge] + 1e-9 * model.diameter_m
+    cand = dist.ravel() <= nearest[facet_of_edge] + 1e-9 * diameter_m
     cand &= ~stable_f[facet_of_edge]
     tip = (p_t[:, None, :] - q).reshape(-1, 3)[cand]
     tip /= np.maximum(np.linalg.norm(tip, axis=1, keepdims=True), 1e-30)
     c_facet = facet_of_edge[cand]
-    c_next = nbr_f.ravel()[cand]
-    score = np.sum(normals[c_next] * tip, axis=1)
+    c_next = g.nbr_f.ravel()[cand]
+    score = np.sum(g.normals[c_next] * tip, axis=1)
     order = np.lexsort((-score, c_facet))
     first = np.unique(c_facet[order], return_index=True)[1]
     next_facet = np.arange(n_facets)
     next_facet[c_facet[order][first]] = c_next[order][first]
+    return next_facet
+
+
+def _follow_tipping(next_facet: np.ndarray) -> np.ndarray:
+    """(F,) int: the facet each facet's tipping chain ends on, from (F,) ``next_facet``."""
     # Follow the tipping chains (the centre of mass drops at each step, so they end).
+    n_facets = len(next_facet)
     final = np.arange(n_facets)
     for f in range(n_facets):
         seen, cur = set(), f
@@ -359,34 +400,45 @@ def stable_poses(model: ObjectModel, *, min_probability: float = 0.0,
             seen.add(cur)
             cur = next_facet[cur]
         final[f] = cur
-    share = np.bincount(final, weights=facet_omega, minlength=n_facets) / (4.0 * np.pi)
-    stable = [f for f in range(n_facets) if stable_f[f] and share[f] > 0]
-    if merge_rolling and stable:
-        from scipy.sparse import coo_matrix
-        from scipy.sparse.csgraph import connected_components
+    return final
 
-        fa, fb = np.repeat(label, 3), nbr_f.ravel()
-        close = np.einsum('ij,ij->i', normals[fa], normals[fb]) > np.cos(
-            np.radians(rolling_angle_deg))
-        # Adjacent, nearly parallel facets roll into each other: join where they come to rest.
-        # Rolling keeps the centre of mass at one height; faces joined by a fillet do not.
-        height = -(normals @ com + offsets)
-        ra, rb = final[fa], final[fb]
-        level = np.abs(height[ra] - height[rb]) < max(5e-4, 0.01 * model.diameter_m)
-        link = (ra != rb) & close & level & stable_f[ra] & stable_f[rb]
-        graph = coo_matrix((np.ones(int(link.sum())), (ra[link], rb[link])),
-                           shape=(n_facets, n_facets))
-        _, component = connected_components(graph, directed=False)
-        merged = np.bincount(component, weights=np.where(stable_f, share, 0.0))
-        keep = {}
-        for f in stable:
-            c = component[f]
-            if c not in keep or share[f] > share[keep[c]]:
-                keep[c] = f
-        share = share.copy()
-        for c, f in keep.items():
-            share[f] = merged[c]
-        stable = sorted(keep.values())
+
+def _merge_rolling(g: _HullGeometry, com: np.ndarray, final: np.ndarray, stable_f: np.ndarray,
+                   share: np.ndarray, stable: list[int], diameter_m: float,
+                   rolling_angle_deg: float) -> tuple[np.ndarray, list[int]]:
+    """((F,) shares, sorted resting facets): each rolling group kept as its likeliest facet."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n_facets, normals = len(g.normals), g.normals
+    fa, fb = np.repeat(g.label, 3), g.nbr_f.ravel()
+    close = np.einsum('ij,ij->i', normals[fa], normals[fb]) > np.cos(
+        np.radians(rolling_angle_deg))
+    # Adjacent, nearly parallel facets roll into each other: join where they come to rest.
+    # Rolling keeps the centre of mass at one height; faces joined by a fillet do not.
+    height = -(normals @ com + g.offsets)
+    ra, rb = final[fa], final[fb]
+    level = np.abs(height[ra] - height[rb]) < max(5e-4, 0.01 * diameter_m)
+    link = (ra != rb) & close & level & stable_f[ra] & stable_f[rb]
+    graph = coo_matrix((np.ones(int(link.sum())), (ra[link], rb[link])),
+                       shape=(n_facets, n_facets))
+    _, component = connected_components(graph, directed=False)
+    merged = np.bincount(component, weights=np.where(stable_f, share, 0.0))
+    keep = {}
+    for f in stable:
+        c = component[f]
+        if c not in keep or share[f] > share[keep[c]]:
+            keep[c] = f
+    share = share.copy()
+    for c, f in keep.items():
+        share[f] = merged[c]
+    return share, sorted(keep.values())
+
+
+def _resting_poses(vertices: np.ndarray, com: np.ndarray, normals: np.ndarray,
+                   share: np.ndarray, stable: list[int], min_probability: float
+                   ) -> list[StablePose]:
+    """StablePoses (4x4 T) of ``stable`` facets >= ``min_probability``, likeliest first."""
     total = sum(share[f] for f in stable)
     poses = []
     for f in sorted(stable, key=lambda f: -share[f]):
@@ -394,7 +446,7 @@ def stable_poses(model: ObjectModel, *, min_probability: float = 0.0,
         if prob < min_probability:
             continue
         R = _rotation_to_minus_z(normals[f])
-        moved = model.vertices @ R.T
+        moved = vertices @ R.T
         c = R @ com
         T = np.eye(4)
         T[:3, :3] = R
@@ -403,5 +455,20 @@ def stable_poses(model: ObjectModel, *, min_probability: float = 0.0,
     kept = sum(p.probability for p in poses)
     for pose in poses:
         pose.probability /= kept
-    model._cache[key] = poses
     return poses
+
+
+def _build_stable_poses(model: ObjectModel, min_probability: float, merge_rolling: bool,
+                        rolling_angle_deg: float) -> list[StablePose]:
+    """The uncached :func:`stable_poses` of ``model``: a list of :class:`StablePose`."""
+    com = centre_of_mass(model.vertices, model.faces)
+    g = _hull_geometry(model.vertices, com)
+    stable_f = _stable_facets(g, model.diameter_m)
+    final = _follow_tipping(_tipping_targets(g, stable_f, model.diameter_m))
+    n_facets = len(g.normals)
+    share = np.bincount(final, weights=g.facet_omega, minlength=n_facets) / (4.0 * np.pi)
+    stable = [f for f in range(n_facets) if stable_f[f] and share[f] > 0]
+    if merge_rolling and stable:
+        share, stable = _merge_rolling(g, com, final, stable_f, share, stable, model.diameter_m,
+                                       rolling_angle_deg)
+    return _resting_poses(model.vertices, com, g.normals, share, stable, min_probability)
