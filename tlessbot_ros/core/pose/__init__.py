@@ -13,8 +13,9 @@ This package's public API; names load on first use, so importing one light modul
 (geometry, say) does not import Open3D."""
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from tlessbot_ros.lazy import lazy_api
 
 # name -> the module of this package that defines it
 _HOME = {
@@ -78,20 +79,7 @@ _HOME = {
 }
 __all__ = sorted(_HOME)
 
-
-def __getattr__(name: str):
-    try:
-        module = _HOME[name]
-    except KeyError:
-        raise AttributeError(f'module {__name__!r} has no attribute {name!r}') from None
-    value = getattr(importlib.import_module(f'{__name__}.{module}'), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
-
+__getattr__, __dir__ = lazy_api(__name__, _HOME)
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.pose.buckets import (  # noqa: F401

@@ -60,12 +60,17 @@ def run_demo(bag: str, *, config: Path, classifier: str, templates: str,
             Estimate(pose.stamp_ns, pose.obj_id, pose.T, pose.frame_id))
     rig = load_rig(config)
     scored = correct = false_pos = duplicates = 0
+    per_frame = []
     t_err, r_err = [], []
     for index, stamp in enumerate(sorted(truth)):
         matches, extra = score_frame(truth[stamp], estimates.get(stamp, []), symmetries)
         false_pos += len(extra)
         repeated = frame_duplicates(estimates.get(stamp, []), rig)
         duplicates += repeated
+        per_frame.append({'stamp_ns': stamp, 'parts': len(matches),
+                          'correct': sum(m.correct for m in matches),
+                          'poses': len(estimates.get(stamp, [])),
+                          'false_positives': len(extra), 'duplicates': repeated})
         if echo:
             print(f'frame {index} (stamp {stamp / 1e9:.3f}): {len(matches)} parts >= 30 % '
                   f'visible, {len(estimates.get(stamp, []))} poses published'
@@ -98,6 +103,8 @@ def run_demo(bag: str, *, config: Path, classifier: str, templates: str,
         'frames_answered': sum(1 for stamp in truth if estimates.get(stamp)),
         'duplicates': duplicates,
         'duplicates_per_frame': duplicates / len(truth) if truth else 0.0,
+        'per_frame': per_frame,
+        'node_diagnostics': run.diagnostics,   # each stage node's last /diagnostics values
         'median_translation_error_mm': float(1e3 * np.median(t_err)) if t_err else None,
         'median_rotation_error_deg': float(np.median(r_err)) if r_err else None,
     }

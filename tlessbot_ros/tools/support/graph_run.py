@@ -160,6 +160,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         return callback
 
     handled = [0]
+    work_seen = [time.monotonic(), ()]   # when the stages' frame counts last changed, and them
 
     def on_diagnostics(msg) -> None:
         for status in msg.status:
@@ -167,6 +168,10 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             result.diagnostics[status.name] = values
             if status.name == 'pose_estimator':
                 handled[0] = int(values.get('frames', 0)) + int(values.get('failures', 0))
+        counts = tuple(result.diagnostics.get(name, {}).get(key) for name in PERCEPTION_NODES
+                       for key in ('frames', 'failures', 'dropped'))
+        if counts != work_seen[1]:
+            work_seen[:] = [time.monotonic(), counts]
 
     monitor.create_subscription(message_class('diagnostic_msgs/msg/DiagnosticArray'),
                                 DIAGNOSTICS, on_diagnostics, RESULT_QOS)
@@ -233,8 +238,11 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             last_pose[0] = time.monotonic()
         while time.monotonic() < drain_until and graph.first_exited() is None:
             time.sleep(0.1)
-            if handled[0] >= len(result.frames_replayed) and \
-                    time.monotonic() - last_pose[0] > settle_s:
+            quiet = time.monotonic() - last_pose[0] > settle_s
+            # every frame answered, or (frames were dropped) no stage has counted anything new
+            # for a while: the graph is done with the replay
+            if quiet and (handled[0] >= len(result.frames_replayed)
+                          or time.monotonic() - work_seen[0] > settle_s + 1.0):
                 break
         exited = graph.first_exited()
         if exited is not None:
