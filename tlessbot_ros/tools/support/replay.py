@@ -47,7 +47,7 @@ class FrameRestamper:
 
 
 def wait_for_matches(node: Any, publishers: dict[str, Any], *, timeout_s: float,
-                     settle_s: float = 0.3) -> dict[str, tuple[int, int]]:
+                     settle_s: float = 1.0) -> dict[str, tuple[int, int]]:
     """Wait until every subscription the graph knows of on the publishers' topics has matched
     its publisher, up to ``timeout_s``; a first message sent before that is lost for a
     subscriber that has not matched yet (DDS discovery takes a moment).
