@@ -229,8 +229,10 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         if lockstep:
             _replay_lockstep(player, str(bag), handled, on_publish, graph, drain_timeout_s)
         else:
+            # as tlessbot replay does: not before every subscriber has matched (a message sent
+            # earlier is lost to it; under load discovery of ~20 topics takes seconds)
             replay(player, str(bag), rate=rate, loop=loop, restamp=restamp,
-                   on_publish=on_publish,
+                   wait_for_subscribers_s=30.0, on_publish=on_publish,
                    should_stop=(lambda: stop_at is not None and time.monotonic() > stop_at))
         result.cpu_s = {label: cpu_now(label) - cpu_start[label] for label in cpu_pids}
         drain_until = time.monotonic() + drain_timeout_s
@@ -268,10 +270,11 @@ def _replay_lockstep(node, bag: str, handled: list[int], on_publish, graph: Grap
 
     from tlessbot_ros.io.bags import bag_topics, read_bag
     from tlessbot_ros.nodes.common import RESULT_QOS, message_class
+    from tlessbot_ros.tools.support.replay import wait_for_matches
 
     publishers = {topic: node.create_publisher(message_class(msgtype), topic, RESULT_QOS)
                   for topic, msgtype in bag_topics(bag).items()}
-    time.sleep(1.0)  # let the new publishers match the nodes' subscriptions
+    wait_for_matches(node, publishers, timeout_s=30.0)  # a first frame is lost otherwise
     for count, (_, messages) in enumerate(groupby(read_bag(bag), key=lambda m: m.log_time_ns),
                                           start=1):
         for message in messages:
