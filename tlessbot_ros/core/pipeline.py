@@ -39,6 +39,7 @@ from tlessbot_ros.core.common import (
     pixel_counts,
     transform_points,
 )
+from tlessbot_ros.core.fragments import FragmentFilter
 from tlessbot_ros.core.localise import (
     BackgroundModel,
     FusionParams,
@@ -348,12 +349,14 @@ class PerceptionPipeline:
             box_mode: regions are boxes, not masks (the paper's "GT box" setting).
             on_detection: called with each detection as soon as it is complete, so a node
                 can publish a part's pose without waiting for the rest of the frame (parts
-                fitted in parallel complete in any order).
+                fitted in parallel complete in any order). A fragment of a larger part
+                (``fragment_overlap``) is never handed over, and a smaller piece only once its
+                larger neighbours are fitted, so the result does not depend on that order.
             fitter: runs the parts' fits (e.g. several at once in worker processes); by
                 default they run one after the other here, through :meth:`fit_part`.
 
         Returns:
-            the detections in instance order.
+            the detections in instance order, fragments left out.
         """
         if self.pose_estimator is None:
             raise ValueError('no template database loaded')
@@ -382,13 +385,44 @@ class PerceptionPipeline:
                     jobs.append(PartJob(detection, points, candidates, data.T_world_camera))
                     continue
             done(detection)
+        arbiter = self._fragment_filter(jobs, done)
         if fitter is None:
             for job in jobs:
                 self.fit_part(job)
-                done(job.detection)
+                arbiter.fitted(job.detection, *self._fitted_centre(job))
         else:
-            fitter.fit_all(jobs, self.fit_part, lambda job: done(job.detection))
-        return detections
+            fitter.fit_all(jobs, self.fit_part,
+                           lambda job: arbiter.fitted(job.detection, *self._fitted_centre(job)))
+        dropped = {id(d) for d in arbiter.dropped}
+        return [d for d in detections if id(d) not in dropped]
+
+    def _fragment_filter(self, jobs: Sequence[PartJob],
+                         publish: Callable[[Detection], None]) -> FragmentFilter:
+        """The :class:`~tlessbot_ros.core.fragments.FragmentFilter` of one frame's parts: ROI
+        centroids in the world (camera frame without a table frame), first-class diameters."""
+        database = self.pose_estimator.database
+        pieces = []
+        for job in jobs:
+            centroid = job.points.mean(axis=0)
+            frame = 'world' if job.T_world_camera is not None else job.detection.view
+            if job.T_world_camera is not None:
+                centroid = transform_points(job.T_world_camera, centroid[None])[0]
+            pieces.append((job.detection, centroid, frame, len(job.points),
+                           database[job.candidates[0]].diameter_m))
+        return FragmentFilter(pieces, publish, overlap=self.fit_params.fragment_overlap)
+
+    def _fitted_centre(self, job: PartJob) -> tuple[np.ndarray | None, float, float]:
+        """A fitted part's centre in its fragment-filter frame, its class's diameter and its
+        pose fitness (of two overlapping fits the one that explains more of its own ROI wins:
+        the coverage term of the pose score favours a fragment fitted as the whole part)."""
+        detection = job.detection
+        if detection.pose is None:
+            return None, 0.0, -np.inf
+        centre = detection.pose.T_camera_object[:3, 3]
+        if job.T_world_camera is not None:
+            centre = transform_points(job.T_world_camera, centre[None])[0]
+        return (centre, self.pose_estimator.database[detection.obj_id].diameter_m,
+                detection.pose.fitness)
 
     def fit_part(self, job: PartJob) -> None:
         """Fit one part's class candidates in order and keep the best (fills the detection's

@@ -1,0 +1,113 @@
+"""One part, one pose: fragments of an over-segmented part are dropped, deterministically.
+
+When the localiser splits one part into two or three instances (in both views alike, so the
+fusion keeps them apart), each piece is fitted and the part is published several times, the
+fits within a centimetre or two of each other. Two rigid parts cannot sit inside each other,
+so of two detections whose fitted centres lie closer than ``overlap`` x the smaller diameter,
+the one that fits worse (pose fitness, then fewer ROI points) is a fragment of the other.
+
+The pose stage publishes each part as soon as it is fitted, and parts fitted in worker
+processes complete in any order; the answer must not depend on that order. So a detection is
+decided once it and every detection that could overlap it (ROI centroids within half their
+summed diameters) are fitted: a part with no such neighbour goes out at once, neighbours
+together when the last of them is fitted.
+"""
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class _Piece:
+    detection: object
+    frame: str            # the frame its positions are in: 'world', or one camera's name
+    centroid: np.ndarray  # (3,) ROI centroid, metres
+    points: int           # ROI points
+    diameter_m: float     # of its first class candidate
+    neighbours: list[int] = field(default_factory=list)
+    centre: np.ndarray | None = None
+    score: float = -np.inf   # pose fitness
+    fitted_diameter_m: float = 0.0
+    done: bool = False
+    decided: bool = False
+
+
+class FragmentFilter:
+    """Hands each fitted detection to ``publish`` unless it is a fragment of a larger one.
+
+    Args:
+        pieces: per detection (any object with ``instance_id``), its ROI centroid (3,), the name
+            of the frame that centroid is in (the world when the camera's pose over the table
+            is known, else its camera: pieces in different frames are never compared), its ROI
+            point count and its first class candidate's diameter in metres.
+        publish: called once per kept detection, in an order that depends on completion.
+        overlap: fraction of the smaller diameter under which two fitted centres are one part
+            (0: keep everything).
+    """
+
+    def __init__(self, pieces: Sequence[tuple[object, np.ndarray, str, int, float]],
+                 publish: Callable[[object], None], *, overlap: float) -> None:
+        self._publish = publish
+        self._overlap = float(overlap)
+        self._lock = threading.Lock()
+        self.dropped: list[object] = []
+        self._pieces = [_Piece(d, frame, np.asarray(c, np.float64), int(n), float(diam))
+                        for d, c, frame, n, diam in pieces]
+        self._index = {id(p.detection): k for k, p in enumerate(self._pieces)}
+        for a, piece in enumerate(self._pieces):
+            piece.neighbours = [b for b, other in enumerate(self._pieces) if b != a
+                                and self._overlap > 0 and other.frame == piece.frame
+                                and np.linalg.norm(other.centroid - piece.centroid)
+                                < 0.5 * (other.diameter_m + piece.diameter_m)]
+
+    def fitted(self, detection, centre: np.ndarray | None, diameter_m: float,
+               score: float) -> None:
+        """``detection``'s fit is done: its fitted centre (3,) in its piece's frame (None: no
+        pose), its fitted class's diameter and its pose fitness (higher is better); publishes
+        what can be decided now."""
+        with self._lock:
+            piece = self._pieces[self._index[id(detection)]]
+            piece.done, piece.fitted_diameter_m = True, float(diameter_m)
+            piece.centre = None if centre is None else np.asarray(centre, np.float64)
+            piece.score = float(score)
+            ready = self._decide_ready()
+        for kept in ready:
+            self._publish(kept)
+
+    def _decide_ready(self) -> list[object]:
+        """Decide every fitted piece whose neighbours are all fitted."""
+        kept = []
+        for piece in self._pieces:
+            if piece.decided or not piece.done or \
+                    not all(self._pieces[b].done for b in piece.neighbours):
+                continue
+            piece.decided = True
+            if self._is_fragment(piece):
+                self.dropped.append(piece.detection)
+            else:
+                kept.append(piece.detection)
+        return kept
+
+    def _is_fragment(self, piece: _Piece) -> bool:
+        """Whether a neighbour that fits better sits on this piece's fitted centre."""
+        if piece.centre is None:
+            return False
+        for b in piece.neighbours:
+            other = self._pieces[b]
+            if other.centre is None or _better(piece, other):
+                continue
+            limit = self._overlap * min(piece.fitted_diameter_m, other.fitted_diameter_m)
+            if np.linalg.norm(other.centre - piece.centre) < limit:
+                return True
+        return False
+
+
+def _better(a: _Piece, b: _Piece) -> bool:
+    """Whether ``a`` is the better of two overlapping fits: fitness, then ROI points, then
+    the lower instance id (a total order, so exactly one of two is kept)."""
+    return (a.score, a.points, -a.detection.instance_id) > \
+        (b.score, b.points, -b.detection.instance_id)
