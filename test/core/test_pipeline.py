@@ -54,7 +54,8 @@ def test_each_detection_is_handed_over_as_soon_as_it_is_complete(scene):
     two = labels['side'].copy()
     rows = np.flatnonzero(two.any(axis=1))
     two[rows[len(rows) // 2]:] *= 2              # the part's lower half is a second instance
-    pipeline = PerceptionPipeline(templates=db)
+    # halves of one part are fragments of each other: without the fragment check both go out
+    pipeline = PerceptionPipeline(templates=db, fit_params=FitParams(fragment_overlap=0.0))
     calls = _counting(pipeline)
     handed = []
     detections = pipeline.estimate_poses(
@@ -62,6 +63,18 @@ def test_each_detection_is_handed_over_as_soon_as_it_is_complete(scene):
         on_detection=lambda d: handed.append((d.instance_id, len(calls))))
     assert [d.instance_id for d in detections] == [1, 2]
     assert handed == [(1, 1), (2, 2)]            # instance 1 went out before 2 was fitted
+
+
+def test_two_halves_of_one_part_give_one_pose(scene):
+    db, inputs, labels, T_gt = scene
+    two = labels['side'].copy()
+    rows = np.flatnonzero(two.any(axis=1))
+    two[rows[len(rows) // 2]:] *= 2
+    handed = []
+    detections = PerceptionPipeline(templates=db).estimate_poses(
+        inputs, {'side': two}, {1: (21,), 2: (21,)}, on_detection=handed.append)
+    assert len(detections) == 1 and handed == detections
+    assert np.linalg.norm(detections[0].pose.T_camera_object[:3, 3] - T_gt[:3, 3]) < 0.03
 
 
 def test_a_good_first_fit_is_accepted_without_trying_the_others(scene):
@@ -197,6 +210,7 @@ def test_a_sure_classifier_alone_names_a_part_seen_only_from_the_top():
     (ClassifyParams, 'min_instance_px', 0, 'at least 1'),
     (ClassifyParams, 'top_view_verify_below_margin', -1.0, 'inf: always verify'),
     (FitParams, 'lookalike_tolerance_m', 0.0, '> 0 m'),
+    (FitParams, 'fragment_overlap', 1.5, '[0, 1)'),
     (FitParams, 'fallback_min_fitness', 1.5, '0..1'),
     (FitParams, 'min_roi_points', 2, 'at least 3'),
 ])
@@ -213,4 +227,5 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'min_instance_px', 'min_roi_points', 'table_clearance_m', 'reject_margin',
         'class_candidates', 'top_view_verify_below_margin', 'verify_accept_fitness',
         'verify_rmse_weight', 'fallback_min_fitness', 'lookalike_check',
-        'lookalike_tolerance_m', 'parallel_views'])
+        'lookalike_tolerance_m', 'parallel_views',
+        'fragment_overlap'])   # added after the split (one part, one pose)

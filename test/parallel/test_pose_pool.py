@@ -37,6 +37,11 @@ def scene(part21_seen_from_the_side, tmp_path_factory):
     return path, db, inputs, {'side': labels}, classes
 
 
+# the three instances are pieces of one part: keep every piece (no fragment check), the pool's
+# mechanics are under test here
+ALL_PIECES = FitParams(fragment_overlap=0.0)
+
+
 def _slow(pipeline, delay_s=0.3):
     """fit_part of ``pipeline`` that takes at least ``delay_s``, counting its calls: the pool's
     workers must take some jobs while the calling thread sleeps."""
@@ -79,7 +84,7 @@ def pool(scene):
 
 
 def test_workers_fit_exactly_what_the_node_fits(scene, pool):
-    pipeline = PerceptionPipeline(templates=scene[1])
+    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES)
     alone, _ = _estimate(pipeline, scene, None)
     fit_here, calls = _slow(pipeline)
     shared, done = _estimate(pipeline, scene, pool, fit_here)
@@ -90,7 +95,7 @@ def test_workers_fit_exactly_what_the_node_fits(scene, pool):
 
 
 def test_a_hung_worker_costs_time_not_poses(scene, pool):
-    pipeline = PerceptionPipeline(templates=scene[1])
+    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES)
     alone, _ = _estimate(pipeline, scene, None)
     [worker] = pool._workers
     os.kill(worker.process.pid, signal.SIGSTOP)   # alive, but it never answers
@@ -111,7 +116,7 @@ def test_a_hung_worker_costs_time_not_poses(scene, pool):
 
 
 def test_a_worker_that_cannot_start_leaves_the_fits_to_the_node(scene, tmp_path):
-    pipeline = PerceptionPipeline(templates=scene[1])
+    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES)
     alone, _ = _estimate(pipeline, scene, None)
     with PoseWorkerPool(tmp_path / 'missing.npz', pose=PoseParams(), fit=FitParams(),
                         params=PoseWorkerParams(count=1)) as pool:
