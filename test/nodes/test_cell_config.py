@@ -82,3 +82,21 @@ def test_a_stage_parameter_out_of_range_is_one_clear_error(ros):
 
     with pytest.raises(TlessbotError, match=r'class_candidates must be 1\.\.4.*got 5'):
         ClassifierNode(parameter_overrides=[Parameter('class_candidates', value=5)])
+
+
+def test_the_localiser_warms_up_at_the_size_of_its_empty_table_image(ros, tmp_path):
+    """An empty-table image of another size than 640x480 (a 1280x720 camera, say): the warm-up
+    frame takes its size, so the node still gets ready."""
+    import cv2
+    import numpy as np
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.nodes.localiser import LocaliserNode
+
+    path = tmp_path / 'empty_side.png'
+    cv2.imwrite(str(path), np.full((240, 320, 3), 190, np.uint8))
+    node = LocaliserNode(parameter_overrides=[Parameter('background.side', value=str(path))])
+    try:
+        assert node.wait_ready(120.0), node.last_error
+    finally:
+        node.destroy_node()

@@ -102,8 +102,8 @@ class FitParams:
             fitted centre lies closer than this fraction of the smaller part's diameter to the
             centre of a detection with more ROI points is a fragment of that part (the
             localiser split it) and is dropped, not published (``core/fragments.py``). Every
-            duplicate pose in 3 simulated 15-frame bags was such a fragment (1-2 cm, at most
-            2.9 cm, from its part's centre). 0 = publish every instance.
+            duplicate pose in 3 simulated 15-frame bags was such a fragment (the pieces' fits
+            lay 0.3-2.9 cm apart). 0 = publish every instance.
     """
 
     min_roi_points: int = 30

@@ -63,33 +63,37 @@ class WarmUpReport:
 
 
 def load_derived(database: TemplateDatabase, templates_path: str | Path, *,
-                 directory: Path | None = None) -> bool:
-    """Restore the database's derived arrays from the cache; False when there is none."""
-    fingerprint = file_fingerprint(templates_path)
+                 directory: Path | None = None, fingerprint: str | None = None) -> bool:
+    """Restore the database's derived arrays from the cache; False when there is none
+    (``fingerprint``: the templates file's, when the caller has it already)."""
+    fingerprint = fingerprint or file_fingerprint(templates_path)
     path = derived_cache_path(templates_path, fingerprint=fingerprint, directory=directory)
     try:
         with np.load(path, allow_pickle=False) as data:
             return restore_derived(database, data, fingerprint=fingerprint)
-    except (OSError, ValueError, EOFError):
-        return False
-    except Exception:  # zipfile.BadZipFile: a truncated file from a crash mid-write elsewhere
+    except Exception:  # missing, unreadable, or truncated by a crash mid-write elsewhere
         return False
 
 
 def store_derived(database: TemplateDatabase, templates_path: str | Path, *,
-                  directory: Path | None = None) -> Path | None:
+                  directory: Path | None = None, fingerprint: str | None = None
+                  ) -> Path | None:
     """Write the database's derived arrays (built where missing) to the cache; the path, or
     None when it cannot be written."""
-    fingerprint = file_fingerprint(templates_path)
+    fingerprint = fingerprint or file_fingerprint(templates_path)
     path = derived_cache_path(templates_path, fingerprint=fingerprint, directory=directory)
     arrays = derived_arrays(database, fingerprint=fingerprint)
+    tmp_name = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=path.parent, suffix='.tmp', delete=False) as tmp:
+            tmp_name = tmp.name
             np.savez(tmp, **arrays)
-        os.chmod(tmp.name, 0o644)   # readable by the user's other tools, like any cache
-        os.replace(tmp.name, path)
+        os.chmod(tmp_name, 0o644)   # readable by the user's other tools, like any cache
+        os.replace(tmp_name, path)
     except OSError:
+        if tmp_name is not None:   # a full disk: leave no half-written file behind
+            Path(tmp_name).unlink(missing_ok=True)
         return None
     return path
 
@@ -102,8 +106,10 @@ def warm_pose_stage(pipeline, templates_path: str | Path, *,
     built here."""
     started = time.perf_counter()
     database = pipeline.pose_estimator.database
-    from_cache = load_derived(database, templates_path, directory=directory)
+    fingerprint = file_fingerprint(templates_path)
+    from_cache = load_derived(database, templates_path, directory=directory,
+                              fingerprint=fingerprint)
     pipeline.warm_up()
     stored = None if from_cache else store_derived(database, templates_path,
-                                                   directory=directory)
+                                                   directory=directory, fingerprint=fingerprint)
     return WarmUpReport(from_cache, stored, time.perf_counter() - started)

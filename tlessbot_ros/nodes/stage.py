@@ -166,21 +166,24 @@ class StageNode(Node):
                 warm_up()
             except Exception as error:  # reported, never raised into a dead thread
                 self.last_error = f'warm-up failed: {type(error).__name__}: {error}'
-                if not self._stopping:
-                    self.get_logger().error(self.last_error)
-                    self.get_logger().debug(traceback.format_exc())
-                    self._publish_diagnostics()
+                with self._wakeup:
+                    if not self._stopping:
+                        self.get_logger().error(self.last_error)
+                        self.get_logger().debug(traceback.format_exc())
+                        self._publish_diagnostics()
                 return
-            with self._wakeup:   # a node shut down meanwhile (Ctrl-C) subscribes nothing
+            # Under the lock destroy_node takes first: a node shut down meanwhile (Ctrl-C)
+            # subscribes and reports nothing, and none is torn down halfway through this.
+            with self._wakeup:
                 if self._stopping:
                     return
                 self.setup_inputs(topics)
-            now = time.monotonic()
-            self.warm_up_s, self.ready_after_s = now - started, now - self._created
-            self.ready.set()
-            self.get_logger().info(f'ready {self.ready_after_s:.1f} s after start '
-                                   f'(warm-up {self.warm_up_s:.1f} s)')
-            self._publish_diagnostics()
+                now = time.monotonic()
+                self.warm_up_s, self.ready_after_s = now - started, now - self._created
+                self.ready.set()
+                self.get_logger().info(f'ready {self.ready_after_s:.1f} s after start '
+                                       f'(warm-up {self.warm_up_s:.1f} s)')
+                self._publish_diagnostics()
 
         self._warm_thread = threading.Thread(target=run, name=f'{self.get_name()}_warm_up',
                                              daemon=True)
@@ -193,8 +196,8 @@ class StageNode(Node):
         is set), and its (H, W) uint16 instance labels (the box is instance 1)."""
         views, labels = {}, {}
         for camera in self.cameras:
-            background = (backgrounds or {}).get(camera)
-            shape = getattr(background, 'shape', None) or (480, 640)
+            background = (backgrounds or {}).get(camera)   # a BackgroundModel or None
+            shape = (480, 640) if background is None else background.rgb.shape[:2]
             intrinsics = d415_intrinsics(shape[1], shape[0])
             rgb, depth, box = table_with_box(intrinsics, self.extrinsics[camera])
             views[camera] = ViewInput(rgb=rgb, depth_m=depth, intrinsics=intrinsics,

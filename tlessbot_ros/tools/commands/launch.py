@@ -70,6 +70,9 @@ def run(args: argparse.Namespace) -> int:
           flush=True)
     stages = [s.label for s in graph.specs if s.label in PERCEPTION_NODES]
     monitor = _readiness_monitor(stages)
+    if monitor is None:   # no stage node to wait for
+        graph.add(replay_specs)
+    reported: set[str] = set()   # nodes whose failed warm-up was printed
     try:
         while True:
             exited = graph.first_exited()
@@ -87,9 +90,10 @@ def run(args: argparse.Namespace) -> int:
                 time.sleep(0.2)
                 continue
             monitor.poll(0.2)
-            for name, error in monitor.errors.items():
-                print(f'[launch] ERROR: {name}: {error}', file=sys.stderr, flush=True)
-            monitor.errors.clear()
+            for name in sorted(set(monitor.errors) - reported):   # each once, not at 1 Hz
+                print(f'[launch] ERROR: {name}: {monitor.errors[name]}', file=sys.stderr,
+                      flush=True)
+                reported.add(name)
             if monitor.all_ready:
                 print(f'[launch] {monitor.summary()}', flush=True)
                 monitor.close()

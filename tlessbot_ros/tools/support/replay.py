@@ -62,22 +62,21 @@ def wait_for_matches(node: Any, publishers: dict[str, Any], *, timeout_s: float,
     deadline = time.monotonic() + timeout_s
     settled_at = None
 
-    def shortfall() -> dict[str, tuple[int, int]]:
-        counts = {topic: (publisher.get_subscription_count(), node.count_subscribers(topic))
-                  for topic, publisher in publishers.items()}
-        return {t: c for t, c in counts.items() if c[0] < c[1] or c[1] == 0}
+    def counts() -> dict[str, tuple[int, int]]:   # topic: (matched, known to the graph)
+        return {topic: (publisher.get_subscription_count(), node.count_subscribers(topic))
+                for topic, publisher in publishers.items()}
 
     while time.monotonic() < deadline:
-        short = shortfall()
-        anyone = any(node.count_subscribers(topic) for topic in publishers)
-        if anyone and all(known == 0 for _, known in short.values()):
+        now = counts()
+        if any(known for _, known in now.values()) and \
+                all(matched >= known for matched, known in now.values()):
             settled_at = settled_at or time.monotonic() + settle_s
             if time.monotonic() >= settled_at:
                 break
         else:
             settled_at = None
         rclpy.spin_once(node, timeout_sec=0.05)
-    return shortfall()
+    return {t: c for t, c in counts().items() if c[0] < c[1] or c[1] == 0}
 
 
 def describe_unmatched(unmatched: dict[str, tuple[int, int]]) -> str:
