@@ -26,9 +26,22 @@ fi
 
 [ -x "$VENV/bin/python" ] || "$PYTHON" -m venv "$VENV"
 
+# The real jazzy ros2 command line and ros2 launch (ros2cli, launch, launch_ros: not on PyPI),
+# for the tests that drive the graph with them. CI has them beside the clone in ../shared; a
+# ROS 2 install has its own, and a clone without them skips those tests. Idempotent (~1 s).
+install_ros2_cli() {
+    local source=${TLESSBOT_ROS2_CLI:-../shared/ros2-cli}
+    if [ -x "$source/install.sh" ]; then
+        "$source/install.sh" "$VENV" | { grep -v "^WARNING: Location 'file://" || true; }
+    else
+        echo "setup: $source not found: the tests that use the ros2 command line are skipped"
+    fi
+}
+
 stamp_file="$VENV/.tlessbot-setup-stamp"
-stamp=$(cat constraints.txt requirements/*.txt setup.py setup.cfg package.xml | sha256sum | cut -d' ' -f1)
+stamp=$(cat constraints.txt requirements/*.txt setup.py setup.cfg package.xml scripts/setup.sh | sha256sum | cut -d' ' -f1)
 if [ -f "$stamp_file" ] && [ "$(cat "$stamp_file")" = "$stamp" ]; then
+    install_ros2_cli
     echo "setup: $VENV is up to date"
     exit 0
 fi
@@ -42,6 +55,7 @@ quiet_pip() {
 }
 quiet_pip install -q -c constraints.txt \
     -r requirements/ros-pypi.txt -r requirements/dev.txt -e '.[realsense]'
+install_ros2_cli
 # Compile the pose kernels and build the pose stage's start-up caches now, so that the first
 # start of a node after set-up is as fast as the next (tlessbot warm-up; safe to repeat).
 "$VENV/bin/python" -m tlessbot_ros.tools.cli warm-up \

@@ -6,11 +6,14 @@ ROS_DOMAIN_ID and stays on localhost: concurrent runs never hear each other.
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import pytest
 
 _REPO = Path(__file__).resolve().parents[1]
+# Shared test helpers at test/ (ros2_tools.py) import as top-level modules.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 SHARED_DATA = Path(os.environ.get('TLESSBOT_SHARED_DATA', _REPO.parent / 'shared' / 'data'))
 IN_CI = os.environ.get('CI', '').lower() in ('1', 'true', 'yes')
 
