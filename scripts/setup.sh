@@ -38,10 +38,18 @@ install_ros2_cli() {
     fi
 }
 
+# setup.cfg installs the executables into lib/tlessbot_ros, where `ros2 run` looks for them; the
+# stand-alone venv also gets `tlessbot` in its bin/, so `source .venv/bin/activate` finds it.
+link_cli() {
+    [ -x "$VENV/lib/tlessbot_ros/tlessbot" ] && ln -sf ../lib/tlessbot_ros/tlessbot "$VENV/bin/tlessbot"
+    return 0
+}
+
 stamp_file="$VENV/.tlessbot-setup-stamp"
 stamp=$(cat constraints.txt requirements/*.txt setup.py setup.cfg package.xml scripts/setup.sh | sha256sum | cut -d' ' -f1)
 if [ -f "$stamp_file" ] && [ "$(cat "$stamp_file")" = "$stamp" ]; then
     install_ros2_cli
+    link_cli
     echo "setup: $VENV is up to date"
     exit 0
 fi
@@ -56,6 +64,7 @@ quiet_pip() {
 quiet_pip install -q -c constraints.txt \
     -r requirements/ros-pypi.txt -r requirements/dev.txt -e '.[realsense]'
 install_ros2_cli
+link_cli
 # Compile the pose kernels and build the pose stage's start-up caches now, so that the first
 # start of a node after set-up is as fast as the next (tlessbot warm-up; safe to repeat).
 "$VENV/bin/python" -m tlessbot_ros.tools.cli warm-up \
