@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from tlessbot_ros.errors import BagError
+from tlessbot_ros.io.bag_writer import QosOffer
 
 ZSTD_FRAME_MAGIC = b'\x28\xb5\x2f\xfd'   # a CDR message starts with 0x00 (its encapsulation)
 
@@ -56,6 +57,24 @@ def bag_topics(path: str | Path) -> dict[str, str]:
         return {c.topic: c.msgtype for c in reader.connections}
     finally:
         reader.close()
+
+
+def bag_offered_qos(path: str | Path) -> dict[str, list[QosOffer]]:
+    """Topic -> the QoS profiles its publishers offered, as the bag recorded them."""
+    reader = _open_reader(Path(path))
+    try:
+        return {c.topic: [_qos_offer(q) for q in getattr(c.ext, 'offered_qos_profiles', ())]
+                for c in reader.connections}
+    finally:
+        reader.close()
+
+
+def _qos_offer(qos: Any) -> QosOffer:
+    """A rosbags ``Qos`` as a :class:`QosOffer`."""
+    return QosOffer(qos.history.name.lower(), qos.depth, qos.reliability.name.lower(),
+                    qos.durability.name.lower(), tuple(qos.deadline), tuple(qos.lifespan),
+                    qos.liveliness.name.lower(), tuple(qos.liveliness_lease_duration),
+                    qos.avoid_ros_namespace_conventions)
 
 
 def read_bag(path: str | Path, topics: Sequence[str] | None = None) -> Iterator[BagMessage]:
