@@ -12,7 +12,7 @@ import yaml
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader
-from mcap_ros2.decoder import DecoderFactory
+from mcap_tools import channels, decoded_messages
 
 from tlessbot_ros.conversions import RosbagsFactory, array_to_image, transform_to_pose_stamped
 from tlessbot_ros.core.common import make_transform
@@ -33,15 +33,6 @@ ROSBAG2_KEYS = ['version', 'storage_identifier', 'duration', 'starting_time', 'm
                 'relative_file_paths', 'files', 'custom_data', 'ros_distro']
 SENSOR_OFFER = QosOffer('keep_last', 5, 'best_effort', 'volatile', (0, 0), (0, 0),
                         'system_default', (0, 0))
-
-
-def decoded_messages(mcap: Path) -> list:
-    """(channel, message record, decoded ROS message) of every message, as Foxglove's Python
-    readers decode them (mcap + mcap-ros2-support)."""
-    with mcap.open('rb') as stream:
-        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
-        return [(channel, message, ros_msg)
-                for _, channel, message, ros_msg in reader.iter_decoded_messages()]
 
 
 def _metadata(folder: Path) -> dict:
@@ -112,13 +103,13 @@ def test_channels_carry_type_hash_qos_and_ros2msg_schemas(written):
         summary = reader.get_summary()
         header = reader.get_header()
     assert header.profile == 'ros2'
-    channels = {c.topic: c for c in summary.channels.values()}
-    image = channels[IMAGE_TOPIC]
+    by_topic = channels(folder / 'small.mcap')
+    image = by_topic[IMAGE_TOPIC]
     assert image.message_encoding == 'cdr'
     assert image.metadata['topic_type_hash'] == IMAGE_RIHS01
     assert yaml.safe_load(image.metadata['offered_qos_profiles']) == \
         [RELIABLE_OFFER.as_rosbag2()]
-    assert yaml.safe_load(channels[POSE_TOPIC].metadata['offered_qos_profiles']) == \
+    assert yaml.safe_load(by_topic[POSE_TOPIC].metadata['offered_qos_profiles']) == \
         [RELIABLE_OFFER.as_rosbag2(), SENSOR_OFFER.as_rosbag2()]
     schema = summary.schemas[image.schema_id]
     assert (schema.name, schema.encoding) == ('sensor_msgs/msg/Image', 'ros2msg')
