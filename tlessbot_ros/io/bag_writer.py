@@ -134,11 +134,11 @@ class _Span:
 
 
 class BagWriter:
-    """A new rosbag2 bag folder; use as a context manager.
+    """A new rosbag2 bag folder; use as a context manager::
 
-    >>> with BagWriter('run1') as bag:
-    ...     bag.add_topic('/side/color/image_raw', 'sensor_msgs/msg/Image')
-    ...     bag.write('/side/color/image_raw', log_time_ns, cdr_bytes)
+        with BagWriter('run1') as bag:
+            bag.add_topic('/side/color/image_raw', 'sensor_msgs/msg/Image', [RELIABLE_OFFER])
+            bag.write('/side/color/image_raw', log_time_ns, cdr_bytes)
 
     Args:
         path: the bag folder; must not exist.
@@ -185,12 +185,14 @@ class BagWriter:
     def add_topic(self, topic: str, msgtype: str, offers: Iterable[QosOffer] = ()) -> None:
         """Declare a topic before writing to it; ``offers`` are the QoS profiles its publishers
         offered (what ``ros2 bag play`` offers again)."""
+        from rosbags.typesys import TypesysError
+
         if topic in self.topics:
             raise BagError(f'topic {topic} added twice')
         try:
             msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
             type_hash = self.typestore.hash_rihs01(msgtype)
-        except Exception:  # rosbags raises its own TypesysError for an unknown type
+        except TypesysError:
             raise BagError(f'message type {msgtype} of {topic} is unknown to the bag writer')\
                 from None
         entry = _Topic(msgtype, tuple(offers), type_hash)
