@@ -44,6 +44,7 @@ setup(
         'open3d>=0.18',
         'trimesh>=4.0',
         'rosbags>=0.10',
+        'mcap>=1.1',  # io/bag_writer.py: zstd-chunked mcap as rosbag2 writes it (pulls zstandard)
         'pyyaml>=6',
         'tqdm>=4.60',
         'matplotlib>=3.7',

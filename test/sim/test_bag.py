@@ -113,3 +113,16 @@ def test_ground_truth_reads_back(bag):
                 instance.T_camera_object['side_color_optical_frame'],
                 frames[index].views['side'].gt[k].T_camera_object, atol=1e-9)
     assert truth[BagParams().start_ns][1].max_visib_fract == pytest.approx(0.75)
+
+
+def test_every_mcap_reader_decodes_it_and_topics_offer_what_camera_driver_offers(bag):
+    from mcap_tools import decoded_messages
+
+    from tlessbot_ros.io.bag_writer import RELIABLE_OFFER
+    from tlessbot_ros.io.bags import bag_offered_qos
+
+    path, _, counts = bag
+    decoded = decoded_messages(path / 'sim.mcap')
+    assert len(decoded) == sum(counts.values())
+    assert {channel.topic for channel, _, _ in decoded} == set(counts)
+    assert bag_offered_qos(path) == {topic: [RELIABLE_OFFER] for topic in counts}

@@ -6,11 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from bagutil import TYPESTORE, write_bag
+from mcap.reader import make_reader
+from mcap_tools import channels, decoded_messages
 from rosbags.rosbag2 import StoragePlugin
 
 from tlessbot_ros.conversions import RosbagsFactory, array_to_image, transform_to_pose_stamped
 from tlessbot_ros.core.common import make_transform, rotation_about_axis
-from tlessbot_ros.io.bags import read_bag
+from tlessbot_ros.io.bag_writer import RELIABLE_OFFER
+from tlessbot_ros.io.bags import ZSTD_FRAME_MAGIC, bag_offered_qos, read_bag
 from tlessbot_ros.tools.commands.echo import CSV_HEADER, format_pose, format_pose_csv
 
 CLI = [sys.executable, '-m', 'tlessbot_ros.tools.cli']
@@ -35,23 +38,38 @@ def test_pose_formatting():
     assert float(row[-1]) == pytest.approx(20.0)
 
 
-@pytest.fixture
-def pose_bag(tmp_path):
+def _pose_messages():
+    """Five poses, each followed by an image, as (topic, log time ns, message)."""
     image = array_to_image(np.zeros((4, 6, 3), np.uint8), 'rgb8', frame_id='side',
                            factory=RosbagsFactory())
     messages = []
     for i, pose in enumerate(_poses(5)):
         messages.append((POSE_TOPIC, (i + 1) * 50_000_000, pose))
         messages.append(('/side/color/image_raw', (i + 1) * 50_000_000 + 1, image))
-    return write_bag(tmp_path / 'poses', messages)
+    return messages
+
+
+@pytest.fixture
+def pose_bag(tmp_path):
+    return write_bag(tmp_path / 'poses', _pose_messages())
+
+
+@pytest.fixture
+def old_style_bag(tmp_path):
+    """The same messages as tlessbot wrote bags before chunk compression."""
+    return write_bag(tmp_path / 'old', _pose_messages(), per_message_zstd=True)
 
 
 @pytest.mark.ros
 @pytest.mark.rosbag
-def test_replay_into_echo(pose_bag):
+@pytest.mark.parametrize('source', ['bag', 'old-style .mcap'])
+def test_replay_into_echo(source, tmp_path):
+    bag = write_bag(tmp_path / 'poses', _pose_messages(), per_message_zstd=source != 'bag')
+    if source != 'bag':
+        bag = bag / 'poses.mcap'   # without metadata.yaml to say the messages are compressed
     echo = subprocess.Popen([*CLI, 'echo', POSE_TOPIC, '--csv', '--count', '5', '--timeout',
                              '30'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    replay = subprocess.Popen([*CLI, 'replay', str(pose_bag), '--loop', '--rate', '2'],
+    replay = subprocess.Popen([*CLI, 'replay', str(bag), '--loop', '--rate', '2'],
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         out, err = echo.communicate(timeout=90)
@@ -89,6 +107,41 @@ def test_record_keeps_raw_bytes(pose_bag, tmp_path):
     recorded = [m.raw for m in read_bag(out, [POSE_TOPIC])]
     assert len(recorded) >= 3
     assert set(recorded) <= originals
+    # A bag every tool reads, offering again what the replay's publisher offered.
+    assert len(decoded_messages(out / 'recorded.mcap')) == len(recorded)
+    channel = channels(out / 'recorded.mcap')[POSE_TOPIC]
+    assert channel.metadata['topic_type_hash'] == \
+        TYPESTORE.hash_rihs01('geometry_msgs/msg/PoseStamped')
+    assert bag_offered_qos(out) == {POSE_TOPIC: [RELIABLE_OFFER]}
+
+
+@pytest.mark.rosbag
+def test_old_style_bags_read_as_plain_cdr(pose_bag, old_style_bag):
+    old_mcap = old_style_bag / 'old.mcap'
+    with old_mcap.open('rb') as stream:
+        stored = [m.data for _, _, m in make_reader(stream).iter_messages()]
+    assert all(data.startswith(ZSTD_FRAME_MAGIC) for data in stored)   # really per-message zstd
+    expected = [(m.topic, m.log_time_ns, m.raw) for m in read_bag(pose_bag)]
+    for path in (old_style_bag, old_mcap):
+        assert [(m.topic, m.log_time_ns, m.raw) for m in read_bag(path)] == expected
+
+
+@pytest.mark.rosbag
+def test_rebag_makes_old_bags_readable_by_every_tool(tmp_path, old_style_bag):
+    out = tmp_path / 'new'
+    result = _run('rebag', str(old_style_bag / 'old.mcap'), str(out))
+    assert result.returncode == 0, result.stderr
+    assert 'rewrote 10 messages on 2 topics' in result.stdout
+    assert [(m.topic, m.log_time_ns, m.raw) for m in read_bag(out)] == \
+        [(m.topic, m.log_time_ns, m.raw) for m in read_bag(old_style_bag)]
+    decoded = decoded_messages(out / 'new.mcap')
+    assert [ros_msg.header.frame_id for _, _, ros_msg in decoded] == \
+        ['side_color_optical_frame', 'side'] * 5
+    assert channels(out / 'new.mcap')['/side/color/image_raw'].metadata['topic_type_hash'] == \
+        TYPESTORE.hash_rihs01('sensor_msgs/msg/Image')
+    again = _run('rebag', str(old_style_bag), str(out))
+    assert again.returncode == 1 and again.stderr.strip().splitlines() == [
+        f'tlessbot rebag: error: output bag {out} exists; choose a new path']
 
 
 def _run(*args):

@@ -25,7 +25,7 @@ from typing import Any
 from tlessbot_ros.conversions.camera import camera_frame_messages
 from tlessbot_ros.conversions.messages import MessageFactory, RosbagsFactory, make_header
 from tlessbot_ros.conversions.pose import transform_to_pose_stamped
-from tlessbot_ros.errors import BagError
+from tlessbot_ros.io.bag_writer import RELIABLE_OFFER, BagWriter
 
 GROUND_TRUTH_INFO_TOPIC = '/ground_truth/info'
 
@@ -44,8 +44,8 @@ class BagParams:
         cloud_stride: pixel stride of the point clouds (1 = every valid pixel, as a D415;
             larger values keep demo bags small).
         with_clouds: write ``depth/color/points``.
-        compress: zstd-compress each message (rosbag2 'message' compression; ros2 bag play
-            reads it).
+        compress: zstd-compress the mcap file's chunks (messages inside stay plain CDR, so
+            every MCAP reader decodes them).
     """
 
     fps: float = 15.0
@@ -88,27 +88,17 @@ def frame_messages(frame: Any, stamp_ns: int, *, params: BagParams,
 
 def write_bag(frames: Iterable[Any], path: str | Path, *,
               params: BagParams = BagParams()) -> dict[str, int]:
-    """Write simulated frames to a new mcap bag folder; returns message counts per topic."""
-    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+    """Write simulated frames to a new mcap bag folder; returns message counts per topic.
 
-    path = Path(path)
-    if path.exists():
-        raise BagError(f'output bag {path} exists; choose a new path')
+    Every topic is offered as camera_driver offers it (:data:`RELIABLE_OFFER`).
+    """
     factory = RosbagsFactory()
     typestore = factory.typestore
-    counts: dict[str, int] = {}
-    connections: dict[str, Any] = {}
-    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
-    if params.compress:
-        writer.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
-    with writer:
+    with BagWriter(path, compress=params.compress, typestore=typestore) as bag:
         for index, frame in enumerate(frames):
             stamp_ns = params.start_ns + round(index * 1e9 / params.fps)
             for topic, msg in frame_messages(frame, stamp_ns, params=params, factory=factory):
-                if topic not in connections:
-                    connections[topic] = writer.add_connection(topic, msg.__msgtype__,
-                                                               typestore=typestore)
-                writer.write(connections[topic], stamp_ns,
-                             typestore.serialize_cdr(msg, msg.__msgtype__))
-                counts[topic] = counts.get(topic, 0) + 1
-    return counts
+                if topic not in bag.topics:
+                    bag.add_topic(topic, msg.__msgtype__, [RELIABLE_OFFER])
+                bag.write(topic, stamp_ns, typestore.serialize_cdr(msg, msg.__msgtype__))
+    return bag.counts

@@ -24,16 +24,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
 
+    from tlessbot_ros.io.bag_writer import BagWriter, offered_qos
     from tlessbot_ros.nodes.common import SENSOR_QOS, init_ros, message_class
 
     out = Path(args.out)
     if out.exists():
         raise BagError(f'output {out} exists; choose a new folder')
     topics = [t if t.startswith('/') else '/' + t for t in args.topics]
-    typestore = get_typestore(Stores.ROS2_JAZZY)
     init_ros()
     node = rclpy.create_node('tlessbot_record')
     writer = None
@@ -48,15 +46,16 @@ def run(args: argparse.Namespace) -> int:
         missing = sorted(set(topics) - set(types))
         if missing:
             raise BagError(f'topic(s) {missing} not found in the ROS graph')
-        plugin = StoragePlugin.MCAP if args.storage == 'mcap' else StoragePlugin.SQLITE3
-        writer = Writer(out, version=9, storage_plugin=plugin)
+        writer = BagWriter(out, storage=args.storage)
         writer.open()
-        connections = {t: writer.add_connection(t, m, typestore=typestore)
-                       for t, m in types.items()}
+        for topic, msgtype in types.items():
+            # What the publishers offer, so that a replay offers it again (as ros2 bag does).
+            writer.add_topic(topic, msgtype, [offered_qos(info.qos_profile) for info
+                                              in node.get_publishers_info_by_topic(topic)])
 
         def subscriber(topic: str):
             def on_raw(raw: bytes) -> None:
-                writer.write(connections[topic], time.time_ns(), raw)
+                writer.write(topic, time.time_ns(), raw)
                 counts[topic] += 1
             return on_raw
 

@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--cloud-stride', type=int, default=1,
                         help='bag point clouds use every n-th pixel row and column (default 1)')
     parser.add_argument('--no-compress', action='store_true',
-                        help='write bag messages without zstd compression')
+                        help='write the bag without zstd chunk compression')
     parser.add_argument('--frames', type=int, default=10, help='number of frames (default 10)')
     parser.add_argument('--first', type=int, default=0, help='index of the first frame')
     parser.add_argument('--seed', type=int, default=0)
