@@ -28,12 +28,16 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 
+from tlessbot_ros.conversions.messages import RclpyFactory
+from tlessbot_ros.conversions.outcomes import DONE, DROPPED, FAILED, frame_outcome
 from tlessbot_ros.conversions.topics import (
     COLOR,
     DEPTH,
     DEPTH_INFO,
     DIAGNOSTICS,
     camera_topic,
+    node_relative,
+    outcome_topic,
 )
 from tlessbot_ros.core.common import (
     CAMERA_NAMES,
@@ -131,6 +135,7 @@ class StageNode(Node):
         self.frames = 0
         self.failures = 0
         self.rate_dropped = 0   # complete frames skipped by sync.max_rate_hz
+        self.entrance_dropped = 0   # complete frames refused by admit() (backpressure)
         self.busy_dropped = 0   # complete frames replaced by a newer one while the worker ran
         self._last_start = -float('inf')
         self._pending: Views | None = None
@@ -146,6 +151,10 @@ class StageNode(Node):
         self._diagnostics = self.create_publisher(
             message_class('diagnostic_msgs/msg/DiagnosticArray'), DIAGNOSTICS, RESULT_QOS)
         self.create_timer(1.0, self._publish_diagnostics)
+        # What became of each frame this stage took, for the entrance's backpressure.
+        self._outcomes = self.create_publisher(message_class('std_msgs/msg/Header'),
+                                               node_relative(outcome_topic(name)), RESULT_QOS)
+        self._outcome_factory = RclpyFactory()
         if self.sync_params.worker_thread:
             self._worker = threading.Thread(target=self._work, name=f'{name}_worker',
                                             daemon=True)
@@ -229,15 +238,40 @@ class StageNode(Node):
         if max_rate > 0 and now - self._last_start < 1.0 / max_rate:
             self.rate_dropped += 1
             return
+        if not self.admit(views):
+            self.entrance_dropped += 1
+            return
         self._last_start = now
         if self._worker is None:
             self._process_safely(views)
             return
         with self._wakeup:
-            if self._pending is not None:
+            replaced, self._pending = self._pending, views
+            if replaced is not None:
                 self.busy_dropped += 1
-            self._pending = views
             self._wakeup.notify()
+        if replaced is not None:
+            self.report_outcome(replaced, DROPPED)
+
+    def admit(self, views: Views) -> bool:
+        """Whether to take a complete frame (after ``sync.max_rate_hz``); the entrance of the
+        graph overrides it to apply backpressure. A refused frame is counted, not reported."""
+        return True
+
+    def report_outcome(self, views: Views, outcome: str) -> None:
+        """Publish what became of a frame (``done``, ``dropped``, ``failed``) on
+        ``/<node>/frames`` and tell :meth:`on_outcome`."""
+        stamp_ns = newest_stamp_ns(views)
+        if stamp_ns is None:
+            return
+        self.on_outcome(stamp_ns, outcome)
+        try:
+            self._outcomes.publish(frame_outcome(stamp_ns, outcome, self._outcome_factory))
+        except Exception:  # shutting down: the context is gone, nobody listens any more
+            pass
+
+    def on_outcome(self, stamp_ns: int, outcome: str) -> None:
+        """Hook: this stage finished with frame ``stamp_ns`` (see :meth:`report_outcome`)."""
 
     def _work(self) -> None:
         while True:
@@ -277,7 +311,9 @@ class StageNode(Node):
                     (self.get_clock().now().nanoseconds - stamp_ns) / 1e6)
             self.process(deserialise_views(views))
             self.frames += 1
+            outcome = DONE
         except Exception as error:  # a bad frame must never take the node down
+            outcome = FAILED
             self.failures += 1
             self.last_error = f'{type(error).__name__}: {error}'
             self.get_logger().error(f'frame skipped: {self.last_error}',
@@ -286,6 +322,7 @@ class StageNode(Node):
         finally:
             self._busy = False
             self._latencies_ms.append(1e3 * (time.perf_counter() - start))
+        self.report_outcome(views, outcome)
 
     def process(self, views: Views) -> None:
         """Handle one synchronised two-view frame (``{camera: {key: msg}}``)."""
@@ -297,7 +334,7 @@ class StageNode(Node):
 
     def _publish_diagnostics(self) -> None:
         dropped = (self._inputs.dropped if self._inputs else 0) + self.rate_dropped + \
-            self.busy_dropped
+            self.busy_dropped + self.entrance_dropped
         level = OK if not self.failures else (ERROR if self.frames == 0 else WARN)
         readiness = {'ready': 'true', 'ready_after_s': f'{self.ready_after_s:.2f}',
                      'warm_up_s': f'{self.warm_up_s:.2f}'} if self.ready.is_set() else \
