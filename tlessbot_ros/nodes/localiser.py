@@ -38,17 +38,22 @@ from tlessbot_ros.conversions import (
 )
 from tlessbot_ros.conversions.image_cdr import image_to_cdr
 from tlessbot_ros.conversions.outcomes import DONE, read_frame_outcome
-from tlessbot_ros.conversions.topics import labels_topic, node_relative, outcome_topic
+from tlessbot_ros.conversions.topics import (
+    labels_topic,
+    node_relative,
+    outcome_topic,
+    relay_topic,
+)
 from tlessbot_ros.core.common import AdmissionParams, InFlightFrames
 from tlessbot_ros.core.localise import FusionParams, SegmentationParams, prepare_background
 from tlessbot_ros.core.pipeline import LocaliseParams, PerceptionPipeline, ViewInput
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, params_from_node, run_node
 from tlessbot_ros.nodes.inputs import Views, newest_stamp_ns
 from tlessbot_ros.nodes.stage import (
-    COLOR_INPUT,
-    DEPTH_INPUTS,
+    CAMERA_INPUTS,
     IMAGE,
     StageNode,
+    camera_inputs,
     rig_with_intrinsics,
 )
 
@@ -81,7 +86,11 @@ class LocaliserNode(StageNode):
             camera: self.create_publisher(message_class(IMAGE),
                                           node_relative(labels_topic(camera)), RESULT_QOS)
             for camera in self.cameras}
-        self.start_when_ready(self._warm_up, {'color': COLOR_INPUT, **DEPTH_INPUTS})
+        self._relays = {camera: {
+            key: self.create_publisher(message_class(msg_type), relay_topic(camera, topic),
+                                       RESULT_QOS)
+            for key, (msg_type, topic) in CAMERA_INPUTS.items()} for camera in self.cameras}
+        self.start_when_ready(self._warm_up, camera_inputs(CAMERA_INPUTS))
 
     def admit(self, views: Views) -> bool:
         """Backpressure: take the frame only while fewer than ``admission.max_in_flight`` are
@@ -91,6 +100,14 @@ class LocaliserNode(StageNode):
         stamp_ns = newest_stamp_ns(views)
         with self._in_flight_lock:
             return stamp_ns is None or self.in_flight.try_admit(stamp_ns, time.monotonic())
+
+    def on_admitted(self, views: Views) -> None:
+        """Relay the admitted frame's camera messages, as received, to the later stages."""
+        for camera, msgs in views.items():
+            for key, raw in msgs.items():
+                publisher = self._relays[camera][key]
+                if publisher.get_subscription_count() > 0:
+                    publisher.publish(raw.data)   # CDR bytes: no copy into a Python message
 
     def on_outcome(self, stamp_ns: int, outcome: str) -> None:
         """A frame this node dropped or failed never reaches the later stages."""

@@ -38,6 +38,7 @@ from tlessbot_ros.conversions.topics import (
     camera_topic,
     node_relative,
     outcome_topic,
+    relay_topic,
 )
 from tlessbot_ros.core.common import (
     CAMERA_NAMES,
@@ -59,10 +60,32 @@ from tlessbot_ros.nodes.inputs import TwoViewInputs, Views, deserialise_views, n
 
 IMAGE = 'sensor_msgs/msg/Image'
 CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
-# StageNode.setup_inputs entries of the camera topics
-COLOR_INPUT = (IMAGE, partial(camera_topic, relative=COLOR))
-DEPTH_INPUTS = {'depth': (IMAGE, partial(camera_topic, relative=DEPTH)),
-                'info': (CAMERA_INFO, partial(camera_topic, relative=DEPTH_INFO))}
+# StageNode.setup_inputs entries of the camera topics: input key -> (type, camera-relative topic)
+CAMERA_INPUTS = {'color': (IMAGE, COLOR), 'depth': (IMAGE, DEPTH),
+                 'info': (CAMERA_INFO, DEPTH_INFO)}
+INPUT_SOURCES = ('localiser', 'cameras')
+
+
+def camera_inputs(keys: Sequence[str], source: str = 'cameras'
+                  ) -> dict[str, tuple[str, Callable[[str], str]]]:
+    """``setup_inputs`` entries of the camera inputs ``keys`` (color, depth, info), read from
+    the cameras' topics or from the localiser's relay of the frames it admitted."""
+    if source not in INPUT_SOURCES:
+        raise TlessbotError(f'input_source must be one of {INPUT_SOURCES}, got {source!r}')
+    topic = camera_topic if source == 'cameras' else relay_topic
+    return {key: (CAMERA_INPUTS[key][0], partial(topic, relative=CAMERA_INPUTS[key][1]))
+            for key in keys}
+
+
+def declare_input_source(node: Node) -> str:
+    """Declare the read-only ``input_source`` of a stage after the localiser and return it."""
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    return node.declare_parameter('input_source', INPUT_SOURCES[0], ParameterDescriptor(
+        description="Where the camera images come from: 'localiser' (its relay of the frames "
+                    "it admitted, /localiser/<camera>/...: a frame the localiser skipped costs "
+                    "this node nothing) or 'cameras' (every frame of the camera topics) "
+                    '(read-only)', read_only=True)).value
 
 
 def declare_cameras(node: Node) -> tuple[str, ...]:
@@ -241,6 +264,7 @@ class StageNode(Node):
         if not self.admit(views):
             self.entrance_dropped += 1
             return
+        self.on_admitted(views)
         self._last_start = now
         if self._worker is None:
             self._process_safely(views)
@@ -257,6 +281,9 @@ class StageNode(Node):
         """Whether to take a complete frame (after ``sync.max_rate_hz``); the entrance of the
         graph overrides it to apply backpressure. A refused frame is counted, not reported."""
         return True
+
+    def on_admitted(self, views: Views) -> None:
+        """Hook: a complete frame was taken (before it waits for the worker)."""
 
     def report_outcome(self, views: Views, outcome: str) -> None:
         """Publish what became of a frame (``done``, ``dropped``, ``failed``) on
