@@ -34,7 +34,8 @@ def test_cell_yaml_loads_into_every_perception_node(ros):
 
     localiser = LocaliserNode(cli_args=_cell_args())
     assert set(localiser.cameras) == set(CAMERA_NAMES)
-    assert localiser.sync_params.max_rate_hz == 6.0 and localiser.input_qos == 'reliable'
+    assert localiser.sync_params.max_rate_hz == 0.0 and localiser.input_qos == 'reliable'
+    assert localiser.in_flight.params.max_in_flight == 2
     assert localiser.localise_params.parallel_views is True
     localiser.destroy_node()
     classifier = ClassifierNode(cli_args=_cell_args())

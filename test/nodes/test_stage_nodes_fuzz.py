@@ -212,8 +212,10 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
             good[f'/classifier/{camera}/classes'] = array_to_image(
                 ((labels > 0) * 5000 + labels).astype(np.uint16), '16UC1',
                 frame_id=header.frame_id, stamp_ns=STAMP0)
-        node = ClassifierNode(parameter_overrides=[Parameter('model_path',
-                                                             value=str(classifier_path))])
+        # fed straight from camera topics here, as when no localiser relays them
+        node = ClassifierNode(parameter_overrides=[
+            Parameter('model_path', value=str(classifier_path)),
+            Parameter('input_source', value='cameras')])
         assert node.wait_ready()
         harness = Harness(node, {
             '/{camera}/color/image_raw': 'sensor_msgs/msg/Image',
@@ -234,6 +236,7 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
 
         node = PoseEstimatorNode(parameter_overrides=[
             Parameter('templates_path', value=str(templates_path)),
+            Parameter('input_source', value='cameras'),
             Parameter('workers.count', value=1)])      # malformed frames reach the worker too
         assert node.wait_ready()
         workers = list(node.workers._workers)

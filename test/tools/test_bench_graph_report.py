@@ -57,3 +57,22 @@ def test_a_nodes_memory_and_cpu_include_its_worker_processes():
     finally:
         child.kill()
         child.wait()
+
+
+def test_ratio_rows_compare_the_graph_with_its_stages_alone():
+    from tlessbot_ros.tools.commands.bench.graph import ratio_rows
+    from tlessbot_ros.tools.support.graph_run import GraphRunResult
+
+    alone = {'localiser': {'median_ms': 30.0, 'cpu_ms_per_frame': 40.0},
+             'classifier': {'median_ms': 10.0, 'cpu_ms_per_frame': 10.0},
+             'pose_estimator': {'median_ms': 50.0, 'cpu_ms_per_frame': 50.0}}
+    result = GraphRunResult(cpu_s={'localiser': 6.0, 'classifier': 2.0, 'pose_estimator': 10.0,
+                                   'monitor': 99.0},
+                            diagnostics={'pose_estimator': {'frames': '100'}})
+    rows = dict(ratio_rows(alone, p95_ms=117.0, duration_s=10.0, result=result))
+    assert rows['p95 latency / sum of the stages alone'] == '1.30'
+    # 10 frames/s processed against 20 for the slowest stage (50 ms) alone
+    assert rows['frames processed per s / (1 / slowest stage alone)'].endswith('= 0.50')
+    # 18 CPU s over 100 frames (the monitor is not a node) against 100 ms of the stages' own
+    assert rows["CPU of the three nodes per processed frame / the stages' own CPU per frame"] \
+        == '180.0 / 100.0 ms = 1.80'

@@ -6,11 +6,19 @@ from tlessbot_ros.tools.cli import main
 pytestmark = [pytest.mark.ros, pytest.mark.rosbag]
 
 
-def test_bench_nodes_times_every_stage_on_the_demo_bag(capsys):
-    assert main(['bench', 'nodes', '--repeats', '1']) == 0
+def test_bench_nodes_times_every_stage_on_the_demo_bag(capsys, tmp_path):
+    import json
+
+    assert main(['bench', 'nodes', '--repeats', '1', '--json', str(tmp_path / 'stages.json')]) == 0
     out = capsys.readouterr().out
     rows = {line.split('|')[1].strip(): float(line.split('|')[2])
             for line in out.splitlines() if line.startswith('| ') and 'median' not in line}
     assert set(rows) == {'localiser', 'classifier', 'pose_estimator'}
     assert all(ms > 0 for ms in rows.values())
     assert '6 frames x 1 passes' in out
+    figures = json.loads((tmp_path / 'stages.json').read_text())
+    assert set(figures) == set(rows)
+    medians = {line.split('|')[1].strip(): float(line.split('|')[3])
+               for line in out.splitlines() if line.startswith('| ') and 'median' not in line}
+    assert all(f['median_ms'] == pytest.approx(medians[name], abs=0.05)
+               and f['cpu_ms_per_frame'] > 0 for name, f in figures.items())

@@ -50,3 +50,16 @@ def pose_topic(obj_id: int) -> str:
 def ground_truth_pose_topic(obj_id: int) -> str:
     """A simulated bag's ground-truth PoseStamped topic of one object."""
     return f'{GROUND_TRUTH_POSE_PREFIX}{obj_id:02d}'
+
+
+def outcome_topic(stage: str) -> str:
+    """Where a stage node reports what became of each frame it took (``/classifier/frames``):
+    the localiser's backpressure listens to it (:mod:`~tlessbot_ros.conversions.outcomes`)."""
+    return f'/{stage}/frames'
+
+
+def relay_topic(camera: str, relative: str) -> str:
+    """The localiser's copy of a camera topic, sent only for the frames it admits
+    (``/localiser/top/color/image_raw``): the later stages subscribe to it instead of taking
+    every camera frame only to keep the few they process."""
+    return f'/localiser/{camera}/{relative}'

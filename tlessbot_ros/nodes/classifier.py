@@ -37,7 +37,13 @@ from tlessbot_ros.core.pipeline import ClassifyParams, PerceptionPipeline, ViewI
 from tlessbot_ros.core.recognise import load_classifier
 from tlessbot_ros.data import DEFAULT_CLASSIFIER
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, params_from_node, run_node
-from tlessbot_ros.nodes.stage import COLOR_INPUT, DEPTH_INPUTS, IMAGE, StageNode, descriptor
+from tlessbot_ros.nodes.stage import (
+    IMAGE,
+    StageNode,
+    camera_inputs,
+    declare_input_source,
+    descriptor,
+)
 
 LABEL_ENCODINGS = ('16UC1', 'mono16')
 
@@ -60,8 +66,8 @@ class ClassifierNode(StageNode):
             for camera in self.cameras}
         self.get_logger().info(f'loaded {self.model.kind} classifier for '
                                f'{len(self.model.class_ids)} objects from {path}')
-        self.start_when_ready(self._warm_up, {'color': COLOR_INPUT, **DEPTH_INPUTS,
-                                              'labels': (IMAGE, labels_topic)})
+        inputs = camera_inputs(('color', 'depth', 'info'), declare_input_source(self))
+        self.start_when_ready(self._warm_up, {**inputs, 'labels': (IMAGE, labels_topic)})
 
     def _warm_up(self) -> None:
         """Classify the box of a synthetic frame once (HOG, shape features, feature map)."""

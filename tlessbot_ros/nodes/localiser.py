@@ -8,15 +8,24 @@ Publishes (RELIABLE, depth 10):
     localiser/CAMERA/labels   sensor_msgs/Image 16UC1: 0 = background, 1..N instances; the same
                               id marks the same part in both views (header = colour header)
     /diagnostics              frames, failures, dropped, latency, stage times
-Parameters: ``parallel_views`` (LocaliseParams: segment both views at once, in two threads),
-``segmentation.*`` (SegmentationParams), ``fusion.*`` (FusionParams: method calibrated |
-algorithm1 | side_only), ``sync.*`` (SyncParams), ``rig.cameras`` (the names of the top and
-side cameras), ``rig.CAMERA.*`` (extrinsics), ``background.CAMERA`` (path of an empty-table
-PNG for background subtraction; '' = none).
+Subscribes (RELIABLE), for backpressure:
+    /classifier/frames, /pose_estimator/frames   std_msgs/Header: stamp = a frame's stamp,
+                                                 frame_id = done | dropped | failed
+Admission: a complete frame is taken only while fewer than ``admission.max_in_flight`` frames
+it has taken are still unfinished downstream (:mod:`~tlessbot_ros.core.common.admission`), so
+frames are dropped here, at the entrance, instead of queueing in the later stages. Without a
+pose estimator publishing outcomes, every frame is taken.
+Parameters: ``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParams: segment
+both views at once, in two threads), ``segmentation.*`` (SegmentationParams), ``fusion.*``
+(FusionParams: method calibrated | algorithm1 | side_only), ``sync.*`` (SyncParams),
+``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*`` (extrinsics),
+``background.CAMERA`` (path of an empty-table PNG for background subtraction; '' = none).
 Frames: outputs keep each source image's frame and stamp.
 """
 from __future__ import annotations
 
+import threading
+import time
 from typing import Any
 
 import cv2
@@ -28,17 +37,28 @@ from tlessbot_ros.conversions import (
     stamp_to_ns,
 )
 from tlessbot_ros.conversions.image_cdr import image_to_cdr
-from tlessbot_ros.conversions.topics import labels_topic, node_relative
+from tlessbot_ros.conversions.outcomes import DONE, read_frame_outcome
+from tlessbot_ros.conversions.topics import (
+    labels_topic,
+    node_relative,
+    outcome_topic,
+    relay_topic,
+)
+from tlessbot_ros.core.common import AdmissionParams, InFlightFrames
 from tlessbot_ros.core.localise import FusionParams, SegmentationParams, prepare_background
 from tlessbot_ros.core.pipeline import LocaliseParams, PerceptionPipeline, ViewInput
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, params_from_node, run_node
+from tlessbot_ros.nodes.inputs import Views, newest_stamp_ns
 from tlessbot_ros.nodes.stage import (
-    COLOR_INPUT,
-    DEPTH_INPUTS,
+    CAMERA_INPUTS,
     IMAGE,
     StageNode,
+    camera_inputs,
     rig_with_intrinsics,
 )
+
+# The stages after the localiser; the last one's 'done' ends a frame's trip through the graph.
+DOWNSTREAM = ('classifier', 'pose_estimator')
 
 
 class LocaliserNode(StageNode):
@@ -54,11 +74,59 @@ class LocaliserNode(StageNode):
             path = self.declare_parameter(f'background.{camera}', '').value
             if path:
                 self.backgrounds[camera] = self._load_background(path)
+        self.in_flight = InFlightFrames(params_from_node(self, AdmissionParams,
+                                                         prefix='admission.'))
+        self._in_flight_lock = threading.Lock()
+        self._downstream = {
+            stage: self.create_subscription(
+                message_class('std_msgs/msg/Header'), outcome_topic(stage),
+                lambda msg, stage=stage: self._on_downstream_outcome(stage, msg), RESULT_QOS)
+            for stage in DOWNSTREAM}
         self._label_publishers = {
             camera: self.create_publisher(message_class(IMAGE),
                                           node_relative(labels_topic(camera)), RESULT_QOS)
             for camera in self.cameras}
-        self.start_when_ready(self._warm_up, {'color': COLOR_INPUT, **DEPTH_INPUTS})
+        self._relays = {camera: {
+            key: self.create_publisher(message_class(msg_type), relay_topic(camera, topic),
+                                       RESULT_QOS)
+            for key, (msg_type, topic) in CAMERA_INPUTS.items()} for camera in self.cameras}
+        self.start_when_ready(self._warm_up, camera_inputs(CAMERA_INPUTS))
+
+    def admit(self, views: Views) -> bool:
+        """Backpressure: take the frame only while fewer than ``admission.max_in_flight`` are
+        unfinished downstream (every frame when no pose estimator reports outcomes)."""
+        if self._downstream[DOWNSTREAM[-1]].get_publisher_count() == 0:
+            return True
+        stamp_ns = newest_stamp_ns(views)
+        with self._in_flight_lock:
+            return stamp_ns is None or self.in_flight.try_admit(stamp_ns, time.monotonic())
+
+    def on_admitted(self, views: Views) -> None:
+        """Relay the admitted frame's camera messages, as received, to the later stages."""
+        for camera, msgs in views.items():
+            for key, raw in msgs.items():
+                publisher = self._relays[camera][key]
+                if publisher.get_subscription_count() > 0:
+                    publisher.publish(raw.data)   # CDR bytes: no copy into a Python message
+
+    def on_outcome(self, stamp_ns: int, outcome: str) -> None:
+        """A frame this node dropped or failed never reaches the later stages."""
+        if outcome != DONE:
+            with self._in_flight_lock:
+                self.in_flight.finish(stamp_ns, time.monotonic(), completed=False)
+
+    def _on_downstream_outcome(self, stage: str, msg: Any) -> None:
+        try:
+            stamp_ns, outcome = read_frame_outcome(msg)
+        except ValueError as error:
+            self.get_logger().warning(f'{outcome_topic(stage)}: {error}',
+                                      throttle_duration_sec=5.0)
+            return
+        last_stage = stage == DOWNSTREAM[-1]
+        if last_stage or outcome != DONE:   # the frame's trip ends here
+            with self._in_flight_lock:
+                self.in_flight.finish(stamp_ns, time.monotonic(),
+                                      completed=last_stage and outcome == DONE)
 
     def _warm_up(self) -> None:
         """Segment and fuse a synthetic frame once (first calls, lazy imports)."""
@@ -81,7 +149,11 @@ class LocaliserNode(StageNode):
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         inputs = {camera: self._view_input(camera, msgs) for camera, msgs in views.items()}
         fusion = self._pipeline(inputs).localise(inputs)
-        self.record_stats({f'{k}_ms': v for k, v in fusion.timings_ms.items()})
+        with self._in_flight_lock:
+            admission = {'in_flight': self.in_flight.open_count,
+                         'entrance_refused': self.in_flight.refused,
+                         'in_flight_expired': self.in_flight.expired}
+        self.record_stats({**{f'{k}_ms': v for k, v in fusion.timings_ms.items()}, **admission})
         for camera, msgs in views.items():
             header = msgs['color'].header
             self._label_publishers[camera].publish(image_to_cdr(   # raw CDR: one copy

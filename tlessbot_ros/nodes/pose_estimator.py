@@ -55,7 +55,13 @@ from tlessbot_ros.data import DEFAULT_TEMPLATES
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.io.cache import warm_pose_stage
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, params_from_node, run_node
-from tlessbot_ros.nodes.stage import DEPTH_INPUTS, IMAGE, StageNode, descriptor
+from tlessbot_ros.nodes.stage import (
+    IMAGE,
+    StageNode,
+    camera_inputs,
+    declare_input_source,
+    descriptor,
+)
 from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
 
 CLASS_ENCODINGS = ('16UC1', 'mono16', '16UC2', '16UC3', '16UC4')
@@ -92,7 +98,8 @@ class PoseEstimatorNode(StageNode):
         self._factory = RclpyFactory()
         self._templates_path = path
         self._create_publishers()
-        self.start_when_ready(self._warm_up, {**DEPTH_INPUTS, 'classes': (IMAGE, classes_topic)})
+        inputs = camera_inputs(('depth', 'info'), declare_input_source(self))
+        self.start_when_ready(self._warm_up, {**inputs, 'classes': (IMAGE, classes_topic)})
 
     def _create_publishers(self) -> None:
         pose_class = message_class('geometry_msgs/msg/PoseStamped')

@@ -28,12 +28,17 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 
+from tlessbot_ros.conversions.messages import RclpyFactory
+from tlessbot_ros.conversions.outcomes import DONE, DROPPED, FAILED, frame_outcome
 from tlessbot_ros.conversions.topics import (
     COLOR,
     DEPTH,
     DEPTH_INFO,
     DIAGNOSTICS,
     camera_topic,
+    node_relative,
+    outcome_topic,
+    relay_topic,
 )
 from tlessbot_ros.core.common import (
     CAMERA_NAMES,
@@ -55,10 +60,32 @@ from tlessbot_ros.nodes.inputs import TwoViewInputs, Views, deserialise_views, n
 
 IMAGE = 'sensor_msgs/msg/Image'
 CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
-# StageNode.setup_inputs entries of the camera topics
-COLOR_INPUT = (IMAGE, partial(camera_topic, relative=COLOR))
-DEPTH_INPUTS = {'depth': (IMAGE, partial(camera_topic, relative=DEPTH)),
-                'info': (CAMERA_INFO, partial(camera_topic, relative=DEPTH_INFO))}
+# StageNode.setup_inputs entries of the camera topics: input key -> (type, camera-relative topic)
+CAMERA_INPUTS = {'color': (IMAGE, COLOR), 'depth': (IMAGE, DEPTH),
+                 'info': (CAMERA_INFO, DEPTH_INFO)}
+INPUT_SOURCES = ('localiser', 'cameras')
+
+
+def camera_inputs(keys: Sequence[str], source: str = 'cameras'
+                  ) -> dict[str, tuple[str, Callable[[str], str]]]:
+    """``setup_inputs`` entries of the camera inputs ``keys`` (color, depth, info), read from
+    the cameras' topics or from the localiser's relay of the frames it admitted."""
+    if source not in INPUT_SOURCES:
+        raise TlessbotError(f'input_source must be one of {INPUT_SOURCES}, got {source!r}')
+    topic = camera_topic if source == 'cameras' else relay_topic
+    return {key: (CAMERA_INPUTS[key][0], partial(topic, relative=CAMERA_INPUTS[key][1]))
+            for key in keys}
+
+
+def declare_input_source(node: Node) -> str:
+    """Declare the read-only ``input_source`` of a stage after the localiser and return it."""
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    return node.declare_parameter('input_source', INPUT_SOURCES[0], ParameterDescriptor(
+        description="Where the camera images come from: 'localiser' (its relay of the frames "
+                    "it admitted, /localiser/<camera>/...: a frame the localiser skipped costs "
+                    "this node nothing) or 'cameras' (every frame of the camera topics) "
+                    '(read-only)', read_only=True)).value
 
 
 def declare_cameras(node: Node) -> tuple[str, ...]:
@@ -131,6 +158,7 @@ class StageNode(Node):
         self.frames = 0
         self.failures = 0
         self.rate_dropped = 0   # complete frames skipped by sync.max_rate_hz
+        self.entrance_dropped = 0   # complete frames refused by admit() (backpressure)
         self.busy_dropped = 0   # complete frames replaced by a newer one while the worker ran
         self._last_start = -float('inf')
         self._pending: Views | None = None
@@ -146,6 +174,10 @@ class StageNode(Node):
         self._diagnostics = self.create_publisher(
             message_class('diagnostic_msgs/msg/DiagnosticArray'), DIAGNOSTICS, RESULT_QOS)
         self.create_timer(1.0, self._publish_diagnostics)
+        # What became of each frame this stage took, for the entrance's backpressure.
+        self._outcomes = self.create_publisher(message_class('std_msgs/msg/Header'),
+                                               node_relative(outcome_topic(name)), RESULT_QOS)
+        self._outcome_factory = RclpyFactory()
         if self.sync_params.worker_thread:
             self._worker = threading.Thread(target=self._work, name=f'{name}_worker',
                                             daemon=True)
@@ -229,15 +261,44 @@ class StageNode(Node):
         if max_rate > 0 and now - self._last_start < 1.0 / max_rate:
             self.rate_dropped += 1
             return
+        if not self.admit(views):
+            self.entrance_dropped += 1
+            return
+        self.on_admitted(views)
         self._last_start = now
         if self._worker is None:
             self._process_safely(views)
             return
         with self._wakeup:
-            if self._pending is not None:
+            replaced, self._pending = self._pending, views
+            if replaced is not None:
                 self.busy_dropped += 1
-            self._pending = views
             self._wakeup.notify()
+        if replaced is not None:
+            self.report_outcome(replaced, DROPPED)
+
+    def admit(self, views: Views) -> bool:
+        """Whether to take a complete frame (after ``sync.max_rate_hz``); the entrance of the
+        graph overrides it to apply backpressure. A refused frame is counted, not reported."""
+        return True
+
+    def on_admitted(self, views: Views) -> None:
+        """Hook: a complete frame was taken (before it waits for the worker)."""
+
+    def report_outcome(self, views: Views, outcome: str) -> None:
+        """Publish what became of a frame (``done``, ``dropped``, ``failed``) on
+        ``/<node>/frames`` and tell :meth:`on_outcome`."""
+        stamp_ns = newest_stamp_ns(views)
+        if stamp_ns is None:
+            return
+        self.on_outcome(stamp_ns, outcome)
+        try:
+            self._outcomes.publish(frame_outcome(stamp_ns, outcome, self._outcome_factory))
+        except Exception:  # shutting down: the context is gone, nobody listens any more
+            pass
+
+    def on_outcome(self, stamp_ns: int, outcome: str) -> None:
+        """Hook: this stage finished with frame ``stamp_ns`` (see :meth:`report_outcome`)."""
 
     def _work(self) -> None:
         while True:
@@ -277,7 +338,9 @@ class StageNode(Node):
                     (self.get_clock().now().nanoseconds - stamp_ns) / 1e6)
             self.process(deserialise_views(views))
             self.frames += 1
+            outcome = DONE
         except Exception as error:  # a bad frame must never take the node down
+            outcome = FAILED
             self.failures += 1
             self.last_error = f'{type(error).__name__}: {error}'
             self.get_logger().error(f'frame skipped: {self.last_error}',
@@ -286,6 +349,7 @@ class StageNode(Node):
         finally:
             self._busy = False
             self._latencies_ms.append(1e3 * (time.perf_counter() - start))
+        self.report_outcome(views, outcome)
 
     def process(self, views: Views) -> None:
         """Handle one synchronised two-view frame (``{camera: {key: msg}}``)."""
@@ -297,7 +361,7 @@ class StageNode(Node):
 
     def _publish_diagnostics(self) -> None:
         dropped = (self._inputs.dropped if self._inputs else 0) + self.rate_dropped + \
-            self.busy_dropped
+            self.busy_dropped + self.entrance_dropped
         level = OK if not self.failures else (ERROR if self.frames == 0 else WARN)
         readiness = {'ready': 'true', 'ready_after_s': f'{self.ready_after_s:.2f}',
                      'warm_up_s': f'{self.warm_up_s:.2f}'} if self.ready.is_set() else \

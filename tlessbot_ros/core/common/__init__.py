@@ -11,6 +11,8 @@ from tlessbot_ros.lazy import lazy_api
 
 # name -> the module of this package that defines it
 _HOME = {
+    'AdmissionParams': 'admission',
+    'InFlightFrames': 'admission',
     'table_with_box': 'warm_frame',
     'CameraIntrinsics': 'geometry',
     'RegionOfInterest': 'geometry',
@@ -68,6 +70,7 @@ __all__ = sorted(_HOME)
 __getattr__, __dir__ = lazy_api(__name__, _HOME)
 
 if TYPE_CHECKING:
+    from tlessbot_ros.core.common.admission import AdmissionParams, InFlightFrames  # noqa: F401
     from tlessbot_ros.core.common.geometry import (  # noqa: F401
         CameraIntrinsics,
         RegionOfInterest,

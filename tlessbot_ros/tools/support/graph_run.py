@@ -22,6 +22,7 @@ from tlessbot_ros.conversions.topics import (
     classes_topic,
     labels_topic,
     pose_topic,
+    relay_topic,
 )
 from tlessbot_ros.core.common import SIDE
 from tlessbot_ros.errors import TlessbotError
@@ -30,7 +31,9 @@ from tlessbot_ros.tools.support.processes import PERCEPTION_NODES, GraphProcesse
 ALL_OBJECT_IDS = range(1, 31)
 STAGE_OUTPUTS = {'localiser': labels_topic(SIDE), 'classifier': classes_topic(SIDE)}
 MONITOR = 'replay and monitor'
-READY_TOPIC = camera_topic(SIDE, DEPTH)  # every perception node subscribes it
+# Every perception node subscribes the side depth, from the camera or (input_source:
+# localiser) from the localiser's relay, once it is ready.
+READY_TOPICS = (camera_topic(SIDE, DEPTH), relay_topic(SIDE, DEPTH))
 FRAME_TOPIC = camera_topic(SIDE, COLOR)  # one message per replayed frame
 
 
@@ -197,7 +200,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         spinner.start()
         deadline = time.monotonic() + startup_timeout_s
         # Ready when every perception node subscribes the side depth.
-        while player.count_subscribers(READY_TOPIC) < len(PERCEPTION_NODES):
+        while sum(player.count_subscribers(t) for t in READY_TOPICS) < len(PERCEPTION_NODES):
             exited = graph.first_exited()
             if exited is not None:
                 raise TlessbotError(f'{exited[0]} exited with code {exited[1]} during start-up:'

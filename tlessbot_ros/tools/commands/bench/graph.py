@@ -8,10 +8,19 @@ back for its stamp. RSS and CPU of each node include its child processes (the po
 workers). RSS is sampled every second; the trend is a least-squares
 slope in MiB per minute, over the whole run and over its second half (allocator pools and caches
 fill during the first frames; a leak keeps its slope in the second half).
+
+Before the graph it runs ``tlessbot bench nodes`` on the same bag (each stage's callbacks alone,
+one process, no DDS) and prints the ratios that hold on any host, since both sides are measured
+in the same run: p95 latency / the sum of the stages' medians alone; frames processed per
+second / (1 / the slowest stage alone); the graph's CPU per processed frame / the stages' own.
 """
 from __future__ import annotations
 
 import argparse
+import json
+import subprocess
+import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--templates', default=str(DEFAULT_TEMPLATES))
     parser.add_argument('--config', default=None)
     parser.add_argument('--out', default=None, help='write the Markdown table here')
+    parser.add_argument('--no-stages-alone', dest='stages_alone', action='store_false',
+                        help='skip the stages-alone run (bench nodes) and the ratios')
 
 
 def bag_frame_interval_s(bag: str) -> float:
@@ -68,11 +79,46 @@ def hop_latencies(result) -> list[tuple[str, str]]:
             for name, v in hops.items()]
 
 
+def stages_alone(bag: str, classifier: str, templates: str) -> dict[str, dict[str, float]]:
+    """``tlessbot bench nodes`` on ``bag`` in a child process: per stage, median / p90 ms and
+    CPU ms per frame."""
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / 'stages.json'
+        subprocess.run([sys.executable, '-m', 'tlessbot_ros.tools.cli', 'bench', 'nodes',
+                        '--bag', bag, '--repeats', '3', '--json', str(out),
+                        '--classifier', classifier, '--templates', templates],
+                       check=True, stdout=subprocess.DEVNULL)
+        return json.loads(out.read_text())
+
+
+def ratio_rows(alone: dict[str, dict[str, float]], p95_ms: float, duration_s: float,
+               result) -> list[tuple[str, str]]:
+    """The host-independent figures: the graph against its stages alone, same run."""
+    medians = {name: figures['median_ms'] for name, figures in alone.items()}
+    total, slowest = sum(medians.values()), max(medians.values())
+    processed = float(result.diagnostics.get('pose_estimator', {}).get('frames', 'nan'))
+    nodes = [label for label in result.cpu_s if label in alone]
+    graph_cpu_ms = 1e3 * sum(result.cpu_s[label] for label in nodes) / max(processed, 1.0)
+    own_cpu_ms = sum(figures['cpu_ms_per_frame'] for figures in alone.values())
+    fps = processed / max(duration_s, 1e-9)
+    return [
+        ('stages alone, median ms/frame (bench nodes, same bag)',
+         ', '.join(f'{name} {ms:.1f}' for name, ms in medians.items()) + f'; sum {total:.1f}'),
+        ('p95 latency / sum of the stages alone', f'{p95_ms / total:.2f}'),
+        ('frames processed per s / (1 / slowest stage alone)',
+         f'{fps:.2f} / {1e3 / slowest:.2f} = {fps * slowest / 1e3:.2f}'),
+        ("CPU of the three nodes per processed frame / the stages' own CPU per frame",
+         f'{graph_cpu_ms:.1f} / {own_cpu_ms:.1f} ms = {graph_cpu_ms / max(own_cpu_ms, 1e-9):.2f}'),
+    ]
+
+
 def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.tools.support.bag_scoring import Estimate, frame_duplicates
     from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
     from tlessbot_ros.tools.support.rig import load_rig
 
+    alone = stages_alone(args.bag, args.classifier, args.templates) if args.stages_alone \
+        else None
     interval = bag_frame_interval_s(args.bag)
     rate = args.fps * interval
     config = Path(args.config) if args.config else default_config_path()
@@ -108,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
         rows.append((f'RSS {label} start -> end',
                      f'{result.rss_mb_start[label]:.0f} -> {result.rss_mb_end[label]:.0f} MiB '
                      f'(trend {trend:+.2f} MiB/min; second half {late_trend:+.2f} MiB/min)'))
+    if alone is not None and len(latencies):
+        rows += ratio_rows(alone, float(np.percentile(latencies, 95)), args.duration, result)
     rows += [(f'{name} (p50 / p95)', value) for name, value in hop_latencies(result)]
     for label in sorted(result.cpu_s):
         values = result.diagnostics.get(label, {})

@@ -1,19 +1,23 @@
 """Node callbacks in-process: ms per frame of each stage node's process() on a bag's frames.
 
-    tlessbot bench nodes [--bag bags/demo] [--repeats 3] [--pose-workers 1]
+    tlessbot bench nodes [--bag bags/demo] [--repeats 3] [--pose-workers 1] [--json FILE]
 
 The bag's camera messages are read as a node's subscription delivers them (images in place,
 the rest through rclpy) and fed straight to LocaliserNode, ClassifierNode and PoseEstimatorNode
 (no DDS; the pose estimator's worker process is the only other process): each stage's labels or
 classes are the next one's input. The figure is the node's own cost per frame (conversions,
 core, building the outgoing messages); what the graph adds on top of it is transport, waiting
-and the other nodes' share of the CPU (``tlessbot bench graph``).
+and the other nodes' share of the CPU (``tlessbot bench graph``, which runs this first and
+compares). ``--json`` also writes, per stage, the median and p90 ms per frame and the CPU ms
+per frame (this process and its children: the pose estimator's worker counts).
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -30,6 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--repeats', type=int, default=3, help='passes over the frames')
     parser.add_argument('--pose-workers', type=int, default=1,
                         help="the pose estimator's worker processes (config/cell.yaml: 1)")
+    parser.add_argument('--classifier', default=None, help='model file (default: packaged)')
+    parser.add_argument('--templates', default=None, help='templates file (default: packaged)')
+    parser.add_argument('--json', default=None, metavar='FILE',
+                        help='also write the per-stage figures as JSON here')
 
 
 class _Captured:
@@ -67,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.nodes.common import init_ros
     from tlessbot_ros.nodes.localiser import LocaliserNode
     from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
+    from tlessbot_ros.tools.support.graph_run import cpu_seconds
 
     frames = _frames(args.bag)
     if not frames:
@@ -75,9 +84,12 @@ def run(args: argparse.Namespace) -> int:
     init_ros()
     try:
         from rclpy.parameter import Parameter
-        localiser, classifier = LocaliserNode(), ClassifierNode()
+        localiser = LocaliserNode()
+        classifier = ClassifierNode(parameter_overrides=[
+            Parameter('model_path', value=args.classifier)] if args.classifier else [])
         pose = PoseEstimatorNode(parameter_overrides=[
-            Parameter('workers.count', value=args.pose_workers)])
+            Parameter('workers.count', value=args.pose_workers),
+            *([Parameter('templates_path', value=args.templates)] if args.templates else [])])
         ready_s = {}
         for name, node in (('localiser', localiser), ('classifier', classifier),
                            ('pose_estimator', pose)):
@@ -91,15 +103,18 @@ def run(args: argparse.Namespace) -> int:
         pose._pose_publishers = {k: _Captured() for k in pose._pose_publishers}
         pose._markers, pose._overlay = _Captured(), _Captured()
         times: dict[str, list[float]] = {'localiser': [], 'classifier': [], 'pose_estimator': []}
+        cpu_s = dict.fromkeys(times, 0.0)
         for _ in range(max(1, args.repeats)):
             for frame in frames:
                 views = {c: dict(msgs) for c, msgs in frame.items()}
                 for name, node, outputs, key in (('localiser', localiser, labels, 'labels'),
                                                  ('classifier', classifier, classes, 'classes'),
                                                  ('pose_estimator', pose, None, None)):
+                    cpu0 = cpu_seconds(os.getpid())
                     t0 = time.perf_counter()
                     node.process(views)
                     times[name].append(1e3 * (time.perf_counter() - t0))
+                    cpu_s[name] += cpu_seconds(os.getpid()) - cpu0
                     if outputs is not None:
                         for c in views:   # the nodes publish images as CDR bytes
                             views[c][key] = image_from_cdr(outputs[c].last)
@@ -122,4 +137,9 @@ def run(args: argparse.Namespace) -> int:
     lines += ['', f'{len(frames)} frames x {max(1, args.repeats)} passes from {args.bag}; '
               f'load average {load} on {os.cpu_count()} cores.']
     print('\n'.join(lines))
+    if args.json:
+        Path(args.json).write_text(json.dumps({name: {
+            'median_ms': float(np.median(v)), 'p90_ms': float(np.percentile(v, 90)),
+            'cpu_ms_per_frame': 1e3 * cpu_s[name] / len(v)} for name, v in times.items()},
+            indent=1))
     return 0

@@ -1,0 +1,66 @@
+"""Admission by backpressure (core/common/admission.py): frames are admitted only while fewer
+than max_in_flight are unfinished, outcomes free their slot, and lost outcomes expire after a
+time that follows the observed frame times."""
+import pytest
+
+from tlessbot_ros.core.common import AdmissionParams, InFlightFrames
+
+
+def test_admits_up_to_max_in_flight_then_refuses_until_one_finishes():
+    frames = InFlightFrames(AdmissionParams(max_in_flight=2))
+    assert frames.try_admit(1, 0.0) and frames.try_admit(2, 0.01)
+    assert not frames.try_admit(3, 0.02)
+    assert (frames.open_count, frames.refused) == (2, 1)
+    assert frames.finish(1, 0.05)
+    assert frames.try_admit(4, 0.06)
+    assert not frames.finish(3, 0.07)         # never admitted: nothing to finish
+
+
+def test_zero_max_in_flight_admits_everything():
+    frames = InFlightFrames(AdmissionParams(max_in_flight=0))
+    assert all(frames.try_admit(stamp, 0.0) for stamp in range(100))
+    assert frames.open_count == 0
+
+
+def test_a_lost_outcome_expires_after_the_floor_when_nothing_was_timed():
+    frames = InFlightFrames(AdmissionParams(max_in_flight=1, min_expiry_s=1.0))
+    assert frames.try_admit(1, 0.0)
+    assert not frames.try_admit(2, 0.99)
+    assert frames.try_admit(3, 1.01)
+    assert frames.expired == 1
+
+
+def test_expiry_follows_the_slowest_recent_frame():
+    """A slow host (frames take 2 s) must not expire frames that are merely slow."""
+    params = AdmissionParams(max_in_flight=1, expiry_factor=3.0, min_expiry_s=0.5)
+    frames = InFlightFrames(params)
+    now = 0.0
+    for stamp in range(5):
+        assert frames.try_admit(stamp, now)
+        now += 2.0
+        assert frames.finish(stamp, now)
+    assert frames.expiry_s() == pytest.approx(6.0)
+    assert frames.try_admit(10, now)
+    assert not frames.try_admit(11, now + 5.9)
+    assert frames.try_admit(12, now + 6.1)
+
+
+def test_frames_dropped_on_the_way_do_not_teach_the_expiry():
+    frames = InFlightFrames(AdmissionParams(max_in_flight=1, min_expiry_s=0.5))
+    frames.try_admit(1, 0.0)
+    frames.finish(1, 30.0, completed=False)
+    assert frames.expiry_s() == 0.5
+
+
+def test_clear_forgets_open_frames():
+    frames = InFlightFrames(AdmissionParams(max_in_flight=1))
+    frames.try_admit(1, 0.0)
+    frames.clear()
+    assert frames.try_admit(2, 0.0)
+
+
+@pytest.mark.parametrize('field, value', [('max_in_flight', -1), ('expiry_factor', 0.5),
+                                          ('min_expiry_s', 0.0)])
+def test_invalid_params_say_what_to_fix(field, value):
+    with pytest.raises(ValueError, match=field):
+        AdmissionParams(**{field: value})

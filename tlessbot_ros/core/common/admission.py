@@ -1,0 +1,118 @@
+"""Admission by backpressure: the graph's entrance starts a frame only when the stages after it
+can take one.
+
+A fixed admission rate (``sync.max_rate_hz``) is tuned to one host: too low wastes a fast
+machine, too high overloads a slow one, and then every admitted frame waits inside the graph
+behind the previous ones. Here the entrance (the localiser) counts the frames it has admitted
+whose outcome the last stage has not yet reported, and admits a new frame only while fewer than
+``max_in_flight`` are open. Frames are therefore dropped at the entrance and never queue
+inside, at any camera rate and on any host; with ``max_in_flight`` 2 the entrance segments
+frame N+1 while the later stages work on frame N (pipelining).
+
+An outcome may never come (the last stage restarted, a message was lost, the pairing dropped
+the frame): an open frame expires after ``expiry_factor`` times the slowest recent
+admission-to-outcome time, and never sooner than ``min_expiry_s``, so the timeout follows the
+host's speed instead of being tuned to one.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict, deque
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class AdmissionParams:
+    """Backpressure at the graph's entrance (the localiser's ``admission.*`` parameters).
+
+    Attributes:
+        max_in_flight: frames admitted whose outcome the last stage (the pose estimator) has
+            not reported yet; a frame that completes while this many are open is dropped at
+            the entrance. 1: one frame in the graph at a time; 2: the localiser works on the
+            next frame while the later stages finish the previous one. 0: no backpressure
+            (every frame is admitted, subject to ``sync.max_rate_hz``).
+        expiry_factor: an open frame whose outcome has not come after this many times the
+            slowest of the recent admission-to-outcome times is given up (its outcome was lost).
+        min_expiry_s: the expiry is never shorter than this (the first frames after start-up,
+            a stage that restarts).
+    """
+
+    max_in_flight: int = 2
+    expiry_factor: float = 3.0
+    min_expiry_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.max_in_flight < 0:
+            raise ValueError(f'max_in_flight must be >= 0 (0: no backpressure), got '
+                             f'{self.max_in_flight}')
+        if self.expiry_factor < 1.0:
+            raise ValueError(f'expiry_factor must be >= 1, got {self.expiry_factor}')
+        if self.min_expiry_s <= 0:
+            raise ValueError(f'min_expiry_s must be > 0 seconds, got {self.min_expiry_s}')
+
+
+class InFlightFrames:
+    """The frames admitted at the entrance and not yet finished downstream, by stamp (ns).
+
+    Times are the caller's monotonic clock in seconds. Not thread-safe: the owner serialises
+    calls (the node's executor thread and worker thread share one lock).
+    """
+
+    def __init__(self, params: AdmissionParams = AdmissionParams()) -> None:
+        self.params = params
+        self._open: OrderedDict[int, float] = OrderedDict()   # stamp_ns -> admitted at (s)
+        self._recent_s: deque[float] = deque(maxlen=20)
+        self.admitted = 0
+        self.finished = 0
+        self.expired = 0
+        self.refused = 0
+
+    @property
+    def enabled(self) -> bool:
+        return self.params.max_in_flight > 0
+
+    @property
+    def open_count(self) -> int:
+        return len(self._open)
+
+    def expiry_s(self) -> float:
+        """How long an open frame waits for its outcome before it is given up."""
+        slowest = max(self._recent_s, default=0.0)
+        return max(self.params.min_expiry_s, self.params.expiry_factor * slowest)
+
+    def try_admit(self, stamp_ns: int, now_s: float) -> bool:
+        """Admit the frame ``stamp_ns`` if fewer than ``max_in_flight`` are open (after
+        expiring the overdue ones); count a refusal otherwise."""
+        if not self.enabled:
+            return True
+        self._expire(now_s)
+        if len(self._open) >= self.params.max_in_flight:
+            self.refused += 1
+            return False
+        self._open[int(stamp_ns)] = now_s
+        self.admitted += 1
+        return True
+
+    def finish(self, stamp_ns: int, now_s: float, *, completed: bool = True) -> bool:
+        """The outcome of frame ``stamp_ns`` is known: it leaves the open set. ``completed``
+        frames (processed by the last stage, not dropped on the way) teach the expiry how long
+        a frame takes. False when the frame was not open (another entrance's, or expired)."""
+        admitted_at = self._open.pop(int(stamp_ns), None)
+        if admitted_at is None:
+            return False
+        self.finished += 1
+        if completed:
+            self._recent_s.append(max(0.0, now_s - admitted_at))
+        return True
+
+    def clear(self) -> None:
+        """Forget every open frame (time jumped; the stages downstream restarted)."""
+        self._open.clear()
+
+    def _expire(self, now_s: float) -> None:
+        limit = self.expiry_s()
+        while self._open:
+            stamp, admitted_at = next(iter(self._open.items()))
+            if now_s - admitted_at <= limit:
+                break
+            del self._open[stamp]
+            self.expired += 1
