@@ -18,8 +18,8 @@ With no device, or when the device is lost, the node reports ERROR and retries e
 """
 from __future__ import annotations
 
-import dataclasses
 import threading
+from functools import partial
 from typing import Any
 
 from rclpy.node import Node
@@ -36,8 +36,9 @@ from tlessbot_ros.conversions.topics import (
     POINTS,
 )
 from tlessbot_ros.errors import DeviceError
-from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class, run_node
+from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, diagnostic_array
+from tlessbot_ros.nodes.parameters import AT_ONCE, LiveParameters
 from tlessbot_ros.sensors.realsense import RealSenseCamera, RealSenseParams
 
 DESCRIPTIONS = {
@@ -53,6 +54,10 @@ DESCRIPTIONS = {
     'reconnect_period_s': 'Seconds between reconnection attempts',
     'frame_timeout_ms': 'Frame wait before the device counts as lost, in milliseconds',
 }
+# The stream, its frames and its topics are set when the device opens; the rest is live (the
+# capture loop reads it once per frame).
+READ_ONLY = ('serial_no', 'camera_name', 'width', 'height', 'fps', 'align_depth', 'pointcloud',
+             'frame_timeout_ms')
 TOPIC_TYPES = {
     COLOR: 'sensor_msgs/msg/Image', COLOR_INFO: 'sensor_msgs/msg/CameraInfo',
     DEPTH: 'sensor_msgs/msg/Image', DEPTH_INFO: 'sensor_msgs/msg/CameraInfo',
@@ -65,10 +70,11 @@ class CameraDriverNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('camera_driver', **kwargs)
-        values = declare_from_dataclass(self, RealSenseParams(), descriptions=DESCRIPTIONS,
-                                        ranges={'fps': (1, 90), 'cloud_stride': (1, 16)})
-        values['serial_no'] = str(values['serial_no']).lstrip('_')
-        self.params = dataclasses.replace(RealSenseParams(), **values)
+        self.parameters = LiveParameters(self)
+        self.params = self.parameters.dataclass(
+            RealSenseParams(), descriptions=DESCRIPTIONS, when=AT_ONCE, read_only=READ_ONLY,
+            ranges={'fps': (1, 90), 'cloud_stride': (1, 16)},
+            apply=partial(setattr, self, 'params'))
         self._factory = RclpyFactory()
         self._camera_publishers = {topic: self.create_publisher(message_class(TOPIC_TYPES[topic]),
                                                          topic, RESULT_QOS)

@@ -17,9 +17,11 @@ Frames: outputs keep each source image's frame and stamp.
 """
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import cv2
+import numpy as np
 
 from tlessbot_ros.conversions import (
     camera_info_to_intrinsics,
@@ -29,9 +31,15 @@ from tlessbot_ros.conversions import (
 )
 from tlessbot_ros.conversions.image_cdr import image_to_cdr
 from tlessbot_ros.conversions.topics import labels_topic, node_relative
-from tlessbot_ros.core.localise import FusionParams, SegmentationParams, prepare_background
+from tlessbot_ros.core.localise import (
+    BackgroundModel,
+    FusionParams,
+    SegmentationParams,
+    prepare_background,
+)
 from tlessbot_ros.core.pipeline import LocaliseParams, PerceptionPipeline, ViewInput
-from tlessbot_ros.nodes.common import RESULT_QOS, message_class, params_from_node, run_node
+from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
 from tlessbot_ros.nodes.stage import (
     COLOR_INPUT,
     DEPTH_INPUTS,
@@ -46,14 +54,22 @@ class LocaliserNode(StageNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('localiser', **kwargs)
-        self.segmentation = params_from_node(self, SegmentationParams, prefix='segmentation.')
-        self.fusion = params_from_node(self, FusionParams, prefix='fusion.')
-        self.localise_params = params_from_node(self, LocaliseParams)
-        self.backgrounds = {}
+        self.segmentation = self.parameters.dataclass(
+            SegmentationParams(), prefix='segmentation.', apply=self._apply_segmentation)
+        self.fusion = self.parameters.dataclass(FusionParams(), prefix='fusion.',
+                                                apply=partial(setattr, self, 'fusion'))
+        self.localise_params = self.parameters.dataclass(
+            LocaliseParams(), apply=partial(setattr, self, 'localise_params'))
+        self._empty_tables: dict[str, np.ndarray] = {}   # camera: (H, W, 3) uint8 RGB
+        self.backgrounds: dict[str, BackgroundModel] = {}
         for camera in self.cameras:
-            path = self.declare_parameter(f'background.{camera}', '').value
-            if path:
-                self.backgrounds[camera] = self._load_background(path)
+            name = f'background.{camera}'
+            self._apply_background(camera, self.parameters.group(
+                {name: ('', f'empty-table PNG of the {camera} camera for background '
+                            "subtraction ('' = none)")},
+                build=lambda values, name=name: read_empty_table(values[name]),
+                apply=partial(self._apply_background, camera),
+                on_start_error=self._run_without_background))
         self._label_publishers = {
             camera: self.create_publisher(message_class(IMAGE),
                                           node_relative(labels_topic(camera)), RESULT_QOS)
@@ -70,13 +86,24 @@ class LocaliserNode(StageNode):
         return PerceptionPipeline(rig=rig, segmentation=self.segmentation, fusion=self.fusion,
                                   localise_params=self.localise_params)
 
-    def _load_background(self, path: str) -> Any:
-        bgr = cv2.imread(path, cv2.IMREAD_COLOR)
-        if bgr is None:
-            self.get_logger().error(f'cannot read background image {path!r}; not using it')
-            return None
-        return prepare_background(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB),
-                                  params=self.segmentation)
+    def _run_without_background(self, error: Exception) -> None:
+        self.get_logger().error(f'{error}; not using it')   # the node runs without it
+
+    def _apply_segmentation(self, params: SegmentationParams) -> None:
+        """New segmentation settings; the empty-table images are prepared again for them
+        (their colour cues depend on ``cue_scale`` and ``hed_dark_level``)."""
+        self.segmentation = params
+        self.backgrounds = {camera: prepare_background(rgb, params=params)
+                            for camera, rgb in self._empty_tables.items()}
+
+    def _apply_background(self, camera: str, rgb: np.ndarray | None) -> None:
+        """Use the empty-table image ``rgb`` for ``camera`` (None: no background)."""
+        tables = {c: image for c, image in self._empty_tables.items() if c != camera}
+        backgrounds = {c: model for c, model in self.backgrounds.items() if c != camera}
+        if rgb is not None:
+            tables[camera] = rgb
+            backgrounds[camera] = prepare_background(rgb, params=self.segmentation)
+        self._empty_tables, self.backgrounds = tables, backgrounds
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         inputs = {camera: self._view_input(camera, msgs) for camera, msgs in views.items()}
@@ -97,6 +124,20 @@ class LocaliserNode(StageNode):
         return ViewInput(rgb=rgb, depth_m=depth_image_to_metres(msgs['depth']),
                          intrinsics=intrinsics, T_world_camera=self.extrinsics[camera],
                          background=self.backgrounds.get(camera))
+
+
+def read_empty_table(path: str) -> np.ndarray | None:
+    """The (H, W, 3) uint8 RGB image at ``path`` ('' = none: None).
+
+    Raises:
+        TlessbotError: the file cannot be read as an image.
+    """
+    if not path:
+        return None
+    bgr = cv2.imread(path, cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise TlessbotError(f'cannot read background image {path!r}')
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def main(args: list[str] | None = None) -> None:
