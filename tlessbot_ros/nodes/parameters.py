@@ -184,20 +184,24 @@ class LiveParameters:
                 return SetParametersResult(successful=False, reason=_reason(new, error))
             accepted.append((group, values, candidate, new))
         for group, values, candidate, new in accepted:
+            try:
+                self._schedule(group, candidate)
+            except REFUSALS as error:   # an AT_ONCE apply that fails keeps the old settings
+                return SetParametersResult(successful=False, reason=_reason(new, error))
             old = {name: group.values[name] for name in new}
             group.values = values
-            self._schedule(group, candidate)
             self._report(old, new, group)
         return SetParametersResult(successful=True)
 
     def _schedule(self, group: _Group, candidate: Any) -> None:
+        if group.when == AT_ONCE and group.warm is None:
+            group.apply(candidate)
+            return
         group.generation += 1
         if group.warm is not None:
             threading.Thread(target=self._warm_then_queue,
                              args=(group, candidate, group.generation), daemon=True,
                              name=f'{self.node.get_name()}_parameter_warm_up').start()
-        elif group.when == AT_ONCE:
-            group.apply(candidate)
         else:
             with self._lock:
                 self._pending[group] = candidate
