@@ -12,7 +12,9 @@ Publishes (relative to the namespace, RELIABLE, depth 10):
     /diagnostics                           diagnostic_msgs/DiagnosticArray, 1 Hz: OK / ERROR
 Frames: ``<camera_name>_color_optical_frame``. Stamps: ROS time at capture. The point cloud is
 built only while it has a subscriber.
-Parameters: see :class:`tlessbot_ros.sensors.realsense.RealSenseParams`.
+Parameters: see :class:`tlessbot_ros.sensors.realsense.RealSenseParams`. ``cloud_stride``,
+``reconnect`` and ``reconnect_period_s`` are live (``ros2 param set``, at once); the device and
+stream ones (``READ_ONLY``) are read-only.
 With no device, or when the device is lost, the node reports ERROR and retries every
 ``reconnect_period_s``; it never exits for that.
 """

@@ -17,7 +17,9 @@ Parameters: ``model_path`` (.npz from ``tlessbot train``; default: the packaged 
 ``min_instance_px``, ``class_candidates``, ``top_view_verify_below_margin`` (for a part only the
 top camera sees, the candidates after the first are sent only when the classifier is unsure;
 all four: ClassifyParams), ``rig.cameras`` (the names of the top and side cameras),
-``rig.CAMERA.*`` (extrinsics: heights above the table), ``sync.*``.
+``rig.CAMERA.*`` (extrinsics: heights above the table), ``sync.*``. All are live (``ros2
+param set``, from the next frame; a new ``model_path`` is loaded at once, or refused, and used
+once warmed up) but ``rig.cameras``, ``input_qos``, ``input_depth``, ``sync.worker_thread``.
 """
 from __future__ import annotations
 

@@ -12,7 +12,9 @@ Parameters: ``parallel_views`` (LocaliseParams: segment both views at once, in t
 ``segmentation.*`` (SegmentationParams), ``fusion.*`` (FusionParams: method calibrated |
 algorithm1 | side_only), ``sync.*`` (SyncParams), ``rig.cameras`` (the names of the top and
 side cameras), ``rig.CAMERA.*`` (extrinsics), ``background.CAMERA`` (path of an empty-table
-PNG for background subtraction; '' = none).
+PNG for background subtraction; '' = none; a new one that cannot be read is refused). All are
+live (``ros2 param set``, from the next frame) but ``rig.cameras``, ``input_qos``,
+``input_depth``, ``sync.worker_thread``: read-only.
 Frames: outputs keep each source image's frame and stamp.
 """
 from __future__ import annotations

@@ -23,7 +23,10 @@ their depth at the fitted pose; these and ``min_roi_points``, ``table_clearance_
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
 fits others), ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*``
-(extrinsics; the table path needs them), ``sync.*``.
+(extrinsics; the table path needs them), ``sync.*``. All are live (``ros2 param set``, from
+the next frame; the worker processes fit their next part with new ``pose.*`` and FitParams;
+``workers.count`` starts or stops workers) but ``templates_path`` (its objects name the pose
+topics), ``rig.cameras``, ``input_qos``, ``input_depth``, ``sync.worker_thread``: read-only.
 """
 from __future__ import annotations
 

@@ -13,6 +13,11 @@ pairs them; one worker thread runs :meth:`StageNode.process`. A frame that compl
 worker is busy becomes the single pending frame, and a newer one replaces it, so a slow stage
 always starts on the newest frame and its partners are still buffered when its upstream result
 comes in.
+
+Parameters (:mod:`~tlessbot_ros.nodes.parameters`): ``rig.CAMERA.*`` and each stage's tuning
+are live (``ros2 param set``; applied by the worker thread between frames), ``sync.*`` too
+(applied at once); ``rig.cameras``, ``input_qos``, ``input_depth`` and ``sync.worker_thread``
+are read-only. ``/diagnostics`` also counts accepted parameter changes and shows the last.
 """
 from __future__ import annotations
 
