@@ -125,12 +125,6 @@ def _camera_pose(names: dict[str, str], values: dict[str, Any]) -> np.ndarray:
         raise ValueError(f'{names["up"]}: {error}') from None
 
 
-def descriptor(text: str) -> Any:
-    from rcl_interfaces.msg import ParameterDescriptor
-
-    return ParameterDescriptor(description=text)
-
-
 def rig_with_intrinsics(extrinsics: dict[str, np.ndarray], intrinsics: dict[str, Any]) -> Rig:
     """A Rig from configured extrinsics and the intrinsics of the current CameraInfos."""
     return Rig(cameras={c: CameraMount(c, intrinsics[c], extrinsics[c]) for c in intrinsics})
