@@ -187,6 +187,23 @@ def test_a_lookalike_is_named_by_the_depth_it_explains(lookalikes):
     assert without.estimate_poses(inputs, labels, {1: (22,)})[0].obj_id == 22
 
 
+def test_replace_changes_settings_and_shares_the_templates(lookalikes):
+    from tlessbot_ros.core.pose import PoseParams
+
+    db, inputs, labels, _ = lookalikes
+    pipeline = PerceptionPipeline(templates=db)
+    without = pipeline.replace(fit_params=FitParams(lookalike_check=False))
+    assert without.estimate_poses(inputs, labels, {1: (22,)})[0].obj_id == 22
+    assert pipeline.estimate_poses(inputs, labels, {1: (22,)})[0].obj_id == 21   # unchanged
+    assert without.pose_estimator is pipeline.pose_estimator and without.lookalike is None
+    other_pose = pipeline.replace(pose=PoseParams(icp_iterations=2))
+    assert other_pose.pose_estimator.params.icp_iterations == 2
+    assert other_pose.pose_estimator.database is db and other_pose.lookalike is \
+        pipeline.lookalike
+    with pytest.raises(TypeError, match='templates'):
+        pipeline.replace(templates=db)
+
+
 def test_a_sure_classifier_alone_names_a_part_seen_only_from_the_top():
     from tlessbot_ros.core.recognise import UNKNOWN_ID, HogParams, LinearClassifier
 

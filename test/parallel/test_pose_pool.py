@@ -149,3 +149,50 @@ def test_messages_and_poses_cross_the_pipe_exactly():
 def test_a_broken_message_is_a_wire_error(data):
     with pytest.raises(wire.WireError):
         wire.read_message(io.BytesIO(data))
+
+
+def test_changed_settings_reach_the_workers_with_their_next_part(scene, pool):
+    changed = PoseParams(icp_iterations=0, planar_iterations=1)
+    before = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES)
+    after = before.replace(pose=changed)
+    old, _ = _estimate(before, scene, None)
+    new, _ = _estimate(after, scene, None)
+    assert _poses(new) != _poses(old)            # the change shows in the poses
+    pool.update(pose=changed, fit=ALL_PIECES)
+    fit_here, calls = _slow(after)
+    shared, _ = _estimate(after, scene, pool, fit_here)
+    assert len(calls) < 3                        # the worker fitted at least one part ...
+    assert _poses(shared) == _poses(new)         # ... with the new settings
+    fit_here, calls = _slow(after)               # and keeps them for the parts after
+    shared, _ = _estimate(after, scene, pool, fit_here)
+    assert len(calls) < 3 and _poses(shared) == _poses(new)
+
+
+def test_the_pool_grows_and_shrinks_between_frames(scene):
+    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES)
+    alone, _ = _estimate(pipeline, scene, None)
+    with PoseWorkerPool(scene[0], pose=PoseParams(), fit=FitParams(),
+                        params=PoseWorkerParams(count=0)) as pool:
+        pool.reconfigure(PoseWorkerParams(count=2))
+        assert pool.wait_ready(120.0) and pool.ready_count == 2, list(pool.errors)
+        fit_here, calls = _slow(pipeline)
+        shared, _ = _estimate(pipeline, scene, pool, fit_here)
+        assert len(calls) < 3 and _poses(shared) == _poses(alone)
+        workers = list(pool._workers)
+        pool.reconfigure(PoseWorkerParams(count=1))
+        assert pool._workers == workers[:1]      # the first keeps working
+        deadline = time.monotonic() + 30.0
+        while workers[1].process.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert workers[1].process.poll() is not None   # the other one ended
+        pool.reconfigure(PoseWorkerParams(count=0))
+        shared, done = _estimate(pipeline, scene, pool)   # every part fitted here
+        assert sorted(done) == [1, 2, 3] and _poses(shared) == _poses(alone)
+        assert pool.worker_fits > 0 and pool.failures == 0
+
+
+def test_worker_params_are_validated():
+    with pytest.raises(ValueError, match='count must be >= 0'):
+        PoseWorkerParams(count=-1)
+    with pytest.raises(ValueError, match='job_timeout_s must be > 0'):
+        PoseWorkerParams(job_timeout_s=0.0)

@@ -20,12 +20,13 @@ Inputs per view are :class:`ViewInput`; a two-view frame is ``{'top': ..., 'side
 """
 from __future__ import annotations
 
+import copy
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -192,6 +193,10 @@ def preferred_view(counts: dict[str, np.ndarray], instance_id: int, *,
     return None
 
 
+_REPLACEABLE = frozenset({'rig', 'classifier', 'localise_params', 'classify_params',
+                          'fit_params', 'segmentation', 'fusion', 'pose'})
+
+
 class PerceptionPipeline:
     """Localiser, classifier and pose estimator with shared parameters.
 
@@ -223,6 +228,36 @@ class PerceptionPipeline:
         self.lookalike = templates.lookalike_check(
             tolerance_m=fit_params.lookalike_tolerance_m) \
             if templates and fit_params.lookalike_check else None
+
+    def replace(self, **changes: Any) -> PerceptionPipeline:
+        """A pipeline like this one with some of the constructor's arguments changed
+        (``rig``, ``classifier``, and the ``*_params`` / ``segmentation`` / ``fusion`` /
+        ``pose`` settings), like ``dataclasses.replace``. What the changes do not touch is
+        shared, not rebuilt: the template database and its caches, the classifier, the
+        look-alike check unless ``lookalike_*`` changed (a new one is warmed up here).
+
+        Raises:
+            TypeError: an argument the constructor does not take (or ``templates``).
+        """
+        unknown = set(changes) - _REPLACEABLE
+        if unknown:
+            raise TypeError(f'PerceptionPipeline.replace: cannot replace {sorted(unknown)}')
+        new = copy.copy(self)
+        for name, value in changes.items():
+            if name != 'pose':
+                setattr(new, name, value)
+        if 'pose' in changes and self.pose_estimator is not None:
+            new.pose_estimator = PoseEstimator(self.pose_estimator.database,
+                                               params=changes['pose'])
+        old, fit = self.fit_params, new.fit_params
+        if self.pose_estimator is not None and (old.lookalike_check, old.lookalike_tolerance_m) \
+                != (fit.lookalike_check, fit.lookalike_tolerance_m):
+            database = self.pose_estimator.database
+            new.lookalike = database.lookalike_check(tolerance_m=fit.lookalike_tolerance_m) \
+                if fit.lookalike_check else None
+            if new.lookalike is not None:
+                new.lookalike.warm_up()
+        return new
 
     def warm_up(self) -> None:
         """Build the pose stage's caches now (templates, look-alike meshes) so that the first

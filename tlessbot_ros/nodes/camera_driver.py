@@ -12,14 +12,16 @@ Publishes (relative to the namespace, RELIABLE, depth 10):
     /diagnostics                           diagnostic_msgs/DiagnosticArray, 1 Hz: OK / ERROR
 Frames: ``<camera_name>_color_optical_frame``. Stamps: ROS time at capture. The point cloud is
 built only while it has a subscriber.
-Parameters: see :class:`tlessbot_ros.sensors.realsense.RealSenseParams`.
+Parameters: see :class:`tlessbot_ros.sensors.realsense.RealSenseParams`. ``cloud_stride``,
+``reconnect`` and ``reconnect_period_s`` are live (``ros2 param set``, at once); the device and
+stream ones (``READ_ONLY``) are read-only.
 With no device, or when the device is lost, the node reports ERROR and retries every
 ``reconnect_period_s``; it never exits for that.
 """
 from __future__ import annotations
 
-import dataclasses
 import threading
+from functools import partial
 from typing import Any
 
 from rclpy.node import Node
@@ -36,8 +38,9 @@ from tlessbot_ros.conversions.topics import (
     POINTS,
 )
 from tlessbot_ros.errors import DeviceError
-from tlessbot_ros.nodes.common import RESULT_QOS, declare_from_dataclass, message_class, run_node
+from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, diagnostic_array
+from tlessbot_ros.nodes.parameters import AT_ONCE, LiveParameters
 from tlessbot_ros.sensors.realsense import RealSenseCamera, RealSenseParams
 
 DESCRIPTIONS = {
@@ -53,6 +56,10 @@ DESCRIPTIONS = {
     'reconnect_period_s': 'Seconds between reconnection attempts',
     'frame_timeout_ms': 'Frame wait before the device counts as lost, in milliseconds',
 }
+# The stream, its frames and its topics are set when the device opens; the rest is live (the
+# capture loop reads it once per frame).
+READ_ONLY = ('serial_no', 'camera_name', 'width', 'height', 'fps', 'align_depth', 'pointcloud',
+             'frame_timeout_ms')
 TOPIC_TYPES = {
     COLOR: 'sensor_msgs/msg/Image', COLOR_INFO: 'sensor_msgs/msg/CameraInfo',
     DEPTH: 'sensor_msgs/msg/Image', DEPTH_INFO: 'sensor_msgs/msg/CameraInfo',
@@ -65,10 +72,11 @@ class CameraDriverNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('camera_driver', **kwargs)
-        values = declare_from_dataclass(self, RealSenseParams(), descriptions=DESCRIPTIONS,
-                                        ranges={'fps': (1, 90), 'cloud_stride': (1, 16)})
-        values['serial_no'] = str(values['serial_no']).lstrip('_')
-        self.params = dataclasses.replace(RealSenseParams(), **values)
+        self.parameters = LiveParameters(self)
+        self.params = self.parameters.dataclass(
+            RealSenseParams(), descriptions=DESCRIPTIONS, when=AT_ONCE, read_only=READ_ONLY,
+            ranges={'fps': (1, 90), 'cloud_stride': (1, 16)},
+            apply=partial(setattr, self, 'params'))
         self._factory = RclpyFactory()
         self._camera_publishers = {topic: self.create_publisher(message_class(TOPIC_TYPES[topic]),
                                                          topic, RESULT_QOS)

@@ -17,7 +17,9 @@ Parameters: ``model_path`` (.npz from ``tlessbot train``; default: the packaged 
 ``min_instance_px``, ``class_candidates``, ``top_view_verify_below_margin`` (for a part only the
 top camera sees, the candidates after the first are sent only when the classifier is unsure;
 all four: ClassifyParams), ``rig.cameras`` (the names of the top and side cameras),
-``rig.CAMERA.*`` (extrinsics: heights above the table), ``sync.*``.
+``rig.CAMERA.*`` (extrinsics: heights above the table), ``sync.*``. All are live (``ros2
+param set``, from the next frame; a new ``model_path`` is loaded at once, or refused, and used
+once warmed up) but ``rig.cameras``, ``input_qos``, ``input_depth``, ``sync.worker_thread``.
 """
 from __future__ import annotations
 
@@ -34,16 +36,10 @@ from tlessbot_ros.conversions.image_cdr import image_to_cdr
 from tlessbot_ros.conversions.topics import classes_topic, labels_topic, node_relative
 from tlessbot_ros.core.common import encode_candidates
 from tlessbot_ros.core.pipeline import ClassifyParams, PerceptionPipeline, ViewInput
-from tlessbot_ros.core.recognise import load_classifier
+from tlessbot_ros.core.recognise import Classifier, load_classifier
 from tlessbot_ros.data import DEFAULT_CLASSIFIER
-from tlessbot_ros.nodes.common import RESULT_QOS, message_class, params_from_node, run_node
-from tlessbot_ros.nodes.stage import (
-    IMAGE,
-    StageNode,
-    camera_inputs,
-    declare_input_source,
-    descriptor,
-)
+from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
+from tlessbot_ros.nodes.stage import IMAGE, StageNode, camera_inputs, declare_input_source
 
 LABEL_ENCODINGS = ('16UC1', 'mono16')
 
@@ -53,11 +49,15 @@ class ClassifierNode(StageNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('classifier', **kwargs)
-        path = self.declare_parameter('model_path', str(DEFAULT_CLASSIFIER), descriptor(
-            'Classifier .npz written by tlessbot train')).value
-        self.classify_params = params_from_node(self, ClassifyParams)
+        self.model = self.parameters.group(   # ModelFileError: one line, exit 1
+            {'model_path': (str(DEFAULT_CLASSIFIER), 'Classifier .npz written by tlessbot '
+                                                     'train')},
+            build=lambda values: load_classifier(values['model_path']),
+            warm=self._warm_model, apply=self._apply_model)
+        path = self.get_parameter('model_path').value
+        self.classify_params = self.parameters.dataclass(ClassifyParams(),
+                                                         apply=self._apply_classify_params)
         self.candidates = self.classify_params.class_candidates
-        self.model = load_classifier(path)  # ModelFileError: one line, exit 1
         self.pipeline = PerceptionPipeline(classifier=self.model,
                                            classify_params=self.classify_params)
         self._class_publishers = {
@@ -69,10 +69,25 @@ class ClassifierNode(StageNode):
         inputs = camera_inputs(('color', 'depth', 'info'), declare_input_source(self))
         self.start_when_ready(self._warm_up, {**inputs, 'labels': (IMAGE, labels_topic)})
 
-    def _warm_up(self) -> None:
-        """Classify the box of a synthetic frame once (HOG, shape features, feature map)."""
+    def _warm_up(self, pipeline: PerceptionPipeline | None = None) -> None:
+        """Classify the box of a synthetic frame once (HOG, shape features, feature map) with
+        ``pipeline`` (default: the node's)."""
         views, labels = self.warm_up_frame()
-        self.pipeline.classify({c: v.rgb for c, v in views.items()}, labels, views=views)
+        (pipeline or self.pipeline).classify({c: v.rgb for c, v in views.items()}, labels,
+                                             views=views)
+
+    def _warm_model(self, model: Classifier) -> None:
+        """A new model's first classification, off the frame thread (``model_path`` set)."""
+        self._warm_up(PerceptionPipeline(classifier=model, classify_params=self.classify_params))
+
+    def _apply_model(self, model: Classifier) -> None:
+        self.model, self.pipeline = model, self.pipeline.replace(classifier=model)
+        self.get_logger().info(f'now classifying with the {model.kind} classifier for '
+                               f'{len(model.class_ids)} objects')
+
+    def _apply_classify_params(self, params: ClassifyParams) -> None:
+        self.classify_params, self.candidates = params, params.class_candidates
+        self.pipeline = self.pipeline.replace(classify_params=params)
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         rgb = {camera: image_to_rgb(msgs['color']) for camera, msgs in views.items()}

@@ -79,17 +79,40 @@ class TwoViewInputs:
                  cameras: Sequence[str], sync: SyncParams,
                  callback: Callable[[Views], None], *, qos: Any = SENSOR_QOS) -> None:
         self._callback = callback
-        self._per_camera = {
-            camera: StampSynchroniser(list(topics), slop_ns=int(sync.slop_s * 1e9),
-                                      queue_size=sync.queue_size) for camera in cameras}
-        self._across = StampSynchroniser(list(cameras), slop_ns=int(sync.max_age_s * 1e9),
-                                         queue_size=2)
+        self._keys, self._cameras = list(topics), list(cameras)
+        self._dropped_before = 0   # by synchronisers replaced by reconfigure
+        self._build_synchronisers(sync)
         self.zero_stamps = 0
         self.malformed = 0
         for camera in cameras:
             for key, (msg_class, topic) in topics.items():
                 node.create_subscription(msg_class, topic(camera),
                                          self._handler(camera, key, msg_class), qos, raw=True)
+
+    def _build_synchronisers(self, sync: SyncParams) -> None:
+        self.sync = sync
+        self._per_camera = {
+            camera: StampSynchroniser(self._keys, slop_ns=int(sync.slop_s * 1e9),
+                                      queue_size=sync.queue_size) for camera in self._cameras}
+        self._across = StampSynchroniser(self._cameras, slop_ns=int(sync.max_age_s * 1e9),
+                                         queue_size=2)
+
+    def reconfigure(self, sync: SyncParams) -> None:
+        """New thresholds (call from the thread that delivers messages). When ``slop_s``,
+        ``queue_size`` or ``max_age_s`` change, pairing starts again: messages waiting for
+        partners are dropped (and counted)."""
+        old, self.sync = self.sync, sync
+        if (old.slop_s, old.queue_size, old.max_age_s) == \
+                (sync.slop_s, sync.queue_size, sync.max_age_s):
+            return
+        self._dropped_before = self.dropped + self.waiting
+        self._build_synchronisers(sync)
+
+    @property
+    def waiting(self) -> int:
+        """Messages and camera sets held while they wait for partners."""
+        return sum(sum(s.pending().values())
+                   for s in (self._across, *self._per_camera.values()))
 
     def _handler(self, camera: str, key: str, msg_class: type) -> Callable[[bytes], None]:
         def on_message(data: bytes) -> None:
@@ -112,4 +135,5 @@ class TwoViewInputs:
     @property
     def dropped(self) -> int:
         """Messages and camera sets discarded because their partners never came in time."""
-        return self._across.dropped + sum(s.dropped for s in self._per_camera.values())
+        return self._dropped_before + self._across.dropped + \
+            sum(s.dropped for s in self._per_camera.values())

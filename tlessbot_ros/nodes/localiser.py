@@ -8,6 +8,9 @@ Publishes (RELIABLE, depth 10):
     localiser/CAMERA/labels   sensor_msgs/Image 16UC1: 0 = background, 1..N instances; the same
                               id marks the same part in both views (header = colour header)
     /diagnostics              frames, failures, dropped, latency, stage times
+    localiser/CAMERA/color/image_raw, localiser/CAMERA/aligned_depth_to_color/{image_raw,
+    camera_info}              the camera messages of the frames it admits, relayed as received,
+                              for the later stages (``input_source: localiser``)
 Subscribes (RELIABLE), for backpressure:
     /classifier/frames, /pose_estimator/frames   std_msgs/Header: stamp = a frame's stamp,
                                                  frame_id = done | dropped | failed
@@ -19,16 +22,20 @@ Parameters: ``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParam
 both views at once, in two threads), ``segmentation.*`` (SegmentationParams), ``fusion.*``
 (FusionParams: method calibrated | algorithm1 | side_only), ``sync.*`` (SyncParams),
 ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*`` (extrinsics),
-``background.CAMERA`` (path of an empty-table PNG for background subtraction; '' = none).
+``background.CAMERA`` (path of an empty-table PNG for background subtraction; '' = none; a new
+one that cannot be read is refused). All are live (``ros2 param set``, from the next frame)
+but ``rig.cameras``, ``input_qos``, ``input_depth``, ``sync.worker_thread``: read-only.
 Frames: outputs keep each source image's frame and stamp.
 """
 from __future__ import annotations
 
 import threading
 import time
+from functools import partial
 from typing import Any
 
 import cv2
+import numpy as np
 
 from tlessbot_ros.conversions import (
     camera_info_to_intrinsics,
@@ -45,9 +52,15 @@ from tlessbot_ros.conversions.topics import (
     relay_topic,
 )
 from tlessbot_ros.core.common import AdmissionParams, InFlightFrames
-from tlessbot_ros.core.localise import FusionParams, SegmentationParams, prepare_background
+from tlessbot_ros.core.localise import (
+    BackgroundModel,
+    FusionParams,
+    SegmentationParams,
+    prepare_background,
+)
 from tlessbot_ros.core.pipeline import LocaliseParams, PerceptionPipeline, ViewInput
-from tlessbot_ros.nodes.common import RESULT_QOS, message_class, params_from_node, run_node
+from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
 from tlessbot_ros.nodes.inputs import Views, newest_stamp_ns
 from tlessbot_ros.nodes.stage import (
     CAMERA_INPUTS,
@@ -66,30 +79,38 @@ class LocaliserNode(StageNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('localiser', **kwargs)
-        self.segmentation = params_from_node(self, SegmentationParams, prefix='segmentation.')
-        self.fusion = params_from_node(self, FusionParams, prefix='fusion.')
-        self.localise_params = params_from_node(self, LocaliseParams)
-        self.backgrounds = {}
+        self.segmentation = self.parameters.dataclass(
+            SegmentationParams(), prefix='segmentation.', apply=self._apply_segmentation)
+        self.fusion = self.parameters.dataclass(FusionParams(), prefix='fusion.',
+                                                apply=partial(setattr, self, 'fusion'))
+        self.localise_params = self.parameters.dataclass(
+            LocaliseParams(), apply=partial(setattr, self, 'localise_params'))
+        self._empty_tables: dict[str, np.ndarray] = {}   # camera: (H, W, 3) uint8 RGB
+        self.backgrounds: dict[str, BackgroundModel] = {}
         for camera in self.cameras:
-            path = self.declare_parameter(f'background.{camera}', '').value
-            if path:
-                self.backgrounds[camera] = self._load_background(path)
-        self.in_flight = InFlightFrames(params_from_node(self, AdmissionParams,
-                                                         prefix='admission.'))
+            name = f'background.{camera}'
+            self._apply_background(camera, self.parameters.group(
+                {name: ('', f'empty-table PNG of the {camera} camera for background '
+                            "subtraction ('' = none)")},
+                build=lambda values, name=name: read_empty_table(values[name]),
+                apply=partial(self._apply_background, camera),
+                on_start_error=self._run_without_background))
+        self.in_flight = InFlightFrames(self.parameters.dataclass(
+            AdmissionParams(), prefix='admission.', apply=self._apply_admission))
         self._in_flight_lock = threading.Lock()
         self._downstream = {
             stage: self.create_subscription(
                 message_class('std_msgs/msg/Header'), outcome_topic(stage),
                 lambda msg, stage=stage: self._on_downstream_outcome(stage, msg), RESULT_QOS)
             for stage in DOWNSTREAM}
-        self._label_publishers = {
-            camera: self.create_publisher(message_class(IMAGE),
-                                          node_relative(labels_topic(camera)), RESULT_QOS)
-            for camera in self.cameras}
         self._relays = {camera: {
             key: self.create_publisher(message_class(msg_type), relay_topic(camera, topic),
                                        RESULT_QOS)
             for key, (msg_type, topic) in CAMERA_INPUTS.items()} for camera in self.cameras}
+        self._label_publishers = {
+            camera: self.create_publisher(message_class(IMAGE),
+                                          node_relative(labels_topic(camera)), RESULT_QOS)
+            for camera in self.cameras}
         self.start_when_ready(self._warm_up, camera_inputs(CAMERA_INPUTS))
 
     def admit(self, views: Views) -> bool:
@@ -128,6 +149,10 @@ class LocaliserNode(StageNode):
                 self.in_flight.finish(stamp_ns, time.monotonic(),
                                       completed=last_stage and outcome == DONE)
 
+    def _apply_admission(self, params: AdmissionParams) -> None:
+        with self._in_flight_lock:
+            self.in_flight.params = params
+
     def _warm_up(self) -> None:
         """Segment and fuse a synthetic frame once (first calls, lazy imports)."""
         views, _ = self.warm_up_frame(self.backgrounds)
@@ -138,13 +163,24 @@ class LocaliserNode(StageNode):
         return PerceptionPipeline(rig=rig, segmentation=self.segmentation, fusion=self.fusion,
                                   localise_params=self.localise_params)
 
-    def _load_background(self, path: str) -> Any:
-        bgr = cv2.imread(path, cv2.IMREAD_COLOR)
-        if bgr is None:
-            self.get_logger().error(f'cannot read background image {path!r}; not using it')
-            return None
-        return prepare_background(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB),
-                                  params=self.segmentation)
+    def _run_without_background(self, error: Exception) -> None:
+        self.get_logger().error(f'{error}; not using it')   # the node runs without it
+
+    def _apply_segmentation(self, params: SegmentationParams) -> None:
+        """New segmentation settings; the empty-table images are prepared again for them
+        (their colour cues depend on ``cue_scale`` and ``hed_dark_level``)."""
+        self.segmentation = params
+        self.backgrounds = {camera: prepare_background(rgb, params=params)
+                            for camera, rgb in self._empty_tables.items()}
+
+    def _apply_background(self, camera: str, rgb: np.ndarray | None) -> None:
+        """Use the empty-table image ``rgb`` for ``camera`` (None: no background)."""
+        tables = {c: image for c, image in self._empty_tables.items() if c != camera}
+        backgrounds = {c: model for c, model in self.backgrounds.items() if c != camera}
+        if rgb is not None:
+            tables[camera] = rgb
+            backgrounds[camera] = prepare_background(rgb, params=self.segmentation)
+        self._empty_tables, self.backgrounds = tables, backgrounds
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         inputs = {camera: self._view_input(camera, msgs) for camera, msgs in views.items()}
@@ -169,6 +205,20 @@ class LocaliserNode(StageNode):
         return ViewInput(rgb=rgb, depth_m=depth_image_to_metres(msgs['depth']),
                          intrinsics=intrinsics, T_world_camera=self.extrinsics[camera],
                          background=self.backgrounds.get(camera))
+
+
+def read_empty_table(path: str) -> np.ndarray | None:
+    """The (H, W, 3) uint8 RGB image at ``path`` ('' = none: None).
+
+    Raises:
+        TlessbotError: the file cannot be read as an image.
+    """
+    if not path:
+        return None
+    bgr = cv2.imread(path, cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise TlessbotError(f'cannot read background image {path!r}')
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -23,10 +23,14 @@ their depth at the fitted pose; these and ``min_roi_points``, ``table_clearance_
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
 fits others), ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*``
-(extrinsics; the table path needs them), ``sync.*``.
+(extrinsics; the table path needs them), ``sync.*``. All are live (``ros2 param set``, from
+the next frame; the worker processes fit their next part with new ``pose.*`` and FitParams;
+``workers.count`` starts or stops workers) but ``templates_path`` (its objects name the pose
+topics), ``rig.cameras``, ``input_qos``, ``input_depth``, ``sync.worker_thread``: read-only.
 """
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -54,14 +58,8 @@ from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
 from tlessbot_ros.data import DEFAULT_TEMPLATES
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.io.cache import warm_pose_stage
-from tlessbot_ros.nodes.common import RESULT_QOS, message_class, params_from_node, run_node
-from tlessbot_ros.nodes.stage import (
-    IMAGE,
-    StageNode,
-    camera_inputs,
-    declare_input_source,
-    descriptor,
-)
+from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
+from tlessbot_ros.nodes.stage import IMAGE, StageNode, camera_inputs, declare_input_source
 from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
 
 CLASS_ENCODINGS = ('16UC1', 'mono16', '16UC2', '16UC3', '16UC4')
@@ -73,21 +71,26 @@ class PoseEstimatorNode(StageNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('pose_estimator', **kwargs)
-        path = self.declare_parameter('templates_path', str(DEFAULT_TEMPLATES), descriptor(
-            'Template database .npz written by tlessbot templates')).value
-        self.output_frame = self.declare_parameter('output_frame', 'camera', descriptor(
-            "'camera': poses in the optical frame of the camera used; 'world': in "
-            'world_frame through the rig extrinsics')).value
-        self.world_frame = self.declare_parameter('world_frame', 'world', descriptor(
-            'Name of the table (world) frame')).value
-        self.min_fitness = self.declare_parameter('min_fitness', 0.3, descriptor(
-            'Poses whose fitness is below this are not published')).value
-        if self.output_frame not in OUTPUT_FRAMES:
-            raise TlessbotError(f"output_frame must be 'camera' or 'world', got "
-                                f'{self.output_frame!r}')
-        pose_params = params_from_node(self, PoseParams, prefix='pose.')
-        worker_params = params_from_node(self, PoseWorkerParams, prefix='workers.')
-        fit_params = params_from_node(self, FitParams)
+        parameters = self.parameters
+        path = parameters.read_only('templates_path', str(DEFAULT_TEMPLATES), (
+            'Template database .npz written by tlessbot templates; its objects name the pose '
+            'topics'))
+        self.output_frame = parameters.group(
+            {'output_frame': ('camera', "'camera': poses in the optical frame of the camera "
+                                        "used; 'world': in world_frame through the rig "
+                                        'extrinsics')},
+            build=_output_frame, apply=partial(setattr, self, 'output_frame'))
+        self.world_frame = parameters.group(
+            {'world_frame': ('world', 'Name of the table (world) frame')},
+            build=_world_frame, apply=partial(setattr, self, 'world_frame'))
+        self.min_fitness = parameters.group(
+            {'min_fitness': (0.3, 'Poses whose fitness is below this are not published')},
+            build=_min_fitness, apply=partial(setattr, self, 'min_fitness'))
+        pose_params = parameters.dataclass(PoseParams(), prefix='pose.',
+                                           apply=self._apply_pose_params)
+        worker_params = parameters.dataclass(PoseWorkerParams(), prefix='workers.',
+                                             apply=self._apply_worker_params)
+        fit_params = parameters.dataclass(FitParams(), apply=self._apply_fit_params)
         self.templates = TemplateDatabase.load(path)
         self.pipeline = PerceptionPipeline(templates=self.templates, pose=pose_params,
                                            fit_params=fit_params)
@@ -173,6 +176,29 @@ class PoseEstimatorNode(StageNode):
                          worker_fits=self.workers.worker_fits)
         return stats
 
+    def _apply_pose_params(self, params: PoseParams) -> None:
+        self.pipeline = self.pipeline.replace(pose=params)
+        self._update_workers()
+
+    def _apply_fit_params(self, params: FitParams) -> None:
+        self.pipeline = self.pipeline.replace(fit_params=params)
+        self._update_workers()
+
+    def _update_workers(self) -> None:
+        """The workers fit their next parts with the pipeline's current settings."""
+        if self.workers is not None:
+            self.workers.update(pose=self.pipeline.pose_estimator.params,
+                                fit=self.pipeline.fit_params)
+
+    def _apply_worker_params(self, params: PoseWorkerParams) -> None:
+        """Start or stop worker processes (new ones fit parts once they are ready)."""
+        if self.workers is None and params.count:
+            self.workers = PoseWorkerPool(self._templates_path,
+                                          pose=self.pipeline.pose_estimator.params,
+                                          fit=self.pipeline.fit_params, params=params)
+        elif self.workers is not None:
+            self.workers.reconfigure(params)
+
     def _log_worker_errors(self) -> None:
         if self.workers is not None and self.workers.failures != self._worker_errors_seen:
             self._worker_errors_seen = self.workers.failures
@@ -216,6 +242,28 @@ class PoseEstimatorNode(StageNode):
             self._overlay.publish(array_to_image(
                 canvas, 'rgb8', frame_id=views[SIDE]['depth'].header.frame_id,
                 stamp_ns=stamp_ns, factory=self._factory))
+
+
+def _output_frame(values: dict[str, Any]) -> str:
+    frame = values['output_frame']
+    if frame not in OUTPUT_FRAMES:
+        raise TlessbotError(f"output_frame must be 'camera' or 'world', got {frame!r}")
+    return frame
+
+
+def _world_frame(values: dict[str, Any]) -> str:
+    frame = values['world_frame']
+    if not frame:
+        raise ValueError('world_frame must name a frame, got an empty string')
+    return frame
+
+
+def _min_fitness(values: dict[str, Any]) -> float:
+    fitness = values['min_fitness']
+    if not fitness >= 0.0:   # NaN too
+        raise ValueError(f'min_fitness must be >= 0 (a fitness; above 1: no pose is '
+                         f'published), got {fitness}')
+    return fitness
 
 
 def main(args: list[str] | None = None) -> None:

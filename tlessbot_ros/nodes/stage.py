@@ -13,6 +13,11 @@ pairs them; one worker thread runs :meth:`StageNode.process`. A frame that compl
 worker is busy becomes the single pending frame, and a newer one replaces it, so a slow stage
 always starts on the newest frame and its partners are still buffered when its upstream result
 comes in.
+
+Parameters (:mod:`~tlessbot_ros.nodes.parameters`): ``rig.CAMERA.*`` and each stage's tuning
+are live (``ros2 param set``; applied by the worker thread between frames), ``sync.*`` too
+(applied at once); ``rig.cameras``, ``input_qos``, ``input_depth`` and ``sync.worker_thread``
+are read-only. ``/diagnostics`` also counts accepted parameter changes and shows the last.
 """
 from __future__ import annotations
 
@@ -54,9 +59,10 @@ from tlessbot_ros.core.common import (
 )
 from tlessbot_ros.core.pipeline import ViewInput
 from tlessbot_ros.errors import TlessbotError
-from tlessbot_ros.nodes.common import RESULT_QOS, SENSOR_QOS, message_class, params_from_node
+from tlessbot_ros.nodes.common import RESULT_QOS, SENSOR_QOS, message_class
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, WARN, diagnostic_array
 from tlessbot_ros.nodes.inputs import TwoViewInputs, Views, deserialise_views, newest_stamp_ns
+from tlessbot_ros.nodes.parameters import AT_ONCE, LiveParameters
 
 IMAGE = 'sensor_msgs/msg/Image'
 CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
@@ -77,54 +83,70 @@ def camera_inputs(keys: Sequence[str], source: str = 'cameras'
             for key in keys}
 
 
-def declare_input_source(node: Node) -> str:
+def declare_input_source(node: StageNode) -> str:
     """Declare the read-only ``input_source`` of a stage after the localiser and return it."""
-    from rcl_interfaces.msg import ParameterDescriptor
-
-    return node.declare_parameter('input_source', INPUT_SOURCES[0], ParameterDescriptor(
-        description="Where the camera images come from: 'localiser' (its relay of the frames "
-                    "it admitted, /localiser/<camera>/...: a frame the localiser skipped costs "
-                    "this node nothing) or 'cameras' (every frame of the camera topics) "
-                    '(read-only)', read_only=True)).value
+    return node.parameters.read_only('input_source', INPUT_SOURCES[0], (
+        "where the camera images come from: 'localiser' (its relay of the frames it admitted, "
+        '/localiser/<camera>/...: a frame the localiser skipped costs this node nothing) or '
+        "'cameras' (every frame of the camera topics)"))
 
 
-def declare_cameras(node: Node) -> tuple[str, ...]:
-    """Declare ``rig.cameras`` (default :data:`~tlessbot_ros.core.common.CAMERA_NAMES`) and
-    return it.
+def declare_cameras(parameters: LiveParameters) -> tuple[str, ...]:
+    """Declare ``rig.cameras`` (read-only; default :data:`~tlessbot_ros.core.common.CAMERA_NAMES`)
+    and return it.
 
     Raises:
         CalibrationError: names other than the two roles the pipeline fuses.
     """
-    names = node.declare_parameter('rig.cameras', list(CAMERA_NAMES), descriptor(
-        f'names of the cameras of the rig: the roles {list(CAMERA_NAMES)}, in any order')).value
+    names = parameters.read_only('rig.cameras', list(CAMERA_NAMES), f'names of the cameras of '
+                                 f'the rig: the roles {list(CAMERA_NAMES)}, in any order')
     return check_camera_roles(names)
 
 
-def declare_extrinsics(node: Node, cameras: Sequence[str]) -> dict[str, np.ndarray]:
+def declare_extrinsics(parameters: LiveParameters, cameras: Sequence[str],
+                       apply: Callable[[str, np.ndarray], None]) -> dict[str, np.ndarray]:
     """Declare ``rig.<camera>.{position_m, look_at_m, up}`` (defaults: the paper's cell) and
-    return {camera: T_world_camera}. Intrinsics come from the live CameraInfo instead."""
+    return {camera: T_world_camera}. Intrinsics come from the live CameraInfo instead.
+
+    They are live: a change reaches ``apply(camera, T_world_camera)`` between frames."""
     defaults = default_rig()
     extrinsics = {}
     for camera in cameras:
-        T = defaults[camera].T_world_camera
-        position = node.declare_parameter(
-            f'rig.{camera}.position_m', [float(v) for v in T[:3, 3]],
-            descriptor(f'{camera} camera position in the world (table) frame, metres')).value
-        target = node.declare_parameter(
-            f'rig.{camera}.look_at_m', [0.0, 0.0, 0.0],
-            descriptor(f'point the {camera} camera looks at, world frame, metres')).value
-        up = node.declare_parameter(
-            f'rig.{camera}.up', [0.0, 1.0, 0.0] if camera == TOP else [0.0, 0.0, 1.0],
-            descriptor(f'world direction shown at the top of the {camera} image')).value
-        extrinsics[camera] = look_at(np.asarray(position, float), np.asarray(target, float),
-                                     np.asarray(up, float))
+        names = {key: f'rig.{camera}.{key}' for key in ('position_m', 'look_at_m', 'up')}
+        declarations = {
+            names['position_m']: ([float(v) for v in defaults[camera].T_world_camera[:3, 3]],
+                                  f'{camera} camera position in the world (table) frame, metres'),
+            names['look_at_m']: ([0.0, 0.0, 0.0],
+                                 f'point the {camera} camera looks at, world frame, metres'),
+            names['up']: ([0.0, 1.0, 0.0] if camera == TOP else [0.0, 0.0, 1.0],
+                          f'world direction shown at the top of the {camera} image')}
+        extrinsics[camera] = parameters.group(
+            declarations, build=partial(_camera_pose, names),
+            apply=partial(apply, camera))
     return extrinsics
 
 
-def descriptor(text: str) -> Any:
-    from rcl_interfaces.msg import ParameterDescriptor
+def _camera_pose(names: dict[str, str], values: dict[str, Any]) -> np.ndarray:
+    """T_world_camera from a camera's ``position_m``, ``look_at_m`` and ``up`` parameters.
 
-    return ParameterDescriptor(description=text)
+    Raises:
+        ValueError: not three finite numbers each, the camera on its target, or ``up`` along
+            the viewing direction.
+    """
+    points = {}
+    for key, name in names.items():
+        point = np.asarray(values[name], dtype=np.float64)
+        if point.shape != (3,) or not np.all(np.isfinite(point)):
+            raise ValueError(f'{name} must be three finite numbers [x, y, z], got '
+                             f'{list(values[name])}')
+        points[key] = point
+    if np.linalg.norm(points['look_at_m'] - points['position_m']) < 1e-9:
+        raise ValueError(f'{names["position_m"]} and {names["look_at_m"]} coincide: the camera '
+                         'must look at a point away from it')
+    try:
+        return look_at(points['position_m'], points['look_at_m'], points['up'])
+    except ValueError as error:
+        raise ValueError(f'{names["up"]}: {error}') from None
 
 
 def rig_with_intrinsics(extrinsics: dict[str, np.ndarray], intrinsics: dict[str, Any]) -> Rig:
@@ -143,15 +165,19 @@ class StageNode(Node):
         self.ready_after_s: float | None = None   # from construction to ready
         self.warm_up_s: float | None = None
         self._warm_thread: threading.Thread | None = None
-        self.cameras = declare_cameras(self)
-        self.extrinsics = declare_extrinsics(self, self.cameras)
-        self.sync_params = params_from_node(self, SyncParams, prefix='sync.')
-        self.input_qos = self.declare_parameter('input_qos', 'sensor_data', descriptor(
+        self.parameters = LiveParameters(self)
+        self.cameras = declare_cameras(self.parameters)
+        self.extrinsics = declare_extrinsics(self.parameters, self.cameras,
+                                             self._apply_extrinsics)
+        self.sync_params = self.parameters.dataclass(
+            SyncParams(), prefix='sync.', when=AT_ONCE, read_only=('worker_thread',),
+            apply=self._apply_sync)
+        self.input_qos = self.parameters.read_only('input_qos', 'sensor_data', (
             "QoS of the subscriptions: 'sensor_data' (best effort, the ROS convention for "
-            "camera streams) or 'reliable' (no loss of large images under CPU load)")).value
-        self.input_depth = self.declare_parameter('input_depth', 2, descriptor(
+            "camera streams) or 'reliable' (no loss of large images under CPU load)"))
+        self.input_depth = self.parameters.read_only('input_depth', 2, (
             'History depth of each subscription: a node that falls behind drops the older '
-            'frames instead of queueing them (latency stays bounded)')).value
+            'frames instead of queueing them (latency stays bounded)'))
         if self.input_qos not in ('sensor_data', 'reliable'):
             raise TlessbotError(f"input_qos must be 'sensor_data' or 'reliable', got "
                                 f'{self.input_qos!r}')
@@ -248,6 +274,17 @@ class StageNode(Node):
             self, {k: (message_class(t), topic) for k, (t, topic) in topics.items()},
             self.cameras, self.sync_params, self._on_views, qos=self._input_profile())
 
+    def _apply_sync(self, params: SyncParams) -> None:
+        """New ``sync.*`` (executor thread, as the subscriptions' callbacks): the rate cap
+        holds from the next frame; new thresholds restart the pairing."""
+        with self._wakeup:   # setup_inputs (warm-up thread) reads them under this lock
+            self.sync_params = params
+            if self._inputs is not None:
+                self._inputs.reconfigure(params)
+
+    def _apply_extrinsics(self, camera: str, T_world_camera: np.ndarray) -> None:
+        self.extrinsics = {**self.extrinsics, camera: T_world_camera}
+
     def _input_profile(self) -> QoSProfile:
         """The subscriptions' QoS: ``input_qos`` reliability with ``input_depth`` history."""
         base = SENSOR_QOS if self.input_qos == 'sensor_data' else RESULT_QOS
@@ -267,6 +304,7 @@ class StageNode(Node):
         self.on_admitted(views)
         self._last_start = now
         if self._worker is None:
+            self.parameters.apply_pending()
             self._process_safely(views)
             return
         with self._wakeup:
@@ -309,6 +347,7 @@ class StageNode(Node):
                     return
                 views, self._pending = self._pending, None
                 self._busy = True
+            self.parameters.apply_pending()   # between frames: a frame sees all or nothing
             self._process_safely(views)
 
     def wait_idle(self, timeout_s: float = 10.0) -> bool:
@@ -375,6 +414,9 @@ class StageNode(Node):
                   'zero_stamps': self._inputs.zero_stamps if self._inputs else 0,
                   'malformed': self._inputs.malformed if self._inputs else 0,
                   **{k: f'{v:.3g}' for k, v in self._stats.items()}}
+        if self.parameters.changes:
+            values.update(parameter_changes=self.parameters.changes,
+                          last_parameter_change=self.parameters.last_change)
         if self.last_error:
             values['last_error'] = self.last_error
         message = 'ok' if level == OK else (self.last_error or 'starting')

@@ -57,11 +57,21 @@ class PoseWorkerParams:
     start_timeout_s: float = 120.0
     restart_delay_s: float = 5.0
 
+    def __post_init__(self) -> None:
+        if self.count < 0:
+            raise ValueError(f'count must be >= 0 (0: no worker processes), got {self.count}')
+        for name in ('job_timeout_s', 'start_timeout_s'):
+            if not getattr(self, name) > 0:
+                raise ValueError(f'{name} must be > 0 s, got {getattr(self, name)}')
+        if not self.restart_delay_s >= 0:
+            raise ValueError(f'restart_delay_s must be >= 0 s, got {self.restart_delay_s}')
+
 
 class _Worker:
     """One worker process and its pipes (used by one thread at a time)."""
 
     def __init__(self, config: dict[str, Any]) -> None:
+        self.settings = config   # the pool's config whose pose and fit settings it fits with
         self.process = subprocess.Popen(
             [sys.executable, '-m', 'tlessbot_ros.parallel.pose_worker'],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=_worker_environment())
@@ -90,15 +100,18 @@ class _Worker:
     def alive(self) -> bool:
         return self.process.poll() is None and not self.failed
 
-    def fit(self, job: PartJob, timeout_s: float) -> bool:
-        """Fit ``job`` in the worker (fills its detection); False if the worker failed."""
+    def fit(self, job: PartJob, timeout_s: float, settings: dict[str, Any]) -> bool:
+        """Fit ``job`` in the worker (fills its detection) with the pose and fit settings of
+        ``settings`` (sent along when they are not the worker's yet); False if the worker
+        failed."""
         self._next_job += 1
         deadline = time.monotonic() + timeout_s
+        header = {'job': self._next_job, 'candidates': list(job.candidates),
+                  'T_world_camera': matrix_to_json(job.T_world_camera)}
+        if settings is not self.settings:
+            header['params'] = {'pose': settings['pose'], 'fit': settings['fit']}
         try:
-            self._send(encode_message({
-                'job': self._next_job, 'candidates': list(job.candidates),
-                'T_world_camera': matrix_to_json(job.T_world_camera)},
-                points_to_bytes(job.points)), deadline)
+            self._send(encode_message(header, points_to_bytes(job.points)), deadline)
             ready, _, _ = select.select([self.process.stdout], [], [],
                                         max(0.0, deadline - time.monotonic()))
             if not ready:
@@ -112,6 +125,7 @@ class _Worker:
             return False
         if 'error' in header:
             return False  # this part failed, not the worker: it is fitted again in the node
+        self.settings = settings
         detection = job.detection
         detection.obj_id, detection.class_rank = int(header['obj_id']), int(header['class_rank'])
         detection.pose = candidate_from_json(header['pose'])
@@ -169,8 +183,6 @@ class PoseWorkerPool:
 
     def __init__(self, templates_path: str | Path, *, pose: PoseParams,
                  fit: FitParams, params: PoseWorkerParams) -> None:
-        if params.count < 0:
-            raise ValueError(f'count must be >= 0, got {params.count}')
         self.params = params
         self._config = {'templates': str(templates_path), 'pose': params_to_json(pose),
                         'fit': params_to_json(fit)}
@@ -228,7 +240,7 @@ class PoseWorkerPool:
 
         def serve(worker: _Worker) -> None:
             while worker.alive and (job := take()) is not None:
-                if worker.fit(job, self.params.job_timeout_s):
+                if worker.fit(job, self.params.job_timeout_s, self._config):
                     self.worker_fits += 1
                     finish(job)
                     continue
@@ -249,6 +261,23 @@ class PoseWorkerPool:
             fit_and_finish(job)
         if raised:
             raise raised[0]
+
+    def update(self, *, pose: PoseParams, fit: FitParams) -> None:
+        """New pose and fit settings: each worker gets them with its next part, a worker
+        started later at its start. Call between frames (not during :meth:`fit_all`)."""
+        self._config = {**self._config, 'pose': params_to_json(pose),
+                        'fit': params_to_json(fit)}
+
+    def reconfigure(self, params: PoseWorkerParams) -> None:
+        """New pool settings; workers are started or stopped to make ``params.count`` (new
+        ones take parts once ready; stopped ones end in the background). Call between
+        frames (not during :meth:`fit_all`)."""
+        self.params = params
+        while len(self._workers) < params.count:
+            self._workers.append(_Worker(self._config))
+        surplus, self._workers = self._workers[params.count:], self._workers[:params.count]
+        for worker in surplus:
+            threading.Thread(target=worker.stop, daemon=True, name='pose_worker_stop').start()
 
     def _replace_failed(self) -> None:
         """Record why a worker is dead, failed or stuck in its start, and start a new one in

@@ -6,8 +6,10 @@ Reads messages (:mod:`~tlessbot_ros.parallel.wire`) on stdin, answers on stdout:
    template database, builds every cache, answers ``{"ready": n_objects}`` (or ``{"error":
    text}`` and exits 1);
 2. then per part ``{"job": id, "candidates": [...], "T_world_camera": [16] | null}`` with the
-   ROI points as payload -> ``{"job": id, "obj_id", "class_rank", "pose", "second"}`` (or
-   ``{"job": id, "error": text}``), until stdin closes.
+   ROI points as payload, and ``"params": {"pose": {...}, "fit": {...}}`` when the node's
+   settings changed since the worker's last part (kept for the parts after it) ->
+   ``{"job": id, "obj_id", "class_rank", "pose", "second"}`` (or ``{"job": id, "error":
+   text}``), until stdin closes.
 
 Anything a library prints goes to stderr: stdout carries the protocol only.
 """
@@ -37,6 +39,13 @@ def pipeline_from_config(config: dict[str, Any]) -> PerceptionPipeline:
     return PerceptionPipeline(templates=TemplateDatabase.load(config['templates']),
                               pose=params_from_json(PoseParams, config.get('pose', {})),
                               fit_params=params_from_json(FitParams, config.get('fit', {})))
+
+
+def with_settings(pipeline: PerceptionPipeline, settings: dict[str, Any]) -> PerceptionPipeline:
+    """The pipeline with a job's new ``{"pose": {PoseParams}, "fit": {FitParams}}`` (the
+    node's parameters changed); templates and their caches are kept."""
+    return pipeline.replace(pose=params_from_json(PoseParams, settings.get('pose', {})),
+                            fit_params=params_from_json(FitParams, settings.get('fit', {})))
 
 
 def fit(pipeline: PerceptionPipeline, header: dict[str, Any], payload: bytes) -> dict[str, Any]:
@@ -69,6 +78,8 @@ def serve(requests: BinaryIO, replies: BinaryIO) -> int:
         except WireError:
             return 0  # the node closed the pipe: done
         try:
+            if 'params' in header:
+                pipeline = with_settings(pipeline, header['params'])
             reply = fit(pipeline, header, payload)
         except Exception as error:  # a bad part must not end the worker
             reply = {'job': header.get('job'), 'error': f'{type(error).__name__}: {error}'}

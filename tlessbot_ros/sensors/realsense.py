@@ -21,7 +21,8 @@ class RealSenseParams:
     """Driver settings (ROS parameters of ``camera_driver``).
 
     Attributes:
-        serial_no: device serial number; empty = the first device found.
+        serial_no: device serial number (a leading ``_`` is dropped); empty = the first
+            device found.
         camera_name: prefix of the frames (``<name>_color_optical_frame``).
         width, height, fps: colour and depth stream profile.
         align_depth: align depth to colour (the graph needs it).
@@ -43,6 +44,15 @@ class RealSenseParams:
     reconnect: bool = True
     reconnect_period_s: float = 2.0
     frame_timeout_ms: int = 1000
+
+    def __post_init__(self) -> None:
+        # realsense-ros's convention: a leading '_' keeps a numeric serial a string in YAML
+        object.__setattr__(self, 'serial_no', str(self.serial_no).lstrip('_'))
+        if not self.reconnect_period_s > 0:
+            raise ValueError(f'reconnect_period_s must be > 0 s, got {self.reconnect_period_s}')
+        if self.cloud_stride < 1 or self.frame_timeout_ms < 1:
+            raise ValueError(f'cloud_stride and frame_timeout_ms must be >= 1, got '
+                             f'{self.cloud_stride} and {self.frame_timeout_ms}')
 
 
 @dataclass

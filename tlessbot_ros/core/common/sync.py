@@ -54,6 +54,14 @@ class SyncParams:
     max_rate_hz: float = 0.0
     worker_thread: bool = True
 
+    def __post_init__(self) -> None:
+        for name in ('slop_s', 'max_age_s', 'max_rate_hz'):
+            if not getattr(self, name) >= 0:   # NaN too
+                raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
+        if self.queue_size < 1:
+            raise ValueError(f'queue_size must be >= 1 (items kept per stream), got '
+                             f'{self.queue_size}')
+
 
 class StampSynchroniser(Generic[Item]):
     """Pairs items of named streams by stamp (nanoseconds); bounded memory."""
