@@ -38,11 +38,9 @@ setup(
         'scipy>=1.10',
         'numba>=0.60',  # fused grid kernels of the pose search (core/pose/grid_kernels.py)
         'opencv-python-headless>=4.8,<5',  # 5.x moved HOGDescriptor to contrib
-        'scikit-image>=0.22',
         'scikit-learn>=1.4',
         'threadpoolctl>=3',  # one BLAS thread per node process (nodes/common.py)
         'open3d>=0.18',
-        'trimesh>=4.0',
         'rosbags>=0.10',
         'pyyaml>=6',
         'tqdm>=4.60',
@@ -55,7 +53,9 @@ setup(
             'ros-jazzy-common-interfaces',
             'ros-jazzy-rmw-fastrtps-cpp',
         ],
-        'test': ['pytest>=8', 'pytest-timeout>=2.2', 'ruff>=0.5'],
+        # scikit-image and trimesh: reference implementations the tests compare against.
+        'test': ['pytest>=8', 'pytest-timeout>=2.2', 'ruff>=0.5', 'scikit-image>=0.22',
+                 'trimesh>=4.0'],
     },
     zip_safe=True,
     maintainer='tlessbot_ros team',
