@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from tlessbot_ros.nodes.common import init_ros
+    from tlessbot_ros.nodes.common import ignore_interrupts_while_stopping, init_ros
     from tlessbot_ros.tools.support.readiness import wait_until_ready
 
     bag_topics(args.bag)  # fail with one clear line before touching ROS
@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        ignore_interrupts_while_stopping()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
