@@ -15,7 +15,7 @@ demo: setup
 	$(PY) -m tlessbot_ros.tools.cli demo
 
 lint: setup
-	$(PY) -m ruff check tlessbot_ros test
+	$(PY) -m ruff check tlessbot_ros test launch
 
 freeze: setup
 	@{ echo '# Exact versions CI was green with (pip freeze of a fresh set-up). Regenerate with: make freeze'; \

@@ -38,11 +38,9 @@ setup(
         'scipy>=1.10',
         'numba>=0.60',  # fused grid kernels of the pose search (core/pose/grid_kernels.py)
         'opencv-python-headless>=4.8,<5',  # 5.x moved HOGDescriptor to contrib
-        'scikit-image>=0.22',
         'scikit-learn>=1.4',
         'threadpoolctl>=3',  # one BLAS thread per node process (nodes/common.py)
         'open3d>=0.18',
-        'trimesh>=4.0',
         'rosbags>=0.10',
         'mcap>=1.1',  # io/bag_writer.py: zstd-chunked mcap as rosbag2 writes it (pulls zstandard)
         'pyyaml>=6',
@@ -56,7 +54,9 @@ setup(
             'ros-jazzy-common-interfaces',
             'ros-jazzy-rmw-fastrtps-cpp',
         ],
-        'test': ['pytest>=8', 'pytest-timeout>=2.2', 'ruff>=0.5'],
+        # scikit-image and trimesh: reference implementations the tests compare against.
+        'test': ['pytest>=8', 'pytest-timeout>=2.2', 'ruff>=0.5', 'scikit-image>=0.22',
+                 'trimesh>=4.0'],
     },
     zip_safe=True,
     maintainer='tlessbot_ros team',

@@ -284,6 +284,18 @@ def limit_blas_threads() -> int | None:
     return 1
 
 
+def ignore_interrupts_while_stopping() -> None:
+    """Ignore SIGINT from now on (call from the main thread when the clean-up starts).
+
+    Ctrl-C in a terminal reaches every process of ``ros2 launch``'s process group, and launch
+    then sends each node SIGINT again: that second one would abort the clean-up with a
+    KeyboardInterrupt traceback and a non-zero exit. SIGTERM still stops a stuck clean-up.
+    """
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def run_node(node_class: type, args: list[str] | None = None) -> None:
     """``main()`` of every node: init, spin until Ctrl-C or shutdown, clean up (Jazzy style).
 
@@ -311,5 +323,6 @@ def run_node(node_class: type, args: list[str] | None = None) -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        ignore_interrupts_while_stopping()
         node.destroy_node()
         rclpy.try_shutdown()

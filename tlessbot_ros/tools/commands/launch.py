@@ -20,6 +20,7 @@ import sys
 import time
 from pathlib import Path
 
+from tlessbot_ros.core.common.rig import CAMERA_NAMES
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.io.config import default_config_path
 from tlessbot_ros.tools.support.processes import (
@@ -39,6 +40,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE',
                         help='parameter override for every node (repeatable), e.g. '
                              '-p templates_path:=my_templates.npz')
+    for camera in CAMERA_NAMES:
+        parser.add_argument(f'--{camera}-serial', default='', metavar='SERIAL',
+                            help=f'serial number of the {camera} camera (default: any device)')
+    parser.add_argument('--output-frame', choices=('camera', 'world'), default=None,
+                        help="frame of the published poses (default: the parameter file's)")
     parser.add_argument('--nodes', nargs='+', default=None,
                         help='only these nodes (camera_driver, localiser, classifier, '
                              'pose_estimator)')
@@ -56,7 +62,8 @@ def run(args: argparse.Namespace) -> int:
         if ':=' not in override:
             raise TlessbotError(f'parameter override must look like NAME:=VALUE, got {override!r}')
     specs = graph_processes(config, replay=args.replay, rate=args.rate, loop=args.loop,
-                            nodes=args.nodes,
+                            nodes=args.nodes, output_frame=args.output_frame,
+                            serials={c: getattr(args, f'{c}_serial') for c in CAMERA_NAMES},
                             extra_ros_args=[a for o in args.param for a in ('-p', o)])
     # Stop the graph on Ctrl-C and on SIGTERM (systemd, docker stop, kill), never leaving the
     # nodes orphaned; SIGINT is handled even when a shell started launch in the background,

@@ -1,7 +1,6 @@
 """The perception graph's processes: what to start (pure) and running them together."""
 from __future__ import annotations
 
-import importlib.util
 import signal
 import subprocess
 import sys
@@ -10,10 +9,13 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tlessbot_ros.core.common import CAMERA_NAMES
-from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.tools.support.cell_graph import (
+    PERCEPTION_NODES,
+    GraphProcess,
+    graph_description,
+)
 
-PERCEPTION_NODES = ('localiser', 'classifier', 'pose_estimator')
+__all__ = ['PERCEPTION_NODES', 'GraphProcesses', 'ProcessSpec', 'graph_processes']
 
 
 @dataclass(frozen=True)
@@ -24,37 +26,30 @@ class ProcessSpec:
     argv: list[str] = field(default_factory=list)
 
 
-def node_available(executable: str) -> bool:
-    return importlib.util.find_spec(f'tlessbot_ros.nodes.{executable}') is not None
-
-
 def graph_processes(config: Path, *, replay: str | None = None, rate: float = 1.0,
                     loop: bool = False, nodes: list[str] | None = None,
-                    extra_ros_args: list[str] | None = None) -> list[ProcessSpec]:
-    """The processes of the graph (pure: nothing is started)."""
-    python = sys.executable
-    specs = []
-    wanted = nodes or ['camera_driver', *PERCEPTION_NODES]
-    for name in wanted:
-        if not node_available(name):
-            raise TlessbotError(f'node {name!r} is not part of this installation')
-    ros_args = ['--ros-args', '--params-file', str(config), *(extra_ros_args or [])]
-    if replay is not None:
-        argv = [python, '-m', 'tlessbot_ros.tools.cli', 'replay', replay, '--rate', str(rate),
-                '--wait-for-subscribers', '10']
-        specs.append(ProcessSpec('replay', argv + (['--loop'] if loop else [])))
-    for name in wanted:
-        if name == 'camera_driver':
-            if replay is not None:
-                continue
-            for camera in CAMERA_NAMES:
-                specs.append(ProcessSpec(f'camera_driver/{camera}', [
-                    python, '-m', 'tlessbot_ros.nodes.camera_driver', *ros_args,
-                    '-r', f'__ns:=/{camera}', '-p', f'camera_name:={camera}']))
-        else:
-            specs.append(ProcessSpec(name, [python, '-m', f'tlessbot_ros.nodes.{name}',
-                                            *ros_args]))
-    return specs
+                    extra_ros_args: list[str] | None = None,
+                    serials: dict[str, str] | None = None,
+                    output_frame: str | None = None) -> list[ProcessSpec]:
+    """The processes of :func:`cell_graph.graph_description` as argvs of this Python (pure:
+    nothing is started). Each node gets ``--ros-args --params-file config``, then
+    ``extra_ros_args``, then the description's namespace and parameter overrides."""
+    description = graph_description(replay=replay, rate=rate, loop=loop, nodes=nodes,
+                                     serials=serials, output_frame=output_frame)
+    return [ProcessSpec(process.label, _argv(process, config, extra_ros_args or []))
+            for process in description]
+
+
+def _argv(process: GraphProcess, config: Path, extra_ros_args: list[str]) -> list[str]:
+    if not process.is_node:
+        return [sys.executable, '-m', 'tlessbot_ros.tools.cli', *process.arguments]
+    argv = [sys.executable, '-m', f'tlessbot_ros.nodes.{process.executable}', *process.arguments,
+            '--ros-args', '--params-file', str(config), *extra_ros_args]
+    if process.namespace:
+        argv += ['-r', f'__ns:={process.namespace}']
+    for name, value in process.overrides:
+        argv += ['-p', f'{name}:={value}']
+    return argv
 
 
 class GraphProcesses:

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 
 class ReadinessMonitor:
@@ -57,3 +57,22 @@ class ReadinessMonitor:
 
     def close(self) -> None:
         self._node.destroy_node()
+
+
+def wait_until_ready(names: Iterable[str], *, report: Callable[[str], None],
+                     node_name: str = 'tlessbot_wait_ready') -> ReadinessMonitor:
+    """Block until every node of ``names`` reports ready (after ``rclpy.init``); a failed
+    warm-up is reported once per node and the wait goes on (a respawned node may recover).
+    Returns the closed monitor, whose :meth:`~ReadinessMonitor.summary` says how long it took.
+    """
+    monitor = ReadinessMonitor(names, node_name=node_name)
+    reported: set[str] = set()
+    try:
+        while not monitor.all_ready:
+            monitor.poll(0.2)
+            for name in sorted(set(monitor.errors) - reported):
+                report(f'{name}: {monitor.errors[name]}')
+                reported.add(name)
+    finally:
+        monitor.close()
+    return monitor
