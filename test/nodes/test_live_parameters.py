@@ -144,11 +144,11 @@ def test_structural_parameters_are_read_only(ros, name, value):
 
 def test_sync_changes_apply_at_once_and_restart_the_pairing(ros):
     from tlessbot_ros.conversions.image_cdr import image_to_cdr
-    from tlessbot_ros.nodes.stage import COLOR_INPUT
+    from tlessbot_ros.nodes.stage import camera_inputs
 
     node = _probe_class()()
     try:
-        node.setup_inputs({'color': COLOR_INPUT})
+        node.setup_inputs(camera_inputs(['color']))
         inputs = node._inputs
         handler = inputs._handler('top', 'color', object)
         handler(image_to_cdr(np.zeros((2, 2), np.uint16), '16UC1', stamp_ns=10**9))
