@@ -42,7 +42,8 @@ setup(
         'threadpoolctl>=3',  # one BLAS thread per node process (nodes/common.py)
         'open3d>=0.18',
         'rosbags>=0.10',
-        'mcap>=1.1',  # io/bag_writer.py: zstd-chunked mcap as rosbag2 writes it (pulls zstandard)
+        'mcap>=1.1',  # io/bag_writer.py: zstd-chunked mcap as rosbag2 writes it
+        'zstandard>=0.22',  # io/bags.py: reads bags of one zstd frame per message
         'pyyaml>=6',
         'tqdm>=4.60',
         'matplotlib>=3.7',

@@ -25,6 +25,8 @@ THIRD_PARTY = {
     'tqdm': ('python3-tqdm', 'tqdm'),
     'matplotlib': ('python3-matplotlib', 'matplotlib'),
     'rosbags': (None, 'rosbags'),
+    'mcap': (None, 'mcap'),
+    'zstandard': (None, 'zstandard'),
     # The rosdep key librealsense2 is the C++ SDK; the Python wheel bundles its own.
     'pyrealsense2': (None, 'pyrealsense2'),
 }
