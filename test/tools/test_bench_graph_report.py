@@ -76,3 +76,26 @@ def test_ratio_rows_compare_the_graph_with_its_stages_alone():
     # 18 CPU s over 100 frames (the monitor is not a node) against 100 ms of the stages' own
     assert rows["CPU of the three nodes per processed frame / the stages' own CPU per frame"] \
         == '180.0 / 100.0 ms = 1.80'
+
+
+def test_window_table_reports_each_window_and_the_trends():
+    from tlessbot_ros.tools.commands.bench.graph import window_table
+    from tlessbot_ros.tools.support.graph_run import GraphRunResult, ReceivedPose
+
+    start = 10**18
+    result = GraphRunResult(replay_start_ns=start)
+    for second in range(120):            # 1 Hz samples over two 60 s windows
+        result.sample_times_s.append(float(second))
+        result.rss_mb_samples.setdefault('pose_estimator', []).append(900.0 + second / 60.0)
+        result.fd_samples.setdefault('pose_estimator', []).append(40 if second < 60 else 41)
+        result.thread_samples.setdefault('pose_estimator', []).append(12)
+    for frame in range(10):              # frames posed 80 ms (window 0) and 120 ms (window 1)
+        sent = start + int((frame * 12 + 1) * 1e9)
+        delay_ms = 80 if frame < 5 else 120
+        result.poses.append(ReceivedPose(sent, 5, None, 'f', sent + delay_ms * 1_000_000))
+    table = window_table(result, 60.0)
+    rows = [line for line in table.splitlines() if line.startswith('| 0-1') or
+            line.startswith('| 1-2') or line.startswith('| pose_estimator')]
+    assert rows[0] == '| 0-1 | 5 | 80.0 / 80.0 | 901 / 40 / 12 |'
+    assert rows[1] == '| 1-2 | 5 | 120.0 / 120.0 | 902 / 41 / 12 |'
+    assert rows[2] == '| pose_estimator | +1.00 | 41-41 | 12-12 |'

@@ -55,6 +55,12 @@ class GraphRunResult:
     rss_mb_start: dict[str, float] = field(default_factory=dict)
     rss_mb_end: dict[str, float] = field(default_factory=dict)
     rss_mb_samples: dict[str, list[float]] = field(default_factory=dict)
+    # Beside each 1 Hz RSS sample: when it was taken (monotonic s since the replay started),
+    # and the open file descriptors and threads of each node (its worker processes included).
+    sample_times_s: list[float] = field(default_factory=list)
+    replay_start_ns: int = 0   # wall clock, as ReceivedPose.received_ns
+    fd_samples: dict[str, list[int]] = field(default_factory=dict)
+    thread_samples: dict[str, list[int]] = field(default_factory=dict)
     cpu_s: dict[str, float] = field(default_factory=dict)   # CPU seconds used while replaying
     diagnostics: dict[str, dict[str, str]] = field(default_factory=dict)  # last, per node
     # When each stage's side output of a frame arrived here: {stage: {stamp_ns: time_ns}}
@@ -96,6 +102,32 @@ def cpu_seconds(pid: int, *, descendants: bool = True) -> float:
             if member == pid:
                 return float('nan')
     return total
+
+
+def open_fds(pid: int, parents: dict[int, list[int]] | None = None) -> int:
+    """Open file descriptors of a process and its descendants (Linux /proc; -1: none read)."""
+    total, found = 0, False
+    for member in process_tree(pid, parents):
+        try:
+            total += sum(1 for _ in Path(f'/proc/{member}/fd').iterdir())
+            found = True
+        except OSError:
+            pass
+    return total if found else -1
+
+
+def thread_count(pid: int, parents: dict[int, list[int]] | None = None) -> int:
+    """Threads of a process and its descendants (Linux /proc; -1: none read)."""
+    total, found = 0, False
+    for member in process_tree(pid, parents):
+        try:
+            for line in Path(f'/proc/{member}/status').read_text().splitlines():
+                if line.startswith('Threads:'):
+                    total += int(line.split()[1])
+                    found = True
+        except (OSError, ValueError):
+            pass
+    return total if found else -1
 
 
 def rss_mb(pid: int, parents: dict[int, list[int]] | None = None) -> float:
@@ -217,16 +249,22 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         def cpu_now(label: str) -> float:   # the monitor's children are the nodes
             return cpu_seconds(cpu_pids[label], descendants=label != MONITOR)
         cpu_start = {label: cpu_now(label) for label in cpu_pids}
-        stop_at = time.monotonic() + duration_s if duration_s else None
-        next_sample = [time.monotonic()]
+        replay_start = time.monotonic()
+        result.replay_start_ns = time.time_ns()
+        stop_at = replay_start + duration_s if duration_s else None
+        next_sample = [replay_start]
 
         def on_publish(message) -> None:
             if message.topic == FRAME_TOPIC:
                 result.frames_replayed.append(header_stamp_ns(message.raw))
             if time.monotonic() >= next_sample[0]:
                 parents = children_by_parent()   # one /proc scan per sample: replay thread
+                result.sample_times_s.append(time.monotonic() - replay_start)
                 for label, pid in pids.items():
                     result.rss_mb_samples.setdefault(label, []).append(rss_mb(pid, parents))
+                    result.fd_samples.setdefault(label, []).append(open_fds(pid, parents))
+                    result.thread_samples.setdefault(label, []).append(
+                        thread_count(pid, parents))
                 next_sample[0] = time.monotonic() + 1.0
 
         if lockstep:

@@ -40,6 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--templates', default=str(DEFAULT_TEMPLATES))
     parser.add_argument('--config', default=None)
     parser.add_argument('--out', default=None, help='write the Markdown table here')
+    parser.add_argument('--window', type=float, default=300.0, metavar='S',
+                        help='also print latency, frames, RSS, open files and threads per window '
+                             'of this many seconds when the run holds two or more (a soak)')
     parser.add_argument('--no-stages-alone', dest='stages_alone', action='store_false',
                         help='skip the stages-alone run (bench nodes) and the ratios')
 
@@ -112,6 +115,43 @@ def ratio_rows(alone: dict[str, dict[str, float]], p95_ms: float, duration_s: fl
     ]
 
 
+def window_table(result, window_s: float) -> str:
+    """A soak's figures per window of ``window_s`` seconds: frames answered, latency p50 / p95,
+    and per node RSS, open file descriptors and threads at the window's end; then the trends
+    (RSS slope over the last two thirds, the range of fds and threads after the first window)."""
+    if not result.sample_times_s or window_s <= 0:
+        return ''
+    windows = int(result.sample_times_s[-1] // window_s) + 1
+    nodes = sorted(result.rss_mb_samples)
+    header = ['window (min)', 'frames answered', 'latency p50 / p95 (ms)'] + [
+        f'{n}: RSS MiB / fds / threads' for n in nodes]
+    lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]
+    times = np.asarray(result.sample_times_s)
+    for w in range(windows):
+        start_ns = result.replay_start_ns + int(w * window_s * 1e9)
+        end_ns = start_ns + int(window_s * 1e9)
+        poses = [p for p in result.poses if start_ns <= p.received_ns < end_ns]
+        latency = np.array([(p.received_ns - p.stamp_ns) / 1e6 for p in poses])
+        last = int(np.searchsorted(times, (w + 1) * window_s) - 1)
+        cells = [f'{w * window_s / 60:.0f}-{(w + 1) * window_s / 60:.0f}',
+                 str(len({p.stamp_ns for p in poses})),
+                 f'{np.percentile(latency, 50):.1f} / {np.percentile(latency, 95):.1f}'
+                 if len(latency) else '-']
+        cells += [f'{result.rss_mb_samples[n][last]:.0f} / {result.fd_samples[n][last]} / '
+                  f'{result.thread_samples[n][last]}' for n in nodes]
+        lines.append('| ' + ' | '.join(cells) + ' |')
+    lines += ['', '| node | RSS trend, last two thirds (MiB/min) | fds after the first window '
+              '(min-max) | threads after the first window (min-max) |', '|---|---|---|---|']
+    settled = int(np.searchsorted(times, window_s))
+    for n in nodes:
+        rss = result.rss_mb_samples[n]
+        fds, threads = result.fd_samples[n][settled:], result.thread_samples[n][settled:]
+        lines.append(f'| {n} | {rss_trend_mb_per_min(rss[len(rss) // 3:]):+.2f} | '
+                     + (f'{min(fds)}-{max(fds)} | {min(threads)}-{max(threads)} |'
+                        if fds else '- | - |'))
+    return '\n'.join(lines)
+
+
 def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.tools.support.bag_scoring import Estimate, frame_duplicates
     from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
@@ -167,6 +207,8 @@ def run(args: argparse.Namespace) -> int:
                      f"p50 {values.get('input_age_ms_p50', '?')} ms, "
                      f"p95 {values.get('input_age_ms_p95', '?')} ms"))
     table = '| measure | value |\n|---|---|\n' + '\n'.join(f'| {k} | {v} |' for k, v in rows)
+    if args.duration >= 2 * args.window:
+        table += '\n\n' + window_table(result, args.window)
     print(table)
     if args.out:
         Path(args.out).write_text(table + '\n')
