@@ -92,6 +92,21 @@ def describe_unmatched(unmatched: dict[str, tuple[int, int]]) -> str:
     return 'replay: ' + '; '.join(parts)
 
 
+def wait_for_acks(publishers: Any, timeout_s: float = 5.0) -> bool:
+    """Wait until every reliable subscriber has acknowledged what ``publishers`` sent (as
+    ``ros2 bag play --wait-for-all-acked`` does): a process that exits right after its last
+    publish otherwise takes the last messages with it. False when some were not acknowledged
+    within ``timeout_s``."""
+    from rclpy.duration import Duration
+
+    deadline = time.monotonic() + timeout_s
+    acked = True
+    for publisher in publishers:
+        remaining = max(0.0, deadline - time.monotonic())
+        acked &= bool(publisher.wait_for_all_acked(Duration(nanoseconds=int(remaining * 1e9))))
+    return acked
+
+
 def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
            topics: list[str] | None = None, qos: str = 'reliable',
            wait_for_subscribers_s: float = 0.0, restamp: bool = False,
@@ -153,6 +168,8 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
             if on_publish is not None:
                 on_publish(message)
         if not loop or published == 0:
+            if qos != 'sensor':
+                wait_for_acks(publishers.values())
             return published
         if start_wall is not None:
             next_pass_wall = start_wall + pass_period_ns / 1e9 / rate
