@@ -13,9 +13,21 @@ pairs them; one worker thread runs :meth:`StageNode.process`. A frame that compl
 worker is busy becomes the single pending frame, and a newer one replaces it, so a slow stage
 always starts on the newest frame and its partners are still buffered when its upstream result
 comes in.
+
+Restarts (``tlessbot launch`` and ``respawn`` in a launch file start a dead node again): a new
+process never publishes anything of a frame that reached the dead one. Everything a frame
+passes through lives in the process: the synchronisers' buffers, the pending frame, the pose
+workers (they exit with the node). What DDS could hand the new process is bounded too: every
+topic is VOLATILE (SENSOR_QOS and RESULT_QOS), so a new subscription gets only samples written
+after it matched, never the history a publisher keeps for its old readers; and the
+subscriptions exist only once the node is ready, so it sees nothing older than its readiness.
+Pairing is by stamp within ``sync.slop_s``, so when an upstream stage comes back, its first
+result pairs only with the buffered images of its own frame. ``pid`` on /diagnostics tells the
+processes apart (a new pid: the node was restarted).
 """
 from __future__ import annotations
 
+import os
 import threading
 import time
 import traceback
@@ -304,8 +316,8 @@ class StageNode(Node):
             {'ready': 'false', 'starting_s': f'{time.monotonic() - self._created:.1f}'}
         if not self.ready.is_set():
             level = ERROR if self.last_error else WARN
-        values = {**readiness, 'frames': self.frames, 'failures': self.failures,
-                  'dropped': dropped,
+        values = {**readiness, 'pid': os.getpid(), 'frames': self.frames,
+                  'failures': self.failures, 'dropped': dropped,
                   **_percentiles('latency_ms', self._latencies_ms),
                   **_percentiles('input_age_ms', self._input_ages_ms),
                   'zero_stamps': self._inputs.zero_stamps if self._inputs else 0,
