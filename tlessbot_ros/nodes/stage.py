@@ -112,6 +112,15 @@ def descriptor(text: str) -> Any:
     return ParameterDescriptor(description=text)
 
 
+def input_profile(input_qos: str, depth: int) -> QoSProfile:
+    """A stage's subscription QoS: the reliability of ``input_qos`` ('sensor_data' or
+    'reliable'), VOLATILE (a new subscriber gets no sample written before it matched), and
+    ``depth`` samples of history."""
+    base = SENSOR_QOS if input_qos == 'sensor_data' else RESULT_QOS
+    return QoSProfile(reliability=base.reliability, durability=base.durability,
+                      history=HistoryPolicy.KEEP_LAST, depth=max(1, int(depth)))
+
+
 def rig_with_intrinsics(extrinsics: dict[str, np.ndarray], intrinsics: dict[str, Any]) -> Rig:
     """A Rig from configured extrinsics and the intrinsics of the current CameraInfos."""
     return Rig(cameras={c: CameraMount(c, intrinsics[c], extrinsics[c]) for c in intrinsics})
@@ -226,13 +235,8 @@ class StageNode(Node):
         """Subscribe ``{key: (ROS type name, camera -> topic name)}`` for both cameras."""
         self._inputs = TwoViewInputs(
             self, {k: (message_class(t), topic) for k, (t, topic) in topics.items()},
-            self.cameras, self.sync_params, self._on_views, qos=self._input_profile())
-
-    def _input_profile(self) -> QoSProfile:
-        """The subscriptions' QoS: ``input_qos`` reliability with ``input_depth`` history."""
-        base = SENSOR_QOS if self.input_qos == 'sensor_data' else RESULT_QOS
-        return QoSProfile(reliability=base.reliability, durability=base.durability,
-                          history=HistoryPolicy.KEEP_LAST, depth=max(1, int(self.input_depth)))
+            self.cameras, self.sync_params, self._on_views,
+            qos=input_profile(self.input_qos, self.input_depth))
 
     def _on_views(self, views: Views) -> None:
         """A complete two-view frame: hand it to the worker (or process it here without one)."""
