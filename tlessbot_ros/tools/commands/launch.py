@@ -35,9 +35,12 @@ from tlessbot_ros.tools.support.processes import (
     GraphProcesses,
     graph_processes,
 )
-from tlessbot_ros.tools.support.respawn import Respawner, RespawnPolicy, describe_exit
-
-LAUNCH_STATUS = 'tlessbot_launch'   # launch's own status on /diagnostics
+from tlessbot_ros.tools.support.respawn import (
+    LAUNCH_STATUS,
+    Respawner,
+    RespawnPolicy,
+    describe_exit,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -246,4 +249,4 @@ def _readiness_monitor(stages: list[str]):
     from tlessbot_ros.tools.support.readiness import ReadinessMonitor
 
     init_ros()
-    return ReadinessMonitor(stages, node_name='tlessbot_launch')
+    return ReadinessMonitor(stages, node_name=LAUNCH_STATUS)

@@ -11,6 +11,8 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
+LAUNCH_STATUS = 'tlessbot_launch'   # the name of launch's own status on /diagnostics
+
 
 @dataclass(frozen=True)
 class RespawnPolicy:

@@ -34,6 +34,7 @@ from tlessbot_ros.tools.support.graph_run import (
     process_tree,
 )
 from tlessbot_ros.tools.support.processes import PERCEPTION_NODES
+from tlessbot_ros.tools.support.respawn import LAUNCH_STATUS
 
 GRAPH_READY = re.compile(r'\[launch\] graph ready in ([0-9.]+) s')
 STAGE_OUTPUTS = {'localiser': labels_topic(SIDE), 'classifier': classes_topic(SIDE)}
@@ -52,7 +53,8 @@ class KillResult:
     wrong_poses: int = 0      # beyond lock-step's, of frames sent from this kill to the next
     late_outputs: int = 0     # the node's results of frames sent before the kill, received
                               # once its new process was ready (stale state: must be 0)
-    orphans: list[int] = field(default_factory=list)   # its children alive after its restart
+    children: list[int] = field(default_factory=list)  # its child processes when killed
+    orphans: list[int] = field(default_factory=list)   # of those, alive after its restart
 
 
 @dataclass
@@ -62,6 +64,7 @@ class RespawnTrial:
     baseline_wrong: int = 0                # wrong poses before the first kill
     poses: int = 0
     frames_sent: int = 0
+    launch_status: dict[str, str] = field(default_factory=dict)   # its last, on /diagnostics
     launch_output: str = ''
 
 
@@ -115,6 +118,7 @@ class _Listener:
         self.ready_at: dict[tuple[str, str], float] = {}   # (node, pid): first ready seen
         self.frames: dict[int, int] = {}        # sent stamp: bag stamp
         self.sent_at: list[float] = []          # monotonic time of every frame sent
+        self.launch_status: dict[str, str] = {}
 
         def on_pose(obj_id: int):
             def callback(msg) -> None:
@@ -134,6 +138,8 @@ class _Listener:
         def on_diagnostics(msg) -> None:
             for status in msg.status:
                 values = {kv.key: kv.value for kv in status.values}
+                if status.name == LAUNCH_STATUS:
+                    self.launch_status = values
                 if values.get('ready') == 'true' and 'pid' in values:
                     with self.lock:
                         self.ready_at.setdefault((status.name, values['pid']),
@@ -308,7 +314,7 @@ def _kill_and_recover(node: str, launch: subprocess.Popen, listener: _Listener, 
     children = process_tree(pid)[1:]   # its pose workers, if any
     killed_ns, killed_at = time.time_ns(), time.monotonic()
     os.kill(pid, signal.SIGKILL)
-    result = KillResult(node, pid, killed_ns)
+    result = KillResult(node, pid, killed_ns, children=children)
 
     def back() -> bool:
         with listener.lock:
@@ -365,5 +371,6 @@ def _count_wrong(trial: RespawnTrial, listener: _Listener, truth, symmetries,
             after[-1].wrong_poses += excess
         else:
             trial.baseline_wrong += excess
+    trial.launch_status = dict(listener.launch_status)
     trial.poses = len(listener.poses)
     trial.frames_sent = len(listener.sent_at)

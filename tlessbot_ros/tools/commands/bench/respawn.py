@@ -35,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--classifier', default=str(DEFAULT_CLASSIFIER))
     parser.add_argument('--templates', default=str(DEFAULT_TEMPLATES))
     parser.add_argument('--json', default=None, help='write the figures here')
+    parser.add_argument('--echo', action='store_true', help="print launch's output as it comes")
 
 
 def _row(kill, graph_ready_s: float) -> str:
@@ -59,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
     reference = lockstep_reference(args.bag, config=config, symmetries=symmetries,
                                    params=params)
     trial = run_respawn_trial(args.bag, config=config, symmetries=symmetries,
-                              reference_wrong=reference, nodes=args.nodes, params=params)
+                              reference_wrong=reference, nodes=args.nodes, params=params,
+                              echo=print if args.echo else None)
     lines = [f'graph ready in {trial.graph_ready_s:.1f} s (launch, this run); '
              f'{trial.frames_sent} frames sent, {trial.poses} poses; wrong poses before the '
              f'first kill: {trial.baseline_wrong}', '',
