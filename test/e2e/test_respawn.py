@@ -24,7 +24,7 @@ def test_every_stage_node_killed_comes_back_with_no_wrong_pose(moved_rig_bag):
                               reference_wrong=reference, params=PARAMS, timeout_s=600.0)
     output = trial.launch_output
     assert [kill.node for kill in trial.kills] == list(PERCEPTION_NODES)
-    assert trial.baseline_wrong == 0
+    assert trial.baseline_wrong == 0 and trial.foreign_poses == 0
     for kill in trial.kills:
         assert kill.new_pid not in (None, kill.pid), kill
         assert f'[launch] {kill.node} exited with code -9 (SIGKILL); restarting it in 1.0 s' \

@@ -62,6 +62,8 @@ class RespawnTrial:
     graph_ready_s: float                   # launch's "graph ready in" of this run
     kills: list[KillResult] = field(default_factory=list)
     baseline_wrong: int = 0                # wrong poses before the first kill
+    foreign_poses: int = 0    # of stamps this replay never sent: another graph on this
+                              # ROS_DOMAIN_ID, or a graph that makes stamps up
     poses: int = 0
     frames_sent: int = 0
     launch_status: dict[str, str] = field(default_factory=dict)   # its last, on /diagnostics
@@ -365,6 +367,9 @@ def _count_wrong(trial: RespawnTrial, listener: _Listener, truth, symmetries,
     frames = listener.frames
     wrong = wrong_poses_per_frame(truth, listener.poses, symmetries, frames.get)
     for stamp, count in wrong.items():
+        if stamp not in frames:
+            trial.foreign_poses += count
+            continue
         excess = max(0, count - reference_wrong.get(frames.get(stamp), 0))
         after = [k for k in trial.kills if k.killed_ns < stamp]
         if after:

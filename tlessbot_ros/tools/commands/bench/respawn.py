@@ -68,10 +68,14 @@ def run(args: argparse.Namespace) -> int:
              '| killed (SIGKILL) | ready again (s) | next correct pose (s) | / graph ready | '
              'wrong poses | late results | orphans |', '|---|---|---|---|---|---|---|']
     lines += [_row(kill, trial.graph_ready_s) for kill in trial.kills]
+    if trial.foreign_poses:
+        lines += ['', f'WARNING: {trial.foreign_poses} poses of frames this replay never sent '
+                  '(another graph on this ROS_DOMAIN_ID?); not counted above']
     print('\n'.join(lines))
     if args.json:
         Path(args.json).write_text(json.dumps({
             'graph_ready_s': trial.graph_ready_s, 'baseline_wrong': trial.baseline_wrong,
             'frames_sent': trial.frames_sent, 'poses': trial.poses,
+            'foreign_poses': trial.foreign_poses,
             'kills': [asdict(kill) for kill in trial.kills]}, indent=1))
     return 0
