@@ -340,11 +340,13 @@ def _kill_and_recover(node: str, launch: subprocess.Popen, listener: _Listener, 
     since = time.monotonic()
     _wait(lambda: listener.frames_sent_since(since) >= frames_between, timeout_s,
           f'{frames_between} frames after {node} came back', launch, output)
-    with listener.lock:
+    with listener.lock:   # of the frames this replay sent (not another graph's)
         if node in STAGE_OUTPUTS:
-            late = [a for s, a in listener.outputs[node] if s <= killed_ns]
+            late = [a for s, a in listener.outputs[node]
+                    if s <= killed_ns and s in listener.frames]
         else:
-            late = [listener.arrivals[id(p)] for p in listener.poses if p.stamp_ns <= killed_ns]
+            late = [listener.arrivals[id(p)] for p in listener.poses
+                    if p.stamp_ns <= killed_ns and p.stamp_ns in listener.frames]
     result.late_outputs = sum(a > ready_again_at for a in late)
     return result
 
