@@ -10,7 +10,8 @@ from tlessbot_ros.tools.support.models_info import load_symmetries
 from tlessbot_ros.tools.support.processes import PERCEPTION_NODES
 from tlessbot_ros.tools.support.respawn_trial import lockstep_reference, run_respawn_trial
 
-pytestmark = [pytest.mark.ros, pytest.mark.rosbag, pytest.mark.slow]
+# ~2.5 min here; each wait of the trial may take up to 10 min on a loaded machine
+pytestmark = [pytest.mark.ros, pytest.mark.rosbag, pytest.mark.slow, pytest.mark.timeout(1800)]
 
 PARAMS = [f'model_path:={DEFAULT_CLASSIFIER}', f'templates_path:={DEFAULT_TEMPLATES}',
           'workers.count:=1']   # a pose worker: it must not outlive its killed node
