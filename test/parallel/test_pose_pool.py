@@ -196,3 +196,70 @@ def test_worker_params_are_validated():
         PoseWorkerParams(count=-1)
     with pytest.raises(ValueError, match='job_timeout_s must be > 0'):
         PoseWorkerParams(job_timeout_s=0.0)
+
+
+def _alive(pid: int) -> bool:
+    """The process exists and is no zombie (an orphan's zombie waits for init to reap it)."""
+    try:
+        with open(f'/proc/{pid}/stat') as stat:
+            return stat.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
+def _wait_gone(pid: int, timeout_s: float = 60.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while _alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return not _alive(pid)
+
+
+def _start_node(code: str, log) -> tuple[object, int]:
+    """A stand-in node process running ``code``, which prints its worker's pid first."""
+    import subprocess
+    import sys
+
+    node = subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE,
+                            stderr=log, text=True)
+    return node, int(node.stdout.readline())
+
+
+def test_a_busy_worker_ends_when_its_node_is_killed(tmp_path):
+    """Busy (here: asleep, as in a long fit) a worker does not read its input, so the end of it
+    cannot tell it that its node died: it must notice on its own."""
+    busy_worker = ('import sys, time\n'
+                   'from tlessbot_ros.parallel.pose_worker import exit_with_parent\n'
+                   'exit_with_parent(int(sys.argv[1]))\ntime.sleep(300)\n')
+    node, worker = _start_node(
+        'import os, subprocess, sys, time\n'
+        f'worker = subprocess.Popen([sys.executable, "-c", {busy_worker!r}, str(os.getpid())])\n'
+        'print(worker.pid, flush=True)\ntime.sleep(300)\n', None)
+    try:
+        assert _alive(worker)
+        node.kill()
+        node.wait()
+        assert _wait_gone(worker)
+    finally:
+        node.kill()
+
+
+def test_a_pool_leaves_no_worker_behind_when_its_node_is_killed(tmp_path):
+    """SIGKILL (or the OOM killer) gives the node no chance to stop its workers: each ends by
+    itself, quietly, whether it was loading its templates or waiting for a part."""
+    log = tmp_path / 'node.log'
+    with open(log, 'w') as stream:
+        node, worker = _start_node(
+            'import time\nfrom tlessbot_ros.data import DEFAULT_TEMPLATES\n'
+            'from tlessbot_ros.core.pipeline import FitParams\n'
+            'from tlessbot_ros.core.pose import PoseParams\n'
+            'from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool\n'
+            'pool = PoseWorkerPool(DEFAULT_TEMPLATES, pose=PoseParams(), fit=FitParams(), '
+            'params=PoseWorkerParams(count=1))\n'
+            'print(pool._workers[0].process.pid, flush=True)\ntime.sleep(300)\n', stream)
+    try:
+        node.kill()   # the worker is still importing or loading its templates
+        node.wait()
+        assert _wait_gone(worker)
+        assert 'Traceback' not in log.read_text()
+    finally:
+        node.kill()

@@ -18,9 +18,21 @@ Parameters (:mod:`~tlessbot_ros.nodes.parameters`): ``rig.CAMERA.*`` and each st
 are live (``ros2 param set``; applied by the worker thread between frames), ``sync.*`` too
 (applied at once); ``rig.cameras``, ``input_qos``, ``input_depth`` and ``sync.worker_thread``
 are read-only. ``/diagnostics`` also counts accepted parameter changes and shows the last.
+
+Restarts (``tlessbot launch`` and ``respawn`` in a launch file start a dead node again): a new
+process never publishes anything of a frame that reached the dead one. Everything a frame
+passes through lives in the process: the synchronisers' buffers, the pending frame, the pose
+workers (they exit with the node). What DDS could hand the new process is bounded too: every
+topic is VOLATILE (SENSOR_QOS and RESULT_QOS), so a new subscription gets only samples written
+after it matched, never the history a publisher keeps for its old readers; and the
+subscriptions exist only once the node is ready, so it sees nothing older than its readiness.
+Pairing is by stamp within ``sync.slop_s``, so when an upstream stage comes back, its first
+result pairs only with the buffered images of its own frame. ``pid`` on /diagnostics tells the
+processes apart (a new pid: the node was restarted).
 """
 from __future__ import annotations
 
+import os
 import threading
 import time
 import traceback
@@ -149,6 +161,15 @@ def _camera_pose(names: dict[str, str], values: dict[str, Any]) -> np.ndarray:
         raise ValueError(f'{names["up"]}: {error}') from None
 
 
+def input_profile(input_qos: str, depth: int) -> QoSProfile:
+    """A stage's subscription QoS: the reliability of ``input_qos`` ('sensor_data' or
+    'reliable'), VOLATILE (a new subscriber gets no sample written before it matched), and
+    ``depth`` samples of history."""
+    base = SENSOR_QOS if input_qos == 'sensor_data' else RESULT_QOS
+    return QoSProfile(reliability=base.reliability, durability=base.durability,
+                      history=HistoryPolicy.KEEP_LAST, depth=max(1, int(depth)))
+
+
 def rig_with_intrinsics(extrinsics: dict[str, np.ndarray], intrinsics: dict[str, Any]) -> Rig:
     """A Rig from configured extrinsics and the intrinsics of the current CameraInfos."""
     return Rig(cameras={c: CameraMount(c, intrinsics[c], extrinsics[c]) for c in intrinsics})
@@ -272,7 +293,8 @@ class StageNode(Node):
         """Subscribe ``{key: (ROS type name, camera -> topic name)}`` for both cameras."""
         self._inputs = TwoViewInputs(
             self, {k: (message_class(t), topic) for k, (t, topic) in topics.items()},
-            self.cameras, self.sync_params, self._on_views, qos=self._input_profile())
+            self.cameras, self.sync_params, self._on_views,
+            qos=input_profile(self.input_qos, self.input_depth))
 
     def _apply_sync(self, params: SyncParams) -> None:
         """New ``sync.*`` (executor thread, as the subscriptions' callbacks): the rate cap
@@ -284,12 +306,6 @@ class StageNode(Node):
 
     def _apply_extrinsics(self, camera: str, T_world_camera: np.ndarray) -> None:
         self.extrinsics = {**self.extrinsics, camera: T_world_camera}
-
-    def _input_profile(self) -> QoSProfile:
-        """The subscriptions' QoS: ``input_qos`` reliability with ``input_depth`` history."""
-        base = SENSOR_QOS if self.input_qos == 'sensor_data' else RESULT_QOS
-        return QoSProfile(reliability=base.reliability, durability=base.durability,
-                          history=HistoryPolicy.KEEP_LAST, depth=max(1, int(self.input_depth)))
 
     def _on_views(self, views: Views) -> None:
         """A complete two-view frame: hand it to the worker (or process it here without one)."""
@@ -407,8 +423,8 @@ class StageNode(Node):
             {'ready': 'false', 'starting_s': f'{time.monotonic() - self._created:.1f}'}
         if not self.ready.is_set():
             level = ERROR if self.last_error else WARN
-        values = {**readiness, 'frames': self.frames, 'failures': self.failures,
-                  'dropped': dropped,
+        values = {**readiness, 'pid': os.getpid(), 'frames': self.frames,
+                  'failures': self.failures, 'dropped': dropped,
                   **_percentiles('latency_ms', self._latencies_ms),
                   **_percentiles('input_age_ms', self._input_ages_ms),
                   'zero_stamps': self._inputs.zero_stamps if self._inputs else 0,

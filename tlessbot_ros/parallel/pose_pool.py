@@ -73,7 +73,7 @@ class _Worker:
     def __init__(self, config: dict[str, Any]) -> None:
         self.settings = config   # the pool's config whose pose and fit settings it fits with
         self.process = subprocess.Popen(
-            [sys.executable, '-m', 'tlessbot_ros.parallel.pose_worker'],
+            [sys.executable, '-m', 'tlessbot_ros.parallel.pose_worker', str(os.getpid())],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=_worker_environment())
         self.started = time.monotonic()
         self.ready = threading.Event()

@@ -1,4 +1,4 @@
-"""A pose worker process: ``python -m tlessbot_ros.parallel.pose_worker``.
+"""A pose worker process: ``python -m tlessbot_ros.parallel.pose_worker [NODE_PID]``.
 
 Reads messages (:mod:`~tlessbot_ros.parallel.wire`) on stdin, answers on stdout:
 
@@ -12,12 +12,19 @@ Reads messages (:mod:`~tlessbot_ros.parallel.wire`) on stdin, answers on stdout:
    text}``), until stdin closes.
 
 Anything a library prints goes to stderr: stdout carries the protocol only.
+
+A worker never outlives its node: idle, it reads the end of its input when the node dies; busy
+(loading templates, fitting a part), a watch thread sees that NODE_PID is no longer its parent
+and ends the process at once. A node killed with SIGKILL (or by the OOM killer) therefore
+leaves no ~430 MiB orphan fitting parts for nobody while its successor starts.
 """
 from __future__ import annotations
 
 import os
 import signal
 import sys
+import threading
+import time
 from typing import Any, BinaryIO
 
 from tlessbot_ros.core.pipeline import Detection, FitParams, PartJob, PerceptionPipeline
@@ -86,14 +93,38 @@ def serve(requests: BinaryIO, replies: BinaryIO) -> int:
         write_message(replies, reply)
 
 
+def exit_with_parent(parent_pid: int, interval_s: float = 0.2) -> threading.Thread:
+    """Watch, on a daemon thread, that ``parent_pid`` is still this process's parent, and end
+    the process (exit code 0) when it is not: the node died and this worker was handed to
+    init or a subreaper.
+
+    PR_SET_PDEATHSIG would be quicker but is tied to the parent's *thread* that started the
+    worker, not its process: the pool starts replacement workers from the stage's frame thread,
+    and a worker would be killed with any short-lived thread that happened to start it.
+    """
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(interval_s)
+        os._exit(0)   # nobody reads the answers any more; flush nothing into a dead pipe
+
+    thread = threading.Thread(target=watch, name='parent_watch', daemon=True)
+    thread.start()
+    return thread
+
+
 def main() -> int:
+    # The node gives its pid: a worker whose node died before this line runs must end too.
+    exit_with_parent(int(sys.argv[1]) if len(sys.argv) > 1 else os.getppid())
     # Ctrl-C reaches the whole process group; the node ends this worker by closing its input.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # The protocol keeps the real stdout; fd 1 becomes stderr, so that C++ libraries (Open3D
     # warnings) cannot write into the protocol stream.
     replies = os.fdopen(os.dup(sys.stdout.fileno()), 'wb')
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
-    return serve(sys.stdin.buffer, replies)
+    try:
+        return serve(sys.stdin.buffer, replies)
+    except BrokenPipeError:   # the node died while this worker answered: nobody to tell
+        os._exit(0)
 
 
 if __name__ == '__main__':

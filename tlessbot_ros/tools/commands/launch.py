@@ -8,8 +8,16 @@ Each node gets ``--ros-args --params-file <config>``; output lines are prefixed 
 name. Once every stage node reports ready on /diagnostics, launch prints one line
 (``[launch] graph ready in 6.2 s (localiser 1.9 s, ...)``); with ``--replay`` the bag starts
 only then, so no frame is sent to a node that cannot take it yet. Ctrl-C or SIGTERM is passed
-on to every node (as SIGINT). If a node dies, the others are stopped and launch exits
-non-zero, naming the node and its exit code.
+on to every node (as SIGINT).
+
+A node or camera driver that dies (a crash, ``kill -9``, the OOM killer) is started again
+after a back-off (``--respawn-delay``, doubled for each death in a row up to
+``--respawn-max-delay``); launch prints when it is ready again and reports every process's
+restarts on /diagnostics (status ``tlessbot_launch``). Launch gives up and stops the graph,
+naming the node and its exit code, when a node was restarted ``--max-restarts`` times within
+10 minutes, when a stage node fails before it was ever ready (a start-up error, e.g. a bad
+parameter), when a node ends by itself with code 0, and with ``--no-respawn`` at any death.
+The replay is not restarted: it would send the bag from its start again.
 """
 from __future__ import annotations
 
@@ -27,6 +35,12 @@ from tlessbot_ros.tools.support.processes import (
     PERCEPTION_NODES,
     GraphProcesses,
     graph_processes,
+)
+from tlessbot_ros.tools.support.respawn import (
+    LAUNCH_STATUS,
+    Respawner,
+    RespawnPolicy,
+    describe_exit,
 )
 
 
@@ -48,10 +62,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--nodes', nargs='+', default=None,
                         help='only these nodes (camera_driver, localiser, classifier, '
                              'pose_estimator)')
+    defaults = RespawnPolicy()
+    parser.add_argument('--respawn', action=argparse.BooleanOptionalAction, default=True,
+                        help='start a node that died again (default); --no-respawn: stop the '
+                             'graph instead')
+    parser.add_argument('--respawn-delay', type=float, default=defaults.delay_s, metavar='S',
+                        help='seconds before the first restart of a node, doubled for each '
+                             f'death in a row (default {defaults.delay_s:g})')
+    parser.add_argument('--respawn-max-delay', type=float, default=defaults.max_delay_s,
+                        metavar='S', help=f'longest back-off (default {defaults.max_delay_s:g})')
+    parser.add_argument('--max-restarts', type=int, default=defaults.max_restarts, metavar='N',
+                        help='give up and stop the graph when a node was restarted N times '
+                             f'within {defaults.window_s / 60:g} minutes '
+                             f'(default {defaults.max_restarts})')
 
 
 def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
+
+
+def _policy(args: argparse.Namespace) -> RespawnPolicy:
+    try:
+        return RespawnPolicy(enabled=args.respawn, delay_s=args.respawn_delay,
+                             max_delay_s=args.respawn_max_delay, max_restarts=args.max_restarts)
+    except ValueError as error:
+        raise TlessbotError(str(error)) from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -61,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
     for override in args.param:
         if ':=' not in override:
             raise TlessbotError(f'parameter override must look like NAME:=VALUE, got {override!r}')
+    policy = _policy(args)
     specs = graph_processes(config, replay=args.replay, rate=args.rate, loop=args.loop,
                             nodes=args.nodes, output_frame=args.output_frame,
                             serials={c: getattr(args, f'{c}_serial') for c in CAMERA_NAMES},
@@ -77,34 +113,17 @@ def run(args: argparse.Namespace) -> int:
           flush=True)
     stages = [s.label for s in graph.specs if s.label in PERCEPTION_NODES]
     monitor = _readiness_monitor(stages)
+    supervisor = _Supervisor(graph, monitor, stages, Respawner(
+        policy, [s.label for s in graph.specs]))
     if monitor is None:   # no stage node to wait for
         graph.add(replay_specs)
-    reported: set[str] = set()   # nodes whose failed warm-up was printed
     try:
         while True:
-            exited = graph.first_exited()
-            if exited is not None:
-                label, code = exited
-                if label == 'replay' and code == 0:
-                    print('[launch] replay finished; stopping the graph', flush=True)
-                    graph.stop()
-                    return 0
-                print(f'[launch] ERROR: {label} exited with code {code}; stopping the graph',
-                      file=sys.stderr, flush=True)
+            code = supervisor.step()
+            if code is not None:
                 graph.stop()
-                return 1
-            if monitor is None:
-                time.sleep(0.2)
-                continue
-            monitor.poll(0.2)
-            for name in sorted(set(monitor.errors) - reported):   # each once, not at 1 Hz
-                print(f'[launch] ERROR: {name}: {monitor.errors[name]}', file=sys.stderr,
-                      flush=True)
-                reported.add(name)
-            if monitor.all_ready:
-                print(f'[launch] {monitor.summary()}', flush=True)
-                monitor.close()
-                monitor = None
+                return code
+            if monitor is not None and supervisor.replay_due():
                 graph.add(replay_specs)   # the bag starts once every stage can take frames
     except KeyboardInterrupt:
         graph.stop()
@@ -112,6 +131,121 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if monitor is not None:
             monitor.close()
+
+
+class _Supervisor:
+    """One pass at a time over the graph: deaths, due restarts, readiness, launch's status."""
+
+    def __init__(self, graph: GraphProcesses, monitor, stages: list[str],
+                 respawner: Respawner) -> None:
+        self.graph, self.monitor, self.stages, self.respawner = graph, monitor, stages, respawner
+        self.graph_ready = monitor is None
+        self.reported: set[str] = set()   # nodes whose failed warm-up was printed
+        self.recovering: dict[str, tuple[int, float]] = {}   # label: (exit code, when)
+        self.next_status = 0.0
+        self.status_publisher = None if monitor is None else _status_publisher(monitor.node)
+        if monitor is not None:
+            for label in stages:
+                monitor.restarted(label, graph.children[label].pid)
+
+    def step(self) -> int | None:
+        """Handle what happened since the last step; the exit code once launch must end."""
+        now = time.monotonic()
+        for label, code in self.graph.exited():
+            if label == 'replay':
+                return self._replay_ended(code)
+            if self.respawner.waiting(label):
+                continue
+            decision = self.respawner.on_exit(
+                label, code, now=now, uptime_s=now - self.graph.started[label],
+                ever_ready=self.monitor.is_ready(label) if label in self.stages else None)
+            if decision.delay_s is None:
+                print(f'[launch] ERROR: {label} exited with {describe_exit(code)}; not '
+                      f'restarted: {decision.reason}; stopping the graph', file=sys.stderr,
+                      flush=True)
+                self._publish_status(force=True, failed=label)
+                return 1
+            print(f'[launch] {label} exited with {describe_exit(code)}; restarting it in '
+                  f'{decision.delay_s:.1f} s', flush=True)
+            self.recovering[label] = (code, now)
+        for label in self.respawner.due(now):
+            child = self.graph.restart(label)
+            self.respawner.restarted(label, now=now)
+            if label in self.stages:
+                self.monitor.restarted(label, child.pid)
+            else:   # no readiness to wait for
+                code, _ = self.recovering.pop(label)
+                print(f'[launch] {label} restarted (exit {code})', flush=True)
+        if self.monitor is None:
+            time.sleep(0.2)
+            return None
+        self.monitor.poll(0.2)
+        self._report_readiness()
+        self._publish_status()
+        return None
+
+    def replay_due(self) -> bool:
+        """True once, when every stage node is first ready."""
+        if self.graph_ready or not self.monitor.all_ready:
+            return False
+        self.graph_ready = True
+        print(f'[launch] {self.monitor.summary()}', flush=True)
+        return True
+
+    def _replay_ended(self, code: int) -> int:
+        if code == 0:
+            print('[launch] replay finished; stopping the graph', flush=True)
+            return 0
+        # Not restarted: a new replay would send the bag from its start again, and a replay
+        # fails on its input (a bad bag), which a restart does not mend.
+        print(f'[launch] ERROR: replay exited with {describe_exit(code)}; stopping the graph',
+              file=sys.stderr, flush=True)
+        return 1
+
+    def _report_readiness(self) -> None:
+        monitor = self.monitor
+        for name in sorted(set(monitor.errors) - self.reported):   # each once, not at 1 Hz
+            print(f'[launch] ERROR: {name}: {monitor.errors[name]}', file=sys.stderr,
+                  flush=True)
+            self.reported.add(name)
+        for label, (code, exited_at) in list(self.recovering.items()):
+            if label in self.stages and not self.respawner.waiting(label) and \
+                    monitor.is_ready(label):
+                print(f'[launch] {label} restarted (exit {code}), ready again in '
+                      f'{time.monotonic() - exited_at:.1f} s', flush=True)
+                del self.recovering[label]
+                self.reported.discard(label)
+
+    def _publish_status(self, *, force: bool = False, failed: str = '') -> None:
+        """Launch's status on /diagnostics, at 1 Hz: every process's restarts, which are
+        down or starting again, and (ERROR) the one launch gave up on."""
+        from tlessbot_ros.nodes.diagnostics import ERROR, OK, WARN, diagnostic_array
+
+        if self.status_publisher is None or (not force and time.monotonic() < self.next_status):
+            return
+        self.next_status = time.monotonic() + 1.0
+        down = sorted(self.recovering)
+        if failed:
+            level, message = ERROR, f'{failed} failed; stopping the graph'
+        elif down:
+            level, message = WARN, 'restarting ' + ', '.join(down)
+        else:
+            level, message = OK, 'all processes running'
+        values = {'processes': len(self.graph.children),
+                  'restarts': sum(r.restarts for r in self.respawner.records.values()),
+                  **self.respawner.diagnostic_values()}
+        self.status_publisher.publish(diagnostic_array(
+            self.monitor.node.get_clock().now().to_msg(), LAUNCH_STATUS, level, message,
+            values))
+
+
+def _status_publisher(node):
+    """A /diagnostics publisher on ``node`` (rclpy is imported only when launch runs stages)."""
+    from tlessbot_ros.conversions.topics import DIAGNOSTICS
+    from tlessbot_ros.nodes.common import RESULT_QOS, message_class
+
+    return node.create_publisher(message_class('diagnostic_msgs/msg/DiagnosticArray'),
+                                 DIAGNOSTICS, RESULT_QOS)
 
 
 def _readiness_monitor(stages: list[str]):
@@ -122,4 +256,4 @@ def _readiness_monitor(stages: list[str]):
     from tlessbot_ros.tools.support.readiness import ReadinessMonitor
 
     init_ros()
-    return ReadinessMonitor(stages, node_name='tlessbot_launch')
+    return ReadinessMonitor(stages, node_name=LAUNCH_STATUS)

@@ -53,12 +53,14 @@ def _argv(process: GraphProcess, config: Path, extra_ros_args: list[str]) -> lis
 
 
 class GraphProcesses:
-    """Runs ProcessSpecs as children, prefixes their output, stops them all together."""
+    """Runs ProcessSpecs as children, prefixes their output, restarts one that exited
+    (:meth:`restart`), stops them all together."""
 
     def __init__(self, specs: list[ProcessSpec], *, env: dict[str, str] | None = None) -> None:
         self.specs = specs
         self.env = env
         self.children: dict[str, subprocess.Popen] = {}
+        self.started: dict[str, float] = {}   # monotonic time of each child's (re)start
         self._threads: list[threading.Thread] = []
         self._sink: list[str] | None = None
 
@@ -78,13 +80,29 @@ class GraphProcesses:
     def _start(self, sink: list[str] | None, specs: list[ProcessSpec] | None = None) -> None:
         self._sink = sink
         for spec in self.specs if specs is None else specs:
-            child = subprocess.Popen(spec.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     text=True, bufsize=1, env=self.env)
-            self.children[spec.label] = child
-            thread = threading.Thread(target=self._pump, args=(spec.label, child, sink),
-                                      daemon=True)
-            thread.start()
-            self._threads.append(thread)
+            self._spawn(spec)
+
+    def _spawn(self, spec: ProcessSpec) -> subprocess.Popen:
+        child = subprocess.Popen(spec.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                 text=True, bufsize=1, env=self.env)
+        self.children[spec.label] = child
+        self.started[spec.label] = time.monotonic()
+        thread = threading.Thread(target=self._pump, args=(spec.label, child, self._sink),
+                                  daemon=True)
+        thread.start()
+        self._threads.append(thread)
+        return child
+
+    def restart(self, label: str) -> subprocess.Popen:
+        """Start ``label``'s process again after it exited (same argv, output as before).
+
+        Raises:
+            RuntimeError: it is still running.
+        """
+        if self.children[label].poll() is None:
+            raise RuntimeError(f'{label} is still running')
+        self._threads = [t for t in self._threads if t.is_alive()]
+        return self._spawn(next(s for s in self.specs if s.label == label))
 
     @staticmethod
     def _pump(label: str, child: subprocess.Popen, sink: list[str] | None) -> None:
@@ -97,11 +115,14 @@ class GraphProcesses:
                 sys.stdout.flush()
 
     def first_exited(self) -> tuple[str, int] | None:
-        for label, child in self.children.items():
-            code = child.poll()
-            if code is not None:
-                return label, code
-        return None
+        exited = self.exited()
+        return exited[0] if exited else None
+
+    def exited(self) -> list[tuple[str, int]]:
+        """(label, return code) of every child that has exited (negative: killed by that
+        signal), in start order."""
+        return [(label, code) for label, child in self.children.items()
+                if (code := child.poll()) is not None]
 
     def stop(self, timeout_s: float = 10.0) -> None:
         """SIGINT every child (as Ctrl-C would), then SIGTERM / SIGKILL stragglers."""

@@ -9,8 +9,11 @@ class ReadinessMonitor:
     """Listens to /diagnostics for the named stage nodes' readiness.
 
     Each stage node reports WARN 'starting' with ``ready: false`` while it warms up, then OK
-    with ``ready: true`` and ``ready_after_s`` (seconds from its start). Create after
-    ``rclpy.init``; call :meth:`poll` from the thread that owns it.
+    with ``ready: true`` and ``ready_after_s`` (seconds from its start), and its ``pid``.
+    Create after ``rclpy.init``; call :meth:`poll` from the thread that owns it.
+
+    A node restarted in a new process is :meth:`restarted`: it is not ready again until that
+    process says so (a status of the dead one still on its way is not taken for it).
     """
 
     def __init__(self, names: Iterable[str], *, node_name: str = 'tlessbot_readiness') -> None:
@@ -23,6 +26,7 @@ class ReadinessMonitor:
         self.expected = tuple(names)
         self.ready_after_s: dict[str, float] = {}
         self.errors: dict[str, str] = {}
+        self._pids: dict[str, str] = {}   # the process each name's status must come from
         self.started = time.monotonic()
         self._node = rclpy.create_node(node_name)
         self._node.create_subscription(message_class('diagnostic_msgs/msg/DiagnosticArray'),
@@ -33,11 +37,28 @@ class ReadinessMonitor:
             if status.name not in self.expected:
                 continue
             values = {kv.key: kv.value for kv in status.values}
+            expected_pid = self._pids.get(status.name)
+            if expected_pid is not None and values.get('pid', expected_pid) != expected_pid:
+                continue
             if values.get('ready') == 'true':
                 self.ready_after_s.setdefault(status.name, float(values.get('ready_after_s',
                                                                             'nan')))
             elif status.message.startswith('warm-up failed'):
                 self.errors[status.name] = status.message
+
+    def restarted(self, name: str, pid: int) -> None:
+        """``name`` runs again as process ``pid``: not ready until that process reports it."""
+        self._pids[name] = str(pid)
+        self.ready_after_s.pop(name, None)
+        self.errors.pop(name, None)
+
+    def is_ready(self, name: str) -> bool:
+        return name in self.ready_after_s
+
+    @property
+    def node(self):
+        """The monitor's rclpy node (launch publishes its own status through it)."""
+        return self._node
 
     @property
     def all_ready(self) -> bool:
