@@ -7,6 +7,7 @@ Addresses come from the documentation range 192.0.2.0/24 (RFC 5737).
 """
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -44,6 +45,12 @@ def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
     if check and result.returncode != 0:
         raise TlessbotError(f'ip {" ".join(args)} failed: {result.stderr.strip()}')
     return result
+
+
+def received_bytes(namespace: NetworkNamespace) -> int:
+    """Bytes the namespace's end of the link has received so far."""
+    result = _ip('-n', namespace.name, '-j', '-s', 'link', 'show', 'dev', namespace.interface)
+    return int(json.loads(result.stdout)[0]['stats64']['rx']['bytes'])
 
 
 def netns_unavailable() -> str | None:
