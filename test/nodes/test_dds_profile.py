@@ -39,3 +39,20 @@ def test_freed_buffers_are_kept_unless_the_user_tuned_malloc():
     assert keep_freed_buffers(environ={'MALLOC_TRIM_THRESHOLD_': '0'}) is False
     # The test runs on glibc (Debian); elsewhere the call reports that it did nothing.
     assert keep_freed_buffers(environ={}) is True
+
+
+def test_udp_profile_has_large_socket_buffers_and_no_shared_memory(tmp_path):
+    from tlessbot_ros.io.config import package_path
+    from tlessbot_ros.tools.commands.bench.transport import BUFFER_SIZE_TAGS, without_buffer_sizes
+
+    def values(path, tag):
+        return [e.text for e in ElementTree.parse(path).getroot().iter() if e.tag.endswith(tag)]
+
+    profile = package_path('config', 'fastdds_udp.xml')
+    assert values(profile, 'type') == ['UDPv4']   # nothing that stays on one host
+    assert values(profile, 'useBuiltinTransports') == ['false']
+    for tag in BUFFER_SIZE_TAGS:
+        assert [int(v) for v in values(profile, tag)] >= [8 * 2**20]
+    stripped = without_buffer_sizes(profile, tmp_path / 'stripped.xml')
+    assert all(values(stripped, tag) == [] for tag in BUFFER_SIZE_TAGS)
+    assert values(stripped, 'maxMessageSize') == values(profile, 'maxMessageSize')

@@ -2,7 +2,7 @@ import numpy as np
 
 from tlessbot_ros.core.common import Symmetries, make_transform, rotation_about_axis
 from tlessbot_ros.io.ground_truth import GroundTruthInstance
-from tlessbot_ros.tools.support.bag_scoring import Estimate, score_frame
+from tlessbot_ros.tools.support.bag_scoring import Estimate, compare_pose_sets, score_frame
 
 SIDE = 'side_color_optical_frame'
 
@@ -51,3 +51,17 @@ def test_frame_duplicates_compare_poses_across_camera_frames():
     elsewhere = Estimate(1, 5, np.eye(4), 'world')
     assert frame_duplicates([seen_from_side, elsewhere], rig) == 0
     assert frame_duplicates([seen_from_side, seen_from_top, elsewhere], rig) == 1
+
+
+def test_pose_sets_pair_by_frame_class_and_frame_id_closest_first():
+    def at(x, stamp=0, obj=5):
+        return Estimate(stamp, obj, make_transform(np.eye(3), [x, 0, 0.6]), SIDE)
+
+    reference = [at(0.0), at(0.1), at(0.3, stamp=1), at(0.0, obj=7)]
+    # two obj 5 poses of frame 0 in the other order (one 2 mm off), frame 1's 6 cm off,
+    # obj 7 missing, an obj 9 the reference does not have
+    other = [at(0.102), at(0.0), at(0.36, stamp=1), at(0.0, obj=9)]
+    comparison = compare_pose_sets(reference, other, {})
+    assert sorted(round(e.translation_m, 6) for e in comparison.errors) == [0.0, 0.002, 0.06]
+    assert comparison.within_5cm_5deg == 2
+    assert (comparison.unpaired_reference, comparison.unpaired_other) == (1, 1)

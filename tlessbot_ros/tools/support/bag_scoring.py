@@ -86,3 +86,43 @@ def frame_duplicates(estimates: Sequence[Estimate], rig: Rig) -> int:
     positions = [transform_points(frames[e.frame_id], e.T[:3, 3][None])[0]
                  for e in estimates if e.frame_id in frames]
     return count_duplicates(np.asarray(positions).reshape(-1, 3))
+
+
+@dataclass
+class PoseSetComparison:
+    """Poses of one run paired with another run's poses of the same frame and class."""
+
+    errors: list[PoseError]    # one per pair, symmetry-aware
+    unpaired_reference: int    # reference poses the other run did not publish
+    unpaired_other: int        # poses of the other run the reference did not publish
+
+    @property
+    def within_5cm_5deg(self) -> int:
+        return sum(is_correct_cm_deg(error) for error in self.errors)
+
+
+def compare_pose_sets(reference: Sequence[Estimate], other: Sequence[Estimate],
+                      symmetries: dict[int, Symmetries]) -> PoseSetComparison:
+    """Pair every pose of ``other`` with the closest ``reference`` pose of the same source
+    stamp, class and frame (each used once; smallest rotation error first), as
+    :func:`score_frame` pairs estimates with ground truth."""
+    groups: dict[tuple[int, int, str], tuple[list[Estimate], list[Estimate]]] = {}
+    for index, poses in enumerate((reference, other)):
+        for pose in poses:
+            groups.setdefault((pose.stamp_ns, pose.obj_id, pose.frame_id), ([], []))[index] \
+                .append(pose)
+    errors: list[PoseError] = []
+    paired = 0
+    for refs, others in groups.values():
+        pairs = sorted(((pose_error(o.T, r.T, symmetries.get(r.obj_id)), i, j)
+                        for i, r in enumerate(refs) for j, o in enumerate(others)),
+                       key=lambda p: p[0].rotation_deg + 1e3 * p[0].translation_m)
+        used_refs: set[int] = set()
+        used_others: set[int] = set()
+        for error, i, j in pairs:
+            if i not in used_refs and j not in used_others:
+                used_refs.add(i)
+                used_others.add(j)
+                errors.append(error)
+        paired += len(used_refs)
+    return PoseSetComparison(errors, len(reference) - paired, len(other) - paired)

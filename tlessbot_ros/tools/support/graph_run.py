@@ -26,7 +26,12 @@ from tlessbot_ros.conversions.topics import (
 )
 from tlessbot_ros.core.common import SIDE
 from tlessbot_ros.errors import TlessbotError
-from tlessbot_ros.tools.support.processes import PERCEPTION_NODES, GraphProcesses, graph_processes
+from tlessbot_ros.tools.support.processes import (
+    PERCEPTION_NODES,
+    GraphProcesses,
+    ProcessSpec,
+    graph_processes,
+)
 
 ALL_OBJECT_IDS = range(1, 31)
 STAGE_OUTPUTS = {'localiser': labels_topic(SIDE), 'classifier': classes_topic(SIDE)}
@@ -149,7 +154,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
                      rate: float = 1.0, loop: bool = False, duration_s: float = 0.0,
                      restamp: bool = False, startup_timeout_s: float = 90.0,
                      settle_s: float = 3.0, drain_timeout_s: float = 60.0,
-                     lockstep: bool = False, quiet: bool = True) -> GraphRunResult:
+                     lockstep: bool = False, quiet: bool = True,
+                     node_prefixes: dict[str, list[str]] | None = None) -> GraphRunResult:
     """Start the perception nodes, replay ``bag`` into them, collect the published poses.
 
     Args:
@@ -162,6 +168,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         lockstep: publish one frame (all messages sharing a log time), then wait until the
             pose estimator has handled it before the next (no frame is dropped; for scoring,
             not for timing). ``rate`` and ``loop`` are ignored.
+        node_prefixes: an argv prefix per node label, e.g. ``ip netns exec NS`` to start that
+            node in another network namespace (a second host; :mod:`.netns`).
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -173,7 +181,9 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
 
     if lockstep:  # one frame at a time: no frame may be skipped by a rate cap
         ros_args = [*(ros_args or []), '-p', 'sync.max_rate_hz:=0.0']
-    specs = graph_processes(config, nodes=list(PERCEPTION_NODES), extra_ros_args=ros_args)
+    specs = [ProcessSpec(spec.label, [*(node_prefixes or {}).get(spec.label, []), *spec.argv])
+             for spec in graph_processes(config, nodes=list(PERCEPTION_NODES),
+                                         extra_ros_args=ros_args)]
     graph = GraphProcesses(specs, env=dict(os.environ))
     result = GraphRunResult()
     output: list[str] = []
