@@ -92,6 +92,21 @@ def describe_unmatched(unmatched: dict[str, tuple[int, int]]) -> str:
     return 'replay: ' + '; '.join(parts)
 
 
+def wait_for_acknowledgements(publishers: dict[str, Any], *, timeout_s: float = 5.0) -> bool:
+    """Wait until every reliable subscriber acknowledged what the publishers sent, up to
+    ``timeout_s``: a replay that ends at once after its last message takes the messages not yet
+    acknowledged with it, and a slow reliable subscriber never gets them. Waits in short steps,
+    so Ctrl-C still stops it. True when all were acknowledged."""
+    from rclpy.duration import Duration
+
+    step = Duration(nanoseconds=50_000_000)
+    deadline = time.monotonic() + timeout_s
+    pending = list(publishers.values())
+    while pending and time.monotonic() < deadline:
+        pending = [publisher for publisher in pending if not publisher.wait_for_all_acked(step)]
+    return not pending
+
+
 def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
            topics: list[str] | None = None, qos: str = 'reliable',
            wait_for_subscribers_s: float = 0.0, restamp: bool = False,
@@ -137,6 +152,7 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
         restamper.new_pass()
         for message in cached if cached is not None else read_bag(bag, list(types)):
             if should_stop():
+                wait_for_acknowledgements(publishers)
                 return published
             if start_wall is None:
                 start_wall, start_bag = time.monotonic(), message.log_time_ns
@@ -153,6 +169,7 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
             if on_publish is not None:
                 on_publish(message)
         if not loop or published == 0:
+            wait_for_acknowledgements(publishers)
             return published
         if start_wall is not None:
             next_pass_wall = start_wall + pass_period_ns / 1e9 / rate
