@@ -359,7 +359,6 @@ class StageNode(Node):
         self._diagnostics.publish(diagnostic_array(
             self.get_clock().now().to_msg(), self.get_name(), level, message, values))
 
-
     def _clock_values(self) -> dict[str, str | int]:
         """/diagnostics keys on the input stamps' clock: other clocks, time jumps."""
         values: dict[str, str | int] = {}
