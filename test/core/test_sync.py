@@ -61,3 +61,90 @@ def test_free_running_cameras_with_a_phase_offset_still_pair_at_once():
             if result:
                 emitted.append((result['side'], result['top']))
     assert emitted == [(f'side{i}', f'top{i}') for i in range(6)]
+
+
+S = 1_000_000_000
+
+
+def _jumps(**kwargs):
+    from tlessbot_ros.core.common import StampJumps
+
+    return StampJumps(back_ns=kwargs.pop('back_ns', S // 10), forward_ns=10 * S, **kwargs)
+
+
+def _looped(sync, frames: int, passes: int, streams=('color', 'depth')):
+    """Two streams of a bag of ``frames`` frames (0.5 s apart) replayed ``passes`` times."""
+    emitted = []
+    for _ in range(passes):
+        for i in range(frames):
+            for stream in streams:
+                result = sync.add(stream, 100 * S + i * S // 2, f'{stream}{i}')
+                if result:
+                    emitted.append(result)
+    return emitted
+
+
+def test_a_looped_bag_is_paired_again_on_every_pass_and_each_loop_counted():
+    jumps = _jumps()
+    sync = StampSynchroniser(['color', 'depth'], slop_ns=5 * MS, queue_size=5, jumps=jumps)
+    emitted = _looped(sync, frames=4, passes=3)
+    assert emitted == [{'color': f'color{i}', 'depth': f'depth{i}'} for i in range(4)] * 3
+    assert jumps.count == 2 and jumps.last_jump_ns == -3 * S // 2
+    assert sync.pending() == {'color': 0, 'depth': 0}
+
+
+def test_without_jump_detection_a_loop_leaves_stale_items_behind():
+    """Why the synchroniser needs to notice: the old pass's items block the queue front."""
+    sync = StampSynchroniser(['color', 'depth'], slop_ns=5 * MS, queue_size=5)
+    sync.add('color', 100 * S + 3 * S // 2, 'old')   # the last frame's depth never came
+    sync.add('color', 100 * S, 'c0')                  # the loop starts again
+    assert sync.add('depth', 100 * S, 'd0') == {'color': 'c0', 'depth': 'd0'}
+    assert sync.pending()['color'] == 2               # 'old' and the emitted 'c0' stay
+
+
+def test_a_jump_empties_the_queues_and_the_old_timelines_stragglers_are_dropped():
+    """The pose stage's classes lag behind the camera: after the camera's stamps jump back,
+    classes of the old pass still arrive; they must not pair, nor count as another jump."""
+    jumps = _jumps()
+    sync = StampSynchroniser(['depth', 'classes'], slop_ns=5 * MS, queue_size=5, jumps=jumps)
+    old = [100 * S + i * S // 2 for i in range(4)]
+    for stamp in old[:3]:
+        sync.add('depth', stamp, 'old depth')
+        assert sync.add('classes', stamp, 'old classes')
+    sync.add('depth', old[3], 'old depth 3')          # its classes are on their way
+    assert sync.add('depth', old[0], 'new depth 0') is None                 # the jump
+    assert jumps.count == 1 and sync.pending() == {'depth': 1, 'classes': 0}
+    assert sync.add('classes', old[3], 'old classes 3') is None             # a straggler
+    assert sync.pending() == {'depth': 1, 'classes': 0}
+    assert sync.add('classes', old[0], 'new classes 0') == {'depth': 'new depth 0',
+                                                            'classes': 'new classes 0'}
+    assert jumps.count == 1                            # one jump, seen on both streams
+
+
+def test_stamps_leaping_forward_are_a_jump_too_and_small_steps_are_not():
+    jumps = _jumps()
+    assert jumps.check('a', 100 * S) == 'in order'
+    assert jumps.check('a', 100 * S - S // 20) == 'in order'      # 50 ms back: a correction
+    assert jumps.check('a', 130 * S) == 'jump' and jumps.last_jump_ns == 30 * S + S // 20
+    assert jumps.check('b', 100 * S) == 'in order'                # first item of b: no history
+    assert jumps.check('a', 131 * S) == 'in order'
+
+
+def test_a_stream_whose_clock_did_not_jump_joins_after_the_stale_limit():
+    jumps = _jumps(stale_limit=3)
+    for i in range(3):
+        jumps.check('top', 100 * S + i * S)
+        jumps.check('side', 100 * S + i * S)
+    assert jumps.check('top', 50 * S) == 'jump'                   # only top's clock stepped
+    verdicts = [jumps.check('side', 103 * S + i * S) for i in range(5)]
+    assert verdicts == ['stale'] * 3 + ['in order'] * 2
+    assert jumps.count == 1
+
+
+def test_jump_thresholds_are_validated():
+    from tlessbot_ros.core.common import StampJumps, SyncParams
+
+    with pytest.raises(ValueError, match='jump_back_s'):
+        SyncParams(jump_back_s=0.0)
+    with pytest.raises(ValueError):
+        StampJumps(back_ns=0, forward_ns=S)

@@ -6,7 +6,8 @@
 - ``message_class`` (rclpy class by ROS type name), re-exported from
   :mod:`tlessbot_ros.conversions.messages`.
 - :func:`init_ros`: ``rclpy.init`` with the package's Fast DDS profile (config/fastdds.xml)
-  and glibc's allocator told to keep image-sized buffers (:func:`keep_freed_buffers`).
+  and glibc's allocator told to keep image-sized buffers (:func:`keep_freed_buffers`); Ctrl-C
+  and SIGTERM end the process in order (:func:`interrupt_on_signals`).
 """
 from __future__ import annotations
 
@@ -88,12 +89,63 @@ def keep_freed_buffers(*, mmap_threshold: int = 32 << 20, trim_threshold: int = 
 
 
 def init_ros(args: list[str] | None = None) -> None:
-    """``rclpy.init`` after :func:`use_package_dds_profile` and :func:`keep_freed_buffers`."""
+    """``rclpy.init`` after :func:`use_package_dds_profile` and :func:`keep_freed_buffers`,
+    with :func:`interrupt_on_signals` instead of rclpy's signal handlers."""
     import rclpy
+    from rclpy.signals import SignalHandlerOptions
 
     use_package_dds_profile()
     keep_freed_buffers()
-    rclpy.init(args=args)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    interrupt_on_signals()
+
+
+def interrupt_on_signals() -> bool:
+    """Make SIGINT and SIGTERM raise KeyboardInterrupt in the main thread, once.
+
+    rclpy's own handlers shut the ROS context down from their thread the moment a signal comes:
+    a worker thread still publishing a frame, or logging, then fails ("publisher's context is
+    invalid", "Failed to publish log message to rosout"). Here the main thread stops spinning
+    and shuts down in order (threads joined, nodes destroyed, then the context). A signal that
+    comes while that runs is ignored: after Ctrl-C in a terminal a node gets SIGINT from the
+    terminal and again from ``tlessbot launch`` or ``ros2 launch``. Does nothing (False) off the
+    main thread, where Python cannot set signal handlers.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return False
+    received: list[int] = []
+
+    def on_signal(signum: int, frame: object) -> None:
+        if not received:
+            received.append(signum)
+            raise KeyboardInterrupt
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, on_signal)
+    return True
+
+
+# How often the spinning main thread looks for a signal: Python runs its signal handlers only
+# between bytecodes, and a wait inside rclpy would hold them off until a message came.
+SIGNAL_POLL_S = 0.1
+
+
+def spin_until_interrupted(node: Node) -> None:
+    """Spin ``node`` in this thread until Ctrl-C, SIGTERM (KeyboardInterrupt, see
+    :func:`interrupt_on_signals`) or the context's shutdown."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    try:
+        while rclpy.ok(context=node.context):
+            executor.spin_once(timeout_sec=SIGNAL_POLL_S)
+    finally:
+        executor.remove_node(node)
 
 
 def attribute_docs(cls: type) -> dict[str, str]:
@@ -301,7 +353,10 @@ def run_node(node_class: type, args: list[str] | None = None) -> None:
 
     BLAS runs on one thread per node process (:func:`limit_blas_threads`). A
     :class:`~tlessbot_ros.errors.TlessbotError` while constructing the node (a missing model
-    file, a bad parameter file) prints one line and exits with code 1.
+    file, a bad parameter file) prints one line and exits with code 1. Ctrl-C or SIGTERM, also
+    while the node is being constructed, ends it in order with exit code 0: the node is
+    destroyed (its ``destroy_node`` joins its threads, which finish the frame in hand) while
+    the ROS context is still valid, and only then is the context shut down.
     """
     import sys
 
@@ -318,8 +373,11 @@ def run_node(node_class: type, args: list[str] | None = None) -> None:
         print(f'{node_class.__name__}: error: {error}', file=sys.stderr)
         rclpy.try_shutdown()
         sys.exit(1)
+    except KeyboardInterrupt:
+        rclpy.try_shutdown()
+        return
     try:
-        rclpy.spin(node)
+        spin_until_interrupted(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -6,6 +6,11 @@ paired across cameras under ``max_age_s``. The callback gets
 ``{camera: {topic_key: RawMessage}}``; :func:`deserialise_views` turns them into messages.
 Everything is bounded: old frames are dropped and counted.
 
+Every topic's stamps are watched for jumps (:class:`~tlessbot_ros.core.common.StampJumps`,
+``sync.jump_back_s`` / ``sync.jump_forward_s``): a bag looped without restamping, a camera
+clock that steps. At a jump every queue is emptied, the old timeline's late messages are
+dropped, and the node is told (``on_time_jump``) so it can forget what it keyed by stamp.
+
 The subscriptions are raw: a message is kept as its CDR bytes and only its header stamp is
 read, so the many camera frames a slow stage skips are never turned into Python messages, and
 what is deserialised is deserialised on the stage's worker thread, not the executor's.
@@ -20,7 +25,7 @@ from rclpy.node import Node
 
 from tlessbot_ros.conversions.cdr import header_stamp_ns
 from tlessbot_ros.conversions.image_cdr import image_from_cdr
-from tlessbot_ros.core.common import StampSynchroniser, SyncParams
+from tlessbot_ros.core.common import JUMP, STALE, StampJumps, StampSynchroniser, SyncParams
 from tlessbot_ros.nodes.common import SENSOR_QOS
 
 Views = dict[str, dict[str, Any]]
@@ -73,12 +78,17 @@ class TwoViewInputs:
         sync: thresholds; ``slop_s`` within a camera, ``max_age_s`` across cameras.
         callback: called with the views of one two-view frame.
         qos: subscription QoS (sensor data by default).
+        on_time_jump: called with the jump's size (ns, < 0 back) when stamps jump, after the
+            queues were emptied.
     """
 
     def __init__(self, node: Node, topics: dict[str, tuple[type, Callable[[str], str]]],
                  cameras: Sequence[str], sync: SyncParams,
-                 callback: Callable[[Views], None], *, qos: Any = SENSOR_QOS) -> None:
+                 callback: Callable[[Views], None], *, qos: Any = SENSOR_QOS,
+                 on_time_jump: Callable[[int], None] | None = None) -> None:
         self._callback = callback
+        self._on_time_jump = on_time_jump
+        self.stale = 0   # messages of a timeline that ended, dropped
         self._keys, self._cameras = list(topics), list(cameras)
         self._dropped_before = 0   # by synchronisers replaced by reconfigure
         self._build_synchronisers(sync)
@@ -91,6 +101,9 @@ class TwoViewInputs:
 
     def _build_synchronisers(self, sync: SyncParams) -> None:
         self.sync = sync
+        self.jumps = StampJumps(back_ns=int(sync.jump_back_s * 1e9),
+                                forward_ns=int(sync.jump_forward_s * 1e9),
+                                stale_limit=sync.queue_size)
         self._per_camera = {
             camera: StampSynchroniser(self._keys, slop_ns=int(sync.slop_s * 1e9),
                                       queue_size=sync.queue_size) for camera in self._cameras}
@@ -102,10 +115,11 @@ class TwoViewInputs:
         ``queue_size`` or ``max_age_s`` change, pairing starts again: messages waiting for
         partners are dropped (and counted)."""
         old, self.sync = self.sync, sync
-        if (old.slop_s, old.queue_size, old.max_age_s) == \
-                (sync.slop_s, sync.queue_size, sync.max_age_s):
+        if (old.slop_s, old.queue_size, old.max_age_s, old.jump_back_s, old.jump_forward_s) == \
+                (sync.slop_s, sync.queue_size, sync.max_age_s, sync.jump_back_s,
+                 sync.jump_forward_s):
             return
-        self._dropped_before = self.dropped + self.waiting
+        self._dropped_before += self._paired_dropped() + self.waiting
         self._build_synchronisers(sync)
 
     @property
@@ -124,6 +138,12 @@ class TwoViewInputs:
             if stamp == 0:
                 self.zero_stamps += 1  # cannot be synchronised; counted in diagnostics
                 return
+            verdict = self.jumps.check(f'{camera}/{key}', stamp)
+            if verdict == STALE:
+                self.stale += 1
+                return
+            if verdict == JUMP:
+                self._new_timeline()
             complete = self._per_camera[camera].add(key, stamp, RawMessage(msg_class, data))
             if complete is None:
                 return
@@ -132,8 +152,18 @@ class TwoViewInputs:
                 self._callback(views)
         return on_message
 
+    def _new_timeline(self) -> None:
+        """Stamps jumped: nothing queued can pair with what comes next."""
+        for synchroniser in (*self._per_camera.values(), self._across):
+            synchroniser.reset()
+        if self._on_time_jump is not None:
+            self._on_time_jump(self.jumps.last_jump_ns)
+
     @property
     def dropped(self) -> int:
-        """Messages and camera sets discarded because their partners never came in time."""
-        return self._dropped_before + self._across.dropped + \
-            sum(s.dropped for s in self._per_camera.values())
+        """Messages and camera sets discarded because their partners never came in time, or
+        their timeline ended (a time jump)."""
+        return self._dropped_before + self._paired_dropped() + self.stale
+
+    def _paired_dropped(self) -> int:
+        return self._across.dropped + sum(s.dropped for s in self._per_camera.values())

@@ -149,6 +149,12 @@ class LocaliserNode(StageNode):
                 self.in_flight.finish(stamp_ns, time.monotonic(),
                                       completed=last_stage and outcome == DONE)
 
+    def _on_time_jump(self, jump_ns: int) -> None:
+        """Stamps jumped: the open frames belong to the old timeline; forget them."""
+        super()._on_time_jump(jump_ns)
+        with self._in_flight_lock:
+            self.in_flight.clear()
+
     def _apply_admission(self, params: AdmissionParams) -> None:
         with self._in_flight_lock:
             self.in_flight.params = params

@@ -5,8 +5,25 @@ A stage node subscribes per-camera topics for the cameras of ``rig.cameras`` (th
 stamp (:class:`~tlessbot_ros.nodes.inputs.TwoViewInputs`), runs one stage, and publishes results
 stamped with the source images' stamps. It never dies on bad input: a callback failure is
 logged (throttled) and counted. ``/diagnostics`` gets, at 1 Hz, frames processed, failures,
-frames dropped by synchronisation, the processing latency, and the input age: how old a frame
-(its newest stamp) is when its processing starts, i.e. transport, pairing and waiting.
+frames dropped by synchronisation, the processing latency, and:
+
+- ``input_age_ms_p50`` / ``_p95``: how old a frame (its newest stamp) is by the node's clock when
+  its processing starts, i.e. capture-to-here transport, pairing and waiting. Only frames
+  stamped by this clock count: a stamp within ``sync.live_stamp_window_s`` (5 s) of it.
+- ``stamp_offset_s``, ``other_clock_frames``: frames whose stamps lie further from the node's
+  clock come from another clock: a bag replayed without ``--restamp`` (its recorded stamps, maybe
+  years old) or a camera on a host whose clock is not synchronised. Their "age" would be the
+  clocks' offset, not a delay, so it is not mixed into the input age; ``stamp_offset_s`` gives the
+  node's clock minus the newest stamp of the last such frame, ``other_clock_frames`` how many
+  there were. (Replay with ``--restamp`` to measure the input age of a bag.)
+- ``time_jumps``, ``last_time_jump_s``: how often the input stamps jumped (a bag looped without
+  ``--restamp`` goes back to its start; a camera clock steps) and the last jump's size (s, < 0
+  back). At a jump the synchronisation queues are emptied and the age figures start again
+  (:mod:`~tlessbot_ros.nodes.inputs`); frames of the new timeline are processed as any other.
+
+On shutdown (Ctrl-C) the frame being processed is finished and published before the node is
+destroyed (:func:`~tlessbot_ros.nodes.common.run_node`); a frame that fails because the node is
+going down is not reported as an error.
 
 Threading (``sync.worker_thread``, on by default): the executor thread only takes messages and
 pairs them; one worker thread runs :meth:`StageNode.process`. A frame that completes while the
@@ -216,6 +233,8 @@ class StageNode(Node):
         self.last_error = ''
         self._latencies_ms: deque[float] = deque(maxlen=100)
         self._input_ages_ms: deque[float] = deque(maxlen=100)
+        self.other_clock_frames = 0   # frames stamped by another clock (input age not measured)
+        self._stamp_offset_s: float | None = None
         self._stats: dict[str, float] = {}
         self._inputs: TwoViewInputs | None = None
         self._diagnostics = self.create_publisher(
@@ -294,7 +313,16 @@ class StageNode(Node):
         self._inputs = TwoViewInputs(
             self, {k: (message_class(t), topic) for k, (t, topic) in topics.items()},
             self.cameras, self.sync_params, self._on_views,
-            qos=input_profile(self.input_qos, self.input_depth))
+            qos=input_profile(self.input_qos, self.input_depth), on_time_jump=self._on_time_jump)
+
+    def _on_time_jump(self, jump_ns: int) -> None:
+        """The input stamps jumped (the queues are empty already): ages start again."""
+        self._input_ages_ms.clear()
+        self._stamp_offset_s = None
+        self.get_logger().warning(
+            f'input stamps jumped {"back" if jump_ns < 0 else "forward"} by '
+            f'{abs(jump_ns) / 1e9:.3f} s (a bag replayed in a loop without --restamp, or a '
+            'clock step): synchronisation restarted', throttle_duration_sec=10.0)
 
     def _apply_sync(self, params: SyncParams) -> None:
         """New ``sync.*`` (executor thread, as the subscriptions' callbacks): the rate cap
@@ -389,12 +417,14 @@ class StageNode(Node):
         try:
             stamp_ns = newest_stamp_ns(views)
             if stamp_ns is not None:
-                self._input_ages_ms.append(
-                    (self.get_clock().now().nanoseconds - stamp_ns) / 1e6)
+                self._record_input_age(stamp_ns)
             self.process(deserialise_views(views))
             self.frames += 1
             outcome = DONE
         except Exception as error:  # a bad frame must never take the node down
+            if self._stopping or not self.context.ok():   # cut short by the shutdown
+                self.get_logger().debug(f'frame left unfinished at shutdown: {error}')
+                return
             outcome = FAILED
             self.failures += 1
             self.last_error = f'{type(error).__name__}: {error}'
@@ -405,6 +435,16 @@ class StageNode(Node):
             self._busy = False
             self._latencies_ms.append(1e3 * (time.perf_counter() - start))
         self.report_outcome(views, outcome)
+
+    def _record_input_age(self, stamp_ns: int) -> None:
+        """The frame's age by the node's clock, if it was stamped by that clock (see the module
+        docstring); else the clocks' offset."""
+        offset_ns = self.get_clock().now().nanoseconds - stamp_ns
+        if abs(offset_ns) <= self.sync_params.live_stamp_window_s * 1e9:
+            self._input_ages_ms.append(offset_ns / 1e6)
+        else:
+            self.other_clock_frames += 1
+            self._stamp_offset_s = offset_ns / 1e9
 
     def process(self, views: Views) -> None:
         """Handle one synchronised two-view frame (``{camera: {key: msg}}``)."""
@@ -427,6 +467,7 @@ class StageNode(Node):
                   'failures': self.failures, 'dropped': dropped,
                   **_percentiles('latency_ms', self._latencies_ms),
                   **_percentiles('input_age_ms', self._input_ages_ms),
+                  **self._clock_values(),
                   'zero_stamps': self._inputs.zero_stamps if self._inputs else 0,
                   'malformed': self._inputs.malformed if self._inputs else 0,
                   **{k: f'{v:.3g}' for k, v in self._stats.items()}}
@@ -438,6 +479,19 @@ class StageNode(Node):
         message = 'ok' if level == OK else (self.last_error or 'starting')
         self._diagnostics.publish(diagnostic_array(
             self.get_clock().now().to_msg(), self.get_name(), level, message, values))
+
+    def _clock_values(self) -> dict[str, str | int]:
+        """/diagnostics keys on the input stamps' clock: other clocks, time jumps."""
+        values: dict[str, str | int] = {}
+        if self.other_clock_frames:
+            values['other_clock_frames'] = self.other_clock_frames
+        if self._stamp_offset_s is not None:
+            values['stamp_offset_s'] = f'{self._stamp_offset_s:.3f}'
+        jumps = self._inputs.jumps if self._inputs else None
+        values['time_jumps'] = jumps.count if jumps else 0
+        if jumps and jumps.count:
+            values['last_time_jump_s'] = f'{jumps.last_jump_ns / 1e9:.3f}'
+        return values
 
 
 def _percentiles(name: str, values: deque[float]) -> dict[str, str]:

@@ -62,6 +62,9 @@ _HOME = {
     'symmetries_from_models_info': 'symmetry',
     'symmetries_to_models_info': 'symmetry',
     'Item': 'sync',
+    'JUMP': 'sync',
+    'STALE': 'sync',
+    'StampJumps': 'sync',
     'StampSynchroniser': 'sync',
     'SyncParams': 'sync',
 }
@@ -130,7 +133,10 @@ if TYPE_CHECKING:
         symmetries_to_models_info,
     )
     from tlessbot_ros.core.common.sync import (  # noqa: F401
+        JUMP,
+        STALE,
         Item,
+        StampJumps,
         StampSynchroniser,
         SyncParams,
     )

@@ -11,13 +11,18 @@ its inputs) would otherwise pair an item with the *previous* frame of a stream w
 frame is merely late. So a partner older than the arriving item is not taken while that
 stream's next item, expected one median period after its newest, would match clearly better;
 the set forms when that item arrives (or the arriving item is dropped once newer sets form).
+
+Stamps that jump (a bag replayed in a loop without restamping goes back to its first stamp; a
+camera's clock can step) are noticed by :class:`StampJumps`: a synchroniser given one empties
+its queues at a jump, so no item of the old timeline is ever paired with one of the new, and
+drops the old timeline's stragglers that arrive after the jump.
 """
 from __future__ import annotations
 
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from typing import Generic, Literal, TypeVar
 
 Item = TypeVar('Item')
 
@@ -46,6 +51,21 @@ class SyncParams:
             worker, frames are processed inside the subscription callback and the DDS history
             (``input_depth``) overflows meanwhile: a later stage then loses the camera frames
             it must pair with its upstream results and drops whole frames.
+        jump_back_s: a topic whose stamp goes back by more than this (seconds) has jumped to a
+            new timeline: a bag replayed in a loop without ``--restamp`` (the demo bag goes
+            back 0.33 s), a camera clock stepped back. One publisher's stamps never go back,
+            so this only needs to clear a driver's small timestamp corrections. The node
+            empties its synchronisation queues, counts the jump (``time_jumps`` on
+            /diagnostics) and goes on with the new timeline.
+        jump_forward_s: a topic whose stamp leaps forward by more than this (seconds) has
+            jumped too (a clock stepped forward, a camera back after a long gap); handled as
+            a jump back.
+        live_stamp_window_s: a frame whose newest stamp lies within this many seconds of the
+            node's clock was stamped by that clock (a live camera on a synchronised host):
+            /diagnostics reports its input age. Stamps further away come from another clock
+            (a bag replayed without ``--restamp``, a camera whose clock is not synchronised):
+            their age would measure the clocks' offset, not a delay, so only that offset
+            (``stamp_offset_s``) is reported.
     """
 
     slop_s: float = 0.010
@@ -53,6 +73,77 @@ class SyncParams:
     max_age_s: float = 0.050
     max_rate_hz: float = 0.0
     worker_thread: bool = True
+    jump_back_s: float = 0.1
+    jump_forward_s: float = 10.0
+    live_stamp_window_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        for name in ('jump_back_s', 'jump_forward_s', 'live_stamp_window_s'):
+            if not getattr(self, name) > 0:
+                raise ValueError(f'{name} must be > 0 s, got {getattr(self, name)}')
+
+
+Verdict = Literal['in order', 'jump', 'stale']
+IN_ORDER: Verdict = 'in order'
+JUMP: Verdict = 'jump'
+STALE: Verdict = 'stale'
+
+
+class StampJumps:
+    """Notices stamps that jump, stream by stream (nanoseconds; pure, no clock is read).
+
+    A stream is one publisher's topic: its stamps only go forward. An item whose stamp lies
+    more than ``back_ns`` before its stream's previous one, or more than ``forward_ns`` after
+    it, starts a new timeline (:data:`JUMP`): everything queued by stamp must be forgotten.
+    The other streams jumped too (one clock stamps them all), but their items sent before the
+    jump may still be on their way: until a stream's first item of the new timeline comes, an
+    item that continues its old timeline is :data:`STALE` (drop it), at most ``stale_limit``
+    in a row (a stream whose clock did not jump joins the new timeline as it is).
+
+    Attributes:
+        count: jumps seen.
+        last_jump_ns: signed size of the last jump (new stamp - the stream's previous; < 0 back).
+    """
+
+    def __init__(self, *, back_ns: int, forward_ns: int, stale_limit: int = 30) -> None:
+        if back_ns <= 0 or forward_ns <= 0 or stale_limit < 0:
+            raise ValueError('back_ns and forward_ns must be > 0 and stale_limit >= 0')
+        self.back_ns, self.forward_ns = int(back_ns), int(forward_ns)
+        self.stale_limit = stale_limit
+        self.count = 0
+        self.last_jump_ns = 0
+        self._target_ns = 0                 # the stamp the last jump went to
+        self._last: dict[str, int] = {}     # per stream: its newest stamp
+        self._epoch: dict[str, int] = {}    # per stream: the jump count its newest stamp saw
+        self._stale: dict[str, int] = {}    # per stream: stale items since the last jump
+
+    def check(self, stream: str, stamp_ns: int) -> Verdict:
+        """Classify the next item of ``stream`` (and remember its stamp)."""
+        stamp_ns = int(stamp_ns)
+        last = self._last.get(stream)
+        verdict = IN_ORDER
+        if last is not None and self._epoch[stream] == self.count:
+            step = stamp_ns - last
+            if step < -self.back_ns or step > self.forward_ns:
+                self.count += 1
+                self.last_jump_ns, self._target_ns = step, stamp_ns
+                self._stale.clear()
+                verdict = JUMP
+        elif last is not None and not self._joins_new_timeline(stamp_ns, last) and \
+                self._stale.get(stream, 0) < self.stale_limit:
+            self._stale[stream] = self._stale.get(stream, 0) + 1
+            self._last[stream] = stamp_ns
+            return STALE
+        self._last[stream], self._epoch[stream] = stamp_ns, self.count
+        return verdict
+
+    def _joins_new_timeline(self, stamp_ns: int, last_ns: int) -> bool:
+        """Whether an item of a stream not yet seen since the jump belongs to the new timeline:
+        nearer the stamp the jump went to than its stream's last, or (after a jump back) not
+        after its stream's last (an old timeline only goes forward)."""
+        if self.last_jump_ns < 0 and stamp_ns <= last_ns:
+            return True
+        return abs(stamp_ns - self._target_ns) <= abs(stamp_ns - last_ns)
 
     def __post_init__(self) -> None:
         for name in ('slop_s', 'max_age_s', 'max_rate_hz'):
@@ -64,9 +155,14 @@ class SyncParams:
 
 
 class StampSynchroniser(Generic[Item]):
-    """Pairs items of named streams by stamp (nanoseconds); bounded memory."""
+    """Pairs items of named streams by stamp (nanoseconds); bounded memory.
 
-    def __init__(self, streams: Sequence[str], *, slop_ns: int, queue_size: int) -> None:
+    With ``jumps`` (a :class:`StampJumps`), a stamp jump empties the queues (:meth:`reset`)
+    and the old timeline's stragglers are dropped (counted in :attr:`dropped`).
+    """
+
+    def __init__(self, streams: Sequence[str], *, slop_ns: int, queue_size: int,
+                 jumps: StampJumps | None = None) -> None:
         if len(set(streams)) != len(streams) or not streams:
             raise ValueError(f'streams must be distinct names, got {list(streams)}')
         if queue_size < 1 or slop_ns < 0:
@@ -77,14 +173,30 @@ class StampSynchroniser(Generic[Item]):
             name: deque() for name in self.streams}
         self._queue_size = queue_size
         self._recent: dict[str, deque[int]] = {name: deque(maxlen=9) for name in self.streams}
+        self.jumps = jumps
         self.dropped = 0
         self.emitted = 0
+
+    def reset(self) -> None:
+        """Forget every queued item (counted as dropped) and the streams' periods: what is
+        queued belongs to a timeline that ended."""
+        self.dropped += sum(len(queue) for queue in self._queues.values())
+        for name in self.streams:
+            self._queues[name].clear()
+            self._recent[name].clear()
 
     def add(self, stream: str, stamp_ns: int, item: Item) -> dict[str, Item] | None:
         """Queue ``item``; returns ``{stream: item}`` when a complete set forms, else None."""
         queue = self._queues.get(stream)
         if queue is None:
             raise KeyError(f'unknown stream {stream!r}; expected one of {self.streams}')
+        if self.jumps is not None:
+            verdict = self.jumps.check(stream, stamp_ns)
+            if verdict == STALE:
+                self.dropped += 1
+                return None
+            if verdict == JUMP:
+                self.reset()
         if len(queue) >= self._queue_size:
             queue.popleft()
             self.dropped += 1

@@ -1,6 +1,9 @@
 """Print messages of a topic (like `ros2 topic echo`); PoseStamped as position, quaternion, RPY.
 
-The message type is found from the ROS graph, and the QoS is chosen to match the publisher.
+The message type is found from the ROS graph, and the QoS is chosen to match the publishers, as
+``ros2 topic echo`` does: echo waits until the topic has a publisher, then subscribes reliable
+only if every publisher is reliable and transient-local only if every publisher is; a
+publisher that comes later with a QoS the subscription cannot match makes it subscribe again.
 
     tlessbot echo /objects/obj_05/pose
     tlessbot echo /objects/obj_05/pose --csv --timeout 10
@@ -65,30 +68,90 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--count', type=int, default=0, help='exit after N messages')
 
 
-def _wait_for_type(node: Any, topic: str, deadline: float | None) -> str:
+# echo tells the user it waits for a publisher once it found none for this long (discovery
+# of one that exists takes a moment); then it looks at the publishers' QoS this often.
+WAITING_NOTICE_S = 1.0
+QOS_CHECK_PERIOD_S = 0.5
+
+
+def _wait_for_publisher(node: Any, topic: str, deadline: float | None,
+                        timeout_s: float | None) -> str:
+    """The type of ``topic`` once it has a publisher (the QoS is chosen from the publishers)."""
     import rclpy
 
+    noticed_at = time.monotonic() + WAITING_NOTICE_S
     while True:
         types = dict(node.get_topic_names_and_types())
-        if topic in types and types[topic]:
+        if types.get(topic) and node.count_publishers(topic):
             return types[topic][0]
+        if noticed_at is not None and time.monotonic() > noticed_at:
+            print(f'echo: waiting for a publisher on {topic}', file=sys.stderr, flush=True)
+            noticed_at = None
         if deadline is not None and time.monotonic() > deadline:
-            raise TlessbotError(f'topic {topic} does not exist in the ROS graph')
+            if topic not in types:
+                raise TlessbotError(f'topic {topic} does not exist in the ROS graph')
+            raise TlessbotError(f'no publisher on {topic} within {timeout_s} s')
         rclpy.spin_once(node, timeout_sec=0.1)
 
 
-def _matching_qos(node: Any, topic: str) -> Any:
+def matching_qos(publishers: list[Any]) -> Any:
+    """The subscription QoS that matches every publisher (their endpoint infos' ``qos_profile``):
+    reliable only if all are reliable, transient-local only if all are (a best-effort or
+    volatile subscription matches any publisher, but gets no retransmission or history)."""
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-    reliable, transient = True, True
-    for info in node.get_publishers_info_by_topic(topic):
-        reliable &= info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
-        transient &= info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+    offered = [info.qos_profile for info in publishers]
+    reliable = bool(offered) and all(q.reliability == ReliabilityPolicy.RELIABLE
+                                     for q in offered)
+    transient = bool(offered) and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                                      for q in offered)
     return QoSProfile(depth=10,
                       reliability=ReliabilityPolicy.RELIABLE if reliable
                       else ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if transient
                       else DurabilityPolicy.VOLATILE)
+
+
+def matches_all(profile: Any, publishers: list[Any]) -> bool:
+    """Whether a subscription with ``profile`` matches every one of ``publishers``."""
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+
+    for info in publishers:
+        offered = info.qos_profile
+        if profile.reliability == ReliabilityPolicy.RELIABLE and \
+                offered.reliability != ReliabilityPolicy.RELIABLE:
+            return False
+        if profile.durability == DurabilityPolicy.TRANSIENT_LOCAL and \
+                offered.durability != DurabilityPolicy.TRANSIENT_LOCAL:
+            return False
+    return True
+
+
+class _Subscription:
+    """echo's subscription, made again with a wider QoS when a publisher it cannot match
+    appears."""
+
+    def __init__(self, node: Any, msg_class: type, topic: str, callback: Any) -> None:
+        self._node, self._msg_class, self._topic, self._callback = \
+            node, msg_class, topic, callback
+        self.profile = matching_qos(node.get_publishers_info_by_topic(topic))
+        self._subscription = node.create_subscription(msg_class, topic, callback, self.profile)
+        self._next_check = time.monotonic() + QOS_CHECK_PERIOD_S
+
+    def follow_publishers(self) -> None:
+        if time.monotonic() < self._next_check:
+            return
+        self._next_check = time.monotonic() + QOS_CHECK_PERIOD_S
+        publishers = self._node.get_publishers_info_by_topic(self._topic)
+        if matches_all(self.profile, publishers):
+            return
+        self.profile = matching_qos(publishers)
+        self._node.destroy_subscription(self._subscription)
+        self._subscription = self._node.create_subscription(
+            self._msg_class, self._topic, self._callback, self.profile)
+        print(f'echo: a publisher on {self._topic} offers another QoS; subscribed again '
+              f'({self.profile.reliability.name.lower()}, '
+              f'{self.profile.durability.name.lower()})', file=sys.stderr, flush=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -103,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
     received = 0
     try:
         deadline = time.monotonic() + args.timeout if args.timeout else None
-        type_name = _wait_for_type(node, topic, deadline)
+        type_name = _wait_for_publisher(node, topic, deadline, args.timeout)
         is_pose = type_name == 'geometry_msgs/msg/PoseStamped'
         if args.csv and not is_pose:
             raise TlessbotError(f'--csv prints PoseStamped only; {topic} is {type_name}')
@@ -120,11 +183,11 @@ def run(args: argparse.Namespace) -> int:
             if args.timeout:
                 deadline = time.monotonic() + args.timeout
 
-        node.create_subscription(message_class(type_name), topic, on_message,
-                                 _matching_qos(node, topic))
+        subscription = _Subscription(node, message_class(type_name), topic, on_message)
         limit = 1 if args.once else args.count
         while rclpy.ok() and not (limit and received >= limit):
             rclpy.spin_once(node, timeout_sec=0.1)
+            subscription.follow_publishers()
             if deadline is not None and time.monotonic() > deadline:
                 if received == 0:
                     raise TlessbotError(f'no message on {topic} within {args.timeout} s')

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
 import time
 from pathlib import Path
@@ -77,10 +76,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f'(default {defaults.max_restarts})')
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def _policy(args: argparse.Namespace) -> RespawnPolicy:
     try:
         return RespawnPolicy(enabled=args.respawn, delay_s=args.respawn_delay,
@@ -104,20 +99,22 @@ def run(args: argparse.Namespace) -> int:
     # Stop the graph on Ctrl-C and on SIGTERM (systemd, docker stop, kill), never leaving the
     # nodes orphaned; SIGINT is handled even when a shell started launch in the background,
     # which makes it ignore SIGINT.
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, _interrupt)
+    from tlessbot_ros.nodes.common import interrupt_on_signals
+
+    interrupt_on_signals()
     replay_specs = [s for s in specs if s.label == 'replay']
     graph = GraphProcesses([s for s in specs if s.label != 'replay'], env=dict(os.environ))
-    graph.start()
-    print(f'launched {len(graph.specs)} processes: ' + ', '.join(s.label for s in graph.specs),
-          flush=True)
     stages = [s.label for s in graph.specs if s.label in PERCEPTION_NODES]
-    monitor = _readiness_monitor(stages)
-    supervisor = _Supervisor(graph, monitor, stages, Respawner(
-        policy, [s.label for s in graph.specs]))
-    if monitor is None:   # no stage node to wait for
-        graph.add(replay_specs)
+    monitor = None
     try:
+        graph.start()
+        print(f'launched {len(graph.specs)} processes: '
+              + ', '.join(s.label for s in graph.specs), flush=True)
+        monitor = _readiness_monitor(stages)
+        supervisor = _Supervisor(graph, monitor, stages, Respawner(
+            policy, [s.label for s in graph.specs]))
+        if monitor is None:   # no stage node to wait for
+            graph.add(replay_specs)
         while True:
             code = supervisor.step()
             if code is not None:
@@ -127,10 +124,18 @@ def run(args: argparse.Namespace) -> int:
                 graph.add(replay_specs)   # the bag starts once every stage can take frames
     except KeyboardInterrupt:
         graph.stop()
+        for label, child in graph.children.items():   # a node that did not stop in order
+            if child.returncode:
+                print(f'[launch] {label} exited with code {child.returncode} when stopped',
+                      file=sys.stderr, flush=True)
         return 0
     finally:
         if monitor is not None:
             monitor.close()
+        if stages:   # _readiness_monitor started rclpy
+            import rclpy
+
+            rclpy.try_shutdown()
 
 
 class _Supervisor:

@@ -62,6 +62,9 @@ def run(args: argparse.Namespace) -> int:
         for topic, msgtype in types.items():
             node.create_subscription(message_class(msgtype), topic, subscriber(topic),
                                      SENSOR_QOS, raw=True)
+        print(f'recording {len(types)} topic(s) into {out}'
+              + (f' for {args.duration:g} s' if args.duration > 0 else '; Ctrl-C stops'),
+              flush=True)
         stop = time.monotonic() + args.duration if args.duration > 0 else None
         while rclpy.ok() and (stop is None or time.monotonic() < stop):
             rclpy.spin_once(node, timeout_sec=0.1)

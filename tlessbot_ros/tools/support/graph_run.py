@@ -57,6 +57,7 @@ class ReceivedPose:
 class GraphRunResult:
     poses: list[ReceivedPose] = field(default_factory=list)
     frames_replayed: list[int] = field(default_factory=list)  # source stamps of side colour
+    frames_replayed_at_ns: list[int] = field(default_factory=list)  # their publication times
     rss_mb_start: dict[str, float] = field(default_factory=dict)
     rss_mb_end: dict[str, float] = field(default_factory=dict)
     rss_mb_samples: dict[str, list[float]] = field(default_factory=dict)
@@ -161,7 +162,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
     Args:
         ros_args: extra ``--ros-args`` for every node (e.g. ``-p model_path:=...``).
         loop, duration_s: replay in a loop until ``duration_s`` seconds have passed.
-        restamp: shift stamps to now (needed to measure latency and to loop).
+        restamp: shift stamps to now (needed to measure latency; a loop without it sends
+            stamps that jump back at every pass, which the nodes notice and count).
         settle_s: after the replay, wait until no pose arrived for this long ...
         drain_timeout_s: ... and, up to this long, until the pose estimator's /diagnostics
             count (frames + failures) covers every replayed frame.
@@ -267,6 +269,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         def on_publish(message) -> None:
             if message.topic == FRAME_TOPIC:
                 result.frames_replayed.append(header_stamp_ns(message.raw))
+                result.frames_replayed_at_ns.append(time.time_ns())
             if time.monotonic() >= next_sample[0]:
                 parents = children_by_parent()   # one /proc scan per sample: replay thread
                 result.sample_times_s.append(time.monotonic() - replay_start)

@@ -124,8 +124,13 @@ class GraphProcesses:
         return [(label, code) for label, child in self.children.items()
                 if (code := child.poll()) is not None]
 
-    def stop(self, timeout_s: float = 10.0) -> None:
-        """SIGINT every child (as Ctrl-C would), then SIGTERM / SIGKILL stragglers."""
+    def stop(self, timeout_s: float = 30.0) -> None:
+        """SIGINT every child (as Ctrl-C would), then SIGTERM / SIGKILL stragglers.
+
+        A node stopped by SIGINT finishes the frame in hand and stops its worker processes
+        first; with the 2-core machine at a load average of 17 the pose estimator once took
+        more than 10 s, hence the generous wait.
+        """
         for child in self.children.values():
             if child.poll() is None:
                 child.send_signal(signal.SIGINT)

@@ -92,19 +92,19 @@ def describe_unmatched(unmatched: dict[str, tuple[int, int]]) -> str:
     return 'replay: ' + '; '.join(parts)
 
 
-def wait_for_acks(publishers: Any, timeout_s: float = 5.0) -> bool:
-    """Wait until every reliable subscriber has acknowledged what ``publishers`` sent (as
-    ``ros2 bag play --wait-for-all-acked`` does): a process that exits right after its last
-    publish otherwise takes the last messages with it. False when some were not acknowledged
-    within ``timeout_s``."""
+def wait_for_acknowledgements(publishers: dict[str, Any], *, timeout_s: float = 5.0) -> bool:
+    """Wait until every reliable subscriber acknowledged what the publishers sent, up to
+    ``timeout_s``: a replay that ends at once after its last message takes the messages not yet
+    acknowledged with it, and a slow reliable subscriber never gets them. Waits in short steps,
+    so Ctrl-C still stops it. True when all were acknowledged."""
     from rclpy.duration import Duration
 
+    step = Duration(nanoseconds=50_000_000)
     deadline = time.monotonic() + timeout_s
-    acked = True
-    for publisher in publishers:
-        remaining = max(0.0, deadline - time.monotonic())
-        acked &= bool(publisher.wait_for_all_acked(Duration(nanoseconds=int(remaining * 1e9))))
-    return acked
+    pending = list(publishers.values())
+    while pending and time.monotonic() < deadline:
+        pending = [publisher for publisher in pending if not publisher.wait_for_all_acked(step)]
+    return not pending
 
 
 def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
@@ -152,6 +152,7 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
         restamper.new_pass()
         for message in cached if cached is not None else read_bag(bag, list(types)):
             if should_stop():
+                wait_for_acknowledgements(publishers)
                 return published
             if start_wall is None:
                 start_wall, start_bag = time.monotonic(), message.log_time_ns
@@ -168,8 +169,7 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
             if on_publish is not None:
                 on_publish(message)
         if not loop or published == 0:
-            if qos != 'sensor':
-                wait_for_acks(publishers.values())
+            wait_for_acknowledgements(publishers)
             return published
         if start_wall is not None:
             next_pass_wall = start_wall + pass_period_ns / 1e9 / rate
