@@ -78,6 +78,12 @@ class SyncParams:
     live_stamp_window_s: float = 5.0
 
     def __post_init__(self) -> None:
+        for name in ('slop_s', 'max_age_s', 'max_rate_hz'):
+            if not getattr(self, name) >= 0:   # NaN too
+                raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
+        if self.queue_size < 1:
+            raise ValueError(f'queue_size must be >= 1 (items kept per stream), got '
+                             f'{self.queue_size}')
         for name in ('jump_back_s', 'jump_forward_s', 'live_stamp_window_s'):
             if not getattr(self, name) > 0:
                 raise ValueError(f'{name} must be > 0 s, got {getattr(self, name)}')
@@ -144,14 +150,6 @@ class StampJumps:
         if self.last_jump_ns < 0 and stamp_ns <= last_ns:
             return True
         return abs(stamp_ns - self._target_ns) <= abs(stamp_ns - last_ns)
-
-    def __post_init__(self) -> None:
-        for name in ('slop_s', 'max_age_s', 'max_rate_hz'):
-            if not getattr(self, name) >= 0:   # NaN too
-                raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
-        if self.queue_size < 1:
-            raise ValueError(f'queue_size must be >= 1 (items kept per stream), got '
-                             f'{self.queue_size}')
 
 
 class StampSynchroniser(Generic[Item]):
