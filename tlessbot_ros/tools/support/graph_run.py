@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -149,7 +150,9 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
                      rate: float = 1.0, loop: bool = False, duration_s: float = 0.0,
                      restamp: bool = False, startup_timeout_s: float = 90.0,
                      settle_s: float = 3.0, drain_timeout_s: float = 60.0,
-                     lockstep: bool = False, quiet: bool = True) -> GraphRunResult:
+                     lockstep: bool = False, quiet: bool = True,
+                     alongside: Callable[[GraphRunResult], Callable[[], None]] | None = None
+                     ) -> GraphRunResult:
     """Start the perception nodes, replay ``bag`` into them, collect the published poses.
 
     Args:
@@ -162,6 +165,9 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         lockstep: publish one frame (all messages sharing a log time), then wait until the
             pose estimator has handled it before the next (no frame is dropped; for scoring,
             not for timing). ``rate`` and ``loop`` are ignored.
+        alongside: called with the result as the replay starts (the nodes are ready); what
+            it returns is called when the replay ends, before the drain (bench fuzz starts
+            and stops its garbage publisher so).
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -252,6 +258,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         replay_start = time.monotonic()
         result.replay_start_ns = time.time_ns()
         stop_at = replay_start + duration_s if duration_s else None
+        end_alongside = alongside(result) if alongside is not None else None
         next_sample = [replay_start]
 
         def on_publish(message) -> None:
@@ -275,6 +282,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             replay(player, str(bag), rate=rate, loop=loop, restamp=restamp,
                    wait_for_subscribers_s=30.0, on_publish=on_publish,
                    should_stop=(lambda: stop_at is not None and time.monotonic() > stop_at))
+        if end_alongside is not None:
+            end_alongside()
         result.cpu_s = {label: cpu_now(label) - cpu_start[label] for label in cpu_pids}
         drain_until = time.monotonic() + drain_timeout_s
         with lock:
