@@ -64,7 +64,7 @@ class PhaseScore:
 
 def run_fuzz(bag: str, *, config: Path, ros_args: list[str], fps: float, clean_s: float,
              garbage_s: float, after_s: float, rate_hz: float = 100.0,
-             frame_rate_hz: float = 1.0, huge_period_s: float = 2.0) -> FuzzRun:
+             frame_rate_hz: float = 1.0, huge_period_s: float = 1.0) -> FuzzRun:
     """Replay ``bag`` at ``fps`` frames/s for ``clean_s`` + garbage (its process's start-up,
     then ``garbage_s``) + ``after_s`` seconds; garbage at ``rate_hz`` per topic.
 

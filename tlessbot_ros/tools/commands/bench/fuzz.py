@@ -33,8 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--frame-rate', type=float, default=1.0,
                         help='coherent garbage two-view frames per second (one message '
                              'corrupted), which reach the stages\' processing')
-    parser.add_argument('--huge-period', type=float, default=2.0,
-                        help='seconds between 4K images on one topic')
+    parser.add_argument('--huge-period', type=float, default=1.0,
+                        help='seconds between 4K images (on one topic after the other)')
     parser.add_argument('--classifier', default=str(DEFAULT_CLASSIFIER))
     parser.add_argument('--templates', default=str(DEFAULT_TEMPLATES))
     parser.add_argument('--models-info', default=str(DEFAULT_MODELS_INFO))
