@@ -52,6 +52,8 @@ class PhaseScore:
     answered: int = 0
     parts: int = 0
     correct: int = 0
+    answered_parts: int = 0     # parts of the answered frames ...
+    answered_correct: int = 0   # ... and those within 5 cm / 5 deg
 
     @property
     def answered_share(self) -> float:
@@ -60,6 +62,12 @@ class PhaseScore:
     @property
     def recall(self) -> float:
         return self.correct / self.parts if self.parts else float('nan')
+
+    @property
+    def answered_recall(self) -> float:
+        """Parts right among the frames answered: whether the answers that came are right."""
+        return self.answered_correct / self.answered_parts if self.answered_parts else \
+            float('nan')
 
 
 def run_fuzz(bag: str, *, config: Path, ros_args: list[str], fps: float, clean_s: float,
@@ -171,6 +179,9 @@ def score_phases(fuzz: FuzzRun, bag: str, symmetries: dict[int, Symmetries]
         score.answered += bool(found)
         score.parts += len(matches)
         score.correct += sum(m.correct for m in matches)
+        if found:
+            score.answered_parts += len(matches)
+            score.answered_correct += sum(m.correct for m in matches)
     return scores
 
 

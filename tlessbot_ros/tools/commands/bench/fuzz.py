@@ -32,9 +32,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='garbage messages per second on each input topic')
     parser.add_argument('--frame-rate', type=float, default=1.0,
                         help='coherent garbage two-view frames per second (one message '
-                             'corrupted), which reach the stages\' processing')
+                             "corrupted), which reach the stages' processing")
     parser.add_argument('--huge-period', type=float, default=1.0,
                         help='seconds between 4K images (on one topic after the other)')
+    parser.add_argument('--input-depth', type=int, default=None,
+                        help="the stages' input_depth (DDS history per input topic; default: "
+                             "the nodes' own)")
     parser.add_argument('--classifier', default=str(DEFAULT_CLASSIFIER))
     parser.add_argument('--templates', default=str(DEFAULT_TEMPLATES))
     parser.add_argument('--models-info', default=str(DEFAULT_MODELS_INFO))
@@ -73,11 +76,12 @@ def node_table(fuzz) -> str:
 
 def phase_table(scores) -> str:
     lines = ['| phase | good frames sent | answered (a pose came back) | parts within '
-             '5 cm / 5 deg |', '|---|---|---|---|']
+             "5 cm / 5 deg | of the answered frames' parts |", '|---|---|---|---|---|']
     for phase, score in scores.items():
         lines.append(f'| {phase} | {score.frames} | {score.answered} '
                      f'({100 * score.answered_share:.0f} %) | {score.correct} / {score.parts} '
-                     f'({100 * score.recall:.0f} %) |')
+                     f'({100 * score.recall:.0f} %) | {score.answered_correct} / '
+                     f'{score.answered_parts} ({100 * score.answered_recall:.0f} %) |')
     return '\n'.join(lines)
 
 
@@ -103,7 +107,9 @@ def run(args: argparse.Namespace) -> int:
                     garbage_s=args.duration, after_s=args.after, rate_hz=args.rate,
                     frame_rate_hz=args.frame_rate, huge_period_s=args.huge_period,
                     ros_args=['-p', f'model_path:={args.classifier}',
-                              '-p', f'templates_path:={args.templates}'])
+                              '-p', f'templates_path:={args.templates}',
+                              *(['-p', f'input_depth:={args.input_depth}']
+                                if args.input_depth else [])])
     scores = score_phases(fuzz, args.bag, load_symmetries(args.models_info))
     text = '\n\n'.join([sent_summary(fuzz), node_table(fuzz), phase_table(scores)])
     print(text)
