@@ -148,3 +148,25 @@ def test_jump_thresholds_are_validated():
         SyncParams(jump_back_s=0.0)
     with pytest.raises(ValueError):
         StampJumps(back_ns=0, forward_ns=S)
+
+
+def test_full_queue_drops_an_item_that_can_never_pair_first():
+    """A flood on one stream at stamps nobody else has pushes out the flood, not the item
+    that waits for its partner (a later stage's input waiting for its upstream result)."""
+    sync = StampSynchroniser(['depth', 'info', 'classes'], slop_ns=10, queue_size=3)
+    assert sync.add('depth', 1000, 'good depth') is None
+    assert sync.add('info', 1000, 'good info') is None
+    for k in range(10):
+        assert sync.add('depth', 5_000 + 100 * k, f'garbage {k}') is None
+    assert sync.add('classes', 1000, 'classes') == {
+        'depth': 'good depth', 'info': 'good info', 'classes': 'classes'}
+
+
+def test_full_queue_of_pairable_items_drops_the_oldest():
+    sync = StampSynchroniser(['a', 'b', 'c'], slop_ns=10, queue_size=2)
+    for stamp in (100, 200, 300):
+        sync.add('a', stamp, f'a{stamp}')
+        sync.add('b', stamp, f'b{stamp}')
+    assert sync.dropped == 2
+    assert sync.add('c', 100, 'c') is None   # a100 and b100 are gone
+    assert sync.add('c', 300, 'c')['a'] == 'a300'

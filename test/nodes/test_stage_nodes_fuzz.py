@@ -11,6 +11,8 @@ import time
 import numpy as np
 import pytest
 
+from tlessbot_ros.tools.support.garbage import corrupt_frames
+
 pytestmark = pytest.mark.ros
 
 CAMERAS = ('top', 'side')
@@ -109,47 +111,9 @@ def camera_messages(frame, stamp_ns: int) -> dict[str, object]:
     return out
 
 
-def corruptions(good: dict[str, object]):
-    """(name, messages) pairs of malformed two-view frames, each with its own stamp."""
-    import copy
-
-    from tlessbot_ros.conversions import array_to_image
-
-    def variant(k: int, edit):
-        msgs = {t: copy.deepcopy(m) for t, m in good.items()}
-        for msg in msgs.values():
-            msg.header.stamp.sec += k
-        edit(msgs)
-        return msgs
-
-    depth_topic = '/side/aligned_depth_to_color/image_raw'
-    shape = (480, 640)
-
-    def wrong_encoding(m):
-        m['/side/color/image_raw'].encoding = '32FC1'
-
-    def size_mismatch(m):
-        m['/side/aligned_depth_to_color/camera_info'].width = 320
-
-    def empty(m):
-        m[depth_topic].data = []
-
-    def all_nan(m):
-        stamp = m[depth_topic].header
-        m[depth_topic] = array_to_image(np.full(shape, np.nan, np.float32), '32FC1',
-                                        frame_id=stamp.frame_id, stamp_ns=stamp.stamp.sec * 10**9)
-
-    def all_zero(m):
-        stamp = m[depth_topic].header
-        m[depth_topic] = array_to_image(np.zeros(shape, np.uint16), '16UC1',
-                                        frame_id=stamp.frame_id, stamp_ns=stamp.stamp.sec * 10**9)
-
-    def unknown_frame(m):
-        for msg in m.values():
-            msg.header.frame_id = 'no_such_frame'
-
-    cases = [wrong_encoding, size_mismatch, empty, all_nan, all_zero, unknown_frame]
-    return [(case.__name__, variant(k + 1, case)) for k, case in enumerate(cases)]
+def handled(node) -> int:
+    """Frames processed or failed, and messages refused on arrival as malformed."""
+    return node.failures + node.frames + node._inputs.malformed
 
 
 def test_localiser_survives_malformed_input(sim_frame):
@@ -168,12 +132,13 @@ def test_localiser_survives_malformed_input(sim_frame):
                                      'sensor_msgs/msg/CameraInfo'},
                           ['/localiser/side/labels'])
         good = camera_messages(sim_frame, STAMP0)
-        for name, msgs in corruptions(good):
-            before = node.failures + node.frames
+        for name, msgs in corrupt_frames(good):
+            before = handled(node)
             harness.publish(msgs)
-            harness.spin(10.0, until=lambda b=before: node.failures + node.frames > b)
-            assert node.failures + node.frames > before, f'{name}: frame never processed'
-        assert node.failures >= 3  # encoding, size, empty data are errors, not crashes
+            harness.spin(10.0, until=lambda b=before: handled(node) > b)
+            assert handled(node) > before, f'{name}: frame never processed'
+        assert node.failures >= 2  # encoding, size: errors, not crashes
+        assert node._inputs.malformed >= 1   # empty data: refused before it is queued
         harness.publish(good)
         harness.spin(15.0, until=lambda: any(
             m.header.stamp.sec == STAMP0 // 10**9 for m in harness.received[
@@ -246,12 +211,13 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
             '/{camera}/aligned_depth_to_color/image_raw': 'sensor_msgs/msg/Image',
             '/{camera}/aligned_depth_to_color/camera_info': 'sensor_msgs/msg/CameraInfo',
             '/classifier/{camera}/classes': 'sensor_msgs/msg/Image'}, [])
-        for name, msgs in corruptions(good):
-            before = node.failures + node.frames
+        for name, msgs in corrupt_frames(good):
+            before = handled(node)
             harness.publish(msgs)
-            harness.spin(10.0, until=lambda b=before: node.failures + node.frames > b)
-            assert node.failures + node.frames > before, f'{name}: frame never processed'
-        assert node.failures >= 2
+            harness.spin(10.0, until=lambda b=before: handled(node) > b)
+            assert handled(node) > before, f'{name}: frame never processed'
+        assert node.failures >= 1   # the size mismatch
+        assert node._inputs.malformed >= 1   # empty data
         # RViz markers are built only while someone subscribes: subscribe, then send the frame
         from tlessbot_ros.nodes.common import RESULT_QOS, message_class
         markers = []

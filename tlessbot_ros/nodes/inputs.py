@@ -24,6 +24,7 @@ from typing import Any
 from rclpy.node import Node
 
 from tlessbot_ros.conversions.cdr import header_stamp_ns
+from tlessbot_ros.conversions.image import ENCODINGS
 from tlessbot_ros.conversions.image_cdr import image_from_cdr
 from tlessbot_ros.core.common import JUMP, STALE, StampJumps, StampSynchroniser, SyncParams
 from tlessbot_ros.nodes.common import SENSOR_QOS
@@ -66,6 +67,30 @@ def newest_stamp_ns(views: Views) -> int | None:
     return max(stamps) if stamps else None
 
 
+def check_input(data: bytes, msg_class: type, max_mb: float) -> None:
+    """Refuse, before it is queued, an input no stage could use: larger than ``max_mb`` MiB
+    (0: no limit), or an Image whose CDR, size or encoding is broken (a known encoding that is
+    wrong for the stage is the stage's to refuse).
+
+    Raises:
+        ValueError: saying why.
+    """
+    if max_mb > 0 and len(data) > max_mb * 2**20:
+        raise ValueError(f'message of {len(data) / 2**20:.1f} MiB is larger than '
+                         f'sync.max_message_mb = {max_mb:g}')
+    if not _is_image(msg_class):
+        return
+    image = image_from_cdr(data)
+    if image.encoding not in ENCODINGS:
+        raise ValueError(f'unsupported image encoding {image.encoding!r}')
+    if image.height == 0 or image.width == 0 or image.step == 0:
+        raise ValueError(f'image has zero size ({image.width}x{image.height}, step '
+                         f'{image.step})')
+    if image.data.size != image.height * image.step:
+        raise ValueError(f'image data has {image.data.size} bytes, expected height*step = '
+                         f'{image.height * image.step}')
+
+
 class TwoViewInputs:
     """Subscribes ``/<camera>/<topic>`` for every camera and topic, emits synchronised views.
 
@@ -89,6 +114,7 @@ class TwoViewInputs:
         self._callback = callback
         self._on_time_jump = on_time_jump
         self.stale = 0   # messages of a timeline that ended, dropped
+        self._node, self._topics = node, topics
         self._keys, self._cameras = list(topics), list(cameras)
         self._dropped_before = 0   # by synchronisers replaced by reconfigure
         self._build_synchronisers(sync)
@@ -129,11 +155,17 @@ class TwoViewInputs:
                    for s in (self._across, *self._per_camera.values()))
 
     def _handler(self, camera: str, key: str, msg_class: type) -> Callable[[bytes], None]:
+        topic = self._topics[key][1](camera)
+
         def on_message(data: bytes) -> None:
             try:
                 stamp = header_stamp_ns(data)
-            except ValueError:
-                self.malformed += 1  # too short to hold a header; counted in diagnostics
+                check_input(data, msg_class, self.sync.max_message_mb)
+            except ValueError as error:
+                # never queued, so it cannot push a good message out; counted in diagnostics
+                self.malformed += 1
+                self._node.get_logger().warning(f'{topic}: {error}; ignored',
+                                                throttle_duration_sec=5.0)
                 return
             if stamp == 0:
                 self.zero_stamps += 1  # cannot be synchronised; counted in diagnostics

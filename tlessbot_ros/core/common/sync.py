@@ -66,6 +66,10 @@ class SyncParams:
             (a bag replayed without ``--restamp``, a camera whose clock is not synchronised):
             their age would measure the clocks' offset, not a delay, so only that offset
             (``stamp_offset_s``) is reported.
+        max_message_mb: largest input message taken, MiB (0 = no limit); a larger one is
+            counted as malformed and never queued (a 4K colour image is 24 MiB: thirty of them
+            waiting for partners would hold 0.7 GiB per topic). The D415's largest stream,
+            1920x1080 rgb8, is 5.9 MiB.
     """
 
     slop_s: float = 0.010
@@ -76,9 +80,10 @@ class SyncParams:
     jump_back_s: float = 0.1
     jump_forward_s: float = 10.0
     live_stamp_window_s: float = 5.0
+    max_message_mb: float = 8.0
 
     def __post_init__(self) -> None:
-        for name in ('slop_s', 'max_age_s', 'max_rate_hz'):
+        for name in ('slop_s', 'max_age_s', 'max_rate_hz', 'max_message_mb'):
             if not getattr(self, name) >= 0:   # NaN too
                 raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
         if self.queue_size < 1:
@@ -196,7 +201,7 @@ class StampSynchroniser(Generic[Item]):
             if verdict == JUMP:
                 self.reset()
         if len(queue) >= self._queue_size:
-            queue.popleft()
+            del queue[self._eviction_index(stream)]
             self.dropped += 1
         queue.append((int(stamp_ns), item))
         self._recent[stream].append(int(stamp_ns))
@@ -219,6 +224,19 @@ class StampSynchroniser(Generic[Item]):
                     self.dropped += 1
         self.emitted += 1
         return {name: entry[1] for name, entry in chosen.items()}
+
+    def _eviction_index(self, stream: str) -> int:
+        """Which item of a full queue to drop: the oldest one that no other stream has a
+        partner for within the slop, else the oldest. Items of a frame wait in several streams
+        for the last one (a later stage's input waits for its upstream result); a flood of
+        items that will never pair (garbage, a stray publisher) then evicts itself instead of
+        them."""
+        others = [self._queues[name] for name in self.streams if name != stream]
+        for index, (stamp, _) in enumerate(self._queues[stream]):
+            if not any(abs(other_stamp - stamp) <= self.slop_ns
+                       for other in others for other_stamp, _ in other):
+                return index
+        return 0
 
     def _better_partner_due(self, stream: str, partner_ns: int, pivot_ns: int) -> bool:
         """True when ``stream``'s next item, expected one median period after its newest,

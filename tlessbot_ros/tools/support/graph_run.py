@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -156,7 +157,9 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
                      restamp: bool = False, startup_timeout_s: float = 90.0,
                      settle_s: float = 3.0, drain_timeout_s: float = 60.0,
                      lockstep: bool = False, quiet: bool = True,
-                     node_prefixes: dict[str, list[str]] | None = None) -> GraphRunResult:
+                     node_prefixes: dict[str, list[str]] | None = None,
+                     alongside: Callable[[GraphRunResult], Callable[[], None]] | None = None
+                     ) -> GraphRunResult:
     """Start the perception nodes, replay ``bag`` into them, collect the published poses.
 
     Args:
@@ -172,6 +175,9 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             not for timing). ``rate`` and ``loop`` are ignored.
         node_prefixes: an argv prefix per node label, e.g. ``ip netns exec NS`` to start that
             node in another network namespace (a second host; :mod:`.netns`).
+        alongside: called with the result as the replay starts (the nodes are ready); what
+            it returns is called when the replay ends, before the drain (bench fuzz starts
+            and stops its garbage publisher so).
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -226,7 +232,10 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         arrivals = result.stage_arrivals.setdefault(stage, {})
 
         def callback(data: bytes) -> None:
-            arrivals[header_stamp_ns(data)] = time.time_ns()
+            try:
+                arrivals[header_stamp_ns(data)] = time.time_ns()
+            except ValueError:   # not from the stage (bench fuzz publishes garbage here)
+                pass
         return callback
 
     image_class = message_class('sensor_msgs/msg/Image')
@@ -264,6 +273,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         replay_start = time.monotonic()
         result.replay_start_ns = time.time_ns()
         stop_at = replay_start + duration_s if duration_s else None
+        end_alongside = alongside(result) if alongside is not None else None
         next_sample = [replay_start]
 
         def on_publish(message) -> None:
@@ -288,6 +298,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             replay(player, str(bag), rate=rate, loop=loop, restamp=restamp,
                    wait_for_subscribers_s=30.0, on_publish=on_publish,
                    should_stop=(lambda: stop_at is not None and time.monotonic() > stop_at))
+        if end_alongside is not None:
+            end_alongside()
         result.cpu_s = {label: cpu_now(label) - cpu_start[label] for label in cpu_pids}
         drain_until = time.monotonic() + drain_timeout_s
         with lock:
