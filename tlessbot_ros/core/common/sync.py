@@ -111,9 +111,17 @@ class StampJumps:
     item that continues its old timeline is :data:`STALE` (drop it), at most ``stale_limit``
     in a row (a stream whose clock did not jump joins the new timeline as it is).
 
+    A single item out of line is not yet a jump: a stray message (another publisher's, a
+    corrupt stamp) would otherwise throw every queue away. The first item off a stream's
+    timeline is held as a candidate and dropped (:data:`STALE`, counted in :attr:`outliers`);
+    the jump is declared when the stream's next item continues the candidate's timeline, and the
+    candidate is forgotten when it continues the old one. A real jump so costs each stream its
+    first item of the new timeline.
+
     Attributes:
         count: jumps seen.
         last_jump_ns: signed size of the last jump (new stamp - the stream's previous; < 0 back).
+        outliers: items off their stream's timeline that no next item confirmed (so far).
     """
 
     def __init__(self, *, back_ns: int, forward_ns: int, stale_limit: int = 30) -> None:
@@ -127,6 +135,8 @@ class StampJumps:
         self._last: dict[str, int] = {}     # per stream: its newest stamp
         self._epoch: dict[str, int] = {}    # per stream: the jump count its newest stamp saw
         self._stale: dict[str, int] = {}    # per stream: stale items since the last jump
+        self._candidate: dict[str, int] = {}   # per stream: an item off its timeline, held
+        self.outliers = 0
 
     def check(self, stream: str, stamp_ns: int) -> Verdict:
         """Classify the next item of ``stream`` (and remember its stamp)."""
@@ -134,12 +144,20 @@ class StampJumps:
         last = self._last.get(stream)
         verdict = IN_ORDER
         if last is not None and self._epoch[stream] == self.count:
-            step = stamp_ns - last
-            if step < -self.back_ns or step > self.forward_ns:
+            if not self._in_line(last, stamp_ns):
+                candidate = self._candidate.get(stream)
+                if candidate is None or not self._in_line(candidate, stamp_ns):
+                    self._candidate[stream] = stamp_ns   # confirmed, or not, by the next item
+                    self.outliers += 1
+                    return STALE
+                del self._candidate[stream]
+                self.outliers -= 1   # the candidate was the new timeline's first item
                 self.count += 1
-                self.last_jump_ns, self._target_ns = step, stamp_ns
+                self.last_jump_ns, self._target_ns = candidate - last, candidate
                 self._stale.clear()
                 verdict = JUMP
+            else:
+                self._candidate.pop(stream, None)   # the old timeline goes on: a stray item
         elif last is not None and not self._joins_new_timeline(stamp_ns, last) and \
                 self._stale.get(stream, 0) < self.stale_limit:
             self._stale[stream] = self._stale.get(stream, 0) + 1
@@ -147,6 +165,10 @@ class StampJumps:
             return STALE
         self._last[stream], self._epoch[stream] = stamp_ns, self.count
         return verdict
+
+    def _in_line(self, previous_ns: int, stamp_ns: int) -> bool:
+        """Whether ``stamp_ns`` may follow ``previous_ns`` on one timeline."""
+        return -self.back_ns <= stamp_ns - previous_ns <= self.forward_ns
 
     def _joins_new_timeline(self, stamp_ns: int, last_ns: int) -> bool:
         """Whether an item of a stream not yet seen since the jump belongs to the new timeline:
