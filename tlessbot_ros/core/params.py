@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from tlessbot_ros.core.common.table_plane import TABLE_PLANE_MODES
+
 
 def _check(ok: bool, message: str) -> None:
     if not ok:
@@ -104,6 +106,16 @@ class FitParams:
             localiser split it) and is dropped, not published (``core/fragments.py``). Every
             duplicate pose in 3 simulated 15-frame bags was such a fragment (the pieces' fits
             lay 0.3-2.9 cm apart). 0 = publish every instance.
+        table_plane: the table frame the stages read heights in (the pose stage's table path,
+            the box-mode clearance, the classifier's shape features, the depth cue of the
+            segmentation): 'rig' the extrinsics alone (no table frame without them: every
+            part goes to RANSAC); 'observed' the plane found in each view's depth
+            (:mod:`tlessbot_ros.core.common.table_plane`, the rig's frame turned onto it);
+            'auto' the rig unless the observed plane differs from it by more than
+            ``table_plane_max_angle_deg`` or ``table_plane_max_offset_m``, and the observed
+            plane without extrinsics.
+        table_plane_max_angle_deg, table_plane_max_offset_m: in 'auto', the rig's table is
+            kept while the observed plane is within this angle and this height of it.
     """
 
     min_roi_points: int = 30
@@ -114,6 +126,9 @@ class FitParams:
     lookalike_check: bool = True
     lookalike_tolerance_m: float = 0.002
     fragment_overlap: float = 0.5
+    table_plane: str = 'auto'
+    table_plane_max_angle_deg: float = 1.0
+    table_plane_max_offset_m: float = 0.005
 
     def __post_init__(self) -> None:
         _check(self.min_roi_points >= 3, f'min_roi_points must be at least 3 (a pose needs '
@@ -130,5 +145,9 @@ class FitParams:
                f'(a fitness), got {self.fallback_min_fitness}')
         _check(self.lookalike_tolerance_m > 0, 'lookalike_tolerance_m must be > 0 m (e.g. '
                f'0.002), got {self.lookalike_tolerance_m}')
+        _check(self.table_plane in TABLE_PLANE_MODES, f'table_plane must be one of '
+               f'{", ".join(TABLE_PLANE_MODES)}, got {self.table_plane!r}')
+        _check(self.table_plane_max_angle_deg >= 0 and self.table_plane_max_offset_m >= 0,
+               'table_plane_max_angle_deg and table_plane_max_offset_m must be >= 0')
         _check(0.0 <= self.fragment_overlap < 1.0, 'fragment_overlap must be in [0, 1) (0.5; '
                f'0 turns the check off), got {self.fragment_overlap}')
