@@ -22,16 +22,24 @@ def read_visp_depth_bin(path: Path) -> np.ndarray:
     return np.frombuffer(raw[8:], '<u2').reshape(int(height), int(width))
 
 
-def read_visp_camera_xml(path: Path) -> CameraIntrinsics:
-    """The first camera of a ViSP camera .xml (the colour one when it holds several)."""
-    text = path.read_text()
-    first = text.split('</camera>')[0]
-    value = {k: float(re.search(fr'<{k}>([^<]+)</{k}>', first).group(1))
+def _first_camera(path: Path) -> str:
+    """The text of the first camera of a ViSP .xml (the colour one when it holds several)."""
+    return path.read_text().split('</camera>')[0]
+
+
+def read_visp_K(path: Path) -> np.ndarray:
+    """(3, 3) camera matrix of the first camera of a ViSP .xml (px, py, u0, v0)."""
+    value = {k: float(re.search(fr'<{k}>([^<]+)</{k}>', _first_camera(path)).group(1))
              for k in ('px', 'py', 'u0', 'v0')}
+    return np.array([[value['px'], 0, value['u0']], [0, value['py'], value['v0']], [0, 0, 1]])
+
+
+def read_visp_camera_xml(path: Path) -> CameraIntrinsics:
+    """Intrinsics of the first camera of a ViSP camera .xml that gives the image size."""
+    first = _first_camera(path)
     width = int(re.search(r'<image_width>(\d+)', first).group(1))
     height = int(re.search(r'<image_height>(\d+)', first).group(1))
-    K = np.array([[value['px'], 0, value['u0']], [0, value['py'], value['v0']], [0, 0, 1]])
-    return CameraIntrinsics(width=width, height=height, K=K)
+    return CameraIntrinsics(width=width, height=height, K=read_visp_K(path))
 
 
 def rbt_sequence_frames(shared_data: Path) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
@@ -62,6 +70,6 @@ def tutorial_frames(shared_data: Path) -> Iterator[tuple[str, np.ndarray, np.nda
     yield ('d435', read_visp_depth_bin(d435 / 'depth_image_0000.bin') * np.float32(1e-3),
            read_visp_camera_xml(d435 / 'camera.xml').K)
     cube = shared_data / TUTORIAL / 'generic-rgbd-cube'
-    K = read_visp_camera_xml(cube / 'model/cube/cube_depth.xml').K
+    K = read_visp_K(cube / 'model/cube/cube_depth.xml')
     for path in sorted((cube / 'data').glob('depth_image_*.bin')):
         yield f'cube {path.stem}', read_visp_depth_bin(path) * np.float32(1e-3), K

@@ -58,6 +58,9 @@ class TablePlaneParams:
             from its normal (a wall seen edge-on is not).
         min_inlier_share: no table is found when the best plane holds a smaller share of the
             valid points.
+        min_image_share: ... or covers a smaller share of the image (sampled pixels, valid or
+            not): a depth image that shows little but a part has no table in it, only the
+            part's faces.
         refits: least-squares refits of the winner (inliers recomputed each time; after the
             first, the inlier distance follows the noise measured on the plane).
         prior_max_angle_deg, prior_max_offset_m: with a rig, only planes this close to the
@@ -80,9 +83,10 @@ class TablePlaneParams:
     max_depth_m: float = 2.0
     max_incidence_deg: float = 80.0
     min_inlier_share: float = 0.15
+    min_image_share: float = 0.1
     refits: int = 2
-    prior_max_angle_deg: float = 15.0
-    prior_max_offset_m: float = 0.15
+    prior_max_angle_deg: float = 10.0
+    prior_max_offset_m: float = 0.05
     smoothing: float = 0.3
     reset_angle_deg: float = 1.0
     reset_offset_m: float = 0.005
@@ -98,8 +102,10 @@ class TablePlaneParams:
         if not 0.0 < self.max_incidence_deg < 90.0:
             raise ValueError(f'max_incidence_deg must be in (0, 90), got '
                              f'{self.max_incidence_deg}')
-        if not 0.0 <= self.min_inlier_share <= 1.0 or not 0.0 < self.smoothing <= 1.0:
-            raise ValueError('min_inlier_share must be in [0, 1] and smoothing in (0, 1]')
+        if not (0.0 <= self.min_inlier_share <= 1.0 and 0.0 <= self.min_image_share <= 1.0
+                and 0.0 < self.smoothing <= 1.0):
+            raise ValueError('min_inlier_share and min_image_share must be in [0, 1], '
+                             'smoothing in (0, 1]')
 
 
 @dataclass(frozen=True)
@@ -249,7 +255,7 @@ def find_table_plane(depth_m: np.ndarray, K: np.ndarray, *,
 
     Returns:
         the plane, or None when the depth holds too few valid points or no plane facing the
-        camera holds ``min_inlier_share`` of them.
+        camera holds ``min_inlier_share`` of them and ``min_image_share`` of the image.
 
     Raises:
         ValueError: ``depth_m`` is not 2-D or ``K`` not 3x3.
@@ -277,7 +283,9 @@ def find_table_plane(depth_m: np.ndarray, K: np.ndarray, *,
     if inliers is None:
         return None
     share = float(inliers.mean())
-    if share < params.min_inlier_share or not inliers.any():
+    pixels = len(range(params.stride_px // 2, np.shape(depth_m)[0], params.stride_px)) * \
+        len(range(params.stride_px // 2, np.shape(depth_m)[1], params.stride_px))
+    if share < params.min_inlier_share or inliers.sum() < params.min_image_share * pixels:
         return None
     return TablePlane(np.append(normal, offset), share, len(points),
                       points[inliers].mean(axis=0))
