@@ -127,8 +127,8 @@ class FitParams:
     lookalike_tolerance_m: float = 0.002
     fragment_overlap: float = 0.5
     table_plane: str = 'auto'
-    table_plane_max_angle_deg: float = 1.0
-    table_plane_max_offset_m: float = 0.005
+    table_plane_max_angle_deg: float = 0.1
+    table_plane_max_offset_m: float = 0.001
 
     def __post_init__(self) -> None:
         _check(self.min_roi_points >= 3, f'min_roi_points must be at least 3 (a pose needs '
