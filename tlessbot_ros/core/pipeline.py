@@ -151,7 +151,8 @@ class FrameResult:
 class PartJob:
     """One part to fit: its detection (filled in by the fit), its ROI cloud ((N, 3) metres in
     the optical frame of ``detection.view``), its class candidates best first, and that
-    camera's ``T_world_camera`` (None: no table frame)."""
+    view's table frame ``T_world_camera`` (:meth:`PerceptionPipeline.table_frame`; None: no
+    table frame, RANSAC)."""
 
     detection: Detection
     points: np.ndarray
