@@ -329,3 +329,28 @@ def test_the_plane_is_found_once_per_depth_image(part_on_the_table, monkeypatch)
     views = {'side': ViewInput(None, depth.copy(), SIDE.intrinsics)}   # the next frame
     pipeline.estimate_poses(views, labels, {1: 21}, fitter=_Recorder())
     assert len(calls) == 2
+
+
+def test_the_classifier_reads_shapes_in_the_observed_frame(part_on_the_table, monkeypatch):
+    from tlessbot_ros.core.recognise import LinearClassifier
+    from tlessbot_ros.data import DEFAULT_CLASSIFIER
+
+    _, depth, labels, _ = part_on_the_table
+    classifier = LinearClassifier.load(DEFAULT_CLASSIFIER)
+    assert classifier.uses_depth
+    frames = []
+    describe = LinearClassifier.describe
+
+    def spy(self, *args, **kwargs):
+        frames.append(kwargs.get('T_world_camera'))
+        return describe(self, *args, **kwargs)
+    monkeypatch.setattr(LinearClassifier, 'describe', spy)
+    rgb = np.full(depth.shape + (3,), 128, np.uint8)
+    views = {'side': ViewInput(rgb, depth, SIDE.intrinsics)}      # no extrinsics
+    guesses = PerceptionPipeline(classifier=classifier).classify({'side': rgb}, labels,
+                                                                 views=views)
+    assert set(guesses) == {1}
+    [T] = frames
+    points = np.random.default_rng(0).uniform(-0.1, 0.1, (10, 3)) + [0, 0, 0.6]
+    np.testing.assert_allclose(transform_points(T, points)[:, 2],
+                               transform_points(SIDE.T_world_camera, points)[:, 2], atol=5e-4)
