@@ -1,9 +1,7 @@
 """Real D435 aligned depth from ViSP's tutorial data through Image -> array -> point cloud."""
-import re
-from pathlib import Path
-
 import numpy as np
 import pytest
+from realsense_frames import read_visp_camera_xml, read_visp_depth_bin
 
 from tlessbot_ros.conversions import (
     RosbagsFactory,
@@ -14,25 +12,7 @@ from tlessbot_ros.conversions import (
     intrinsics_to_camera_info,
     pointcloud2_to_xyz,
 )
-from tlessbot_ros.core.common import CameraIntrinsics, project_points
-
-
-def read_visp_depth_bin(path: Path) -> np.ndarray:
-    """ViSP depth .bin: uint32 LE height, uint32 LE width, then height*width uint16 LE (mm)."""
-    raw = path.read_bytes()
-    height, width = np.frombuffer(raw[:8], '<u4')
-    return np.frombuffer(raw[8:], '<u2').reshape(int(height), int(width))
-
-
-def read_visp_camera_xml(path: Path) -> CameraIntrinsics:
-    text = path.read_text()
-    first = text.split('</camera>')[0]  # the colour camera comes first
-    value = {k: float(re.search(fr'<{k}>([^<]+)</{k}>', first).group(1))
-             for k in ('px', 'py', 'u0', 'v0')}
-    width = int(re.search(r'<image_width>(\d+)', first).group(1))
-    height = int(re.search(r'<image_height>(\d+)', first).group(1))
-    K = np.array([[value['px'], 0, value['u0']], [0, value['py'], value['v0']], [0, 0, 1]])
-    return CameraIntrinsics(width=width, height=height, K=K)
+from tlessbot_ros.core.common import project_points
 
 
 @pytest.fixture(scope='module')

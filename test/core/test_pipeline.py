@@ -6,7 +6,7 @@ import re
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.common import default_rig
+from tlessbot_ros.core.common import default_rig, transform_points
 from tlessbot_ros.core.pipeline import (
     ClassifyParams,
     FitParams,
@@ -245,4 +245,129 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'class_candidates', 'top_view_verify_below_margin', 'verify_accept_fitness',
         'verify_rmse_weight', 'fallback_min_fitness', 'lookalike_check',
         'lookalike_tolerance_m', 'parallel_views',
-        'fragment_overlap'])   # added after the split (one part, one pose)
+        'fragment_overlap',   # added after the split (one part, one pose)
+        'table_plane', 'table_plane_max_angle_deg', 'table_plane_max_offset_m'])   # #23
+
+
+# ------------------------------------------------------------------ the table plane seen in depth
+@pytest.fixture(scope='module')
+def part_on_the_table(part21_seen_from_the_side):
+    """The side view of object 21 on the table, the table in the depth too (D415-like noise):
+    (database, depth, labels, T_camera_object)."""
+    from tlessbot_ros.core.common import table_with_box
+
+    db, part_depth, mask, T_camera_object = part21_seen_from_the_side
+    _, table_depth, _ = table_with_box(SIDE.intrinsics, SIDE.T_world_camera,
+                                       box_size_m=(1e-6, 1e-6, 1e-6))
+    depth = np.where(mask, part_depth, table_depth)
+    depth = depth + np.random.default_rng(0).normal(0, 1.0, depth.shape) * 0.0021 * depth ** 2
+    return db, depth.astype(np.float32), {'side': mask.astype(np.uint16)}, T_camera_object
+
+
+class _Recorder:
+    """A PartFitter that fits nothing and keeps the jobs."""
+
+    def __init__(self):
+        self.jobs = []
+
+    def fit_all(self, jobs, fit_here, on_done):
+        self.jobs += jobs
+
+
+def _pose_error(T, T_gt):
+    cos = (np.trace(T[:3, :3].T @ T_gt[:3, :3]) - 1.0) / 2.0
+    return np.linalg.norm(T[:3, 3] - T_gt[:3, 3]), np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
+
+def test_one_view_without_extrinsics_takes_the_table_path(part_on_the_table, monkeypatch):
+    from tlessbot_ros.core.pose import estimator
+
+    db, depth, labels, T_gt = part_on_the_table
+    monkeypatch.setattr(estimator, 'ransac_candidates', lambda *a, **k: pytest.fail('RANSAC'))
+    views = {'side': ViewInput(rgb=None, depth_m=depth, intrinsics=SIDE.intrinsics)}
+    pipeline = PerceptionPipeline(templates=db)
+    [detection] = pipeline.estimate_poses(views, labels, {1: 21}, box_mode=True)
+    assert detection.pose.method == 'table'
+    error_m, error_deg = _pose_error(detection.pose.T_camera_object, T_gt)
+    assert error_m < 0.005 and error_deg < 5.0
+    table = pipeline.table_frames['side']
+    assert table.source == 'observed' and table.rig_angle_deg is None
+    # the frame's heights are the rig's, whatever its yaw and origin
+    points = np.random.default_rng(0).uniform(-0.1, 0.1, (10, 3)) + [0, 0, 0.6]
+    np.testing.assert_allclose(transform_points(table.T_world_camera, points)[:, 2],
+                               transform_points(SIDE.T_world_camera, points)[:, 2], atol=5e-4)
+
+
+def test_the_table_frame_in_each_mode(part_on_the_table):
+    from tlessbot_ros.core.common import make_transform, rotation_about_axis
+
+    db, depth, labels, _ = part_on_the_table
+    tilted = make_transform(rotation_about_axis([1.0, 0, 0], np.radians(3)), [0, 0, 0.01]) \
+        @ SIDE.T_world_camera          # a rig measured 3° and 1 cm off
+
+    def job_frame(mode, T_world_camera):
+        recorder = _Recorder()
+        pipeline = PerceptionPipeline(templates=db, fit_params=FitParams(table_plane=mode))
+        views = {'side': ViewInput(None, depth, SIDE.intrinsics, T_world_camera)}
+        pipeline.estimate_poses(views, labels, {1: 21}, fitter=recorder)
+        [job] = recorder.jobs
+        return job.T_world_camera, pipeline.table_frames['side']
+
+    # 'rig' without extrinsics: no table frame (every part to RANSAC), no plane looked for
+    T, table = job_frame('rig', None)
+    assert T is None and table.source == 'none' and table.observed is None
+    # 'auto' keeps a rig that agrees with the depth as it is (same results as before)
+    T, table = job_frame('auto', SIDE.T_world_camera)
+    assert T is SIDE.T_world_camera and table.rig_angle_deg < 0.1
+    assert abs(table.rig_offset_m) < 0.001
+    # ... and replaces one that does not by the observed plane, keeping the rig's yaw
+    T, table = job_frame('auto', tilted)
+    assert table.source == 'observed' and table.rig_angle_deg == pytest.approx(3.0, abs=0.1)
+    points = np.random.default_rng(0).uniform(-0.1, 0.1, (10, 3)) + [0, 0, 0.6]
+    np.testing.assert_allclose(transform_points(T, points)[:, 2],
+                               transform_points(SIDE.T_world_camera, points)[:, 2], atol=5e-4)
+    assert job_frame('rig', tilted)[0] is tilted
+
+
+def test_the_plane_is_found_once_per_depth_image(part_on_the_table, monkeypatch):
+    from tlessbot_ros.core import pipeline as pipeline_module
+
+    db, depth, labels, _ = part_on_the_table
+    calls = []
+    find = pipeline_module.find_table_plane
+    monkeypatch.setattr(pipeline_module, 'find_table_plane',
+                        lambda *a, **k: calls.append(1) or find(*a, **k))
+    pipeline = PerceptionPipeline(templates=db)
+    views = {'side': ViewInput(None, depth, SIDE.intrinsics)}
+    two = labels['side'] * 1
+    two[:, :320] *= 2
+    pipeline.estimate_poses(views, {'side': two}, {1: 21, 2: 21}, fitter=_Recorder())
+    assert len(calls) == 1
+    views = {'side': ViewInput(None, depth.copy(), SIDE.intrinsics)}   # the next frame
+    pipeline.estimate_poses(views, labels, {1: 21}, fitter=_Recorder())
+    assert len(calls) == 2
+
+
+def test_the_classifier_reads_shapes_in_the_observed_frame(part_on_the_table, monkeypatch):
+    from tlessbot_ros.core.recognise import LinearClassifier
+    from tlessbot_ros.data import DEFAULT_CLASSIFIER
+
+    _, depth, labels, _ = part_on_the_table
+    classifier = LinearClassifier.load(DEFAULT_CLASSIFIER)
+    assert classifier.uses_depth
+    frames = []
+    describe = LinearClassifier.describe
+
+    def spy(self, *args, **kwargs):
+        frames.append(kwargs.get('T_world_camera'))
+        return describe(self, *args, **kwargs)
+    monkeypatch.setattr(LinearClassifier, 'describe', spy)
+    rgb = np.full(depth.shape + (3,), 128, np.uint8)
+    views = {'side': ViewInput(rgb, depth, SIDE.intrinsics)}      # no extrinsics
+    guesses = PerceptionPipeline(classifier=classifier).classify({'side': rgb}, labels,
+                                                                 views=views)
+    assert set(guesses) == {1}
+    [T] = frames
+    points = np.random.default_rng(0).uniform(-0.1, 0.1, (10, 3)) + [0, 0, 0.6]
+    np.testing.assert_allclose(transform_points(T, points)[:, 2],
+                               transform_points(SIDE.T_world_camera, points)[:, 2], atol=5e-4)

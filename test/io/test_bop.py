@@ -3,9 +3,9 @@ import json
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.common import default_rig
+from tlessbot_ros.core.common import default_rig, make_transform
 from tlessbot_ros.errors import DatasetError
-from tlessbot_ros.io.bop import BopWriter, list_splits, read_split
+from tlessbot_ros.io.bop import BopWriter, copy_with_extrinsics, list_splits, read_split
 from tlessbot_ros.io.models import load_models
 from tlessbot_ros.sim.simulator import SimParams, Simulator
 
@@ -61,3 +61,28 @@ def test_errors(tmp_path, frames):
     (tmp_path / 'test_top' / '000000' / 'scene_gt.json').write_text('{broken')
     with pytest.raises(DatasetError, match='scene_gt.json'):
         next(read_split(tmp_path, 'test_top'))
+
+
+def test_copy_with_the_extrinsics_removed_or_moved(tmp_path, frames):
+    source = tmp_path / 'src'
+    with BopWriter(source, 'test_side') as writer:
+        for frame in frames:
+            writer.add(frame.scene_id, frame.im_id, frame.views['side'])
+    assert copy_with_extrinsics(source, tmp_path / 'none', lambda T: None) == 2
+    cameras = json.loads((tmp_path / 'none/test_side/000000/scene_camera.json').read_text())
+    assert all('cam_R_w2c' not in c and 'cam_K' in c for c in cameras.values())
+    for kept, copied in zip(read_split(source, 'test_side'), read_split(tmp_path / 'none',
+                                                                        'test_side')):
+        assert copied.T_world_camera is None
+        np.testing.assert_array_equal(copied.depth_m, kept.depth_m)
+        np.testing.assert_array_equal(copied.gt[0].T_camera_object, kept.gt[0].T_camera_object)
+    raised = make_transform(np.eye(3), [0.0, 0.0, 0.01])
+    assert copy_with_extrinsics(source, tmp_path / 'raised', lambda T: raised @ T) == 2
+    for kept, moved in zip(read_split(source, 'test_side'), read_split(tmp_path / 'raised',
+                                                                       'test_side')):
+        np.testing.assert_allclose(moved.T_world_camera, raised @ kept.T_world_camera,
+                                   atol=1e-9)
+    # the copy of a copy without extrinsics changes nothing more
+    assert copy_with_extrinsics(tmp_path / 'none', tmp_path / 'again', lambda T: None) == 0
+    with pytest.raises(DatasetError, match='exists'):
+        copy_with_extrinsics(source, tmp_path / 'none', lambda T: None)

@@ -141,3 +141,28 @@ def test_pose_workers_give_the_same_estimates(dataset, tmp_path):
         lines = (tmp_path / name / 'estimates.csv').read_text().splitlines()
         return [line.rsplit(',', 1)[0] for line in lines]   # all but the time column
     assert len(estimates('alone')) > 3 and estimates('workers') == estimates('alone')
+
+
+def test_one_view_without_extrinsics(dataset, tmp_path, capsys):
+    from tlessbot_ros.io.bop import copy_with_extrinsics
+
+    models, data = dataset
+    bare = tmp_path / 'bare'
+    copy_with_extrinsics(data, bare, lambda T: None)
+    templates = tmp_path / 'templates.npz'
+    assert main(['templates', '--models', str(models), '--out', str(templates),
+                 '--views', '4']) == 0
+    common = ['evaluate', '--models', str(models), '--oracle', 'boxes+classes',
+              '--templates', str(templates)]
+    capsys.readouterr()
+    assert main([*common, '--dataset', str(bare), '--split', 'test_side', '--out',
+                 str(tmp_path / 'o')]) == 0
+    out = capsys.readouterr().out
+    assert 'table plane per frame' in out and 'pose per part' in out
+    report = json.loads((tmp_path / 'o' / 'report.json').read_text())
+    assert report['pose']['recall_5cm5deg'] > 0.5
+    assert report['timing_ms']['table_plane'] is not None
+    assert 'pose, per part fitted' in (tmp_path / 'o' / 'report.md').read_text()
+    # two views need the extrinsics: the top view's poses are scored in the side camera
+    assert main([*common, '--dataset', str(bare), '--out', str(tmp_path / 'p')]) == 1
+    assert 'cam_R_w2c' in capsys.readouterr().err

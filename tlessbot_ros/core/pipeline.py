@@ -17,6 +17,12 @@ Stages (each a method, each usable alone, so the ROS nodes and the evaluator run
    the fitted pose, pixel by pixel on the measured depth (:mod:`tlessbot_ros.core.pose.lookalike`).
 
 Inputs per view are :class:`ViewInput`; a two-view frame is ``{'top': ..., 'side': ...}``.
+
+Every stage reads heights in a table frame (world z = 0 the table, z up): the view's
+``T_world_camera`` from the rig, or the table plane found in its own depth
+(:mod:`tlessbot_ros.core.common.table_plane`), as ``FitParams.table_plane`` says
+(:meth:`PerceptionPipeline.table_frame`). So one RGB-D view without extrinsics still takes the
+pose stage's fast table path.
 """
 from __future__ import annotations
 
@@ -36,8 +42,14 @@ from tlessbot_ros.core.common import (
     TOP,
     CameraIntrinsics,
     Rig,
+    TableFrame,
+    TablePlaneParams,
+    TablePlaneTracker,
+    choose_table_frame,
+    find_table_plane,
     mask_box,
     pixel_counts,
+    plane_of_frame,
     transform_points,
 )
 from tlessbot_ros.core.fragments import FragmentFilter
@@ -71,7 +83,8 @@ class ViewInput:
         depth_m: (H, W) float32 aligned depth in metres, NaN or 0 = invalid (None if absent).
         intrinsics: colour intrinsics (aligned depth shares them).
         T_world_camera: (4, 4) camera pose in the table frame (world z = 0 is the table), or
-            None when uncalibrated.
+            None when uncalibrated (then the table plane seen in the depth gives the frame,
+            see ``FitParams.table_plane``).
         background: empty-table image of this camera (for background subtraction), or None.
     """
 
@@ -126,18 +139,21 @@ class Detection:
 
 @dataclass
 class FrameResult:
-    """Detections of one frame, the label images, and per-stage wall times (ms)."""
+    """Detections of one frame, the label images, per-stage wall times (ms) and the table
+    frame each view was read in (with the rig's difference from the observed plane)."""
 
     detections: list[Detection]
     labels: dict[str, np.ndarray]
     timings_ms: dict[str, float] = field(default_factory=dict)
+    tables: dict[str, TableFrame] = field(default_factory=dict)
 
 
 @dataclass
 class PartJob:
     """One part to fit: its detection (filled in by the fit), its ROI cloud ((N, 3) metres in
     the optical frame of ``detection.view``), its class candidates best first, and that
-    camera's ``T_world_camera`` (None: no table frame)."""
+    view's table frame ``T_world_camera`` (:meth:`PerceptionPipeline.table_frame`; None: no
+    table frame, RANSAC)."""
 
     detection: Detection
     points: np.ndarray
@@ -207,6 +223,8 @@ class PerceptionPipeline:
         templates: a :class:`TemplateDatabase` (needed by :meth:`estimate_poses`).
         localise_params, classify_params, fit_params: the options of each stage
             (:mod:`tlessbot_ros.core.params`).
+        table_plane: how the table plane is found in each view's depth and tracked
+            (``fit_params.table_plane`` says whether it is used).
     """
 
     def __init__(self, *, rig: Rig | None = None, classifier: Classifier | None = None,
@@ -216,7 +234,8 @@ class PerceptionPipeline:
                  fit_params: FitParams = FitParams(),
                  segmentation: SegmentationParams = SegmentationParams(),
                  fusion: FusionParams = FusionParams(),
-                 pose: PoseParams = PoseParams()) -> None:
+                 pose: PoseParams = PoseParams(),
+                 table_plane: TablePlaneParams = TablePlaneParams()) -> None:
         self.rig = rig
         self.classifier = classifier
         self.localise_params = localise_params
@@ -224,6 +243,10 @@ class PerceptionPipeline:
         self.fit_params = fit_params
         self.segmentation = segmentation
         self.fusion = fusion
+        self.table_plane = table_plane
+        self._table_trackers: dict[str, TablePlaneTracker] = {}
+        # per view: (the depth and extrinsics it was found for, its frame)
+        self._tables: dict[str, tuple[tuple[object, object], TableFrame]] = {}
         self.pose_estimator = PoseEstimator(templates, params=pose) if templates else None
         self.lookalike = templates.lookalike_check(
             tolerance_m=fit_params.lookalike_tolerance_m) \
@@ -266,32 +289,74 @@ class PerceptionPipeline:
             self.pose_estimator.warm_up()
         if self.lookalike is not None:
             self.lookalike.warm_up()
+        if self.fit_params.table_plane != 'rig':   # compiles the plane search's loop
+            flat = np.full((48, 64), 0.5, np.float32)
+            find_table_plane(flat, np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]),
+                             params=self.table_plane)
+
+    # ------------------------------------------------------------------------ table frame
+    def table_frame(self, name: str, view: ViewInput) -> TableFrame:
+        """The table frame view ``name`` is read in, as ``fit_params.table_plane`` says.
+
+        Unless that is 'rig', the table plane is found in the view's depth (the rig's plane,
+        when given, says which surface is the table) and tracked over frames (one tracker
+        per view name: a fixed camera); the stages of one frame share it (found once per
+        depth image). The result also says how far the rig's table is from the observed one.
+        """
+        key = (view.depth_m, view.T_world_camera)
+        cached = self._tables.get(name)
+        if cached is not None and cached[0][0] is key[0] and cached[0][1] is key[1]:
+            return cached[1]
+        p = self.fit_params
+        observed, find_ms = None, 0.0
+        if p.table_plane != 'rig' and view.depth_m is not None:
+            t0 = time.perf_counter()
+            prior = None if view.T_world_camera is None else plane_of_frame(view.T_world_camera)
+            found = find_table_plane(view.depth_m, view.intrinsics.K, params=self.table_plane,
+                                     prior=prior)
+            tracker = self._table_trackers.setdefault(name, TablePlaneTracker(self.table_plane))
+            observed = tracker.update(found)
+            find_ms = 1e3 * (time.perf_counter() - t0)
+        frame = choose_table_frame(view.T_world_camera, observed, mode=p.table_plane,
+                                   max_angle_deg=p.table_plane_max_angle_deg,
+                                   max_offset_m=p.table_plane_max_offset_m, find_ms=find_ms)
+        self._tables[name] = (key, frame)
+        return frame
+
+    @property
+    def table_frames(self) -> dict[str, TableFrame]:
+        """The latest table frame of each view (e.g. for diagnostics: ``source``,
+        ``rig_angle_deg``, ``rig_offset_m``, ``find_ms``)."""
+        return {name: frame for name, (_, frame) in self._tables.items()}
 
     # ---------------------------------------------------------------------------- stage 1
     def localise(self, views: dict[str, ViewInput]) -> FusionResult:
         """Instance label images of a two-view frame ('top' and 'side').
 
-        A view with aligned depth and a camera pose is segmented with the depth cue (height
-        above the table) fused with the colour cues; otherwise from colour alone (the paper).
+        A view with aligned depth and a table frame (:meth:`table_frame`) is segmented with
+        the depth cue (height above the table) fused with the colour cues; otherwise from
+        colour alone (the paper).
         """
         missing = set(CAMERA_NAMES) - set(views)
         if missing:
             raise ValueError(f'localise needs the top and side views; missing {sorted(missing)}')
 
-        def seg(view: ViewInput):
-            with_depth = view.depth_m is not None and view.T_world_camera is not None
+        def seg(name: str):
+            view = views[name]
+            T_world_camera = None if view.depth_m is None else \
+                self.table_frame(name, view).T_world_camera
+            with_depth = T_world_camera is not None
             return segment(view.rgb, background=view.background,
                            depth_m=view.depth_m if with_depth else None,
                            intrinsics=view.intrinsics if with_depth else None,
-                           T_world_camera=view.T_world_camera if with_depth else None,
-                           params=self.segmentation)
+                           T_world_camera=T_world_camera, params=self.segmentation)
 
         if self.localise_params.parallel_views:
-            top_future = _view_thread().submit(seg, views[TOP])
-            side = seg(views[SIDE])
+            top_future = _view_thread().submit(seg, TOP)
+            side = seg(SIDE)
             top = top_future.result()   # re-raises the top view's error here
         else:
-            top, side = seg(views[TOP]), seg(views[SIDE])
+            top, side = seg(TOP), seg(SIDE)
         depth_top = views[TOP].depth_m
         return fuse_views(top, side, rig=self.rig, side_rgb=views[SIDE].rgb,
                           depth_top_m=None if depth_top is None else np.nan_to_num(depth_top),
@@ -310,8 +375,9 @@ class PerceptionPipeline:
             labels: per view, (H, W) instance label images (0 = background).
             views: per view, the :class:`ViewInput` with the aligned depth, intrinsics and
                 ``T_world_camera``; a model trained with shape features ("ours") reads the
-                metric shape of each region from them. Without them (or without depth or
-                extrinsics in a view) such a model falls back to its HOG part.
+                metric shape of each region from them, in the view's table frame
+                (:meth:`table_frame`). Without them (or without depth or a table frame in a
+                view) such a model falls back to its HOG part.
         """
         if self.classifier is None:
             raise ValueError('no classifier loaded')
@@ -330,7 +396,7 @@ class PerceptionPipeline:
             data = None if views is None else views.get(view)
             if self.classifier.uses_depth and data is not None and data.depth_m is not None:
                 depth = {'depth_m': data.depth_m, 'K': data.intrinsics.K,
-                         'T_world_camera': data.T_world_camera}
+                         'T_world_camera': self.table_frame(view, data).T_world_camera}
             features = self.classifier.describe(rgb[view], masks, [mask_box(m) for m in masks],
                                                 **depth)
             for instance, scores in zip(instances, self.classifier.decision_function(features)):
@@ -374,7 +440,8 @@ class PerceptionPipeline:
         """Pose of every instance with a known class.
 
         Args:
-            views: per view, the depth, intrinsics and extrinsics.
+            views: per view, the depth, intrinsics and extrinsics (each part is fitted in its
+                view's table frame, :meth:`table_frame`: without one, by RANSAC).
             labels: instance label images per view (in box mode, each instance is its
                 filled box, and points on the table plane are discarded).
             classes: {instance: obj_id} or {instance: (obj_id, ...)} candidates best first
@@ -412,12 +479,13 @@ class PerceptionPipeline:
             detections.append(detection)
             if data.depth_m is not None:
                 points = roi_cloud(data.depth_m, mask, data.intrinsics)
-                if box_mode and data.T_world_camera is not None:
-                    height = transform_points(data.T_world_camera, points)[:, 2]
+                T_world_camera = self.table_frame(view, data).T_world_camera
+                if box_mode and T_world_camera is not None:
+                    height = transform_points(T_world_camera, points)[:, 2]
                     points = points[height > self.fit_params.table_clearance_m]
                 detection.n_points = len(points)
                 if len(points) >= self.fit_params.min_roi_points:
-                    jobs.append(PartJob(detection, points, candidates, data.T_world_camera))
+                    jobs.append(PartJob(detection, points, candidates, T_world_camera))
                     continue
             done(detection)
         arbiter = self._fragment_filter(jobs, done)
@@ -520,7 +588,7 @@ class PerceptionPipeline:
             detection.class_score, detection.class_margin = guess.score, guess.margin
         return FrameResult(detections, fusion.labels, {
             'segmentation': 1e3 * (t1 - t0), 'classification': 1e3 * (t2 - t1),
-            'pose': 1e3 * (t3 - t2), 'frame': 1e3 * (t3 - t0)})
+            'pose': 1e3 * (t3 - t2), 'frame': 1e3 * (t3 - t0)}, self.table_frames)
 
 
 def _instance_ids(counts: dict[str, np.ndarray]) -> list[int]:

@@ -17,7 +17,9 @@ In memory everything is in metres.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+import os
+import shutil
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -298,3 +300,52 @@ def _read_image_entry(split: str, scene_dir: Path, im_id: int, cam: dict, gts: l
             px_count_visib=int(info['px_count_visib']) if 'px_count_visib' in info else None))
     return BopImage(split, int(scene_dir.name), im_id, rgb, depth_m, intrinsics, T_world_camera,
                     gt_list, depth_scale)
+
+
+def copy_with_extrinsics(source: str | Path, target: str | Path,
+                         change: Callable[[np.ndarray], np.ndarray | None]) -> int:
+    """Copy a BOP dataset with every image's camera pose changed, e.g. removed to evaluate
+    one view without extrinsics (``change=lambda T: None``) or moved to play a rig that was
+    measured wrong. Images are hard-linked (copied across file systems); only each
+    ``scene_camera.json`` is rewritten.
+
+    Args:
+        change: maps an image's ``T_world_camera`` (4, 4) to the one to write, or to None to
+            drop its ``cam_R_w2c`` / ``cam_t_w2c``.
+
+    Returns:
+        the number of camera entries changed.
+
+    Raises:
+        DatasetError: ``source`` is not a BOP dataset or ``target`` exists.
+    """
+    source, target = Path(source), Path(target)
+    list_splits(source)   # raises on a folder that is not a BOP dataset
+    if target.exists():
+        raise DatasetError(f'{target} exists; give a new folder')
+    changed = 0
+    for folder, _, files in os.walk(source):
+        out = target / Path(folder).relative_to(source)
+        out.mkdir(parents=True, exist_ok=True)
+        for name in files:
+            if name == 'scene_camera.json':
+                cameras = _load_json(Path(folder) / name)
+                for entry in cameras.values():
+                    changed += _change_extrinsics(entry, change)
+                (out / name).write_text(json.dumps(cameras, indent=1), encoding='utf-8')
+                continue
+            try:
+                os.link(Path(folder) / name, out / name)
+            except OSError:
+                shutil.copy2(Path(folder) / name, out / name)
+    return changed
+
+
+def _change_extrinsics(entry: dict, change: Callable[[np.ndarray], np.ndarray | None]) -> int:
+    """Apply ``change`` to one scene_camera.json entry in place; 1 if it had extrinsics."""
+    if 'cam_R_w2c' not in entry or 'cam_t_w2c' not in entry:
+        return 0
+    T = change(invert_transform(_pose_from_mm(entry.pop('cam_R_w2c'), entry.pop('cam_t_w2c'))))
+    if T is not None:
+        entry['cam_R_w2c'], entry['cam_t_w2c'] = _pose_mm(invert_transform(np.asarray(T)))
+    return 1

@@ -16,7 +16,7 @@ Two estimators share one refinement and one scoring (:class:`~tlessbot_ros.core.
   nearest-sample grid of the model, the best few are refined in (yaw, x, y) by point-to-plane
   Gauss-Newton steps on that grid, and the winner gets a full 6-DOF point-to-plane ICP.
   This needs the table frame: ``T_world_camera`` with the table at world z = 0 (the rig's
-  extrinsics, or :func:`table_frame_from_plane` of a fitted plane).
+  extrinsics, or the plane seen in the depth: :mod:`tlessbot_ros.core.common.table_plane`).
 
 Poses are ``T_camera_object`` (4, 4) float64, metres, in the optical frame of the ROI cloud.
 
@@ -34,6 +34,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from tlessbot_ros.core.common import invert_transform, make_transform, transform_points
+from tlessbot_ros.core.common.table_plane import table_frame_from_plane  # noqa: F401 (API)
 from tlessbot_ros.core.pose.buckets import PointBuckets
 from tlessbot_ros.core.pose.candidates import PoseCandidate, PoseResult
 from tlessbot_ros.core.pose.cloud import remove_statistical_outliers, voxel_downsample
@@ -45,32 +46,6 @@ from tlessbot_ros.core.pose.database import (
 from tlessbot_ros.core.pose.params import METHODS, PoseParams
 from tlessbot_ros.core.pose.ransac import ransac_candidates
 from tlessbot_ros.core.pose.refinement import Refiner
-
-
-def table_frame_from_plane(plane: np.ndarray, *, points_above: np.ndarray | None = None
-                           ) -> np.ndarray:
-    """A ``T_world_camera`` whose world z = 0 is a fitted table plane (z up, towards the camera).
-
-    Args:
-        plane: (4,) a, b, c, d of the plane in the camera frame (e.g. ``cloud.fit_plane``).
-        points_above: unused placeholder for a future orientation check; the normal is turned
-            towards the camera, which always looks at the table from above.
-    """
-    n = np.asarray(plane[:3], np.float64)
-    norm = np.linalg.norm(n)
-    if norm < 1e-9:
-        raise ValueError('plane normal is zero')
-    n, d = n / norm, float(plane[3]) / norm
-    if d < 0:  # make the camera origin lie on the positive side: n . 0 + d > 0
-        n, d = -n, -d
-    origin = -d * n  # the foot of the camera centre on the plane
-    x = np.cross([0.0, 1.0, 0.0], n)
-    if np.linalg.norm(x) < 1e-6:
-        x = np.cross([1.0, 0.0, 0.0], n)
-    x /= np.linalg.norm(x)
-    y = np.cross(n, x)
-    T_camera_world = make_transform(np.stack([x, y, n], axis=1), origin)
-    return invert_transform(T_camera_world)
 
 
 def _rodrigues(omega: np.ndarray) -> np.ndarray:

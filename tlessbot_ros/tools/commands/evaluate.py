@@ -160,6 +160,12 @@ def run(args: argparse.Namespace) -> int:
           f'5cm5deg {_fmt(pose["recall_5cm5deg"])}, VSD<0.3 {_fmt(pose["recall_vsd03"])}, '
           f'ADD-S {_fmt(pose["recall_adds01d"])}, MSSD AR {_fmt(pose["mssd_recall"])} '
           f'-> {args.out}')
+    timing = report['timing_ms']
+    if timing.get('pose_per_part') is not None:
+        plane = timing.get('table_plane')
+        print(f'median ms: pose per part {timing["pose_per_part"]:.1f}, pose per frame '
+              f'{timing["pose"]:.1f}' + ('' if plane is None else
+                                        f', table plane per frame (all views) {plane:.1f}'))
     return 0
 
 

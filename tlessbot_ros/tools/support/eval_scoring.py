@@ -110,7 +110,9 @@ class FrameOutput:
         classified: True when the classes of ``boxes`` came from the classifier.
         classes_by_gt: {GT index: class} when the classifier ran on ground-truth boxes
             (``--oracle boxes``), else None.
-        timings_ms: per-stage wall times of this frame.
+        timings_ms: per-stage wall times of this frame (ms); ``pose_per_part``: the pose
+            stage over the parts it fitted, ``table_plane``: finding the table plane in the
+            views' depth (all views).
     """
 
     poses: list[BopEstimate] = field(default_factory=list)
@@ -260,6 +262,7 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
             'recall_5cm5deg', 'recall_1cm5deg', 'recall_vsd03', 'recall_adds01d',
             'mssd_recall', 'mspd_recall')},
         'timing_ms': {stage: median(stage) for stage in (
-            'segmentation', 'classification', 'pose', 'frame')},
+            'segmentation', 'classification', 'pose', 'frame', 'pose_per_part',
+            'table_plane')},
         'per_object': per_object,
     }

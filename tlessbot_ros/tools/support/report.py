@@ -7,6 +7,9 @@ _POSE_COLUMNS = (('recall_5cm5deg', '5 cm / 5Â°'), ('recall_1cm5deg', '1 cm / 5Â
                  ('recall_vsd03', 'VSD < 0.3'), ('recall_adds01d', 'ADD-S < 0.1 d'),
                  ('mssd_recall', 'AR MSSD'), ('mspd_recall', 'AR MSPD'))
 _STAGES = ('segmentation', 'classification', 'pose', 'frame')
+# shown in report.md when measured, not plotted with the stages
+_PER_PART_TIMES = (('pose_per_part', 'pose, per part fitted'),
+                   ('table_plane', 'table plane, all views'))
 
 
 def _cell(value) -> str:
@@ -44,6 +47,9 @@ def markdown(report: dict) -> str:
               '| stage | ms |', '|---|---|']
     for stage in _STAGES:
         lines.append(f'| {stage} | {_cell(report["timing_ms"].get(stage))} |')
+    for key, name in _PER_PART_TIMES:
+        if report['timing_ms'].get(key) is not None:
+            lines.append(f'| {name} | {_cell(report["timing_ms"][key])} |')
     return '\n'.join(lines) + '\n'
 
 
