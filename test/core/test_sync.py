@@ -88,10 +88,10 @@ def test_a_looped_bag_is_paired_again_on_every_pass_and_each_loop_counted():
     jumps = _jumps()
     sync = StampSynchroniser(['color', 'depth'], slop_ns=5 * MS, queue_size=5, jumps=jumps)
     emitted = _looped(sync, frames=4, passes=3)
-    # A pass's first item of each stream is held until the next confirms the jump: frame 0 of
-    # the later passes is lost, the rest pair again.
+    # A pass's first items are held until two more confirm the jump: frames 0 and 1 of the
+    # later passes are lost, the rest pair again.
     first = [{'color': f'color{i}', 'depth': f'depth{i}'} for i in range(4)]
-    assert emitted == first + first[1:] + first[1:]
+    assert emitted == first + first[2:] + first[2:]
     assert jumps.count == 2 and jumps.last_jump_ns == -3 * S // 2
     assert sync.pending() == {'color': 0, 'depth': 0}
 
@@ -110,19 +110,20 @@ def test_a_jump_empties_the_queues_and_the_old_timelines_stragglers_are_dropped(
     classes of the old pass still arrive; they must not pair, nor count as another jump."""
     jumps = _jumps()
     sync = StampSynchroniser(['depth', 'classes'], slop_ns=5 * MS, queue_size=5, jumps=jumps)
-    old = [100 * S + i * S // 2 for i in range(4)]
+    old = [100 * S + i * S // 2 for i in range(5)]
     for stamp in old[:3]:
         sync.add('depth', stamp, 'old depth')
         assert sync.add('classes', stamp, 'old classes')
     sync.add('depth', old[3], 'old depth 3')          # its classes are on their way
-    assert sync.add('depth', old[0], 'new depth 0') is None   # held: one item is no jump yet
+    assert sync.add('depth', old[0], 'new depth 0') is None   # held: no jump yet
+    assert sync.add('depth', old[1], 'new depth 1') is None
     assert jumps.count == 0
-    assert sync.add('depth', old[1], 'new depth 1') is None   # the next confirms it
+    assert sync.add('depth', old[2], 'new depth 2') is None   # the second confirms it
     assert jumps.count == 1 and sync.pending() == {'depth': 1, 'classes': 0}
-    assert sync.add('classes', old[3], 'old classes 3') is None             # a straggler
+    assert sync.add('classes', old[4], 'old classes 4') is None             # a straggler
     assert sync.pending() == {'depth': 1, 'classes': 0}
-    assert sync.add('classes', old[1], 'new classes 1') == {'depth': 'new depth 1',
-                                                            'classes': 'new classes 1'}
+    assert sync.add('classes', old[2], 'new classes 2') == {'depth': 'new depth 2',
+                                                            'classes': 'new classes 2'}
     assert jumps.count == 1                            # one jump, seen on both streams
 
 
@@ -131,7 +132,8 @@ def test_stamps_leaping_forward_are_a_jump_too_and_small_steps_are_not():
     assert jumps.check('a', 100 * S) == 'in order'
     assert jumps.check('a', 100 * S - S // 20) == 'in order'      # 50 ms back: a correction
     assert jumps.check('a', 130 * S) == 'stale'                   # held ...
-    assert jumps.check('a', 130 * S + S // 30) == 'jump'          # ... and confirmed
+    assert jumps.check('a', 130 * S + S // 30) == 'stale'
+    assert jumps.check('a', 130 * S + S // 15) == 'jump'          # ... and confirmed
     assert jumps.last_jump_ns == 30 * S + S // 20
     assert jumps.check('b', 100 * S) == 'in order'                # first item of b: no history
     assert jumps.check('a', 131 * S) == 'in order'
@@ -142,10 +144,11 @@ def test_a_stray_item_off_the_timeline_is_dropped_and_no_jump():
     jumps = _jumps()
     for i in range(3):
         assert jumps.check('a', 100 * S + i * S // 30) == 'in order'
-    for stray in (5 * S, 10**9 * S, 90 * S):
-        assert jumps.check('a', stray) == 'stale'
+    for strays in ((5 * S,), (10**9 * S, 10**9 * S + S), (90 * S, 91 * S)):
+        for stray in strays:   # even two in line with each other are not yet a jump
+            assert jumps.check('a', stray) == 'stale'
         assert jumps.check('a', 100 * S + 3 * S // 30) == 'in order'
-    assert jumps.count == 0 and jumps.outliers == 3
+    assert jumps.count == 0 and jumps.outliers == 5
 
 
 def test_a_stream_whose_clock_did_not_jump_joins_after_the_stale_limit():
@@ -154,7 +157,8 @@ def test_a_stream_whose_clock_did_not_jump_joins_after_the_stale_limit():
         jumps.check('top', 100 * S + i * S)
         jumps.check('side', 100 * S + i * S)
     assert jumps.check('top', 50 * S) == 'stale'                  # only top's clock stepped
-    assert jumps.check('top', 51 * S) == 'jump'
+    assert jumps.check('top', 51 * S) == 'stale'
+    assert jumps.check('top', 52 * S) == 'jump'
     verdicts = [jumps.check('side', 103 * S + i * S) for i in range(5)]
     assert verdicts == ['stale'] * 3 + ['in order'] * 2
     assert jumps.count == 1

@@ -111,12 +111,14 @@ class StampJumps:
     item that continues its old timeline is :data:`STALE` (drop it), at most ``stale_limit``
     in a row (a stream whose clock did not jump joins the new timeline as it is).
 
-    A single item out of line is not yet a jump: a stray message (another publisher's, a
-    corrupt stamp) would otherwise throw every queue away. The first item off a stream's
-    timeline is held as a candidate and dropped (:data:`STALE`, counted in :attr:`outliers`);
-    the jump is declared when the stream's next item continues the candidate's timeline, and the
-    candidate is forgotten when it continues the old one. A real jump so costs each stream its
-    first item of the new timeline.
+    A few items out of line are not yet a jump: a stray message (another publisher's, a corrupt
+    stamp) would otherwise throw every queue away. Items off a stream's timeline are held as a
+    candidate timeline and dropped (:data:`STALE`, counted in :attr:`outliers`); the jump is
+    declared when ``confirmations`` more items of the stream follow the candidate's first in
+    line, and the candidate is forgotten when the stream's old timeline goes on. A real jump
+    so costs the stream that shows it first its first ``confirmations`` items (2: two frames).
+    One confirmation was not enough under garbage at 100 Hz: two stray stamps a few seconds
+    apart, one after the other, confirmed a jump every second or two.
 
     Attributes:
         count: jumps seen.
@@ -124,9 +126,12 @@ class StampJumps:
         outliers: items off their stream's timeline that no next item confirmed (so far).
     """
 
-    def __init__(self, *, back_ns: int, forward_ns: int, stale_limit: int = 30) -> None:
-        if back_ns <= 0 or forward_ns <= 0 or stale_limit < 0:
-            raise ValueError('back_ns and forward_ns must be > 0 and stale_limit >= 0')
+    def __init__(self, *, back_ns: int, forward_ns: int, stale_limit: int = 30,
+                 confirmations: int = 2) -> None:
+        if back_ns <= 0 or forward_ns <= 0 or stale_limit < 0 or confirmations < 0:
+            raise ValueError('back_ns and forward_ns must be > 0, stale_limit and '
+                             'confirmations >= 0')
+        self.confirmations = confirmations
         self.back_ns, self.forward_ns = int(back_ns), int(forward_ns)
         self.stale_limit = stale_limit
         self.count = 0
@@ -135,7 +140,8 @@ class StampJumps:
         self._last: dict[str, int] = {}     # per stream: its newest stamp
         self._epoch: dict[str, int] = {}    # per stream: the jump count its newest stamp saw
         self._stale: dict[str, int] = {}    # per stream: stale items since the last jump
-        self._candidate: dict[str, int] = {}   # per stream: an item off its timeline, held
+        # per stream: (first, newest stamp, items) of a timeline off the stream's, held
+        self._candidate: dict[str, tuple[int, int, int]] = {}
         self.outliers = 0
 
     def check(self, stream: str, stamp_ns: int) -> Verdict:
@@ -145,19 +151,22 @@ class StampJumps:
         verdict = IN_ORDER
         if last is not None and self._epoch[stream] == self.count:
             if not self._in_line(last, stamp_ns):
-                candidate = self._candidate.get(stream)
-                if candidate is None or not self._in_line(candidate, stamp_ns):
-                    self._candidate[stream] = stamp_ns   # confirmed, or not, by the next item
-                    self.outliers += 1
+                first, newest, seen = self._candidate.get(stream, (None, None, 0))
+                if newest is None or not self._in_line(newest, stamp_ns):
+                    first, seen = stamp_ns, 0   # a new candidate timeline
+                seen += 1
+                self.outliers += 1
+                if seen <= self.confirmations:   # held until enough items follow it
+                    self._candidate[stream] = (first, stamp_ns, seen)
                     return STALE
                 del self._candidate[stream]
-                self.outliers -= 1   # the candidate was the new timeline's first item
+                self.outliers -= seen   # they were the new timeline's first items
                 self.count += 1
-                self.last_jump_ns, self._target_ns = candidate - last, candidate
+                self.last_jump_ns, self._target_ns = first - last, first
                 self._stale.clear()
                 verdict = JUMP
             else:
-                self._candidate.pop(stream, None)   # the old timeline goes on: a stray item
+                self._candidate.pop(stream, None)   # the old timeline goes on: stray items
         elif last is not None and not self._joins_new_timeline(stamp_ns, last) and \
                 self._stale.get(stream, 0) < self.stale_limit:
             self._stale[stream] = self._stale.get(stream, 0) + 1
