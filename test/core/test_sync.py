@@ -69,7 +69,8 @@ S = 1_000_000_000
 def _jumps(**kwargs):
     from tlessbot_ros.core.common import StampJumps
 
-    return StampJumps(back_ns=kwargs.pop('back_ns', S // 10), forward_ns=10 * S, **kwargs)
+    return StampJumps(back_ns=kwargs.pop('back_ns', S // 10), forward_ns=10 * S,
+                      confirmations=kwargs.pop('confirmations', 2), **kwargs)
 
 
 def _looped(sync, frames: int, passes: int, streams=('color', 'depth')):
@@ -131,9 +132,9 @@ def test_stamps_leaping_forward_are_a_jump_too_and_small_steps_are_not():
     jumps = _jumps()
     assert jumps.check('a', 100 * S) == 'in order'
     assert jumps.check('a', 100 * S - S // 20) == 'in order'      # 50 ms back: a correction
-    assert jumps.check('a', 130 * S) == 'stale'                   # held ...
-    assert jumps.check('a', 130 * S + S // 30) == 'stale'
-    assert jumps.check('a', 130 * S + S // 15) == 'jump'          # ... and confirmed
+    assert jumps.check('a', 130 * S) == 'in order'                # a leap goes through ...
+    assert jumps.check('a', 130 * S + S // 30) == 'in order'
+    assert jumps.check('a', 130 * S + S // 15) == 'jump'          # ... and is confirmed
     assert jumps.last_jump_ns == 30 * S + S // 20
     assert jumps.check('b', 100 * S) == 'in order'                # first item of b: no history
     assert jumps.check('a', 131 * S) == 'in order'
@@ -144,11 +145,19 @@ def test_a_stray_item_off_the_timeline_is_dropped_and_no_jump():
     jumps = _jumps()
     for i in range(3):
         assert jumps.check('a', 100 * S + i * S // 30) == 'in order'
-    for strays in ((5 * S,), (10**9 * S, 10**9 * S + S), (90 * S, 91 * S)):
+    for strays in ((5 * S,), (50 * S, 51 * S), (90 * S, 91 * S)):
         for stray in strays:   # even two in line with each other are not yet a jump
             assert jumps.check('a', stray) == 'stale'
         assert jumps.check('a', 100 * S + 3 * S // 30) == 'in order'
+    assert jumps.check('a', 10**9 * S) == 'in order'   # a stray far ahead goes through, but
+    assert jumps.check('a', 100 * S + 4 * S // 30) == 'in order'   # does not move the timeline
     assert jumps.count == 0 and jumps.outliers == 5
+
+
+def test_without_confirmations_every_step_back_is_a_jump_at_once():
+    jumps = _jumps(confirmations=0)
+    assert jumps.check('a', 100 * S) == 'in order'
+    assert jumps.check('a', 50 * S) == 'jump' and jumps.last_jump_ns == -50 * S
 
 
 def test_a_stream_whose_clock_did_not_jump_joins_after_the_stale_limit():

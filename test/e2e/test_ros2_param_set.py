@@ -24,10 +24,16 @@ FRAME_TIMEOUT_S = 120.0
 
 
 def param(*args: str):
-    """``ros2 param <verb> --no-daemon <node> ...`` (waiting up to 30 s for the node)."""
+    """``ros2 param <verb> --no-daemon <node> ...`` (waiting up to 30 s for the node; asked
+    again, up to twice, when its fresh participant did not discover the node's parameter
+    services in time: seen once on a loaded 2-core machine)."""
     verb, node, *rest = args
-    return run_ros2(['param', verb, '--no-daemon', '--timeout', '30', node, *rest],
-                    timeout_s=120.0)
+    for _ in range(3):
+        result = run_ros2(['param', verb, '--no-daemon', '--timeout', '30', node, *rest],
+                          timeout_s=120.0)
+        if 'Wait for service timed out' not in result.stderr:
+            break
+    return result
 
 
 class Graph:

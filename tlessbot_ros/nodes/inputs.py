@@ -129,7 +129,8 @@ class TwoViewInputs:
         self.sync = sync
         self.jumps = StampJumps(back_ns=int(sync.jump_back_s * 1e9),
                                 forward_ns=int(sync.jump_forward_s * 1e9),
-                                stale_limit=sync.queue_size)
+                                stale_limit=sync.queue_size,
+                                confirmations=sync.jump_confirmations)
         self._per_camera = {
             camera: StampSynchroniser(self._keys, slop_ns=int(sync.slop_s * 1e9),
                                       queue_size=sync.queue_size) for camera in self._cameras}
@@ -141,9 +142,10 @@ class TwoViewInputs:
         ``queue_size`` or ``max_age_s`` change, pairing starts again: messages waiting for
         partners are dropped (and counted)."""
         old, self.sync = self.sync, sync
-        if (old.slop_s, old.queue_size, old.max_age_s, old.jump_back_s, old.jump_forward_s) == \
-                (sync.slop_s, sync.queue_size, sync.max_age_s, sync.jump_back_s,
-                 sync.jump_forward_s):
+        if (old.slop_s, old.queue_size, old.max_age_s, old.jump_back_s, old.jump_forward_s,
+                old.jump_confirmations) == (sync.slop_s, sync.queue_size, sync.max_age_s,
+                                            sync.jump_back_s, sync.jump_forward_s,
+                                            sync.jump_confirmations):
             return
         self._dropped_before += self._paired_dropped() + self.waiting
         self._build_synchronisers(sync)

@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--input-depth', type=int, default=None,
                         help="the stages' input_depth (DDS history per input topic; default: "
                              "the nodes' own)")
+    parser.add_argument('--jump-confirmations', type=int, default=None,
+                        help="the stages' sync.jump_confirmations (2: a stray stamp is dropped "
+                             "instead of emptying every queue; default: the nodes' own)")
     parser.add_argument('--classifier', default=str(DEFAULT_CLASSIFIER))
     parser.add_argument('--templates', default=str(DEFAULT_TEMPLATES))
     parser.add_argument('--models-info', default=str(DEFAULT_MODELS_INFO))
@@ -109,7 +112,9 @@ def run(args: argparse.Namespace) -> int:
                     ros_args=['-p', f'model_path:={args.classifier}',
                               '-p', f'templates_path:={args.templates}',
                               *(['-p', f'input_depth:={args.input_depth}']
-                                if args.input_depth else [])])
+                                if args.input_depth else []),
+                              *(['-p', f'sync.jump_confirmations:={args.jump_confirmations}']
+                                if args.jump_confirmations is not None else [])])
     scores = score_phases(fuzz, args.bag, load_symmetries(args.models_info))
     text = '\n\n'.join([sent_summary(fuzz), node_table(fuzz), phase_table(scores)])
     print(text)
