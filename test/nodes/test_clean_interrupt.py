@@ -82,3 +82,26 @@ def test_the_graph_stops_cleanly_while_it_processes_a_looped_bag():
     assert not unclean_lines(launch.output), launch.output
     for node in ('localiser', 'classifier', 'pose_estimator', 'replay'):
         assert f'[{node}]' in launch.output, launch.output   # each one's lines were seen
+
+
+def test_a_signal_whose_interrupt_was_swallowed_still_stops_the_loop():
+    """The handler's KeyboardInterrupt can land inside a finaliser, which swallows it; the spin
+    loops' raise_if_interrupted() then still stops the tool."""
+    import signal
+
+    from tlessbot_ros.nodes import common
+
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        common.raise_if_interrupted()                 # nothing received: no interrupt
+        assert common.interrupt_on_signals()
+        try:
+            signal.raise_signal(signal.SIGTERM)
+        except KeyboardInterrupt:
+            pass                                      # as if a finaliser had swallowed it
+        with pytest.raises(KeyboardInterrupt):
+            common.raise_if_interrupted()
+    finally:
+        common._SIGNALS_RECEIVED.clear()
+        for signum, handler in saved.items():
+            signal.signal(signum, handler)

@@ -100,6 +100,19 @@ def init_ros(args: list[str] | None = None) -> None:
     interrupt_on_signals()
 
 
+# Signals :func:`interrupt_on_signals` turned into KeyboardInterrupt (the first one only).
+_SIGNALS_RECEIVED: list[int] = []
+
+
+def raise_if_interrupted() -> None:
+    """Raise KeyboardInterrupt if SIGINT or SIGTERM came. Spin loops call it after each
+    wait: the handler's KeyboardInterrupt is lost when it lands inside a finaliser (Python
+    prints "Exception ignored in: <function Future.__del__ ...>" and goes on), and the tool
+    would then never stop (seen once in `tlessbot record`)."""
+    if _SIGNALS_RECEIVED:
+        raise KeyboardInterrupt
+
+
 def interrupt_on_signals() -> bool:
     """Make SIGINT and SIGTERM raise KeyboardInterrupt in the main thread, once.
 
@@ -116,11 +129,10 @@ def interrupt_on_signals() -> bool:
 
     if threading.current_thread() is not threading.main_thread():
         return False
-    received: list[int] = []
 
     def on_signal(signum: int, frame: object) -> None:
-        if not received:
-            received.append(signum)
+        if not _SIGNALS_RECEIVED:
+            _SIGNALS_RECEIVED.append(signum)
             raise KeyboardInterrupt
 
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -144,6 +156,7 @@ def spin_until_interrupted(node: Node) -> None:
     try:
         while rclpy.ok(context=node.context):
             executor.spin_once(timeout_sec=SIGNAL_POLL_S)
+            raise_if_interrupted()
     finally:
         executor.remove_node(node)
 

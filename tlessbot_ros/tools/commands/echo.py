@@ -79,6 +79,8 @@ def _wait_for_publisher(node: Any, topic: str, deadline: float | None,
     """The type of ``topic`` once it has a publisher (the QoS is chosen from the publishers)."""
     import rclpy
 
+    from tlessbot_ros.nodes.common import raise_if_interrupted
+
     noticed_at = time.monotonic() + WAITING_NOTICE_S
     while True:
         types = dict(node.get_topic_names_and_types())
@@ -92,6 +94,7 @@ def _wait_for_publisher(node: Any, topic: str, deadline: float | None,
                 raise TlessbotError(f'topic {topic} does not exist in the ROS graph')
             raise TlessbotError(f'no publisher on {topic} within {timeout_s} s')
         rclpy.spin_once(node, timeout_sec=0.1)
+        raise_if_interrupted()
 
 
 def matching_qos(publishers: list[Any]) -> Any:
@@ -158,7 +161,12 @@ def run(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from tlessbot_ros.nodes.common import format_message, init_ros, message_class
+    from tlessbot_ros.nodes.common import (
+        format_message,
+        init_ros,
+        message_class,
+        raise_if_interrupted,
+    )
 
     topic = args.topic if args.topic.startswith('/') else '/' + args.topic
     init_ros()
@@ -187,6 +195,7 @@ def run(args: argparse.Namespace) -> int:
         limit = 1 if args.once else args.count
         while rclpy.ok() and not (limit and received >= limit):
             rclpy.spin_once(node, timeout_sec=0.1)
+            raise_if_interrupted()
             subscription.follow_publishers()
             if deadline is not None and time.monotonic() > deadline:
                 if received == 0:

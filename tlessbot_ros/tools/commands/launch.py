@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     # Stop the graph on Ctrl-C and on SIGTERM (systemd, docker stop, kill), never leaving the
     # nodes orphaned; SIGINT is handled even when a shell started launch in the background,
     # which makes it ignore SIGINT.
-    from tlessbot_ros.nodes.common import interrupt_on_signals
+    from tlessbot_ros.nodes.common import interrupt_on_signals, raise_if_interrupted
 
     interrupt_on_signals()
     replay_specs = [s for s in specs if s.label == 'replay']
@@ -116,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
         if monitor is None:   # no stage node to wait for
             graph.add(replay_specs)
         while True:
+            raise_if_interrupted()
             code = supervisor.step()
             if code is not None:
                 graph.stop()

@@ -26,7 +26,7 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import ExternalShutdownException
 
     from tlessbot_ros.io.bag_writer import BagWriter, offered_qos
-    from tlessbot_ros.nodes.common import SENSOR_QOS, init_ros, message_class
+    from tlessbot_ros.nodes.common import SENSOR_QOS, init_ros, message_class, raise_if_interrupted
 
     out = Path(args.out)
     if out.exists():
@@ -43,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
             graph = dict(node.get_topic_names_and_types())
             types = {t: graph[t][0] for t in topics if graph.get(t)}
             rclpy.spin_once(node, timeout_sec=0.1)
+            raise_if_interrupted()
         missing = sorted(set(topics) - set(types))
         if missing:
             raise BagError(f'topic(s) {missing} not found in the ROS graph')
@@ -68,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
         stop = time.monotonic() + args.duration if args.duration > 0 else None
         while rclpy.ok() and (stop is None or time.monotonic() < stop):
             rclpy.spin_once(node, timeout_sec=0.1)
+            raise_if_interrupted()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -119,7 +119,12 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
     (:class:`FrameRestamper`).
     """
 
-    from tlessbot_ros.nodes.common import RESULT_QOS, SENSOR_QOS, message_class
+    from tlessbot_ros.nodes.common import (
+        RESULT_QOS,
+        SENSOR_QOS,
+        message_class,
+        raise_if_interrupted,
+    )
 
     if rate <= 0:
         raise BagError(f'--rate must be positive, got {rate}')
@@ -151,6 +156,7 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
         start_wall, start_bag = None, None
         restamper.new_pass()
         for message in cached if cached is not None else read_bag(bag, list(types)):
+            raise_if_interrupted()
             if should_stop():
                 wait_for_acknowledgements(publishers)
                 return published
