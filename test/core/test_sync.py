@@ -73,13 +73,25 @@ def _jumps(**kwargs):
                       confirmations=kwargs.pop('confirmations', 2), **kwargs)
 
 
-def _looped(sync, frames: int, passes: int, streams=('color', 'depth')):
+def _gated(sync, jumps):
+    """``add(stream, stamp, item)`` through a TimelineGate in front of ``sync``, as the nodes'
+    inputs pair their messages."""
+    from tlessbot_ros.core.common import TimelineGate
+
+    gate = TimelineGate(jumps, [sync])
+
+    def add(stream, stamp, item):
+        return None if gate.admit(stream, stamp) == 'stale' else sync.add(stream, stamp, item)
+    return add
+
+
+def _looped(add, frames: int, passes: int, streams=('color', 'depth')):
     """Two streams of a bag of ``frames`` frames (0.5 s apart) replayed ``passes`` times."""
     emitted = []
     for _ in range(passes):
         for i in range(frames):
             for stream in streams:
-                result = sync.add(stream, 100 * S + i * S // 2, f'{stream}{i}')
+                result = add(stream, 100 * S + i * S // 2, f'{stream}{i}')
                 if result:
                     emitted.append(result)
     return emitted
@@ -87,8 +99,8 @@ def _looped(sync, frames: int, passes: int, streams=('color', 'depth')):
 
 def test_a_looped_bag_is_paired_again_on_every_pass_and_each_loop_counted():
     jumps = _jumps()
-    sync = StampSynchroniser(['color', 'depth'], slop_ns=5 * MS, queue_size=5, jumps=jumps)
-    emitted = _looped(sync, frames=4, passes=3)
+    sync = StampSynchroniser(['color', 'depth'], slop_ns=5 * MS, queue_size=5)
+    emitted = _looped(_gated(sync, jumps), frames=4, passes=3)
     # A pass's first items are held until two more confirm the jump: frames 0 and 1 of the
     # later passes are lost, the rest pair again.
     first = [{'color': f'color{i}', 'depth': f'depth{i}'} for i in range(4)]
@@ -110,20 +122,21 @@ def test_a_jump_empties_the_queues_and_the_old_timelines_stragglers_are_dropped(
     """The pose stage's classes lag behind the camera: after the camera's stamps jump back,
     classes of the old pass still arrive; they must not pair, nor count as another jump."""
     jumps = _jumps()
-    sync = StampSynchroniser(['depth', 'classes'], slop_ns=5 * MS, queue_size=5, jumps=jumps)
+    sync = StampSynchroniser(['depth', 'classes'], slop_ns=5 * MS, queue_size=5)
+    add = _gated(sync, jumps)
     old = [100 * S + i * S // 2 for i in range(5)]
     for stamp in old[:3]:
-        sync.add('depth', stamp, 'old depth')
-        assert sync.add('classes', stamp, 'old classes')
-    sync.add('depth', old[3], 'old depth 3')          # its classes are on their way
-    assert sync.add('depth', old[0], 'new depth 0') is None   # held: no jump yet
-    assert sync.add('depth', old[1], 'new depth 1') is None
+        add('depth', stamp, 'old depth')
+        assert add('classes', stamp, 'old classes')
+    add('depth', old[3], 'old depth 3')               # its classes are on their way
+    assert add('depth', old[0], 'new depth 0') is None        # held: no jump yet
+    assert add('depth', old[1], 'new depth 1') is None
     assert jumps.count == 0
-    assert sync.add('depth', old[2], 'new depth 2') is None   # the second confirms it
+    assert add('depth', old[2], 'new depth 2') is None        # the second confirms it
     assert jumps.count == 1 and sync.pending() == {'depth': 1, 'classes': 0}
-    assert sync.add('classes', old[4], 'old classes 4') is None             # a straggler
+    assert add('classes', old[4], 'old classes 4') is None                  # a straggler
     assert sync.pending() == {'depth': 1, 'classes': 0}
-    assert sync.add('classes', old[2], 'new classes 2') == {'depth': 'new depth 2',
+    assert add('classes', old[2], 'new classes 2') == {'depth': 'new depth 2',
                                                             'classes': 'new classes 2'}
     assert jumps.count == 1                            # one jump, seen on both streams
 

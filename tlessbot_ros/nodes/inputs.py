@@ -26,7 +26,14 @@ from rclpy.node import Node
 from tlessbot_ros.conversions.cdr import header_stamp_ns
 from tlessbot_ros.conversions.image import ENCODINGS
 from tlessbot_ros.conversions.image_cdr import image_from_cdr
-from tlessbot_ros.core.common import JUMP, STALE, StampJumps, StampSynchroniser, SyncParams
+from tlessbot_ros.core.common import (
+    JUMP,
+    STALE,
+    StampJumps,
+    StampSynchroniser,
+    SyncParams,
+    TimelineGate,
+)
 from tlessbot_ros.nodes.common import SENSOR_QOS
 
 Views = dict[str, dict[str, Any]]
@@ -113,7 +120,7 @@ class TwoViewInputs:
                  on_time_jump: Callable[[int], None] | None = None) -> None:
         self._callback = callback
         self._on_time_jump = on_time_jump
-        self.stale = 0   # messages of a timeline that ended, dropped
+        self._stale_before = 0   # counted by gates replaced by reconfigure
         self._node, self._topics = node, topics
         self._keys, self._cameras = list(topics), list(cameras)
         self._dropped_before = 0   # by synchronisers replaced by reconfigure
@@ -136,6 +143,7 @@ class TwoViewInputs:
                                       queue_size=sync.queue_size) for camera in self._cameras}
         self._across = StampSynchroniser(self._cameras, slop_ns=int(sync.max_age_s * 1e9),
                                          queue_size=2)
+        self._gate = TimelineGate(self.jumps, [*self._per_camera.values(), self._across])
 
     def reconfigure(self, sync: SyncParams) -> None:
         """New thresholds (call from the thread that delivers messages). When ``slop_s``,
@@ -148,6 +156,7 @@ class TwoViewInputs:
                                             sync.jump_confirmations):
             return
         self._dropped_before += self._paired_dropped() + self.waiting
+        self._stale_before = self.stale
         self._build_synchronisers(sync)
 
     @property
@@ -172,12 +181,11 @@ class TwoViewInputs:
             if stamp == 0:
                 self.zero_stamps += 1  # cannot be synchronised; counted in diagnostics
                 return
-            verdict = self.jumps.check(f'{camera}/{key}', stamp)
+            verdict = self._gate.admit(f'{camera}/{key}', stamp)
             if verdict == STALE:
-                self.stale += 1
                 return
-            if verdict == JUMP:
-                self._new_timeline()
+            if verdict == JUMP and self._on_time_jump is not None:
+                self._on_time_jump(self.jumps.last_jump_ns)
             complete = self._per_camera[camera].add(key, stamp, RawMessage(msg_class, data))
             if complete is None:
                 return
@@ -186,18 +194,16 @@ class TwoViewInputs:
                 self._callback(views)
         return on_message
 
-    def _new_timeline(self) -> None:
-        """Stamps jumped: nothing queued can pair with what comes next."""
-        for synchroniser in (*self._per_camera.values(), self._across):
-            synchroniser.reset()
-        if self._on_time_jump is not None:
-            self._on_time_jump(self.jumps.last_jump_ns)
-
     @property
     def dropped(self) -> int:
         """Messages and camera sets discarded because their partners never came in time, or
         their timeline ended (a time jump)."""
         return self._dropped_before + self._paired_dropped() + self.stale
+
+    @property
+    def stale(self) -> int:
+        """Messages of a timeline that ended (after a time jump), dropped."""
+        return self._stale_before + self._gate.stale
 
     def _paired_dropped(self) -> int:
         return self._across.dropped + sum(s.dropped for s in self._per_camera.values())

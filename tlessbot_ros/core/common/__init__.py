@@ -77,6 +77,7 @@ _HOME = {
     'STALE': 'sync',
     'StampJumps': 'sync',
     'StampSynchroniser': 'sync',
+    'TimelineGate': 'sync',
     'SyncParams': 'sync',
 }
 __all__ = sorted(_HOME)
@@ -150,6 +151,7 @@ if TYPE_CHECKING:
         StampJumps,
         StampSynchroniser,
         SyncParams,
+        TimelineGate,
     )
     from tlessbot_ros.core.common.table_plane import (  # noqa: F401
         TABLE_PLANE_MODES,

@@ -205,15 +205,35 @@ class StampJumps:
         return abs(stamp_ns - self._target_ns) <= abs(stamp_ns - last_ns)
 
 
-class StampSynchroniser(Generic[Item]):
-    """Pairs items of named streams by stamp (nanoseconds); bounded memory.
-
-    With ``jumps`` (a :class:`StampJumps`), a stamp jump empties the queues (:meth:`reset`)
-    and the old timeline's stragglers are dropped (counted in :attr:`dropped`).
+class TimelineGate:
+    """Lets items through by their stream's timeline (:class:`StampJumps`), in front of the
+    synchronisers that pair them: a stale item is dropped (counted in :attr:`stale`), and a
+    jump empties every synchroniser (:meth:`StampSynchroniser.reset`), since nothing queued can
+    pair with the new timeline.
     """
 
-    def __init__(self, streams: Sequence[str], *, slop_ns: int, queue_size: int,
-                 jumps: StampJumps | None = None) -> None:
+    def __init__(self, jumps: StampJumps, synchronisers: Sequence[StampSynchroniser]) -> None:
+        self.jumps = jumps
+        self.synchronisers = tuple(synchronisers)
+        self.stale = 0
+
+    def admit(self, stream: str, stamp_ns: int) -> Verdict:
+        """The verdict on the next item of ``stream``, its effects applied; drop the item when
+        :data:`STALE`."""
+        verdict = self.jumps.check(stream, stamp_ns)
+        if verdict == STALE:
+            self.stale += 1
+        elif verdict == JUMP:
+            for synchroniser in self.synchronisers:
+                synchroniser.reset()
+        return verdict
+
+
+class StampSynchroniser(Generic[Item]):
+    """Pairs items of named streams by stamp (nanoseconds); bounded memory. A
+    :class:`TimelineGate` in front of it empties it (:meth:`reset`) when stamps jump."""
+
+    def __init__(self, streams: Sequence[str], *, slop_ns: int, queue_size: int) -> None:
         if len(set(streams)) != len(streams) or not streams:
             raise ValueError(f'streams must be distinct names, got {list(streams)}')
         if queue_size < 1 or slop_ns < 0:
@@ -224,7 +244,6 @@ class StampSynchroniser(Generic[Item]):
             name: deque() for name in self.streams}
         self._queue_size = queue_size
         self._recent: dict[str, deque[int]] = {name: deque(maxlen=9) for name in self.streams}
-        self.jumps = jumps
         self.dropped = 0
         self.emitted = 0
 
@@ -241,13 +260,6 @@ class StampSynchroniser(Generic[Item]):
         queue = self._queues.get(stream)
         if queue is None:
             raise KeyError(f'unknown stream {stream!r}; expected one of {self.streams}')
-        if self.jumps is not None:
-            verdict = self.jumps.check(stream, stamp_ns)
-            if verdict == STALE:
-                self.dropped += 1
-                return None
-            if verdict == JUMP:
-                self.reset()
         if len(queue) >= self._queue_size:
             del queue[self._eviction_index(stream)]
             self.dropped += 1
