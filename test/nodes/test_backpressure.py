@@ -118,9 +118,13 @@ def test_the_localiser_admits_only_while_fewer_than_max_in_flight_are_unfinished
 
     assert localiser.admit(_views(10))
     assert not localiser.admit(_views(11))           # frame 10 is still in the graph
+    handled = []   # outcomes the localiser has taken in, so the test waits for a signal
+    take_in = localiser._on_downstream_outcome
+    localiser._on_downstream_outcome = lambda stage, msg: (take_in(stage, msg),
+                                                           handled.append(stage))
     classifier_outcomes.publish(frame_outcome(10, 'done'))   # not the last stage: still open
     pose_outcomes.publish(frame_outcome(99, 'done'))         # not ours: ignored
-    executor.spin_once(timeout_sec=0.5)
+    assert _spin_until(executor, lambda: len(handled) == 2)
     assert localiser.in_flight.open_count == 1
     pose_outcomes.publish(frame_outcome(10, 'done'))
     assert _spin_until(executor, lambda: localiser.in_flight.open_count == 0)
