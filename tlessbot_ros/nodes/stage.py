@@ -316,9 +316,10 @@ class StageNode(Node):
             qos=input_profile(self.input_qos, self.input_depth), on_time_jump=self._on_time_jump)
 
     def _on_time_jump(self, jump_ns: int) -> None:
-        """The input stamps jumped (the queues are empty already): ages start again."""
+        """The input stamps jumped (the queues are empty already): ages start again. The
+        clocks' offset is kept until the next frame measures it: /diagnostics published in
+        between would otherwise lose it (a test reading the last status saw it missing)."""
         self._input_ages_ms.clear()
-        self._stamp_offset_s = None
         self.get_logger().warning(
             f'input stamps jumped {"back" if jump_ns < 0 else "forward"} by '
             f'{abs(jump_ns) / 1e9:.3f} s (a bag replayed in a loop without --restamp, or a '
