@@ -151,8 +151,10 @@ def replay(node: Any, bag: str, *, rate: float = 1.0, loop: bool = False,
     pass_period_ns = _loop_period_ns(cached) if cached else 0
     next_pass_wall = None
     while True:
-        if next_pass_wall is not None and next_pass_wall > time.monotonic():
-            time.sleep(next_pass_wall - time.monotonic())
+        if next_pass_wall is not None:
+            # one reading of the clock: between a check and a second reading the wait can
+            # become negative, which time.sleep refuses (a 30-minute soak died of it)
+            time.sleep(max(0.0, next_pass_wall - time.monotonic()))
         start_wall, start_bag = None, None
         restamper.new_pass()
         for message in cached if cached is not None else read_bag(bag, list(types)):
