@@ -145,8 +145,8 @@ class SimParams:
         unknown = [t for t in self.tables if t not in TABLE_KINDS]
         if unknown or not self.tables:
             raise ValueError(f'unknown tables {unknown}; choose from {TABLE_KINDS}')
-        if not 1 <= self.parts_min <= self.parts_max:
-            raise ValueError(f'need 1 <= parts_min <= parts_max, got {self.parts_min}, '
+        if not 0 <= self.parts_min <= self.parts_max:
+            raise ValueError(f'need 0 <= parts_min <= parts_max, got {self.parts_min}, '
                              f'{self.parts_max}')
         if self.noise_scale < 0:
             raise ValueError(f'noise_scale must be >= 0, got {self.noise_scale}')

@@ -248,55 +248,81 @@ def _reprojection(points: np.ndarray, pixels: np.ndarray, rvec: np.ndarray, tvec
     return np.linalg.norm(projected.reshape(-1, 2) - pixels, axis=1)
 
 
-def board_pose(detection: BoardDetection, board: BoardSpec, intrinsics: CameraIntrinsics, *,
-               min_corners: int = 6, outlier_px: float = 2.0) -> BoardPose:
-    """``T_camera_board`` from the detected corners by planar PnP.
+def fit_board_pose(points: np.ndarray, pixels: np.ndarray, intrinsics: CameraIntrinsics, *,
+                   initial: np.ndarray | None = None, min_corners: int = 6,
+                   outlier_px: float = 2.0) -> BoardPose:
+    """``T_camera_board`` from board points and their pixels by planar PnP.
 
-    IPPE gives the (up to two) poses of the plane, the one with the smaller reprojection error
-    is kept; corners farther than ``outlier_px`` (or 3x the median error, if larger) from its
-    reprojection are dropped, and Levenberg-Marquardt refines the pose on the rest
-    (``cv2.solvePnPRefineLM``). Distortion coefficients of the intrinsics are used (the D415's
-    colour stream has nearly none).
+    Without ``initial``, IPPE gives the (up to two) poses of the plane and the one with the
+    smaller reprojection error is kept. Corners farther than ``outlier_px`` (or 3x the median
+    error, if larger) from its reprojection are dropped, and Levenberg-Marquardt refines the
+    pose on the rest (``cv2.solvePnPRefineLM``), twice. The intrinsics' distortion
+    coefficients are used (the D415's colour stream has nearly none).
 
     Args:
-        detection: corners of one image (:func:`detect_board`).
-        board: the board that was detected.
-        intrinsics: the image's intrinsics (from its CameraInfo).
+        points: (N, 3) board-frame corner positions, metres, z = 0 (the same corner may come
+            several times, from several images of a camera and board that did not move).
+        pixels: (N, 2) their image positions, pixels.
+        intrinsics: the images' intrinsics (from their CameraInfo).
+        initial: (4, 4) a ``T_camera_board`` to start from instead of IPPE.
         min_corners: fewest corners a pose is computed from (at least 4).
         outlier_px: reprojection error beyond which a corner is an outlier, pixels.
 
     Raises:
-        CalibrationError: fewer than ``min_corners`` corners (the board is not seen, too
-            small, blurred or hidden), before or after dropping outliers.
+        CalibrationError: fewer than ``min_corners`` corners agree with one pose.
     """
     import cv2
 
     min_corners = max(int(min_corners), 4)
-    if len(detection) < min_corners:
-        raise CalibrationError(
-            f'the board is not seen: {len(detection)} of its {board.corner_count} corners found '
-            f'({detection.markers} markers), {min_corners} needed; check that the board in the '
-            'image is the one described (squares, dictionary), flat, lit and in view')
+    points = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    pixels = np.ascontiguousarray(pixels, np.float64).reshape(-1, 2)
     K, D = _camera_arrays(intrinsics)
-    points = board.corner_points(detection.ids)
-    pixels = detection.corners_px
-    _, rvecs, tvecs, errors = cv2.solvePnPGeneric(points, pixels, K, D,
-                                                  flags=cv2.SOLVEPNP_IPPE)
-    best = int(np.argmin(np.asarray(errors).ravel()))
-    rvec, tvec = rvecs[best].copy(), tvecs[best].copy()
-    residual = _reprojection(points, pixels, rvec, tvec, K, D)
-    keep = residual <= max(outlier_px, 3.0 * float(np.median(residual)))
-    if keep.sum() < min_corners:
-        raise CalibrationError(
-            f'the board is not seen well: {int(keep.sum())} of {len(detection)} corners agree '
-            f'with one pose within {outlier_px} px, {min_corners} needed')
-    rvec, tvec = cv2.solvePnPRefineLM(points[keep], pixels[keep], K, D, rvec, tvec)
+    if len(points) < min_corners:
+        raise CalibrationError(f'{len(points)} corners, {min_corners} needed for a pose')
+    if initial is None:
+        _, rvecs, tvecs, errors = cv2.solvePnPGeneric(points, pixels, K, D,
+                                                      flags=cv2.SOLVEPNP_IPPE)
+        best = int(np.argmin(np.asarray(errors).ravel()))
+        rvec, tvec = rvecs[best].copy(), tvecs[best].copy()
+    else:
+        rvec = cv2.Rodrigues(np.asarray(initial, np.float64)[:3, :3])[0]
+        tvec = np.asarray(initial, np.float64)[:3, 3].reshape(3, 1).copy()
+    keep = np.ones(len(points), bool)
+    for _ in range(2):
+        residual = _reprojection(points, pixels, rvec, tvec, K, D)
+        keep = residual <= max(outlier_px, 3.0 * float(np.median(residual[keep])))
+        if keep.sum() < min_corners:
+            raise CalibrationError(
+                f'only {int(keep.sum())} of {len(points)} corners agree with one pose within '
+                f'{outlier_px} px, {min_corners} needed')
+        rvec, tvec = cv2.solvePnPRefineLM(points[keep], pixels[keep], K, D, rvec, tvec)
     residual = _reprojection(points[keep], pixels[keep], rvec, tvec, K, D)
     R, _ = cv2.Rodrigues(rvec)
     return BoardPose(T_camera_board=make_transform(R, tvec.ravel()),
                      rms_px=float(np.sqrt(np.mean(residual ** 2))),
                      max_px=float(residual.max()), corners=int(keep.sum()),
                      rejected=int((~keep).sum()))
+
+
+def board_pose(detection: BoardDetection, board: BoardSpec, intrinsics: CameraIntrinsics, *,
+               min_corners: int = 6, outlier_px: float = 2.0) -> BoardPose:
+    """``T_camera_board`` of one image's detected corners (:func:`fit_board_pose`).
+
+    Raises:
+        CalibrationError: fewer than ``min_corners`` corners found (the board is not seen,
+            too small, blurred or hidden), or fewer that agree with one pose.
+    """
+    min_corners = max(int(min_corners), 4)
+    if len(detection) < min_corners:
+        raise CalibrationError(
+            f'the board is not seen: {len(detection)} of its {board.corner_count} corners found '
+            f'({detection.markers} markers), {min_corners} needed; check that the board in the '
+            'image is the one described (squares, dictionary), flat, lit and in view')
+    try:
+        return fit_board_pose(board.corner_points(detection.ids), detection.corners_px,
+                              intrinsics, min_corners=min_corners, outlier_px=outlier_px)
+    except CalibrationError as error:
+        raise CalibrationError(f'the board is not seen well: {error}') from None
 
 
 def camera_pose_from_board(image: np.ndarray, board: BoardSpec, intrinsics: CameraIntrinsics,
@@ -352,15 +378,15 @@ class CameraCalibration:
 
     Attributes:
         name: camera name.
-        T_world_camera: (4, 4) robust mean over the images used, or None if no image gave one.
+        T_world_camera: (4, 4) the camera's pose, or None if no image gave one.
         images: images offered.
-        seen: images in which the board gave a pose.
-        used: poses averaged (the rest disagreed with the others).
-        rms_px: median over the poses used of their reprojection RMS, pixels.
-        corners: median corners per pose used.
-        spread_mm: largest distance of a used pose's camera centre from the mean, mm.
-        spread_deg: largest angle of a used pose from the mean, degrees.
-        failures: why the images without a pose failed (one message per distinct reason).
+        seen: images in which the board gave a pose of its own.
+        used: images whose corners went into the joint fit.
+        corners: corners of the joint fit (all images), after dropping outliers.
+        rms_px: reprojection error of the joint fit, pixels (root mean square).
+        spread_mm: largest distance of a single image's camera centre from the result, mm.
+        spread_deg: largest angle of a single image's pose from the result, degrees.
+        failures: why images gave no pose of their own (one message per distinct reason).
         intrinsics: the intrinsics of the last image offered.
     """
 
@@ -369,8 +395,8 @@ class CameraCalibration:
     images: int = 0
     seen: int = 0
     used: int = 0
+    corners: int = 0
     rms_px: float = float('nan')
-    corners: float = float('nan')
     spread_mm: float = float('nan')
     spread_deg: float = float('nan')
     failures: list[str] = field(default_factory=list)
@@ -379,41 +405,79 @@ class CameraCalibration:
 
 def calibrate_camera(name: str, images: Iterable[tuple[np.ndarray, CameraIntrinsics]],
                      board: BoardSpec, *, T_world_board: np.ndarray | None = None,
-                     min_corners: int = 6, max_offset_m: float = 0.01,
-                     max_angle_deg: float = 1.0) -> CameraCalibration:
+                     min_corners: int = 6, outlier_px: float = 2.0,
+                     max_offset_m: float = 0.01, max_angle_deg: float = 1.0
+                     ) -> CameraCalibration:
     """One fixed camera's ``T_world_camera`` from its images of the board lying still.
 
-    Each image gives a pose (:func:`camera_pose_from_board`; images where the board is not seen
-    are counted and skipped) and the poses are averaged by :func:`average_transforms`.
+    The camera and the board do not move, so every image's corners are observations of one
+    pose: each image with enough corners gives a pose of its own (:func:`board_pose`), the
+    robust mean of those (:func:`average_transforms`) says which images agree, and one pose is
+    fitted to the corners of all those images together (:func:`fit_board_pose`), also of
+    images that saw too few corners for a pose of their own (parts hiding the board differ
+    from image to image, so together they show it all). Images with other intrinsics than the
+    last are left out.
+
+    Args:
+        name: the camera's name, for the report.
+        images: (H, W, 3) uint8 RGB (or (H, W) grey) images with their intrinsics.
+        board: the board on the table.
+        T_world_board: (4, 4) where it lies (:func:`board_on_table`; default identity).
+        min_corners, outlier_px: see :func:`fit_board_pose`.
+        max_offset_m, max_angle_deg: how far an image's own pose may be from the others' to
+            count (:func:`average_transforms`).
+
+    Returns:
+        The :class:`CameraCalibration`; its ``T_world_camera`` is None when no image showed
+        the board (``failures`` says why).
     """
-    poses, fits, failures, count = [], [], [], 0
-    last = None
+    T_world_board = np.eye(4) if T_world_board is None else np.asarray(T_world_board, float)
+    detections, intrinsics_seen, failures = [], [], []
     for image, intrinsics in images:
-        count += 1
-        last = intrinsics
+        detections.append(detect_board(image, board))
+        intrinsics_seen.append(intrinsics)
+    report = CameraCalibration(name, None, images=len(detections), failures=failures,
+                               intrinsics=intrinsics_seen[-1] if intrinsics_seen else None)
+    if not detections:
+        failures.append('no images')
+        return report
+    last = report.intrinsics
+    own = {}
+    for k, (detection, intrinsics) in enumerate(zip(detections, intrinsics_seen)):
+        if not _same_intrinsics(intrinsics, last):
+            continue
         try:
-            T, fit = camera_pose_from_board(image, board, intrinsics,
-                                            T_world_board=T_world_board,
-                                            min_corners=min_corners)
+            own[k] = board_pose(detection, board, intrinsics, min_corners=min_corners,
+                                outlier_px=outlier_px).T_camera_board
         except CalibrationError as error:
             if str(error) not in failures:
                 failures.append(str(error))
-            continue
-        poses.append(T)
-        fits.append(fit)
-    if not poses:
-        return CameraCalibration(name, None, images=count, failures=failures, intrinsics=last)
-    mean, inliers = average_transforms(poses, max_offset_m=max_offset_m,
-                                       max_angle_deg=max_angle_deg)
-    used = [T for T, keep in zip(poses, inliers) if keep]
-    used_fits = [f for f, keep in zip(fits, inliers) if keep]
-    return CameraCalibration(
-        name, mean, images=count, seen=len(poses), used=len(used),
-        rms_px=float(np.median([f.rms_px for f in used_fits])),
-        corners=float(np.median([f.corners for f in used_fits])),
-        spread_mm=1000.0 * max(float(np.linalg.norm(T[:3, 3] - mean[:3, 3])) for T in used),
-        spread_deg=max(rotation_angle_deg(T[:3, :3], mean[:3, :3]) for T in used),
-        failures=failures, intrinsics=last)
+    if not own:
+        return report
+    mean, agree = average_transforms(list(own.values()), max_offset_m=max_offset_m,
+                                     max_angle_deg=max_angle_deg)
+    rejected = {k for k, ok in zip(own, agree) if not ok}
+    chosen = [k for k, d in enumerate(detections)
+              if k not in rejected and len(d) and _same_intrinsics(intrinsics_seen[k], last)]
+    points = np.concatenate([board.corner_points(detections[k].ids) for k in chosen])
+    pixels = np.concatenate([detections[k].corners_px for k in chosen])
+    fit = fit_board_pose(points, pixels, last, initial=mean, min_corners=min_corners,
+                         outlier_px=outlier_px)
+    T_world_camera = T_world_board @ invert_transform(fit.T_camera_board)
+    singles = [T_world_board @ invert_transform(own[k]) for k in own if k not in rejected]
+    report.T_world_camera = T_world_camera
+    report.seen, report.used = len(own), len(chosen)
+    report.corners, report.rms_px = fit.corners, fit.rms_px
+    report.spread_mm = 1000.0 * max(float(np.linalg.norm(T[:3, 3] - T_world_camera[:3, 3]))
+                                    for T in singles)
+    report.spread_deg = max(rotation_angle_deg(T[:3, :3], T_world_camera[:3, :3])
+                            for T in singles)
+    return report
+
+
+def _same_intrinsics(a: CameraIntrinsics, b: CameraIntrinsics) -> bool:
+    return ((a.width, a.height) == (b.width, b.height) and np.allclose(a.K, b.K)
+            and a.D.shape == b.D.shape and np.allclose(a.D, b.D))
 
 
 def calibrate_rig(images: Mapping[str, Iterable[tuple[np.ndarray, CameraIntrinsics]]],
