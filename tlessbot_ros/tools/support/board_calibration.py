@@ -188,8 +188,9 @@ def format_report(report: BoardCalibrationReport) -> str:
     for name, cam in report.cameras.items():
         lines.append(
             f'{name}: {cam.used} of {cam.images} images fitted together ({cam.corners} corners, '
-            f'{cam.rms_px:.3f} px rms); {cam.seen} showed the board well enough alone, within '
-            f'{cam.spread_mm:.1f} mm / {cam.spread_deg:.2f} deg of the result')
+            f'{cam.rejected} dropped, {cam.rms_px:.3f} px rms, worst image '
+            f'{cam.worst_image_px:.3f} px); 1 sigma {cam.sigma_mm:.1f} mm, '
+            f'{cam.sigma_deg:.2f} deg')
         if name in report.prior_offset:
             mm, deg = report.prior_offset[name]
             lines.append(f'{name}: the prior rig is {mm:.1f} mm and {deg:.2f} deg from it')
