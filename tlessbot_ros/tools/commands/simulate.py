@@ -63,8 +63,8 @@ def run(args: argparse.Namespace) -> int:
 
     from tlessbot_ros.io.bop import BopWriter, write_camera_json
     from tlessbot_ros.io.models import load_models
-    from tlessbot_ros.sim.materials import MATERIALS, TABLE_KINDS
     from tlessbot_ros.sim.board import SimBoard
+    from tlessbot_ros.sim.materials import MATERIALS, TABLE_KINDS
     from tlessbot_ros.sim.simulator import SimParams, Simulator
 
     if args.out is None and args.bag is None:

@@ -31,7 +31,7 @@ def add_board_arguments(parser: argparse.ArgumentParser) -> None:
     spec = BoardSpec()
     parser.add_argument('--board-squares', type=int, nargs=2, metavar=('X', 'Y'),
                         default=[spec.squares_x, spec.squares_y],
-                        help='squares along the board\'s rows and columns (default '
+                        help="squares along the board's rows and columns (default "
                              f'{spec.squares_x} {spec.squares_y})')
     parser.add_argument('--board-square-m', type=float, default=spec.square_length_m,
                         help='side of a square as printed, metres (default '
