@@ -107,11 +107,10 @@ class BoardSpec:
 
     def cv_board(self) -> Any:
         """The ``cv2.aruco.CharucoBoard`` of this spec."""
-        import cv2
-
-        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
-        return cv2.aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_length_m,
-                                      self.marker_length_m, dictionary)
+        aruco = _aruco()
+        dictionary = aruco.getPredefinedDictionary(getattr(aruco, self.dictionary))
+        return aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_length_m,
+                                  self.marker_length_m, dictionary)
 
     @property
     def T_board_opencv(self) -> np.ndarray:
@@ -144,12 +143,11 @@ class BoardSpec:
 
 
 def _dictionary_size(name: str) -> int:
-    import cv2
-
-    if not name.startswith('DICT_') or not hasattr(cv2.aruco, name):
-        known = sorted(n for n in dir(cv2.aruco) if n.startswith('DICT_'))
+    aruco = _aruco()
+    if not name.startswith('DICT_') or not hasattr(aruco, name):
+        known = sorted(n for n in dir(aruco) if n.startswith('DICT_'))
         raise ValueError(f'unknown ArUco dictionary {name!r}; choose one of {known}')
-    return int(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name)).bytesList.shape[0])
+    return int(aruco.getPredefinedDictionary(getattr(aruco, name)).bytesList.shape[0])
 
 
 def board_on_table(x_m: float = 0.0, y_m: float = 0.0, yaw_deg: float = 0.0) -> np.ndarray:
@@ -192,15 +190,15 @@ def detect_board(image: np.ndarray, board: BoardSpec) -> BoardDetection:
         raise ValueError(f'image must be (H, W) or (H, W, 3) uint8, got {image.shape} '
                          f'{image.dtype}')
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
-    markers = cv2.aruco.DetectorParameters()
+    aruco = _aruco()
+    markers = aruco.DetectorParameters()
     # Read each marker bit from 8 x 8 samples of the unwarped marker (default 4 x 4), ignoring
     # the outer 30 % of each cell (default 13 %): markers ~20 px wide, as the top camera sees
     # the default board, then decode through the blur of a real lens (17 of 17 markers instead
     # of 10 on a synthetic view with 0.8 px of blur).
     markers.perspectiveRemovePixelPerCell = 8
     markers.perspectiveRemoveIgnoredMarginPerCell = 0.3
-    detector = cv2.aruco.CharucoDetector(board.cv_board(), cv2.aruco.CharucoParameters(),
-                                         markers)
+    detector = aruco.CharucoDetector(board.cv_board(), aruco.CharucoParameters(), markers)
     corners, ids, _, marker_ids = detector.detectBoard(np.ascontiguousarray(grey))
     markers = 0 if marker_ids is None else len(marker_ids)
     if ids is None or len(ids) == 0:
@@ -266,15 +264,29 @@ class BoardPose:
 
 
 def _camera_arrays(intrinsics: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
-    if intrinsics.distortion_model not in ('plumb_bob', 'rational_polynomial', ''):
+    """K (3, 3) and OpenCV distortion coefficients (empty when all are zero, whatever the model
+    is called: realsense-ros names the D415's zero colour distortion in several ways)."""
+    D = np.asarray(intrinsics.D, np.float64).ravel()
+    if not np.any(D):
+        return np.asarray(intrinsics.K, np.float64), np.zeros(0)
+    if intrinsics.distortion_model not in ('plumb_bob', 'rational_polynomial'):
         raise CalibrationError(
             f'distortion model {intrinsics.distortion_model!r} is not supported by the board '
             "calibration; give a 'plumb_bob' or 'rational_polynomial' CameraInfo (rectify "
             'fisheye images first)')
-    D = np.asarray(intrinsics.D, np.float64).ravel()
-    if D.size and not np.any(D):
-        D = np.zeros(0)
     return np.asarray(intrinsics.K, np.float64), D
+
+
+def _aruco() -> Any:
+    """OpenCV's aruco module, with the ChArUco API of OpenCV 4.7 and later."""
+    import cv2
+
+    if not hasattr(cv2, 'aruco') or not hasattr(cv2.aruco, 'CharucoDetector'):
+        raise CalibrationError(
+            f'the board calibration needs OpenCV 4.7 or later with the aruco module '
+            f'(cv2.aruco.CharucoDetector); this is OpenCV {cv2.__version__}: '
+            "pip install 'opencv-python-headless>=4.8'")
+    return cv2.aruco
 
 
 def _reprojection(points: np.ndarray, pixels: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
