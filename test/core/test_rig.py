@@ -5,8 +5,12 @@ from tlessbot_ros.core.common import (
     CAMERA_NAMES,
     check_camera_roles,
     default_rig,
+    look_at,
+    look_at_form,
     project_points,
     rig_from_params,
+    rig_to_params,
+    rotation_about_axis,
     side_camera_position,
     transform_points,
 )
@@ -55,3 +59,29 @@ def test_the_rig_of_the_config_file_names_the_two_roles():
     assert check_camera_roles(['side', 'top']) == ('side', 'top')
     with pytest.raises(CalibrationError, match=r"rig.cameras is \['top', 'left'\].*'top', 'side'"):
         check_camera_roles(['top', 'left'])
+
+
+def test_rig_to_params_round_trip():
+    # A rig with rolled, tilted cameras (as a calibration finds them) survives the YAML form.
+    rig = default_rig()
+    for name, angle in (('top', 0.2), ('side', -0.15)):
+        T = rig[name].T_world_camera
+        T[:3, :3] = rotation_about_axis([0.3, -0.5, 0.8], angle) @ T[:3, :3]
+        T[:3, 3] += [0.04, -0.03, 0.02]
+    block = rig_to_params(rig)
+    assert block['cameras'] == ['top', 'side'] and block['top']['fx'] == 615.0
+    flat = {f'rig.{key}': value for key, value in block.items() if key == 'cameras'}
+    for name in block['cameras']:
+        flat.update({f'rig.{name}.{key}': value for key, value in block[name].items()})
+    back = rig_from_params(flat)
+    for name in ('top', 'side'):
+        np.testing.assert_allclose(back[name].T_world_camera, rig[name].T_world_camera,
+                                   atol=5e-6)
+        np.testing.assert_allclose(back[name].intrinsics.K, rig[name].intrinsics.K)
+    # The optical axis of the default top camera meets the table at the origin.
+    form = look_at_form(look_at([0.0, 0.0, 1.1], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+    assert form == {'position_m': [0.0, 0.0, 1.1], 'look_at_m': [0.0, 0.0, 0.0],
+                    'up': [0.0, 1.0, 0.0]}
+    # A camera looking above the horizon gets a point 1 m along its axis.
+    form = look_at_form(look_at([0.0, 0.0, 0.5], [0.0, 1.0, 0.6], [0.0, 0.0, 1.0]))
+    assert np.linalg.norm(np.subtract(form['look_at_m'], [0.0, 0.0, 0.5])) == pytest.approx(1.0)

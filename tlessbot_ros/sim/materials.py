@@ -61,11 +61,41 @@ class Light:
     ambient: float = 0.25
 
 
+@dataclass(frozen=True)
+class Decal:
+    """A flat print lying on the table (a calibration board): it replaces the table's albedo
+    where it lies, and leaves the geometry (and so the depth) unchanged.
+
+    Attributes:
+        texture: (h, w) float32 linear grey albedo, row 0 at the print's top.
+        table_to_texel: (2, 3) float64 affine map of table points (x, y, 1) in metres to
+            texel coordinates (column, row), texel centres at integers.
+    """
+
+    texture: np.ndarray
+    table_to_texel: np.ndarray
+
+
+def _remap(texture: np.ndarray, map_x: np.ndarray, map_y: np.ndarray,
+           border: int) -> np.ndarray:
+    """``cv2.remap`` (bilinear) of (N,) float32 maps, folded into rows of 1024 because remap
+    wants 2-D maps shorter than 32767 on each side; returns (N, channels...)."""
+    import cv2
+
+    cols = 1024
+    pad = (-len(map_x)) % cols
+    out = cv2.remap(texture, np.pad(map_x, (0, pad)).reshape(-1, cols),
+                    np.pad(map_y, (0, pad)).reshape(-1, cols), cv2.INTER_LINEAR,
+                    borderMode=border)
+    return out.reshape(-1, *texture.shape[2:])[:len(map_x)]
+
+
 @dataclass
 class Table:
     """A table surface: albedo texture covering ``[-half_size_m, half_size_m]^2`` of the plane.
 
     ``texture`` is (N, N, 3) float32 linear RGB, row index along -y (image-like), column along x.
+    ``decal`` is a print lying on it (None: the bare table).
     """
 
     kind: str
@@ -74,6 +104,7 @@ class Table:
     specular: float = 0.04
     shininess: float = 10.0
     extra: dict = field(default_factory=dict)
+    decal: Decal | None = None
 
     def albedo_at(self, xy_w: np.ndarray) -> np.ndarray:
         """Albedo (..., 3) at table points (..., 2) in metres (clamped at the texture border)."""
@@ -84,15 +115,25 @@ class Table:
         map_x = ((xy_w[..., 0] + self.half_size_m) * scale).astype(np.float32)
         map_y = ((self.half_size_m - xy_w[..., 1]) * scale).astype(np.float32)
         shape = map_x.shape
-        # cv2.remap wants 2-D maps shorter than 32767 on each side: fold long inputs.
-        flat_x, flat_y = map_x.reshape(-1), map_y.reshape(-1)
-        cols = 1024
-        pad = (-len(flat_x)) % cols
-        flat_x = np.pad(flat_x, (0, pad)).reshape(-1, cols)
-        flat_y = np.pad(flat_y, (0, pad)).reshape(-1, cols)
-        out = cv2.remap(self.texture, flat_x, flat_y, cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_REFLECT)
-        return out.reshape(-1, 3)[:len(flat_x.reshape(-1)) - pad].reshape(*shape, 3)
+        out = _remap(self.texture, map_x.reshape(-1), map_y.reshape(-1), cv2.BORDER_REFLECT)
+        if self.decal is not None:
+            self._apply_decal(out, xy_w.reshape(-1, 2))
+        return out.reshape(*shape, 3)
+
+    def _apply_decal(self, albedo: np.ndarray, xy_w: np.ndarray) -> None:
+        """Replace (N, 3) ``albedo`` by the decal's where the (N, 2) points lie on it."""
+        import cv2
+
+        decal = self.decal
+        h, w = decal.texture.shape
+        A = decal.table_to_texel
+        u = xy_w @ A[:, :2].T + A[:, 2]
+        # Texel centres are at integers: the print covers [-0.5, size - 0.5].
+        on = (u[:, 0] >= -0.5) & (u[:, 0] <= w - 0.5) & (u[:, 1] >= -0.5) & (u[:, 1] <= h - 0.5)
+        if on.any():
+            u = u[on].astype(np.float32)
+            grey = _remap(decal.texture, u[:, 0].copy(), u[:, 1].copy(), cv2.BORDER_REPLICATE)
+            albedo[on] = grey[:, None]
 
 
 def _smooth_noise(rng: np.random.Generator, n: int, cells: int) -> np.ndarray:

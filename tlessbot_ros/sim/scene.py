@@ -122,8 +122,8 @@ def sample_scene(models: dict[int, ObjectModel], rig: Rig, rng: np.random.Genera
     """
     if not models:
         raise ValueError('no models to place')
-    if not 1 <= params.parts_min <= params.parts_max:
-        raise ValueError(f'need 1 <= parts_min <= parts_max, got {params.parts_min}, '
+    if not 0 <= params.parts_min <= params.parts_max:
+        raise ValueError(f'need 0 <= parts_min <= parts_max, got {params.parts_min}, '
                          f'{params.parts_max}')
     ids = sorted(models)
     count = int(rng.integers(params.parts_min, params.parts_max + 1))

@@ -32,6 +32,7 @@ from tlessbot_ros.core.common import (
 )
 from tlessbot_ros.io.models import ObjectModel
 from tlessbot_ros.sim import shading
+from tlessbot_ros.sim.board import SimBoard
 from tlessbot_ros.sim.materials import (
     MATERIALS,
     TABLE_KINDS,
@@ -116,6 +117,9 @@ class SimParams:
     ``noise_scale`` multiplies ``noise.scale`` (depth sigma and dropout; 0 = clean depth);
     ``materials`` and ``tables`` are the names drawn from (``MATERIALS``, ``TABLE_KINDS``).
     A BOP scene folder holds ``frames_per_scene`` consecutive frames (each its own arrangement).
+    ``board`` lays a printed ChArUco board on the table (:mod:`~tlessbot_ros.sim.board`), None
+    for none; it changes only the table's colour where it lies, and draws no random numbers, so
+    everything else stays as without it.
     """
 
     parts_min: int = 1
@@ -132,6 +136,7 @@ class SimParams:
     unique_classes: bool = True
     margin_px: int = 8
     frames_per_scene: int = 1000
+    board: SimBoard | None = None
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.materials if m not in MATERIALS]
@@ -140,8 +145,8 @@ class SimParams:
         unknown = [t for t in self.tables if t not in TABLE_KINDS]
         if unknown or not self.tables:
             raise ValueError(f'unknown tables {unknown}; choose from {TABLE_KINDS}')
-        if not 1 <= self.parts_min <= self.parts_max:
-            raise ValueError(f'need 1 <= parts_min <= parts_max, got {self.parts_min}, '
+        if not 0 <= self.parts_min <= self.parts_max:
+            raise ValueError(f'need 0 <= parts_min <= parts_max, got {self.parts_min}, '
                              f'{self.parts_max}')
         if self.noise_scale < 0:
             raise ValueError(f'noise_scale must be >= 0, got {self.noise_scale}')
@@ -329,6 +334,7 @@ class Simulator:
         self.seed = int(seed)
         self.timings: dict[str, float] = defaultdict(float)
         self._camera_cache: dict[str, tuple] = {}
+        self._decals: dict[str, object] = {}
 
     def prepare(self, *, progress: bool = False) -> None:
         """Compute the per-model caches (resting poses, collision hulls) now instead of on first
@@ -413,10 +419,21 @@ class Simulator:
             self._camera_cache[cam.name] = cached
         return cached
 
+    def _board_decal(self, cam: CameraMount):
+        """The board as this camera sees it (smoothed to its pixel footprint), cached."""
+        board = self.params.board
+        decal = self._decals.get(cam.name)
+        if decal is None:
+            footprint = board.footprint_m(cam.T_world_camera, cam.intrinsics.fx)
+            decal = self._decals[cam.name] = board.decal(board.blur_px * footprint)
+        return decal
+
     def _render_view(self, index: int, view_index: int, cam: CameraMount,
                      objects: list[PlacedObject], env: _Environment, scene, meshes_w: list,
                      albedo_scale: np.ndarray, purpose: int = 2) -> SimulatedView:
         p = self.params
+        if p.board is not None:
+            env = replace(env, table=replace(env.table, decal=self._board_decal(cam)))
         intr = cam.intrinsics
         T = np.asarray(cam.T_world_camera, dtype=np.float64)
         R = T[:3, :3].astype(np.float32)

@@ -52,7 +52,9 @@ _HOME = {
     'check_camera_roles': 'rig',
     'd415_intrinsics': 'rig',
     'default_rig': 'rig',
+    'look_at_form': 'rig',
     'rig_from_params': 'rig',
+    'rig_to_params': 'rig',
     'side_camera_position': 'rig',
     'SAMPLING_SCHEMES': 'sampling',
     'sample_surface': 'sampling',
@@ -130,7 +132,9 @@ if TYPE_CHECKING:
         check_camera_roles,
         d415_intrinsics,
         default_rig,
+        look_at_form,
         rig_from_params,
+        rig_to_params,
         side_camera_position,
     )
     from tlessbot_ros.core.common.sampling import (  # noqa: F401

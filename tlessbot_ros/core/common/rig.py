@@ -132,3 +132,34 @@ def rig_from_params(params: Mapping[str, Any], *, prefix: str = 'rig') -> Rig:
                     np.asarray(get('up'), float))
         cameras[name] = CameraMount(name, intrinsics, T)
     return Rig(cameras=cameras, world_frame=str(params.get('world_frame', 'world')))
+
+
+def look_at_form(T_world_camera: np.ndarray, *, table_z_m: float = 0.0,
+                 decimals: int = 6) -> dict[str, list[float]]:
+    """A camera pose as config/cell.yaml writes it: ``position_m``, ``look_at_m``, ``up``.
+
+    ``look_at_m`` is where the optical axis meets the table plane ``z = table_z_m`` (a point
+    1 m along the axis if it never does); ``up`` is the image's up direction (-y of the optical
+    frame), so that :func:`~tlessbot_ros.core.common.geometry.look_at` gives the pose back
+    exactly, roll included. Values are rounded to ``decimals`` (1 µm by default).
+    """
+    T = np.asarray(T_world_camera, dtype=np.float64)
+    eye, axis = T[:3, 3], T[:3, 2]
+    reach = (table_z_m - eye[2]) / axis[2] if abs(axis[2]) > 1e-9 else -1.0
+    target = eye + (reach if reach > 0 else 1.0) * axis
+    return {key: [round(float(v), decimals) + 0.0 for v in value]  # + 0.0: no -0.0 in YAML
+            for key, value in (('position_m', eye), ('look_at_m', target), ('up', -T[:3, 1]))}
+
+
+def rig_to_params(rig: Rig, *, decimals: int = 6) -> dict[str, Any]:
+    """The ``rig:`` block of config/cell.yaml for ``rig`` (nested, as the YAML holds it):
+    ``cameras`` and per camera :func:`look_at_form` with its intrinsics (``width``,
+    ``height``, ``fx``, ``fy``, ``cx``, ``cy``). :func:`rig_from_params` reads it back."""
+    block: dict[str, Any] = {'cameras': list(rig.cameras)}
+    for name, cam in rig.cameras.items():
+        intr = cam.intrinsics
+        block[name] = {**look_at_form(cam.T_world_camera, decimals=decimals),
+                       'width': int(intr.width), 'height': int(intr.height),
+                       **{key: round(float(value), decimals) for key, value in
+                          (('fx', intr.fx), ('fy', intr.fy), ('cx', intr.cx), ('cy', intr.cy))}}
+    return block

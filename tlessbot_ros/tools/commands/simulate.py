@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from tlessbot_ros.errors import DatasetError, TlessbotError
+from tlessbot_ros.tools.support.board_calibration import add_board_arguments, board_from_args
 from tlessbot_ros.tools.support.models_info import model_geometry_mm
 from tlessbot_ros.tools.support.rig import load_rig
 
@@ -49,6 +50,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--backgrounds', action='store_true',
                         help='also write background_<camera> splits: the same table and light '
                              'without parts (for background subtraction), same ids')
+    parser.add_argument('--board', action='store_true',
+                        help='lay a printed ChArUco board on the table (the --board-* options; '
+                             'default the A3 board centred at the world origin), to test '
+                             'tlessbot calibrate --board')
+    add_board_arguments(parser)
     parser.add_argument('--no-progress', action='store_true')
 
 
@@ -57,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
 
     from tlessbot_ros.io.bop import BopWriter, write_camera_json
     from tlessbot_ros.io.models import load_models
+    from tlessbot_ros.sim.board import SimBoard
     from tlessbot_ros.sim.materials import MATERIALS, TABLE_KINDS
     from tlessbot_ros.sim.simulator import SimParams, Simulator
 
@@ -66,11 +73,15 @@ def run(args: argparse.Namespace) -> int:
         raise TlessbotError('--frames must be at least 1')
     if args.cloud_stride < 1:
         raise TlessbotError('--cloud-stride must be at least 1')
+    board = None
+    if args.board:
+        x_m, y_m, yaw_deg = args.board_pose
+        board = SimBoard(board_from_args(args), x_m=x_m, y_m=y_m, yaw_deg=yaw_deg)
     try:
         params = SimParams(parts_min=args.parts_min, parts_max=args.parts_max,
                            noise_scale=args.noise_scale,
                            materials=tuple(args.materials or MATERIALS),
-                           tables=tuple(args.tables or TABLE_KINDS))
+                           tables=tuple(args.tables or TABLE_KINDS), board=board)
     except ValueError as error:
         raise TlessbotError(str(error)) from None
     models = load_models(args.models, args.ids, progress=not args.no_progress)
