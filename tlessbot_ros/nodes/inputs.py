@@ -28,7 +28,6 @@ from tlessbot_ros.conversions.image import ENCODINGS
 from tlessbot_ros.conversions.image_cdr import image_from_cdr
 from tlessbot_ros.core.common import (
     JUMP,
-    STALE,
     StampJumps,
     StampSynchroniser,
     SyncParams,
@@ -181,18 +180,23 @@ class TwoViewInputs:
             if stamp == 0:
                 self.zero_stamps += 1  # cannot be synchronised; counted in diagnostics
                 return
-            verdict = self._gate.admit(f'{camera}/{key}', stamp)
-            if verdict == STALE:
-                return
+            verdict, released = self._gate.admit((camera, key), stamp,
+                                                 RawMessage(msg_class, data))
             if verdict == JUMP and self._on_time_jump is not None:
                 self._on_time_jump(self.jumps.last_jump_ns)
-            complete = self._per_camera[camera].add(key, stamp, RawMessage(msg_class, data))
-            if complete is None:
-                return
-            views = self._across.add(camera, stamp, complete)
-            if views is not None:
-                self._callback(views)
+            for (from_camera, from_key), from_stamp, message in released:
+                self._pair(from_camera, from_key, from_stamp, message)
         return on_message
+
+    def _pair(self, camera: str, key: str, stamp: int, message: RawMessage) -> None:
+        """Queue one message for pairing; a complete set of every camera goes to the
+        callback."""
+        complete = self._per_camera[camera].add(key, stamp, message)
+        if complete is None:
+            return
+        views = self._across.add(camera, stamp, complete)
+        if views is not None:
+            self._callback(views)
 
     @property
     def dropped(self) -> int:
