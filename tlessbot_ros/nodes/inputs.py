@@ -107,7 +107,9 @@ class TwoViewInputs:
             (:mod:`tlessbot_ros.conversions.topics`).
         cameras: camera names; all must contribute to a view set.
         sync: thresholds; ``slop_s`` within a camera, ``max_age_s`` across cameras.
-        callback: called with the views of one two-view frame.
+        callback: called with the views of one two-view frame, and whether the frame was held
+            while a time jump waited for its confirmation (``SyncParams.jump_confirmations``):
+            such frames come several at once and should all be processed, in order.
         qos: subscription QoS (sensor data by default).
         on_time_jump: called with the jump's size (ns, < 0 back) when stamps jump, after the
             queues were emptied.
@@ -115,7 +117,7 @@ class TwoViewInputs:
 
     def __init__(self, node: Node, topics: dict[str, tuple[type, Callable[[str], str]]],
                  cameras: Sequence[str], sync: SyncParams,
-                 callback: Callable[[Views], None], *, qos: Any = SENSOR_QOS,
+                 callback: Callable[[Views, bool], None], *, qos: Any = SENSOR_QOS,
                  on_time_jump: Callable[[int], None] | None = None) -> None:
         self._callback = callback
         self._on_time_jump = on_time_jump
@@ -184,19 +186,22 @@ class TwoViewInputs:
                                                  RawMessage(msg_class, data))
             if verdict == JUMP and self._on_time_jump is not None:
                 self._on_time_jump(self.jumps.last_jump_ns)
+            # more than one: messages held while a jump waited for confirmation come too
+            held = len(released) > 1
             for (from_camera, from_key), from_stamp, message in released:
-                self._pair(from_camera, from_key, from_stamp, message)
+                self._pair(from_camera, from_key, from_stamp, message, held)
         return on_message
 
-    def _pair(self, camera: str, key: str, stamp: int, message: RawMessage) -> None:
+    def _pair(self, camera: str, key: str, stamp: int, message: RawMessage,
+              held: bool) -> None:
         """Queue one message for pairing; a complete set of every camera goes to the
-        callback."""
+        callback (``held``: it was completed by messages released at a time jump)."""
         complete = self._per_camera[camera].add(key, stamp, message)
         if complete is None:
             return
         views = self._across.add(camera, stamp, complete)
         if views is not None:
-            self._callback(views)
+            self._callback(views, held)
 
     @property
     def dropped(self) -> int:
