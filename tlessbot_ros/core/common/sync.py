@@ -129,11 +129,13 @@ class StampJumps:
     (another publisher's, a corrupt stamp) would otherwise throw every queue away. Items that
     step back off a stream's timeline are held as a candidate timeline (:data:`STALE`, counted
     in :attr:`outliers`); the jump is declared when ``confirmations`` more items of the stream
-    follow the candidate's first in line, and the candidate is forgotten when the stream's old
-    timeline goes on. (Agreement between streams cannot replace the count: a stray publisher
-    stamps its topics alike too.) A :class:`TimelineGate` keeps the held items and passes them on once the
-    jump is confirmed, so a real jump loses nothing. Items that leap forward go through
-    (:data:`IN_ORDER`) while their leap is confirmed the same way. One confirmation alone was
+    follow the candidate's first in line, or already when one does and another stream's
+    candidate holds exactly the same two stamps (whole frames jumped: a looped bag's or a
+    stepped clock's second frame confirms it, which matters for a later stage that sees only
+    the few frames of a short loop its upstream admitted), and the candidate is forgotten when
+    the stream's old timeline goes on. A :class:`TimelineGate` keeps the held items and passes
+    them on once the jump is confirmed, so a real jump loses nothing. Items that leap forward go
+    through (:data:`IN_ORDER`) while their leap is confirmed the same way. One confirmation alone was
     not enough under garbage at 100 Hz: two stray stamps a few seconds apart, one after the
     other, confirmed a jump every second or two (``SyncParams.jump_confirmations``).
 
@@ -173,7 +175,9 @@ class StampJumps:
                     first, seen = stamp_ns, 0   # a new candidate timeline
                 seen += 1
                 forward = stamp_ns > last
-                if seen <= self.confirmations:   # held until enough items follow it
+                if seen <= self.confirmations and not (
+                        seen >= 2 and self._agreed(stream, first, stamp_ns)):
+                    # held until enough items follow it, or another stream agrees
                     self._candidate[stream] = (first, stamp_ns, seen)
                     if forward:   # a pause, not a step back: nothing queued is in the way
                         return IN_ORDER
@@ -222,6 +226,15 @@ class StampJumps:
         self._last[stream], self._epoch[stream] = int(stamps_ns[-1]), self.count
         self.outliers -= len(stamps_ns)
         return True
+
+    def _agreed(self, stream: Hashable, first_ns: int, newest_ns: int) -> bool:
+        """Whether another stream holds a candidate timeline with exactly the same first and
+        newest stamps as this one's: two frames jumped on every topic, as one camera stamps
+        its colour, depth and camera_info alike. A stray stamp on one topic never repeats on
+        another (a second publisher stamping several topics alike, twice in line, is a second
+        timeline, and taken for one)."""
+        return any(other != stream and candidate[0] == first_ns and candidate[1] == newest_ns
+                   for other, candidate in self._candidate.items())
 
     def _in_line(self, previous_ns: int, stamp_ns: int) -> bool:
         """Whether ``stamp_ns`` may follow ``previous_ns`` on one timeline."""

@@ -269,7 +269,7 @@ class GarbagePublisher:
         self._frames = itertools.cycle([
             {topic: serialize_message(msg) for topic, msg in msgs.items()}
             for _, msgs in corrupt_frames(good_frame, FRAME_CASES)]) if good_frame else None
-        self._restamped: dict[tuple[int, str], tuple[float, bytes]] = {}
+        self._restamped: dict[tuple[str, int, str], tuple[float, bytes]] = {}
         self.counts = GarbageCounts()
 
     def _next_message(self, topic: str, now_s: float) -> tuple[str, bytes]:
@@ -281,14 +281,17 @@ class GarbagePublisher:
                 self._last_huge = now_s
         return kind, raw
 
-    def _stamped(self, raw: bytes, stamp_kind: str, now_s: float, wall_ns: int) -> bytes:
+    def _stamped(self, topic: str, raw: bytes, stamp_kind: str, now_s: float,
+                 wall_ns: int) -> bytes:
         """``raw`` with a garbage stamp of ``stamp_kind``. Copies of each message with each
-        kind of stamp are kept for up to :data:`RESTAMP_PERIOD_S` (copying megabytes for
-        every message would cap the rate far below 100 Hz); 4K ones are sent rarely and not
-        kept."""
+        kind of stamp are kept per topic for up to :data:`RESTAMP_PERIOD_S` (copying megabytes
+        for every message would cap the rate far below 100 Hz); 4K ones are sent rarely and
+        not kept. Per topic: strays are strays, each topic's its own; the same garbage stamp
+        on several topics, twice in line, would be whole frames on a second timeline (a second
+        driver on the same topics), which the nodes take for a time jump."""
         if len(raw) > 4 * 2**20:
             return restamp_cdr(raw, garbage_stamp(stamp_kind, wall_ns, self.rng))
-        key = (id(raw), stamp_kind)
+        key = (topic, id(raw), stamp_kind)
         made = self._restamped.get(key)
         if made is None or now_s - made[0] > RESTAMP_PERIOD_S:
             made = (now_s, restamp_cdr(raw, garbage_stamp(stamp_kind, wall_ns, self.rng)))
@@ -300,7 +303,7 @@ class GarbagePublisher:
         for topic, publisher in self.publishers.items():
             kind, raw = self._next_message(topic, now_s)
             if len(raw) >= 12 and raw[:2] == b'\x00\x01':   # CDR: a stamp to set
-                raw = self._stamped(raw, next(self._stamps[topic]), now_s, wall_ns)
+                raw = self._stamped(topic, raw, next(self._stamps[topic]), now_s, wall_ns)
             publisher.publish(raw)
             self.counts.per_topic[topic] = self.counts.per_topic.get(topic, 0) + 1
             self.counts.per_kind[kind] = self.counts.per_kind.get(kind, 0) + 1
