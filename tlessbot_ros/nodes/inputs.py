@@ -137,7 +137,11 @@ class TwoViewInputs:
         self.sync = sync
         self.jumps = StampJumps(back_ns=int(sync.jump_back_s * 1e9),
                                 forward_ns=int(sync.jump_forward_s * 1e9),
-                                stale_limit=sync.queue_size,
+                                # a topic that goes on with its old timeline for as many
+                                # items as confirm a jump did not jump (a false jump, from
+                                # strays, must not silence the good topics for long); a few
+                                # stragglers of a real one (frames in flight) are fewer
+                                stale_limit=max(3, sync.jump_confirmations + 1),
                                 confirmations=sync.jump_confirmations)
         self._per_camera = {
             camera: StampSynchroniser(self._keys, slop_ns=int(sync.slop_s * 1e9),

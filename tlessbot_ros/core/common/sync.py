@@ -67,15 +67,19 @@ class SyncParams:
             their age would measure the clocks' offset, not a delay, so only that offset
             (``stamp_offset_s``) is reported.
         jump_confirmations: how many more items of a topic must follow, in line, the first one
-            that stepped back off its timeline before the step counts as a time jump. Until
-            then those items are held (at most this many per topic); once the jump is
-            confirmed they are paired as if it had been declared at once, so a bag looped
-            without ``--restamp`` loses no frame, only delays its first by this many messages.
-            A stray message with an absurd stamp (garbage from another publisher on the topic)
-            is dropped instead of emptying every queue: under garbage at 100 Hz on every input
-            (``tlessbot bench fuzz``) 0 answered none of the good frames, 2 all of them. A
-            leap forward is never held: a camera that paused, or frames sent on demand, go
-            through at once.
+            that stepped back off its timeline before the step counts as a time jump on that
+            topic's word alone; one is enough when another topic's held items carry exactly the
+            same stamps (whole frames jumped: one camera stamps its colour, depth and
+            camera_info alike). Until then the items are held (at most this many per topic);
+            once the jump is confirmed they are paired as if it had been declared at once, so
+            a bag looped without ``--restamp`` loses no frame, only delays its first by one
+            frame period. A stray message with an absurd stamp (garbage from another publisher
+            on the topic) is dropped instead of emptying every queue: strays differ per topic,
+            and four in line on one topic are rare (two were not: under garbage at 100 Hz on
+            every input, ``tlessbot bench fuzz``, negative-then-past stamps confirmed false
+            jumps). 0: every step back beyond ``jump_back_s`` is a jump at once. A leap
+            forward is never held: a camera that paused, or frames sent on demand, go through
+            at once.
         max_message_mb: largest input message taken, MiB (0 = no limit); a larger one is
             counted as malformed and never queued (a 4K colour image is 24 MiB: thirty of them
             waiting for partners would hold 0.7 GiB per topic). The D415's largest stream,
@@ -90,7 +94,7 @@ class SyncParams:
     jump_back_s: float = 0.1
     jump_forward_s: float = 10.0
     live_stamp_window_s: float = 5.0
-    jump_confirmations: int = 2
+    jump_confirmations: int = 4
     max_message_mb: float = 8.0
 
     def __post_init__(self) -> None:
@@ -134,10 +138,9 @@ class StampJumps:
     stepped clock's second frame confirms it, which matters for a later stage that sees only
     the few frames of a short loop its upstream admitted), and the candidate is forgotten when
     the stream's old timeline goes on. A :class:`TimelineGate` keeps the held items and passes
-    them on once the jump is confirmed, so a real jump loses nothing. Items that leap forward go
-    through (:data:`IN_ORDER`) while their leap is confirmed the same way. One confirmation alone was
-    not enough under garbage at 100 Hz: two stray stamps a few seconds apart, one after the
-    other, confirmed a jump every second or two (``SyncParams.jump_confirmations``).
+    them on once the jump is confirmed, so a real jump loses nothing. Items that leap forward
+    go through (:data:`IN_ORDER`) while their leap is confirmed the same way
+    (``SyncParams.jump_confirmations``).
 
     Attributes:
         count: jumps seen.

@@ -48,6 +48,8 @@ from tlessbot_ros.core.common import CAMERA_NAMES
 # threshold (SyncParams: tens of milliseconds), so it never pairs with a good frame.
 GUARD_S = 10.0
 SECOND_NS = 1_000_000_000
+# The coherent garbage frames' stamps are spread over this many seconds before the guard.
+FRAME_SPREAD_S = 1000.0
 UHD = (2160, 3840)     # 4K: rows, columns
 VGA = (480, 640)
 # Garbage that arrives on one topic alone never pairs into a frame, so its size matters only to
@@ -309,8 +311,11 @@ class GarbagePublisher:
             self.counts.per_kind[kind] = self.counts.per_kind.get(kind, 0) + 1
 
     def send_frame(self, wall_ns: int) -> None:
-        """One coherent two-view frame with one corrupted message, at a recent garbage stamp."""
-        stamp = garbage_stamp('recent', wall_ns, self.rng)
+        """One coherent two-view frame with one corrupted message, at a garbage stamp from the
+        last :data:`FRAME_SPREAD_S` before the recent guard: the frames are strays, each on its
+        own, and rarely in line with the one before (frames stamped alike on every topic, one
+        after the other in line, would be a second timeline: a time jump)."""
+        stamp = wall_ns - int((GUARD_S + self.rng.uniform(0.0, FRAME_SPREAD_S)) * SECOND_NS)
         for topic, raw in next(self._frames).items():
             if topic in self.publishers:
                 self.publishers[topic].publish(restamp_cdr(raw, stamp))
