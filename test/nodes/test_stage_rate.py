@@ -72,3 +72,43 @@ def test_busy_worker_processes_the_newest_frame_and_drops_the_ones_between():
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
+
+
+def test_frames_released_at_a_time_jump_are_all_processed_in_order():
+    """Frames held while a time jump waited for confirmation come together; none is replaced
+    by the next, and the max rate does not drop them."""
+    import threading
+
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.nodes.stage import StageNode
+
+    release = threading.Event()
+
+    class Slow(StageNode):
+        def __init__(self, **kwargs):
+            super().__init__('held_probe', **kwargs)
+            self.seen = []
+
+        def process(self, views):
+            self.seen.append(views['top']['n'])
+            release.wait(timeout=10.0)
+
+    rclpy.init()
+    try:
+        node = Slow(parameter_overrides=[Parameter('sync.max_rate_hz', value=1.0)])
+        node._on_views({'top': {'n': 0}})
+        deadline = time.monotonic() + 5.0
+        while not node.seen and time.monotonic() < deadline:
+            time.sleep(0.01)
+        node._on_views({'top': {'n': 1}}, True)     # released together at a jump
+        node._on_views({'top': {'n': 2}}, True)
+        node._on_views({'top': {'n': 3}})           # the next frame: within 1 s, dropped
+        release.set()
+        assert node.wait_idle(10.0)
+        assert node.seen == [0, 1, 2]
+        assert (node.frames, node.busy_dropped, node.rate_dropped) == (3, 0, 1)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()

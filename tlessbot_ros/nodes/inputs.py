@@ -28,7 +28,6 @@ from tlessbot_ros.conversions.image import ENCODINGS
 from tlessbot_ros.conversions.image_cdr import image_from_cdr
 from tlessbot_ros.core.common import (
     JUMP,
-    STALE,
     StampJumps,
     StampSynchroniser,
     SyncParams,
@@ -108,7 +107,9 @@ class TwoViewInputs:
             (:mod:`tlessbot_ros.conversions.topics`).
         cameras: camera names; all must contribute to a view set.
         sync: thresholds; ``slop_s`` within a camera, ``max_age_s`` across cameras.
-        callback: called with the views of one two-view frame.
+        callback: called with the views of one two-view frame, and whether the frame was held
+            while a time jump waited for its confirmation (``SyncParams.jump_confirmations``):
+            such frames come several at once and should all be processed, in order.
         qos: subscription QoS (sensor data by default).
         on_time_jump: called with the jump's size (ns, < 0 back) when stamps jump, after the
             queues were emptied.
@@ -116,7 +117,7 @@ class TwoViewInputs:
 
     def __init__(self, node: Node, topics: dict[str, tuple[type, Callable[[str], str]]],
                  cameras: Sequence[str], sync: SyncParams,
-                 callback: Callable[[Views], None], *, qos: Any = SENSOR_QOS,
+                 callback: Callable[[Views, bool], None], *, qos: Any = SENSOR_QOS,
                  on_time_jump: Callable[[int], None] | None = None) -> None:
         self._callback = callback
         self._on_time_jump = on_time_jump
@@ -136,7 +137,11 @@ class TwoViewInputs:
         self.sync = sync
         self.jumps = StampJumps(back_ns=int(sync.jump_back_s * 1e9),
                                 forward_ns=int(sync.jump_forward_s * 1e9),
-                                stale_limit=sync.queue_size,
+                                # a topic that goes on with its old timeline for as many
+                                # items as confirm a jump did not jump (a false jump, from
+                                # strays, must not silence the good topics for long); a few
+                                # stragglers of a real one (frames in flight) are fewer
+                                stale_limit=max(3, sync.jump_confirmations + 1),
                                 confirmations=sync.jump_confirmations)
         self._per_camera = {
             camera: StampSynchroniser(self._keys, slop_ns=int(sync.slop_s * 1e9),
@@ -181,18 +186,26 @@ class TwoViewInputs:
             if stamp == 0:
                 self.zero_stamps += 1  # cannot be synchronised; counted in diagnostics
                 return
-            verdict = self._gate.admit(f'{camera}/{key}', stamp)
-            if verdict == STALE:
-                return
+            verdict, released = self._gate.admit((camera, key), stamp,
+                                                 RawMessage(msg_class, data))
             if verdict == JUMP and self._on_time_jump is not None:
                 self._on_time_jump(self.jumps.last_jump_ns)
-            complete = self._per_camera[camera].add(key, stamp, RawMessage(msg_class, data))
-            if complete is None:
-                return
-            views = self._across.add(camera, stamp, complete)
-            if views is not None:
-                self._callback(views)
+            # more than one: messages held while a jump waited for confirmation come too
+            held = len(released) > 1
+            for (from_camera, from_key), from_stamp, message in released:
+                self._pair(from_camera, from_key, from_stamp, message, held)
         return on_message
+
+    def _pair(self, camera: str, key: str, stamp: int, message: RawMessage,
+              held: bool) -> None:
+        """Queue one message for pairing; a complete set of every camera goes to the
+        callback (``held``: it was completed by messages released at a time jump)."""
+        complete = self._per_camera[camera].add(key, stamp, message)
+        if complete is None:
+            return
+        views = self._across.add(camera, stamp, complete)
+        if views is not None:
+            self._callback(views, held)
 
     @property
     def dropped(self) -> int:

@@ -113,14 +113,16 @@ class LocaliserNode(StageNode):
             for camera in self.cameras}
         self.start_when_ready(self._warm_up, camera_inputs(CAMERA_INPUTS))
 
-    def admit(self, views: Views) -> bool:
+    def admit(self, views: Views, *, held: bool = False) -> bool:
         """Backpressure: take the frame only while fewer than ``admission.max_in_flight`` are
-        unfinished downstream (every frame when no pose estimator reports outcomes)."""
+        unfinished downstream (every frame when no pose estimator reports outcomes, and the
+        frames released at a time jump: they are few, once)."""
         if self._downstream[DOWNSTREAM[-1]].get_publisher_count() == 0:
             return True
         stamp_ns = newest_stamp_ns(views)
         with self._in_flight_lock:
-            return stamp_ns is None or self.in_flight.try_admit(stamp_ns, time.monotonic())
+            return stamp_ns is None or self.in_flight.try_admit(stamp_ns, time.monotonic(),
+                                                                force=held)
 
     def on_admitted(self, views: Views) -> None:
         """Relay the admitted frame's camera messages, as received, to the later stages."""

@@ -226,6 +226,8 @@ class StageNode(Node):
         self.busy_dropped = 0   # complete frames replaced by a newer one while the worker ran
         self._last_start = -float('inf')
         self._pending: Views | None = None
+        # frames released together at a time jump (at most jump_confirmations + 1 at a time)
+        self._held_frames: deque[Views] = deque()
         self._busy = False
         self._wakeup = threading.Condition()
         self._stopping = False
@@ -336,14 +338,16 @@ class StageNode(Node):
     def _apply_extrinsics(self, camera: str, T_world_camera: np.ndarray) -> None:
         self.extrinsics = {**self.extrinsics, camera: T_world_camera}
 
-    def _on_views(self, views: Views) -> None:
-        """A complete two-view frame: hand it to the worker (or process it here without one)."""
+    def _on_views(self, views: Views, held: bool = False) -> None:
+        """A complete two-view frame: hand it to the worker (or process it here without one).
+        ``held`` frames (held while a time jump waited for its confirmation, then released
+        together) are all taken and processed in order: a looped bag loses none of them."""
         max_rate = self.sync_params.max_rate_hz
         now = time.perf_counter()
-        if max_rate > 0 and now - self._last_start < 1.0 / max_rate:
+        if not held and max_rate > 0 and now - self._last_start < 1.0 / max_rate:
             self.rate_dropped += 1
             return
-        if not self.admit(views):
+        if not self.admit(views, held=held):
             self.entrance_dropped += 1
             return
         self.on_admitted(views)
@@ -353,16 +357,21 @@ class StageNode(Node):
             self._process_safely(views)
             return
         with self._wakeup:
-            replaced, self._pending = self._pending, views
+            replaced = None
+            if held:
+                self._held_frames.append(views)
+            else:
+                replaced, self._pending = self._pending, views
             if replaced is not None:
                 self.busy_dropped += 1
             self._wakeup.notify()
         if replaced is not None:
             self.report_outcome(replaced, DROPPED)
 
-    def admit(self, views: Views) -> bool:
+    def admit(self, views: Views, *, held: bool = False) -> bool:
         """Whether to take a complete frame (after ``sync.max_rate_hz``); the entrance of the
-        graph overrides it to apply backpressure. A refused frame is counted, not reported."""
+        graph overrides it to apply backpressure (``held`` frames are always taken, see
+        :meth:`_on_views`). A refused frame is counted, not reported."""
         return True
 
     def on_admitted(self, views: Views) -> None:
@@ -386,11 +395,14 @@ class StageNode(Node):
     def _work(self) -> None:
         while True:
             with self._wakeup:
-                while self._pending is None and not self._stopping:
+                while self._pending is None and not self._held_frames and not self._stopping:
                     self._wakeup.wait()
                 if self._stopping:
                     return
-                views, self._pending = self._pending, None
+                if self._held_frames:   # older than any pending frame: first, in order
+                    views = self._held_frames.popleft()
+                else:
+                    views, self._pending = self._pending, None
                 self._busy = True
             self.parameters.apply_pending()   # between frames: a frame sees all or nothing
             self._process_safely(views)
@@ -400,7 +412,7 @@ class StageNode(Node):
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             with self._wakeup:
-                if self._pending is None and not self._busy:
+                if self._pending is None and not self._held_frames and not self._busy:
                     return True
             time.sleep(0.005)
         return False

@@ -79,13 +79,13 @@ class InFlightFrames:
         slowest = max(self._recent_s, default=0.0)
         return max(self.params.min_expiry_s, self.params.expiry_factor * slowest)
 
-    def try_admit(self, stamp_ns: int, now_s: float) -> bool:
+    def try_admit(self, stamp_ns: int, now_s: float, *, force: bool = False) -> bool:
         """Admit the frame ``stamp_ns`` if fewer than ``max_in_flight`` are open (after
-        expiring the overdue ones); count a refusal otherwise."""
+        expiring the overdue ones), or anyway when ``force``d; count a refusal otherwise."""
         if not self.enabled:
             return True
         self._expire(now_s)
-        if len(self._open) >= self.params.max_in_flight:
+        if not force and len(self._open) >= self.params.max_in_flight:
             self.refused += 1
             return False
         self._open[int(stamp_ns)] = now_s

@@ -20,7 +20,7 @@ drops the old timeline's stragglers that arrive after the jump.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 from typing import Generic, Literal, TypeVar
 
@@ -67,14 +67,19 @@ class SyncParams:
             their age would measure the clocks' offset, not a delay, so only that offset
             (``stamp_offset_s``) is reported.
         jump_confirmations: how many more items of a topic must follow, in line, the first one
-            that stepped back off its timeline before the step counts as a time jump; until
-            then those items are dropped as strays. 0: every step back beyond ``jump_back_s``
-            is a jump at once (what a bag looped without ``--restamp`` needs: no frame lost).
-            2: a stray message with an absurd stamp (garbage from another publisher on the
-            topic) is dropped instead of emptying every queue; under garbage at 100 Hz on every
-            input (``tlessbot bench fuzz``) 0 answered none of the good frames, 2 all of them,
-            but each real jump back then costs the first two frames. A leap forward is never
-            held: a camera that paused, or frames sent on demand, go through at once.
+            that stepped back off its timeline before the step counts as a time jump on that
+            topic's word alone; one is enough when another topic's held items carry exactly the
+            same stamps (whole frames jumped: one camera stamps its colour, depth and
+            camera_info alike). Until then the items are held (at most this many per topic);
+            once the jump is confirmed they are paired as if it had been declared at once, so
+            a bag looped without ``--restamp`` loses no frame, only delays its first by one
+            frame period. A stray message with an absurd stamp (garbage from another publisher
+            on the topic) is dropped instead of emptying every queue: strays differ per topic,
+            and four in line on one topic are rare (two were not: under garbage at 100 Hz on
+            every input, ``tlessbot bench fuzz``, negative-then-past stamps confirmed false
+            jumps). 0: every step back beyond ``jump_back_s`` is a jump at once. A leap
+            forward is never held: a camera that paused, or frames sent on demand, go through
+            at once.
         max_message_mb: largest input message taken, MiB (0 = no limit); a larger one is
             counted as malformed and never queued (a 4K colour image is 24 MiB: thirty of them
             waiting for partners would hold 0.7 GiB per topic). The D415's largest stream,
@@ -89,7 +94,7 @@ class SyncParams:
     jump_back_s: float = 0.1
     jump_forward_s: float = 10.0
     live_stamp_window_s: float = 5.0
-    jump_confirmations: int = 0
+    jump_confirmations: int = 4
     max_message_mb: float = 8.0
 
     def __post_init__(self) -> None:
@@ -115,23 +120,27 @@ STALE: Verdict = 'stale'
 class StampJumps:
     """Notices stamps that jump, stream by stream (nanoseconds; pure, no clock is read).
 
-    A stream is one publisher's topic: its stamps only go forward. An item whose stamp lies
-    more than ``back_ns`` before its stream's previous one, or more than ``forward_ns`` after
-    it, starts a new timeline (:data:`JUMP`): everything queued by stamp must be forgotten.
-    The other streams jumped too (one clock stamps them all), but their items sent before the
-    jump may still be on their way: until a stream's first item of the new timeline comes, an
-    item that continues its old timeline is :data:`STALE` (drop it), at most ``stale_limit``
-    in a row (a stream whose clock did not jump joins the new timeline as it is).
+    A stream is one publisher's topic (any hashable name): its stamps only go forward. An item
+    whose stamp lies more than ``back_ns`` before its stream's previous one, or more than
+    ``forward_ns`` after it, starts a new timeline (:data:`JUMP`): everything queued by stamp
+    must be forgotten. The other streams jumped too (one clock stamps them all), but their
+    items sent before the jump may still be on their way: until a stream's first item of the
+    new timeline comes, an item that continues its old timeline is :data:`STALE` (drop it), at
+    most ``stale_limit`` in a row (a stream whose clock did not jump joins the new timeline as
+    it is).
 
     With ``confirmations`` > 0, a few items out of line are not yet a jump: a stray message
     (another publisher's, a corrupt stamp) would otherwise throw every queue away. Items that
-    step back off a stream's timeline are held as a candidate timeline and dropped
-    (:data:`STALE`, counted in :attr:`outliers`); the jump is declared when ``confirmations``
-    more items of the stream follow the candidate's first in line, and the candidate is
-    forgotten when the stream's old timeline goes on. Items that leap forward go through
-    (:data:`IN_ORDER`) while their leap is confirmed the same way. One confirmation was not
-    enough under garbage at 100 Hz: two stray stamps a few seconds apart, one after the
-    other, confirmed a jump every second or two (``SyncParams.jump_confirmations``).
+    step back off a stream's timeline are held as a candidate timeline (:data:`STALE`, counted
+    in :attr:`outliers`); the jump is declared when ``confirmations`` more items of the stream
+    follow the candidate's first in line, or already when one does and another stream's
+    candidate holds exactly the same two stamps (whole frames jumped: a looped bag's or a
+    stepped clock's second frame confirms it, which matters for a later stage that sees only
+    the few frames of a short loop its upstream admitted), and the candidate is forgotten when
+    the stream's old timeline goes on. A :class:`TimelineGate` keeps the held items and passes
+    them on once the jump is confirmed, so a real jump loses nothing. Items that leap forward
+    go through (:data:`IN_ORDER`) while their leap is confirmed the same way
+    (``SyncParams.jump_confirmations``).
 
     Attributes:
         count: jumps seen.
@@ -150,14 +159,14 @@ class StampJumps:
         self.count = 0
         self.last_jump_ns = 0
         self._target_ns = 0                 # the stamp the last jump went to
-        self._last: dict[str, int] = {}     # per stream: its newest stamp
-        self._epoch: dict[str, int] = {}    # per stream: the jump count its newest stamp saw
-        self._stale: dict[str, int] = {}    # per stream: stale items since the last jump
+        self._last: dict[Hashable, int] = {}     # per stream: its newest stamp
+        self._epoch: dict[Hashable, int] = {}    # per stream: the jump count its newest stamp saw
+        self._stale: dict[Hashable, int] = {}    # per stream: stale items since the last jump
         # per stream: (first, newest stamp, items) of a timeline off the stream's, held
-        self._candidate: dict[str, tuple[int, int, int]] = {}
+        self._candidate: dict[Hashable, tuple[int, int, int]] = {}
         self.outliers = 0
 
-    def check(self, stream: str, stamp_ns: int) -> Verdict:
+    def check(self, stream: Hashable, stamp_ns: int) -> Verdict:
         """Classify the next item of ``stream`` (and remember its stamp)."""
         stamp_ns = int(stamp_ns)
         last = self._last.get(stream)
@@ -169,7 +178,9 @@ class StampJumps:
                     first, seen = stamp_ns, 0   # a new candidate timeline
                 seen += 1
                 forward = stamp_ns > last
-                if seen <= self.confirmations:   # held until enough items follow it
+                if seen <= self.confirmations and not (
+                        seen >= 2 and self._agreed(stream, first, stamp_ns)):
+                    # held until enough items follow it, or another stream agrees
                     self._candidate[stream] = (first, stamp_ns, seen)
                     if forward:   # a pause, not a step back: nothing queued is in the way
                         return IN_ORDER
@@ -181,6 +192,11 @@ class StampJumps:
                 self.count += 1
                 self.last_jump_ns, self._target_ns = first - last, first
                 self._stale.clear()
+                self._candidate.clear()   # the other streams' candidates: see adopt()
+                if forward:   # streams that went through the leap are on the new timeline
+                    for other, other_last in self._last.items():
+                        if other_last >= first - self.back_ns:
+                            self._epoch[other] = self.count
                 verdict = JUMP
             else:
                 self._candidate.pop(stream, None)   # the old timeline goes on: stray items
@@ -191,6 +207,37 @@ class StampJumps:
             return STALE
         self._last[stream], self._epoch[stream] = stamp_ns, self.count
         return verdict
+
+    @property
+    def jump_target_ns(self) -> int:
+        """The stamp the last jump went to (the new timeline's first)."""
+        return self._target_ns
+
+    def candidate(self, stream: Hashable) -> tuple[int, int] | None:
+        """The timeline ``stream`` holds as a candidate, if any: (its first stamp, the number
+        of items it has had)."""
+        candidate = self._candidate.get(stream)
+        return None if candidate is None else (candidate[0], candidate[2])
+
+    def adopt(self, stream: Hashable, stamps_ns: Sequence[int]) -> bool:
+        """After a jump another stream confirmed: whether the items ``stream`` held as its own
+        candidate (``stamps_ns``, in order) belong to the new timeline; if so they join it, as
+        if they had come after the jump, and no longer count as outliers."""
+        last = self._last.get(stream)
+        if not stamps_ns or last is None or not self._joins_new_timeline(stamps_ns[0], last):
+            return False
+        self._last[stream], self._epoch[stream] = int(stamps_ns[-1]), self.count
+        self.outliers -= len(stamps_ns)
+        return True
+
+    def _agreed(self, stream: Hashable, first_ns: int, newest_ns: int) -> bool:
+        """Whether another stream holds a candidate timeline with exactly the same first and
+        newest stamps as this one's: two frames jumped on every topic, as one camera stamps
+        its colour, depth and camera_info alike. A stray stamp on one topic never repeats on
+        another (a second publisher stamping several topics alike, twice in line, is a second
+        timeline, and taken for one)."""
+        return any(other != stream and candidate[0] == first_ns and candidate[1] == newest_ns
+                   for other, candidate in self._candidate.items())
 
     def _in_line(self, previous_ns: int, stamp_ns: int) -> bool:
         """Whether ``stamp_ns`` may follow ``previous_ns`` on one timeline."""
@@ -205,28 +252,67 @@ class StampJumps:
         return abs(stamp_ns - self._target_ns) <= abs(stamp_ns - last_ns)
 
 
-class TimelineGate:
+class TimelineGate(Generic[Item]):
     """Lets items through by their stream's timeline (:class:`StampJumps`), in front of the
     synchronisers that pair them: a stale item is dropped (counted in :attr:`stale`), and a
-    jump empties every synchroniser (:meth:`StampSynchroniser.reset`), since nothing queued can
-    pair with the new timeline.
+    jump back empties every synchroniser (:meth:`StampSynchroniser.reset`), since nothing
+    queued can pair with the new timeline; a jump forward drops what is queued before it.
+
+    The items a candidate timeline holds while its jump waits for confirmation
+    (``StampJumps(confirmations > 0)``) are kept here, at most ``confirmations`` per stream,
+    and released in stamp order once the jump is confirmed: a bag looped without ``--restamp``
+    then loses no frame to the confirmation, and a stray stamp still empties nothing. Items of
+    a candidate the old timeline outlives are dropped (counted in :attr:`stale`).
     """
 
     def __init__(self, jumps: StampJumps, synchronisers: Sequence[StampSynchroniser]) -> None:
         self.jumps = jumps
         self.synchronisers = tuple(synchronisers)
         self.stale = 0
+        # per stream: the held items of its candidate timeline, (stamp_ns, item), oldest first
+        self._held: dict[Hashable, list[tuple[int, Item]]] = {}
 
-    def admit(self, stream: str, stamp_ns: int) -> Verdict:
-        """The verdict on the next item of ``stream``, its effects applied; drop the item when
-        :data:`STALE`."""
+    def admit(self, stream: Hashable, stamp_ns: int, item: Item
+              ) -> tuple[Verdict, list[tuple[Hashable, int, Item]]]:
+        """The verdict on the next item of ``stream``, its effects applied, and the items to
+        pass on to the synchronisers now, ``[(stream, stamp_ns, item)]`` in stamp order: the
+        item itself when in order; nothing when stale or held; after a confirmed jump the
+        held items of every stream that joins the new timeline, then this one."""
+        stamp_ns = int(stamp_ns)
         verdict = self.jumps.check(stream, stamp_ns)
-        if verdict == STALE:
-            self.stale += 1
-        elif verdict == JUMP:
+        if verdict != JUMP:
+            candidate = self.jumps.candidate(stream)
+            held = self._held.pop(stream, [])
+            # a backward candidate holds every item it has had, this one last; anything else
+            # held began a candidate that ended (its old timeline went on) or restarted
+            if verdict == STALE and candidate is not None and held and \
+                    held[0][0] == candidate[0] and len(held) == candidate[1] - 1:
+                self._held[stream] = held + [(stamp_ns, item)]
+                return verdict, []
+            self.stale += len(held)
+            if verdict == STALE and candidate is not None and candidate == (stamp_ns, 1):
+                self._held[stream] = [(stamp_ns, item)]
+                return verdict, []
+            if verdict == STALE:
+                self.stale += 1
+                return verdict, []
+            return verdict, [(stream, stamp_ns, item)]
+        if self.jumps.last_jump_ns < 0:
             for synchroniser in self.synchronisers:
                 synchroniser.reset()
-        return verdict
+        else:
+            for synchroniser in self.synchronisers:
+                synchroniser.drop_before(self.jumps.jump_target_ns)
+        released = [(stream, stamp, held_item)
+                    for stamp, held_item in self._held.pop(stream, [])]
+        for other, items in self._held.items():
+            if self.jumps.adopt(other, [stamp for stamp, _ in items]):
+                released += [(other, stamp, held_item) for stamp, held_item in items]
+            else:
+                self.stale += len(items)
+        self._held.clear()
+        released.sort(key=lambda entry: entry[1])
+        return verdict, released + [(stream, stamp_ns, item)]
 
 
 class StampSynchroniser(Generic[Item]):
@@ -254,6 +340,21 @@ class StampSynchroniser(Generic[Item]):
         for name in self.streams:
             self._queues[name].clear()
             self._recent[name].clear()
+
+    def drop_before(self, stamp_ns: int) -> None:
+        """Forget the items more than the slop older than ``stamp_ns`` (counted as dropped),
+        and the periods measured across it: after a leap forward in stamps, what waits from
+        before the leap can pair with nothing that comes."""
+        cutoff = int(stamp_ns) - self.slop_ns
+        for name in self.streams:
+            queue = self._queues[name]
+            kept = [entry for entry in queue if entry[0] >= cutoff]
+            self.dropped += len(queue) - len(kept)
+            self._queues[name] = deque(kept)
+            recent = self._recent[name]
+            recent_kept = [stamp for stamp in recent if stamp >= cutoff]
+            recent.clear()
+            recent.extend(recent_kept)
 
     def add(self, stream: str, stamp_ns: int, item: Item) -> dict[str, Item] | None:
         """Queue ``item``; returns ``{stream: item}`` when a complete set forms, else None."""

@@ -48,6 +48,8 @@ from tlessbot_ros.core.common import CAMERA_NAMES
 # threshold (SyncParams: tens of milliseconds), so it never pairs with a good frame.
 GUARD_S = 10.0
 SECOND_NS = 1_000_000_000
+# The coherent garbage frames' stamps are spread over this many seconds before the guard.
+FRAME_SPREAD_S = 1000.0
 UHD = (2160, 3840)     # 4K: rows, columns
 VGA = (480, 640)
 # Garbage that arrives on one topic alone never pairs into a frame, so its size matters only to
@@ -269,7 +271,7 @@ class GarbagePublisher:
         self._frames = itertools.cycle([
             {topic: serialize_message(msg) for topic, msg in msgs.items()}
             for _, msgs in corrupt_frames(good_frame, FRAME_CASES)]) if good_frame else None
-        self._restamped: dict[tuple[int, str], tuple[float, bytes]] = {}
+        self._restamped: dict[tuple[str, int, str], tuple[float, bytes]] = {}
         self.counts = GarbageCounts()
 
     def _next_message(self, topic: str, now_s: float) -> tuple[str, bytes]:
@@ -281,14 +283,17 @@ class GarbagePublisher:
                 self._last_huge = now_s
         return kind, raw
 
-    def _stamped(self, raw: bytes, stamp_kind: str, now_s: float, wall_ns: int) -> bytes:
+    def _stamped(self, topic: str, raw: bytes, stamp_kind: str, now_s: float,
+                 wall_ns: int) -> bytes:
         """``raw`` with a garbage stamp of ``stamp_kind``. Copies of each message with each
-        kind of stamp are kept for up to :data:`RESTAMP_PERIOD_S` (copying megabytes for
-        every message would cap the rate far below 100 Hz); 4K ones are sent rarely and not
-        kept."""
+        kind of stamp are kept per topic for up to :data:`RESTAMP_PERIOD_S` (copying megabytes
+        for every message would cap the rate far below 100 Hz); 4K ones are sent rarely and
+        not kept. Per topic: strays are strays, each topic's its own; the same garbage stamp
+        on several topics, twice in line, would be whole frames on a second timeline (a second
+        driver on the same topics), which the nodes take for a time jump."""
         if len(raw) > 4 * 2**20:
             return restamp_cdr(raw, garbage_stamp(stamp_kind, wall_ns, self.rng))
-        key = (id(raw), stamp_kind)
+        key = (topic, id(raw), stamp_kind)
         made = self._restamped.get(key)
         if made is None or now_s - made[0] > RESTAMP_PERIOD_S:
             made = (now_s, restamp_cdr(raw, garbage_stamp(stamp_kind, wall_ns, self.rng)))
@@ -300,14 +305,17 @@ class GarbagePublisher:
         for topic, publisher in self.publishers.items():
             kind, raw = self._next_message(topic, now_s)
             if len(raw) >= 12 and raw[:2] == b'\x00\x01':   # CDR: a stamp to set
-                raw = self._stamped(raw, next(self._stamps[topic]), now_s, wall_ns)
+                raw = self._stamped(topic, raw, next(self._stamps[topic]), now_s, wall_ns)
             publisher.publish(raw)
             self.counts.per_topic[topic] = self.counts.per_topic.get(topic, 0) + 1
             self.counts.per_kind[kind] = self.counts.per_kind.get(kind, 0) + 1
 
     def send_frame(self, wall_ns: int) -> None:
-        """One coherent two-view frame with one corrupted message, at a recent garbage stamp."""
-        stamp = garbage_stamp('recent', wall_ns, self.rng)
+        """One coherent two-view frame with one corrupted message, at a garbage stamp from the
+        last :data:`FRAME_SPREAD_S` before the recent guard: the frames are strays, each on its
+        own, and rarely in line with the one before (frames stamped alike on every topic, one
+        after the other in line, would be a second timeline: a time jump)."""
+        stamp = wall_ns - int((GUARD_S + self.rng.uniform(0.0, FRAME_SPREAD_S)) * SECOND_NS)
         for topic, raw in next(self._frames).items():
             if topic in self.publishers:
                 self.publishers[topic].publish(restamp_cdr(raw, stamp))

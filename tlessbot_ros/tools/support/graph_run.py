@@ -154,7 +154,7 @@ def rss_mb(pid: int, parents: dict[int, list[int]] | None = None) -> float:
 
 def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | None = None,
                      rate: float = 1.0, loop: bool = False, duration_s: float = 0.0,
-                     restamp: bool = False, startup_timeout_s: float = 90.0,
+                     restamp: bool = False, startup_timeout_s: float = 300.0,
                      settle_s: float = 3.0, drain_timeout_s: float = 60.0,
                      lockstep: bool = False, quiet: bool = True,
                      node_prefixes: dict[str, list[str]] | None = None,
