@@ -130,7 +130,16 @@ def test_classifier_scores_on_stored_crops(demo_frames, pipeline):
         if key.endswith('_instances'):
             np.testing.assert_array_equal(value, stored[key], err_msg=key)
         else:
-            np.testing.assert_allclose(value, stored[key], rtol=1e-6, atol=1e-9, err_msg=key)
+            # float32 dot products of thousands of HOG features: the BLAS kernel's summation
+            # order differs between CPUs (AVX2, AVX-512), which moved scores of ~2500 by up to
+            # 0.53 on another host of the same kind. Scores must agree to 1e-3 of their scale,
+            # and every crop must rank the classes alike.
+            scale = float(np.max(np.abs(stored[key]))) if stored[key].size else 1.0
+            np.testing.assert_allclose(value, stored[key], rtol=0, atol=1e-3 * scale,
+                                       err_msg=key)
+            np.testing.assert_array_equal(np.argsort(-value, axis=-1, kind='stable')[..., :4],
+                                          np.argsort(-stored[key], axis=-1,
+                                                     kind='stable')[..., :4], err_msg=key)
             np.testing.assert_array_equal(value.argmax(axis=1), stored[key].argmax(axis=1))
 
 
