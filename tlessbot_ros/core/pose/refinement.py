@@ -122,11 +122,13 @@ class Refiner:
     # ------------------------------------------------------------------------ evaluation
     def evaluate(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
                  *, method: str, stable: int = -1, template: int = -1,
-                 scene_buckets: PointBuckets | None = None) -> PoseCandidate:
+                 scene_buckets: PointBuckets | None = None,
+                 scene_depth_m: float | None = None) -> PoseCandidate:
         """Fitness / RMSE (scene -> model) and coverage (visible model -> scene).
 
         ``scene_buckets``: :class:`PointBuckets` of ``scene_c`` with an edge of at least
-        :meth:`coverage_radius` (built here when not given).
+        :meth:`coverage_radius`; ``scene_depth_m``: the median z of ``scene_c`` (each built
+        here when not given; a caller that evaluates several poses of one scene passes them).
         """
         inlier = self.params.inlier_voxels * obj.voxel_size_m
         q = transform_points(invert_transform(T_camera_object), scene_c)
@@ -144,8 +146,10 @@ class Refiner:
         model, normals = obj.model_subset()
         model_c = model @ T_camera_object[:3, :3].T + T_camera_object[:3, 3]
         normals_c = normals @ T_camera_object[:3, :3].T
+        if scene_depth_m is None:
+            scene_depth_m = float(np.median(scene_c[:, 2]))
         visible = self_visible(model_c, normals_c, 0.5 * obj.voxel_size_m
-                               / max(float(np.median(scene_c[:, 2])), 1e-3), obj.voxel_size_m)
+                               / max(scene_depth_m, 1e-3), obj.voxel_size_m)
         coverage = 1.0
         if visible.any():
             radius = self.coverage_radius(obj)
