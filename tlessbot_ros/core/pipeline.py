@@ -47,7 +47,7 @@ from tlessbot_ros.core.common import (
     TablePlaneTracker,
     choose_table_frame,
     find_table_plane,
-    mask_box,
+    label_boxes,
     pixel_counts,
     plane_of_frame,
     transform_points,
@@ -194,6 +194,20 @@ def _view_order(views) -> list[str]:
 def label_counts(labels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Per view, the pixel count of every label (index = label id)."""
     return {view: pixel_counts(image) for view, image in labels.items()}
+
+
+def _label_stats(labels: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray],
+                                                          dict[str, np.ndarray]]:
+    """Per view, the pixel count (L,) and the (x, y, w, h) box (L, 4) of every label, from one
+    pass over each image (:func:`~tlessbot_ros.core.common.label_boxes`)."""
+    stats = {view: label_boxes(image) for view, image in labels.items()}
+    return ({view: counts for view, (counts, _) in stats.items()},
+            {view: boxes for view, (_, boxes) in stats.items()})
+
+
+def _box(boxes: np.ndarray, label: int) -> tuple[int, int, int, int]:
+    x, y, w, h = (int(v) for v in boxes[label])
+    return x, y, w, h
 
 
 def preferred_view(counts: dict[str, np.ndarray], instance_id: int, *,
@@ -381,7 +395,7 @@ class PerceptionPipeline:
         """
         if self.classifier is None:
             raise ValueError('no classifier loaded')
-        counts = label_counts(labels)
+        counts, boxes = _label_stats(labels)
         min_px = self.classify_params.min_instance_px
         # per view, the instances with enough pixels there
         seen = {view: [int(i) for i in np.flatnonzero(view_counts >= min_px) if i]
@@ -397,7 +411,8 @@ class PerceptionPipeline:
             if self.classifier.uses_depth and data is not None and data.depth_m is not None:
                 depth = {'depth_m': data.depth_m, 'K': data.intrinsics.K,
                          'T_world_camera': self.table_frame(view, data).T_world_camera}
-            features = self.classifier.describe(rgb[view], masks, [mask_box(m) for m in masks],
+            features = self.classifier.describe(rgb[view], masks,
+                                                [_box(boxes[view], i) for i in instances],
                                                 **depth)
             for instance, scores in zip(instances, self.classifier.decision_function(features)):
                 summed[instance] = summed.get(instance, 0.0) + scores
@@ -465,7 +480,7 @@ class PerceptionPipeline:
         database = self.pose_estimator.database
         detections, jobs = [], []
         done = on_detection or (lambda detection: None)
-        counts = label_counts(labels)
+        counts, boxes = _label_stats(labels)
         for instance in _instance_ids(counts):
             candidates = classes.get(instance, UNKNOWN_ID)
             candidates = (candidates,) if np.isscalar(candidates) else tuple(candidates)
@@ -475,10 +490,10 @@ class PerceptionPipeline:
                 continue
             data = views[view]
             mask = labels[view] == instance
-            detection = Detection(instance, candidates[0], view, mask_box(mask))
+            detection = Detection(instance, candidates[0], view, _box(boxes[view], instance))
             detections.append(detection)
             if data.depth_m is not None:
-                points = roi_cloud(data.depth_m, mask, data.intrinsics)
+                points = roi_cloud(data.depth_m, mask, data.intrinsics, box=detection.box)
                 T_world_camera = self.table_frame(view, data).T_world_camera
                 if box_mode and T_world_camera is not None:
                     height = transform_points(T_world_camera, points)[:, 2]

@@ -153,6 +153,57 @@ def pixel_counts(labels: np.ndarray, *, minlength: int = 0) -> np.ndarray:
     return counts
 
 
+def label_boxes(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel count and box of every label of an (H, W) integer label image, in one pass.
+
+    Returns:
+        counts: (L,) int64 pixels of each label 0..L-1 (L = the largest label + 1; index 0
+            counts the background), as ``np.bincount(labels.ravel())``.
+        boxes: (L, 4) int32 (x, y, w, h) of each label's pixels (zeros for a label with none
+            and for the background),
+            as :func:`~tlessbot_ros.core.common.mask_box` of ``labels == label``: one pass
+            instead of one mask and two reductions over the frame per part.
+    """
+    labels = np.asarray(labels)
+    if labels.ndim != 2:
+        raise ValueError(f'labels must be (H, W), got shape {labels.shape}')
+    if labels.size == 0:
+        return np.zeros(1, np.int64), np.zeros((1, 4), np.int32)
+    if labels.dtype == bool:
+        labels = labels.view(np.uint8)
+    if labels.dtype.kind not in 'ui' or int(labels.min()) < 0:
+        raise ValueError(f'labels must be non-negative integers, got {labels.dtype}')
+    return _label_boxes(labels, int(labels.max()) + 1)
+
+
+@njit(cache=True, nogil=True)
+def _label_boxes(labels: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    height, width = labels.shape
+    counts = np.zeros(size, np.int64)
+    low = np.full((size, 2), np.iinfo(np.int32).max, np.int32)   # first column, row
+    high = np.full((size, 2), -1, np.int32)                       # last column, row
+    for row in range(height):
+        for col in range(width):
+            label = labels[row, col]
+            counts[label] += 1
+            if label == 0:   # the background's box is not needed
+                continue
+            if col < low[label, 0]:
+                low[label, 0] = col
+            if col > high[label, 0]:
+                high[label, 0] = col
+            if row < low[label, 1]:
+                low[label, 1] = row
+            high[label, 1] = row
+    boxes = np.zeros((size, 4), np.int32)
+    for label in range(1, size):
+        if counts[label]:
+            boxes[label, 0], boxes[label, 1] = low[label, 0], low[label, 1]
+            boxes[label, 2] = high[label, 0] - low[label, 0] + 1
+            boxes[label, 3] = high[label, 1] - low[label, 1] + 1
+    return counts, boxes
+
+
 def instance_masks(instance_labels: np.ndarray) -> dict[int, np.ndarray]:
     """{instance id: (H, W) bool mask} of every non-zero label."""
     return {int(i): instance_labels == i for i in np.unique(instance_labels) if i != 0}
