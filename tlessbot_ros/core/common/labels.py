@@ -107,7 +107,7 @@ def decode_candidates(class_labels: np.ndarray) -> tuple[np.ndarray, dict[int, t
         raise ValueError(f'class labels must be (H, W) or (H, W, k), got {class_labels.shape}')
     flat = np.ascontiguousarray(class_labels.reshape(-1, class_labels.shape[2]),
                                 dtype=np.uint16)
-    instances, first_pixel, bad_channel = _decode_kernel(flat, CLASS_STRIDE)
+    instances, first_pixel, bad_channel = _decode_kernel(flat)
     if bad_channel:
         raise ValueError(f'candidate channel {bad_channel} disagrees with channel 0 on the '
                          'instances')
@@ -118,23 +118,28 @@ def decode_candidates(class_labels: np.ndarray) -> tuple[np.ndarray, dict[int, t
 
 
 @njit(cache=True, nogil=True)
-def _decode_kernel(flat: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarray, int]:
+def _decode_kernel(flat: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """One pass over (N, k) class-instance labels: (N,) instance ids, the first pixel of every
     instance id (-1 if absent; index 0 unused), and the first channel that disagrees with
     channel 0 on a pixel's instance (0 if none). A 640×480 16UC3 image took 0.43 ms here, against
-    ~1.7 ms for the numpy passes over every channel."""
+    ~1.7 ms for the numpy passes over every channel. CLASS_STRIDE is a compile-time constant
+    here (a global), so ``%`` compiles to a multiplication, not a division per channel."""
     n, k = flat.shape
     instances = np.zeros(n, np.uint16)
-    first_pixel = np.full(stride, -1, np.int64)
+    first_pixel = np.full(CLASS_STRIDE, -1, np.int64)
     for i in range(n):
         if flat[i, 0] == 0:   # most pixels: background in every channel
+            others = 0
             for c in range(1, k):
-                if flat[i, c] != 0 and flat[i, c] % stride != 0:
-                    return instances, first_pixel, c
+                others |= flat[i, c]
+            if others:   # a class but no instance: an error unless the class is 0
+                for c in range(1, k):
+                    if flat[i, c] != 0 and flat[i, c] % CLASS_STRIDE != 0:
+                        return instances, first_pixel, c
             continue
-        instance = flat[i, 0] % stride
+        instance = flat[i, 0] % CLASS_STRIDE
         for c in range(1, k):
-            if flat[i, c] % stride != instance:
+            if flat[i, c] % CLASS_STRIDE != instance:
                 return instances, first_pixel, c
         if instance:
             instances[i] = instance
