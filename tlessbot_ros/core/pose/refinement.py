@@ -29,6 +29,7 @@ from tlessbot_ros.core.pose.database import ObjectTemplates
 from tlessbot_ros.core.pose.grid_kernels import (
     gauss_newton,
     inlier_fraction,
+    keep_near_tangent_plane,
     self_visible,
     truncated_cost,
 )
@@ -138,9 +139,8 @@ class Refiner:
             # ... and within inlier_plane_m of the tangent plane there: small features (a few
             # mm) decide between near-symmetric poses that a voxel-wide radius cannot tell apart
             normals_all, model_all = obj.model_arrays_float64()
-            i = index[ok]
-            plane = np.abs(np.sum(normals_all[i] * (q[ok] - model_all[i]), axis=1))
-            ok[np.flatnonzero(ok)[plane >= self.params.inlier_plane_m]] = False
+            keep_near_tangent_plane(q, index, model_all, normals_all, self.params.inlier_plane_m,
+                                    ok)
         fitness = float(ok.mean()) if len(ok) else 0.0
         rmse = float(np.sqrt(np.mean(dist[ok] ** 2))) if ok.any() else np.inf
         model, normals = obj.model_subset()
