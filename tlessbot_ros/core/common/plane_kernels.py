@@ -109,3 +109,72 @@ def within_noise(points, residual, noise_factor, low, high):
         limit = min(max(noise_factor * points[i, 2] ** 2, low), high)
         out[i] = residual[i] < limit
     return out
+
+
+@njit(cache=True, nogil=True)
+def triple_normals(triples):
+    """Of (H, 3, 3) point triples, the non-degenerate ones' (H', 3) unit normals (the cross
+    product of their edges from the first point), (H', 3) first points and (H',) distances of
+    their centres from the origin: the arithmetic of ``np.cross``, ``np.linalg.norm(...,
+    axis=1)`` and ``mean(axis=1)`` (sums over x, y, z in order)."""
+    count = triples.shape[0]
+    normals = np.empty((count, 3))
+    firsts = np.empty((count, 3))
+    centre_distance = np.empty(count)
+    n = 0
+    for h in range(count):
+        p0x, p0y, p0z = triples[h, 0, 0], triples[h, 0, 1], triples[h, 0, 2]
+        ax, ay, az = triples[h, 1, 0] - p0x, triples[h, 1, 1] - p0y, triples[h, 1, 2] - p0z
+        bx, by, bz = triples[h, 2, 0] - p0x, triples[h, 2, 1] - p0y, triples[h, 2, 2] - p0z
+        cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        length = np.sqrt(cx * cx + cy * cy + cz * cz)
+        if not length > 1e-9:
+            continue
+        normals[n, 0], normals[n, 1], normals[n, 2] = cx / length, cy / length, cz / length
+        firsts[n, 0], firsts[n, 1], firsts[n, 2] = p0x, p0y, p0z
+        mx = (triples[h, 0, 0] + triples[h, 1, 0] + triples[h, 2, 0]) / 3.0
+        my = (triples[h, 0, 1] + triples[h, 1, 1] + triples[h, 2, 1]) / 3.0
+        mz = (triples[h, 0, 2] + triples[h, 1, 2] + triples[h, 2, 2]) / 3.0
+        centre_distance[n] = np.sqrt(mx * mx + my * my + mz * mz)
+        n += 1
+    return normals[:n], firsts[:n], centre_distance[:n]
+
+
+@njit(cache=True, nogil=True)
+def median_in_place(values):
+    """The median of (N,) values (N > 0, no NaN), as ``np.median`` gives it (the mean of the
+    two middle values for even N); reorders ``values``."""
+    n = values.shape[0]
+    upper = _select_in_place(values, n // 2)
+    if n % 2:
+        return upper
+    lower = values[0]
+    for i in range(1, n // 2):   # the largest of the lower half
+        lower = max(lower, values[i])
+    return (lower + upper) / 2.0
+
+
+@njit(cache=True, nogil=True)
+def _select_in_place(values, k):
+    """The k-th smallest (0-based) of ``values``, moved to index k with the smaller ones
+    before it (Hoare's quickselect)."""
+    lo, hi = 0, values.shape[0] - 1
+    while lo < hi:
+        pivot = values[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while values[i] < pivot:
+                i += 1
+            while values[j] > pivot:
+                j -= 1
+            if i <= j:
+                values[i], values[j] = values[j], values[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return values[k]

@@ -172,15 +172,14 @@ def _hypotheses(points: np.ndarray, params: TablePlaneParams, rng: np.random.Gen
                 ) -> tuple[np.ndarray, np.ndarray]:
     """(H, 3) unit normals and (H,) offsets of planes through random point triples that face
     the camera within ``max_incidence_deg``; degenerate triples are left out."""
+    from tlessbot_ros.core.common.plane_kernels import triple_normals
+
     triples = points[rng.integers(0, len(points), (params.iterations, 3))]   # (H, 3, 3)
-    normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
-    length = np.linalg.norm(normals, axis=1)
-    keep = length > 1e-9
-    normals = normals[keep] / length[keep, None]
-    normals, offsets = _facing(normals, -np.einsum('hi,hi->h', normals, triples[keep, 0]))
+    normals, firsts, seen_at = triple_normals(triples)
+    # (numpy's einsum sums these three products in an order of its own: kept here)
+    normals, offsets = _facing(normals, -np.einsum('hi,hi->h', normals, firsts))
     # cos(incidence) at the triple's centre: the camera's distance to the plane over its
     # distance to the points
-    seen_at = np.linalg.norm(triples[keep].mean(axis=1), axis=1)
     facing = offsets >= np.cos(np.radians(params.max_incidence_deg)) * seen_at
     return normals[facing], offsets[facing]
 
@@ -221,7 +220,7 @@ def _robust_refit(points: np.ndarray, normal: np.ndarray, offset: float,
             return normal, offset, None
         normal, offset = _refit(points, inliers)
         residual, ratio = kernels.residuals(points, normal, offset, inliers)
-        noise_at_1m = 1.4826 * float(np.median(ratio))
+        noise_at_1m = 1.4826 * float(kernels.median_in_place(ratio))
         inliers = kernels.within_noise(points, residual, params.inlier_sigmas * noise_at_1m,
                                        params.min_inlier_distance_m,
                                        params.max_inlier_distance_m)
