@@ -210,6 +210,16 @@ def _box(boxes: np.ndarray, label: int) -> tuple[int, int, int, int]:
     return x, y, w, h
 
 
+def _mask_in_box(labels: np.ndarray, label: int, box: tuple[int, int, int, int]
+                 ) -> np.ndarray:
+    """``labels == label`` as an (H, W) bool mask, compared only inside the label's box (the
+    rest is False anyway): a part covers a few % of the frame."""
+    x, y, w, h = box
+    mask = np.zeros(labels.shape, bool)
+    mask[y:y + h, x:x + w] = labels[y:y + h, x:x + w] == label
+    return mask
+
+
 def preferred_view(counts: dict[str, np.ndarray], instance_id: int, *,
                    min_px: int) -> str | None:
     """The view in which the pose and class of an instance are read: side first, then top.
@@ -405,7 +415,7 @@ class PerceptionPipeline:
             instances = seen[view]
             if not instances or view not in rgb:
                 continue
-            masks = [labels[view] == i for i in instances]
+            masks = [_mask_in_box(labels[view], i, _box(boxes[view], i)) for i in instances]
             depth = {}
             data = None if views is None else views.get(view)
             if self.classifier.uses_depth and data is not None and data.depth_m is not None:
@@ -489,8 +499,9 @@ class PerceptionPipeline:
             if not candidates or view is None:
                 continue
             data = views[view]
-            mask = labels[view] == instance
-            detection = Detection(instance, candidates[0], view, _box(boxes[view], instance))
+            box = _box(boxes[view], instance)
+            mask = _mask_in_box(labels[view], instance, box)
+            detection = Detection(instance, candidates[0], view, box)
             detections.append(detection)
             if data.depth_m is not None:
                 points = roi_cloud(data.depth_m, mask, data.intrinsics, box=detection.box)
