@@ -97,6 +97,8 @@ class _RestingHypotheses:
 
 def _resting_hypotheses(obj: ObjectTemplates, stable: int, yaw_step_deg: float
                         ) -> _RestingHypotheses:
+    """The :class:`_RestingHypotheses` of stable pose ``stable`` (index into ``stable_poses``)
+    with yaws ``yaw_step_deg`` apart."""
     period = obj.yaw_periods[stable]
     if period == CONTINUOUS_YAW_PERIOD:
         yaws = np.zeros(1)
