@@ -47,7 +47,7 @@ from tlessbot_ros.core.common import (
     TablePlaneTracker,
     choose_table_frame,
     find_table_plane,
-    mask_box,
+    label_boxes,
     pixel_counts,
     plane_of_frame,
     transform_points,
@@ -194,6 +194,30 @@ def _view_order(views) -> list[str]:
 def label_counts(labels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Per view, the pixel count of every label (index = label id)."""
     return {view: pixel_counts(image) for view, image in labels.items()}
+
+
+def _label_stats(labels: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray],
+                                                          dict[str, np.ndarray]]:
+    """Per view, the pixel count (L,) and the (x, y, w, h) box (L, 4) of every label, from one
+    pass over each image (:func:`~tlessbot_ros.core.common.label_boxes`)."""
+    stats = {view: label_boxes(image) for view, image in labels.items()}
+    return ({view: counts for view, (counts, _) in stats.items()},
+            {view: boxes for view, (_, boxes) in stats.items()})
+
+
+def _box(boxes: np.ndarray, label: int) -> tuple[int, int, int, int]:
+    x, y, w, h = (int(v) for v in boxes[label])
+    return x, y, w, h
+
+
+def _mask_in_box(labels: np.ndarray, label: int, box: tuple[int, int, int, int]
+                 ) -> np.ndarray:
+    """``labels == label`` as an (H, W) bool mask, compared only inside the label's box (the
+    rest is False anyway): a part covers a few % of the frame."""
+    x, y, w, h = box
+    mask = np.zeros(labels.shape, bool)
+    mask[y:y + h, x:x + w] = labels[y:y + h, x:x + w] == label
+    return mask
 
 
 def preferred_view(counts: dict[str, np.ndarray], instance_id: int, *,
@@ -381,28 +405,34 @@ class PerceptionPipeline:
         """
         if self.classifier is None:
             raise ValueError('no classifier loaded')
-        counts = label_counts(labels)
+        counts, boxes = _label_stats(labels)
         min_px = self.classify_params.min_instance_px
         # per view, the instances with enough pixels there
         seen = {view: [int(i) for i in np.flatnonzero(view_counts >= min_px) if i]
                 for view, view_counts in counts.items()}
         summed: dict[int, np.ndarray] = {}
+        described = []   # per view: (instances, (n, D) descriptors)
         for view in sorted(labels):
             instances = seen[view]
             if not instances or view not in rgb:
                 continue
-            masks = [labels[view] == i for i in instances]
+            masks = [_mask_in_box(labels[view], i, _box(boxes[view], i)) for i in instances]
             depth = {}
             data = None if views is None else views.get(view)
             if self.classifier.uses_depth and data is not None and data.depth_m is not None:
                 depth = {'depth_m': data.depth_m, 'K': data.intrinsics.K,
                          'T_world_camera': self.table_frame(view, data).T_world_camera}
-            features = self.classifier.describe(rgb[view], masks, [mask_box(m) for m in masks],
-                                                **depth)
-            for instance, scores in zip(instances, self.classifier.decision_function(features)):
-                summed[instance] = summed.get(instance, 0.0) + scores
-        if not summed:
+            described.append((instances, self.classifier.describe(
+                rgb[view], masks, [_box(boxes[view], i) for i in instances], **depth)))
+        if not described:
             return {}
+        # Both views' crops in one call: the model's matrices (~6 MB) are read once a frame.
+        scores_all = self.classifier.decision_function(np.vstack([f for _, f in described]))
+        row = 0
+        for instances, _ in described:
+            for instance, scores in zip(instances, scores_all[row:row + len(instances)]):
+                summed[instance] = summed.get(instance, 0.0) + scores
+            row += len(instances)
         instances = sorted(summed)
         scores = np.stack([summed[i] for i in instances])
         prediction = self.classifier.predict_scores(
@@ -465,7 +495,7 @@ class PerceptionPipeline:
         database = self.pose_estimator.database
         detections, jobs = [], []
         done = on_detection or (lambda detection: None)
-        counts = label_counts(labels)
+        counts, boxes = _label_stats(labels)
         for instance in _instance_ids(counts):
             candidates = classes.get(instance, UNKNOWN_ID)
             candidates = (candidates,) if np.isscalar(candidates) else tuple(candidates)
@@ -474,11 +504,12 @@ class PerceptionPipeline:
             if not candidates or view is None:
                 continue
             data = views[view]
-            mask = labels[view] == instance
-            detection = Detection(instance, candidates[0], view, mask_box(mask))
+            box = _box(boxes[view], instance)
+            mask = _mask_in_box(labels[view], instance, box)
+            detection = Detection(instance, candidates[0], view, box)
             detections.append(detection)
             if data.depth_m is not None:
-                points = roi_cloud(data.depth_m, mask, data.intrinsics)
+                points = roi_cloud(data.depth_m, mask, data.intrinsics, box=detection.box)
                 T_world_camera = self.table_frame(view, data).T_world_camera
                 if box_mode and T_world_camera is not None:
                     height = transform_points(T_world_camera, points)[:, 2]

@@ -32,7 +32,7 @@ from tlessbot_ros.conversions import (
     image_to_rgb,
     stamp_to_ns,
 )
-from tlessbot_ros.conversions.image_cdr import image_to_cdr
+from tlessbot_ros.conversions.image_cdr import image_from_cdr, image_to_cdr
 from tlessbot_ros.conversions.topics import classes_topic, labels_topic, node_relative
 from tlessbot_ros.core.common import encode_candidates
 from tlessbot_ros.core.pipeline import ClassifyParams, PerceptionPipeline, ViewInput
@@ -71,10 +71,15 @@ class ClassifierNode(StageNode):
 
     def _warm_up(self, pipeline: PerceptionPipeline | None = None) -> None:
         """Classify the box of a synthetic frame once (HOG, shape features, feature map) with
-        ``pipeline`` (default: the node's)."""
+        ``pipeline`` (default: the node's) and encode its classes, from labels read as a
+        frame's arrive (read-only views of CDR bytes: the numba kernels compile for them)."""
         views, labels = self.warm_up_frame()
-        (pipeline or self.pipeline).classify({c: v.rgb for c, v in views.items()}, labels,
-                                             views=views)
+        received = {camera: image_to_array(image_from_cdr(image_to_cdr(image, '16UC1')))
+                    for camera, image in labels.items()}
+        guesses = (pipeline or self.pipeline).classify({c: v.rgb for c, v in views.items()},
+                                                       received, views=views)
+        encode_candidates(received[self.cameras[0]],
+                          {i: g.candidates for i, g in guesses.items()}, self.candidates)
 
     def _warm_model(self, model: Classifier) -> None:
         """A new model's first classification, off the frame thread (``model_path`` set)."""

@@ -43,6 +43,7 @@ from tlessbot_ros.conversions import (
     stamp_to_ns,
     transform_to_pose_stamped,
 )
+from tlessbot_ros.conversions.image_cdr import image_from_cdr, image_to_cdr
 from tlessbot_ros.conversions.markers import PartMarker, parts_to_marker_array
 from tlessbot_ros.conversions.messages import RclpyFactory
 from tlessbot_ros.conversions.topics import (
@@ -52,7 +53,13 @@ from tlessbot_ros.conversions.topics import (
     node_relative,
     pose_topic,
 )
-from tlessbot_ros.core.common import SIDE, OverlayPart, decode_candidates, depth_overlay
+from tlessbot_ros.core.common import (
+    SIDE,
+    OverlayPart,
+    decode_candidates,
+    depth_overlay,
+    label_boxes,
+)
 from tlessbot_ros.core.pipeline import Detection, FitParams, PerceptionPipeline, ViewInput
 from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
 from tlessbot_ros.data import DEFAULT_TEMPLATES
@@ -119,6 +126,9 @@ class PoseEstimatorNode(StageNode):
         """Every cache the first frame would build (from the start-up cache when it has them,
         :func:`~tlessbot_ros.io.cache.warm_pose_stage`), the numba kernels, and the workers."""
         report = warm_pose_stage(self.pipeline, self._templates_path)
+        # The label kernels of a frame's first steps, on a class image read as one arrives.
+        label_boxes(decode_candidates(image_to_array(image_from_cdr(image_to_cdr(
+            np.full((4, 4, 2), 1001, np.uint16), '16UC2'))))[0])
         self.get_logger().info(
             f'templates for {len(self.templates.objects)} objects from {self._templates_path}: '
             f'caches {"read" if report.from_cache else "built"} in {report.seconds:.1f} s')

@@ -36,6 +36,7 @@ _HOME = {
     'encode_candidates': 'labels',
     'encode_classes': 'labels',
     'instance_masks': 'labels',
+    'label_boxes': 'labels',
     'pixel_counts': 'labels',
     'OverlayPart': 'overlay',
     'depth_overlay': 'overlay',
@@ -113,6 +114,7 @@ if TYPE_CHECKING:
         encode_candidates,
         encode_classes,
         instance_masks,
+        label_boxes,
         pixel_counts,
     )
     from tlessbot_ros.core.common.overlay import OverlayPart, depth_overlay  # noqa: F401

@@ -123,7 +123,8 @@ def mask_box(mask: np.ndarray) -> tuple[int, int, int, int]:
 
 
 def depth_to_points(
-    depth_m: np.ndarray, K: np.ndarray, *, mask: np.ndarray | None = None
+    depth_m: np.ndarray, K: np.ndarray, *, mask: np.ndarray | None = None,
+    box: tuple[int, int, int, int] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Back-project a depth image into the camera's optical frame.
 
@@ -131,6 +132,9 @@ def depth_to_points(
         depth_m: (H, W) depth along the optical axis in metres; 0 or NaN mark invalid pixels.
         K: (3, 3) camera matrix.
         mask: optional (H, W) bool; only pixels where it is True are used.
+        box: the (x, y, w, h) box of ``mask``'s pixels when the caller knows it (e.g. from
+            :func:`~tlessbot_ros.core.common.label_boxes`); found here otherwise. Pixels of
+            the mask outside it are not used.
 
     Returns:
         points: (N, 3) float32 points in metres, valid pixels only, in row-major pixel order.
@@ -145,7 +149,7 @@ def depth_to_points(
             raise ValueError(f'mask shape {mask.shape} differs from depth shape {depth_m.shape}')
         mask = mask.astype(bool, copy=False)
         # Work in the mask's bounding box: a part covers a few % of the image.
-        c0, r0, w, h = mask_box(mask)
+        c0, r0, w, h = mask_box(mask) if box is None else box
         r1, c1 = r0 + h, c0 + w
     window = depth_m[r0:r1, c0:c1]
     valid = np.isfinite(window) & (window > 0)

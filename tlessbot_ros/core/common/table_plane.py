@@ -136,23 +136,23 @@ class TablePlane:
         return float(self.plane[3])
 
 
-def sampled_points(depth_m: np.ndarray, K: np.ndarray, stride_px: int) -> np.ndarray:
-    """(N, 3) float64 optical-frame points of every ``stride_px``-th pixel with valid depth.
+def sampled_points(depth_m: np.ndarray, K: np.ndarray, stride_px: int, *,
+                   max_depth_m: float = np.inf) -> np.ndarray:
+    """(N, 3) float64 optical-frame points of every ``stride_px``-th pixel with valid depth
+    (row-major order).
 
     Args:
         depth_m: (H, W) depth in metres; 0, negative and non-finite values are invalid.
         K: (3, 3) camera matrix of the (aligned) depth.
+        max_depth_m: farther pixels are left out too.
     """
     depth_m = np.asarray(depth_m)
     if depth_m.ndim != 2:
         raise ValueError(f'depth must be a 2-D (H, W) array, got shape {depth_m.shape}')
-    first = stride_px // 2
-    z = depth_m[first::stride_px, first::stride_px].astype(np.float64)
-    rows, cols = np.nonzero(np.isfinite(z) & (z > 0))
-    z = z[rows, cols]
-    u = cols * float(stride_px) + first
-    v = rows * float(stride_px) + first
-    return np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
+    from tlessbot_ros.core.common.plane_kernels import sampled_points as sample
+
+    return sample(depth_m, int(stride_px), float(K[0, 2]), float(K[1, 2]), float(K[0, 0]),
+                  float(K[1, 1]), float(max_depth_m))
 
 
 def _inlier_distance(points: np.ndarray, params: TablePlaneParams) -> np.ndarray:
@@ -172,15 +172,14 @@ def _hypotheses(points: np.ndarray, params: TablePlaneParams, rng: np.random.Gen
                 ) -> tuple[np.ndarray, np.ndarray]:
     """(H, 3) unit normals and (H,) offsets of planes through random point triples that face
     the camera within ``max_incidence_deg``; degenerate triples are left out."""
+    from tlessbot_ros.core.common.plane_kernels import triple_normals
+
     triples = points[rng.integers(0, len(points), (params.iterations, 3))]   # (H, 3, 3)
-    normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
-    length = np.linalg.norm(normals, axis=1)
-    keep = length > 1e-9
-    normals = normals[keep] / length[keep, None]
-    normals, offsets = _facing(normals, -np.einsum('hi,hi->h', normals, triples[keep, 0]))
+    normals, firsts, seen_at = triple_normals(triples)
+    # (numpy's einsum sums these three products in an order of its own: kept here)
+    normals, offsets = _facing(normals, -np.einsum('hi,hi->h', normals, firsts))
     # cos(incidence) at the triple's centre: the camera's distance to the plane over its
     # distance to the points
-    seen_at = np.linalg.norm(triples[keep].mean(axis=1), axis=1)
     facing = offsets >= np.cos(np.radians(params.max_incidence_deg)) * seen_at
     return normals[facing], offsets[facing]
 
@@ -213,28 +212,28 @@ def _robust_refit(points: np.ndarray, normal: np.ndarray, offset: float,
     residual over z², as sigma at 1 m), so a clean sensor gets a tight band (part bottoms
     stay out) and a noisy one keeps its whole table. Returns the plane and its (N,) inlier
     mask (None: too few inliers)."""
-    depth2 = points[:, 2] ** 2
-    limit = _inlier_distance(points, params)
-    inliers = np.abs(_distances(points, normal, offset)) < limit
+    from tlessbot_ros.core.common import plane_kernels as kernels
+
+    inliers = kernels.near_plane(points, normal, offset, _inlier_distance(points, params))
     for _ in range(params.refits):
         if inliers.sum() < 3:
             return normal, offset, None
         normal, offset = _refit(points, inliers)
-        residual = np.abs(_distances(points, normal, offset))
-        noise_at_1m = 1.4826 * float(np.median(residual[inliers] / depth2[inliers]))
-        limit = np.clip(params.inlier_sigmas * noise_at_1m * depth2,
-                        params.min_inlier_distance_m, params.max_inlier_distance_m)
-        inliers = residual < limit
+        residual, ratio = kernels.residuals(points, normal, offset, inliers)
+        noise_at_1m = 1.4826 * float(kernels.median_in_place(ratio))
+        inliers = kernels.within_noise(points, residual, params.inlier_sigmas * noise_at_1m,
+                                       params.min_inlier_distance_m,
+                                       params.max_inlier_distance_m)
     return normal, offset, inliers
 
 
 def _refit(points: np.ndarray, inliers: np.ndarray) -> tuple[np.ndarray, float]:
     """Least-squares plane (unit normal towards the camera, offset) of the inlier points: the
     direction of least spread of their scatter matrix."""
-    chosen = points[inliers]
-    centre = chosen.mean(axis=0)
-    centred = chosen - centre
-    normal = np.linalg.eigh(np.einsum('ni,nj->ij', centred, centred))[1][:, 0]
+    from tlessbot_ros.core.common.plane_kernels import centre_and_scatter
+
+    centre, scatter = centre_and_scatter(points, inliers)
+    normal = np.linalg.eigh(scatter)[1][:, 0]
     normal, offset = _facing(normal, np.array(-normal @ centre))
     return normal, float(offset)
 
@@ -265,8 +264,7 @@ def find_table_plane(depth_m: np.ndarray, K: np.ndarray, *,
     K = np.asarray(K, np.float64)
     if K.shape != (3, 3):
         raise ValueError(f'K must be 3x3, got shape {K.shape}')
-    points = sampled_points(depth_m, K, params.stride_px)
-    points = points[points[:, 2] <= params.max_depth_m]
+    points = sampled_points(depth_m, K, params.stride_px, max_depth_m=params.max_depth_m)
     if len(points) < 3:
         return None
     rng = np.random.default_rng(params.seed)
@@ -277,20 +275,21 @@ def find_table_plane(depth_m: np.ndarray, K: np.ndarray, *,
         normals, offsets = _near_prior(normals, offsets, prior, params)
     if len(normals) == 0:
         return None
-    from tlessbot_ros.core.common.plane_kernels import count_inliers  # numba: 1.7 s import
+    from tlessbot_ros.core.common import plane_kernels as kernels  # numba: 1.7 s import
 
-    counts = count_inliers(subset, normals, offsets, _inlier_distance(subset, params))
+    counts = kernels.count_inliers(subset, normals, offsets, _inlier_distance(subset, params))
     best = int(np.argmax(counts))
     normal, offset, inliers = _robust_refit(points, normals[best], float(offsets[best]), params)
     if inliers is None:
         return None
-    share = float(inliers.mean())
+    count = int(inliers.sum())
+    share = count / len(inliers)
     pixels = len(range(params.stride_px // 2, np.shape(depth_m)[0], params.stride_px)) * \
         len(range(params.stride_px // 2, np.shape(depth_m)[1], params.stride_px))
-    if share < params.min_inlier_share or inliers.sum() < params.min_image_share * pixels:
+    if share < params.min_inlier_share or count < params.min_image_share * pixels:
         return None
     return TablePlane(np.append(normal, offset), share, len(points),
-                      points[inliers].mean(axis=0))
+                      kernels.centre_and_scatter(points, inliers)[0])
 
 
 class TablePlaneTracker:

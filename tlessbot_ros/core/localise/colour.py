@@ -127,6 +127,25 @@ def histogram_background_peak(channel: np.ndarray, *, bins: int = 512, sample_st
     return float(lo + (k + 0.5) * width), float(hwhm / np.sqrt(2.0 * np.log(2.0)))
 
 
+_SAMPLE_GRIDS: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _sample_grid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) float64 coordinates in [-0.5, 0.5] of an (h, w) sample grid, made once per shape
+    (the trend of six channels per view is evaluated on the same grid every frame)."""
+    grid = _SAMPLE_GRIDS.get(shape)
+    if grid is None:
+        gy, gx = np.mgrid[0:shape[0], 0:shape[1]]
+        x = gx / max(shape[1] - 1, 1) - 0.5
+        y = gy / max(shape[0] - 1, 1) - 0.5
+        x.setflags(write=False)
+        y.setflags(write=False)
+        if len(_SAMPLE_GRIDS) > 16:
+            _SAMPLE_GRIDS.clear()
+        grid = _SAMPLE_GRIDS.setdefault(shape, (x, y))
+    return grid
+
+
 def remove_trend(channel: np.ndarray, *, step: int = 8, iterations: int = 3) -> np.ndarray:
     """Subtract a robust quadratic surface in (x, y) from a channel (uneven lighting).
 
@@ -142,9 +161,7 @@ def remove_trend(channel: np.ndarray, *, step: int = 8, iterations: int = 3) -> 
     h, w = channel.shape
     sample = np.ascontiguousarray(channel[step // 2::step, step // 2::step], np.float64)
     coef = robust_quadratic_fit(sample, iterations)
-    gy, gx = np.mgrid[0:sample.shape[0], 0:sample.shape[1]]
-    x = gx / max(sample.shape[1] - 1, 1) - 0.5
-    y = gy / max(sample.shape[0] - 1, 1) - 0.5
+    x, y = _sample_grid(sample.shape)
     surface = (coef[0] + coef[1] * x + coef[2] * y + coef[3] * x * x + coef[4] * x * y
                + coef[5] * y * y).astype(np.float32)
     # The sample grid covers [step/2, ... ] pixel centres; resize spans the same range closely.

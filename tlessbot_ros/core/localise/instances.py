@@ -20,7 +20,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.common import pixel_counts
+from tlessbot_ros.core.common import label_boxes
 from tlessbot_ros.core.localise.cues import _open
 from tlessbot_ros.core.localise.params import SegmentationParams
 
@@ -292,18 +292,8 @@ def _fill_from_nearest(labels: np.ndarray, holes: np.ndarray) -> np.ndarray:
 
 def boxes_from_labels(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(x, y, w, h) int32 boxes (N, 4) and int64 areas (N,) of labels 1..N (empty ids: zeros)."""
-    from scipy import ndimage
-
-    n = int(labels.max()) if labels.size else 0
-    boxes = np.zeros((n, 4), np.int32)
-    if n == 0:
-        return boxes, np.zeros(0, np.int64)
-    areas = pixel_counts(labels, minlength=n + 1)[1:].astype(np.int64)
-    for i, sl in enumerate(ndimage.find_objects(labels.astype(np.int32, copy=False), n)):
-        if sl is not None:
-            boxes[i] = (sl[1].start, sl[0].start, sl[1].stop - sl[1].start,
-                        sl[0].stop - sl[0].start)
-    return boxes, areas
+    counts, boxes = label_boxes(labels)
+    return boxes[1:], counts[1:]
 
 
 def relabel_sequential(labels: np.ndarray) -> np.ndarray:

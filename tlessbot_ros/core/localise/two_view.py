@@ -291,12 +291,12 @@ def lift_top_blobs(top_labels: np.ndarray, rig: Rig, *, depth_top_m: np.ndarray 
     mount = rig[top_name]
     K = mount.intrinsics.K
     step = params.pixel_step
-    sub = np.zeros_like(top_labels)
-    sub[::step, ::step] = top_labels[::step, ::step]
+    sub = top_labels[::step, ::step]   # the pixels used, in row-major order
     out: dict[int, np.ndarray] = {}
     n = int(top_labels.max(initial=0))
     ys_all, xs_all = np.nonzero(sub)
     ids_all = sub[ys_all, xs_all]
+    ys_all, xs_all = ys_all * step, xs_all * step
     order = np.argsort(ids_all, kind='stable')
     ys_all, xs_all, ids_all = ys_all[order], xs_all[order], ids_all[order]
     bounds = np.searchsorted(ids_all, np.arange(1, n + 2))

@@ -82,8 +82,9 @@ def to_o3d(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.geometr
 
 
 def rgbd_to_cloud(depth_m: np.ndarray, intrinsics: CameraIntrinsics, *,
-                  rgb: np.ndarray | None = None,
-                  mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+                  rgb: np.ndarray | None = None, mask: np.ndarray | None = None,
+                  box: tuple[int, int, int, int] | None = None
+                  ) -> tuple[np.ndarray, np.ndarray | None]:
     """Back-project an aligned RGB-D pair.
 
     Args:
@@ -92,6 +93,8 @@ def rgbd_to_cloud(depth_m: np.ndarray, intrinsics: CameraIntrinsics, *,
         intrinsics: intrinsics of the colour stream the depth is aligned to.
         rgb: optional (H, W, 3) uint8 colour image aligned with the depth.
         mask: optional (H, W) bool; only these pixels are used.
+        box: the (x, y, w, h) box of ``mask``'s pixels when the caller knows it
+            (:func:`~tlessbot_ros.core.common.depth_to_points`).
 
     Returns:
         points (N, 3) float32 in metres (camera optical frame) and colours (N, 3) float32 in
@@ -101,7 +104,7 @@ def rgbd_to_cloud(depth_m: np.ndarray, intrinsics: CameraIntrinsics, *,
     if depth_m.shape != (intrinsics.height, intrinsics.width):
         raise ValueError(f'depth shape {depth_m.shape} does not match the intrinsics '
                          f'({intrinsics.height}, {intrinsics.width})')
-    points, pixels = depth_to_points(depth_m, intrinsics.K, mask=mask)
+    points, pixels = depth_to_points(depth_m, intrinsics.K, mask=mask, box=box)
     colors = None
     if rgb is not None:
         rgb = np.asarray(rgb)
@@ -111,19 +114,21 @@ def rgbd_to_cloud(depth_m: np.ndarray, intrinsics: CameraIntrinsics, *,
     return points, colors
 
 
-def roi_cloud(depth_m: np.ndarray, mask: np.ndarray,
-              intrinsics: CameraIntrinsics) -> np.ndarray:
+def roi_cloud(depth_m: np.ndarray, mask: np.ndarray, intrinsics: CameraIntrinsics, *,
+              box: tuple[int, int, int, int] | None = None) -> np.ndarray:
     """(N, 3) float32 points of one instance mask on depth aligned to colour (no pixel offset).
 
     Args:
         depth_m: (H, W) depth in metres, 0 / NaN invalid.
         mask: (H, W) bool instance mask in the colour image.
         intrinsics: colour intrinsics.
+        box: the mask's (x, y, w, h) box when the caller knows it (saves a pass over the
+            image); it must hold every pixel of the mask.
     """
     mask = np.asarray(mask)
     if mask.shape != np.shape(depth_m):
         raise ValueError(f'mask shape {mask.shape} differs from depth shape {np.shape(depth_m)}')
-    return rgbd_to_cloud(depth_m, intrinsics, mask=mask.astype(bool))[0]
+    return rgbd_to_cloud(depth_m, intrinsics, mask=mask.astype(bool), box=box)[0]
 
 
 def crop_box(points: np.ndarray, min_bound: np.ndarray, max_bound: np.ndarray, *,

@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import json
 import zipfile
-from collections.abc import Iterable
+from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -133,6 +134,15 @@ class ObjectTemplates:
         if key not in self._cache:
             self._cache[key] = (self.model_points[:count].astype(np.float64),
                                 self.model_normals[:count].astype(np.float64))
+        return self._cache[key]
+
+    def derived(self, key: Hashable, build: Callable[[], Any]) -> Any:
+        """A value computed from this object's fixed data alone (e.g. the table path's
+        hypotheses before they meet a scene), built by ``build()`` on the first call for
+        ``key`` and kept; callers must not modify it."""
+        key = ('derived', key)
+        if key not in self._cache:
+            self._cache[key] = build()
         return self._cache[key]
 
     def model_arrays_float64(self) -> tuple[np.ndarray, np.ndarray]:

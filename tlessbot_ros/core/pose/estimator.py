@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
+from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -66,6 +68,51 @@ def _rz(yaw: np.ndarray) -> np.ndarray:
     R = np.zeros(np.shape(yaw) + (3, 3))
     R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
     return R
+
+
+# Half turns about the object's x, y and z axes (the final ICP's flipped starts).
+_HALF_TURNS = _rodrigues(np.pi * np.eye(3))
+
+
+@dataclass(frozen=True)
+class _RestingHypotheses:
+    """What the table path's hypotheses of one stable pose owe to the object alone (the same
+    for every part: made once, :meth:`ObjectTemplates.derived`).
+
+    Attributes:
+        Rz: (Y, 3, 3) rotations about the table normal by the yaw hypotheses (0 <= yaw <
+            period in ``yaw_step_deg`` steps; yaw 0 alone for a continuous symmetry).
+        T_world_object: (Y, 4, 4) the object resting at each yaw, its origin above the world
+            origin (the scene's centroid then shifts x and y).
+        points, normals: (M, 3) the model subset resting at yaw 0, table frame.
+        normal_dot_point: (M,) ``normals . points`` row by row (the back-face test's offset).
+    """
+
+    Rz: np.ndarray
+    T_world_object: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    normal_dot_point: np.ndarray
+
+
+def _resting_hypotheses(obj: ObjectTemplates, stable: int, yaw_step_deg: float
+                        ) -> _RestingHypotheses:
+    """The :class:`_RestingHypotheses` of stable pose ``stable`` (index into ``stable_poses``)
+    with yaws ``yaw_step_deg`` apart."""
+    period = obj.yaw_periods[stable]
+    if period == CONTINUOUS_YAW_PERIOD:
+        yaws = np.zeros(1)
+    else:
+        yaws = np.arange(0.0, period - 1e-9, np.radians(yaw_step_deg))
+    Rz = _rz(yaws)                                                  # (Y, 3, 3)
+    T_s = obj.stable_poses[stable]
+    model, normals = obj.model_subset()
+    points = model @ T_s[:3, :3].T + T_s[:3, 3]                     # resting, yaw 0
+    normals = normals @ T_s[:3, :3].T
+    T = np.tile(np.eye(4), (len(yaws), 1, 1))
+    T[:, :3, :3] = Rz @ T_s[:3, :3]
+    T[:, :3, 3] = Rz @ T_s[:3, 3]
+    return _RestingHypotheses(Rz, T, points, normals, np.sum(normals * points, axis=1))
 
 
 class PoseEstimator:
@@ -227,6 +274,7 @@ class PoseEstimator:
         refined = refiner.icp_batch(scene_c, obj, np.array([T for T, _ in starts]))
         fit = refiner.grid_fitness(refined, scene_c, obj)
         scene_buckets = PointBuckets.build(scene_c, refiner.coverage_radius(obj))
+        scene_depth_m = float(np.median(scene_c[:, 2]))
         chosen: list[int] = []
         for k in np.argsort(-fit, kind='stable'):
             if len(chosen) == p.final_candidates:
@@ -234,7 +282,8 @@ class PoseEstimator:
             if all(_differs(refined[k], refined[c]) for c in chosen):
                 chosen.append(int(k))
         return self._rank([refiner.evaluate(scene_c, obj, refined[k], method='table',
-                                            stable=starts[k][1], scene_buckets=scene_buckets)
+                                            stable=starts[k][1], scene_buckets=scene_buckets,
+                                            scene_depth_m=scene_depth_m)
                            for k in chosen])
 
     def _hypotheses(self, obj: ObjectTemplates, centroid: np.ndarray, camera_w: np.ndarray
@@ -244,33 +293,23 @@ class PoseEstimator:
         model surface facing the camera (back-face test) to the ROI centroid (world frame)."""
         p = self.params
         order = np.argsort(-obj.stable_probabilities)
-        model, normals = obj.model_subset()
         view = camera_w - np.array([centroid[0], centroid[1], 0.0])
         poses, stable_ids = [], []
         for s in order[:p.max_stable_poses]:
             if obj.stable_probabilities[s] < p.min_stable_probability and poses:
                 continue
-            period = obj.yaw_periods[s]
-            if period == CONTINUOUS_YAW_PERIOD:
-                yaws = np.zeros(1)
-            else:
-                yaws = np.arange(0.0, period - 1e-9, np.radians(p.yaw_step_deg))
-            Rz = _rz(yaws)                                          # (Y, 3, 3)
-            T_s = obj.stable_poses[s]
-            m_s = model @ T_s[:3, :3].T + T_s[:3, 3]                # resting, yaw 0
-            n_s = normals @ T_s[:3, :3].T
+            rest = obj.derived(('resting', int(s), p.yaw_step_deg),
+                               partial(_resting_hypotheses, obj, int(s), p.yaw_step_deg))
             # (Rz n) . (view - Rz m) > 0  <=>  n . (Rz^T view) - n . m > 0
-            visible = (n_s @ (view @ Rz).T - np.sum(n_s * m_s, axis=1)[:, None] > 0
-                       ).astype(np.float64)                          # (M, Y)
+            facing = rest.normals @ (view @ rest.Rz).T - rest.normal_dot_point[:, None] > 0
+            visible = facing.astype(np.float64)                      # (M, Y)
             count = np.maximum(visible.sum(axis=0), 1.0)
-            m_vis = (visible.T @ m_s) / count[:, None]               # (Y, 3), before the yaw
-            m_vis = np.einsum('yij,yj->yi', Rz, m_vis)
-            T = np.tile(np.eye(4), (len(yaws), 1, 1))
-            T[:, :3, :3] = Rz @ T_s[:3, :3]
-            T[:, :3, 3] = Rz @ T_s[:3, 3]
+            m_vis = (visible.T @ rest.points) / count[:, None]       # (Y, 3), before the yaw
+            m_vis = np.einsum('yij,yj->yi', rest.Rz, m_vis)
+            T = rest.T_world_object.copy()
             T[:, :2, 3] += centroid[:2] - m_vis[:, :2]
             poses.append(T)
-            stable_ids += [int(s)] * len(yaws)
+            stable_ids += [int(s)] * len(T)
         return np.concatenate(poses), np.array(stable_ids)
 
     def _icp_starts(self, T_top: np.ndarray, stable_top: np.ndarray, scene_w: np.ndarray,
@@ -291,11 +330,12 @@ class PoseEstimator:
                 starts.append((T_camera_world @ T_top[k], int(stable_top[k])))
                 break
         if self.params.flip_axes:
-            centre = obj.model_points.mean(axis=0).astype(np.float64)
+            centre = obj.derived('surface_centre',
+                                 lambda: obj.model_points.mean(axis=0).astype(np.float64))
             T_best = starts[0][0]
-            for axis in np.eye(3):
+            for half_turn in _HALF_TURNS:
                 T = T_best.copy()
-                T[:3, :3] = T_best[:3, :3] @ _rodrigues(np.pi * axis[None])[0]
+                T[:3, :3] = T_best[:3, :3] @ half_turn
                 T[:3, 3] += T_best[:3, :3] @ centre - T[:3, :3] @ centre
                 starts.append((T, -1))
         return starts

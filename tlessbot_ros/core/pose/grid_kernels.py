@@ -217,6 +217,21 @@ def _rodrigues_matrix(wx, wy, wz):
 
 
 @njit(cache=True, nogil=True)
+def keep_near_tangent_plane(points, index, model, normals, limit, ok):
+    """In place: ``ok[i]`` (N,) stays True only where point i lies closer than ``limit`` to
+    the tangent plane of its matched model sample ``index[i]`` (|n . (p - m)|, the products
+    summed over x, y, z in that order, as numpy's row sums do)."""
+    for i in range(points.shape[0]):
+        if ok[i]:
+            j = index[i]
+            d = (normals[j, 0] * (points[i, 0] - model[j, 0])
+                 + normals[j, 1] * (points[i, 1] - model[j, 1])
+                 + normals[j, 2] * (points[i, 2] - model[j, 2]))
+            if abs(d) >= limit:
+                ok[i] = False
+
+
+@njit(cache=True, nogil=True)
 def self_visible(points, normals, cell_rad, depth_tolerance):
     """(N,) bool: model points (camera frame) that face the camera at the origin and are not
     hidden by the model itself, by a z-buffer over direction cells of ``cell_rad``

@@ -29,6 +29,7 @@ from tlessbot_ros.core.pose.database import ObjectTemplates
 from tlessbot_ros.core.pose.grid_kernels import (
     gauss_newton,
     inlier_fraction,
+    keep_near_tangent_plane,
     self_visible,
     truncated_cost,
 )
@@ -122,11 +123,13 @@ class Refiner:
     # ------------------------------------------------------------------------ evaluation
     def evaluate(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
                  *, method: str, stable: int = -1, template: int = -1,
-                 scene_buckets: PointBuckets | None = None) -> PoseCandidate:
+                 scene_buckets: PointBuckets | None = None,
+                 scene_depth_m: float | None = None) -> PoseCandidate:
         """Fitness / RMSE (scene -> model) and coverage (visible model -> scene).
 
         ``scene_buckets``: :class:`PointBuckets` of ``scene_c`` with an edge of at least
-        :meth:`coverage_radius` (built here when not given).
+        :meth:`coverage_radius`; ``scene_depth_m``: the median z of ``scene_c`` (each built
+        here when not given; a caller that evaluates several poses of one scene passes them).
         """
         inlier = self.params.inlier_voxels * obj.voxel_size_m
         q = transform_points(invert_transform(T_camera_object), scene_c)
@@ -136,16 +139,17 @@ class Refiner:
             # ... and within inlier_plane_m of the tangent plane there: small features (a few
             # mm) decide between near-symmetric poses that a voxel-wide radius cannot tell apart
             normals_all, model_all = obj.model_arrays_float64()
-            i = index[ok]
-            plane = np.abs(np.sum(normals_all[i] * (q[ok] - model_all[i]), axis=1))
-            ok[np.flatnonzero(ok)[plane >= self.params.inlier_plane_m]] = False
+            keep_near_tangent_plane(q, index, model_all, normals_all, self.params.inlier_plane_m,
+                                    ok)
         fitness = float(ok.mean()) if len(ok) else 0.0
         rmse = float(np.sqrt(np.mean(dist[ok] ** 2))) if ok.any() else np.inf
         model, normals = obj.model_subset()
         model_c = model @ T_camera_object[:3, :3].T + T_camera_object[:3, 3]
         normals_c = normals @ T_camera_object[:3, :3].T
+        if scene_depth_m is None:
+            scene_depth_m = float(np.median(scene_c[:, 2]))
         visible = self_visible(model_c, normals_c, 0.5 * obj.voxel_size_m
-                               / max(float(np.median(scene_c[:, 2])), 1e-3), obj.voxel_size_m)
+                               / max(scene_depth_m, 1e-3), obj.voxel_size_m)
         coverage = 1.0
         if visible.any():
             radius = self.coverage_radius(obj)
