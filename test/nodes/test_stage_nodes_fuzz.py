@@ -17,6 +17,7 @@ pytestmark = pytest.mark.ros
 
 CAMERAS = ('top', 'side')
 STAMP0 = 1_700_000_000_000_000_000
+AFTER_S = 8   # the good frame after the malformed ones (stamped STAMP0 + 0..5 s) comes later
 
 
 @pytest.fixture(scope='module')
@@ -139,12 +140,14 @@ def test_localiser_survives_malformed_input(sim_frame):
             assert handled(node) > before, f'{name}: frame never processed'
         assert node.failures >= 2  # encoding, size: errors, not crashes
         assert node._inputs.malformed >= 1   # empty data: refused before it is queued
-        harness.publish(good)
+        # a good frame after them (time goes on: a frame stamped before them would be held as
+        # a possible time jump, SyncParams.jump_confirmations)
+        harness.publish({key: _restamped(msg, AFTER_S) for key, msg in good.items()})
         harness.spin(15.0, until=lambda: any(
-            m.header.stamp.sec == STAMP0 // 10**9 for m in harness.received[
+            m.header.stamp.sec == STAMP0 // 10**9 + AFTER_S for m in harness.received[
                 '/localiser/side/labels']))
         labels = [m for m in harness.received['/localiser/side/labels']
-                  if m.header.stamp.sec == STAMP0 // 10**9]
+                  if m.header.stamp.sec == STAMP0 // 10**9 + AFTER_S]
         assert labels and labels[0].encoding == '16UC1'
         assert labels[0].header.frame_id == 'side_color_optical_frame'
         # every frame's stamp is compared with the node's clock at the start of its
@@ -194,7 +197,7 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
         harness.publish(bad)
         harness.spin(10.0, until=lambda: node.failures > 0)
         assert node.failures == 1  # wrong encoding and size: logged, not fatal
-        harness.publish(good)
+        harness.publish({key: _restamped(msg, AFTER_S) for key, msg in good.items()})
         harness.spin(15.0, until=lambda: harness.received['/classifier/side/classes'])
         classes = harness.received['/classifier/side/classes']
         assert classes and classes[0].encoding == '16UC3'   # three candidates per part
@@ -225,12 +228,12 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
                                          '/objects/markers', markers.append, RESULT_QOS)
         harness.spin(5.0, until=lambda: node._markers.get_subscription_count() > 0)
         frames_before = node.frames
-        harness.publish(good)
+        harness.publish({key: _restamped(msg, AFTER_S) for key, msg in good.items()})
         harness.spin(15.0, until=lambda: node.frames > frames_before and markers)
         assert node.frames > frames_before
         assert markers and markers[-1].markers[0].action == 3   # DELETEALL, then this frame's
         for marker in markers[-1].markers[1:]:
-            assert marker.header.stamp.sec == STAMP0 // 10**9
+            assert marker.header.stamp.sec == STAMP0 // 10**9 + AFTER_S
         assert node.workers.worker_fits > 0 and node.workers.failures == 0
         harness.close()
         assert all(w.process.poll() is not None for w in workers)   # no process left behind
