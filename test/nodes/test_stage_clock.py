@@ -24,7 +24,7 @@ def ros():
 class _Probe:
     """A StageNode that records what it is handed, fed raw CDR through its real inputs."""
 
-    def __init__(self):
+    def __init__(self, jump_confirmations: int | None = None):
         from tlessbot_ros.nodes.stage import StageNode
 
         class Probe(StageNode):
@@ -37,7 +37,10 @@ class _Probe:
 
         from rclpy.parameter import Parameter
 
-        self.node = Probe(parameter_overrides=[Parameter('sync.worker_thread', value=False)])
+        overrides = [Parameter('sync.worker_thread', value=False)]
+        if jump_confirmations is not None:
+            overrides.append(Parameter('sync.jump_confirmations', value=jump_confirmations))
+        self.node = Probe(parameter_overrides=overrides)
         self.node.setup_inputs({'color': ('sensor_msgs/msg/Image', lambda c: f'/{c}/color'),
                                 'depth': ('sensor_msgs/msg/Image', lambda c: f'/{c}/depth')})
         self.handlers = {(camera, key): self.node._inputs._handler(camera, key, _image_class())
@@ -75,7 +78,7 @@ def test_a_bag_looped_without_restamp_is_paired_again_after_each_jump(ros):
 
 
 def test_stragglers_of_the_old_timeline_are_dropped_and_the_ages_start_again(ros):
-    probe = _Probe()
+    probe = _Probe(jump_confirmations=0)   # the jump at once (what is held: test_sync.py)
     node = probe.node
     now = node.get_clock().now().nanoseconds
     for i in range(3):                                 # a live camera, 3-4 s late
