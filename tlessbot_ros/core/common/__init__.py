@@ -52,6 +52,7 @@ _HOME = {
     'check_camera_roles': 'rig',
     'd415_intrinsics': 'rig',
     'default_rig': 'rig',
+    'look_at_params': 'rig',
     'rig_from_params': 'rig',
     'side_camera_position': 'rig',
     'SAMPLING_SCHEMES': 'sampling',
@@ -130,6 +131,7 @@ if TYPE_CHECKING:
         check_camera_roles,
         d415_intrinsics,
         default_rig,
+        look_at_params,
         rig_from_params,
         side_camera_position,
     )

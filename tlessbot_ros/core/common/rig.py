@@ -109,6 +109,24 @@ def default_rig(width: int = 640, height: int = 480) -> Rig:
                         SIDE: CameraMount(SIDE, intrinsics, side)})
 
 
+def look_at_params(T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``position_m``, ``look_at_m`` and ``up`` of config/cell.yaml that give a camera pose
+    (:func:`~tlessbot_ros.core.common.geometry.look_at` gives it back exactly).
+
+    Args:
+        T_world_camera: (4, 4) optical-frame camera pose in the world (z up, z = 0 the table).
+
+    Returns:
+        (3,) position: the camera centre; (3,) look_at: where the optical axis meets the table
+        (a point 1 m along it when it does not look down); (3,) up: the world direction at the
+        top of the image (minus the camera's y axis). Metres, float64.
+    """
+    T = np.asarray(T_world_camera, np.float64)
+    position, axis = T[:3, 3], T[:3, 2]
+    distance = -position[2] / axis[2] if axis[2] < -1e-3 and position[2] > 0 else 1.0
+    return position.copy(), position + distance * axis, -T[:3, 1]
+
+
 def rig_from_params(params: Mapping[str, Any], *, prefix: str = 'rig') -> Rig:
     """Rig from flat ROS parameters (as read from config/cell.yaml).
 

@@ -1,0 +1,96 @@
+"""The rig estimated from a bag's depth frames, and its report (``tlessbot calibrate``)."""
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from tlessbot_ros.core.calibrate.scene import RigEstimate, SceneCalibrationParams, SceneCalibrator
+from tlessbot_ros.core.common import CAMERA_NAMES, Rig, StampSynchroniser
+from tlessbot_ros.errors import BagError
+
+
+def bag_depth_frames(bag: str | Path, *, cameras: Sequence[str] = CAMERA_NAMES,
+                     max_age_s: float = 0.05
+                     ) -> Iterator[tuple[int, dict[str, np.ndarray], dict[str, np.ndarray]]]:
+    """The two-view depth frames of a bag, in order.
+
+    Each camera's aligned depth is paired with its aligned-depth camera_info by header stamp,
+    and the cameras with each other within ``max_age_s`` (as the nodes pair them).
+
+    Yields:
+        (stamp_ns of the first camera, {camera: (H, W) float32 depth in metres},
+        {camera: (3, 3) camera matrix}).
+
+    Raises:
+        BagError: the bag is missing, unreadable, or lacks the depth topics.
+    """
+    from tlessbot_ros.conversions import camera_info_to_intrinsics, depth_image_to_metres
+    from tlessbot_ros.conversions.cdr import header_stamp_ns
+    from tlessbot_ros.conversions.topics import DEPTH, DEPTH_INFO, camera_topic
+    from tlessbot_ros.io.bags import deserialize, read_bag
+
+    streams = {camera_topic(c, t): (c, t) for c in cameras for t in (DEPTH, DEPTH_INFO)}
+    pairing = StampSynchroniser(list(streams), slop_ns=int(max_age_s * 1e9), queue_size=30)
+    for message in read_bag(bag, list(streams)):
+        try:
+            stamp = header_stamp_ns(message.raw)
+        except ValueError as error:
+            raise BagError(f'{message.topic}: {error}') from None
+        frame = pairing.add(message.topic, stamp, message)
+        if frame is None:
+            continue
+        depth, K = {}, {}
+        for topic, raw in frame.items():
+            camera, kind = streams[topic]
+            msg = deserialize(raw)
+            if kind == DEPTH:
+                depth[camera] = depth_image_to_metres(msg)
+            else:
+                K[camera] = np.asarray(camera_info_to_intrinsics(msg).K, np.float64)
+        yield header_stamp_ns(frame[camera_topic(cameras[0], DEPTH)].raw), depth, K
+
+
+def calibrate_from_frames(frames: Iterator[tuple[int, dict, dict]], prior: Rig, *,
+                          params: SceneCalibrationParams = SceneCalibrationParams(),
+                          every: int = 1) -> tuple[RigEstimate | None, int]:
+    """Run the scene estimator over ``frames`` (every ``every``-th) and solve once.
+
+    Returns:
+        the estimate (None when no frame showed both tables) and the frames read.
+    """
+    calibrator = SceneCalibrator(prior, params=params)
+    read = 0
+    for index, (_, depth, K) in enumerate(frames):
+        read += 1
+        if index % every == 0:
+            calibrator.add_frame(depth, K=K)
+    return calibrator.solve(), read
+
+
+def format_report(estimate: RigEstimate, *, frames_read: int, config: str) -> str:
+    """The lines ``tlessbot calibrate`` prints: what the estimate rests on, how far the
+    configured rig is from it, per camera and top -> side."""
+    e = estimate
+    lines = [f'frames: {frames_read} read, {e.planes} with the table in both views, '
+             f'{e.frames} with parts in both views, {e.frames_matched} with parts matched '
+             f'between the views ({e.matches} matches)']
+    if e.in_plane_solved:
+        lines.append(f'fit: residual {1e3 * e.residual_m:.2f} mm over {e.pairs} point pairs, '
+                     f'overlap {e.overlap:.2f} (with the configured placement: '
+                     f'{e.prior_overlap:.2f}), spread of the per-frame fits '
+                     f'{e.yaw_sigma_deg:.3f} deg / {1e3 * e.shift_sigma_m:.2f} mm: '
+                     + ('confident' if e.confident else 'NOT confident'))
+    else:
+        lines.append('fit: no part seen by both views: only the table planes were used '
+                     '(the side camera keeps its configured place on the table)')
+    lines.append(f'difference from {config} (the top camera keeps its configured heading and '
+                 'place on the table: the scene cannot tell them):')
+    for name, d in e.differences.items():
+        label = 'top -> side' if name == 'top_side' else name
+        lines.append(f'  {label:<12} {d.angle_deg:7.3f} deg {1e3 * d.offset_m:8.2f} mm')
+    yaw, x, y = e.in_plane
+    lines.append(f'in-plane correction of the side camera: turn {yaw:+.3f} deg, shift '
+                 f'({1e3 * x:+.2f}, {1e3 * y:+.2f}) mm')
+    return '\n'.join(lines)
