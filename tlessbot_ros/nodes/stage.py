@@ -455,6 +455,11 @@ class StageNode(Node):
         """Figures of the last frame shown on /diagnostics (stage times, counts, fitness)."""
         self._stats = dict(stats)
 
+    def extra_status(self) -> tuple[str, dict[str, str]]:
+        """A stage's own /diagnostics warning ('' for none; it makes an OK status WARN with
+        this message) and values (executor thread: return a snapshot)."""
+        return '', {}
+
     def _publish_diagnostics(self) -> None:
         dropped = (self._inputs.dropped if self._inputs else 0) + self.rate_dropped + \
             self.busy_dropped + self.entrance_dropped
@@ -477,7 +482,11 @@ class StageNode(Node):
                           last_parameter_change=self.parameters.last_change)
         if self.last_error:
             values['last_error'] = self.last_error
+        warning, extra = self.extra_status()
+        values.update(extra)
         message = 'ok' if level == OK else (self.last_error or 'starting')
+        if warning and level == OK:
+            level, message = WARN, warning
         self._diagnostics.publish(diagnostic_array(
             self.get_clock().now().to_msg(), self.get_name(), level, message, values))
 
