@@ -150,3 +150,35 @@ def test_refinement_off_uses_the_configured_rig_unchecked(ros, frames):
         assert not any(key.startswith('rig_config') for key in values)
     finally:
         node.destroy_node()
+
+
+def test_the_later_stages_follow_the_rig_the_localiser_fuses_with(ros, frames):
+    import rclpy
+
+    from tlessbot_ros.nodes.localiser import LocaliserNode
+    from tlessbot_ros.nodes.stage import StageNode, follow_observed_rig
+
+    class Follower(StageNode):   # a later stage: classifier and pose estimator do the same
+        def __init__(self, **kwargs):
+            super().__init__('rig_follower', **kwargs)
+            follow_observed_rig(self)
+
+    follower = Follower(parameter_overrides=_moved_rig_overrides())
+    node = LocaliserNode(parameter_overrides=_moved_rig_overrides())
+    executor = rclpy.executors.SingleThreadedExecutor()
+    executor.add_node(follower)
+    try:
+        configured = follower.camera_pose('side').copy()
+        _run(node, frames)
+        assert node.refiner.in_use == 'observed'
+        deadline = time.monotonic() + 30.0
+        while follower.observed_rig is None and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        for camera in ('top', 'side'):
+            np.testing.assert_allclose(follower.camera_pose(camera),
+                                       node.refiner.rig[camera].T_world_camera, atol=1e-9)
+        assert not np.allclose(follower.camera_pose('side'), configured, atol=1e-3)
+    finally:
+        executor.remove_node(follower)
+        follower.destroy_node()
+        node.destroy_node()

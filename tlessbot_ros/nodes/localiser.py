@@ -50,15 +50,18 @@ from tlessbot_ros.conversions import (
     stamp_to_ns,
 )
 from tlessbot_ros.conversions.image_cdr import image_to_cdr
+from tlessbot_ros.conversions.messages import RclpyFactory
 from tlessbot_ros.conversions.outcomes import DONE, read_frame_outcome
+from tlessbot_ros.conversions.pose import camera_poses_to_pose_array
 from tlessbot_ros.conversions.topics import (
+    OBSERVED_RIG,
     labels_topic,
     node_relative,
     outcome_topic,
     relay_topic,
 )
 from tlessbot_ros.core.calibrate.refinement import RigRefinementParams, RigRefiner
-from tlessbot_ros.core.common import AdmissionParams, InFlightFrames, Rig
+from tlessbot_ros.core.common import CAMERA_NAMES, AdmissionParams, InFlightFrames, Rig
 from tlessbot_ros.core.localise import (
     BackgroundModel,
     FusionParams,
@@ -72,6 +75,7 @@ from tlessbot_ros.nodes.inputs import Views, newest_stamp_ns
 from tlessbot_ros.nodes.stage import (
     CAMERA_INPUTS,
     IMAGE,
+    RIG_QOS,
     StageNode,
     camera_inputs,
     rig_with_intrinsics,
@@ -96,6 +100,10 @@ class LocaliserNode(StageNode):
             RigRefinementParams(), prefix='rig_refinement.', apply=self._apply_rig_refinement)
         self.refiner: RigRefiner | None = None   # made on the first frame (its intrinsics)
         self._rig_status: tuple[str, dict[str, str]] = ('', {})
+        self._rig_publisher = self.create_publisher(
+            message_class('geometry_msgs/msg/PoseArray'), node_relative(OBSERVED_RIG), RIG_QOS)
+        self._published_rig: Rig | None = None
+        self._rig_factory = RclpyFactory()
         self._empty_tables: dict[str, np.ndarray] = {}   # camera: (H, W, 3) uint8 RGB
         self.backgrounds: dict[str, BackgroundModel] = {}
         for camera in self.cameras:
@@ -195,6 +203,7 @@ class LocaliserNode(StageNode):
         configured = self._configured_rig(views)
         if self.rig_refinement.mode == 'off':
             self.refiner, self._rig_status = None, ('', {'rig_refinement': 'off'})
+            self._publish_rig(configured, configured)
             return self._pipeline(views, configured)
         if self.refiner is None or not same_rig(self.refiner.prior, configured):
             self.refiner = RigRefiner(configured, self.rig_refinement)
@@ -205,9 +214,20 @@ class LocaliserNode(StageNode):
         if self.refiner.observe({c: v.depth_m for c, v in views.items()},
                                 K={c: v.intrinsics.K for c, v in views.items()}, planes=planes):
             pipeline = self._pipeline(views, self.refiner.rig)
+        self._publish_rig(self.refiner.rig, configured)
         status = self.refiner.status()
         self._rig_status = (status.message if status.warn else '', status.values)
         return pipeline
+
+    def _publish_rig(self, rig: Rig, configured: Rig) -> None:
+        """Tell the later stages (``rig_source`` 'localiser') the camera poses the fusion
+        uses when they change: nothing goes out while the configured rig is kept."""
+        if same_rig(rig, self._published_rig or configured):
+            return
+        self._published_rig = rig
+        self._rig_publisher.publish(camera_poses_to_pose_array(
+            {c: rig[c].T_world_camera for c in CAMERA_NAMES}, names=CAMERA_NAMES,
+            frame_id=rig.world_frame, factory=self._rig_factory))
 
     def _apply_rig_refinement(self, params: RigRefinementParams) -> None:
         self.rig_refinement = params
