@@ -2,9 +2,9 @@
 
 :class:`RigRefiner` wraps a :class:`~tlessbot_ros.core.calibrate.scene.SceneCalibrator` for a
 stream of frames: it observes each frame (about 2 ms), solves when there is something new to
-learn (every frame that brings parts seen by both views until the estimate is confident, then
-every ``solve_every_frames`` such frames), and says which rig the two-view fusion should use
-and how far the configured one is from what the cameras see.
+learn (each of the first frames that bring parts seen by both views until the estimate is
+confident, then every ``solve_every_frames`` such frames), and says which rig the two-view
+fusion should use and how far the configured one is from what the cameras see.
 
 Deterministic by design: the solve runs in the frame's own thread, before that frame is fused,
 so a replay gives the same labels whatever the timing (#19); its cost is spread over the
@@ -48,16 +48,18 @@ class RigRefinementParams:
         use_min_angle_deg, use_min_offset_m: a configured rig that the scene confirms to this
             is kept as it is ('use'), so a right config/cell.yaml gives the same labels as
             without refinement.
-        solve_every_frames: once confident, the estimate is solved again after this many
-            more frames with parts in both views (until then: after each).
+        solve_every_frames: the estimate is solved again after this many more frames with
+            parts in both views; before it is confident, after each of the first
+            2 x ``scene.min_frames`` such frames (a scene that never becomes confident, e.g.
+            parts the side camera never sees, costs no more than a confident one).
         scene: the estimator's settings (``rig_refinement.scene.*``).
     """
 
     mode: str = 'use'
     warn_angle_deg: float = 1.0
     warn_offset_m: float = 0.01
-    use_min_angle_deg: float = 0.25
-    use_min_offset_m: float = 0.003
+    use_min_angle_deg: float = 0.5
+    use_min_offset_m: float = 0.005
     solve_every_frames: int = 10
     scene: SceneCalibrationParams = SceneCalibrationParams()
 
@@ -150,8 +152,9 @@ class RigRefiner:
         kept = bool(self.calibrator.frames) and self.calibrator.frames[-1] is frame
         self._new_frames += kept
         confident = self.estimate is not None and self.estimate.confident
+        eager = not confident and len(self.calibrator.frames) <= 2 * self.params.scene.min_frames
         due = (self.estimate is None and len(frame.views) == 2) or (kept and (
-            not confident or self._new_frames >= self.params.solve_every_frames))
+            eager or self._new_frames >= self.params.solve_every_frames))
         changed = False
         if due:
             estimate = self.calibrator.solve()
