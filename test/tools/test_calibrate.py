@@ -77,9 +77,13 @@ def test_calibrate_recovers_the_rig_of_the_demo_bag_from_a_wrong_config(tmp_path
     write_rig(default_config_path(), bumped(truth), wrong)
     out = tmp_path / 'calibrated.yaml'
     assert main(['calibrate', '--bag', str(package_path('bags', 'demo')), '--config', str(wrong),
-                 '--out', str(out)]) == 0
+                 '--out', str(out), '--truth', str(default_config_path())]) == 0
     printed = capsys.readouterr().out
     assert 'confident' in printed and f'wrote {out}' in printed
+    # the config's own errors, as --truth prints them: what the bump did
+    line = next(line for line in printed.splitlines() if line.startswith('  top -> side    '))
+    assert float(line.split('|')[1].split()[0]) == pytest.approx(
+        rig_errors(truth, bumped(truth)).relative.angle_deg, abs=1e-3)
     calibrated = rig_from_params(load_ros_params(out))
     errors = rig_errors(truth, calibrated)
     assert errors.relative.angle_deg < 0.5 and errors.relative.offset_m < 0.005, errors

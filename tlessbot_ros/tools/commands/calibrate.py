@@ -34,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='use every N-th frame (default every frame)')
     parser.add_argument('--max-frames', type=int, default=60, metavar='N',
                         help='fit the latest N frames with parts in both views (default 60)')
+    parser.add_argument('--truth', type=Path, default=None,
+                        help="a cell YAML with the bag's true rig (a simulated bag's): print the "
+                             "estimate's errors against it (gauge-free)")
     parser.add_argument('--force', action='store_true',
                         help='write the rig even if the estimate is not confident')
     parser.add_argument('--board', action='store_true',
@@ -46,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.tools.support.calibration import (
         bag_depth_frames,
         calibrate_from_frames,
+        format_errors,
         format_report,
     )
     from tlessbot_ros.tools.support.rig import load_rig, write_rig
@@ -67,6 +71,9 @@ def run(args: argparse.Namespace) -> int:
                             f'{read} frames')
     print(format_report(estimate, frames_read=read, config=str(config)))
     print(f'time: {time.perf_counter() - t0:.1f} s ({estimate.solve_ms:.0f} ms to solve)')
+    if args.truth:
+        print(format_errors(load_rig(args.truth), estimate.rig, prior,
+                            truth_name=str(args.truth)))
     if not estimate.confident and not args.force:
         raise TlessbotError('the estimate is not confident (see above): record more frames '
                             'with parts both cameras see, or write it anyway with --force')

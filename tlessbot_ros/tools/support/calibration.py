@@ -6,7 +6,13 @@ from pathlib import Path
 
 import numpy as np
 
-from tlessbot_ros.core.calibrate.scene import RigEstimate, SceneCalibrationParams, SceneCalibrator
+from tlessbot_ros.core.calibrate.scene import (
+    RigErrors,
+    RigEstimate,
+    SceneCalibrationParams,
+    SceneCalibrator,
+    rig_errors,
+)
 from tlessbot_ros.core.common import CAMERA_NAMES, Rig, StampSynchroniser
 from tlessbot_ros.errors import BagError
 
@@ -93,4 +99,22 @@ def format_report(estimate: RigEstimate, *, frames_read: int, config: str) -> st
     yaw, x, y = e.in_plane
     lines.append(f'in-plane correction of the side camera: turn {yaw:+.3f} deg, shift '
                  f'({1e3 * x:+.2f}, {1e3 * y:+.2f}) mm')
+    return '\n'.join(lines)
+
+
+def format_errors(truth: Rig, estimate: Rig, prior: Rig, *, truth_name: str = 'the truth') -> str:
+    """Gauge-free errors of the estimated and the configured rig against the true one: the
+    top -> side transform, each camera's height and tilt over the table."""
+    got, before = rig_errors(truth, estimate), rig_errors(truth, prior)
+
+    def relative(errors: RigErrors) -> str:
+        return f'{errors.relative.angle_deg:7.3f} deg {1e3 * errors.relative.offset_m:7.2f} mm'
+
+    def camera(errors: RigErrors, name: str) -> str:
+        return f'{1e3 * errors.height_m[name]:+7.2f} mm, tilt {errors.tilt_deg[name]:6.3f} deg'
+
+    lines = [f'errors against {truth_name} (estimate | config):',
+             f'  top -> side    {relative(got)} | {relative(before)}']
+    lines += [f'  {name:<6} height {camera(got, name)} | {camera(before, name)}'
+              for name in got.height_m]
     return '\n'.join(lines)
