@@ -60,7 +60,11 @@ from tlessbot_ros.conversions.topics import (
     outcome_topic,
     relay_topic,
 )
-from tlessbot_ros.core.calibrate.refinement import RigRefinementParams, RigRefiner
+from tlessbot_ros.core.calibrate.refinement import (
+    RigRefinementParams,
+    RigRefiner,
+    refined_pipeline,
+)
 from tlessbot_ros.core.common import CAMERA_NAMES, AdmissionParams, InFlightFrames, Rig
 from tlessbot_ros.core.localise import (
     BackgroundModel,
@@ -207,13 +211,7 @@ class LocaliserNode(StageNode):
             return self._pipeline(views, configured)
         if self.refiner is None or not same_rig(self.refiner.prior, configured):
             self.refiner = RigRefiner(configured, self.rig_refinement)
-        pipeline = self._pipeline(views, self.refiner.rig)
-        # the planes the pipeline finds for its table frames (found once per depth image)
-        planes = {c: pipeline.table_frame(c, v).observed for c, v in views.items()
-                  if v.depth_m is not None}
-        if self.refiner.observe({c: v.depth_m for c, v in views.items()},
-                                K={c: v.intrinsics.K for c, v in views.items()}, planes=planes):
-            pipeline = self._pipeline(views, self.refiner.rig)
+        pipeline = refined_pipeline(self.refiner, views, partial(self._pipeline, views))
         self._publish_rig(self.refiner.rig, configured)
         status = self.refiner.status()
         self._rig_status = (status.message if status.warn else '', status.values)

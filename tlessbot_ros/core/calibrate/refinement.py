@@ -13,7 +13,7 @@ frames (:attr:`RigRefiner.cost_ms`).
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,6 +27,7 @@ from tlessbot_ros.core.calibrate.scene import (
 )
 from tlessbot_ros.core.common.rig import Rig
 from tlessbot_ros.core.common.table_plane import TablePlane
+from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 
 RIG_REFINEMENT_MODES = ('off', 'report', 'use')
 
@@ -52,6 +53,11 @@ class RigRefinementParams:
             parts in both views; before it is confident, after each of the first
             2 x ``scene.min_frames`` such frames (a scene that never becomes confident, e.g.
             parts the side camera never sees, costs no more than a confident one).
+        provisional_min_overlap, provisional_overlap_gain: before the estimate is confident
+            (``scene.min_frames`` frames), 'use' already fuses with its in-plane fit when that
+            places at least this share of the side view's part points on the top view's, and
+            this much more than the configured rig does: a rig that explains the scene so
+            much better is the better bet from the first frame with parts (1: wait).
         scene: the estimator's settings (``rig_refinement.scene.*``).
     """
 
@@ -61,6 +67,8 @@ class RigRefinementParams:
     use_min_angle_deg: float = 0.5
     use_min_offset_m: float = 0.005
     solve_every_frames: int = 10
+    provisional_min_overlap: float = 0.4
+    provisional_overlap_gain: float = 0.2
     scene: SceneCalibrationParams = SceneCalibrationParams()
 
     def __post_init__(self) -> None:
@@ -69,6 +77,9 @@ class RigRefinementParams:
         if min(self.warn_angle_deg, self.warn_offset_m, self.use_min_angle_deg,
                self.use_min_offset_m) < 0:
             raise ValueError('warn_* and use_min_* must be >= 0')
+        if not (0 <= self.provisional_min_overlap <= 1 and 0 <= self.provisional_overlap_gain):
+            raise ValueError('provisional_min_overlap must be in [0, 1], '
+                             'provisional_overlap_gain >= 0')
         if self.solve_every_frames < 1:
             raise ValueError(f'solve_every_frames must be >= 1, got {self.solve_every_frames}')
 
@@ -168,13 +179,21 @@ class RigRefiner:
         self.total_ms += 1e3 * (time.perf_counter() - t0)
         return changed
 
+    def _provisional(self, estimate: RigEstimate) -> bool:
+        """An in-plane fit that is not confident yet but explains the scene far better than
+        the configured rig (``provisional_*``)."""
+        p = self.params
+        return estimate.in_plane_solved and estimate.overlap >= p.provisional_min_overlap and \
+            estimate.overlap >= estimate.prior_overlap + p.provisional_overlap_gain
+
     def _candidate(self) -> tuple[Rig, dict[str, RigDifference]] | None:
         """The rig the scene vouches for and its differences from the configured one: the
-        estimate once confident; before, the configured cameras levelled on their tables."""
+        estimate once confident or provisional; before, the configured cameras levelled on
+        their tables."""
         estimate = self.estimate
         if estimate is None:
             return None
-        if estimate.confident:
+        if estimate.confident or self._provisional(estimate):
             return estimate.rig, estimate.differences
         return estimate.levelled, rig_differences(self.prior, estimate.levelled)
 
@@ -203,7 +222,8 @@ class RigRefiner:
             values['rig_state'] = 'collecting'
             return RefinementStatus(values=values)
         values['rig_state'] = 'confident' if estimate.confident else \
-            'planes only' if not estimate.in_plane_solved else 'collecting'
+            'planes only' if not estimate.in_plane_solved else \
+            'provisional' if self._provisional(estimate) else 'collecting'
         values.update(
             rig_frames_matched=str(estimate.frames_matched), rig_matches=str(estimate.matches),
             rig_solve_ms=f'{estimate.solve_ms:.0f}')
@@ -224,6 +244,27 @@ class RigRefiner:
         action = 'using the observed rig' if self.in_use == 'observed' else \
             "set rig_refinement.mode to 'use' or run tlessbot calibrate"
         if self.in_use == 'observed' and not estimate.confident:
-            action = 'using the configured cameras levelled on the tables they see'
+            action = 'using the observed rig, provisional' if self._provisional(estimate) \
+                else 'using the configured cameras levelled on the tables they see'
         return RefinementStatus(True, f'the configured rig differs from what the cameras see: '
                                       f'{listed} ({action})', values)
+
+
+def refined_pipeline(refiner: RigRefiner, views: Mapping[str, ViewInput],
+                     make_pipeline: Callable[[Rig], PerceptionPipeline]) -> PerceptionPipeline:
+    """A frame's pipeline with the rig the refiner holds after observing this frame.
+
+    ``make_pipeline(rig)`` builds the frame's pipeline and reads each view with its camera's
+    pose in ``rig`` (``ViewInput.T_world_camera``). The planes the pipeline finds for its
+    table frames (once per depth image) are handed to the refiner, so the frame's tables are
+    searched once; a frame that changes the rig gets a pipeline with the new one (its planes
+    found again, with the new rig's plane as the guide).
+    """
+    pipeline = make_pipeline(refiner.rig)
+    planes = {name: pipeline.table_frame(name, view).observed for name, view in views.items()
+              if view.depth_m is not None}
+    if refiner.observe({name: view.depth_m for name, view in views.items()},
+                       K={name: view.intrinsics.K for name, view in views.items()},
+                       planes=planes):
+        pipeline = make_pipeline(refiner.rig)
+    return pipeline

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.core.calibrate.scene import SceneCalibrationParams
     from tlessbot_ros.io.config import default_config_path
     from tlessbot_ros.tools.support.calibration import (
-        bag_depth_frames,
+        bag_frames,
         calibrate_from_frames,
         format_errors,
         format_report,
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     prior = load_rig(config)
     params = dataclasses.replace(SceneCalibrationParams(), max_frames=args.max_frames)
     t0 = time.perf_counter()
-    estimate, read = calibrate_from_frames(bag_depth_frames(args.bag), prior, params=params,
+    estimate, read = calibrate_from_frames(bag_frames(args.bag), prior, params=params,
                                            every=args.every)
     if estimate is None:
         raise TlessbotError(f'{args.bag}: the table was not found in both views of any of its '

@@ -1,7 +1,8 @@
 """The rig estimated from a bag's depth frames, and its report (``tlessbot calibrate``)."""
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -17,48 +18,62 @@ from tlessbot_ros.core.common import CAMERA_NAMES, Rig, StampSynchroniser
 from tlessbot_ros.errors import BagError
 
 
-def bag_depth_frames(bag: str | Path, *, cameras: Sequence[str] = CAMERA_NAMES,
-                     max_age_s: float = 0.05
-                     ) -> Iterator[tuple[int, dict[str, np.ndarray], dict[str, np.ndarray]]]:
-    """The two-view depth frames of a bag, in order.
+@dataclass
+class BagFrame:
+    """One two-view frame of a bag: per camera, (H, W) float32 depth in metres, the (3, 3)
+    camera matrix and, when asked for, (H, W, 3) uint8 RGB."""
 
-    Each camera's aligned depth is paired with its aligned-depth camera_info by header stamp,
-    and the cameras with each other within ``max_age_s`` (as the nodes pair them).
+    stamp_ns: int
+    depth: dict[str, np.ndarray]
+    K: dict[str, np.ndarray]
+    rgb: dict[str, np.ndarray] = field(default_factory=dict)
 
-    Yields:
-        (stamp_ns of the first camera, {camera: (H, W) float32 depth in metres},
-        {camera: (3, 3) camera matrix}).
+
+def bag_frames(bag: str | Path, *, cameras: Sequence[str] = CAMERA_NAMES,
+               colour: bool = False, max_age_s: float = 0.05) -> Iterator[BagFrame]:
+    """The two-view frames of a bag, in order.
+
+    Each camera's aligned depth is paired with its aligned-depth camera_info (and colour) by
+    header stamp, and the cameras with each other within ``max_age_s`` (as the nodes pair
+    them).
 
     Raises:
-        BagError: the bag is missing, unreadable, or lacks the depth topics.
+        BagError: the bag is missing, unreadable, or lacks the topics.
     """
-    from tlessbot_ros.conversions import camera_info_to_intrinsics, depth_image_to_metres
+    from tlessbot_ros.conversions import (
+        camera_info_to_intrinsics,
+        depth_image_to_metres,
+        image_to_rgb,
+    )
     from tlessbot_ros.conversions.cdr import header_stamp_ns
-    from tlessbot_ros.conversions.topics import DEPTH, DEPTH_INFO, camera_topic
+    from tlessbot_ros.conversions.topics import COLOR, DEPTH, DEPTH_INFO, camera_topic
     from tlessbot_ros.io.bags import deserialize, read_bag
 
-    streams = {camera_topic(c, t): (c, t) for c in cameras for t in (DEPTH, DEPTH_INFO)}
+    kinds = (DEPTH, DEPTH_INFO, COLOR) if colour else (DEPTH, DEPTH_INFO)
+    streams = {camera_topic(c, t): (c, t) for c in cameras for t in kinds}
     pairing = StampSynchroniser(list(streams), slop_ns=int(max_age_s * 1e9), queue_size=30)
     for message in read_bag(bag, list(streams)):
         try:
             stamp = header_stamp_ns(message.raw)
         except ValueError as error:
             raise BagError(f'{message.topic}: {error}') from None
-        frame = pairing.add(message.topic, stamp, message)
-        if frame is None:
+        found = pairing.add(message.topic, stamp, message)
+        if found is None:
             continue
-        depth, K = {}, {}
-        for topic, raw in frame.items():
+        frame = BagFrame(header_stamp_ns(found[camera_topic(cameras[0], DEPTH)].raw), {}, {})
+        for topic, raw in found.items():
             camera, kind = streams[topic]
             msg = deserialize(raw)
             if kind == DEPTH:
-                depth[camera] = depth_image_to_metres(msg)
+                frame.depth[camera] = depth_image_to_metres(msg)
+            elif kind == COLOR:
+                frame.rgb[camera] = image_to_rgb(msg)
             else:
-                K[camera] = np.asarray(camera_info_to_intrinsics(msg).K, np.float64)
-        yield header_stamp_ns(frame[camera_topic(cameras[0], DEPTH)].raw), depth, K
+                frame.K[camera] = np.asarray(camera_info_to_intrinsics(msg).K, np.float64)
+        yield frame
 
 
-def calibrate_from_frames(frames: Iterator[tuple[int, dict, dict]], prior: Rig, *,
+def calibrate_from_frames(frames: Iterable[BagFrame], prior: Rig, *,
                           params: SceneCalibrationParams = SceneCalibrationParams(),
                           every: int = 1) -> tuple[RigEstimate | None, int]:
     """Run the scene estimator over ``frames`` (every ``every``-th) and solve once.
@@ -68,10 +83,10 @@ def calibrate_from_frames(frames: Iterator[tuple[int, dict, dict]], prior: Rig, 
     """
     calibrator = SceneCalibrator(prior, params=params)
     read = 0
-    for index, (_, depth, K) in enumerate(frames):
+    for index, frame in enumerate(frames):
         read += 1
         if index % every == 0:
-            calibrator.add_frame(depth, K=K)
+            calibrator.add_frame(frame.depth, K=frame.K)
     return calibrator.solve(), read
 
 
