@@ -240,3 +240,15 @@ def test_the_refiner_keeps_a_right_rig():
         refiner.observe(depth)
     assert refiner.estimate.confident and refiner.in_use == 'config'
     assert refiner.rig is PRIOR and not refiner.status().warn
+
+
+def test_one_frame_with_parts_gives_a_provisional_rig_but_never_replaces_a_right_one(
+        bumped_frames):
+    refiner = RigRefiner(PRIOR)
+    assert refiner.observe(bumped_frames[0])
+    assert refiner.in_use == 'observed' and refiner.status().values['rig_state'] == 'provisional'
+    errors = rig_errors(TRUTH, refiner.rig)
+    assert errors.relative.angle_deg < 1.0 and errors.relative.offset_m < 0.01, errors
+    right = RigRefiner(PRIOR)
+    right.observe(scenes(PRIOR, 1, seed=5)[0])
+    assert right.in_use == 'config' and right.rig is PRIOR
