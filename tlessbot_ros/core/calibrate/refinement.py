@@ -66,7 +66,7 @@ class RigRefinementParams:
     warn_offset_m: float = 0.01
     use_min_angle_deg: float = 0.5
     use_min_offset_m: float = 0.005
-    solve_every_frames: int = 10
+    solve_every_frames: int = 20
     provisional_min_overlap: float = 0.4
     provisional_overlap_gain: float = 0.2
     scene: SceneCalibrationParams = SceneCalibrationParams()

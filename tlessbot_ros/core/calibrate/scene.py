@@ -127,12 +127,12 @@ class SceneCalibrationParams:
     match_height_m: float = 0.015
     hypotheses: int = 300
     icp_iterations: int = 30
-    icp_points: int = 500
+    icp_points: int = 300
     icp_face_tilt_deg: float = 90.0
     icp_start_distance_m: float = 0.025
     icp_distance_m: float = 0.006
     icp_height_weight: float = 0.5
-    max_frames: int = 30
+    max_frames: int = 20
     plane_history: int = 60
     min_frames: int = 3
     min_matches: int = 6
