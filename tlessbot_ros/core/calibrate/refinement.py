@@ -51,14 +51,17 @@ class RigRefinementParams:
             without refinement.
         solve_every_frames: the estimate is solved again after this many more frames with
             parts in both views; before it is confident, after each of the first
-            2 x ``scene.min_frames`` such frames (a scene that never becomes confident, e.g.
+            2 x ``min_frames`` such frames (a scene that never becomes confident, e.g.
             parts the side camera never sees, costs no more than a confident one).
         provisional_min_overlap, provisional_overlap_gain: before the estimate is confident
-            (``scene.min_frames`` frames), 'use' already fuses with its in-plane fit when that
+            (``min_frames`` frames), 'use' already fuses with its in-plane fit when that
             places at least this share of the side view's part points on the top view's, and
             this much more than the configured rig does: a rig that explains the scene so
             much better is the better bet from the first frame with parts (1: wait).
-        scene: the estimator's settings (``rig_refinement.scene.*``).
+        min_frames, min_matches, max_frames: the estimator's
+            (:class:`~tlessbot_ros.core.calibrate.scene.SceneCalibrationParams`): confident
+            from this many frames with parts matched between the views and this many matched
+            parts; the latest ``max_frames`` frames with parts in both views are fitted.
     """
 
     mode: str = 'use'
@@ -69,7 +72,9 @@ class RigRefinementParams:
     solve_every_frames: int = 20
     provisional_min_overlap: float = 0.4
     provisional_overlap_gain: float = 0.2
-    scene: SceneCalibrationParams = SceneCalibrationParams()
+    min_frames: int = SceneCalibrationParams.min_frames
+    min_matches: int = SceneCalibrationParams.min_matches
+    max_frames: int = SceneCalibrationParams.max_frames
 
     def __post_init__(self) -> None:
         if self.mode not in RIG_REFINEMENT_MODES:
@@ -82,6 +87,13 @@ class RigRefinementParams:
                              'provisional_overlap_gain >= 0')
         if self.solve_every_frames < 1:
             raise ValueError(f'solve_every_frames must be >= 1, got {self.solve_every_frames}')
+        _ = self.scene   # SceneCalibrationParams checks min_frames, min_matches, max_frames
+
+    @property
+    def scene(self) -> SceneCalibrationParams:
+        """The estimator's settings."""
+        return SceneCalibrationParams(min_frames=self.min_frames, min_matches=self.min_matches,
+                                      max_frames=self.max_frames)
 
 
 @dataclass(frozen=True)
