@@ -120,3 +120,30 @@ def test_calibrate_errors_are_one_line(tmp_path, capsys):
     assert main(['calibrate', '--board', '--out', str(tmp_path / 'x.yaml')]) == 1
     assert '--board' in capsys.readouterr().err
     assert not (tmp_path / 'x.yaml').exists()
+
+
+@pytest.mark.ros
+def test_calibrate_live_from_the_camera_topics(tmp_path):
+    import sys
+
+    from running import Running
+
+    from tlessbot_ros.conversions.topics import DEPTH, DEPTH_INFO, camera_topic
+
+    cli = [sys.executable, '-m', 'tlessbot_ros.tools.cli']
+    wrong = tmp_path / 'wrong.yaml'
+    write_rig(default_config_path(), bumped(load_rig()), wrong)
+    out = tmp_path / 'live.yaml'
+    calibrate = Running([*cli, 'calibrate', '--live', '--frames', '6', '--timeout', '120',
+                         '--config', str(wrong), '--out', str(out)])
+    topics = [camera_topic(c, t) for c in ('top', 'side') for t in (DEPTH, DEPTH_INFO)]
+    replay = Running([*cli, 'replay', str(package_path('bags', 'demo')), '--loop', '--restamp',
+                      '--rate', '0.5', '--topics', *topics])
+    try:
+        assert calibrate.wait(timeout_s=180.0) == 0, calibrate.output
+    finally:
+        replay.kill()
+        calibrate.kill()
+    assert f'wrote {out}' in calibrate.output
+    errors = rig_errors(load_rig(), load_rig(out))
+    assert errors.relative.angle_deg < 0.5 and errors.relative.offset_m < 0.005, errors

@@ -1,8 +1,10 @@
 """Calibrate the rig from a bag of the cell and write it into a cell YAML.
 
     tlessbot calibrate --bag BAG [--config config/cell.yaml] --out NEW.yaml
+    tlessbot calibrate --live [--frames 60] [--timeout 120] --out NEW.yaml
 
-Reads the bag's aligned depth of both cameras (/top/..., /side/...), finds the table in each
+Reads the aligned depth of both cameras (/top/..., /side/...) from a bag or, with --live,
+from the running cameras (until --frames two-view frames or --timeout), finds the table in each
 view (each camera's tilt and height) and the parts both views see (where the cameras stand
 relative to each other on the table), and writes NEW.yaml: the --config file with only
 ``rig.<camera>.position_m / look_at_m / up`` changed. A bag of a minute of the cell at work
@@ -20,13 +22,18 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import time
+from itertools import islice
 from pathlib import Path
 
 from tlessbot_ros.errors import TlessbotError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('--bag', help='bag with /top and /side aligned depth + camera_info')
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument('--bag', help='bag with /top and /side aligned depth + camera_info')
+    source.add_argument('--live', action='store_true',
+                        help='read the running cameras (/top, /side aligned depth + '
+                             'camera_info) instead of a bag')
     parser.add_argument('--config', type=Path, default=None,
                         help='cell YAML with the rig to start from (default config/cell.yaml)')
     parser.add_argument('--out', type=Path, required=True, help='cell YAML to write')
@@ -34,6 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='use every N-th frame (default every frame)')
     parser.add_argument('--max-frames', type=int, default=60, metavar='N',
                         help='fit the latest N frames with parts in both views (default 60)')
+    parser.add_argument('--frames', type=int, default=60, metavar='N',
+                        help='--live: stop after N two-view frames (default 60)')
+    parser.add_argument('--timeout', type=float, default=120.0, metavar='S',
+                        help='--live: stop after S seconds (default 120)')
     parser.add_argument('--truth', type=Path, default=None,
                         help="a cell YAML with the bag's true rig (a simulated bag's): print the "
                              "estimate's errors against it (gauge-free)")
@@ -51,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
         calibrate_from_frames,
         format_errors,
         format_report,
+        live_frames,
     )
     from tlessbot_ros.tools.support.rig import load_rig, write_rig
 
@@ -59,15 +71,21 @@ def run(args: argparse.Namespace) -> int:
         raise TlessbotError('--every and --max-frames must be at least 1')
     if args.board:
         return _board(args, config)
-    if not args.bag:
-        raise TlessbotError('give --bag BAG (a recording of both cameras)')
+    if not args.bag and not args.live:
+        raise TlessbotError('give --bag BAG (a recording of both cameras) or --live')
     prior = load_rig(config)
     params = dataclasses.replace(SceneCalibrationParams(), max_frames=args.max_frames)
     t0 = time.perf_counter()
-    estimate, read = calibrate_from_frames(bag_frames(args.bag), prior, params=params,
-                                           every=args.every)
+    if args.live:
+        if args.frames < 1 or not args.timeout > 0:
+            raise TlessbotError('--frames must be at least 1 and --timeout positive')
+        frames = islice(live_frames(timeout_s=args.timeout), args.frames)
+        source = 'the cameras'
+    else:
+        frames, source = bag_frames(args.bag), args.bag
+    estimate, read = calibrate_from_frames(frames, prior, params=params, every=args.every)
     if estimate is None:
-        raise TlessbotError(f'{args.bag}: the table was not found in both views of any of its '
+        raise TlessbotError(f'{source}: the table was not found in both views of any of '
                             f'{read} frames')
     print(format_report(estimate, frames_read=read, config=str(config)))
     print(f'time: {time.perf_counter() - t0:.1f} s ({estimate.solve_ms:.0f} ms to solve)')
@@ -77,8 +95,8 @@ def run(args: argparse.Namespace) -> int:
     if not estimate.confident and not args.force:
         raise TlessbotError('the estimate is not confident (see above): record more frames '
                             'with parts both cameras see, or write it anyway with --force')
-    write_rig(config, estimate.rig, args.out,
-              note=f'tlessbot calibrate from {Path(args.bag).name}')
+    write_rig(config, estimate.rig, args.out, note='tlessbot calibrate from ' +
+              ('the cameras' if args.live else Path(args.bag).name))
     print(f'wrote {args.out}')
     return 0
 

@@ -1,6 +1,8 @@
 """The rig estimated from a bag's depth frames, and its report (``tlessbot calibrate``)."""
 from __future__ import annotations
 
+import time
+from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,7 +17,7 @@ from tlessbot_ros.core.calibrate.scene import (
     rig_errors,
 )
 from tlessbot_ros.core.common import CAMERA_NAMES, Rig, StampSynchroniser
-from tlessbot_ros.errors import BagError
+from tlessbot_ros.errors import BagError, TlessbotError
 
 
 @dataclass
@@ -71,6 +73,67 @@ def bag_frames(bag: str | Path, *, cameras: Sequence[str] = CAMERA_NAMES,
             else:
                 frame.K[camera] = np.asarray(camera_info_to_intrinsics(msg).K, np.float64)
         yield frame
+
+
+def live_frames(*, cameras: Sequence[str] = CAMERA_NAMES, timeout_s: float = 120.0,
+                max_age_s: float = 0.05) -> Iterator[BagFrame]:
+    """Two-view depth frames from the cameras' topics (``/top/aligned_depth_to_color/...``),
+    paired as :func:`bag_frames` pairs a bag's, until ``timeout_s`` seconds have passed or
+    the consumer stops. Subscribes best effort (it hears reliable publishers too) and keeps
+    only the newest frames: frames are dropped, never queued, while a slow consumer works.
+
+    Raises:
+        TlessbotError: no frame came within ``timeout_s``.
+    """
+    import rclpy
+
+    from tlessbot_ros.conversions import camera_info_to_intrinsics, depth_image_to_metres
+    from tlessbot_ros.conversions.messages import stamp_to_ns
+    from tlessbot_ros.conversions.topics import DEPTH, DEPTH_INFO, camera_topic
+    from tlessbot_ros.nodes.common import (
+        SENSOR_QOS,
+        init_ros,
+        message_class,
+        raise_if_interrupted,
+    )
+
+    types = {DEPTH: 'sensor_msgs/msg/Image', DEPTH_INFO: 'sensor_msgs/msg/CameraInfo'}
+    streams = {camera_topic(c, t): (c, t) for c in cameras for t in types}
+    pairing = StampSynchroniser(list(streams), slop_ns=int(max_age_s * 1e9), queue_size=30)
+    ready: deque[dict] = deque(maxlen=2)
+    init_ros()
+    node = rclpy.create_node('tlessbot_calibrate')
+    try:
+        for topic, (_, kind) in streams.items():
+            def take(msg: object, topic: str = topic) -> None:
+                found = pairing.add(topic, stamp_to_ns(msg.header.stamp), msg)
+                if found is not None:
+                    ready.append(found)
+            node.create_subscription(message_class(types[kind]), topic, take, SENSOR_QOS)
+        deadline = time.monotonic() + timeout_s
+        got = 0
+        while time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.1)
+            raise_if_interrupted()
+            while ready:
+                found = ready.popleft()
+                frame = BagFrame(stamp_to_ns(found[camera_topic(cameras[0], DEPTH)].header.stamp),
+                                 {}, {})
+                for topic, msg in found.items():
+                    camera, kind = streams[topic]
+                    if kind == DEPTH:
+                        frame.depth[camera] = depth_image_to_metres(msg)
+                    else:
+                        frame.K[camera] = np.asarray(camera_info_to_intrinsics(msg).K,
+                                                     np.float64)
+                got += 1
+                yield frame
+        if not got:
+            raise TlessbotError(f'no two-view depth frame on {sorted(streams)} within '
+                                f'{timeout_s:g} s: are both cameras running?')
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
 
 
 def calibrate_from_frames(frames: Iterable[BagFrame], prior: Rig, *,
