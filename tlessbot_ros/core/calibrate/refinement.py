@@ -69,7 +69,7 @@ class RigRefinementParams:
     warn_offset_m: float = 0.01
     use_min_angle_deg: float = 0.5
     use_min_offset_m: float = 0.005
-    solve_every_frames: int = 20
+    solve_every_frames: int = 50
     provisional_min_overlap: float = 0.4
     provisional_overlap_gain: float = 0.2
     min_frames: int = SceneCalibrationParams.min_frames
