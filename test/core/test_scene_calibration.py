@@ -252,3 +252,15 @@ def test_one_frame_with_parts_gives_a_provisional_rig_but_never_replaces_a_right
     right = RigRefiner(PRIOR)
     right.observe(scenes(PRIOR, 1, seed=5)[0])
     assert right.in_use == 'config' and right.rig is PRIOR
+
+
+def test_once_confident_the_refiner_takes_parts_from_every_fifth_frame_only(bumped_frames):
+    refiner = RigRefiner(PRIOR)
+    for depth in bumped_frames[:3]:
+        refiner.observe(depth)
+    assert refiner.estimate.confident
+    kept, planes = len(refiner.calibrator.frames), len(refiner.calibrator.planes['side'])
+    for depth in bumped_frames * 2:   # 12 more frames
+        refiner.observe(depth)
+    assert len(refiner.calibrator.frames) - kept in (2, 3)
+    assert len(refiner.calibrator.planes['side']) - planes == 12

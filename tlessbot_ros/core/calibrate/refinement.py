@@ -53,6 +53,9 @@ class RigRefinementParams:
             parts in both views; before it is confident, after each of the first
             2 x ``min_frames`` such frames (a scene that never becomes confident, e.g.
             parts the side camera never sees, costs no more than a confident one).
+        observe_every_frames: once confident, the part points are taken from every this
+            many-th frame only (the tables from every frame: a camera that moves is noticed
+            at once); the estimate then follows the scene at a fifth of the cost.
         provisional_min_overlap, provisional_overlap_gain: before the estimate is confident
             (``min_frames`` frames), 'use' already fuses with its in-plane fit when that
             places at least this share of the side view's part points on the top view's, and
@@ -70,6 +73,7 @@ class RigRefinementParams:
     use_min_angle_deg: float = 0.5
     use_min_offset_m: float = 0.005
     solve_every_frames: int = 50
+    observe_every_frames: int = 5
     provisional_min_overlap: float = 0.4
     provisional_overlap_gain: float = 0.2
     min_frames: int = SceneCalibrationParams.min_frames
@@ -85,8 +89,9 @@ class RigRefinementParams:
         if not (0 <= self.provisional_min_overlap <= 1 and 0 <= self.provisional_overlap_gain):
             raise ValueError('provisional_min_overlap must be in [0, 1], '
                              'provisional_overlap_gain >= 0')
-        if self.solve_every_frames < 1:
-            raise ValueError(f'solve_every_frames must be >= 1, got {self.solve_every_frames}')
+        if self.solve_every_frames < 1 or self.observe_every_frames < 1:
+            raise ValueError(f'solve_every_frames and observe_every_frames must be >= 1, got '
+                             f'{self.solve_every_frames} and {self.observe_every_frames}')
         _ = self.scene   # SceneCalibrationParams checks min_frames, min_matches, max_frames
 
     @property
@@ -169,7 +174,9 @@ class RigRefiner:
         t0 = time.perf_counter()
         self.frames += 1
         resets = self.calibrator.resets
-        frame = self.calibrator.add_frame(depth_m, K=K, planes=planes)
+        confident = self.estimate is not None and self.estimate.confident
+        parts = not confident or self.frames % self.params.observe_every_frames == 0
+        frame = self.calibrator.add_frame(depth_m, K=K, planes=planes, parts=parts)
         if self.calibrator.resets != resets:   # a camera moved: what was learnt is gone
             self.estimate, self._new_frames = None, 0
         kept = bool(self.calibrator.frames) and self.calibrator.frames[-1] is frame

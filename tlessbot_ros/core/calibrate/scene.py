@@ -259,6 +259,11 @@ def observe_view(depth_m: np.ndarray, K: np.ndarray, plane: np.ndarray, *, strid
     return ViewObservation(plane, points.astype(np.float32), blob_image[rows, cols], cut)
 
 
+_NO_POINTS = np.zeros((0, 3), np.float32)
+_NO_BLOBS = np.zeros(0, np.int32)
+_NO_CUTS = np.zeros(0, bool)
+
+
 @dataclass(frozen=True)
 class FrameObservation:
     """One frame's observations, by view name (only views whose table was found)."""
@@ -435,8 +440,8 @@ class SceneCalibrator:
     # ------------------------------------------------------------------- observing
     def add_frame(self, depth_m: Mapping[str, np.ndarray | None], *,
                   K: Mapping[str, np.ndarray] | None = None,
-                  planes: Mapping[str, TablePlane | np.ndarray | None] | None = None
-                  ) -> FrameObservation:
+                  planes: Mapping[str, TablePlane | np.ndarray | None] | None = None,
+                  parts: bool = True) -> FrameObservation:
         """Observe one frame.
 
         Args:
@@ -445,6 +450,8 @@ class SceneCalibrator:
             planes: per camera name, its table plane if already found (e.g. by the
                 pipeline's table frame), else it is found here (``params.plane``, the prior's
                 plane as a guide).
+            parts: False: only the planes are taken (no part points; the frame is not
+                kept).
 
         Returns:
             the frame's :class:`FrameObservation` (the views whose table was found); it is
@@ -467,6 +474,10 @@ class SceneCalibrator:
                     prior=plane_of_frame(self.prior[name].T_world_camera))
                 plane = None if found is None else found.plane
             if plane is None or not self._accept_plane(name, np.asarray(plane, np.float64)):
+                continue
+            if not parts:
+                views[name] = ViewObservation(np.asarray(plane, np.float64), _NO_POINTS,
+                                              _NO_BLOBS, _NO_CUTS)
                 continue
             stride = view_stride_px(K_view, self.prior[name].T_world_camera,
                                     self.params.point_spacing_m)
