@@ -134,19 +134,19 @@ def test_a_right_rig_is_kept_and_not_reported(ros, frames):
         node.destroy_node()
 
 
-def test_refinement_off_uses_the_configured_rig_unchecked(ros, frames):
+def test_refinement_none_uses_the_configured_rig_unchecked(ros, frames):
     from rclpy.parameter import Parameter
 
     from tlessbot_ros.nodes.diagnostics import OK
     from tlessbot_ros.nodes.localiser import LocaliserNode
 
     node = LocaliserNode(parameter_overrides=[
-        *_moved_rig_overrides(), Parameter('rig_refinement.mode', value='off')])
+        *_moved_rig_overrides(), Parameter('rig_refinement.mode', value='none')])
     try:
         _run(node, frames[:2])
         assert node.refiner is None
         level, _, values = _diagnostics(node)
-        assert level == OK and values['rig_refinement'] == 'off'
+        assert level == OK and values['rig_refinement'] == 'none'
         assert not any(key.startswith('rig_config') for key in values)
     finally:
         node.destroy_node()

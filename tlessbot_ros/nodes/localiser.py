@@ -25,7 +25,7 @@ Parameters: ``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParam
 both views at once, in two threads), ``segmentation.*`` (SegmentationParams), ``fusion.*``
 (FusionParams: method calibrated | algorithm1 | side_only), ``sync.*`` (SyncParams),
 ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*`` (extrinsics),
-``rig_refinement.*`` (RigRefinementParams: mode off | report | use, thresholds; the rig
+``rig_refinement.*`` (RigRefinementParams: mode none | report | use, thresholds; the rig
 estimated from the table planes and the parts both cameras see,
 :mod:`~tlessbot_ros.core.calibrate.refinement`, and used by the fusion once confident),
 ``background.CAMERA`` (path of an empty-table PNG for background subtraction; '' = none; a new
@@ -205,8 +205,8 @@ class LocaliserNode(StageNode):
         'use', refined from) the table planes and parts the cameras see, this frame
         included."""
         configured = self._configured_rig(views)
-        if self.rig_refinement.mode == 'off':
-            self.refiner, self._rig_status = None, ('', {'rig_refinement': 'off'})
+        if self.rig_refinement.mode == 'none':
+            self.refiner, self._rig_status = None, ('', {'rig_refinement': 'none'})
             self._publish_rig(configured, configured)
             return self._pipeline(views, configured)
         if self.refiner is None or not same_rig(self.refiner.prior, configured):

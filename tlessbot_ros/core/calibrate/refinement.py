@@ -29,7 +29,7 @@ from tlessbot_ros.core.common.rig import Rig
 from tlessbot_ros.core.common.table_plane import TablePlane
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 
-RIG_REFINEMENT_MODES = ('off', 'report', 'use')
+RIG_REFINEMENT_MODES = ('none', 'report', 'use')
 
 
 @dataclass(frozen=True)
@@ -37,8 +37,9 @@ class RigRefinementParams:
     """How the localiser checks and refines the configured rig from what the cameras see.
 
     Attributes:
-        mode: 'off': the configured rig, unchecked; 'report': the rig is estimated from the
-            table planes and the parts both views see, and /diagnostics says how far the
+        mode: 'none': the configured rig, unchecked (not 'off': YAML reads that as false);
+            'report': the rig is estimated from the table planes and the parts both views
+            see, and /diagnostics says how far the
             configured one is from it (WARN past ``warn_angle_deg`` / ``warn_offset_m``);
             'use': as 'report', and the fusion uses the estimated rig once it is confident
             and differs from the configured one by more than ``use_min_angle_deg`` /
@@ -169,7 +170,7 @@ class RigRefiner:
         Returns:
             whether :attr:`rig` changed.
         """
-        if self.params.mode == 'off':
+        if self.params.mode == 'none':
             return False
         t0 = time.perf_counter()
         self.frames += 1
@@ -231,7 +232,7 @@ class RigRefiner:
         """/diagnostics content: state, confidence, the configured rig's difference, cost."""
         p = self.params
         values = {'rig_refinement': p.mode}
-        if p.mode == 'off':
+        if p.mode == 'none':
             return RefinementStatus(values=values)
         estimate = self.estimate
         values.update(rig_in_use=self.in_use, rig_frames=str(self.calibrator.added),

@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--json', default=None, help="write every run's summary here")
     parser.add_argument('--param', action='append', default=[], metavar='NAME:=VALUE',
                         help='a parameter for every node after the config, e.g. '
-                             'rig_refinement.mode:=off (repeatable)')
+                             'rig_refinement.mode:=none (repeatable)')
 
 
 def _row(name: str, summary: dict) -> str:
