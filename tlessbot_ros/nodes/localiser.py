@@ -257,16 +257,12 @@ class LocaliserNode(StageNode):
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         inputs = {camera: self._view_input(camera, msgs) for camera, msgs in views.items()}
-        t0 = time.perf_counter()
-        pipeline = self._refined_pipeline(inputs)
-        refine_ms = 1e3 * (time.perf_counter() - t0)
-        fusion = pipeline.localise(inputs)
+        fusion = self._refined_pipeline(inputs).localise(inputs)
         with self._in_flight_lock:
             admission = {'in_flight': self.in_flight.open_count,
                          'entrance_refused': self.in_flight.refused,
                          'in_flight_expired': self.in_flight.expired}
-        self.record_stats({**{f'{k}_ms': v for k, v in fusion.timings_ms.items()}, **admission,
-                           'rig_refinement_ms': refine_ms})
+        self.record_stats({**{f'{k}_ms': v for k, v in fusion.timings_ms.items()}, **admission})
         for camera, msgs in views.items():
             header = msgs['color'].header
             self._label_publishers[camera].publish(image_to_cdr(   # raw CDR: one copy
