@@ -55,3 +55,39 @@ def transform_to_pose_stamped(
                                     z=float(z), w=float(w)),
         ),
     )
+
+
+def camera_poses_to_pose_array(poses: dict[str, np.ndarray], *, names: tuple[str, ...],
+                               frame_id: str, stamp_ns: int = 0,
+                               factory: MessageFactory | None = None) -> Any:
+    """geometry_msgs/PoseArray of camera poses (``T_world_camera`` (4, 4) each) in the order
+    of ``names`` (the localiser's ``localiser/rig``: top, then side), in ``frame_id``."""
+    factory = factory or default_factory()
+    messages = [transform_to_pose_stamped(poses[name], frame_id=frame_id, stamp_ns=stamp_ns,
+                                          factory=factory).pose for name in names]
+    return factory.new('geometry_msgs/msg/PoseArray',
+                       header=make_header(frame_id, stamp_ns, factory), poses=messages)
+
+
+def pose_array_to_camera_poses(msg: Any, *, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """{name: T_world_camera (4, 4) float64} from a PoseArray written by
+    :func:`camera_poses_to_pose_array` with the same ``names``.
+
+    Raises:
+        ValueError: not one pose per name, or a pose with non-finite values or a zero
+            quaternion.
+    """
+    poses = list(msg.poses)
+    if len(poses) != len(names):
+        raise ValueError(f'expected {len(names)} camera poses ({", ".join(names)}), got '
+                         f'{len(poses)}')
+    out = {}
+    for name, pose in zip(names, poses):
+        p, q = pose.position, pose.orientation
+        quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
+        position = np.array([p.x, p.y, p.z], dtype=np.float64)
+        if not (np.isfinite(quat).all() and np.isfinite(position).all()) or \
+                np.linalg.norm(quat) < 1e-9:
+            raise ValueError(f'the pose of camera {name} is not a valid pose')
+        out[name] = make_transform(matrix_from_quaternion(quat), position)
+    return out

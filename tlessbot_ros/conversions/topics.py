@@ -19,6 +19,9 @@ MARKERS = '/objects/markers'
 DEBUG_IMAGE = '/objects/debug_image'
 GROUND_TRUTH_INFO = '/ground_truth/info'
 GROUND_TRUTH_POSE_PREFIX = '/ground_truth/obj_'
+# The camera poses the localiser fuses with once it refines the rig from the scene
+# (geometry_msgs/PoseArray in the world frame: top, then side); the later stages follow them.
+OBSERVED_RIG = '/localiser/rig'
 
 
 def node_relative(topic: str) -> str:

@@ -17,9 +17,12 @@ Parameters: ``model_path`` (.npz from ``tlessbot train``; default: the packaged 
 ``min_instance_px``, ``class_candidates``, ``top_view_verify_below_margin`` (for a part only the
 top camera sees, the candidates after the first are sent only when the classifier is unsure;
 all four: ClassifyParams), ``rig.cameras`` (the names of the top and side cameras),
-``rig.CAMERA.*`` (extrinsics: heights above the table), ``sync.*``. All are live (``ros2
+``rig.CAMERA.*`` (extrinsics: heights above the table), ``rig_source`` ('localiser': the
+camera poses the localiser publishes on /localiser/rig replace ``rig.CAMERA.*`` once it refines
+the rig; 'config'), ``sync.*``. All are live (``ros2
 param set``, from the next frame; a new ``model_path`` is loaded at once, or refused, and used
-once warmed up) but ``rig.cameras``, ``input_qos``, ``input_depth``, ``sync.worker_thread``.
+once warmed up) but ``rig.cameras``, ``rig_source``, ``input_qos``, ``input_depth``,
+``sync.worker_thread``.
 """
 from __future__ import annotations
 
@@ -39,7 +42,13 @@ from tlessbot_ros.core.pipeline import ClassifyParams, PerceptionPipeline, ViewI
 from tlessbot_ros.core.recognise import Classifier, load_classifier
 from tlessbot_ros.data import DEFAULT_CLASSIFIER
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
-from tlessbot_ros.nodes.stage import IMAGE, StageNode, camera_inputs, declare_input_source
+from tlessbot_ros.nodes.stage import (
+    IMAGE,
+    StageNode,
+    camera_inputs,
+    declare_input_source,
+    follow_observed_rig,
+)
 
 LABEL_ENCODINGS = ('16UC1', 'mono16')
 
@@ -66,6 +75,7 @@ class ClassifierNode(StageNode):
             for camera in self.cameras}
         self.get_logger().info(f'loaded {self.model.kind} classifier for '
                                f'{len(self.model.class_ids)} objects from {path}')
+        self.rig_source = follow_observed_rig(self)
         inputs = camera_inputs(('color', 'depth', 'info'), declare_input_source(self))
         self.start_when_ready(self._warm_up, {**inputs, 'labels': (IMAGE, labels_topic)})
 
@@ -101,7 +111,7 @@ class ClassifierNode(StageNode):
         views_in = {camera: ViewInput(
             rgb=rgb[camera], depth_m=depth_image_to_metres(msgs['depth']),
             intrinsics=camera_info_to_intrinsics(msgs['info']),
-            T_world_camera=self.extrinsics[camera]) for camera, msgs in views.items()}
+            T_world_camera=self.camera_pose(camera)) for camera, msgs in views.items()}
         guesses = self.pipeline.classify(rgb, labels, views=views_in)
         candidates = {instance: guess.candidates for instance, guess in guesses.items()}
         encoding = f'16UC{self.candidates}'

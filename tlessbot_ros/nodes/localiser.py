@@ -7,7 +7,10 @@ Subscribes (sensor-data QoS), for CAMERA in top, side:
 Publishes (RELIABLE, depth 10):
     localiser/CAMERA/labels   sensor_msgs/Image 16UC1: 0 = background, 1..N instances; the same
                               id marks the same part in both views (header = colour header)
-    /diagnostics              frames, failures, dropped, latency, stage times
+    /diagnostics              frames, failures, dropped, latency, stage times; the rig
+                              refinement's state (``rig_*``): WARN when the configured rig is
+                              off from what the cameras see by more than
+                              ``rig_refinement.warn_*``
     localiser/CAMERA/color/image_raw, localiser/CAMERA/aligned_depth_to_color/{image_raw,
     camera_info}              the camera messages of the frames it admits, relayed as received,
                               for the later stages (``input_source: localiser``)
@@ -22,6 +25,9 @@ Parameters: ``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParam
 both views at once, in two threads), ``segmentation.*`` (SegmentationParams), ``fusion.*``
 (FusionParams: method calibrated | algorithm1 | side_only), ``sync.*`` (SyncParams),
 ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*`` (extrinsics),
+``rig_refinement.*`` (RigRefinementParams: mode none | report | use, thresholds; the rig
+estimated from the table planes and the parts both cameras see,
+:mod:`~tlessbot_ros.core.calibrate.refinement`, and used by the fusion once confident),
 ``background.CAMERA`` (path of an empty-table PNG for background subtraction; '' = none; a new
 one that cannot be read is refused). All are live (``ros2 param set``, from the next frame)
 but ``rig.cameras``, ``input_qos``, ``input_depth``, ``sync.worker_thread``: read-only.
@@ -44,14 +50,22 @@ from tlessbot_ros.conversions import (
     stamp_to_ns,
 )
 from tlessbot_ros.conversions.image_cdr import image_to_cdr
+from tlessbot_ros.conversions.messages import RclpyFactory
 from tlessbot_ros.conversions.outcomes import DONE, read_frame_outcome
+from tlessbot_ros.conversions.pose import camera_poses_to_pose_array
 from tlessbot_ros.conversions.topics import (
+    OBSERVED_RIG,
     labels_topic,
     node_relative,
     outcome_topic,
     relay_topic,
 )
-from tlessbot_ros.core.common import AdmissionParams, InFlightFrames
+from tlessbot_ros.core.calibrate.refinement import (
+    RigRefinementParams,
+    RigRefiner,
+    refined_pipeline,
+)
+from tlessbot_ros.core.common import CAMERA_NAMES, AdmissionParams, InFlightFrames, Rig
 from tlessbot_ros.core.localise import (
     BackgroundModel,
     FusionParams,
@@ -65,6 +79,7 @@ from tlessbot_ros.nodes.inputs import Views, newest_stamp_ns
 from tlessbot_ros.nodes.stage import (
     CAMERA_INPUTS,
     IMAGE,
+    RIG_QOS,
     StageNode,
     camera_inputs,
     rig_with_intrinsics,
@@ -85,6 +100,14 @@ class LocaliserNode(StageNode):
                                                 apply=partial(setattr, self, 'fusion'))
         self.localise_params = self.parameters.dataclass(
             LocaliseParams(), apply=partial(setattr, self, 'localise_params'))
+        self.rig_refinement = self.parameters.dataclass(
+            RigRefinementParams(), prefix='rig_refinement.', apply=self._apply_rig_refinement)
+        self.refiner: RigRefiner | None = None   # made on the first frame (its intrinsics)
+        self._rig_status: tuple[str, dict[str, str]] = ('', {})
+        self._rig_publisher = self.create_publisher(
+            message_class('geometry_msgs/msg/PoseArray'), node_relative(OBSERVED_RIG), RIG_QOS)
+        self._published_rig: Rig | None = None
+        self._rig_factory = RclpyFactory()
         self._empty_tables: dict[str, np.ndarray] = {}   # camera: (H, W, 3) uint8 RGB
         self.backgrounds: dict[str, BackgroundModel] = {}
         for camera in self.cameras:
@@ -162,14 +185,58 @@ class LocaliserNode(StageNode):
             self.in_flight.params = params
 
     def _warm_up(self) -> None:
-        """Segment and fuse a synthetic frame once (first calls, lazy imports)."""
+        """Segment and fuse a synthetic frame once, and estimate a rig from it (first calls,
+        lazy imports); the estimate is thrown away."""
         views, _ = self.warm_up_frame(self.backgrounds)
-        self._pipeline(views).localise(views)
+        pipeline = self._pipeline(views, self._configured_rig(views))
+        pipeline.localise(views)
+        RigRefiner(pipeline.rig).observe({c: v.depth_m for c, v in views.items()})
 
-    def _pipeline(self, views: dict[str, ViewInput]) -> PerceptionPipeline:
-        rig = rig_with_intrinsics(self.extrinsics, {c: v.intrinsics for c, v in views.items()})
+    def _configured_rig(self, views: dict[str, ViewInput]) -> Rig:
+        return rig_with_intrinsics(self.extrinsics, {c: v.intrinsics for c, v in views.items()})
+
+    def _pipeline(self, views: dict[str, ViewInput], rig: Rig) -> PerceptionPipeline:
+        """The frame's pipeline with ``rig``; each view is read with its camera's pose."""
+        for camera, view in views.items():
+            view.T_world_camera = rig[camera].T_world_camera
         return PerceptionPipeline(rig=rig, segmentation=self.segmentation, fusion=self.fusion,
                                   localise_params=self.localise_params)
+
+    def _refined_pipeline(self, views: dict[str, ViewInput]) -> PerceptionPipeline:
+        """The frame's pipeline, its rig checked against (and, with ``rig_refinement.mode``
+        'use', refined from) the table planes and parts the cameras see, this frame
+        included."""
+        configured = self._configured_rig(views)
+        if self.rig_refinement.mode == 'none':
+            self.refiner, self._rig_status = None, ('', {'rig_refinement': 'none'})
+            self._publish_rig(configured, configured)
+            return self._pipeline(views, configured)
+        if self.refiner is None or not same_rig(self.refiner.prior, configured):
+            self.refiner = RigRefiner(configured, self.rig_refinement)
+        pipeline = refined_pipeline(self.refiner, views, partial(self._pipeline, views))
+        self._publish_rig(self.refiner.rig, configured)
+        status = self.refiner.status()
+        self._rig_status = (status.message if status.warn else '', status.values)
+        return pipeline
+
+    def _publish_rig(self, rig: Rig, configured: Rig) -> None:
+        """Tell the later stages (``rig_source`` 'localiser') the camera poses the fusion
+        uses when they change: nothing goes out while the configured rig is kept."""
+        if same_rig(rig, self._published_rig or configured):
+            return
+        self._published_rig = rig
+        self._rig_publisher.publish(camera_poses_to_pose_array(
+            {c: rig[c].T_world_camera for c in CAMERA_NAMES}, names=CAMERA_NAMES,
+            frame_id=rig.world_frame, factory=self._rig_factory))
+
+    def _apply_rig_refinement(self, params: RigRefinementParams) -> None:
+        self.rig_refinement = params
+        if self.refiner is not None:
+            self.refiner.set_params(params)
+
+    def extra_status(self) -> tuple[str, dict[str, str]]:
+        """The rig refinement's warning and figures (a snapshot the frame thread made)."""
+        return self._rig_status
 
     def _run_without_background(self, error: Exception) -> None:
         self.get_logger().error(f'{error}; not using it')   # the node runs without it
@@ -192,7 +259,7 @@ class LocaliserNode(StageNode):
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         inputs = {camera: self._view_input(camera, msgs) for camera, msgs in views.items()}
-        fusion = self._pipeline(inputs).localise(inputs)
+        fusion = self._refined_pipeline(inputs).localise(inputs)
         with self._in_flight_lock:
             admission = {'in_flight': self.in_flight.open_count,
                          'entrance_refused': self.in_flight.refused,
@@ -213,6 +280,13 @@ class LocaliserNode(StageNode):
         return ViewInput(rgb=rgb, depth_m=depth_image_to_metres(msgs['depth']),
                          intrinsics=intrinsics, T_world_camera=self.extrinsics[camera],
                          background=self.backgrounds.get(camera))
+
+
+def same_rig(a: Rig, b: Rig) -> bool:
+    """Whether two rigs have the same cameras, poses and camera matrices."""
+    return a.cameras.keys() == b.cameras.keys() and all(
+        np.array_equal(a[c].T_world_camera, b[c].T_world_camera) and
+        np.array_equal(a[c].intrinsics.K, b[c].intrinsics.K) for c in a.cameras)
 
 
 def read_empty_table(path: str) -> np.ndarray | None:

@@ -23,10 +23,13 @@ their depth at the fitted pose; these and ``min_roi_points``, ``table_clearance_
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
 fits others), ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*``
-(extrinsics; the table path needs them), ``sync.*``. All are live (``ros2 param set``, from
-the next frame; the worker processes fit their next part with new ``pose.*`` and FitParams;
-``workers.count`` starts or stops workers) but ``templates_path`` (its objects name the pose
-topics), ``rig.cameras``, ``input_qos``, ``input_depth``, ``sync.worker_thread``: read-only.
+(extrinsics; the table path needs them), ``rig_source`` ('localiser': the camera poses the
+localiser publishes on /localiser/rig once it refines the rig from the scene replace
+``rig.CAMERA.*``, also for ``output_frame`` 'world'; 'config'), ``sync.*``. All are live
+(``ros2 param set``, from the next frame; the worker processes fit their next part with new
+``pose.*`` and FitParams; ``workers.count`` starts or stops workers) but ``templates_path``
+(its objects name the pose topics), ``rig.cameras``, ``rig_source``, ``input_qos``,
+``input_depth``, ``sync.worker_thread``: read-only.
 """
 from __future__ import annotations
 
@@ -66,7 +69,13 @@ from tlessbot_ros.data import DEFAULT_TEMPLATES
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.io.cache import warm_pose_stage
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
-from tlessbot_ros.nodes.stage import IMAGE, StageNode, camera_inputs, declare_input_source
+from tlessbot_ros.nodes.stage import (
+    IMAGE,
+    StageNode,
+    camera_inputs,
+    declare_input_source,
+    follow_observed_rig,
+)
 from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
 
 CLASS_ENCODINGS = ('16UC1', 'mono16', '16UC2', '16UC3', '16UC4')
@@ -107,6 +116,7 @@ class PoseEstimatorNode(StageNode):
         self._worker_errors_seen = 0
         self._factory = RclpyFactory()
         self._templates_path = path
+        self.rig_source = follow_observed_rig(self)
         self._create_publishers()
         inputs = camera_inputs(('depth', 'info'), declare_input_source(self))
         self.start_when_ready(self._warm_up, {**inputs, 'classes': (IMAGE, classes_topic)})
@@ -173,7 +183,7 @@ class PoseEstimatorNode(StageNode):
             raise ValueError(f'{camera}: depth {depth.shape}, classes {class_image.shape} '
                              f'and CameraInfo {intrinsics.height}x{intrinsics.width} differ')
         view = ViewInput(rgb=None, depth_m=depth, intrinsics=intrinsics,
-                         T_world_camera=self.extrinsics[camera])
+                         T_world_camera=self.camera_pose(camera))
         return (view, *decode_candidates(class_image))
 
     def _frame_stats(self, published: list[Detection]) -> dict[str, float]:
@@ -224,7 +234,7 @@ class PoseEstimatorNode(StageNode):
                               ) -> tuple[np.ndarray, str]:
         T = detection.pose.T_camera_object
         if self.output_frame == 'world':
-            return self.extrinsics[detection.view] @ T, self.world_frame
+            return self.camera_pose(detection.view) @ T, self.world_frame
         return T, camera_frame
 
     def _pose_message(self, detection: Detection, camera_frame: str, stamp_ns: int) -> Any:

@@ -60,15 +60,17 @@ from typing import Any
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from tlessbot_ros.conversions.messages import RclpyFactory
 from tlessbot_ros.conversions.outcomes import DONE, DROPPED, FAILED, frame_outcome
+from tlessbot_ros.conversions.pose import pose_array_to_camera_poses
 from tlessbot_ros.conversions.topics import (
     COLOR,
     DEPTH,
     DEPTH_INFO,
     DIAGNOSTICS,
+    OBSERVED_RIG,
     camera_topic,
     node_relative,
     outcome_topic,
@@ -99,6 +101,11 @@ CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
 CAMERA_INPUTS = {'color': (IMAGE, COLOR), 'depth': (IMAGE, DEPTH),
                  'info': (CAMERA_INFO, DEPTH_INFO)}
 INPUT_SOURCES = ('localiser', 'cameras')
+RIG_SOURCES = ('localiser', 'config')
+# The observed rig changes rarely and a stage that starts late must still get the latest.
+RIG_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     history=HistoryPolicy.KEEP_LAST, depth=1)
 
 
 def camera_inputs(keys: Sequence[str], source: str = 'cameras'
@@ -118,6 +125,23 @@ def declare_input_source(node: StageNode) -> str:
         "where the camera images come from: 'localiser' (its relay of the frames it admitted, "
         '/localiser/<camera>/...: a frame the localiser skipped costs this node nothing) or '
         "'cameras' (every frame of the camera topics)"))
+
+
+def follow_observed_rig(node: StageNode) -> str:
+    """Declare the read-only ``rig_source`` of a stage after the localiser and, for
+    'localiser', subscribe to the camera poses it publishes (:data:`OBSERVED_RIG`) when it
+    fuses with a rig refined from the scene: :meth:`StageNode.camera_pose` then gives them."""
+    source = node.parameters.read_only('rig_source', RIG_SOURCES[0], (
+        "the camera poses this stage reads the views in (table frame, output_frame 'world'): "
+        "'localiser': those the localiser publishes on /localiser/rig once it refines the rig "
+        "from what the cameras see (rig_refinement.mode 'use'), rig.CAMERA.* until then; "
+        "'config': rig.CAMERA.* always"))
+    if source not in RIG_SOURCES:
+        raise TlessbotError(f'rig_source must be one of {RIG_SOURCES}, got {source!r}')
+    if source == 'localiser':
+        node.create_subscription(message_class('geometry_msgs/msg/PoseArray'), OBSERVED_RIG,
+                                 node._on_observed_rig, RIG_QOS)
+    return source
 
 
 def declare_cameras(parameters: LiveParameters) -> tuple[str, ...]:
@@ -239,6 +263,7 @@ class StageNode(Node):
         self._stamp_offset_s: float | None = None
         self._stats: dict[str, float] = {}
         self._inputs: TwoViewInputs | None = None
+        self.observed_rig: dict[str, np.ndarray] | None = None   # from /localiser/rig
         self._diagnostics = self.create_publisher(
             message_class('diagnostic_msgs/msg/DiagnosticArray'), DIAGNOSTICS, RESULT_QOS)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -337,6 +362,22 @@ class StageNode(Node):
 
     def _apply_extrinsics(self, camera: str, T_world_camera: np.ndarray) -> None:
         self.extrinsics = {**self.extrinsics, camera: T_world_camera}
+
+    def camera_pose(self, camera: str) -> np.ndarray:
+        """``T_world_camera`` of a camera: the localiser's observed rig when this stage
+        follows it (:func:`follow_observed_rig`) and one came, else ``rig.CAMERA.*``."""
+        observed = self.observed_rig
+        return observed[camera] if observed is not None else self.extrinsics[camera]
+
+    def _on_observed_rig(self, msg: Any) -> None:
+        try:
+            poses = pose_array_to_camera_poses(msg, names=CAMERA_NAMES)
+        except ValueError as error:
+            self.get_logger().warning(f'{OBSERVED_RIG}: {error}', throttle_duration_sec=5.0)
+            return
+        self.observed_rig = poses   # one reference swap: a frame sees the old or the new
+        self.get_logger().info(f'camera poses from {OBSERVED_RIG} (the rig the localiser '
+                               'observes) in use')
 
     def _on_views(self, views: Views, held: bool = False) -> None:
         """A complete two-view frame: hand it to the worker (or process it here without one).
@@ -467,6 +508,11 @@ class StageNode(Node):
         """Figures of the last frame shown on /diagnostics (stage times, counts, fitness)."""
         self._stats = dict(stats)
 
+    def extra_status(self) -> tuple[str, dict[str, str]]:
+        """A stage's own /diagnostics warning ('' for none; it makes an OK status WARN with
+        this message) and values (executor thread: return a snapshot)."""
+        return '', {}
+
     def _publish_diagnostics(self) -> None:
         dropped = (self._inputs.dropped if self._inputs else 0) + self.rate_dropped + \
             self.busy_dropped + self.entrance_dropped
@@ -489,7 +535,11 @@ class StageNode(Node):
                           last_parameter_change=self.parameters.last_change)
         if self.last_error:
             values['last_error'] = self.last_error
+        warning, extra = self.extra_status()
+        values.update(extra)
         message = 'ok' if level == OK else (self.last_error or 'starting')
+        if warning and level == OK:
+            level, message = WARN, warning
         self._diagnostics.publish(diagnostic_array(
             self.get_clock().now().to_msg(), self.get_name(), level, message, values))
 

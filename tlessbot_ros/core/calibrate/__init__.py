@@ -1,1 +1,4 @@
-"""Camera extrinsics of the cell measured from images (a printed board; the scene itself)."""
+"""Camera calibration of the cell: the rig estimated from the scene the cameras see
+(:mod:`.scene`), with the in-plane geometry it needs (:mod:`.inplane`), and what a running
+localiser does with it (:mod:`.refinement`); or measured once with a printed ChArUco board
+(:mod:`.board`)."""

@@ -109,6 +109,24 @@ def default_rig(width: int = 640, height: int = 480) -> Rig:
                         SIDE: CameraMount(SIDE, intrinsics, side)})
 
 
+def look_at_params(T_world_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``position_m``, ``look_at_m`` and ``up`` of config/cell.yaml that give a camera pose
+    (:func:`~tlessbot_ros.core.common.geometry.look_at` gives it back exactly).
+
+    Args:
+        T_world_camera: (4, 4) optical-frame camera pose in the world (z up, z = 0 the table).
+
+    Returns:
+        (3,) position: the camera centre; (3,) look_at: where the optical axis meets the table
+        (a point 1 m along it when it does not look down); (3,) up: the world direction at the
+        top of the image (minus the camera's y axis). Metres, float64.
+    """
+    T = np.asarray(T_world_camera, np.float64)
+    position, axis = T[:3, 3], T[:3, 2]
+    distance = -position[2] / axis[2] if axis[2] < -1e-3 and position[2] > 0 else 1.0
+    return position.copy(), position + distance * axis, -T[:3, 1]
+
+
 def rig_from_params(params: Mapping[str, Any], *, prefix: str = 'rig') -> Rig:
     """Rig from flat ROS parameters (as read from config/cell.yaml).
 
@@ -134,21 +152,13 @@ def rig_from_params(params: Mapping[str, Any], *, prefix: str = 'rig') -> Rig:
     return Rig(cameras=cameras, world_frame=str(params.get('world_frame', 'world')))
 
 
-def look_at_form(T_world_camera: np.ndarray, *, table_z_m: float = 0.0,
-                 decimals: int = 6) -> dict[str, list[float]]:
-    """A camera pose as config/cell.yaml writes it: ``position_m``, ``look_at_m``, ``up``.
-
-    ``look_at_m`` is where the optical axis meets the table plane ``z = table_z_m`` (a point
-    1 m along the axis if it never does); ``up`` is the image's up direction (-y of the optical
-    frame), so that :func:`~tlessbot_ros.core.common.geometry.look_at` gives the pose back
-    exactly, roll included. Values are rounded to ``decimals`` (1 µm by default).
+def look_at_form(T_world_camera: np.ndarray, *, decimals: int = 6) -> dict[str, list[float]]:
+    """A camera pose as config/cell.yaml writes it (:func:`look_at_params`, rounded to
+    ``decimals``: 1 µm by default): ``{'position_m': [...], 'look_at_m': [...], 'up': [...]}``.
     """
-    T = np.asarray(T_world_camera, dtype=np.float64)
-    eye, axis = T[:3, 3], T[:3, 2]
-    reach = (table_z_m - eye[2]) / axis[2] if abs(axis[2]) > 1e-9 else -1.0
-    target = eye + (reach if reach > 0 else 1.0) * axis
+    values = look_at_params(T_world_camera)
     return {key: [round(float(v), decimals) + 0.0 for v in value]  # + 0.0: no -0.0 in YAML
-            for key, value in (('position_m', eye), ('look_at_m', target), ('up', -T[:3, 1]))}
+            for key, value in zip(('position_m', 'look_at_m', 'up'), values)}
 
 
 def rig_to_params(rig: Rig, *, decimals: int = 6) -> dict[str, Any]:

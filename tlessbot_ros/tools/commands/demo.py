@@ -42,8 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_demo(bag: str, *, config: Path, classifier: str, templates: str,
              symmetries: dict[int, Symmetries], rate: float = 1.0, lockstep: bool = True,
-             echo: bool = True) -> dict:
-    """Replay, collect, score; returns the summary (also printed when ``echo``)."""
+             echo: bool = True, parameters: list[str] | None = None) -> dict:
+    """Replay, collect, score; returns the summary (also printed when ``echo``).
+    ``parameters``: ``NAME:=VALUE`` overrides for every node (after the config file)."""
     from tlessbot_ros.tools.support.bag_scoring import Estimate, frame_duplicates, score_frame
     from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
     from tlessbot_ros.tools.support.rig import load_rig
@@ -53,7 +54,8 @@ def run_demo(bag: str, *, config: Path, classifier: str, templates: str,
             raise ModelFileError(f'model file not found: {path}')
     truth = read_ground_truth(bag)
     run = run_graph_on_bag(bag, config=config, rate=rate, lockstep=lockstep, ros_args=[
-        '-p', f'model_path:={classifier}', '-p', f'templates_path:={templates}'])
+        '-p', f'model_path:={classifier}', '-p', f'templates_path:={templates}',
+        *(arg for value in parameters or () for arg in ('-p', value))])
     estimates: dict[int, list[Estimate]] = {}
     for pose in run.poses:
         estimates.setdefault(pose.stamp_ns, []).append(
