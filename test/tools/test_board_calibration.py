@@ -1,4 +1,4 @@
-"""tlessbot calibrate-board (calibrate --board) on simulated bags, and tlessbot board."""
+"""tlessbot calibrate --board on simulated bags, and tlessbot board."""
 import cv2
 import numpy as np
 import yaml
@@ -32,7 +32,7 @@ def test_calibrate_board_recovers_a_moved_rig(tmp_path, tless_models_dir, capsys
     _simulate(tless_models_dir, truth, bag, '--board', '--board-pose', '0.02', '-0.01', '8')
     capsys.readouterr()
     out = tmp_path / 'measured.yaml'
-    assert main(['calibrate-board', '--bag', str(bag), '--out', str(out),
+    assert main(['calibrate', '--board', '--bag', str(bag), '--out', str(out),
                  '--board-pose', '0.02', '-0.01', '8']) == 0
     text = capsys.readouterr().out
     assert 'top: 2 of 2 images fitted together' in text
@@ -52,14 +52,16 @@ def test_calibrate_board_without_a_board_is_one_clear_line(tmp_path, tless_model
     bag = tmp_path / 'bag'
     _simulate(tless_models_dir, default_config_path(), bag)
     capsys.readouterr()
-    assert main(['calibrate-board', '--bag', str(bag)]) == 1
+    out = str(tmp_path / 'measured.yaml')
+    assert main(['calibrate', '--board', '--bag', str(bag), '--out', out]) == 1
     err = capsys.readouterr().err.strip()
-    assert err.startswith("tlessbot calibrate-board: error: camera 'top': no pose from the "
+    assert err.startswith("tlessbot calibrate: error: camera 'top': no pose from the "
                           'board in 2 image(s): the board is not seen: 0 of its 24 corners')
     assert len(err.splitlines()) == 1
-    assert main(['calibrate-board', '--bag', str(tmp_path / 'missing')]) == 1
+    assert main(['calibrate', '--board', '--bag', str(tmp_path / 'missing'), '--out', out]) == 1
     assert 'bag not found' in capsys.readouterr().err
-    assert main(['calibrate-board', '--bag', str(bag), '--board-marker-m', '0.07']) == 1
+    assert main(['calibrate', '--board', '--bag', str(bag), '--out', out,
+                 '--board-marker-m', '0.07']) == 1
     assert 'smaller than square_length_m' in capsys.readouterr().err
 
 

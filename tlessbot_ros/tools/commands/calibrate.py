@@ -26,6 +26,7 @@ from itertools import islice
 from pathlib import Path
 
 from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.tools.support.board_calibration import add_board_arguments
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,7 +52,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--force', action='store_true',
                         help='write the rig even if the estimate is not confident')
     parser.add_argument('--board', action='store_true',
-                        help='calibrate from a ChArUco board on the table (not wired yet)')
+                        help='measure the rig from a ChArUco board lying on the table, seen in '
+                             "the bag's colour images (tlessbot board prints one; --board-* "
+                             'describe it and where it lies)')
+    add_board_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -102,6 +106,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _board(args: argparse.Namespace, config: Path) -> int:
-    """Hook for the ChArUco board path (``core/calibrate/board.py``): estimate the rig from the
-    board, then write it with ``write_rig`` as the scene path does."""
-    raise TlessbotError('--board is not available yet: calibrate from the scene (--bag)')
+    """The ChArUco board path (``core/calibrate/board.py``): the rig from the board in the
+    bag's colour images, written as the scene path writes it."""
+    from tlessbot_ros.tools.support.board_calibration import run_board_calibration
+
+    if not args.bag:
+        raise TlessbotError('--board needs --bag BAG (a recording of the board on the table)')
+    args.bag, args.config = Path(args.bag), config
+    return run_board_calibration(args)

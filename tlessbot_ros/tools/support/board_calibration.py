@@ -202,23 +202,6 @@ def format_report(report: BoardCalibrationReport) -> str:
     return '\n'.join(lines)
 
 
-def write_rig_yaml(rig: Rig, source: Path, out: Path) -> None:
-    """Write ``source`` (a cell parameter YAML) to ``out`` with its ``/**`` ``rig`` block
-    replaced by ``rig`` (:func:`~tlessbot_ros.core.common.rig_to_params`); the rest is kept
-    (comments are not)."""
-    import yaml
-
-    try:
-        document = yaml.safe_load(Path(source).read_text(encoding='utf-8')) or {}
-    except (OSError, yaml.YAMLError) as error:
-        raise TlessbotError(f'cannot read {source}: {error}') from None
-    section = document.setdefault('/**', {}).setdefault('ros__parameters', {})
-    section['rig'] = rig_to_params(rig)
-    Path(out).write_text(f'# The rig measured from a ChArUco board (tlessbot calibrate --board); '
-                         f'the rest is {source}.\n' + yaml.safe_dump(document, sort_keys=False),
-                         encoding='utf-8')
-
-
 def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``tlessbot calibrate --board`` besides ``--board-*``."""
     parser.add_argument('--bag', type=Path, required=True,
@@ -236,7 +219,7 @@ def run_board_calibration(args: argparse.Namespace) -> int:
     """``tlessbot calibrate --board``: needs ``args.bag``, ``args.config``, ``args.out``,
     ``args.max_frames`` and the ``--board-*`` options."""
     from tlessbot_ros.io.config import default_config_path
-    from tlessbot_ros.tools.support.rig import load_rig
+    from tlessbot_ros.tools.support.rig import load_rig, write_rig
 
     if args.max_frames < 1:
         raise TlessbotError('--max-frames must be at least 1')
@@ -248,6 +231,7 @@ def run_board_calibration(args: argparse.Namespace) -> int:
                                        max_frames=args.max_frames)
     print(format_report(report))
     if args.out is not None:
-        write_rig_yaml(rig, config, args.out)
+        write_rig(config, rig, args.out,
+                  note='measured from a ChArUco board (tlessbot calibrate --board)')
         print(f'wrote {args.out}')
     return 0

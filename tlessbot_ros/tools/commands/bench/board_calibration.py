@@ -53,9 +53,8 @@ def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.tools.support.board_calibration import (
         calibrate_with_board,
         rig_offsets,
-        write_rig_yaml,
     )
-    from tlessbot_ros.tools.support.rig import load_rig
+    from tlessbot_ros.tools.support.rig import load_rig, write_rig
 
     if args.rigs < 1 or args.frames < 1 or args.parts_max < 0:
         raise TlessbotError('--rigs and --frames must be at least 1, --parts-max at least 0')
@@ -74,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
                            angle_deg=scale[1] * args.max_angle_deg)
             cameras[name] = CameraMount(name, cam.intrinsics, T)
         config = work / f'rig_{k}.yaml'
-        write_rig_yaml(Rig(cameras=cameras, world_frame=prior.world_frame), cell, config)
+        write_rig(cell, Rig(cameras=cameras, world_frame=prior.world_frame), config)
         truth = load_rig(config)  # the rig as the YAML holds it (rounded to 1 µm)
         moved, _ = rig_offsets(truth, prior)
         bag = work / f'bag_{k}'
