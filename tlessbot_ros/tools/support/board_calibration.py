@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from tlessbot_ros.core.calibrate.board import BoardSpec, CameraCalibration, board_on_table
-from tlessbot_ros.core.common import Rig, rig_to_params, rotation_angle_deg
+from tlessbot_ros.core.common import Rig, rotation_angle_deg
 from tlessbot_ros.errors import CalibrationError, TlessbotError
 
 DEFAULT_MAX_FRAMES = 30
