@@ -116,6 +116,8 @@ class SimParams:
     ``noise_scale`` multiplies ``noise.scale`` (depth sigma and dropout; 0 = clean depth);
     ``materials`` and ``tables`` are the names drawn from (``MATERIALS``, ``TABLE_KINDS``).
     A BOP scene folder holds ``frames_per_scene`` consecutive frames (each its own arrangement).
+    ``lean_prob``: the chance that a part leans, tilted out of its stable pose
+    (:mod:`~tlessbot_ros.sim.scene`); 0 leaves the scenes as they were.
     """
 
     parts_min: int = 1
@@ -132,6 +134,7 @@ class SimParams:
     unique_classes: bool = True
     margin_px: int = 8
     frames_per_scene: int = 1000
+    lean_prob: float = 0.0
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.materials if m not in MATERIALS]
@@ -145,12 +148,15 @@ class SimParams:
                              f'{self.parts_max}')
         if self.noise_scale < 0:
             raise ValueError(f'noise_scale must be >= 0, got {self.noise_scale}')
+        if not 0.0 <= self.lean_prob <= 1.0:
+            raise ValueError(f'lean_prob must be in [0, 1], got {self.lean_prob}')
 
     @property
     def scene_params(self) -> SceneParams:
         return SceneParams(parts_min=self.parts_min, parts_max=self.parts_max,
                            area_radius_m=self.area_radius_m, cluster_prob=self.cluster_prob,
-                           unique_classes=self.unique_classes, margin_px=self.margin_px)
+                           unique_classes=self.unique_classes, margin_px=self.margin_px,
+                           lean_prob=self.lean_prob)
 
     @property
     def depth_noise(self) -> DepthNoiseParams:

@@ -101,15 +101,18 @@ class Refiner:
                               iterations=iterations)[0]
 
     def icp_batch(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
-                  *, iterations: int | None = None) -> np.ndarray:
+                  *, iterations: int | None = None, points: int | None = None) -> np.ndarray:
         """Point-to-plane ICP (Chen & Medioni 1992) of K (K, 4, 4) starting poses at once; the
-        model's nearest sample comes from the nearest-sample grid (O(1) per point)."""
+        model's nearest sample comes from the nearest-sample grid (O(1) per point).
+        ``iterations`` and ``points`` (scene points used, evenly strided) default to
+        ``icp_iterations`` and ``icp_points``."""
         p = self.params
         grid = obj.nearest_grid()
         normals, model = obj.model_arrays_float64()
         T = np.array(T_camera_object, np.float64).reshape(-1, 4, 4)
-        if len(scene_c) > p.icp_points:
-            scene_c = scene_c[::int(np.ceil(len(scene_c) / p.icp_points))]
+        points = p.icp_points if points is None else points
+        if len(scene_c) > points:
+            scene_c = scene_c[::int(np.ceil(len(scene_c) / points))]
         iterations = p.icp_iterations if iterations is None else iterations
         scene_c = np.ascontiguousarray(scene_c, np.float64)
         max_d = p.icp_distance_voxels * obj.voxel_size_m * np.where(
