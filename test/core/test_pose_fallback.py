@@ -193,6 +193,9 @@ def test_geometry_helpers():
         np.testing.assert_allclose(R @ (np.array(a) / np.linalg.norm(a)), b / np.linalg.norm(b),
                                    atol=1e-12)
         np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    many = rotation_between(directions, [0.0, 0.0, -1.0])
+    np.testing.assert_allclose(many @ directions[:, :, None], np.broadcast_to(
+        [[0.0], [0.0], [-1.0]], (300, 3, 1)), atol=1e-12)
 
 
 def test_bad_fallback_settings_are_refused():

@@ -103,32 +103,25 @@ def fibonacci_sphere(count: int) -> np.ndarray:
 
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(3, 3) the smallest rotation taking unit vector ``a`` to unit vector ``b``."""
-    a = np.asarray(a, np.float64) / np.linalg.norm(a)
+    """The smallest rotation taking direction ``a`` to direction ``b``: (3, 3) for (3,) ``a``,
+    (N, 3, 3) for (N, 3) ``a``; opposite directions get a half-turn about an axis
+    perpendicular to ``b``."""
+    a = np.asarray(a, np.float64)
+    single = a.ndim == 1
+    a = np.atleast_2d(a) / np.linalg.norm(np.atleast_2d(a), axis=1, keepdims=True)
     b = np.asarray(b, np.float64) / np.linalg.norm(b)
     axis = np.cross(a, b)
-    sin, cos = np.linalg.norm(axis), float(a @ b)
-    if sin < 1e-12:
-        if cos > 0:
-            return np.eye(3)
-        helper = np.eye(3)[int(np.argmin(np.abs(a)))]   # any axis perpendicular to a
-        return rotation_about_axis(np.cross(a, helper), np.pi)
-    return rotation_about_axis(axis, float(np.arctan2(sin, cos)))
-
-
-def _rotations_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) the smallest rotations taking each unit vector of (N, 3) ``a`` to unit ``b``
-    (a half-turn about an axis perpendicular to ``b`` where ``a`` = -``b``)."""
-    axis = np.cross(a, b)
     sin, cos = np.linalg.norm(axis, axis=1), a @ b
-    opposite = sin < 1e-12
-    axis[opposite] = np.cross(b, np.eye(3)[int(np.argmin(np.abs(b)))])
+    parallel = sin < 1e-12
+    axis[parallel] = np.cross(b, np.eye(3)[int(np.argmin(np.abs(b)))])
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-    angle = np.where(opposite & (cos < 0), np.pi, np.arctan2(sin, cos))[:, None, None]
+    angle = np.where(parallel, np.where(cos < 0, np.pi, 0.0), np.arctan2(sin, cos))
     K = np.zeros((len(a), 3, 3))
     K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
     K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = axis[:, 2], -axis[:, 1], axis[:, 0]
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+    angle = angle[:, None, None]
+    R = np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+    return R[0] if single else R
 
 
 def near_symmetries(obj: ObjectTemplates, *, exact_ratio: float = 1.35,
@@ -189,7 +182,7 @@ def view_grid(obj: ObjectTemplates, *, directions: int, in_plane_steps: int) -> 
     normals = obj.model_normals.astype(np.float64)
     toward_camera = np.array([0.0, 0.0, -1.0])
     cell = 0.5 * obj.voxel_size_m / _CANONICAL_DISTANCE_M
-    R0 = _rotations_onto(fibonacci_sphere(directions), toward_camera)
+    R0 = rotation_between(fibonacci_sphere(directions), toward_camera)
     centroids = np.empty((directions, 3))
     for k, R in enumerate(R0):   # the surface each direction shows, self-occlusion included
         seen = self_visible(model @ R.T + [0.0, 0.0, _CANONICAL_DISTANCE_M], normals @ R.T,
