@@ -300,7 +300,10 @@ def _coarse_poses(scene_c: np.ndarray, obj: ObjectTemplates, p: PoseParams,
     keep = np.argsort(cost, kind='stable')[:p.fallback_keep]
     cost = refiner.truncated_cost(T[keep], subset(p.score_points), obj, tau=tau)
     T = T[keep[np.argsort(cost, kind='stable')[:p.fallback_icp_starts]]]
-    T = refiner.icp_batch(coarse, obj, T, iterations=p.fallback_icp_iterations)
+    # The view's position comes from centroids that occlusion shifts by up to a few voxels:
+    # a wide correspondence distance first.
+    T = refiner.icp_batch(coarse, obj, T, iterations=p.fallback_icp_iterations,
+                          distance_m=p.fallback_icp_distance_voxels * obj.voxel_size_m)
     fit = refiner.grid_fitness(T, coarse, obj)
     chosen: list[int] = []
     for k in np.argsort(-fit, kind='stable'):

@@ -65,10 +65,16 @@ class PoseParams:
             the best ``fallback_keep`` again on ``score_points``.
         fallback_keep: see ``fallback_coarse_points``.
         fallback_icp_starts: 'views': the best this many views get ``fallback_icp_iterations``
-            point-to-plane ICP steps on the coarse points.
-        fallback_icp_iterations: see ``fallback_icp_starts``.
+            point-to-plane ICP steps on the coarse points, correspondences within
+            ``fallback_icp_distance_voxels`` voxels (twice that in the first half: a view's
+            position comes from surface centroids, which occlusion shifts by a few voxels).
+        fallback_icp_iterations, fallback_icp_distance_voxels: see ``fallback_icp_starts``.
         fallback_refine: 'views': the best distinct coarse poses refined at the template
-            voxel and turned by the part's near-symmetries.
+            voxel (``icp_iterations``).
+        fallback_turned: 'views': the best this many of those are turned by each of the part's
+            near-symmetries and refined again.
+        fallback_fine_iterations: 'views': the final ICP steps of the ``final_candidates``
+            survivors, with every ROI point.
         ransac_distance_voxels, ransac_edge_length, ransac_mutual_filter,
         ransac_max_iteration, ransac_confidence: the SAC-IA settings (algo-notes §C.4).
         fpfh_radius_voxels, fpfh_max_nn: scene FPFH support (as in the templates).
@@ -106,7 +112,8 @@ class PoseParams:
     fallback_coarse_points: int = 60
     fallback_keep: int = 200
     fallback_icp_starts: int = 30
-    fallback_icp_iterations: int = 4
+    fallback_icp_iterations: int = 6
+    fallback_icp_distance_voxels: float = 3.0
     fallback_refine: int = 4
     fallback_turned: int = 2
     fallback_fine_iterations: int = 16
@@ -136,9 +143,14 @@ class PoseParams:
                self.fallback_icp_starts, self.fallback_refine) < 1:
             raise ValueError('fallback_directions, fallback_in_plane_steps, fallback_keep, '
                              'fallback_icp_starts and fallback_refine must be >= 1')
-        if self.fallback_coarse_points < 10 or self.fallback_icp_iterations < 0:
-            raise ValueError('fallback_coarse_points must be >= 10 and '
-                             'fallback_icp_iterations >= 0')
+        if self.fallback_coarse_points < 10 or min(self.fallback_icp_iterations,
+                                                   self.fallback_fine_iterations,
+                                                   self.fallback_turned) < 0:
+            raise ValueError('fallback_coarse_points must be >= 10; fallback_icp_iterations, '
+                             'fallback_fine_iterations and fallback_turned >= 0')
+        if self.fallback_icp_distance_voxels <= 0:
+            raise ValueError('fallback_icp_distance_voxels must be > 0 (3: three voxels), got '
+                             f'{self.fallback_icp_distance_voxels}')
         if self.fallback_voxel_scale <= 0:
             raise ValueError(f'fallback_voxel_scale must be > 0 (1.5: a coarser grid than the '
                              f'templates), got {self.fallback_voxel_scale}')
