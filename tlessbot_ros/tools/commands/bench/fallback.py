@@ -12,8 +12,9 @@ load touches them alike. Methods (``PoseParams`` in brackets):
   every part took without extrinsics before (FPFH + RANSAC against all templates);
 * table + views / table + templates, forced (``fallback_fitness=1.01``): the table path runs,
   then the fallback, and the best of both is kept;
-* table, default / table, default with templates: the fallback only below
-  ``fallback_fitness``; their rows "sent to the fallback" count only those parts.
+* table, default (views below ``fallback_fitness``, 0.85), views below 0.7, templates below 0.7
+  (the former default): the fallback only for a poor table fit; their rows "sent to the
+  fallback" count only those parts.
 
 Printed: recall within 5 cm / 5° and 1 cm / 5° (symmetry-aware), p50 / p95 / max ms per part,
 on all parts and, with ``--lean-prob``, on the leaning ones (tilted out of every stable pose).
@@ -91,8 +92,9 @@ def run(args: argparse.Namespace) -> int:
         'templates, no table frame (before)': (params(**before), False),
         'table + views, forced': (params(fallback_fitness=1.01), True),
         'table + templates, forced (before)': (params(fallback_fitness=1.01, **before), True),
-        'table, default': (params(), True),
-        'table, default with templates (before)': (params(**before), True),
+        f'table, default (views below {PoseParams().fallback_fitness})': (params(), True),
+        'table, views below 0.7': (params(fallback_fitness=0.7), True),
+        'table, templates below 0.7 (before)': (params(fallback_fitness=0.7, **before), True),
     }
     if args.skip_slow:
         del methods['templates, no table frame (before)']
@@ -154,7 +156,7 @@ def _tables(rows: dict, args: argparse.Namespace, load_before, load_after,
         lines += [_row(name, [r for r in items if r[4]]) for name, items in rows.items()]
     lines += ['', '### parts the table path sent to its fallback (fitness below '
                   'fallback_fitness)', ''] + head
-    for name in ('table, default', 'table, default with templates (before)'):
+    for name in list(rows)[-3:]:
         lines.append(_row(name, [r for r in rows[name] if r[3]]))
     new, old = rows['views, forced'], rows.get('templates, no table frame (before)')
     if old:
