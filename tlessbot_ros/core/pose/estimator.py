@@ -95,8 +95,9 @@ class PoseEstimator:
     def warm_up(self, obj_ids: Iterable[int] | None = None, *, features: bool = True) -> None:
         """Build every per-object cache now (nearest-point grids, KD-trees, scoring subsets, the
         fallback's view grid, and with ``features`` the templates' FPFH), so the first frame
-        that shows an object is not slower than the next: about 0.5 s per object, once. Each object's first template
-        cloud is run through :meth:`estimate` with the template camera's pose."""
+        that shows an object is not slower than the next: about 0.5 s per object, once. Each
+        object's first template cloud is run through :meth:`estimate` with the template
+        camera's pose."""
         ids = sorted(self.database.objects) if obj_ids is None else list(obj_ids)
         T_world_camera = self.database.params.get('T_world_camera')
         p = self.params

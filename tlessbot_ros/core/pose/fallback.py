@@ -49,7 +49,7 @@ from scipy.spatial import cKDTree
 
 from tlessbot_ros.core.common import rotation_about_axis
 from tlessbot_ros.core.pose.candidates import PoseCandidate, poses_differ
-from tlessbot_ros.core.pose.cloud import voxel_downsample
+from tlessbot_ros.core.pose.cloud import fit_plane, voxel_downsample
 from tlessbot_ros.core.pose.database import ObjectTemplates
 from tlessbot_ros.core.pose.grid_kernels import self_visible
 from tlessbot_ros.core.pose.params import PoseParams
@@ -247,6 +247,10 @@ def fallback_candidates(scene_c: np.ndarray, obj: ObjectTemplates, timings: dict
         return []
     p = params
     t0 = time.perf_counter()
+    if p.fallback_drop_planes:
+        scene_c = _without_wide_planes(scene_c, obj, p)
+        if len(scene_c) < 10:
+            return []
     T_coarse = _coarse_poses(scene_c, obj, p, refiner)
     t1 = time.perf_counter()
     timings['views'] = 1e3 * (t1 - t0)
@@ -275,6 +279,32 @@ def fallback_candidates(scene_c: np.ndarray, obj: ObjectTemplates, timings: dict
     out = [refiner.evaluate(scene_c, obj, T, method='views') for T in final]
     timings['refine'] = 1e3 * (time.perf_counter() - t1)
     return sorted(out, key=lambda c: (-c.score, c.inlier_rmse_m))
+
+
+def _without_wide_planes(scene_c: np.ndarray, obj: ObjectTemplates, p: PoseParams
+                         ) -> np.ndarray:
+    """The ROI without up to ``fallback_drop_planes`` planes wider than
+    ``fallback_plane_width`` times the part's diameter: a box ROI without a table frame holds
+    the table around the part, which would drag the views' centroids off it, while any two
+    points of the part lie within its diameter, so none of its own faces is dropped."""
+    for _ in range(p.fallback_drop_planes):
+        if len(scene_c) < 20:
+            break
+        _, inliers = fit_plane(scene_c, distance_m=p.cloud.plane_distance_m,
+                               iterations=p.cloud.plane_iterations, seed=p.seed)
+        on = scene_c[inliers]
+        if len(on) < 3 or _spread(on) <= p.fallback_plane_width * obj.diameter_m:
+            break
+        scene_c = scene_c[~inliers]
+    return scene_c
+
+
+def _spread(points: np.ndarray) -> float:
+    """Largest extent of (N, 3) points along their principal axes (m)."""
+    centred = points - points.mean(axis=0)
+    _, _, Vt = np.linalg.svd(centred, full_matrices=False)
+    along = centred @ Vt[0]
+    return float(along.max() - along.min())
 
 
 def _coarse_poses(scene_c: np.ndarray, obj: ObjectTemplates, p: PoseParams,

@@ -79,6 +79,12 @@ class PoseParams:
             near-symmetries and refined again.
         fallback_fine_iterations: 'views': the final ICP steps of the ``final_candidates``
             survivors, with every ROI point.
+        fallback_drop_planes: 'views': first remove up to this many RANSAC planes
+            (``cloud.plane_distance_m``) wider than ``fallback_plane_width`` times the part's
+            diameter from the ROI: the table in a box ROI without a table frame (one view,
+            no plane found: 0.74 -> 0.88 at 5 cm / 5° on 119 simulated parts). No face of the
+            part is wider than its diameter. 0: off.
+        fallback_plane_width: see ``fallback_drop_planes``.
         ransac_distance_voxels, ransac_edge_length, ransac_mutual_filter,
         ransac_max_iteration, ransac_confidence: the SAC-IA settings (algo-notes §C.4).
         fpfh_radius_voxels, fpfh_max_nn: scene FPFH support (as in the templates).
@@ -121,6 +127,8 @@ class PoseParams:
     fallback_refine: int = 4
     fallback_turned: int = 2
     fallback_fine_iterations: int = 16
+    fallback_drop_planes: int = 1
+    fallback_plane_width: float = 1.0
     ransac_distance_voxels: float = 1.5
     ransac_edge_length: float = 0.9
     ransac_mutual_filter: bool = True
@@ -152,6 +160,10 @@ class PoseParams:
                                                    self.fallback_turned) < 0:
             raise ValueError('fallback_coarse_points must be >= 10; fallback_icp_iterations, '
                              'fallback_fine_iterations and fallback_turned >= 0')
+        if self.fallback_drop_planes < 0 or self.fallback_plane_width <= 0:
+            raise ValueError('fallback_drop_planes must be >= 0 and fallback_plane_width > 0 '
+                             f'(1: the part diameter), got {self.fallback_drop_planes}, '
+                             f'{self.fallback_plane_width}')
         if self.fallback_icp_distance_voxels <= 0:
             raise ValueError('fallback_icp_distance_voxels must be > 0 (3: three voxels), got '
                              f'{self.fallback_icp_distance_voxels}')
