@@ -8,8 +8,8 @@ Two estimators share one refinement and one scoring (:class:`~tlessbot_ros.core.
   edge-length and distance checkers) of each template of the recognised class against the ROI
   cloud, then point-to-plane ICP against the CAD surface; best and second-best candidates by
   score after refinement.
-* ``'table'`` (default, falls back to ``'ransac'`` when its fit is poor) – parts rest on the
-  table, so the pose is one of the part's stable poses turned by a yaw and shifted on the plane.
+* ``'table'`` (default) – parts rest on the table, so the pose is one of the part's stable
+  poses turned by a yaw and shifted on the plane.
   For every stable pose and yaw hypothesis (yaw steps pruned by the pose's rotational symmetry)
   the position on the plane is set by matching the centroid of the model surface facing the
   camera to the ROI centroid, every hypothesis is scored at once through a precomputed
@@ -17,6 +17,11 @@ Two estimators share one refinement and one scoring (:class:`~tlessbot_ros.core.
   Gauss-Newton steps on that grid, and the winner gets a full 6-DOF point-to-plane ICP.
   This needs the table frame: ``T_world_camera`` with the table at world z = 0 (the rig's
   extrinsics, or the plane seen in the depth: :mod:`tlessbot_ros.core.common.table_plane`).
+  When its fit stays below ``fallback_fitness`` (a part leaning on another), or without a
+  table frame, or always with ``force_fallback``, the part goes to the fallback:
+  ``fallback_method='views'`` the bounded 6-DOF search of
+  :mod:`tlessbot_ros.core.pose.fallback` (tens of ms), ``'templates'`` the former FPFH +
+  RANSAC against the templates.
 
 Poses are ``T_camera_object`` (4, 4) float64, metres, in the optical frame of the ROI cloud.
 
@@ -125,7 +130,7 @@ class PoseEstimator:
                 :func:`tlessbot_ros.core.pose.roi_cloud`).
             obj_id: the recognised T-LESS class.
             T_world_camera: (4, 4) camera pose in a world frame whose z = 0 plane is the table
-                (needed by the table path; without it RANSAC is used).
+                (needed by the table path; without it the fallback is used).
             method: overrides ``params.method``.
             fallback: overrides ``params.fallback`` (False: the table path's answer however
                 poor, e.g. to compare candidate classes quickly).
