@@ -123,7 +123,7 @@ def test_table_frame_from_plane_matches_the_rig():
     assert invert_transform(T_wc)[2, 3] > 0   # the table origin lies in front of the camera
 
 
-def test_fallback_is_bounded_and_can_be_switched_off(setup, monkeypatch):
+def test_templates_fallback_is_bounded_and_can_be_switched_off(setup, monkeypatch):
     from tlessbot_ros.core.pose import ransac as ransac_module
     model, db = setup
     points = _view(model, _place(db, 0, 50.0, 0.0, 0.0))
@@ -135,7 +135,8 @@ def test_fallback_is_bounded_and_can_be_switched_off(setup, monkeypatch):
         calls.append((kwargs.get('template_indices'), kwargs.get('max_iteration'), len(out)))
         return out
     monkeypatch.setattr(ransac_module, 'register_templates', spy)
-    forced = PoseParams(fallback_fitness=1.01, fallback_templates=2, fallback_max_iteration=500,
+    forced = PoseParams(fallback_fitness=1.01, fallback_method='templates', fallback_templates=2,
+                        fallback_max_iteration=500,
                         fallback_budget_ms=0.0)   # the table fit never suffices; no time left
     result = PoseEstimator(db, params=forced).estimate(points, 21,
                                                        T_world_camera=SIDE.T_world_camera)

@@ -90,7 +90,7 @@ class FitParams:
             141-156 ms.
         verify_rmse_weight: candidates are ranked by fitness - weight * inlier RMSE (1/m), so
             1 mm of RMSE costs 0.05 of fitness.
-        fallback_min_fitness: after verification, the RANSAC fallback is not tried for a
+        fallback_min_fitness: after verification, the pose fallback is not tried for a
             region that no candidate fits at all (best fitness below this): such a region is
             no known part on the table (an arm, a shadow) and the fallback would spend its
             whole budget on it.

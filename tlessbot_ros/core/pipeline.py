@@ -153,7 +153,7 @@ class PartJob:
     """One part to fit: its detection (filled in by the fit), its ROI cloud ((N, 3) metres in
     the optical frame of ``detection.view``), its class candidates best first, and that
     view's table frame ``T_world_camera`` (:meth:`PerceptionPipeline.table_frame`; None: no
-    table frame, RANSAC)."""
+    table frame, the pose stage's fallback)."""
 
     detection: Detection
     points: np.ndarray
@@ -471,7 +471,7 @@ class PerceptionPipeline:
 
         Args:
             views: per view, the depth, intrinsics and extrinsics (each part is fitted in its
-                view's table frame, :meth:`table_frame`: without one, by RANSAC).
+                view's table frame, :meth:`table_frame`: without one, by the fallback).
             labels: instance label images per view (in box mode, each instance is its
                 filled box, and points on the table plane are discarded).
             classes: {instance: obj_id} or {instance: (obj_id, ...)} candidates best first
@@ -564,8 +564,8 @@ class PerceptionPipeline:
         ``verify_accept_fitness``.
 
         With several candidates and a table frame, each is fitted by the table path alone
-        (a wrong class fits poorly, and the RANSAC fallback would spend its budget on it);
-        the RANSAC fallback then runs once, for the winner, if its fit stays poor. Last, a
+        (a wrong class fits poorly, and the fallback would spend its time on it); the
+        fallback then runs once, for the winner, if its fit stays poor. Last, a
         part with a look-alike is compared with it at the fitted pose (``lookalike_check``)."""
         p = self.fit_params
         estimator = self.pose_estimator

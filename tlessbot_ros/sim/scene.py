@@ -4,7 +4,11 @@ Placement is sequential rejection sampling. Each part gets a resting pose drawn 
 probability (:func:`~tlessbot_ros.io.models.stable_poses`), a uniform yaw and a position in the
 work area, either anywhere or (with ``cluster_prob``) right next to an already placed part, so
 that crowded, touching and occluding arrangements like the paper's test scenes are common.
-Candidates are rejected when their convex hulls interpenetrate by more than ``touch_tol_m``
+With ``lean_prob`` a part may instead lean: its resting pose is tilted by ``lean_deg`` about a
+random horizontal axis and lowered onto the table, as a part propped against a neighbour would
+be (contact with the neighbour is not enforced; such a part is in no stable pose, which is what
+the pose stage's fallback is for). Candidates are rejected when their convex hulls
+interpenetrate by more than ``touch_tol_m``
 (conservative for concave parts: they never nest into each other) or when any hull vertex would
 fall outside an image (``margin_px``).
 """
@@ -14,7 +18,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tlessbot_ros.core.common import Rig, project_points, sample_surface, transform_points
+from tlessbot_ros.core.common import (
+    Rig,
+    project_points,
+    rotation_about_axis,
+    sample_surface,
+    transform_points,
+)
 from tlessbot_ros.io.models import ObjectModel, stable_poses
 
 
@@ -29,7 +39,8 @@ class PlacedObject:
 
 @dataclass(frozen=True)
 class SceneParams:
-    """Scene sampling options (see the module docstring)."""
+    """Scene sampling options (see the module docstring; ``lean_prob`` 0 draws no extra random
+    numbers, so scenes stay as they were without it)."""
 
     parts_min: int = 1
     parts_max: int = 8
@@ -40,6 +51,8 @@ class SceneParams:
     touch_tol_m: float = 0.0005
     max_tries: int = 80
     hull_samples: int = 200
+    lean_prob: float = 0.0
+    lean_deg: tuple[float, float] = (15.0, 40.0)
 
 
 @dataclass
@@ -100,6 +113,20 @@ def _in_views(info: _HullInfo, T_world_object: np.ndarray, rig: Rig, margin_px: 
     return True
 
 
+def _lean(T_world_object: np.ndarray, info: _HullInfo, rng: np.random.Generator,
+          angle_deg: tuple[float, float]) -> np.ndarray:
+    """The pose tilted by an angle in ``angle_deg`` about a random horizontal axis through its
+    origin, then lowered so that its lowest hull vertex touches the table (z = 0)."""
+    azimuth = rng.uniform(-np.pi, np.pi)
+    tilt = np.radians(rng.uniform(*angle_deg))
+    axis = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
+    T = np.eye(4)
+    T[:3, :3] = rotation_about_axis(axis, tilt) @ T_world_object[:3, :3]
+    T[:3, 3] = T_world_object[:3, 3]
+    T[2, 3] -= transform_points(T, info.vertices)[:, 2].min()
+    return T
+
+
 def work_area_centre(rig: Rig) -> np.ndarray:
     """(2,) table point at the middle of what all cameras see (mean of the optical axes' hits)."""
     hits = []
@@ -148,6 +175,8 @@ def sample_scene(models: dict[int, ObjectModel], rig: Rig, rng: np.random.Genera
             T = np.eye(4)
             T[:2, :2] = [[c, -s], [s, c]]
             T = T @ rest
+            if params.lean_prob > 0 and rng.random() < params.lean_prob:
+                T = _lean(T, info, rng, params.lean_deg)
             if placed and rng.random() < params.cluster_prob:
                 k = int(rng.integers(len(placed)))
                 angle = rng.uniform(-np.pi, np.pi)

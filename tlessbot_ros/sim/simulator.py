@@ -120,6 +120,8 @@ class SimParams:
     ``board`` lays a printed ChArUco board on the table (:mod:`~tlessbot_ros.sim.board`), None
     for none; it changes only the table's colour where it lies, and draws no random numbers, so
     everything else stays as without it.
+    ``lean_prob``: the chance that a part leans, tilted out of its stable pose
+    (:mod:`~tlessbot_ros.sim.scene`); 0 leaves the scenes as they were.
     """
 
     parts_min: int = 1
@@ -137,6 +139,7 @@ class SimParams:
     margin_px: int = 8
     frames_per_scene: int = 1000
     board: SimBoard | None = None
+    lean_prob: float = 0.0
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.materials if m not in MATERIALS]
@@ -150,12 +153,15 @@ class SimParams:
                              f'{self.parts_max}')
         if self.noise_scale < 0:
             raise ValueError(f'noise_scale must be >= 0, got {self.noise_scale}')
+        if not 0.0 <= self.lean_prob <= 1.0:
+            raise ValueError(f'lean_prob must be in [0, 1], got {self.lean_prob}')
 
     @property
     def scene_params(self) -> SceneParams:
         return SceneParams(parts_min=self.parts_min, parts_max=self.parts_max,
                            area_radius_m=self.area_radius_m, cluster_prob=self.cluster_prob,
-                           unique_classes=self.unique_classes, margin_px=self.margin_px)
+                           unique_classes=self.unique_classes, margin_px=self.margin_px,
+                           lean_prob=self.lean_prob)
 
     @property
     def depth_noise(self) -> DepthNoiseParams:

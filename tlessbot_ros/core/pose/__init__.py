@@ -6,7 +6,8 @@ file format), ``building`` (rendering and building the templates), ``params`` an
 ``candidates`` (the settings and results of the pose search), ``estimator`` (the table-plane
 search and the orchestration), ``refinement`` (ICP, planar Gauss-Newton, scoring: swap it with
 ``PoseEstimator(refiner=...)``), ``ransac`` (the paper's FPFH + RANSAC path), ``grid_kernels``
-and ``buckets`` (the fast lookups), ``lookalike``, ``derived`` (start-up arrays to cache).
+and ``buckets`` (the fast lookups), ``fallback`` (the bounded 6-DOF search for parts off the
+table path), ``lookalike``, ``derived`` (start-up arrays to cache).
 Surface sampling is :func:`tlessbot_ros.core.common.sample_surface`.
 
 This package's public API; names load on first use, so importing one light module
@@ -33,6 +34,7 @@ _HOME = {
     'yaw_period': 'building',
     'COVERAGE_WEIGHT': 'candidates',
     'PoseCandidate': 'candidates',
+    'poses_differ': 'candidates',
     'PoseResult': 'candidates',
     'CloudParams': 'cloud',
     'compute_fpfh': 'cloud',
@@ -56,6 +58,13 @@ _HOME = {
     'Template': 'database',
     'TemplateDatabase': 'database',
     'VERSION': 'database',
+    'NearSymmetries': 'fallback',
+    'ViewGrid': 'fallback',
+    'fallback_candidates': 'fallback',
+    'fibonacci_sphere': 'fallback',
+    'near_symmetries': 'fallback',
+    'rotation_between': 'fallback',
+    'view_grid': 'fallback',
     'PoseEstimator': 'estimator',
     'table_frame_from_plane': 'estimator',
     'gauss_newton': 'grid_kernels',
@@ -71,6 +80,7 @@ _HOME = {
     'lookalike_pairs': 'lookalike',
     'shared_surface': 'lookalike',
     'visible_difference': 'lookalike',
+    'FALLBACK_METHODS': 'params',
     'METHODS': 'params',
     'PoseParams': 'params',
     'ransac_candidates': 'ransac',
@@ -99,6 +109,7 @@ if TYPE_CHECKING:
         COVERAGE_WEIGHT,
         PoseCandidate,
         PoseResult,
+        poses_differ,
     )
     from tlessbot_ros.core.pose.cloud import (  # noqa: F401
         CloudParams,
@@ -135,6 +146,15 @@ if TYPE_CHECKING:
         PoseEstimator,
         table_frame_from_plane,
     )
+    from tlessbot_ros.core.pose.fallback import (  # noqa: F401
+        NearSymmetries,
+        ViewGrid,
+        fallback_candidates,
+        fibonacci_sphere,
+        near_symmetries,
+        rotation_between,
+        view_grid,
+    )
     from tlessbot_ros.core.pose.grid_kernels import (  # noqa: F401
         gauss_newton,
         inlier_fraction,
@@ -153,6 +173,7 @@ if TYPE_CHECKING:
         visible_difference,
     )
     from tlessbot_ros.core.pose.params import (  # noqa: F401
+        FALLBACK_METHODS,
         METHODS,
         PoseParams,
     )

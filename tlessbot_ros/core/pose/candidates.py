@@ -48,3 +48,11 @@ class PoseResult:
     second: PoseCandidate | None
     n_points: int
     timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+def poses_differ(T_a: np.ndarray, T_b: np.ndarray, *, t_m: float = 0.01, r_deg: float = 5.0
+                 ) -> bool:
+    """True when two (4, 4) poses differ by more than ``t_m`` metres or ``r_deg`` degrees."""
+    cos = (np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1.0) / 2.0
+    return bool(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]) > t_m or
+                np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > r_deg)

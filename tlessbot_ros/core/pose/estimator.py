@@ -8,8 +8,8 @@ Two estimators share one refinement and one scoring (:class:`~tlessbot_ros.core.
   edge-length and distance checkers) of each template of the recognised class against the ROI
   cloud, then point-to-plane ICP against the CAD surface; best and second-best candidates by
   score after refinement.
-* ``'table'`` (default, falls back to ``'ransac'`` when its fit is poor) – parts rest on the
-  table, so the pose is one of the part's stable poses turned by a yaw and shifted on the plane.
+* ``'table'`` (default) – parts rest on the table, so the pose is one of the part's stable
+  poses turned by a yaw and shifted on the plane.
   For every stable pose and yaw hypothesis (yaw steps pruned by the pose's rotational symmetry)
   the position on the plane is set by matching the centroid of the model surface facing the
   camera to the ROI centroid, every hypothesis is scored at once through a precomputed
@@ -17,6 +17,11 @@ Two estimators share one refinement and one scoring (:class:`~tlessbot_ros.core.
   Gauss-Newton steps on that grid, and the winner gets a full 6-DOF point-to-plane ICP.
   This needs the table frame: ``T_world_camera`` with the table at world z = 0 (the rig's
   extrinsics, or the plane seen in the depth: :mod:`tlessbot_ros.core.common.table_plane`).
+  When its fit stays below ``fallback_fitness`` (a part leaning on another), or without a
+  table frame, or always with ``force_fallback``, the part goes to the fallback:
+  ``fallback_method='views'`` the bounded 6-DOF search of
+  :mod:`tlessbot_ros.core.pose.fallback` (tens of ms), ``'templates'`` the former FPFH +
+  RANSAC against the templates.
 
 Poses are ``T_camera_object`` (4, 4) float64, metres, in the optical frame of the ROI cloud.
 
@@ -38,13 +43,14 @@ import numpy as np
 from tlessbot_ros.core.common import invert_transform, make_transform, transform_points
 from tlessbot_ros.core.common.table_plane import table_frame_from_plane  # noqa: F401 (API)
 from tlessbot_ros.core.pose.buckets import PointBuckets
-from tlessbot_ros.core.pose.candidates import PoseCandidate, PoseResult
+from tlessbot_ros.core.pose.candidates import PoseCandidate, PoseResult, poses_differ
 from tlessbot_ros.core.pose.cloud import remove_statistical_outliers, voxel_downsample
 from tlessbot_ros.core.pose.database import (
     CONTINUOUS_YAW_PERIOD,
     ObjectTemplates,
     TemplateDatabase,
 )
+from tlessbot_ros.core.pose.fallback import fallback_candidates, view_grid
 from tlessbot_ros.core.pose.params import METHODS, PoseParams
 from tlessbot_ros.core.pose.ransac import ransac_candidates
 from tlessbot_ros.core.pose.refinement import Refiner
@@ -139,16 +145,21 @@ class PoseEstimator:
 
     # ----------------------------------------------------------------------------------- API
     def warm_up(self, obj_ids: Iterable[int] | None = None, *, features: bool = True) -> None:
-        """Build every per-object cache now (nearest-point grids, KD-trees, scoring subsets,
-        and with ``features`` the templates' FPFH), so the first frame that shows an object is
-        not slower than the next: about 0.5 s per object, once. Each object's first template
-        cloud is run through :meth:`estimate` with the template camera's pose."""
+        """Build every per-object cache now (nearest-point grids, KD-trees, scoring subsets, the
+        fallback's view grid, and with ``features`` the templates' FPFH), so the first frame
+        that shows an object is not slower than the next: about 0.5 s per object, once. Each
+        object's first template cloud is run through :meth:`estimate` with the template
+        camera's pose."""
         ids = sorted(self.database.objects) if obj_ids is None else list(obj_ids)
         T_world_camera = self.database.params.get('T_world_camera')
+        p = self.params
         for obj_id in ids:
             obj = self.database[obj_id]
             obj.nearest_grid()
             obj.model_tree()
+            if p.fallback_method == 'views':
+                view_grid(obj, directions=p.fallback_directions,
+                          in_plane_steps=p.fallback_in_plane_steps)
             if obj.templates:
                 self.estimate(obj.templates[0].points.astype(np.float64), obj_id,
                               T_world_camera=None if T_world_camera is None
@@ -166,7 +177,7 @@ class PoseEstimator:
                 :func:`tlessbot_ros.core.pose.roi_cloud`).
             obj_id: the recognised T-LESS class.
             T_world_camera: (4, 4) camera pose in a world frame whose z = 0 plane is the table
-                (needed by the table path; without it RANSAC is used).
+                (needed by the table path; without it the fallback is used).
             method: overrides ``params.method``.
             fallback: overrides ``params.fallback`` (False: the table path's answer however
                 poor, e.g. to compare candidate classes quickly).
@@ -184,13 +195,12 @@ class PoseEstimator:
         obj = self.database[obj_id]
         p = self.params
         timings: dict[str, float] = {}
-        use_table = method == 'table' and T_world_camera is not None
+        use_table = method == 'table' and T_world_camera is not None and not p.force_fallback
         scene = self._prepare(points_c, obj, p.table_voxel_scale if use_table else 1.0, timings)
         result = PoseResult(int(obj_id), None, None, len(scene), timings)
         if len(scene) < 10:
             return result
         candidates: list[PoseCandidate] = []
-        indices, max_iteration, deadline = None, p.ransac_max_iteration, None
         if use_table:
             t0 = time.perf_counter()
             candidates = self._table_path(scene, obj, np.asarray(T_world_camera, np.float64))
@@ -200,18 +210,28 @@ class PoseEstimator:
                 timings['total'] = timings['prep'] + timings['table']
                 result.best, result.second = self._best_two(candidates)
                 return result
-            # Bounded fallback: a few templates near the table path's best views, fewer
-            # iterations, and no new template once the budget is spent.
-            indices = self._fallback_templates(obj, candidates)
-            max_iteration = p.fallback_max_iteration
-            deadline = start + 1e-3 * p.fallback_budget_ms
             scene = self._prepare(points_c, obj, 1.0, timings)
         t0 = time.perf_counter()
-        candidates = self._rank(candidates + ransac_candidates(
-            scene, obj, timings, params=p, refiner=self.refiner, indices=indices,
-            max_iteration=max_iteration, deadline=deadline))
-        timings['ransac'] = 1e3 * (time.perf_counter() - t0)
-        timings['total'] = sum(v for k, v in timings.items() if k in ('prep', 'table', 'ransac'))
+        if method == 'table' and p.fallback_method == 'views':
+            candidates = self._rank(candidates + fallback_candidates(
+                scene, obj, timings, params=p, refiner=self.refiner,
+                starts=np.array([c.T_camera_object for c in candidates[:2]]).reshape(-1, 4, 4),
+                deadline=start + 1e-3 * p.fallback_budget_ms))
+            timings['fallback'] = 1e3 * (time.perf_counter() - t0)
+        else:
+            indices, max_iteration, deadline = None, p.ransac_max_iteration, None
+            if use_table:
+                # Today's fallback: a few templates near the table path's best views, fewer
+                # iterations, and no new template once the budget is spent.
+                indices = self._fallback_templates(obj, candidates)
+                max_iteration = p.fallback_max_iteration
+                deadline = start + 1e-3 * p.fallback_budget_ms
+            candidates = self._rank(candidates + ransac_candidates(
+                scene, obj, timings, params=p, refiner=self.refiner, indices=indices,
+                max_iteration=max_iteration, deadline=deadline))
+            timings['ransac'] = 1e3 * (time.perf_counter() - t0)
+        timings['total'] = sum(v for k, v in timings.items()
+                               if k in ('prep', 'table', 'ransac', 'fallback'))
         result.best, result.second = self._best_two(candidates)
         return result
 
@@ -279,7 +299,7 @@ class PoseEstimator:
         for k in np.argsort(-fit, kind='stable'):
             if len(chosen) == p.final_candidates:
                 break
-            if all(_differs(refined[k], refined[c]) for c in chosen):
+            if all(poses_differ(refined[k], refined[c]) for c in chosen):
                 chosen.append(int(k))
         return self._rank([refiner.evaluate(scene_c, obj, refined[k], method='table',
                                             stable=starts[k][1], scene_buckets=scene_buckets,
@@ -326,7 +346,7 @@ class PoseEstimator:
         order = np.argsort(-fit, kind='stable')
         starts = [(T_camera_world @ T_top[order[0]], int(stable_top[order[0]]))]
         for k in order[1:]:
-            if _differs(T_top[k], T_top[order[0]]):
+            if poses_differ(T_top[k], T_top[order[0]]):
                 starts.append((T_camera_world @ T_top[k], int(stable_top[k])))
                 break
         if self.params.flip_axes:
@@ -353,13 +373,7 @@ class PoseEstimator:
         ranked = PoseEstimator._rank(candidates)
         best = ranked[0]
         for c in ranked[1:]:
-            if _differs(c.T_camera_object, best.T_camera_object):
+            if poses_differ(c.T_camera_object, best.T_camera_object):
                 return best, c
         return best, None
 
-
-def _differs(T_a: np.ndarray, T_b: np.ndarray, *, t_m: float = 0.01, r_deg: float = 5.0) -> bool:
-    """True when two poses differ by more than ``t_m`` or ``r_deg``."""
-    cos = (np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1.0) / 2.0
-    return bool(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]) > t_m or
-                np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > r_deg)

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from tlessbot_ros.core.pose.cloud import CloudParams
 
 METHODS = ('table', 'ransac')
+FALLBACK_METHODS = ('views', 'templates')
 
 
 @dataclass(frozen=True)
@@ -16,7 +17,8 @@ class PoseParams:
     fraction of the object's diameter).
 
     Attributes:
-        method: 'table' (fast path, RANSAC fallback) or 'ransac'.
+        method: 'table' (fast path, with a fallback when its fit is poor or there is no table
+            frame) or 'ransac' (the paper's FPFH + RANSAC against every template).
         yaw_step_deg: yaw hypothesis spacing of the table path.
         max_stable_poses: stable poses searched (most probable first).
         min_stable_probability: less likely stable poses are skipped.
@@ -36,14 +38,53 @@ class PoseParams:
         inlier_voxels: distance of a scene point to the model surface counted as an inlier.
         inlier_plane_m: an inlier must also lie this close to the tangent plane of its nearest
             model sample (0: off); used for the final ranking.
-        fallback_fitness: the table path falls back to RANSAC below this fitness.
+        fallback_fitness: the table path falls back below this fitness. 0.85 rather than
+            0.7 since the fallback is cheap: a part leaning on another often gets a wrong
+            table pose with fitness 0.7-0.85 (on 65 leaning simulated parts 0.74 right at
+            5 cm / 5° with 0.7, 0.95 with 0.85), while 4 % of resting parts go to the fallback
+            (docs/bench/fallback.md).
         fallback: run that fallback at all (off: the table path's best is returned).
-        fallback_templates: the fallback registers only the templates whose view is closest
-            in rotation to the table path's best hypotheses, at most this many.
-        fallback_max_iteration: RANSAC iterations per template in the fallback.
-        fallback_budget_ms: the fallback starts no further template once this much time has
-            passed since :meth:`~tlessbot_ros.core.pose.PoseEstimator.estimate`
-            began (bounds the worst case).
+        fallback_method: 'views' (default) the bounded 6-DOF search of
+            :mod:`tlessbot_ros.core.pose.fallback`: a grid of views scored on the model's
+            nearest-sample grid, ICP at the template voxel, the near-symmetry turns, ~20-40 ms
+            a part; 'templates' the former fallback: FPFH + RANSAC against the templates
+            nearest the table path's best (all of them, ``ransac_max_iteration`` each, without
+            a table frame: 1-3 s a part). Also used without a table frame.
+        force_fallback: send every part straight to the fallback, without trying the table
+            path (parts known to lean or lie on others; benchmarks).
+        fallback_templates: 'templates' fallback: the templates whose view is closest in
+            rotation to the table path's best hypotheses, at most this many.
+        fallback_max_iteration: 'templates' fallback: RANSAC iterations per template.
+        fallback_budget_ms: a safety net, in ms since
+            :meth:`~tlessbot_ros.core.pose.PoseEstimator.estimate` began: once spent, the
+            'views' fallback skips its near-symmetry turns and the 'templates' fallback starts
+            no further template.
+        fallback_directions: 'views': viewing directions spread over the sphere (300: about
+            12° apart).
+        fallback_in_plane_steps: 'views': turns about the line of sight per direction (24:
+            15° apart); directions x steps views in all, fewer for symmetric parts.
+        fallback_voxel_scale: 'views': the ROI is scored on a grid this much coarser than the
+            template voxel.
+        fallback_coarse_points: 'views': every view is scored on this many coarse ROI points,
+            the best ``fallback_keep`` again on ``score_points``.
+        fallback_keep: see ``fallback_coarse_points``.
+        fallback_icp_starts: 'views': the best this many views get ``fallback_icp_iterations``
+            point-to-plane ICP steps on the coarse points, correspondences within
+            ``fallback_icp_distance_voxels`` voxels (twice that in the first half: a view's
+            position comes from surface centroids, which occlusion shifts by a few voxels).
+        fallback_icp_iterations, fallback_icp_distance_voxels: see ``fallback_icp_starts``.
+        fallback_refine: 'views': the best distinct coarse poses refined at the template
+            voxel (``icp_iterations``).
+        fallback_turned: 'views': the best this many of those are turned by each of the part's
+            near-symmetries and refined again.
+        fallback_fine_iterations: 'views': the final ICP steps of the ``final_candidates``
+            survivors, with every ROI point.
+        fallback_drop_planes: 'views': first remove up to this many RANSAC planes
+            (``cloud.plane_distance_m``) wider than ``fallback_plane_width`` times the part's
+            diameter from the ROI: the table in a box ROI without a table frame (one view,
+            no plane found: 0.74 -> 0.88 at 5 cm / 5° on 119 simulated parts). No face of the
+            part is wider than its diameter. 0: off.
+        fallback_plane_width: see ``fallback_drop_planes``.
         ransac_distance_voxels, ransac_edge_length, ransac_mutual_filter,
         ransac_max_iteration, ransac_confidence: the SAC-IA settings (algo-notes §C.4).
         fpfh_radius_voxels, fpfh_max_nn: scene FPFH support (as in the templates).
@@ -68,11 +109,26 @@ class PoseParams:
     icp_points: int = 250
     inlier_voxels: float = 1.0
     inlier_plane_m: float = 0.0025
-    fallback_fitness: float = 0.7
+    fallback_fitness: float = 0.85
     fallback: bool = True
     fallback_templates: int = 3
     fallback_max_iteration: int = 5000
-    fallback_budget_ms: float = 60.0
+    fallback_budget_ms: float = 100.0
+    fallback_method: str = 'views'
+    force_fallback: bool = False
+    fallback_directions: int = 300
+    fallback_in_plane_steps: int = 24
+    fallback_voxel_scale: float = 1.5
+    fallback_coarse_points: int = 60
+    fallback_keep: int = 200
+    fallback_icp_starts: int = 30
+    fallback_icp_iterations: int = 6
+    fallback_icp_distance_voxels: float = 3.0
+    fallback_refine: int = 4
+    fallback_turned: int = 2
+    fallback_fine_iterations: int = 16
+    fallback_drop_planes: int = 1
+    fallback_plane_width: float = 1.0
     ransac_distance_voxels: float = 1.5
     ransac_edge_length: float = 0.9
     ransac_mutual_filter: bool = True
@@ -92,3 +148,25 @@ class PoseParams:
             raise ValueError(f'yaw_step_deg must be in (0, 180], got {self.yaw_step_deg}')
         if self.top_k < 1 or self.score_points < 10 or self.max_stable_poses < 1:
             raise ValueError('top_k and max_stable_poses must be >= 1, score_points >= 10')
+        if self.fallback_method not in FALLBACK_METHODS:
+            raise ValueError(f'fallback_method must be one of {FALLBACK_METHODS}, got '
+                             f'{self.fallback_method!r}')
+        if min(self.fallback_directions, self.fallback_in_plane_steps, self.fallback_keep,
+               self.fallback_icp_starts, self.fallback_refine) < 1:
+            raise ValueError('fallback_directions, fallback_in_plane_steps, fallback_keep, '
+                             'fallback_icp_starts and fallback_refine must be >= 1')
+        if self.fallback_coarse_points < 10 or min(self.fallback_icp_iterations,
+                                                   self.fallback_fine_iterations,
+                                                   self.fallback_turned) < 0:
+            raise ValueError('fallback_coarse_points must be >= 10; fallback_icp_iterations, '
+                             'fallback_fine_iterations and fallback_turned >= 0')
+        if self.fallback_drop_planes < 0 or self.fallback_plane_width <= 0:
+            raise ValueError('fallback_drop_planes must be >= 0 and fallback_plane_width > 0 '
+                             f'(1: the part diameter), got {self.fallback_drop_planes}, '
+                             f'{self.fallback_plane_width}')
+        if self.fallback_icp_distance_voxels <= 0:
+            raise ValueError('fallback_icp_distance_voxels must be > 0 (3: three voxels), got '
+                             f'{self.fallback_icp_distance_voxels}')
+        if self.fallback_voxel_scale <= 0:
+            raise ValueError(f'fallback_voxel_scale must be > 0 (1.5: a coarser grid than the '
+                             f'templates), got {self.fallback_voxel_scale}')

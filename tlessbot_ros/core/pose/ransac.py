@@ -5,7 +5,8 @@
 :func:`ransac_candidates` computes the scene features, registers the templates and refines the
 best few with point-to-plane ICP against the CAD surface
 (:class:`~tlessbot_ros.core.pose.refinement.Refiner`). The estimator runs it for
-``method='ransac'`` and as the table path's bounded fallback.
+``method='ransac'`` and as the table path's former fallback (``fallback_method='templates'``;
+the default fallback is :mod:`tlessbot_ros.core.pose.fallback`).
 
 References:
     R. B. Rusu, N. Blodow, M. Beetz, "Fast Point Feature Histograms (FPFH) for 3D

@@ -102,19 +102,26 @@ class Refiner:
                               iterations=iterations)[0]
 
     def icp_batch(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
-                  *, iterations: int | None = None) -> np.ndarray:
+                  *, iterations: int | None = None, points: int | None = None,
+                  distance_m: float | None = None) -> np.ndarray:
         """Point-to-plane ICP (Chen & Medioni 1992) of K (K, 4, 4) starting poses at once; the
-        model's nearest sample comes from the nearest-sample grid (O(1) per point)."""
+        model's nearest sample comes from the nearest-sample grid (O(1) per point).
+        ``iterations``, ``points`` (scene points used, evenly strided) and ``distance_m`` (the
+        correspondence distance of the second half of the iterations; the first half uses
+        twice that) default to ``icp_iterations``, ``icp_points`` and ``icp_distance_voxels``
+        voxels."""
         p = self.params
         grid = obj.nearest_grid()
         normals, model = obj.model_arrays_float64()
         T = np.array(T_camera_object, np.float64).reshape(-1, 4, 4)
-        if len(scene_c) > p.icp_points:
-            scene_c = scene_c[::int(np.ceil(len(scene_c) / p.icp_points))]
+        points = p.icp_points if points is None else points
+        if len(scene_c) > points:
+            scene_c = scene_c[::int(np.ceil(len(scene_c) / points))]
         iterations = p.icp_iterations if iterations is None else iterations
         scene_c = np.ascontiguousarray(scene_c, np.float64)
-        max_d = p.icp_distance_voxels * obj.voxel_size_m * np.where(
-            np.arange(iterations) < iterations // 2, 2.0, 1.0)
+        distance_m = p.icp_distance_voxels * obj.voxel_size_m if distance_m is None \
+            else distance_m
+        max_d = distance_m * np.where(np.arange(iterations) < iterations // 2, 2.0, 1.0)
         R, t = gauss_newton(*_rotation_translation(T), scene_c, grid.origin, grid.spacing,
                             grid.index, model, normals, max_d, False, 1e-6)
         T[:, :3, :3], T[:, :3, 3] = R, t

@@ -47,6 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--materials', nargs='+', help='subset of light_yellow pink black blue')
     parser.add_argument('--tables', nargs='+', help='subset of plain wood checker')
     parser.add_argument('--no-masks', action='store_true', help='skip mask_visib/ PNGs')
+    parser.add_argument('--lean-prob', type=float, default=0.0,
+                        help='chance that a part leans, tilted 15-40 degrees out of its stable '
+                             'pose as if propped on a neighbour (tests the pose fallback; '
+                             'default 0)')
     parser.add_argument('--backgrounds', action='store_true',
                         help='also write background_<camera> splits: the same table and light '
                              'without parts (for background subtraction), same ids')
@@ -81,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         params = SimParams(parts_min=args.parts_min, parts_max=args.parts_max,
                            noise_scale=args.noise_scale,
                            materials=tuple(args.materials or MATERIALS),
-                           tables=tuple(args.tables or TABLE_KINDS), board=board)
+                           tables=tuple(args.tables or TABLE_KINDS), board=board,
+                           lean_prob=args.lean_prob)
     except ValueError as error:
         raise TlessbotError(str(error)) from None
     models = load_models(args.models, args.ids, progress=not args.no_progress)

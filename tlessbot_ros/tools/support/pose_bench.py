@@ -71,15 +71,16 @@ class SymmetryAwareScorer:
 
 
 def collect_objects(models, *, per_class: int, noise_scale: float, min_visib: float, seed: int,
-                    max_frames: int):
+                    max_frames: int, lean_prob: float = 0.0):
     """Side-view ROI clouds of simulated objects: list of (obj_id, points_c, T_camera_object,
-    view) with at most ``per_class`` per class."""
+    view, gt) with at most ``per_class`` per class (``lean_prob``: as ``SimParams``)."""
     from tqdm import tqdm
 
     from tlessbot_ros.core.pose import roi_cloud
     from tlessbot_ros.sim.simulator import SimParams, Simulator
 
-    simulator = Simulator(models, params=SimParams(noise_scale=noise_scale), seed=seed)
+    simulator = Simulator(models, params=SimParams(noise_scale=noise_scale, lean_prob=lean_prob),
+                          seed=seed)
     counts = {i: 0 for i in models}
     found = []
     target = per_class * len(models)
