@@ -4,10 +4,13 @@ A part leaning on another, or a view without a table frame (no extrinsics, no pl
 the table path's hypotheses (a stable pose, a yaw, a position on the plane) cannot describe
 it, so the pose is searched in all six degrees of freedom. The paper's answer, FPFH + RANSAC
 against each of 12 templates (:mod:`~tlessbot_ros.core.pose.ransac`), costs 1-3 s per part
-and often ends a half-turn off: on textureless T-LESS parts only 1-13 % of the FPFH matches
-are right (docs/bench/fallback.md), so RANSAC needs 10^5 draws. This search does a fixed,
-small amount of work instead, coarse to fine:
+and often ends a half-turn off: on textureless T-LESS parts the nearest FPFH match is right
+for a few % of the ROI points (docs/bench/fallback.md), so RANSAC needs 10^5 draws. This
+search does a fixed, small amount of work instead, coarse to fine:
 
+0. **Clutter.** Up to ``fallback_drop_planes`` RANSAC planes wider than the part
+   (``fallback_plane_width`` diameters) leave the ROI: the table that a box ROI holds without
+   a table frame would drag every view's centroid off the part.
 1. **A grid of views, scored at once.** The object's rotations are sampled as a camera sees
    them: ``fallback_directions`` viewing directions spread evenly over the sphere (a
    Fibonacci lattice) times ``fallback_in_plane_steps`` turns about the line of sight. Each
@@ -20,12 +23,13 @@ small amount of work instead, coarse to fine:
    get a few point-to-plane ICP steps at the coarse voxel.
 2. **Fine refinement against the full model, symmetry-aware.** The best ``fallback_refine``
    distinct coarse poses (plus any given starts, e.g. the table path's best) are refined by
-   point-to-plane ICP at the template voxel (:meth:`~tlessbot_ros.core.pose.Refiner.icp_batch`)
-   and turned by each of the object's near-symmetries (turns about its axes that map the
-   surface almost, but not exactly, onto itself: the turn that loses RANSAC the rotation) and
-   refined again; the best few by grid fitness, told apart modulo the exact symmetries, are
-   scored fully (:meth:`~tlessbot_ros.core.pose.Refiner.evaluate`: tangent-plane fitness and
-   coverage).
+   point-to-plane ICP at the template voxel (:meth:`~tlessbot_ros.core.pose.Refiner.icp_batch`);
+   the best ``fallback_turned`` are turned by each of the object's near-symmetries (turns
+   about its axes that map the surface almost, but not exactly, onto itself: the turn that
+   loses RANSAC the rotation) and refined again; the best ``final_candidates`` by grid
+   fitness, told apart modulo the exact symmetries, get ``fallback_fine_iterations`` last ICP
+   steps with every ROI point and are scored fully
+   (:meth:`~tlessbot_ros.core.pose.Refiner.evaluate`: tangent-plane fitness and coverage).
 
 The work is bounded by construction: the numbers of views, points, refined starts and
 scored candidates are fixed settings, and no loop runs until a confidence is reached.
@@ -137,7 +141,8 @@ def near_symmetries(obj: ObjectTemplates, *, exact_ratio: float = 1.35,
     half-turns about the object axes are near-symmetries whatever their ratio (as the table
     path's ``flip_axes``): a view shows only part of the surface, and a turn that does not fit
     the whole surface may still fit that part. On the 23 shipped parts the ratio is 1.0-1.3
-    for their listed symmetries and 1.4-9 for the other turns.
+    for their listed symmetries and 1.4-9 for the other turns, but for obj_25's half-turn
+    about z (1.2, not listed in its models_info.json).
     """
     key = ('fallback_symmetries', float(exact_ratio), float(near_ratio))
     if key in obj._cache:
