@@ -1,4 +1,4 @@
-"""Calibrate the rig from a bag of the cell and write it into a cell YAML.
+"""Calibrate the rig from what the cameras see (a bag, or live) and write it into a cell YAML.
 
     tlessbot calibrate --bag BAG [--config config/cell.yaml] --out NEW.yaml
     tlessbot calibrate --live [--frames 60] [--timeout 120] --out NEW.yaml
