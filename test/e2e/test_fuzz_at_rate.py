@@ -22,10 +22,10 @@ GARBAGE_S = 15.0
 # is: the good frames are not silenced, the answers that come are right, and once the garbage
 # stops the graph answers as before it.
 INPUT_DEPTH = 30
-# Garbage stamps years away from the good ones, one after the other on a topic, looked like
-# time jumps; each emptied every queue, and no good frame was answered. With two confirmations
-# (SyncParams.jump_confirmations, the default) a stray stamp is dropped instead
-# (docs/fuzz-at-rate.md): the run uses the default, so this test guards it.
+# Garbage stamps years away from the good ones, one after the other on a topic, look like time
+# jumps; each emptied every queue, and no good frame was answered. With jump confirmations a
+# stray stamp is dropped instead (SyncParams.jump_confirmations; docs/fuzz-at-rate.md).
+JUMP_CONFIRMATIONS = 4
 RIGHT_TOLERANCE = 0.15      # share of parts right in the answered frames, against clean
 ANSWERED_TOLERANCE = 0.35   # share of good frames answered after the garbage, against clean
 # RSS may grow while garbage flows (the allocator keeps freed buffers up to its trim threshold,
@@ -45,7 +45,8 @@ PROCESSES = {'pose_estimator': 2}
 @pytest.fixture(scope='module')
 def fuzz_run():
     fuzz = run_fuzz(str(DEFAULT_BAG), config=default_config_path(), fps=2.0,
-                    ros_args=['-p', f'input_depth:={INPUT_DEPTH}'],
+                    ros_args=['-p', f'input_depth:={INPUT_DEPTH}',
+                              '-p', f'sync.jump_confirmations:={JUMP_CONFIRMATIONS}'],
                     clean_s=12.0, garbage_s=GARBAGE_S, after_s=12.0, rate_hz=100.0,
                     frame_rate_hz=1.0, huge_period_s=1.0)
     return fuzz, score_phases(fuzz, str(DEFAULT_BAG), load_symmetries(DEFAULT_MODELS_INFO))

@@ -85,8 +85,7 @@ def test_a_looped_bag_without_restamp_keeps_its_poses_right(bag):
     assert len(scored) >= 3, run.frames_replayed
     first, later = scored[0], [frame for p in scored[1:] for frame in p.items()]
     assert first and len(later) >= FRAMES, scored     # the graph answers after the jumps
-    # A jump is confirmed by the items after its first (SyncParams.jump_confirmations), which
-    # are held and then paired, not dropped: the bag's first frames are answered again.
+    # After each jump the bag's first frames are answered again (none is lost to the jump).
     opening = sorted(_passes(run)[0])[:2]
     assert any(stamp in answered for answered in scored[1:] for stamp in opening), scored
     for stamp, frame in later:

@@ -141,7 +141,8 @@ class TwoViewInputs:
                                 # items as confirm a jump did not jump (a false jump, from
                                 # strays, must not silence the good topics for long); a few
                                 # stragglers of a real one (frames in flight) are fewer
-                                stale_limit=max(3, sync.jump_confirmations + 1),
+                                stale_limit=(max(3, sync.jump_confirmations + 1)
+                                             if sync.jump_confirmations else sync.queue_size),
                                 confirmations=sync.jump_confirmations)
         self._per_camera = {
             camera: StampSynchroniser(self._keys, slop_ns=int(sync.slop_s * 1e9),

@@ -71,15 +71,15 @@ class SyncParams:
             topic's word alone; one is enough when another topic's held items carry exactly the
             same stamps (whole frames jumped: one camera stamps its colour, depth and
             camera_info alike). Until then the items are held (at most this many per topic);
-            once the jump is confirmed they are paired as if it had been declared at once, so
-            a bag looped without ``--restamp`` loses no frame, only delays its first by one
-            frame period. A stray message with an absurd stamp (garbage from another publisher
-            on the topic) is dropped instead of emptying every queue: strays differ per topic,
-            and four in line on one topic are rare (two were not: under garbage at 100 Hz on
-            every input, ``tlessbot bench fuzz``, negative-then-past stamps confirmed false
-            jumps). 0: every step back beyond ``jump_back_s`` is a jump at once. A leap
-            forward is never held: a camera that paused, or frames sent on demand, go through
-            at once.
+            once the jump is confirmed they are paired as if it had been declared at once. A
+            stray message with an absurd stamp (garbage from another publisher on the topic)
+            is then dropped instead of emptying every queue: set 4 on a cell whose topics may
+            carry strays (under garbage at 100 Hz on every input, ``tlessbot bench fuzz``, 0
+            answered none of the good frames). 0 (the default): every step back beyond
+            ``jump_back_s`` is a jump at once, which a bag looped without ``--restamp`` needs
+            in the later stages: a stage that sees one frame of a short loop per pass (its
+            upstream admitted one) can never confirm a jump and would stall. A leap forward is
+            never held: a camera that paused, or frames sent on demand, go through at once.
         max_message_mb: largest input message taken, MiB (0 = no limit); a larger one is
             counted as malformed and never queued (a 4K colour image is 24 MiB: thirty of them
             waiting for partners would hold 0.7 GiB per topic). The D415's largest stream,
@@ -94,7 +94,7 @@ class SyncParams:
     jump_back_s: float = 0.1
     jump_forward_s: float = 10.0
     live_stamp_window_s: float = 5.0
-    jump_confirmations: int = 4
+    jump_confirmations: int = 0
     max_message_mb: float = 8.0
 
     def __post_init__(self) -> None:
