@@ -228,13 +228,18 @@ def test_strays_held_as_a_candidate_are_dropped_when_the_old_timeline_goes_on():
     jumps = _jumps()
     sync = StampSynchroniser(['color', 'depth'], slop_ns=5 * MS, queue_size=5)
     gate = TimelineGate(jumps, [sync])
-    add = _gated(sync, jumps)
+
+    def add(stream, stamp, item):
+        _, released = gate.admit(stream, stamp, item)
+        return [r for r in (sync.add(*entry) for entry in released) if r]
+
     assert add('color', 100 * S, 'c0') == []
     assert add('color', 5 * S, 'stray 1') == [] and add('color', 5 * S + MS, 'stray 2') == []
+    assert len(gate._held['color']) == 2   # noqa: SLF001  (held as a candidate timeline)
     assert add('depth', 100 * S, 'd0') == [{'color': 'c0', 'depth': 'd0'}]   # nothing emptied
     assert add('color', 100 * S + S // 30, 'c1') == []       # the old timeline goes on
     assert jumps.count == 0 and jumps.outliers == 2
-    assert gate._held == {}   # noqa: SLF001  (this gate is a fresh one: nothing held)
+    assert gate._held == {} and gate.stale == 2   # noqa: SLF001  (the strays are dropped)
 
 
 def test_the_gate_holds_at_most_confirmations_items_per_stream_under_garbage():
