@@ -6,10 +6,9 @@ from tlessbot_ros.core.common import (
     check_camera_roles,
     default_rig,
     look_at,
-    look_at_form,
+    look_at_params,
     project_points,
     rig_from_params,
-    rig_to_params,
     rotation_about_axis,
     side_camera_position,
     transform_points,
@@ -61,27 +60,34 @@ def test_the_rig_of_the_config_file_names_the_two_roles():
         check_camera_roles(['top', 'left'])
 
 
-def test_rig_to_params_round_trip():
+def test_look_at_params_round_trip_through_rig_parameters():
     # A rig with rolled, tilted cameras (as a calibration finds them) survives the YAML form.
     rig = default_rig()
     for name, angle in (('top', 0.2), ('side', -0.15)):
         T = rig[name].T_world_camera
         T[:3, :3] = rotation_about_axis([0.3, -0.5, 0.8], angle) @ T[:3, :3]
         T[:3, 3] += [0.04, -0.03, 0.02]
-    block = rig_to_params(rig)
-    assert block['cameras'] == ['top', 'side'] and block['top']['fx'] == 615.0
-    flat = {f'rig.{key}': value for key, value in block.items() if key == 'cameras'}
-    for name in block['cameras']:
-        flat.update({f'rig.{name}.{key}': value for key, value in block[name].items()})
+    flat = {'rig.cameras': ['top', 'side']}
+    for name, cam in rig.cameras.items():
+        K = cam.intrinsics.K
+        flat.update({f'rig.{name}.width': cam.intrinsics.width,
+                     f'rig.{name}.height': cam.intrinsics.height,
+                     f'rig.{name}.fx': K[0, 0], f'rig.{name}.fy': K[1, 1],
+                     f'rig.{name}.cx': K[0, 2], f'rig.{name}.cy': K[1, 2]})
+        for key, value in zip(('position_m', 'look_at_m', 'up'),
+                              look_at_params(cam.T_world_camera)):
+            flat[f'rig.{name}.{key}'] = [round(float(v), 6) for v in value]
     back = rig_from_params(flat)
     for name in ('top', 'side'):
         np.testing.assert_allclose(back[name].T_world_camera, rig[name].T_world_camera,
                                    atol=5e-6)
         np.testing.assert_allclose(back[name].intrinsics.K, rig[name].intrinsics.K)
     # The optical axis of the default top camera meets the table at the origin.
-    form = look_at_form(look_at([0.0, 0.0, 1.1], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
-    assert form == {'position_m': [0.0, 0.0, 1.1], 'look_at_m': [0.0, 0.0, 0.0],
-                    'up': [0.0, 1.0, 0.0]}
+    position, target, up = look_at_params(
+        look_at([0.0, 0.0, 1.1], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+    np.testing.assert_allclose([position, target, up],
+                               [[0.0, 0.0, 1.1], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]], atol=1e-12)
     # A camera looking above the horizon gets a point 1 m along its axis.
-    form = look_at_form(look_at([0.0, 0.0, 0.5], [0.0, 1.0, 0.6], [0.0, 0.0, 1.0]))
-    assert np.linalg.norm(np.subtract(form['look_at_m'], [0.0, 0.0, 0.5])) == pytest.approx(1.0)
+    position, target, _ = look_at_params(
+        look_at([0.0, 0.0, 0.5], [0.0, 1.0, 0.6], [0.0, 0.0, 1.0]))
+    assert np.linalg.norm(target - position) == pytest.approx(1.0)

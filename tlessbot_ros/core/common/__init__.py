@@ -53,10 +53,8 @@ _HOME = {
     'check_camera_roles': 'rig',
     'd415_intrinsics': 'rig',
     'default_rig': 'rig',
-    'look_at_form': 'rig',
     'look_at_params': 'rig',
     'rig_from_params': 'rig',
-    'rig_to_params': 'rig',
     'side_camera_position': 'rig',
     'SAMPLING_SCHEMES': 'sampling',
     'sample_surface': 'sampling',
@@ -135,10 +133,8 @@ if TYPE_CHECKING:
         check_camera_roles,
         d415_intrinsics,
         default_rig,
-        look_at_form,
         look_at_params,
         rig_from_params,
-        rig_to_params,
         side_camera_position,
     )
     from tlessbot_ros.core.common.sampling import (  # noqa: F401

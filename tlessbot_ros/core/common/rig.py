@@ -150,26 +150,3 @@ def rig_from_params(params: Mapping[str, Any], *, prefix: str = 'rig') -> Rig:
                     np.asarray(get('up'), float))
         cameras[name] = CameraMount(name, intrinsics, T)
     return Rig(cameras=cameras, world_frame=str(params.get('world_frame', 'world')))
-
-
-def look_at_form(T_world_camera: np.ndarray, *, decimals: int = 6) -> dict[str, list[float]]:
-    """A camera pose as config/cell.yaml writes it (:func:`look_at_params`, rounded to
-    ``decimals``: 1 µm by default): ``{'position_m': [...], 'look_at_m': [...], 'up': [...]}``.
-    """
-    values = look_at_params(T_world_camera)
-    return {key: [round(float(v), decimals) + 0.0 for v in value]  # + 0.0: no -0.0 in YAML
-            for key, value in zip(('position_m', 'look_at_m', 'up'), values)}
-
-
-def rig_to_params(rig: Rig, *, decimals: int = 6) -> dict[str, Any]:
-    """The ``rig:`` block of config/cell.yaml for ``rig`` (nested, as the YAML holds it):
-    ``cameras`` and per camera :func:`look_at_form` with its intrinsics (``width``,
-    ``height``, ``fx``, ``fy``, ``cx``, ``cy``). :func:`rig_from_params` reads it back."""
-    block: dict[str, Any] = {'cameras': list(rig.cameras)}
-    for name, cam in rig.cameras.items():
-        intr = cam.intrinsics
-        block[name] = {**look_at_form(cam.T_world_camera, decimals=decimals),
-                       'width': int(intr.width), 'height': int(intr.height),
-                       **{key: round(float(value), decimals) for key, value in
-                          (('fx', intr.fx), ('fy', intr.fy), ('cx', intr.cx), ('cy', intr.cy))}}
-    return block
