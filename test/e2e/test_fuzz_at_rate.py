@@ -24,7 +24,9 @@ GARBAGE_S = 15.0
 INPUT_DEPTH = 30
 # Garbage stamps years away from the good ones, one after the other on a topic, look like time
 # jumps; each emptied every queue, and no good frame was answered. With jump confirmations a
-# stray stamp is dropped instead (SyncParams.jump_confirmations; docs/fuzz-at-rate.md).
+# stray stamp is dropped instead (SyncParams.jump_confirmations; docs/fuzz-at-rate.md). The
+# localiser confirms with 4 by default; the later stages, behind its relay, do not (their
+# inputs come from our nodes), but the garbage here reaches the relay topics too.
 JUMP_CONFIRMATIONS = 4
 RIGHT_TOLERANCE = 0.15      # share of parts right in the answered frames, against clean
 ANSWERED_TOLERANCE = 0.35   # share of good frames answered after the garbage, against clean

@@ -24,12 +24,13 @@ def ros():
 class _Probe:
     """A StageNode that records what it is handed, fed raw CDR through its real inputs."""
 
-    def __init__(self, jump_confirmations: int | None = None):
+    def __init__(self, jump_confirmations: int | None = None, *, after_localiser=False,
+                 input_source: str | None = None):
         from tlessbot_ros.nodes.stage import StageNode
 
         class Probe(StageNode):
             def __init__(self, **kwargs):
-                super().__init__('clock_probe', **kwargs)
+                super().__init__('clock_probe', after_localiser=after_localiser, **kwargs)
                 self.seen = []
 
             def process(self, views):
@@ -40,6 +41,8 @@ class _Probe:
         overrides = [Parameter('sync.worker_thread', value=False)]
         if jump_confirmations is not None:
             overrides.append(Parameter('sync.jump_confirmations', value=jump_confirmations))
+        if input_source is not None:
+            overrides.append(Parameter('input_source', value=input_source))
         self.node = Probe(parameter_overrides=overrides)
         self.node.setup_inputs({'color': ('sensor_msgs/msg/Image', lambda c: f'/{c}/color'),
                                 'depth': ('sensor_msgs/msg/Image', lambda c: f'/{c}/depth')})
@@ -75,6 +78,36 @@ def test_a_bag_looped_without_restamp_is_paired_again_after_each_jump(ros):
     assert values['other_clock_frames'] == 12 and float(values['stamp_offset_s']) > 86_400
     assert not node._input_ages_ms
     node.destroy_node()
+
+
+@pytest.mark.parametrize('after_localiser, input_source, confirmations', [
+    (False, None, 4),          # the localiser: camera topics, where strays may come
+    (True, None, 0),           # behind its relay (the default): jumps come confirmed
+    (True, 'cameras', 4)])     # a later stage on the camera topics confirms them itself
+def test_jumps_are_confirmed_where_the_camera_topics_are_read(ros, after_localiser, input_source,
+                                                               confirmations):
+    node = _Probe(after_localiser=after_localiser, input_source=input_source).node
+    assert node.sync_params.jump_confirmations == confirmations
+    assert node.get_parameter('sync.jump_confirmations').value == confirmations
+    assert node.has_parameter('input_source') == after_localiser
+    node.destroy_node()
+
+
+def test_a_stage_behind_the_relay_follows_a_loop_that_brings_one_frame_per_pass(ros):
+    # What the localiser admits of a short bag looped without --restamp can be one frame a
+    # pass: a stage that waited for more frames of the new timeline to confirm each step back
+    # would hold them for ever (the last one here).
+    admitted = [3, 1, 2, 0]   # frame of the bag admitted in each pass
+    behind = _Probe(after_localiser=True)
+    on_cameras = _Probe(after_localiser=True, input_source='cameras')
+    for probe in (behind, on_cameras):
+        for frame in admitted:
+            probe.frame(BAG_START + frame * PERIOD)
+    assert [s['top'] for s in behind.node.seen] == [BAG_START // S + f // 2 for f in admitted]
+    assert behind.node._inputs.jumps.count == 2
+    assert len(on_cameras.node.seen) == 3   # 0 waits for a confirmation that never comes
+    for probe in (behind, on_cameras):
+        probe.node.destroy_node()
 
 
 def test_stragglers_of_the_old_timeline_are_dropped_and_the_ages_start_again(ros):

@@ -46,7 +46,6 @@ from tlessbot_ros.nodes.stage import (
     IMAGE,
     StageNode,
     camera_inputs,
-    declare_input_source,
     follow_observed_rig,
 )
 
@@ -57,7 +56,7 @@ class ClassifierNode(StageNode):
     """Instance labels + colour -> class-instance labels."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('classifier', **kwargs)
+        super().__init__('classifier', after_localiser=True, **kwargs)
         self.model = self.parameters.group(   # ModelFileError: one line, exit 1
             {'model_path': (str(DEFAULT_CLASSIFIER), 'Classifier .npz written by tlessbot '
                                                      'train')},
@@ -76,7 +75,7 @@ class ClassifierNode(StageNode):
         self.get_logger().info(f'loaded {self.model.kind} classifier for '
                                f'{len(self.model.class_ids)} objects from {path}')
         self.rig_source = follow_observed_rig(self)
-        inputs = camera_inputs(('color', 'depth', 'info'), declare_input_source(self))
+        inputs = camera_inputs(('color', 'depth', 'info'), self.input_source)
         self.start_when_ready(self._warm_up, {**inputs, 'labels': (IMAGE, labels_topic)})
 
     def _warm_up(self, pipeline: PerceptionPipeline | None = None) -> None:

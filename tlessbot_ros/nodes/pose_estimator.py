@@ -73,7 +73,6 @@ from tlessbot_ros.nodes.stage import (
     IMAGE,
     StageNode,
     camera_inputs,
-    declare_input_source,
     follow_observed_rig,
 )
 from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
@@ -86,7 +85,7 @@ class PoseEstimatorNode(StageNode):
     """Class-instance labels + aligned depth -> PoseStamped per part."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('pose_estimator', **kwargs)
+        super().__init__('pose_estimator', after_localiser=True, **kwargs)
         parameters = self.parameters
         path = parameters.read_only('templates_path', str(DEFAULT_TEMPLATES), (
             'Template database .npz written by tlessbot templates; its objects name the pose '
@@ -118,7 +117,7 @@ class PoseEstimatorNode(StageNode):
         self._templates_path = path
         self.rig_source = follow_observed_rig(self)
         self._create_publishers()
-        inputs = camera_inputs(('depth', 'info'), declare_input_source(self))
+        inputs = camera_inputs(('depth', 'info'), self.input_source)
         self.start_when_ready(self._warm_up, {**inputs, 'classes': (IMAGE, classes_topic)})
 
     def _create_publishers(self) -> None:

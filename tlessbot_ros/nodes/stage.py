@@ -120,11 +120,18 @@ def camera_inputs(keys: Sequence[str], source: str = 'cameras'
 
 
 def declare_input_source(node: StageNode) -> str:
-    """Declare the read-only ``input_source`` of a stage after the localiser and return it."""
-    return node.parameters.read_only('input_source', INPUT_SOURCES[0], (
+    """Declare the read-only ``input_source`` of a stage after the localiser and return it.
+
+    Raises:
+        TlessbotError: a source other than :data:`INPUT_SOURCES`.
+    """
+    source = node.parameters.read_only('input_source', INPUT_SOURCES[0], (
         "where the camera images come from: 'localiser' (its relay of the frames it admitted, "
         '/localiser/<camera>/...: a frame the localiser skipped costs this node nothing) or '
         "'cameras' (every frame of the camera topics)"))
+    if source not in INPUT_SOURCES:
+        raise TlessbotError(f'input_source must be one of {INPUT_SOURCES}, got {source!r}')
+    return source
 
 
 def follow_observed_rig(node: StageNode) -> str:
@@ -220,7 +227,10 @@ class StageNode(Node):
     """Base of the three perception nodes. Subclasses call :meth:`setup_inputs` and implement
     :meth:`process`."""
 
-    def __init__(self, name: str, **kwargs: Any) -> None:
+    def __init__(self, name: str, *, after_localiser: bool = False, **kwargs: Any) -> None:
+        """``after_localiser``: a stage that may read the localiser's relay of the frames it
+        admitted; it declares ``input_source`` (:attr:`input_source`; the localiser itself
+        reads the cameras)."""
         self._created = time.monotonic()
         super().__init__(name, **kwargs)
         self.ready = threading.Event()
@@ -231,8 +241,12 @@ class StageNode(Node):
         self.cameras = declare_cameras(self.parameters)
         self.extrinsics = declare_extrinsics(self.parameters, self.cameras,
                                              self._apply_extrinsics)
+        self.input_source = declare_input_source(self) if after_localiser else 'cameras'
+        # Behind the relay the localiser has already confirmed every time jump (and dropped
+        # strays), so a step back counts at once; on the camera topics it must be confirmed.
         self.sync_params = self.parameters.dataclass(
-            SyncParams(), prefix='sync.', when=AT_ONCE, read_only=('worker_thread',),
+            SyncParams().behind_relay() if self.input_source == 'localiser' else SyncParams(),
+            prefix='sync.', when=AT_ONCE, read_only=('worker_thread',),
             apply=self._apply_sync)
         self.input_qos = self.parameters.read_only('input_qos', 'sensor_data', (
             "QoS of the subscriptions: 'sensor_data' (best effort, the ROS convention for "

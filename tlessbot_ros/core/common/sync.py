@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Hashable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Generic, Literal, TypeVar
 
 Item = TypeVar('Item')
@@ -72,14 +72,15 @@ class SyncParams:
             same stamps (whole frames jumped: one camera stamps its colour, depth and
             camera_info alike). Until then the items are held (at most this many per topic);
             once the jump is confirmed they are paired as if it had been declared at once. A
-            stray message with an absurd stamp (garbage from another publisher on the topic)
-            is then dropped instead of emptying every queue: set 4 on a cell whose topics may
-            carry strays (under garbage at 100 Hz on every input, ``tlessbot bench fuzz``, 0
-            answered none of the good frames). 0 (the default): every step back beyond
-            ``jump_back_s`` is a jump at once, which a bag looped without ``--restamp`` needs
-            in the later stages: a stage that sees one frame of a short loop per pass (its
-            upstream admitted one) can never confirm a jump and would stall. A leap forward is
-            never held: a camera that paused, or frames sent on demand, go through at once.
+            stray message with an absurd stamp (another publisher on a camera topic, a driver
+            glitch) is then dropped instead of emptying every queue (under garbage at 100 Hz
+            on every input, ``tlessbot bench fuzz``, 0 answered none of the good frames).
+            0: every step back beyond ``jump_back_s`` is a jump at once. That is what a stage
+            behind the localiser's relay needs (:meth:`behind_relay`): it sees only the frames
+            the localiser admitted, whose timeline the localiser has confirmed, and may see a
+            single frame of a short loop per pass, which could never confirm a jump. A leap
+            forward is never held: a camera that paused, or frames sent on demand, go through
+            at once.
         max_message_mb: largest input message taken, MiB (0 = no limit); a larger one is
             counted as malformed and never queued (a 4K colour image is 24 MiB: thirty of them
             waiting for partners would hold 0.7 GiB per topic). The D415's largest stream,
@@ -94,7 +95,7 @@ class SyncParams:
     jump_back_s: float = 0.1
     jump_forward_s: float = 10.0
     live_stamp_window_s: float = 5.0
-    jump_confirmations: int = 0
+    jump_confirmations: int = 4
     max_message_mb: float = 8.0
 
     def __post_init__(self) -> None:
@@ -109,6 +110,13 @@ class SyncParams:
         for name in ('jump_back_s', 'jump_forward_s', 'live_stamp_window_s'):
             if not getattr(self, name) > 0:
                 raise ValueError(f'{name} must be > 0 s, got {getattr(self, name)}')
+
+    def behind_relay(self) -> SyncParams:
+        """These thresholds for a stage whose camera frames come from the localiser's relay
+        (``input_source: localiser``): the localiser confirmed their timeline before it
+        admitted them, so a step back there is a real jump and counts at once
+        (``jump_confirmations`` 0; see its description)."""
+        return replace(self, jump_confirmations=0)
 
 
 Verdict = Literal['in order', 'jump', 'stale']

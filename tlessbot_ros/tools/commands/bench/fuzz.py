@@ -39,8 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the stages' input_depth (DDS history per input topic; default: "
                              "the nodes' own)")
     parser.add_argument('--jump-confirmations', type=int, default=None,
-                        help="the stages' sync.jump_confirmations (2: a stray stamp is dropped "
-                             "instead of emptying every queue; default: the nodes' own)")
+                        help="every stage's sync.jump_confirmations (above 0 a stray stamp is "
+                             "dropped instead of emptying every queue; default: the nodes' "
+                             "own, 4 on the camera topics and 0 behind the localiser's relay)")
     parser.add_argument('--classifier', default=str(DEFAULT_CLASSIFIER))
     parser.add_argument('--templates', default=str(DEFAULT_TEMPLATES))
     parser.add_argument('--models-info', default=str(DEFAULT_MODELS_INFO))
