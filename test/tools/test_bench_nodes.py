@@ -22,3 +22,16 @@ def test_bench_nodes_times_every_stage_on_the_demo_bag(capsys, tmp_path):
                for line in out.splitlines() if line.startswith('| ') and 'median' not in line}
     assert all(f['median_ms'] == pytest.approx(medians[name], abs=0.05)
                and f['cpu_ms_per_frame'] > 0 for name, f in figures.items())
+
+
+def test_bench_nodes_runs_the_stages_with_the_graphs_parameters(capsys, tmp_path):
+    # bench graph compares the graph with its stages alone: both must run the same config
+    config = tmp_path / 'one_thread_per_stage.yaml'
+    config.write_text('localiser:\n  ros__parameters:\n    parallel_views: false\n'
+                      'pose_estimator:\n  ros__parameters:\n    workers:\n      count: 0\n')
+    assert main(['bench', 'nodes', '--repeats', '1', '--config', str(config)]) == 0
+    assert (f'parameters of {config}: localiser parallel_views False, pose_estimator '
+            'workers.count 0.') in capsys.readouterr().out
+    assert main(['bench', 'nodes', '--repeats', '1', '--config', str(config),
+                 '--pose-workers', '1']) == 0   # the option wins over the config
+    assert 'parallel_views False, pose_estimator workers.count 1.' in capsys.readouterr().out

@@ -82,14 +82,17 @@ def hop_latencies(result) -> list[tuple[str, str]]:
             for name, v in hops.items()]
 
 
-def stages_alone(bag: str, classifier: str, templates: str) -> dict[str, dict[str, float]]:
-    """``tlessbot bench nodes`` on ``bag`` in a child process: per stage, median / p90 ms and
-    CPU ms per frame."""
+def stages_alone(bag: str, classifier: str, templates: str, config: Path
+                 ) -> dict[str, dict[str, float]]:
+    """``tlessbot bench nodes`` on ``bag`` in a child process, with the node parameters of
+    ``config`` (the graph's: views in parallel or not, pose workers): per stage, median / p90
+    ms and CPU ms per frame."""
     with tempfile.TemporaryDirectory() as folder:
         out = Path(folder) / 'stages.json'
         subprocess.run([sys.executable, '-m', 'tlessbot_ros.tools.cli', 'bench', 'nodes',
                         '--bag', bag, '--repeats', '3', '--json', str(out),
-                        '--classifier', classifier, '--templates', templates],
+                        '--classifier', classifier, '--templates', templates,
+                        '--config', str(config)],
                        check=True, stdout=subprocess.DEVNULL)
         return json.loads(out.read_text())
 
@@ -157,11 +160,11 @@ def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
     from tlessbot_ros.tools.support.rig import load_rig
 
-    alone = stages_alone(args.bag, args.classifier, args.templates) if args.stages_alone \
-        else None
+    config = Path(args.config) if args.config else default_config_path()
+    alone = stages_alone(args.bag, args.classifier, args.templates, config) \
+        if args.stages_alone else None
     interval = bag_frame_interval_s(args.bag)
     rate = args.fps * interval
-    config = Path(args.config) if args.config else default_config_path()
     result = run_graph_on_bag(
         args.bag, config=config,
         rate=rate, loop=True, duration_s=args.duration, restamp=True, settle_s=3.0,

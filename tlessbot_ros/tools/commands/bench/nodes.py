@@ -1,10 +1,11 @@
 """Node callbacks in-process: ms per frame of each stage node's process() on a bag's frames.
 
-    tlessbot bench nodes [--bag bags/demo] [--repeats 3] [--pose-workers 1] [--json FILE]
+    tlessbot bench nodes [--bag bags/demo] [--repeats 3] [--config config/cell.yaml] [--json FILE]
 
 The bag's camera messages are read as a node's subscription delivers them (images in place,
 the rest through rclpy) and fed straight to LocaliserNode, ClassifierNode and PoseEstimatorNode
-(no DDS; the pose estimator's worker process is the only other process): each stage's labels or
+(no DDS; the pose estimator's worker processes are the only other ones), with the node
+parameters of ``--config`` as the graph runs them: each stage's labels or
 classes are the next one's input. The figure is the node's own cost per frame (conversions,
 core, building the outgoing messages); what the graph adds on top of it is transport, waiting
 and the other nodes' share of the CPU (``tlessbot bench graph``, which runs this first and
@@ -24,6 +25,7 @@ import numpy as np
 from tlessbot_ros.conversions.image_cdr import image_from_cdr
 from tlessbot_ros.conversions.topics import COLOR, DEPTH, DEPTH_INFO, camera_topic
 from tlessbot_ros.core.common import CAMERA_NAMES
+from tlessbot_ros.io.config import default_config_path
 from tlessbot_ros.tools.support.defaults import DEFAULT_BAG
 
 INPUTS = {'color': COLOR, 'depth': DEPTH, 'info': DEPTH_INFO}   # input name: camera-relative topic
@@ -32,8 +34,12 @@ INPUTS = {'color': COLOR, 'depth': DEPTH, 'info': DEPTH_INFO}   # input name: ca
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--bag', default=str(DEFAULT_BAG), help='bag with camera topics')
     parser.add_argument('--repeats', type=int, default=3, help='passes over the frames')
-    parser.add_argument('--pose-workers', type=int, default=1,
-                        help="the pose estimator's worker processes (config/cell.yaml: 1)")
+    parser.add_argument('--config', default=None,
+                        help='cell YAML whose node parameters the stages run with, as in the '
+                             'graph (default: config/cell.yaml)')
+    parser.add_argument('--pose-workers', type=int, default=None,
+                        help="the pose estimator's worker processes (default: the config's "
+                             'workers.count)')
     parser.add_argument('--classifier', default=None, help='model file (default: packaged)')
     parser.add_argument('--templates', default=None, help='templates file (default: packaged)')
     parser.add_argument('--json', default=None, metavar='FILE',
@@ -82,15 +88,21 @@ def run(args: argparse.Namespace) -> int:
         print(f'no two-view camera frames in {args.bag}')
         return 1
     limit_blas_threads()   # as every node process does (run_node): the same work, the same CPU
-    init_ros()
+    config = args.config or str(default_config_path())
+    init_ros(['--ros-args', '--params-file', config])   # the graph's parameters, per node name
     try:
         from rclpy.parameter import Parameter
         localiser = LocaliserNode()
         classifier = ClassifierNode(parameter_overrides=[
             Parameter('model_path', value=args.classifier)] if args.classifier else [])
         pose = PoseEstimatorNode(parameter_overrides=[
-            Parameter('workers.count', value=args.pose_workers),
+            *([Parameter('workers.count', value=args.pose_workers)]
+              if args.pose_workers is not None else []),
             *([Parameter('templates_path', value=args.templates)] if args.templates else [])])
+        # what the figures depend on, from the config and the options
+        ran_with = (f'parameters of {config}: localiser parallel_views '
+                    f'{localiser.localise_params.parallel_views}, pose_estimator workers.count '
+                    f"{pose.get_parameter('workers.count').value}")
         ready_s = {}
         for name, node in (('localiser', localiser), ('classifier', classifier),
                            ('pose_estimator', pose)):
@@ -142,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
                      + (f'{np.median(later):.1f} |' if later else '- |'))
     load = ', '.join(f'{v:.2f}' for v in os.getloadavg())
     lines += ['', f'{len(frames)} frames x {max(1, args.repeats)} passes from {args.bag}; '
-              f'load average {load} on {os.cpu_count()} cores.']
+              f'load average {load} on {os.cpu_count()} cores.', ran_with + '.']
     print('\n'.join(lines))
     if args.json:
         Path(args.json).write_text(json.dumps({name: {
