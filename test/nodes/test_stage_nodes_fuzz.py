@@ -206,7 +206,8 @@ def test_classifier_and_pose_estimator_survive_malformed_input(sim_frame, model_
         node = PoseEstimatorNode(parameter_overrides=[
             Parameter('templates_path', value=str(templates_path)),
             Parameter('input_source', value='cameras'),
-            Parameter('workers.count', value=1)])      # malformed frames reach the worker too
+            Parameter('workers.count', value=1),       # malformed frames reach the worker too
+            Parameter('parallel.min_spare_cores', value=0.0)])   # on a busy host as well
         assert node.wait_ready()
         workers = list(node.workers._workers)
         harness = Harness(node, {

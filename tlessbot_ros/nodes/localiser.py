@@ -22,7 +22,8 @@ it has taken are still unfinished downstream (:mod:`~tlessbot_ros.core.common.ad
 frames are dropped here, at the entrance, instead of queueing in the later stages. Without a
 pose estimator publishing outcomes, every frame is taken.
 Parameters: ``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParams: segment
-both views at once, in two threads), ``segmentation.*`` (SegmentationParams), ``fusion.*``
+both views at once, in two threads, while ``parallel.min_spare_cores`` are idle: SpareCpuParams),
+``segmentation.*`` (SegmentationParams), ``fusion.*``
 (FusionParams: method calibrated | algorithm1 | side_only), ``sync.*`` (SyncParams),
 ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*`` (extrinsics),
 ``rig_refinement.*`` (RigRefinementParams: mode none | report | use, thresholds; the rig
@@ -37,6 +38,7 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import replace
 from functools import partial
 from typing import Any
 
@@ -82,6 +84,7 @@ from tlessbot_ros.nodes.stage import (
     RIG_QOS,
     StageNode,
     camera_inputs,
+    declare_spare_cpu,
     rig_with_intrinsics,
 )
 
@@ -100,6 +103,8 @@ class LocaliserNode(StageNode):
                                                 apply=partial(setattr, self, 'fusion'))
         self.localise_params = self.parameters.dataclass(
             LocaliseParams(), apply=partial(setattr, self, 'localise_params'))
+        self.spare_cpu = declare_spare_cpu(self)
+        self._views_in_parallel = self.localise_params.parallel_views   # this frame's choice
         self.rig_refinement = self.parameters.dataclass(
             RigRefinementParams(), prefix='rig_refinement.', apply=self._apply_rig_refinement)
         self.refiner: RigRefiner | None = None   # made on the first frame (its intrinsics)
@@ -200,7 +205,9 @@ class LocaliserNode(StageNode):
         for camera, view in views.items():
             view.T_world_camera = rig[camera].T_world_camera
         return PerceptionPipeline(rig=rig, segmentation=self.segmentation, fusion=self.fusion,
-                                  localise_params=self.localise_params)
+                                  localise_params=replace(
+                                      self.localise_params,
+                                      parallel_views=self._views_in_parallel))
 
     def _refined_pipeline(self, views: dict[str, ViewInput]) -> PerceptionPipeline:
         """The frame's pipeline, its rig checked against (and, with ``rig_refinement.mode``
@@ -259,9 +266,13 @@ class LocaliserNode(StageNode):
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         inputs = {camera: self._view_input(camera, msgs) for camera, msgs in views.items()}
+        # two threads only while a core is spare (parallel.min_spare_cores)
+        self._views_in_parallel = self.localise_params.parallel_views and \
+            self.spare_cpu.allows_split()
         fusion = self._refined_pipeline(inputs).localise(inputs)
         with self._in_flight_lock:
-            admission = {'in_flight': self.in_flight.open_count,
+            admission = {'views_in_parallel': int(self._views_in_parallel),
+                         'in_flight': self.in_flight.open_count,
                          'entrance_refused': self.in_flight.refused,
                          'in_flight_expired': self.in_flight.expired}
         self.record_stats({**{f'{k}_ms': v for k, v in fusion.timings_ms.items()}, **admission})

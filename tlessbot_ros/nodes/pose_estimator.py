@@ -22,7 +22,8 @@ are verified), ``lookalike_check`` and ``lookalike_tolerance_m`` (look-alike par
 their depth at the fitted pose; these and ``min_roi_points``, ``table_clearance_m``: FitParams),
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
-fits others), ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*``
+fits others, on frames that find ``parallel.min_spare_cores`` idle: SpareCpuParams),
+``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*``
 (extrinsics; the table path needs them), ``rig_source`` ('localiser': the camera poses the
 localiser publishes on /localiser/rig once it refines the rig from the scene replace
 ``rig.CAMERA.*``, also for ``output_frame`` 'world'; 'config'), ``sync.*``. All are live
@@ -73,6 +74,7 @@ from tlessbot_ros.nodes.stage import (
     IMAGE,
     StageNode,
     camera_inputs,
+    declare_spare_cpu,
     follow_observed_rig,
 )
 from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
@@ -112,6 +114,7 @@ class PoseEstimatorNode(StageNode):
         # Workers load their templates while this process builds its caches below.
         self.workers = PoseWorkerPool(path, pose=pose_params, fit=fit_params,
                                       params=worker_params) if worker_params.count else None
+        self.spare_cpu = declare_spare_cpu(self)
         self._worker_errors_seen = 0
         self._factory = RclpyFactory()
         self._templates_path = path
@@ -162,8 +165,11 @@ class PoseEstimatorNode(StageNode):
                     detection, views[detection.view]['depth'].header.frame_id, stamp_ns))
                 published.append(detection)
 
+        # the workers fit parts beside this thread only while a core is spare
+        # (parallel.min_spare_cores); otherwise every part is fitted here
+        split = self.workers is not None and self.spare_cpu.allows_split()
         self.pipeline.estimate_poses(inputs, labels, classes, on_detection=publish_pose,
-                                     fitter=self.workers)
+                                     fitter=self.workers if split else None)
         self._log_worker_errors()
         self._publish_debug(published, views, inputs, labels, stamp_ns)
         self.record_stats(self._frame_stats(published))
@@ -192,7 +198,9 @@ class PoseEstimatorNode(StageNode):
         if self.workers is not None:
             stats.update(workers_ready=self.workers.ready_count,
                          workers_replaced=self.workers.replaced,
-                         worker_fits=self.workers.worker_fits)
+                         worker_fits=self.workers.worker_fits,
+                         frames_split=self.spare_cpu.splits,
+                         frames_kept_whole=self.spare_cpu.kept_whole)
         return stats
 
     def _apply_pose_params(self, params: PoseParams) -> None:

@@ -94,6 +94,7 @@ from tlessbot_ros.nodes.common import RESULT_QOS, SENSOR_QOS, message_class
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, WARN, diagnostic_array
 from tlessbot_ros.nodes.inputs import TwoViewInputs, Views, deserialise_views, newest_stamp_ns
 from tlessbot_ros.nodes.parameters import AT_ONCE, LiveParameters
+from tlessbot_ros.parallel.spare_cpu import SpareCpu, SpareCpuParams
 
 IMAGE = 'sensor_msgs/msg/Image'
 CAMERA_INFO = 'sensor_msgs/msg/CameraInfo'
@@ -149,6 +150,16 @@ def follow_observed_rig(node: StageNode) -> str:
         node.create_subscription(message_class('geometry_msgs/msg/PoseArray'), OBSERVED_RIG,
                                  node._on_observed_rig, RIG_QOS)
     return source
+
+
+def declare_spare_cpu(node: StageNode) -> SpareCpu:
+    """Declare ``parallel.*`` (:class:`~tlessbot_ros.parallel.spare_cpu.SpareCpuParams`, live)
+    and return the node's :class:`~tlessbot_ros.parallel.spare_cpu.SpareCpu`: whether a frame's
+    work may be split over a second thread or process."""
+    spare = SpareCpu()
+    spare.params = node.parameters.dataclass(SpareCpuParams(), prefix='parallel.',
+                                             apply=partial(setattr, spare, 'params'))
+    return spare
 
 
 def declare_cameras(parameters: LiveParameters) -> tuple[str, ...]:

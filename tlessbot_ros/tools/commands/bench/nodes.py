@@ -59,7 +59,9 @@ class _Captured:
         return 0
 
 
-def _frames(bag: str) -> list[dict[str, dict]]:
+def bag_frames(bag: str) -> list[dict[str, dict]]:
+    """The two-view frames of ``bag`` as a stage's ``process`` takes them: per frame,
+    {camera: {'color', 'depth', 'info': deserialised message}}."""
     from tlessbot_ros.io.bags import read_bag
     from tlessbot_ros.nodes.common import message_class
     from tlessbot_ros.nodes.inputs import RawMessage
@@ -83,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
     from tlessbot_ros.tools.support.graph_run import cpu_seconds, process_tree
 
-    frames = _frames(args.bag)
+    frames = bag_frames(args.bag)
     if not frames:
         print(f'no two-view camera frames in {args.bag}')
         return 1
