@@ -106,6 +106,9 @@ def run_demo(bag: str, *, config: Path, classifier: str, templates: str,
         'duplicates': duplicates,
         'duplicates_per_frame': duplicates / len(truth) if truth else 0.0,
         'per_frame': per_frame,
+        # seconds between frame publications; in lock-step each is one frame's trip through
+        # the graph on this host (what it takes per frame now)
+        'frame_intervals_s': [float(v) / 1e9 for v in np.diff(run.frames_replayed_at_ns)],
         'node_diagnostics': run.diagnostics,   # each stage node's last /diagnostics values
         'median_translation_error_mm': float(1e3 * np.median(t_err)) if t_err else None,
         'median_rotation_error_deg': float(np.median(r_err)) if r_err else None,
