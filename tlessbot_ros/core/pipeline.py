@@ -572,9 +572,10 @@ class PerceptionPipeline:
         detection, points, T_world_camera = job.detection, job.points, job.T_world_camera
         quick = len(job.candidates) > 1 and T_world_camera is not None
         best_value = None
+        scenes: dict[float, np.ndarray] = {}   # the ROI prepared once per voxel edge
         for rank, obj_id in enumerate(job.candidates):
             result = estimator.estimate(points, obj_id, T_world_camera=T_world_camera,
-                                        fallback=False if quick else None)
+                                        fallback=False if quick else None, scenes=scenes)
             if result.best is None:
                 continue
             value = result.best.fitness - p.verify_rmse_weight * result.best.inlier_rmse_m
@@ -587,7 +588,8 @@ class PerceptionPipeline:
         pose_params = estimator.params
         if quick and detection.pose is not None and pose_params.fallback and \
                 p.fallback_min_fitness <= detection.pose.fitness < pose_params.fallback_fitness:
-            result = estimator.estimate(points, detection.obj_id, T_world_camera=T_world_camera)
+            result = estimator.estimate(points, detection.obj_id, T_world_camera=T_world_camera,
+                                        scenes=scenes)
             if result.best is not None and result.best.score > detection.pose.score:
                 detection.pose, detection.second = result.best, result.second
         if self.lookalike is not None and detection.pose is not None and \
