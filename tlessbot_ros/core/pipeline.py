@@ -381,10 +381,8 @@ class PerceptionPipeline:
             top = top_future.result()   # re-raises the top view's error here
         else:
             top, side = seg(TOP), seg(SIDE)
-        depth_top = views[TOP].depth_m
         return fuse_views(top, side, rig=self.rig, side_rgb=views[SIDE].rgb,
-                          depth_top_m=None if depth_top is None else np.nan_to_num(depth_top),
-                          params=self.fusion)
+                          depth_top_m=views[TOP].depth_m, params=self.fusion)
 
     # ---------------------------------------------------------------------------- stage 2
     def classify(self, rgb: dict[str, np.ndarray], labels: dict[str, np.ndarray], *,

@@ -177,11 +177,17 @@ def _instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarr
     if n == 0:
         return np.zeros((H, W), np.uint16), np.zeros((0, 4), np.int32), np.zeros(0, np.int64)
     up = cv2.resize(labels_s, (W, H), interpolation=cv2.INTER_NEAREST)
-    labels = np.where(foreground, up, np.uint16(0))
-    rim = foreground & (up == 0)
+    labels = np.zeros((H, W), np.uint16)
+    # Only the foreground's box can be labelled; with 2 more pixels around it the 5x5 dilation
+    # of the rim reads what it reads in the whole image (beyond the image's edge: nothing).
+    bx, by, bw, bh = cv2.boundingRect(np.ascontiguousarray(foreground).view(np.uint8))
+    y0, y1, x0, x1 = max(by - 2, 0), min(by + bh + 2, H), max(bx - 2, 0), min(bx + bw + 2, W)
+    fg, up_box, out = foreground[y0:y1, x0:x1], up[y0:y1, x0:x1], labels[y0:y1, x0:x1]
+    out[fg] = up_box[fg]
+    rim = fg & (up_box == 0)
     if rim.any():
-        grown = cv2.dilate(up, np.ones((5, 5), np.uint8))
-        labels[rim] = grown[rim]
+        grown = cv2.dilate(np.ascontiguousarray(up_box), np.ones((5, 5), np.uint8))
+        out[rim] = grown[rim]
     # Boxes and areas: look only near each low-resolution box.
     boxes = np.zeros((n, 4), np.int32)
     areas = np.zeros(n, np.int64)
