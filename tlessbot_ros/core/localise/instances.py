@@ -46,9 +46,19 @@ def watershed_refine(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray, *
     out = np.zeros(candidate.shape, bool)
     if not sure.any():
         return out
-    near = cv2.dilate(candidate.view(np.uint8), kernel)
+    # The dilation reaches band_px from a candidate: made in the candidates' box grown by
+    # that much (all of its non-zero pixels, the values the whole image gives there).
+    H, W = candidate.shape
+    bx, by, bw, bh = cv2.boundingRect(np.ascontiguousarray(candidate).view(np.uint8))
+    y0, x0 = max(by - band_px, 0), max(bx - band_px, 0)
+    y1, x1 = min(by + bh + band_px, H), min(bx + bw + band_px, W)
+    near = np.zeros((H, W), np.uint8)
+    if bw and bh:
+        near[y0:y1, x0:x1] = cv2.dilate(
+            np.ascontiguousarray(candidate[y0:y1, x0:x1]).view(np.uint8), kernel)
     # Flood only the box around the candidates (the rest is background anyway).
-    x, y, w, h = cv2.boundingRect(near)
+    x, y, w, h = cv2.boundingRect(near[y0:y1, x0:x1])
+    x, y = x + x0, y + y0
     near_c = near[y:y + h, x:x + w].astype(bool)
     markers = np.zeros((h, w), np.int32)
     markers[~near_c] = 1
