@@ -102,28 +102,6 @@ def _to_gray(image: np.ndarray) -> np.ndarray:
     raise ValueError(f'image must be (H, W) grey or (H, W, 3|4) RGB(A), got shape {image.shape}')
 
 
-def _gray_in_windows(image: np.ndarray, boxes: Sequence[Sequence[float]],
-                     params: HogParams) -> np.ndarray:
-    """(H, W) float32 grey of an RGB uint8 frame (``_to_gray``), converted only in the box
-    around the crop windows of ``boxes`` (zero elsewhere, where no crop reads): OpenCV's 8-bit
-    grey is integer arithmetic per pixel, so a part of the frame converts as in the whole.
-    Other images are converted whole."""
-    image = np.asarray(image)
-    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] not in (3, 4) or \
-            not len(boxes):
-        return _to_gray(image)
-    height, width = image.shape[:2]
-    windows = [_square_window(box, params.margin_frac) for box in boxes]
-    x0 = max(min(x for x, _, _ in windows), 0)
-    y0 = max(min(y for _, y, _ in windows), 0)
-    x1 = min(max(x + side for x, _, side in windows), width)
-    y1 = min(max(y + side for _, y, side in windows), height)
-    gray = np.zeros((height, width), np.float32)
-    if x1 > x0 and y1 > y0:
-        gray[y0:y1, x0:x1] = _to_gray(image[y0:y1, x0:x1])
-    return gray
-
-
 def _box_from_mask(mask: np.ndarray) -> tuple[int, int, int, int]:
     box = mask_box(mask)
     if box[2] == 0:
@@ -281,7 +259,7 @@ def describe_regions(image: np.ndarray, boxes: Sequence[Sequence[float]] | None 
     count = len(boxes) if boxes is not None else len(masks)  # type: ignore[arg-type]
     if boxes is not None and masks is not None and len(masks) != count:
         raise ValueError(f'{count} boxes but {len(masks)} masks')
-    gray = _gray_in_windows(image, boxes, params) if boxes is not None else _to_gray(image)
+    gray = _to_gray(image)
     crops = np.empty((count, params.crop_px, params.crop_px), np.uint8)
     for i in range(count):
         crops[i] = normalise_crop(gray, None if boxes is None else boxes[i],
