@@ -111,3 +111,14 @@ def test_image_to_rgb_from_every_colour_encoding():
     assert grey.shape == (5, 7, 3) and (grey[:, :, 0] == SAMPLES['mono8']).all()
     with pytest.raises(ValueError, match='colour images'):
         image_to_rgb(array_to_image(SAMPLES['16UC1'], '16UC1', factory=factory))
+
+
+def test_depth_mm_to_metres_is_float32_times_a_thousandth():
+    """Every millimetre value converts as ``float32(v) * float32(0.001)``, bit for bit, with
+    0 as NaN (the look-up table stands for that product)."""
+    mm = np.arange(65536, dtype=np.uint16).reshape(256, 256)
+    depth = depth_image_to_metres(array_to_image(mm, '16UC1', factory=RosbagsFactory()))
+    want = mm.astype(np.float32) * np.float32(0.001)
+    want[mm == 0] = np.nan
+    assert depth.dtype == np.float32 and depth.flags.writeable
+    np.testing.assert_array_equal(depth.view(np.uint32), want.view(np.uint32))

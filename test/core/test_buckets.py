@@ -38,3 +38,19 @@ def test_empty_points_and_nan_queries():
     buckets = PointBuckets.build(np.zeros((1, 3)), 0.01)
     dist, index = buckets.nearest(np.array([[np.nan, 0.0, 0.0], [0.0, 0.0, 0.0]]), 0.01)
     assert np.isinf(dist[0]) and index[0] == 1 and dist[1] == 0.0
+
+
+def test_any_within_is_the_nearest_test():
+    """The early-exit test answers as ``isfinite(nearest)``, also at exactly the radius, on a
+    grid of points (distances that equal the radius), for NaN queries and empty buckets."""
+    rng = np.random.default_rng(4)
+    grid = 0.002 * np.stack(np.meshgrid(*[np.arange(12)] * 3), -1).reshape(-1, 3)
+    for points, edge in ((rng.uniform(-0.05, 0.05, (1500, 3)), 0.01), (grid, 0.004),
+                         (np.zeros((0, 3)), 0.01)):
+        buckets = PointBuckets.build(points, edge)
+        queries = np.concatenate([rng.uniform(-0.06, 0.06, (400, 3)), grid[::7] + 0.002,
+                                  [[np.nan, 0.0, 0.0]]])
+        for radius in (0.001, 0.002, 0.004):
+            if radius <= edge:
+                np.testing.assert_array_equal(buckets.any_within(queries, radius),
+                                              np.isfinite(buckets.nearest(queries, radius)[0]))

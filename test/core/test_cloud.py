@@ -89,3 +89,88 @@ def test_voxel_downsample_and_normals_face_camera():
     assert len(pts) == len(nrm) and np.all(nrm[:, 2] < -0.99)
     with pytest.raises(ValueError):
         cloud.voxel_downsample(points, 0.0)
+
+
+def _open3d_keep(points: np.ndarray, neighbors: int, std_ratio: float) -> np.ndarray:
+    keep = np.zeros(len(points), bool)
+    _, index = cloud.to_o3d(points).remove_statistical_outlier(nb_neighbors=neighbors,
+                                                               std_ratio=std_ratio)
+    keep[np.asarray(index, np.int64)] = True
+    return keep
+
+
+def _odd_cloud(rng: np.random.Generator, case: int) -> np.ndarray:
+    """Clouds of the shapes the pose stage sees, and of the shapes that trip a k-NN search."""
+    n = int(rng.integers(52, 1500))
+    centre = rng.uniform([-0.2, -0.2, 0.4], [0.2, 0.2, 1.2])
+    if case == 0:    # a blob and a few far points
+        points = np.concatenate([rng.normal(0, 0.01, (n, 3)),
+                                 rng.uniform(-0.2, 0.2, (int(rng.integers(0, 20)), 3))])
+    elif case == 1:  # a part's faces seen by a depth camera, voxelised as the pose stage does
+        faces = rng.uniform(-0.03, 0.03, (4 * n, 3))
+        faces[np.arange(len(faces)), rng.integers(0, 3, len(faces))] = 0.03
+        points, _ = cloud.voxel_downsample(faces + rng.normal(0, 0.001, faces.shape), 0.004)
+    elif case == 2:  # a regular grid: many equal distances at the k-th neighbour
+        side = int(np.ceil(n ** (1 / 3)))
+        points = 0.002 * np.stack(np.meshgrid(*[np.arange(side)] * 3), -1).reshape(-1, 3)
+    elif case == 3:  # repeated points (a mean distance of 0 is never kept)
+        base = rng.normal(0, 0.01, (n // 4, 3))
+        points = np.concatenate([base, np.repeat(base[:3], 60, axis=0), base[:n // 8]])
+    elif case == 4:  # flat on one axis, rows of equal coordinates
+        points = np.column_stack([rng.uniform(-0.05, 0.05, n), np.zeros(n),
+                                  np.round(rng.uniform(0, 0.05, n), 3)])
+    else:            # a line with a gap and a cluster
+        t = np.concatenate([rng.uniform(0, 0.1, n), rng.uniform(0.3, 0.31, 30)])
+        points = np.column_stack([t, 0.5 * t, rng.normal(0, 1e-4, len(t))])
+    return rng.permutation(points) + centre
+
+
+def test_statistical_outliers_keep_exactly_what_open3d_keeps():
+    rng = np.random.default_rng(20)
+    differing, kept_share = [], []
+    for trial in range(600):
+        points = _odd_cloud(rng, trial % 6)
+        neighbors = int(rng.choice([1, 2, 5, 20, 50, 50, 50]))
+        std_ratio = float(rng.choice([0.3, 1.0, 2.0, 2.0, 3.5]))
+        if len(points) <= neighbors:
+            continue
+        keep = cloud.remove_statistical_outliers(points, neighbors=neighbors,
+                                                 std_ratio=std_ratio)
+        expected = _open3d_keep(points, neighbors, std_ratio)
+        kept_share.append(expected.mean())
+        if not np.array_equal(keep, expected):
+            differing.append((trial, neighbors, std_ratio, int((keep != expected).sum())))
+    assert differing == []
+    assert 0.3 < np.mean(kept_share) < 1.0   # the cases do drop points
+
+
+def test_mean_neighbour_distances_are_open3d_bits():
+    """Each point's mean distance equals, bit for bit, the one made from Open3D's own k-NN
+    squared distances (summed as Open3D sums them)."""
+    import math
+
+    import open3d as o3d
+
+    from tlessbot_ros.core.pose.outlier_kernels import mean_neighbour_distances
+
+    rng = np.random.default_rng(21)
+    for trial in range(30):
+        points = _odd_cloud(rng, trial % 6)
+        k = 50
+        tree = o3d.geometry.KDTreeFlann(cloud.to_o3d(points))
+        means = mean_neighbour_distances(np.ascontiguousarray(points, np.float64), k)
+        for i in rng.choice(len(points), 40, replace=False):
+            _, _, squared = tree.search_knn_vector_3d(points[i], k)
+            total = 0.0
+            for d2 in squared:
+                total += math.sqrt(d2)
+            assert means[i] == total / len(squared)
+
+
+def test_statistical_outliers_bad_arguments():
+    points = np.zeros((10, 3))
+    with pytest.raises(ValueError, match='std_ratio'):
+        cloud.remove_statistical_outliers(points, neighbors=3, std_ratio=0.0)
+    with pytest.raises(ValueError, match='neighbors'):
+        cloud.remove_statistical_outliers(points, neighbors=0)
+    assert cloud.remove_statistical_outliers(points[:3], neighbors=5).all()

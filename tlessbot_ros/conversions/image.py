@@ -144,13 +144,25 @@ def image_to_rgb(msg: Any) -> np.ndarray:
     raise ValueError(f'colour images must be rgb8, bgr8, rgba8, bgra8 or mono8, got {encoding!r}')
 
 
+_MM_TO_METRES: list[np.ndarray] = []
+
+
+def _mm_to_metres() -> np.ndarray:
+    """(65536,) float32: millimetres v as ``float32(v) * float32(0.001)`` metres, NaN for 0
+    (made on first use)."""
+    if not _MM_TO_METRES:
+        table = np.arange(65536, dtype=np.float32) * np.float32(0.001)
+        table[0] = np.nan
+        table.setflags(write=False)
+        _MM_TO_METRES.append(table)
+    return _MM_TO_METRES[0]
+
+
 def depth_image_to_metres(msg: Any) -> np.ndarray:
     """Depth image (16UC1/mono16 in mm, or 32FC1 in m) as (H, W) float32 metres, NaN = invalid."""
     if msg.encoding in ('16UC1', 'mono16'):
-        depth_mm = image_to_array(msg)
-        depth = depth_mm.astype(np.float32) * np.float32(0.001)
-        depth[depth_mm == 0] = np.nan
-        return depth
+        # one look-up per pixel instead of three passes; the table holds what they computed
+        return np.take(_mm_to_metres(), image_to_array(msg))
     if msg.encoding == '32FC1':
         depth = image_to_array(msg, copy=True).astype(np.float32, copy=False)
         depth[~np.isfinite(depth) | (depth <= 0)] = np.nan

@@ -381,10 +381,8 @@ class PerceptionPipeline:
             top = top_future.result()   # re-raises the top view's error here
         else:
             top, side = seg(TOP), seg(SIDE)
-        depth_top = views[TOP].depth_m
         return fuse_views(top, side, rig=self.rig, side_rgb=views[SIDE].rgb,
-                          depth_top_m=None if depth_top is None else np.nan_to_num(depth_top),
-                          params=self.fusion)
+                          depth_top_m=views[TOP].depth_m, params=self.fusion)
 
     # ---------------------------------------------------------------------------- stage 2
     def classify(self, rgb: dict[str, np.ndarray], labels: dict[str, np.ndarray], *,
@@ -572,9 +570,10 @@ class PerceptionPipeline:
         detection, points, T_world_camera = job.detection, job.points, job.T_world_camera
         quick = len(job.candidates) > 1 and T_world_camera is not None
         best_value = None
+        scenes: dict[float, np.ndarray] = {}   # the ROI prepared once per voxel edge
         for rank, obj_id in enumerate(job.candidates):
             result = estimator.estimate(points, obj_id, T_world_camera=T_world_camera,
-                                        fallback=False if quick else None)
+                                        fallback=False if quick else None, scenes=scenes)
             if result.best is None:
                 continue
             value = result.best.fitness - p.verify_rmse_weight * result.best.inlier_rmse_m
@@ -587,7 +586,8 @@ class PerceptionPipeline:
         pose_params = estimator.params
         if quick and detection.pose is not None and pose_params.fallback and \
                 p.fallback_min_fitness <= detection.pose.fitness < pose_params.fallback_fitness:
-            result = estimator.estimate(points, detection.obj_id, T_world_camera=T_world_camera)
+            result = estimator.estimate(points, detection.obj_id, T_world_camera=T_world_camera,
+                                        scenes=scenes)
             if result.best is not None and result.best.score > detection.pose.score:
                 detection.pose, detection.second = result.best, result.second
         if self.lookalike is not None and detection.pose is not None and \

@@ -46,9 +46,19 @@ def watershed_refine(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray, *
     out = np.zeros(candidate.shape, bool)
     if not sure.any():
         return out
-    near = cv2.dilate(candidate.view(np.uint8), kernel)
+    # The dilation reaches band_px from a candidate: made in the candidates' box grown by
+    # that much (all of its non-zero pixels, the values the whole image gives there).
+    H, W = candidate.shape
+    bx, by, bw, bh = cv2.boundingRect(np.ascontiguousarray(candidate).view(np.uint8))
+    y0, x0 = max(by - band_px, 0), max(bx - band_px, 0)
+    y1, x1 = min(by + bh + band_px, H), min(bx + bw + band_px, W)
+    near = np.zeros((H, W), np.uint8)
+    if bw and bh:
+        near[y0:y1, x0:x1] = cv2.dilate(
+            np.ascontiguousarray(candidate[y0:y1, x0:x1]).view(np.uint8), kernel)
     # Flood only the box around the candidates (the rest is background anyway).
-    x, y, w, h = cv2.boundingRect(near)
+    x, y, w, h = cv2.boundingRect(near[y0:y1, x0:x1])
+    x, y = x + x0, y + y0
     near_c = near[y:y + h, x:x + w].astype(bool)
     markers = np.zeros((h, w), np.int32)
     markers[~near_c] = 1
@@ -177,11 +187,17 @@ def _instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarr
     if n == 0:
         return np.zeros((H, W), np.uint16), np.zeros((0, 4), np.int32), np.zeros(0, np.int64)
     up = cv2.resize(labels_s, (W, H), interpolation=cv2.INTER_NEAREST)
-    labels = np.where(foreground, up, np.uint16(0))
-    rim = foreground & (up == 0)
+    labels = np.zeros((H, W), np.uint16)
+    # Only the foreground's box can be labelled; with 2 more pixels around it the 5x5 dilation
+    # of the rim reads what it reads in the whole image (beyond the image's edge: nothing).
+    bx, by, bw, bh = cv2.boundingRect(np.ascontiguousarray(foreground).view(np.uint8))
+    y0, y1, x0, x1 = max(by - 2, 0), min(by + bh + 2, H), max(bx - 2, 0), min(bx + bw + 2, W)
+    fg, up_box, out = foreground[y0:y1, x0:x1], up[y0:y1, x0:x1], labels[y0:y1, x0:x1]
+    out[fg] = up_box[fg]
+    rim = fg & (up_box == 0)
     if rim.any():
-        grown = cv2.dilate(up, np.ones((5, 5), np.uint8))
-        labels[rim] = grown[rim]
+        grown = cv2.dilate(np.ascontiguousarray(up_box), np.ones((5, 5), np.uint8))
+        out[rim] = grown[rim]
     # Boxes and areas: look only near each low-resolution box.
     boxes = np.zeros((n, 4), np.int32)
     areas = np.zeros(n, np.int64)

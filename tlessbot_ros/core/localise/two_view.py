@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from tlessbot_ros.core.common import Rig, transform_points
+from tlessbot_ros.core.common import Rig, pixel_counts, transform_points
 from tlessbot_ros.core.localise.instances import _fill_from_nearest, boxes_from_labels
 from tlessbot_ros.core.localise.segmentation import Segmentation
 
@@ -282,7 +282,8 @@ def lift_top_blobs(top_labels: np.ndarray, rig: Rig, *, depth_top_m: np.ndarray 
                    top_name: str = 'top') -> dict[int, np.ndarray]:
     """World points (metres, (N, 3) float64) of each top blob, extruded down to the table.
 
-    With ``depth_top_m`` the blob's valid depth pixels are back-projected (points within
+    With ``depth_top_m`` (NaN read as 0, inf as the largest float, as ``np.nan_to_num``
+    does) the blob's valid depth pixels are back-projected (points within
     ``[min_height_m, max_height_m]`` above the table are kept); without it, or when too few
     remain, the pixel rays are cut with the planes z = 0 and z = ``prism_height_m``. Every
     point is then also dropped vertically onto the table (z = 0), since a part standing on
@@ -307,7 +308,9 @@ def lift_top_blobs(top_labels: np.ndarray, rig: Rig, *, depth_top_m: np.ndarray 
             continue
         pts = np.empty((0, 3))
         if depth_top_m is not None:
-            z = depth_top_m[ys, xs].astype(np.float64)
+            # NaN as 0 and inf as the largest float, read for the blob's pixels only (it was
+            # done to the whole image before: the same values)
+            z = np.nan_to_num(depth_top_m[ys, xs]).astype(np.float64)
             ok = np.isfinite(z) & (z > 0)
             if ok.any():
                 cam = np.column_stack([(xs[ok] - K[0, 2]) * z[ok] / K[0, 0],
@@ -374,7 +377,7 @@ def _calibrated(top: Segmentation, side: Segmentation, rig: Rig,
     t1 = time.perf_counter()
     timings['predict'] = (t1 - t0) * 1e3
     n_top = int(top_labels.max(initial=0))
-    pred_area = np.bincount(pred.ravel(), minlength=n_top + 1)
+    pred_area = pixel_counts(pred, minlength=n_top + 1)
     side_fg = side.labels > 0
     n_blobs, blobs, stats, _ = cv2.connectedComponentsWithStats(side_fg.astype(np.uint8),
                                                                 connectivity=8)

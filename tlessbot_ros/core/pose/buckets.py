@@ -62,8 +62,12 @@ class PointBuckets:
                                self.order, float(radius_m))
 
     def any_within(self, queries: np.ndarray, radius_m: float) -> np.ndarray:
-        """(Q,) bool: some point lies strictly closer than ``radius_m`` to the query."""
-        return np.isfinite(self.nearest(queries, radius_m)[0])
+        """(Q,) bool: some point lies strictly closer than ``radius_m`` to the query (what
+        ``np.isfinite(nearest(...)[0])`` says; the scan stops at the first such point)."""
+        self._check(radius_m)
+        return _any_within(np.ascontiguousarray(queries, np.float64).reshape(-1, 3),
+                           self.points, self.origin, self.edge_m, self.shape, self.start,
+                           self.order, float(radius_m))
 
     def _check(self, radius_m: float) -> None:
         if not 0 < radius_m <= self.edge_m:
@@ -102,3 +106,38 @@ def _nearest_within(queries, points, origin, edge, shape, start, order, radius):
             dist[q] = np.sqrt(best)
             index[q] = best_index
     return dist, index
+
+
+@njit(cache=True, nogil=True)
+def _any_within(queries, points, origin, edge, shape, start, order, radius):
+    """(Q,) bool: the test of :func:`_nearest_within` (a squared distance below radius²,
+    computed alike) without looking for the nearest."""
+    n_queries = queries.shape[0]
+    found = np.zeros(n_queries, np.bool_)
+    limit = radius * radius
+    for q in range(n_queries):
+        qx, qy, qz = queries[q, 0], queries[q, 1], queries[q, 2]
+        if not (np.isfinite(qx) and np.isfinite(qy) and np.isfinite(qz)):
+            continue
+        cx = int(np.floor((qx - origin[0]) / edge))
+        cy = int(np.floor((qy - origin[1]) / edge))
+        cz = int(np.floor((qz - origin[2]) / edge))
+        for ix in range(max(cx - 1, 0), min(cx + 2, shape[0])):
+            for iy in range(max(cy - 1, 0), min(cy + 2, shape[1])):
+                for iz in range(max(cz - 1, 0), min(cz + 2, shape[2])):
+                    bucket = (ix * shape[1] + iy) * shape[2] + iz
+                    for s in range(start[bucket], start[bucket + 1]):
+                        j = order[s]
+                        dx = points[j, 0] - qx
+                        dy = points[j, 1] - qy
+                        dz = points[j, 2] - qz
+                        if dx * dx + dy * dy + dz * dz < limit:
+                            found[q] = True
+                            break
+                    if found[q]:
+                        break
+                if found[q]:
+                    break
+            if found[q]:
+                break
+    return found

@@ -174,16 +174,37 @@ def remove_statistical_outliers(points: np.ndarray, *, neighbors: int = 50,
 
     A point is an outlier when its mean distance to its ``neighbors`` nearest neighbours exceeds
     the global mean by more than ``std_ratio`` standard deviations. Run it after voxelisation.
+    The kept points are exactly those of Open3D's ``remove_statistical_outlier`` (its
+    arithmetic, in numba: :mod:`~tlessbot_ros.core.pose.outlier_kernels`).
+
+    Args:
+        points: (N, 3) points in metres.
+        neighbors: k (the point itself counts as one, as in Open3D).
+        std_ratio: the threshold is the mean of the points' mean distances plus this many
+            standard deviations.
     """
     points = _check_points(points)
-    keep = np.zeros(len(points), bool)
+    if neighbors < 1 or not std_ratio > 0:
+        raise ValueError(f'neighbors must be >= 1 and std_ratio > 0, got {neighbors} and '
+                         f'{std_ratio}')
     if len(points) <= neighbors:
-        keep[:] = True  # too few points for the statistic: keep everything
+        return np.ones(len(points), bool)  # too few points for the statistic: keep everything
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    if not np.isfinite(points).all():   # the kernels' scan order needs finite coordinates
+        keep = np.zeros(len(points), bool)
+        _, index = to_o3d(points).remove_statistical_outlier(nb_neighbors=int(neighbors),
+                                                             std_ratio=float(std_ratio))
+        keep[np.asarray(index, dtype=np.int64)] = True
         return keep
-    _, index = to_o3d(points).remove_statistical_outlier(nb_neighbors=int(neighbors),
-                                                         std_ratio=float(std_ratio))
-    keep[np.asarray(index, dtype=np.int64)] = True
-    return keep
+    # Open3D's statistic with its arithmetic, without its KD-tree and cloud (the same kept
+    # points: :mod:`~tlessbot_ros.core.pose.outlier_kernels`)
+    from tlessbot_ros.core.pose.outlier_kernels import (
+        keep_below_threshold,
+        mean_neighbour_distances,
+    )
+
+    return keep_below_threshold(mean_neighbour_distances(points, int(neighbors)),
+                                float(std_ratio))
 
 
 def estimate_normals(points: np.ndarray, *, radius_m: float, max_nn: int = 30,

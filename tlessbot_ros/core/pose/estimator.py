@@ -169,7 +169,8 @@ class PoseEstimator:
 
     def estimate(self, points_c: np.ndarray, obj_id: int, *,
                  T_world_camera: np.ndarray | None = None,
-                 method: str | None = None, fallback: bool | None = None) -> PoseResult:
+                 method: str | None = None, fallback: bool | None = None,
+                 scenes: dict[float, np.ndarray] | None = None) -> PoseResult:
         """Pose of object ``obj_id`` from its ROI cloud.
 
         Args:
@@ -181,6 +182,10 @@ class PoseEstimator:
             method: overrides ``params.method``.
             fallback: overrides ``params.fallback`` (False: the table path's answer however
                 poor, e.g. to compare candidate classes quickly).
+            scenes: the ROI cloud voxelised and cleaned of outliers, by voxel edge (m): a
+                caller that fits several classes to the same ``points_c`` passes the same
+                dict to each call, and a class whose voxel edge was seen already reuses that
+                cloud (it is the same cloud; it is filled here and must not be modified).
 
         Returns:
             a :class:`PoseResult`; ``best`` is None when the ROI has too few points.
@@ -196,7 +201,8 @@ class PoseEstimator:
         p = self.params
         timings: dict[str, float] = {}
         use_table = method == 'table' and T_world_camera is not None and not p.force_fallback
-        scene = self._prepare(points_c, obj, p.table_voxel_scale if use_table else 1.0, timings)
+        scene = self._prepare(points_c, obj, p.table_voxel_scale if use_table else 1.0, timings,
+                              scenes)
         result = PoseResult(int(obj_id), None, None, len(scene), timings)
         if len(scene) < 10:
             return result
@@ -210,7 +216,7 @@ class PoseEstimator:
                 timings['total'] = timings['prep'] + timings['table']
                 result.best, result.second = self._best_two(candidates)
                 return result
-            scene = self._prepare(points_c, obj, 1.0, timings)
+            scene = self._prepare(points_c, obj, 1.0, timings, scenes)
         t0 = time.perf_counter()
         if method == 'table' and p.fallback_method == 'views':
             candidates = self._rank(candidates + fallback_candidates(
@@ -248,13 +254,20 @@ class PoseEstimator:
         return [int(i) for i in np.argsort(angle, kind='stable')[:self.params.fallback_templates]]
 
     def _prepare(self, points_c: np.ndarray, obj: ObjectTemplates, scale: float,
-                 timings: dict[str, float]) -> np.ndarray:
-        """Voxel grid, then statistical outlier removal (cheaper after the grid)."""
+                 timings: dict[str, float], scenes: dict[float, np.ndarray] | None = None
+                 ) -> np.ndarray:
+        """Voxel grid, then statistical outlier removal (cheaper after the grid); taken from
+        ``scenes`` when it holds this voxel edge's cloud (see :meth:`estimate`)."""
         t0 = time.perf_counter()
-        cloud = self.params.cloud
-        scene, _ = voxel_downsample(points_c, obj.voxel_size_m * scale)
-        scene = scene[remove_statistical_outliers(scene, neighbors=cloud.sor_neighbors,
-                                                  std_ratio=cloud.sor_std_ratio)]
+        voxel = obj.voxel_size_m * scale
+        scene = None if scenes is None else scenes.get(voxel)
+        if scene is None:
+            cloud = self.params.cloud
+            scene, _ = voxel_downsample(points_c, voxel)
+            scene = scene[remove_statistical_outliers(scene, neighbors=cloud.sor_neighbors,
+                                                      std_ratio=cloud.sor_std_ratio)]
+            if scenes is not None:
+                scenes[voxel] = scene
         timings['prep'] = timings.get('prep', 0.0) + 1e3 * (time.perf_counter() - t0)
         return scene
 
