@@ -35,6 +35,10 @@ class PoseParams:
         icp_distance_voxels: ICP correspondence distance (final iterations; the first ones
             start at twice this).
         icp_points: ICP uses at most this many scene points (evenly strided).
+        polish_iterations: table path: the ``final_candidates`` get this many more
+            point-to-plane ICP steps on every ROI point before they are scored against each
+            other (0: off).
+        polish_distance_voxels: their correspondence distance (the first half at twice it).
         inlier_voxels: distance of a scene point to the model surface counted as an inlier.
         inlier_plane_m: an inlier must also lie this close to the tangent plane of its nearest
             model sample (0: off); used for the final ranking.
@@ -107,6 +111,8 @@ class PoseParams:
     icp_iterations: int = 8
     icp_distance_voxels: float = 1.5
     icp_points: int = 250
+    polish_iterations: int = 30
+    polish_distance_voxels: float = 1.0
     inlier_voxels: float = 1.0
     inlier_plane_m: float = 0.0025
     fallback_fitness: float = 0.85
