@@ -170,6 +170,10 @@ class PoseParams:
             raise ValueError('fallback_drop_planes must be >= 0 and fallback_plane_width > 0 '
                              f'(1: the part diameter), got {self.fallback_drop_planes}, '
                              f'{self.fallback_plane_width}')
+        if self.polish_iterations < 0 or self.polish_distance_voxels <= 0:
+            raise ValueError('polish_iterations must be >= 0 (0: off) and '
+                             'polish_distance_voxels > 0 (1: one voxel), got '
+                             f'{self.polish_iterations}, {self.polish_distance_voxels}')
         if self.fallback_icp_distance_voxels <= 0:
             raise ValueError('fallback_icp_distance_voxels must be > 0 (3: three voxels), got '
                              f'{self.fallback_icp_distance_voxels}')
