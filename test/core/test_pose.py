@@ -192,8 +192,8 @@ def test_final_candidates_are_polished_before_ranking(setup):
     model, db = setup
     T_wo = _place(db, 0, 37.0, 0.03, -0.02)
     points = _view(model, T_wo, noise_m=0.002, seed=3)
-    polished = PoseEstimator(db).estimate(points, 21, T_world_camera=SIDE.T_world_camera,
-                                          fallback=False)
+    polished = PoseEstimator(db, params=PoseParams(polish_iterations=30)).estimate(
+        points, 21, T_world_camera=SIDE.T_world_camera, fallback=False)
     short = PoseEstimator(db, params=PoseParams(polish_iterations=0)).estimate(
         points, 21, T_world_camera=SIDE.T_world_camera, fallback=False)
     t_err, r_err = _errors(polished.best.T_camera_object, SIDE.T_camera_world @ T_wo)

@@ -37,7 +37,10 @@ class PoseParams:
         icp_points: ICP uses at most this many scene points (evenly strided).
         polish_iterations: table path: the ``final_candidates`` get this many more
             point-to-plane ICP steps on every ROI point before they are scored against each
-            other (0: off).
+            other (0: off, the default). 30 fixes 5 of 11 parts turned by ~180° on 6 simulated
+            moved-rig scenes (319 -> 325 of 356 within 5 cm / 5°) but the demo bag falls from
+            26 to 23 of 27 (obj_07 turned) and the exact rig gains 3 and loses 3 parts
+            (docs/bench/moved-rig-accuracy.md), so it stays off.
         polish_distance_voxels: their correspondence distance (the first half at twice it).
         inlier_voxels: distance of a scene point to the model surface counted as an inlier.
         inlier_plane_m: an inlier must also lie this close to the tangent plane of its nearest
@@ -111,7 +114,7 @@ class PoseParams:
     icp_iterations: int = 8
     icp_distance_voxels: float = 1.5
     icp_points: int = 250
-    polish_iterations: int = 30
+    polish_iterations: int = 0
     polish_distance_voxels: float = 1.0
     inlier_voxels: float = 1.0
     inlier_plane_m: float = 0.0025
