@@ -35,6 +35,13 @@ class PoseParams:
         icp_distance_voxels: ICP correspondence distance (final iterations; the first ones
             start at twice this).
         icp_points: ICP uses at most this many scene points (evenly strided).
+        polish_iterations: table path: the ``final_candidates`` get this many more
+            point-to-plane ICP steps on every ROI point before they are scored against each
+            other (0: off, the default). 30 fixes 5 of 11 parts turned by ~180° on 6 simulated
+            moved-rig scenes (319 -> 325 of 356 within 5 cm / 5°) but the demo bag falls from
+            26 to 23 of 27 (obj_07 turned) and the exact rig gains 3 and loses 3 parts
+            (docs/bench/moved-rig-accuracy.md), so it stays off.
+        polish_distance_voxels: their correspondence distance (the first half at twice it).
         inlier_voxels: distance of a scene point to the model surface counted as an inlier.
         inlier_plane_m: an inlier must also lie this close to the tangent plane of its nearest
             model sample (0: off); used for the final ranking.
@@ -107,6 +114,8 @@ class PoseParams:
     icp_iterations: int = 8
     icp_distance_voxels: float = 1.5
     icp_points: int = 250
+    polish_iterations: int = 0
+    polish_distance_voxels: float = 1.0
     inlier_voxels: float = 1.0
     inlier_plane_m: float = 0.0025
     fallback_fitness: float = 0.85
@@ -164,6 +173,10 @@ class PoseParams:
             raise ValueError('fallback_drop_planes must be >= 0 and fallback_plane_width > 0 '
                              f'(1: the part diameter), got {self.fallback_drop_planes}, '
                              f'{self.fallback_plane_width}')
+        if self.polish_iterations < 0 or self.polish_distance_voxels <= 0:
+            raise ValueError('polish_iterations must be >= 0 (0: off) and '
+                             'polish_distance_voxels > 0 (1: one voxel), got '
+                             f'{self.polish_iterations}, {self.polish_distance_voxels}')
         if self.fallback_icp_distance_voxels <= 0:
             raise ValueError('fallback_icp_distance_voxels must be > 0 (3: three voxels), got '
                              f'{self.fallback_icp_distance_voxels}')
