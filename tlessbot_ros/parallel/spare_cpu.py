@@ -5,9 +5,10 @@ a worker process beside its own thread. That shortens a frame when the other cor
 (a graph at 2 frames/s, lock-step replays). In a graph at the camera's rate they are not: the
 entrance admits frames until the stages keep every core busy, and the second thread or process
 then only adds contention, hand-offs and a copy of the work's inputs (paired 60 s runs at
-30 frames/s on 2 cores: 1.29-1.39 x the frames processed and 0.74-0.80 x the p95 latency with
-both off; docs/bench/backpressure.md). :class:`SpareCpu` reads how much of the host was idle
-lately, so a stage can decide per frame.
+30 frames/s on 2 cores, docs/bench/backpressure.md: with both off, 1.29-1.39 x the frames
+processed and 0.74-0.80 x the p95 latency on a host busy with other work; with this gate
+against always splitting, 1.02-1.13 x and 0.87-0.97 x on a quiet one). :class:`SpareCpu`
+reads how much of the host was idle lately, so a stage can decide per frame.
 
 The figure comes from the kernel's CPU time counters (``/proc/stat``, Linux): idle and iowait
 time over all cores, in cores, averaged over the time since the previous reading (at least
