@@ -105,3 +105,29 @@ def test_a_signal_whose_interrupt_was_swallowed_still_stops_the_loop():
         common._SIGNALS_RECEIVED.clear()
         for signum, handler in saved.items():
             signal.signal(signum, handler)
+
+
+def test_a_half_built_rclpy_task_after_a_signal_prints_no_traceback(capsys, monkeypatch):
+    # A signal's KeyboardInterrupt landing in rclpy's Task.__init__ leaves a Task without its
+    # fields, whose finaliser then fails; after a signal that error is dropped, before one it
+    # is reported as Python reports any error in a finaliser.
+    import gc
+    import sys
+
+    from rclpy.task import Task
+
+    from tlessbot_ros.nodes import common
+
+    monkeypatch.setattr(sys, 'unraisablehook', common.quiet_half_built_futures)
+    monkeypatch.setattr(common, '_SIGNALS_RECEIVED', [15])
+    task = Task.__new__(Task)
+    del task
+    gc.collect()
+    assert 'Traceback' not in capsys.readouterr().err
+    reported = []
+    monkeypatch.setattr(common, '_DEFAULT_UNRAISABLEHOOK', reported.append)
+    monkeypatch.setattr(common, '_SIGNALS_RECEIVED', [])
+    task = Task.__new__(Task)
+    del task
+    gc.collect()
+    assert len(reported) == 1 and isinstance(reported[0].exc_value, AttributeError)

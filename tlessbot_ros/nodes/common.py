@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import sys
 from collections.abc import Collection
 from typing import Any
 
@@ -137,7 +138,33 @@ def interrupt_on_signals() -> bool:
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, on_signal)
+    if sys.unraisablehook is not quiet_half_built_futures:
+        global _DEFAULT_UNRAISABLEHOOK
+        _DEFAULT_UNRAISABLEHOOK = sys.unraisablehook
+        sys.unraisablehook = quiet_half_built_futures
     return True
+
+
+_DEFAULT_UNRAISABLEHOOK = sys.unraisablehook
+# rclpy's finalisers that fail on an object whose __init__ a KeyboardInterrupt cut short
+_HALF_BUILT_FINALISERS = ('Future.__del__', 'Task.__del__')
+
+
+def quiet_half_built_futures(unraisable: Any) -> None:
+    """``sys.unraisablehook``: after a signal, drop the error of an rclpy Future or Task whose
+    construction the signal's KeyboardInterrupt interrupted; pass anything else on.
+
+    The KeyboardInterrupt of :func:`interrupt_on_signals` can land inside rclpy's
+    ``Task.__init__`` before its fields exist; the interrupt itself goes on as usual, but the
+    half-built object's finaliser then fails (``AttributeError: 'Task' object has no attribute
+    '_exception'``) and Python prints a traceback on a clean exit (seen once in
+    `tlessbot record` under SIGTERM: exit 0, the bag complete)."""
+    function = getattr(unraisable.object, '__qualname__', '')
+    if (_SIGNALS_RECEIVED and isinstance(unraisable.exc_value, AttributeError)
+            and function in _HALF_BUILT_FINALISERS
+            and getattr(unraisable.object, '__module__', '').startswith('rclpy')):
+        return
+    _DEFAULT_UNRAISABLEHOOK(unraisable)
 
 
 # How often the spinning main thread looks for a signal: Python runs its signal handlers only
