@@ -138,14 +138,11 @@ def interrupt_on_signals() -> bool:
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, on_signal)
-    if sys.unraisablehook is not quiet_half_built_futures:
-        global _DEFAULT_UNRAISABLEHOOK
-        _DEFAULT_UNRAISABLEHOOK = sys.unraisablehook
-        sys.unraisablehook = quiet_half_built_futures
+    sys.unraisablehook = quiet_half_built_futures
     return True
 
 
-_DEFAULT_UNRAISABLEHOOK = sys.unraisablehook
+_DEFAULT_UNRAISABLEHOOK = sys.unraisablehook   # the hook in place when this module loaded
 # rclpy's finalisers that fail on an object whose __init__ a KeyboardInterrupt cut short
 _HALF_BUILT_FINALISERS = ('Future.__del__', 'Task.__del__')
 
