@@ -67,10 +67,10 @@ def main() -> int:
     from tlessbot_ros.nodes.common import init_ros, limit_blas_threads
     from tlessbot_ros.nodes.localiser import LocaliserNode
     from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
-    from tlessbot_ros.tools.commands.bench.nodes import _frames
+    from tlessbot_ros.tools.commands.bench.nodes import bag_frames
     from tlessbot_ros.tools.support.defaults import DEFAULT_BAG
 
-    frames = _frames(args.bag or str(DEFAULT_BAG))
+    frames = bag_frames(args.bag or str(DEFAULT_BAG))
     limit_blas_threads()
     init_ros()
     digest = hashlib.sha1()
