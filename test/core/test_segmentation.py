@@ -307,19 +307,3 @@ def test_half_maximum_bins_walk_as_the_loops_did():
         k = int(rng.integers(0, bins)) if trial % 5 == 0 else int(np.argmax(hist))
         assert _half_maximum_bins(hist, k) == walk(hist, k), (trial, hist, k)
 
-
-def test_median_float32_is_numpy_median():
-    """The depth cue's median by selection equals np.median bit for bit (float32 values of
-    even and odd counts, ties, zeros, tiny and huge values)."""
-    from tlessbot_ros.core.localise.cues import _median_float32
-
-    rng = np.random.default_rng(10)
-    for trial in range(3000):
-        n = int(rng.integers(1, 400))
-        values = np.abs(rng.normal(0, float(rng.choice([1e-3, 1.0, 1e30, 1e-38])), n))
-        if trial % 3 == 0:
-            values = np.round(values * 1e3) / 1e3      # ties
-        values = values.astype(np.float32)
-        want = float(np.median(values))
-        got = _median_float32(values.copy())
-        assert np.float64(got).view(np.int64) == np.float64(want).view(np.int64), trial

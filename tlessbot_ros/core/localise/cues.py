@@ -221,17 +221,6 @@ def _view_depth_cue(depth_m: np.ndarray, intrinsics, T_world_camera: np.ndarray,
                             interpolation=cv2.INTER_NEAREST)
     return _depth_cue(height, params)
 
-def _median_float32(values: np.ndarray) -> float:
-    """``float(np.median(values))`` of (N,) float32 values without NaN, by selection
-    (``np.median`` partitions a copy and averages the middle two through ``np.mean``: 0.5 ms
-    for a view's table heights). Reorders ``values``."""
-    from tlessbot_ros.core.common.plane_kernels import median_in_place
-
-    # The two middle values' float32 sum halved: exact in float64, and rounded to float32 as
-    # numpy's float32 mean rounds it.
-    return float(np.float32(median_in_place(values)))
-
-
 def _depth_cue(height: np.ndarray, params: SegmentationParams) -> _DepthCue:
     """Object / table masks from a (h, w) height map (NaN invalid)."""
     valid = ~np.isnan(height)
@@ -239,7 +228,7 @@ def _depth_cue(height: np.ndarray, params: SegmentationParams) -> _DepthCue:
     filled[~valid] = 0.0
     sample = filled[::2, ::2][valid[::2, ::2]]
     sample = sample[np.abs(sample) < 0.02]
-    sigma = 1.4826 * _median_float32(np.abs(sample)) if sample.size > 50 else 0.0
+    sigma = 1.4826 * float(np.median(np.abs(sample))) if sample.size > 50 else 0.0
     if params.depth_filter_px > 1:
         filtered = cv2.medianBlur(filled, params.depth_filter_px)
     else:
