@@ -274,36 +274,3 @@ def test_depth_cue_errors() -> None:
                 T_world_camera=np.eye(4))
     with pytest.raises(ValueError, match='depth_min_height_m'):
         SegmentationParams(depth_min_height_m=0.02, depth_sure_height_m=0.01)
-
-
-def test_half_maximum_bins_walk_as_the_loops_did():
-    """The half-maximum bins found by one comparison equal those of the bin-by-bin walk from
-    the peak (random histograms: flat, spiky, zero, peaks at either end, ties with half)."""
-    from tlessbot_ros.core.localise.colour import _half_maximum_bins
-
-    def walk(hist, k):
-        half = hist[k] / 2.0
-        left = k
-        while left > 0 and hist[left] > half:
-            left -= 1
-        right = k
-        while right < len(hist) - 1 and hist[right] > half:
-            right += 1
-        return left, right
-
-    rng = np.random.default_rng(9)
-    for trial in range(3000):
-        bins = int(rng.integers(1, 80))
-        kind = trial % 4
-        if kind == 0:
-            hist = rng.random(bins)
-        elif kind == 1:
-            hist = rng.integers(0, 5, bins).astype(float)   # ties with half
-        elif kind == 2:
-            hist = np.zeros(bins)
-        else:
-            hist = np.exp(-0.5 * ((np.arange(bins) - rng.uniform(-5, bins + 5)) / 3.0) ** 2)
-        hist = hist.astype(np.float32)
-        k = int(rng.integers(0, bins)) if trial % 5 == 0 else int(np.argmax(hist))
-        assert _half_maximum_bins(hist, k) == walk(hist, k), (trial, hist, k)
-

@@ -116,21 +116,15 @@ def histogram_background_peak(channel: np.ndarray, *, bins: int = 512, sample_st
     hist = cv2.GaussianBlur(hist.reshape(-1, 1), (1, 7), 1.5).ravel()
     width = (hi - lo) / bins
     k = int(np.argmax(hist))
-    left, right = _half_maximum_bins(hist, k)
+    half = hist[k] / 2.0
+    left = k
+    while left > 0 and hist[left] > half:
+        left -= 1
+    right = k
+    while right < bins - 1 and hist[right] > half:
+        right += 1
     hwhm = max(0.5 * (right - left), 0.5) * width
     return float(lo + (k + 0.5) * width), float(hwhm / np.sqrt(2.0 * np.log(2.0)))
-
-
-def _half_maximum_bins(hist: np.ndarray, k: int) -> tuple[int, int]:
-    """The bins where the (B,) float32 histogram falls to half of its peak at bin ``k``, walking
-    out from it: the last bin in 1..k and the first in k..B-2 at or below half (0 and B - 1
-    when there is none). Found by one comparison of the whole histogram, not bin by bin in
-    Python (a wide peak took ~100 steps)."""
-    half = hist[k] / 2.0   # float32, as hist[k] over a Python float
-    low = np.flatnonzero(hist[1:k + 1] <= half)
-    high = np.flatnonzero(hist[k:len(hist) - 1] <= half)
-    return (int(low[-1]) + 1 if low.size else 0,
-            k + int(high[0]) if high.size else len(hist) - 1)
 
 
 _SAMPLE_GRIDS: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
