@@ -174,3 +174,40 @@ def test_statistical_outliers_bad_arguments():
     with pytest.raises(ValueError, match='neighbors'):
         cloud.remove_statistical_outliers(points, neighbors=0)
     assert cloud.remove_statistical_outliers(points[:3], neighbors=5).all()
+
+
+def test_smallest_sorted_is_the_head_of_a_sort():
+    """The bucket selection of the outlier kernel gives the m smallest distances in ascending
+    order, as a full sort does: random values, many ties, zeros, one value, bounds far above
+    the values, an infinite distance, and a bound so small that its reciprocal overflows."""
+    from numba import njit
+
+    from tlessbot_ros.core.pose.outlier_kernels import _smallest_sorted
+
+    call = njit(lambda found, count, m, bound, starts, out:
+                _smallest_sorted(found, count, m, bound, starts, out))
+    rng = np.random.default_rng(22)
+    for trial in range(3000):
+        count = int(rng.integers(1, 300))
+        kind = trial % 6
+        if kind == 0:
+            found = rng.uniform(0, 1e-4, count)
+        elif kind == 1:      # few distinct values: ties at the m-th
+            found = rng.integers(0, 4, count) * 1e-5
+        elif kind == 2:      # squared distances of points on a grid
+            found = (rng.integers(0, 5, (count, 3)) ** 2).sum(axis=1) * 4e-6
+        elif kind == 3:      # all zero (repeated points)
+            found = np.zeros(count)
+        elif kind == 4:      # an infinite distance among others
+            found = rng.uniform(0, 1.0, count)
+            found[rng.integers(count)] = np.inf
+        else:                # tiny values, tiny bound
+            found = rng.uniform(0, 1e-310, count)
+        m = int(rng.integers(1, count + 1))
+        bound = float(rng.choice([found.max(), 2.5 * found.max(), np.inf, 1e-310]))
+        if not bound >= found.max():
+            bound = np.inf
+        out = np.full(count, -1.0)
+        filled = call(found.copy(), count, m, bound, np.empty(count + 1, np.int64), out)
+        assert m <= filled <= count
+        np.testing.assert_array_equal(out[:m], np.sort(found)[:m])

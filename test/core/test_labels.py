@@ -70,3 +70,89 @@ def test_fast_paths_equal_the_whole_image_formulas():
     np.testing.assert_array_equal(instances, encoded[..., 0] % 1000)
     assert decoded == {1: (5, 7), 2: (30,), 4: (12, 13, 14)}
     np.testing.assert_array_equal(label_counts({'v': labels})['v'], np.bincount(labels.ravel()))
+
+
+def _random_labels(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
+    labels = np.zeros((height, width), np.uint16)
+    for instance in rng.permutation(np.arange(1, int(rng.integers(1, 12)) + 1)):
+        y, x = rng.integers(-4, height), rng.integers(-4, width)
+        h, w = rng.integers(1, 20, 2)
+        labels[max(y, 0):y + h, max(x, 0):x + w] = instance
+    if rng.random() < 0.3:   # stray pixels, e.g. in the last column
+        labels[rng.integers(0, height, 5), rng.integers(0, width, 5)] = rng.integers(1, 70, 5)
+    return labels
+
+
+def test_label_boxes_equal_masks_and_bincount():
+    """label_boxes (4 uint16 labels a word for C-contiguous widths that are multiples of 4,
+    else pixel by pixel) equals np.bincount and each label's mask_box, on random images of
+    every layout and integer type."""
+    from tlessbot_ros.core.common import label_boxes, mask_box
+
+    rng = np.random.default_rng(6)
+    for trial in range(400):
+        labels = _random_labels(rng, int(rng.integers(1, 60)), int(rng.integers(1, 70)))
+        kind = trial % 5
+        if kind == 1:
+            labels = labels.astype(np.int32)
+        elif kind == 2:
+            labels = labels[:, ::2]                     # not contiguous
+        elif kind == 3:
+            labels.setflags(write=False)                # a received image: read-only
+        elif kind == 4:
+            labels = labels > 0
+        counts, boxes = label_boxes(labels)
+        np.testing.assert_array_equal(counts, np.bincount(labels.ravel().astype(np.int64)))
+        for label in range(1, len(counts)):
+            want = mask_box(labels == label) if counts[label] else (0, 0, 0, 0)
+            assert tuple(boxes[label]) == tuple(want), (trial, label)
+        assert tuple(boxes[0]) == (0, 0, 0, 0)
+
+
+def test_decode_by_words_equals_pixel_by_pixel():
+    """decode_candidates' word-at-a-time pass gives what the pixel-by-pixel pass gives:
+    instances, first pixels and the first disagreeing channel, on random candidate images
+    (also broken ones, and sizes that are not multiples of 4)."""
+    from tlessbot_ros.core.common.labels import _decode_kernel
+
+    rng = np.random.default_rng(7)
+    for trial in range(400):
+        labels = _random_labels(rng, int(rng.integers(1, 40)), int(rng.integers(1, 40)))
+        labels[labels >= 1000] = 999
+        k = int(rng.integers(1, 5))
+        candidates = {int(i): tuple(int(c) for c in rng.integers(0, 66, rng.integers(0, k + 1)))
+                      for i in np.unique(labels) if i}
+        encoded = encode_candidates(labels, candidates, k).reshape(labels.shape + (k,))
+        if trial % 3 == 0 and k > 1:   # a wrong channel somewhere
+            y, x = rng.integers(0, labels.shape[0]), rng.integers(0, labels.shape[1])
+            encoded[y, x, rng.integers(1, k)] = rng.integers(1, 65535)
+        flat = np.ascontiguousarray(encoded.reshape(-1, k))
+        by_pixel = _decode_kernel(flat, np.zeros(0, np.uint64))
+        if len(flat) % 4 == 0:
+            by_word = _decode_kernel(flat, flat.reshape(-1).view(np.uint64))
+            assert by_word[2] == by_pixel[2]
+            if by_pixel[2] == 0:
+                np.testing.assert_array_equal(by_word[0], by_pixel[0])
+                np.testing.assert_array_equal(by_word[1], by_pixel[1])
+        if by_pixel[2] == 0:
+            np.testing.assert_array_equal(decode_candidates(encoded)[0], labels)
+
+
+def test_encode_candidates_equals_the_lookup_formula():
+    """encode_candidates (4 labels a word where the layout allows) equals ``lookup[labels]``
+    per channel on random images of any width, contiguous or not."""
+    rng = np.random.default_rng(8)
+    for trial in range(300):
+        labels = _random_labels(rng, int(rng.integers(1, 40)), int(rng.integers(1, 40)))
+        if trial % 3 == 1:
+            labels = labels[:, ::2]
+        k = int(rng.integers(1, 4))
+        candidates = {int(i): tuple(int(c) for c in rng.integers(1, 66, rng.integers(0, k + 1)))
+                      for i in np.unique(labels) if i}
+        encoded = encode_candidates(labels, candidates, k).reshape(labels.shape + (k,))
+        for c in range(k):
+            lookup = np.arange(labels.max() + 1)
+            for instance, ids in candidates.items():
+                if len(ids) > c:
+                    lookup[instance] += ids[c] * 1000
+            np.testing.assert_array_equal(encoded[..., c], lookup[labels])

@@ -141,6 +141,7 @@ class PoseEstimatorNode(StageNode):
         # The label kernels of a frame's first steps, on a class image read as one arrives.
         label_boxes(decode_candidates(image_to_array(image_from_cdr(image_to_cdr(
             np.full((4, 4, 2), 1001, np.uint16), '16UC2'))))[0])
+        depth_image_to_metres(image_from_cdr(image_to_cdr(np.ones((2, 4), np.uint16), '16UC1')))
         self.get_logger().info(
             f'templates for {len(self.templates.objects)} objects from {self._templates_path}: '
             f'caches {"read" if report.from_cache else "built"} in {report.seconds:.1f} s')

@@ -62,6 +62,8 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from tlessbot_ros.conversions.image import depth_image_to_metres
+from tlessbot_ros.conversions.image_cdr import image_from_cdr, image_to_cdr
 from tlessbot_ros.conversions.messages import RclpyFactory
 from tlessbot_ros.conversions.outcomes import DONE, DROPPED, FAILED, frame_outcome
 from tlessbot_ros.conversions.pose import pose_array_to_camera_poses
@@ -344,6 +346,8 @@ class StageNode(Node):
         """A synthetic two-view frame for the warm-up: per camera, a box on the table seen
         from the configured extrinsics at the D415's 640x480 (the background's size when one
         is set), and its (H, W) uint16 instance labels (the box is instance 1)."""
+        # the depth conversion's kernel, on a depth image read as one arrives (read-only)
+        depth_image_to_metres(image_from_cdr(image_to_cdr(np.ones((2, 4), np.uint16), '16UC1')))
         views, labels = {}, {}
         for camera in self.cameras:
             background = (backgrounds or {}).get(camera)   # a BackgroundModel or None

@@ -73,6 +73,61 @@ def _within(px, py, pz, xs, ys, zs, bound, out):
     return count
 
 
+@njit(cache=True, inline='always')
+def _bucket(d, scale, buckets):
+    """``floor(d * scale)`` as an index in 0..buckets (an infinite product: the last)."""
+    v = d * scale
+    return np.int64(v) if v < buckets else buckets
+
+
+@njit(cache=True, inline='always')
+def _smallest_sorted(found, count, m, bound, starts, out):
+    """The ``m`` smallest of the squared distances ``found[:count]`` (all in [0, ``bound``],
+    ``count >= m``), ascending, into ``out[:m]``; returns how many of ``out`` it filled (>= m).
+
+    A bucket pass instead of inserting every distance into a sorted list: ``floor(d * scale)``
+    never decreases as ``d`` grows (a product by a positive number rounds monotonically), so
+    the buckets are in order and only distances that share a bucket can be out of order; an
+    insertion sort of the buckets up to the one holding the ``m``-th distance (about one
+    distance a bucket) puts them right. ``starts`` is scratch of at least ``count + 1`` ints.
+    """
+    buckets = count   # about one distance a bucket
+    if not bound < np.inf:   # no bound was given: the largest distance
+        bound = 0.0
+        for a in range(count):
+            bound = max(bound, found[a])
+    scale = buckets / bound if bound > 0 else 0.0
+    if not scale < np.inf:   # a bound so small that the quotient overflows: one bucket
+        scale = 0.0
+    for b in range(buckets + 1):
+        starts[b] = 0
+    for a in range(count):
+        starts[_bucket(found[a], scale, buckets)] += 1
+    # the bucket of the m-th smallest; starts[b] becomes the offset of bucket b in out
+    last, total = 0, 0
+    for b in range(buckets + 1):
+        c = starts[b]
+        starts[b] = total
+        total += c
+        if total >= m:
+            last = b
+            break
+    for a in range(count):
+        d = found[a]
+        b = _bucket(d, scale, buckets)
+        if b <= last:
+            out[starts[b]] = d
+            starts[b] += 1
+    for a in range(1, total):
+        d = out[a]
+        j = a
+        while j > 0 and out[j - 1] > d:
+            out[j] = out[j - 1]
+            j -= 1
+        out[j] = d
+    return total
+
+
 @njit(cache=True, nogil=True)
 def mean_neighbour_distances(points, k):
     """(N,) float64: for each of the (N, 3) finite float64 points, the mean Euclidean distance
@@ -96,35 +151,26 @@ def mean_neighbour_distances(points, k):
     by_x = np.argsort(x, kind='mergesort')
     xs, ys, zs = x[by_x], y[by_x], z[by_x]
     found = np.empty(n)
-    best = np.empty(m)
+    best = np.empty(n)
+    starts = np.empty(n + 1, np.int64)
     previous, previous_reach = -1, np.inf
     for i in _morton_order(x, y, z):
         px, py, pz = x[i], y[i], z[i]
         count = 0
+        bound = np.inf
         if previous >= 0:
             guess = previous_reach * 1.05
-            count = _within(px, py, pz, xs, ys, zs, guess * guess, found)
+            bound = guess * guess
+            count = _within(px, py, pz, xs, ys, zs, bound, found)
             if count < m:
                 sx, sy, sz = px - x[previous], py - y[previous], pz - z[previous]
                 guess = (previous_reach + np.sqrt(sx * sx + sy * sy + sz * sz)) * 1.000001
-                count = _within(px, py, pz, xs, ys, zs, guess * guess, found)
+                bound = guess * guess
+                count = _within(px, py, pz, xs, ys, zs, bound, found)
         if count < m:
             count = _within(px, py, pz, xs, ys, zs, np.inf, found)
-        # the m smallest, ascending, by insertion
-        kept = 0
-        for a in range(count):
-            d = found[a]
-            if kept == m:
-                if not d < best[m - 1]:
-                    continue
-                j = m - 1
-            else:
-                j = kept
-                kept += 1
-            while j > 0 and best[j - 1] > d:
-                best[j] = best[j - 1]
-                j -= 1
-            best[j] = d
+            bound = np.inf
+        _smallest_sorted(found, count, m, bound, starts, best)
         total = 0.0
         for j in range(m):
             total += np.sqrt(best[j])

@@ -134,12 +134,31 @@ def region_points_world(depth_m: np.ndarray, mask: np.ndarray, K: np.ndarray,
     keep = (window != 0) & (z > 0)  # NaN compares False
     rows, cols = np.nonzero(keep)
     z = z[rows, cols].astype(np.float64)
-    pix = np.stack([cols * stride + x0, rows * stride + y0, np.ones(len(z))]).astype(np.float64)
+    # (int64 columns and rows stacked with float64 ones: float64)
+    pix = np.stack([cols * stride + x0, rows * stride + y0, np.ones(len(z))])
     T = np.asarray(T_world_camera, dtype=np.float64)
-    K_inv = np.linalg.inv(np.asarray(K, dtype=np.float64))
+    K_inv = _inverse(K)
     rays = K_inv @ pix  # z-depth: scale each ray to unit optical z
     points = (T[:3, :3] @ rays) * (z / rays[2]) + T[:3, 3:4]
     return np.ascontiguousarray(points.T, dtype=np.float32)
+
+
+_INVERSES: dict[bytes, np.ndarray] = {}
+
+
+def _inverse(K: np.ndarray) -> np.ndarray:
+    """``np.linalg.inv`` of a (3, 3) camera matrix, computed once per matrix (a frame's
+    regions share their view's)."""
+    K = np.asarray(K, dtype=np.float64)
+    key = K.tobytes() + bytes(str(K.shape), 'ascii')
+    inverse = _INVERSES.get(key)
+    if inverse is None:
+        inverse = np.linalg.inv(K)
+        inverse.setflags(write=False)
+        if len(_INVERSES) > 16:
+            _INVERSES.clear()
+        _INVERSES[key] = inverse
+    return inverse
 
 
 def _as_u8(mask: np.ndarray) -> np.ndarray:
