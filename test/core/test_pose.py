@@ -15,11 +15,13 @@ from tlessbot_ros.core.common import (
     rotation_angle_deg,
 )
 from tlessbot_ros.core.pose import (
+    PoseCandidate,
     PoseEstimator,
     PoseParams,
     build_database,
     table_frame_from_plane,
 )
+from tlessbot_ros.core.pose.estimator import fitness_before_coverage
 
 SIDE = default_rig()['side']
 
@@ -201,3 +203,40 @@ def test_final_candidates_are_polished_before_ranking(setup):
     assert polished.best.fitness >= short.best.fitness - 1e-9
     with pytest.raises(ValueError, match='polish'):
         PoseParams(polish_iterations=-1)
+
+
+def test_polishing_later_is_polishing_in_place(setup):
+    # The class verification fits each class unpolished and polishes the winner afterwards
+    # (PoseEstimator.polish): that must give what the polished table path gives.
+    model, db = setup
+    T_wo = _place(db, 0, 37.0, 0.03, -0.02)
+    points = _view(model, T_wo, noise_m=0.002, seed=3)
+    estimator = PoseEstimator(db, params=PoseParams(polish_iterations=30))
+    kwargs = {'T_world_camera': SIDE.T_world_camera, 'fallback': False}
+    in_place = estimator.estimate(points, 21, **kwargs)
+    short = estimator.estimate(points, 21, polish=False, **kwargs)
+    later = estimator.polish(points, short)
+    assert in_place.polished and not short.polished and later.polished
+    assert len(later.finalists) == len(short.finalists) > 0
+    np.testing.assert_allclose(later.best.T_camera_object, in_place.best.T_camera_object,
+                               atol=1e-9)
+    assert later.best.fitness == in_place.best.fitness
+    assert estimator.polish(points, later) is later          # nothing left to polish
+
+
+def test_coverage_only_breaks_near_ties_of_fitness():
+    # obj_07 on simulated D415 depth: the pose turned by 180° covers more of the back-face
+    # "visible" model (self-occlusion ignored) but explains fewer ROI points than the truth.
+    turned_T = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi), np.zeros(3))
+    right = PoseCandidate(np.eye(4), fitness=0.954, inlier_rmse_m=0.001, coverage=0.646)
+    turned = PoseCandidate(turned_T, fitness=0.907, inlier_rmse_m=0.001, coverage=0.825)
+    ranked = PoseEstimator._rank([right, turned])
+    assert ranked[0] is turned                                  # the plain score
+    assert [c.fitness for c in fitness_before_coverage(ranked, 0.01)] == [0.954, 0.907]
+    assert fitness_before_coverage(ranked, 1.0) is ranked       # 1: off
+    # within the tie the score still decides
+    close = PoseCandidate(turned_T, fitness=0.950, inlier_rmse_m=0.001, coverage=0.825)
+    ranked = PoseEstimator._rank([right, close])
+    assert [c.fitness for c in fitness_before_coverage(ranked, 0.01)] == [0.950, 0.954]
+    with pytest.raises(ValueError, match='coverage_tie_fitness'):
+        PoseParams(coverage_tie_fitness=-0.1)

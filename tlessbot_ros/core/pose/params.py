@@ -37,11 +37,21 @@ class PoseParams:
         icp_points: ICP uses at most this many scene points (evenly strided).
         polish_iterations: table path: the ``final_candidates`` get this many more
             point-to-plane ICP steps on every ROI point before they are scored against each
-            other (0: off, the default). 30 fixes 5 of 11 parts turned by ~180° on 6 simulated
-            moved-rig scenes (319 -> 325 of 356 within 5 cm / 5°) but the demo bag falls from
-            26 to 23 of 27 (obj_07 turned) and the exact rig gains 3 and loses 3 parts
-            (docs/bench/moved-rig-accuracy.md), so it stays off.
+            other (0: off). The short ICP of the many starts stops a few degrees short on
+            noisy depth, so a pose turned by ~180° ranked as high as the right one. In the
+            class verification (``PerceptionPipeline.fit_part``) the candidate classes are
+            compared unpolished and only the winner's finalists are polished
+            (:meth:`~tlessbot_ros.core.pose.PoseEstimator.polish`): polishing every class let
+            wrong ones converge too (demo bag 26 -> 23 of 27). RESULTS_TBD
+            (docs/bench/moved-rig-accuracy.md, session 12).
         polish_distance_voxels: their correspondence distance (the first half at twice it).
+        coverage_tie_fitness: the polished finalists are ranked by score (fitness + 0.3 x
+            coverage) among those whose fitness is within this of the best one's, and the
+            others after them: coverage (a back-face test blind to self-occlusion) only breaks
+            near-ties, and a pose turned by ~180° that covers more but explains fewer ROI points
+            (obj_07: fitness 0.91 against 0.95) no longer wins
+            (:func:`~tlessbot_ros.core.pose.estimator.fitness_before_coverage`). 1: the plain
+            score. RULE_TBD
         inlier_voxels: distance of a scene point to the model surface counted as an inlier.
         inlier_plane_m: an inlier must also lie this close to the tangent plane of its nearest
             model sample (0: off); used for the final ranking.
@@ -116,6 +126,7 @@ class PoseParams:
     icp_points: int = 250
     polish_iterations: int = 0
     polish_distance_voxels: float = 1.0
+    coverage_tie_fitness: float = 0.01
     inlier_voxels: float = 1.0
     inlier_plane_m: float = 0.0025
     fallback_fitness: float = 0.85
@@ -177,6 +188,9 @@ class PoseParams:
             raise ValueError('polish_iterations must be >= 0 (0: off) and '
                              'polish_distance_voxels > 0 (1: one voxel), got '
                              f'{self.polish_iterations}, {self.polish_distance_voxels}')
+        if self.coverage_tie_fitness < 0:
+            raise ValueError('coverage_tie_fitness must be >= 0 (a fitness difference; 1: off), '
+                             f'got {self.coverage_tie_fitness}')
         if self.fallback_icp_distance_voxels <= 0:
             raise ValueError('fallback_icp_distance_voxels must be > 0 (3: three voxels), got '
                              f'{self.fallback_icp_distance_voxels}')
