@@ -21,7 +21,7 @@ from tlessbot_ros.core.pose import (
     build_database,
     table_frame_from_plane,
 )
-from tlessbot_ros.core.pose.estimator import fitness_before_coverage
+from tlessbot_ros.core.pose.estimator import after_polish
 
 SIDE = default_rig()['side']
 
@@ -224,19 +224,19 @@ def test_polishing_later_is_polishing_in_place(setup):
     assert estimator.polish(points, later) is later          # nothing left to polish
 
 
-def test_coverage_only_breaks_near_ties_of_fitness():
+def test_the_polish_overturns_the_winner_only_on_a_clear_gain_of_fitness():
     # obj_07 on simulated D415 depth: the pose turned by 180° covers more of the back-face
-    # "visible" model (self-occlusion ignored) but explains fewer ROI points than the truth.
+    # "visible" model (self-occlusion ignored) but, converged, explains fewer ROI points.
     turned_T = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi), np.zeros(3))
-    right = PoseCandidate(np.eye(4), fitness=0.954, inlier_rmse_m=0.001, coverage=0.646)
     turned = PoseCandidate(turned_T, fitness=0.907, inlier_rmse_m=0.001, coverage=0.825)
-    ranked = PoseEstimator._rank([right, turned])
-    assert ranked[0] is turned                                  # the plain score
-    assert [c.fitness for c in fitness_before_coverage(ranked, 0.01)] == [0.954, 0.907]
-    assert fitness_before_coverage(ranked, 1.0) is ranked       # 1: off
-    # within the tie the score still decides
-    close = PoseCandidate(turned_T, fitness=0.950, inlier_rmse_m=0.001, coverage=0.825)
-    ranked = PoseEstimator._rank([right, close])
-    assert [c.fitness for c in fitness_before_coverage(ranked, 0.01)] == [0.950, 0.954]
-    with pytest.raises(ValueError, match='coverage_tie_fitness'):
-        PoseParams(coverage_tie_fitness=-0.1)
+    right = PoseCandidate(np.eye(4), fitness=0.954, inlier_rmse_m=0.001, coverage=0.646)
+    assert PoseEstimator._rank([turned, right])[0] is turned          # the plain score
+    assert after_polish([turned, right], 0.01)[0] is right            # turned won before
+    assert after_polish([turned, right], 1.0)[0] is turned            # 1: by score
+    # obj_25 on the demo bag: both converge to near-equal fits; the former winner stays
+    right = PoseCandidate(np.eye(4), fitness=0.973, inlier_rmse_m=0.001, coverage=0.837)
+    turned = PoseCandidate(turned_T, fitness=0.971, inlier_rmse_m=0.001, coverage=0.860)
+    assert [c.fitness for c in after_polish([right, turned], 0.01)] == [0.973, 0.971]
+    assert after_polish([right, turned], 1.0)[0] is turned
+    with pytest.raises(ValueError, match='polish_overturn_fitness'):
+        PoseParams(polish_overturn_fitness=-0.1)

@@ -121,22 +121,29 @@ def _resting_hypotheses(obj: ObjectTemplates, stable: int, yaw_step_deg: float
     return _RestingHypotheses(Rz, T, points, normals, np.sum(normals * points, axis=1))
 
 
-def fitness_before_coverage(ranked: list[PoseCandidate], tie: float) -> list[PoseCandidate]:
-    """Candidates ranked by score (:meth:`PoseEstimator._rank`) ranked again so that the
-    coverage term only breaks near-ties of fitness: those within ``tie`` of the highest
-    fitness come first (in score order), then the rest (in score order). ``tie`` >= 1 keeps
-    the score order.
+def after_polish(polished: list[PoseCandidate], margin: float) -> list[PoseCandidate]:
+    """The table path's finalists after the polish, given in their rank order before it
+    (``polished[0]`` was the winner), ranked: the former winner stays first unless another
+    finalist's fitness is higher by more than ``margin`` (then the fittest of those comes
+    first); the others follow by score (:meth:`PoseEstimator._rank`). ``margin`` >= 1: by score
+    alone.
 
-    Coverage comes from a back-face test that ignores self-occlusion, so a pose turned by
-    ~180° (or 90° for a part with a 180° symmetry) can cover more of the model's "visible"
-    surface than the right pose while it explains fewer ROI points (obj_07, obj_08 on simulated
-    D415 depth: fitness 0.91 against 0.95, coverage 0.83 against 0.65).
+    The polish lets every finalist converge, a wrong one too, so it only overturns the choice
+    on clear evidence: more ROI points explained. The score's coverage term cannot be that
+    evidence: it comes from a back-face test that ignores self-occlusion, so a pose turned by
+    ~180° (90° for a part with a 180° symmetry) can cover more than the right pose while it
+    explains fewer points (obj_07 on simulated D415 depth: coverage 0.83 against 0.65, fitness
+    0.91 against 0.95); and between two converged near-equal fits (fitness 0.971 against
+    0.973, obj_25 on the demo bag) neither term tells them apart.
     """
-    if tie >= 1.0 or len(ranked) < 2:
+    ranked = PoseEstimator._rank(polished)
+    if margin >= 1.0 or len(polished) < 2:
         return ranked
-    top = max(c.fitness for c in ranked)
-    near = [c.fitness >= top - tie for c in ranked]
-    return [c for c, n in zip(ranked, near) if n] + [c for c, n in zip(ranked, near) if not n]
+    first = polished[0]
+    fitter = [c for c in polished[1:] if c.fitness > first.fitness + margin]
+    if fitter:
+        first = max(fitter, key=lambda c: c.fitness)
+    return [first] + [c for c in ranked if c is not first]
 
 
 class PoseEstimator:
@@ -293,9 +300,7 @@ class PoseEstimator:
         timings = dict(result.timings_ms)
         scene = self._prepare(np.asarray(points_c, np.float64), obj, p.table_voxel_scale,
                               timings, scenes)
-        finalists = self._score_finalists(
-            scene, obj, np.array([c.T_camera_object for c in result.finalists]),
-            [c.stable_index for c in result.finalists], polish=True)
+        finalists = self._polish_finalists(scene, obj, result.finalists)
         timings['polish'] = 1e3 * (time.perf_counter() - t0)
         timings['total'] = timings.get('total', 0.0) + timings['polish']
         best, second = self._best_two(finalists)
@@ -373,33 +378,35 @@ class PoseEstimator:
                 break
             if all(poses_differ(refined[k], refined[c]) for c in chosen):
                 chosen.append(int(k))
-        return self._score_finalists(scene_c, obj, refined[chosen],
-                                     [starts[k][1] for k in chosen], polish=polish)
+        ranked = self._rank(self._score_finalists(scene_c, obj, refined[chosen],
+                                                  [starts[k][1] for k in chosen]))
+        return self._polish_finalists(scene_c, obj, ranked) if polish else ranked
 
     def _score_finalists(self, scene_c: np.ndarray, obj: ObjectTemplates, T: np.ndarray,
-                         stables: list[int], *, polish: bool) -> list[PoseCandidate]:
-        """The table path's last step: the (K, 4, 4) ``T_camera_object`` finalists (their
-        stable-pose indices ``stables``), polished when ``polish``, scored fully (fitness,
-        RMSE, coverage) and ranked."""
-        p = self.params
+                         stables: list[int]) -> list[PoseCandidate]:
+        """The (K, 4, 4) ``T_camera_object`` table-path finalists (their stable-pose indices
+        ``stables``) scored fully (fitness, RMSE, coverage), in the order given."""
         refiner = self.refiner
-        if polish:
-            # The short ICP of the many starts stops a few degrees short on parts with a
-            # (near-)symmetry axis (measured: fitness 0.85 where the converged pose scores
-            # 0.99), and then a turned pose ranks as high as the right one: the few finalists
-            # converge first.
-            T = refiner.icp_batch(scene_c, obj, T, iterations=p.polish_iterations,
-                                  points=len(scene_c),
-                                  distance_m=p.polish_distance_voxels * obj.voxel_size_m)
         scene_buckets = PointBuckets.build(scene_c, refiner.coverage_radius(obj))
         scene_depth_m = float(np.median(scene_c[:, 2]))
-        ranked = self._rank([refiner.evaluate(scene_c, obj, T_k, method='table', stable=stable,
-                                              scene_buckets=scene_buckets,
-                                              scene_depth_m=scene_depth_m)
-                             for T_k, stable in zip(T, stables)])
-        # Unpolished fits stop short by a few % of fitness, so only converged ones may outvote
-        # the coverage term.
-        return fitness_before_coverage(ranked, p.coverage_tie_fitness) if polish else ranked
+        return [refiner.evaluate(scene_c, obj, T_k, method='table', stable=stable,
+                                 scene_buckets=scene_buckets, scene_depth_m=scene_depth_m)
+                for T_k, stable in zip(T, stables)]
+
+    def _polish_finalists(self, scene_c: np.ndarray, obj: ObjectTemplates,
+                          ranked: list[PoseCandidate]) -> list[PoseCandidate]:
+        """The ranked finalists after ``polish_iterations`` more ICP steps on every ROI point,
+        scored again and ranked by :func:`after_polish`."""
+        p = self.params
+        # The short ICP of the many starts stops a few degrees short on parts with a
+        # (near-)symmetry axis (measured: fitness 0.85 where the converged pose scores 0.99),
+        # and then a turned pose ranks as high as the right one: the few finalists converge.
+        T = self.refiner.icp_batch(scene_c, obj, np.array([c.T_camera_object for c in ranked]),
+                                   iterations=p.polish_iterations, points=len(scene_c),
+                                   distance_m=p.polish_distance_voxels * obj.voxel_size_m)
+        return after_polish(self._score_finalists(scene_c, obj, T,
+                                                  [c.stable_index for c in ranked]),
+                            p.polish_overturn_fitness)
 
     def _hypotheses(self, obj: ObjectTemplates, centroid: np.ndarray, camera_w: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -463,7 +470,7 @@ class PoseEstimator:
     def _best_two(ranked: list[PoseCandidate]) -> tuple[PoseCandidate | None,
                                                          PoseCandidate | None]:
         """Of candidates ranked best first (each path ranks its own: :meth:`_rank`, and the
-        table path's :func:`fitness_before_coverage`), the best, and the best one that differs
+        table path's :func:`after_polish`), the best, and the best one that differs
         from it by > 1 cm or > 5° (else None)."""
         if not ranked:
             return None, None
