@@ -14,6 +14,7 @@ from tlessbot_ros.core.pipeline import (
     PerceptionPipeline,
     ViewInput,
 )
+from tlessbot_ros.core.pose import PoseParams
 
 SIDE = default_rig()['side']
 
@@ -75,6 +76,36 @@ def test_two_halves_of_one_part_give_one_pose(scene):
         inputs, {'side': two}, {1: (21,), 2: (21,)}, on_detection=handed.append)
     assert len(detections) == 1 and handed == detections
     assert np.linalg.norm(detections[0].pose.T_camera_object[:3, 3] - T_gt[:3, 3]) < 0.03
+
+
+def test_the_class_is_chosen_on_unpolished_fits_and_only_the_winner_is_polished(scene):
+    # A wrong class converges under the polish too, so the candidates are compared on their
+    # short fits and only the winner's finalists are polished (PoseParams.polish_iterations).
+    db, inputs, labels, T_gt = scene
+    pipeline = PerceptionPipeline(templates=db)
+    assert pipeline.pose_estimator.params.polish_iterations > 0
+    estimate, polish = pipeline.pose_estimator.estimate, pipeline.pose_estimator.polish
+    estimated, polished = [], []
+
+    def spy_estimate(points, obj_id, **kwargs):
+        estimated.append((obj_id, kwargs.get('polish')))
+        return estimate(points, obj_id, **kwargs)
+
+    def spy_polish(points, result, **kwargs):
+        polished.append(result.obj_id)
+        out = polish(points, result, **kwargs)
+        assert out.polished and out.best is not None
+        return out
+    pipeline.pose_estimator.estimate = spy_estimate
+    pipeline.pose_estimator.polish = spy_polish
+    [detection] = pipeline.estimate_poses(inputs, labels, {1: (5, 21)})
+    assert estimated == [(5, False), (21, False)] and polished == [21]
+    assert np.linalg.norm(detection.pose.T_camera_object[:3, 3] - T_gt[:3, 3]) < 0.01
+    # ... and the class decision is the one of the unpolished pipeline
+    unpolished = PerceptionPipeline(templates=db, pose=PoseParams(polish_iterations=0))
+    [plain] = unpolished.estimate_poses(inputs, labels, {1: (5, 21)})
+    assert (detection.obj_id, detection.class_rank) == (plain.obj_id, plain.class_rank) \
+        == (21, 1)
 
 
 def test_a_good_first_fit_is_accepted_without_trying_the_others(scene):

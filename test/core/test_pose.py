@@ -15,11 +15,13 @@ from tlessbot_ros.core.common import (
     rotation_angle_deg,
 )
 from tlessbot_ros.core.pose import (
+    PoseCandidate,
     PoseEstimator,
     PoseParams,
     build_database,
     table_frame_from_plane,
 )
+from tlessbot_ros.core.pose.estimator import after_polish
 
 SIDE = default_rig()['side']
 
@@ -201,3 +203,40 @@ def test_final_candidates_are_polished_before_ranking(setup):
     assert polished.best.fitness >= short.best.fitness - 1e-9
     with pytest.raises(ValueError, match='polish'):
         PoseParams(polish_iterations=-1)
+
+
+def test_polishing_later_is_polishing_in_place(setup):
+    # The class verification fits each class unpolished and polishes the winner afterwards
+    # (PoseEstimator.polish): that must give what the polished table path gives.
+    model, db = setup
+    T_wo = _place(db, 0, 37.0, 0.03, -0.02)
+    points = _view(model, T_wo, noise_m=0.002, seed=3)
+    estimator = PoseEstimator(db, params=PoseParams(polish_iterations=30))
+    kwargs = {'T_world_camera': SIDE.T_world_camera, 'fallback': False}
+    in_place = estimator.estimate(points, 21, **kwargs)
+    short = estimator.estimate(points, 21, polish=False, **kwargs)
+    later = estimator.polish(points, short)
+    assert in_place.polished and not short.polished and later.polished
+    assert len(later.finalists) == len(short.finalists) > 0
+    np.testing.assert_allclose(later.best.T_camera_object, in_place.best.T_camera_object,
+                               atol=1e-9)
+    assert later.best.fitness == in_place.best.fitness
+    assert estimator.polish(points, later) is later          # nothing left to polish
+
+
+def test_the_polish_overturns_the_winner_only_on_a_clear_gain_of_fitness():
+    # obj_07 on simulated D415 depth: the pose turned by 180° covers more of the back-face
+    # "visible" model (self-occlusion ignored) but, converged, explains fewer ROI points.
+    turned_T = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi), np.zeros(3))
+    turned = PoseCandidate(turned_T, fitness=0.907, inlier_rmse_m=0.001, coverage=0.825)
+    right = PoseCandidate(np.eye(4), fitness=0.954, inlier_rmse_m=0.001, coverage=0.646)
+    assert PoseEstimator._rank([turned, right])[0] is turned          # the plain score
+    assert after_polish([turned, right], 0.01)[0] is right            # turned won before
+    assert after_polish([turned, right], 1.0)[0] is turned            # 1: by score
+    # obj_25 on the demo bag: both converge to near-equal fits; the former winner stays
+    right = PoseCandidate(np.eye(4), fitness=0.973, inlier_rmse_m=0.001, coverage=0.837)
+    turned = PoseCandidate(turned_T, fitness=0.971, inlier_rmse_m=0.001, coverage=0.860)
+    assert [c.fitness for c in after_polish([right, turned], 0.01)] == [0.973, 0.971]
+    assert after_polish([right, turned], 1.0)[0] is turned
+    with pytest.raises(ValueError, match='polish_overturn_fitness'):
+        PoseParams(polish_overturn_fitness=-0.1)

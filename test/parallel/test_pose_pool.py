@@ -2,6 +2,7 @@
 time, never a pose."""
 from __future__ import annotations
 
+import dataclasses
 import io
 import os
 import signal
@@ -40,6 +41,9 @@ def scene(part21_seen_from_the_side, tmp_path_factory):
 # the three instances are pieces of one part: keep every piece (no fragment check), the pool's
 # mechanics are under test here
 ALL_PIECES = FitParams(fragment_overlap=0.0)
+# The pose fallback stops its near-symmetry turns once its time budget is spent: unbounded, a
+# part's fit does not depend on how busy the process that fits it is (bit-for-bit comparisons).
+POSE = PoseParams(fallback_budget_ms=1e9)
 
 
 def _slow(pipeline, delay_s=0.3):
@@ -76,7 +80,7 @@ def _estimate(pipeline, scene, fitter, fit_here=None):
 @pytest.fixture
 def pool(scene):
     path = scene[0]
-    with PoseWorkerPool(path, pose=PoseParams(), fit=FitParams(),
+    with PoseWorkerPool(path, pose=POSE, fit=FitParams(),
                         params=PoseWorkerParams(count=1, restart_delay_s=0.0,
                                                          job_timeout_s=1.0)) as pool:
         assert pool.wait_ready(120.0), list(pool.errors)
@@ -84,7 +88,7 @@ def pool(scene):
 
 
 def test_workers_fit_exactly_what_the_node_fits(scene, pool):
-    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES)
+    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES, pose=POSE)
     alone, _ = _estimate(pipeline, scene, None)
     fit_here, calls = _slow(pipeline)
     shared, done = _estimate(pipeline, scene, pool, fit_here)
@@ -95,7 +99,7 @@ def test_workers_fit_exactly_what_the_node_fits(scene, pool):
 
 
 def test_a_hung_worker_costs_time_not_poses(scene, pool):
-    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES)
+    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES, pose=POSE)
     alone, _ = _estimate(pipeline, scene, None)
     [worker] = pool._workers
     os.kill(worker.process.pid, signal.SIGSTOP)   # alive, but it never answers
@@ -116,7 +120,7 @@ def test_a_hung_worker_costs_time_not_poses(scene, pool):
 
 
 def test_a_worker_that_cannot_start_leaves_the_fits_to_the_node(scene, tmp_path):
-    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES)
+    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES, pose=POSE)
     alone, _ = _estimate(pipeline, scene, None)
     # restart_delay_s far longer than the test: "within the delay" must not depend on how
     # fast this host fits the frames below (it failed with the default 5 s under load)
@@ -154,8 +158,8 @@ def test_a_broken_message_is_a_wire_error(data):
 
 
 def test_changed_settings_reach_the_workers_with_their_next_part(scene, pool):
-    changed = PoseParams(icp_iterations=0, planar_iterations=1)
-    before = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES)
+    changed = dataclasses.replace(POSE, icp_iterations=0, planar_iterations=1)
+    before = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES, pose=POSE)
     after = before.replace(pose=changed)
     old, _ = _estimate(before, scene, None)
     new, _ = _estimate(after, scene, None)
@@ -171,9 +175,9 @@ def test_changed_settings_reach_the_workers_with_their_next_part(scene, pool):
 
 
 def test_the_pool_grows_and_shrinks_between_frames(scene):
-    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES)
+    pipeline = PerceptionPipeline(templates=scene[1], fit_params=ALL_PIECES, pose=POSE)
     alone, _ = _estimate(pipeline, scene, None)
-    with PoseWorkerPool(scene[0], pose=PoseParams(), fit=FitParams(),
+    with PoseWorkerPool(scene[0], pose=POSE, fit=FitParams(),
                         params=PoseWorkerParams(count=0)) as pool:
         pool.reconfigure(PoseWorkerParams(count=2))
         assert pool.wait_ready(120.0) and pool.ready_count == 2, list(pool.errors)

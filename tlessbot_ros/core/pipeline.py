@@ -562,27 +562,34 @@ class PerceptionPipeline:
         ``verify_accept_fitness``.
 
         With several candidates and a table frame, each is fitted by the table path alone
-        (a wrong class fits poorly, and the fallback would spend its time on it); the
-        fallback then runs once, for the winner, if its fit stays poor. Last, a
-        part with a look-alike is compared with it at the fitted pose (``lookalike_check``)."""
+        and unpolished (a wrong class fits poorly, and the fallback would spend its time on
+        it; the polish, ``PoseParams.polish_iterations``, would let it converge as well as the
+        right one): the fits name the class, then the winner's finalists alone are polished
+        (:meth:`PoseEstimator.polish`) and the fallback runs once, for the winner, if its fit
+        stays poor. Last, a part with a look-alike is compared with it at the fitted pose
+        (``lookalike_check``)."""
         p = self.fit_params
         estimator = self.pose_estimator
         detection, points, T_world_camera = job.detection, job.points, job.T_world_camera
         quick = len(job.candidates) > 1 and T_world_camera is not None
-        best_value = None
+        best_value, winner = None, None
         scenes: dict[float, np.ndarray] = {}   # the ROI prepared once per voxel edge
         for rank, obj_id in enumerate(job.candidates):
             result = estimator.estimate(points, obj_id, T_world_camera=T_world_camera,
-                                        fallback=False if quick else None, scenes=scenes)
+                                        fallback=False if quick else None,
+                                        polish=False if quick else None, scenes=scenes)
             if result.best is None:
                 continue
             value = result.best.fitness - p.verify_rmse_weight * result.best.inlier_rmse_m
             if best_value is None or value > best_value:
-                best_value = value
+                best_value, winner = value, result
                 detection.obj_id, detection.class_rank = obj_id, rank
-                detection.pose, detection.second = result.best, result.second
             if rank == 0 and result.best.fitness >= p.verify_accept_fitness:
                 break
+        if winner is not None:
+            if quick:
+                winner = estimator.polish(points, winner, scenes=scenes)
+            detection.pose, detection.second = winner.best, winner.second
         pose_params = estimator.params
         if quick and detection.pose is not None and pose_params.fallback and \
                 p.fallback_min_fitness <= detection.pose.fitness < pose_params.fallback_fitness:

@@ -41,13 +41,19 @@ class PoseCandidate:
 
 @dataclass
 class PoseResult:
-    """Best and second-best candidates (paper: two templates) and per-stage times in ms."""
+    """Best and second-best candidates (paper: two templates) and per-stage times in ms.
+
+    ``finalists``: the table path's ``final_candidates``, ranked, when its answer is the
+    result (no fallback ran; empty otherwise), and ``polished`` whether they got the
+    ``polish_iterations`` (:meth:`~tlessbot_ros.core.pose.PoseEstimator.polish`)."""
 
     obj_id: int
     best: PoseCandidate | None
     second: PoseCandidate | None
     n_points: int
     timings_ms: dict[str, float] = field(default_factory=dict)
+    finalists: list[PoseCandidate] = field(default_factory=list)
+    polished: bool = False
 
 
 def poses_differ(T_a: np.ndarray, T_b: np.ndarray, *, t_m: float = 0.01, r_deg: float = 5.0

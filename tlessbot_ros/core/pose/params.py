@@ -36,12 +36,22 @@ class PoseParams:
             start at twice this).
         icp_points: ICP uses at most this many scene points (evenly strided).
         polish_iterations: table path: the ``final_candidates`` get this many more
-            point-to-plane ICP steps on every ROI point before they are scored against each
-            other (0: off, the default). 30 fixes 5 of 11 parts turned by ~180° on 6 simulated
-            moved-rig scenes (319 -> 325 of 356 within 5 cm / 5°) but the demo bag falls from
-            26 to 23 of 27 (obj_07 turned) and the exact rig gains 3 and loses 3 parts
-            (docs/bench/moved-rig-accuracy.md), so it stays off.
+            point-to-plane ICP steps on every ROI point before the answer is taken (0: off).
+            The short ICP of the many starts stops a few degrees short on noisy depth, so a
+            pose turned by ~180° ranked as high as the right one. In the class verification
+            (``PerceptionPipeline.fit_part``) the candidate classes are compared unpolished
+            and only the winner's finalists are polished
+            (:meth:`~tlessbot_ros.core.pose.PoseEstimator.polish`): polishing every class let
+            wrong ones converge too. 30: on 12 simulated scenes (6 moved rigs, 6 exact) 319 ->
+            327 of 356 parts within 5 cm / 5° on the moved rigs, 325 -> 329 on the exact
+            ones, the demo bag stays at 26 of 27; about +25 % pose-stage CPU per frame
+            (docs/bench/moved-rig-accuracy.md, session 12).
         polish_distance_voxels: their correspondence distance (the first half at twice it).
+        polish_overturn_fitness: after the polish, another finalist replaces the former
+            winner only when its fitness (a fraction of the ROI points) is higher by more than
+            this (:func:`~tlessbot_ros.core.pose.estimator.after_polish`): the polish lets
+            wrong finalists converge too, and the score's coverage term (blind to
+            self-occlusion) favours some poses turned by ~180°. 1: rank them by score.
         inlier_voxels: distance of a scene point to the model surface counted as an inlier.
         inlier_plane_m: an inlier must also lie this close to the tangent plane of its nearest
             model sample (0: off); used for the final ranking.
@@ -114,8 +124,9 @@ class PoseParams:
     icp_iterations: int = 8
     icp_distance_voxels: float = 1.5
     icp_points: int = 250
-    polish_iterations: int = 0
+    polish_iterations: int = 30
     polish_distance_voxels: float = 1.0
+    polish_overturn_fitness: float = 0.01
     inlier_voxels: float = 1.0
     inlier_plane_m: float = 0.0025
     fallback_fitness: float = 0.85
@@ -177,6 +188,9 @@ class PoseParams:
             raise ValueError('polish_iterations must be >= 0 (0: off) and '
                              'polish_distance_voxels > 0 (1: one voxel), got '
                              f'{self.polish_iterations}, {self.polish_distance_voxels}')
+        if self.polish_overturn_fitness < 0:
+            raise ValueError('polish_overturn_fitness must be >= 0 (a fitness difference; 1: '
+                             f'rank by score), got {self.polish_overturn_fitness}')
         if self.fallback_icp_distance_voxels <= 0:
             raise ValueError('fallback_icp_distance_voxels must be > 0 (3: three voxels), got '
                              f'{self.fallback_icp_distance_voxels}')
