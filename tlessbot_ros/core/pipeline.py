@@ -359,7 +359,11 @@ class PerceptionPipeline:
 
         A view with aligned depth and a table frame (:meth:`table_frame`) is segmented with
         the depth cue (height above the table) fused with the colour cues; otherwise from
-        colour alone (the paper).
+        colour alone (the paper). The side view's blobs are also divided where its depth
+        shows the seam of two parts (``SegmentationParams.depth_split_jump``; the fusion keeps
+        such pieces apart, ``FusionParams.keep_depth_splits``); the top view's are not: from
+        above, at twice the distance and with sparse depth on dark parts, a deep groove of one
+        part shows the table as a gap between two parts does.
         """
         missing = set(CAMERA_NAMES) - set(views)
         if missing:
@@ -373,7 +377,8 @@ class PerceptionPipeline:
             return segment(view.rgb, background=view.background,
                            depth_m=view.depth_m if with_depth else None,
                            intrinsics=view.intrinsics if with_depth else None,
-                           T_world_camera=T_world_camera, params=self.segmentation)
+                           T_world_camera=T_world_camera, split_by_depth=name == SIDE,
+                           params=self.segmentation)
 
         if self.localise_params.parallel_views:
             top_future = _view_thread().submit(seg, TOP)

@@ -6,9 +6,11 @@
   smoothed by the 3x3 binomial kernel, so the flooded relief is the 3x3 Sobel gradient
   magnitude (Sobel = binomial smoothing followed by a central difference).
 * **Instances.** Connected components, small-blob removal (``min_area_px``) and touching-object
-  separation: a blob of several materials is first divided by colour (2-means on chroma); the
-  distance transform of a blob is cut at a fraction of its maximum; two or more cores seed a
-  second watershed that divides the blob.
+  separation: with depth, a blob whose solid pixels (valid depth above the table, off range
+  jumps) form several large pieces is divided between them first (the seam of two touching
+  parts, or an occluding contour, breaks the surface); a blob of several materials is
+  divided by colour (2-means on chroma); the distance transform of a blob is cut at a
+  fraction of its maximum; two or more cores seed a second watershed that divides the blob.
 
 Labels are (H, W) uint16 with 0 = background. Boxes are (x, y, w, h) int32 pixels, the usual
 OpenCV / BOP ``bbox`` convention.
@@ -22,7 +24,7 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.common import label_boxes
-from tlessbot_ros.core.localise.cues import _open
+from tlessbot_ros.core.localise.cues import _depth_cue, _open, _Surfaces
 from tlessbot_ros.core.localise.params import SegmentationParams
 
 
@@ -83,26 +85,49 @@ def _watershed_padded(image: np.ndarray, markers: np.ndarray) -> np.ndarray:
 
 # --------------------------------------------------------------------------- instances
 def split_touching(mask: np.ndarray, rgb: np.ndarray | None = None, *,
+                   height_m: np.ndarray | None = None, depth_m: np.ndarray | None = None,
                    params: SegmentationParams = SegmentationParams()) -> np.ndarray:
-    """Label a foreground mask, dividing blobs whose distance transform has several cores.
+    """Label a foreground mask, dividing blobs that hold several parts.
 
-    Blobs of several materials are first divided by colour (2-means on a / L, b / L); then
-    a blob whose distance transform, cut at ``split_core_fraction`` of its maximum, has two
-    or more cores is divided by a watershed seeded with them.
+    With depth (``height_m`` and ``depth_m``, and ``depth_split_jump`` > 0), a blob whose
+    solid pixels (valid depth above the table, off range jumps) form two or more
+    4-connected pieces of at least ``depth_split_min_px`` pixels is first divided by a
+    watershed seeded with them, where the depth confirms the seam (see
+    :func:`_depth_pieces`); blobs (or pieces) of several materials are then divided by
+    colour (2-means on a / L, b / L); last, a blob whose distance transform, cut at
+    ``split_core_fraction`` of its maximum, has two or more cores is divided by a watershed
+    seeded with them.
 
     Args:
         mask: (H, W) bool foreground.
         rgb: (H, W, 3) uint8 image; when given, the dividing lines follow its colour edges.
+        height_m: (H, W) float height above the table in metres, NaN = invalid
+            (:func:`~tlessbot_ros.core.localise.height_above_table`).
+        depth_m: (H, W) float depth of the same pixels in metres, 0 or NaN = invalid.
 
     Returns:
         (H, W) int32 labels, 0 = background, 1..N (blobs below ``min_area_px`` removed).
     """
-    return _instances(mask, rgb, params)[0]
+    surfaces = None
+    if height_m is not None or depth_m is not None:
+        if height_m is None or depth_m is None:
+            raise ValueError('the depth split needs both height_m and depth_m')
+        if np.shape(height_m) != np.shape(mask) or np.shape(depth_m) != np.shape(mask):
+            raise ValueError(f'height_m {np.shape(height_m)} and depth_m {np.shape(depth_m)} '
+                             f'must have the shape of the mask, {np.shape(mask)}')
+        if params.depth_split_jump > 0:
+            depth = np.nan_to_num(np.asarray(depth_m, np.float32), nan=0.0, posinf=0.0)
+            surfaces = _depth_cue(np.asarray(height_m, np.float32), params,
+                                  depth=depth).surfaces
+    return _instances(mask, rgb, params, surfaces)[0]
 
 
-def _instances(mask: np.ndarray, rgb: np.ndarray | None,
-               params: SegmentationParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(labels (H, W) int32, boxes (N, 4) int32, areas (N,) int64) of :func:`split_touching`.
+def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationParams,
+               surfaces: _Surfaces | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(labels (H, W) int32, boxes (N, 4) int32, areas (N,) int64, depth groups (N,) int32)
+    of :func:`split_touching`; the instances cut from one piece of a depth split share a
+    group id > 0 (0: not divided by depth).
 
     Blobs are labelled by one look-up; only blobs that may hold several parts (deep enough
     for a split) are looked at one by one, in a crop.
@@ -112,8 +137,10 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None,
                                                          ltype=cv2.CV_32S)
     big = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= params.min_area_px) + 1
     H, W = mask.shape
-    # pieces[i]: None = the blob stays whole; else (y0, x0, [bool piece masks in the crop]).
-    pieces: dict[int, tuple[int, int, list[np.ndarray]]] = {}
+    # pieces[i]: the blob's pieces (y0, x0, [(bool mask in the crop, depth group)]);
+    # absent: the blob stays whole.
+    pieces: dict[int, tuple[int, int, list[tuple[np.ndarray, int]]]] = {}
+    n_groups = 0
     # A blob narrower than twice the smallest split depth has a distance transform below it.
     deep = 2.0 * params.split_min_depth_px
     for i in big if params.split_touching else ():
@@ -124,67 +151,78 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None,
         x1, y1 = min(x + w + 1, W), min(y + h + 1, H)
         blob = comp[y0:y1, x0:x1] == i
         crop = None if rgb is None else rgb[y0:y1, x0:x1]
-        by_colour = [blob] if crop is None or params.colour_split_delta <= 0 else \
-            _colour_pieces(blob, crop, params)
+        by_depth = [blob] if surfaces is None else \
+            _depth_pieces(blob, _Surfaces(*(a[y0:y1, x0:x1] for a in (
+                surfaces.solid, surfaces.table, surfaces.depth_m))), crop, params)
         found = []
-        for piece_mask in by_colour:
-            parts = _split_at_distance_cores(piece_mask, crop, params)
-            top = int(parts.max())
-            if top == 1 and len(by_colour) == 1:
-                break
-            found += [parts == k for k in range(1, top + 1)]
-        if found:
-            pieces[int(i)] = (y0, x0, [f for f in found
+        for depth_piece in by_depth:
+            group = 0
+            if len(by_depth) > 1:
+                n_groups += 1
+                group = n_groups
+            by_colour = [depth_piece] if crop is None or params.colour_split_delta <= 0 else \
+                _colour_pieces(depth_piece, crop, params)
+            for piece_mask in by_colour:
+                parts = _split_at_distance_cores(piece_mask, crop, params)
+                found += [(parts == k, group) for k in range(1, int(parts.max()) + 1)]
+        if len(found) > 1:
+            pieces[int(i)] = (y0, x0, [(f, g) for f, g in found
                                        if cv2.countNonZero(f.view(np.uint8))
                                        >= params.min_area_px])
     lut = np.zeros(n, np.int32)
     boxes: list[tuple[int, int, int, int]] = []
     areas: list[int] = []
+    groups: list[int] = []
     placed: list[tuple[int, int, np.ndarray, int]] = []
     for i in big:
         i = int(i)
         if i not in pieces:
             boxes.append(tuple(int(v) for v in stats[i, :4]))
             areas.append(int(stats[i, cv2.CC_STAT_AREA]))
+            groups.append(0)
             lut[i] = len(boxes)
             continue
         y0, x0, found = pieces[i]
-        for f in found:
+        for f, g in found:
             bx, by, bw, bh = cv2.boundingRect(f.view(np.uint8))
             boxes.append((bx + x0, by + y0, bw, bh))
             areas.append(cv2.countNonZero(f.view(np.uint8)))
+            groups.append(g)
             placed.append((y0, x0, f, len(boxes)))
     labels = lut[comp]
     for y0, x0, f, k in placed:
         labels[y0:y0 + f.shape[0], x0:x0 + f.shape[1]][f] = k
     return (labels, np.array(boxes, np.int32).reshape(-1, 4),
-            np.array(areas, np.int64))
+            np.array(areas, np.int64), np.array(groups, np.int32))
 
 
 def _instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarray,
-                        params: SegmentationParams
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                        params: SegmentationParams, surfaces: _Surfaces | None = None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Instance separation at the cue scale, labels carried back to the full-resolution mask.
 
     The blobs are divided on the ``small`` image (4x fewer pixels at half scale; the sizes in
-    ``params`` are scaled with it); every full-resolution foreground pixel then takes the
-    label of its low-resolution pixel, or of a neighbour on the thin rim that the reduction
-    lost. Returns uint16 labels, (N, 4) int32 boxes, (N,) int64 areas at full resolution.
+    ``params`` are scaled with it; ``surfaces``, from the depth cue, are at that scale);
+    every full-resolution foreground pixel then takes the label of its low-resolution pixel,
+    or of a neighbour on the thin rim that the reduction lost. Returns uint16 labels, (N, 4)
+    int32 boxes, (N,) int64 areas at full resolution and (N,) int32 depth groups
+    (:func:`_instances`).
     """
     h, w = small.shape[:2]
     H, W = foreground.shape
     if (h, w) == (H, W):
-        labels, boxes, areas = _instances(foreground, rgb, params)
-        return labels.astype(np.uint16), boxes, areas
+        labels, boxes, areas, groups = _instances(foreground, rgb, params, surfaces)
+        return labels.astype(np.uint16), boxes, areas, groups
     s = h / H
     small_params = _scaled_params(params, s)
     fg_small = cv2.resize(foreground.view(np.uint8) * np.uint8(255), (w, h),
                           interpolation=cv2.INTER_AREA) >= 128
-    labels_s, boxes_s, _ = _instances(fg_small, small, small_params)
+    labels_s, boxes_s, _, groups = _instances(fg_small, small, small_params, surfaces)
     labels_s = labels_s.astype(np.uint16)
     n = len(boxes_s)
     if n == 0:
-        return np.zeros((H, W), np.uint16), np.zeros((0, 4), np.int32), np.zeros(0, np.int64)
+        return (np.zeros((H, W), np.uint16), np.zeros((0, 4), np.int32), np.zeros(0, np.int64),
+                np.zeros(0, np.int32))
     up = cv2.resize(labels_s, (W, H), interpolation=cv2.INTER_NEAREST)
     labels = np.zeros((H, W), np.uint16)
     # Only the foreground's box can be labelled; with 2 more pixels around it the 5x5 dilation
@@ -211,8 +249,8 @@ def _instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarr
     if np.any(areas == 0):
         labels = relabel_sequential(labels)
         keep = areas > 0
-        boxes, areas = boxes[keep], areas[keep]
-    return labels, boxes, areas
+        boxes, areas, groups = boxes[keep], areas[keep], groups[keep]
+    return labels, boxes, areas, groups
 
 
 @lru_cache(maxsize=8)
@@ -221,7 +259,8 @@ def _scaled_params(params: SegmentationParams, s: float) -> SegmentationParams:
     dataclass's checks cost ~0.1 ms a frame)."""
     return replace(params, min_area_px=max(1, int(round(params.min_area_px * s * s))),
                    split_min_depth_px=params.split_min_depth_px * s,
-                   split_min_core_px=max(1, int(round(params.split_min_core_px * s * s))))
+                   split_min_core_px=max(1, int(round(params.split_min_core_px * s * s))),
+                   depth_split_min_px=max(1, int(round(params.depth_split_min_px * s * s))))
 
 
 def _colour_pieces(blob: np.ndarray, rgb: np.ndarray, params: SegmentationParams,
@@ -282,12 +321,88 @@ def _split_at_distance_cores(blob: np.ndarray, rgb: np.ndarray | None,
     keep = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= params.split_min_core_px]
     if len(keep) < 2:
         return blob.astype(np.int32)
+    return _divide_by_seeds(blob, core_labels, keep, rgb, dist)
+
+
+def _depth_pieces(blob: np.ndarray, surfaces: _Surfaces, rgb: np.ndarray | None,
+                  params: SegmentationParams) -> list[np.ndarray]:
+    """Bool masks of the parts of one blob (a crop with a one-pixel border) that its depth
+    tells apart (``[blob]``: none).
+
+    The solid pixels' 4-connected pieces of at least ``depth_split_min_px`` seed a
+    watershed; two neighbouring pieces stay apart only if the depth confirms a seam between
+    them: table seen inside the blob between them (at least ``_SEAM_MIN_PX`` pixels at
+    table height, off the blob's rim, which holds some table at every seam's ends), or,
+    with ``depth_split_step`` > 0, a step (one side nearer than the other along their
+    common border by more than that fraction of the depth). Otherwise they join again: a
+    crease or groove of one part breaks its surface too, as do the lines of holes of a dark
+    part, but neither shows the table."""
+    n, pieces, stats, _ = cv2.connectedComponentsWithStats(
+        (surfaces.solid & blob).view(np.uint8), connectivity=4)
+    keep = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= params.depth_split_min_px]
+    if len(keep) < 2:
+        return [blob]
+    out = _divide_by_seeds(blob, pieces, keep, rgb)
+    group = list(range(len(keep) + 1))   # union-find over the pieces 1..len(keep)
+
+    def root(a: int) -> int:
+        while group[a] != a:
+            a = group[a]
+        return a
+
+    near = [cv2.dilate((out == j).view(np.uint8), _SEAM_KERNEL).view(bool)
+            for j in range(len(keep) + 1)]
+    # The mask's rim holds some table at every seam's ends: only the inside can show it.
+    inside = cv2.erode(blob.view(np.uint8), _SEAM_KERNEL).view(bool)
+    for a in range(1, len(keep) + 1):
+        for b in range(a + 1, len(keep) + 1):
+            seam = near[a] & near[b] & inside
+            if not seam.any() or root(a) == root(b):
+                continue
+            if not _seam_is_real(seam, out == a, out == b, surfaces, params):
+                group[root(b)] = root(a)
+    roots = sorted({root(j) for j in range(1, len(keep) + 1)})
+    if len(roots) < 2:
+        return [blob]
+    return [np.isin(out, [j for j in range(1, len(keep) + 1) if root(j) == r]) for r in roots]
+
+
+# Two pieces' common border: the pixels within 2 (cue-scale) pixels of both.
+_SEAM_KERNEL = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+
+
+def _seam_is_real(seam: np.ndarray, a: np.ndarray, b: np.ndarray, surfaces: _Surfaces,
+                  params: SegmentationParams) -> bool:
+    """Whether the depth confirms the border ``seam`` between pieces ``a`` and ``b`` (bool
+    masks of one crop) as the seam of two parts: table seen in it, or a step."""
+    if np.count_nonzero(seam & surfaces.table) >= _SEAM_MIN_PX:
+        return True
+    if params.depth_split_step <= 0:
+        return False
+    depth = surfaces.depth_m
+    da, db = depth[seam & a & surfaces.solid], depth[seam & b & surfaces.solid]
+    if min(da.size, db.size) < _SEAM_MIN_PX:
+        return False
+    near_a, near_b = float(np.median(da)), float(np.median(db))
+    return abs(near_a - near_b) > params.depth_split_step * min(near_a, near_b)
+
+
+# Table pixels (cue scale) that show a seam; the depth samples each side needs for a step.
+_SEAM_MIN_PX = 3
+
+
+def _divide_by_seeds(blob: np.ndarray, seeds: np.ndarray, keep: list[int],
+                     rgb: np.ndarray | None, dist: np.ndarray | None = None) -> np.ndarray:
+    """Labels 1..len(keep) of a blob (a crop with a one-pixel border) divided by a
+    watershed from the seeds ``seeds == keep[j]`` (label j + 1), on the colour image's
+    edges, or without it on the distance map (the dividing line runs along the neck)."""
     markers = np.zeros(blob.shape, np.int32)
     markers[~blob] = 1
     for j, k in enumerate(keep):
-        markers[core_labels == k] = j + 2
+        markers[seeds == k] = j + 2
     if rgb is None:
-        # Flood the distance map itself: the dividing line runs along the neck.
+        if dist is None:
+            dist = cv2.distanceTransform(blob.astype(np.uint8), cv2.DIST_L2, 3)
         relief = cv2.normalize(-dist, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
         image = cv2.merge([relief, relief, relief])
     else:

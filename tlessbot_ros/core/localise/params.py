@@ -55,6 +55,21 @@ class SegmentationParams:
             dropped (cast shadows, dark table squares) and they seed the watershed's
             background. Invalid depth (0 / NaN) votes for nothing, so the colour cues decide.
         depth_filter_px: aperture of the median filter on the height map (1 = none).
+        depth_vote_valid: a pixel is a depth candidate (sure object) when most of the valid
+            pixels of its ``depth_filter_px`` window are high, holes abstaining (False: the
+            median with holes counted as table height, which loses dark parts whose depth
+            is mostly holes).
+        depth_split_jump: a blob whose solid pixels (valid depth above the candidate height,
+            off every range jump larger than this fraction of the depth) fall into two or
+            more large 4-connected pieces is divided between them first, where the table
+            shows between two pieces (touching parts; a groove of one part breaks its
+            surface too but shows no table); 0 disables.
+        depth_split_min_px: smallest solid piece (full-resolution pixels) that counts as a
+            part for that split.
+        depth_split_step: two pieces with no table between them are also kept apart when
+            one is nearer than the other along their border by more than this fraction of
+            the depth (one part in front of another); 0 (default): never, since a part's
+            own self-occlusion makes steps of 2-4 % of the depth in the side view.
     """
 
     methods: tuple[str, ...] = METHODS
@@ -83,6 +98,10 @@ class SegmentationParams:
     depth_noise_k: float = 4.0
     depth_table_height_m: float = 0.0025
     depth_filter_px: int = 3
+    depth_vote_valid: bool = True
+    depth_split_jump: float = 0.02
+    depth_split_min_px: int = 200
+    depth_split_step: float = 0.0
 
     def __post_init__(self) -> None:
         unknown = set(self.methods) - set(METHODS)
@@ -104,6 +123,11 @@ class SegmentationParams:
         if not 0.0 < self.depth_min_height_m <= self.depth_sure_height_m:
             raise ValueError('need 0 < depth_min_height_m <= depth_sure_height_m, got '
                              f'{self.depth_min_height_m} and {self.depth_sure_height_m}')
+        if self.depth_split_jump < 0 or self.depth_split_step < 0 or \
+                self.depth_split_min_px < 1:
+            raise ValueError('need depth_split_jump >= 0, depth_split_step >= 0 and '
+                             f'depth_split_min_px >= 1, got {self.depth_split_jump}, '
+                             f'{self.depth_split_step} and {self.depth_split_min_px}')
         if self.depth_filter_px not in (1, 3, 5):
             raise ValueError(f'depth_filter_px must be 1, 3 or 5, got {self.depth_filter_px}')
         lo, hi = self.shadow_ratio

@@ -49,6 +49,8 @@ class Segmentation:
         boxes: (N, 4) int32 (x, y, w, h) of instance ``i + 1`` in row ``i``.
         areas: (N,) int64 pixel counts.
         foreground: (H, W) bool union mask before instance separation.
+        depth_groups: (N,) int32; instances cut from one piece of a depth split share an id
+            > 0 (two parts whose seam the depth shows), 0 = not divided by depth.
         cues: per-method bool candidate masks at ``params.cue_scale`` (for inspection).
         timings_ms: wall time per stage in milliseconds: 'lab' (conversion), 'depth',
             'cue_<method>' per colour cue, 'cues' (the union), 'watershed', 'instances' and
@@ -59,6 +61,7 @@ class Segmentation:
     boxes: np.ndarray
     areas: np.ndarray
     foreground: np.ndarray
+    depth_groups: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     cues: dict[str, np.ndarray] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
 
@@ -86,7 +89,7 @@ class _Stopwatch:
 
 def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None = None,
             depth_m: np.ndarray | None = None, intrinsics=None,
-            T_world_camera: np.ndarray | None = None,
+            T_world_camera: np.ndarray | None = None, split_by_depth: bool = True,
             params: SegmentationParams = SegmentationParams()) -> Segmentation:
     """Segment the parts on a table in one RGB view (paper §3.1), optionally helped by depth.
 
@@ -110,6 +113,9 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         intrinsics: :class:`~tlessbot_ros.core.common.CameraIntrinsics` or a (3, 3) K of
             the image (needed with ``depth_m``).
         T_world_camera: (4, 4) camera pose in the table frame (needed with ``depth_m``).
+        split_by_depth: with depth, divide blobs whose depth shows the seam of two parts
+            (``params.depth_split_jump``); the pipeline does it in the side view only (see
+            :meth:`~tlessbot_ros.core.pipeline.PerceptionPipeline.localise`).
         params: see :class:`~tlessbot_ros.core.localise.SegmentationParams`.
 
     Returns:
@@ -126,7 +132,7 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     depth_cue = None
     if depth_m is not None and 'depth' in params.methods:
         depth_cue = _view_depth_cue(depth_m, intrinsics, T_world_camera, rgb.shape,
-                                    small.shape, params)
+                                    small.shape, params, with_surfaces=split_by_depth)
         watch.lap('depth')
     cues, candidate, sure = _union_of_cues(small, lab, bgm, depth_cue, params, watch)
     if params.open_px > 0:
@@ -142,10 +148,12 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     else:
         foreground = candidate
     watch.lap('watershed')
-    labels, boxes, areas = _instances_at_scale(foreground, rgb, small, params)
+    labels, boxes, areas, groups = _instances_at_scale(
+        foreground, rgb, small, params,
+        surfaces=None if depth_cue is None or not split_by_depth else depth_cue.surfaces)
     watch.lap('instances')
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
-                        cues=cues, timings_ms=watch.total())
+                        depth_groups=groups, cues=cues, timings_ms=watch.total())
 
 
 def _background_for(rgb: np.ndarray, background: np.ndarray | BackgroundModel | None,

@@ -59,6 +59,11 @@ class FusionParams:
             at least this much inside one joins it (fragments of one part share its id).
         drop_unpredicted: drop side blobs that no top blob predicts (fewer false positives
             when the top view sees the whole work area; off by default).
+        keep_depth_splits: a side blob that one top blob predicts but whose side
+            segmentation divided it by depth (``Segmentation.depth_groups``: two parts whose
+            seam the side depth shows, e.g. one in front of the other, that the top view saw
+            as one) keeps those pieces apart: the piece the prediction covers most takes the
+            top blob's id, the others new ids (seen from the side only).
         box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
             in a side box.
     """
@@ -75,6 +80,7 @@ class FusionParams:
     box_margin_px: int = 6
     fragment_fraction: float = 0.5
     drop_unpredicted: bool = False
+    keep_depth_splits: bool = True
 
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:
@@ -416,7 +422,20 @@ def _calibrated(top: Segmentation, side: Segmentation, rig: Rig,
                     out[blob & (own == j)] = next_id
                     next_id += 1
         elif len(owners) == 1:
-            out[blob] = owners[0]
+            pieces = _depth_pieces_of_blob(blob, side.labels[window], side.depth_groups,
+                                           params) if params.keep_depth_splits else []
+            if len(pieces) < 2:
+                out[blob] = owners[0]
+            else:
+                mine = pred[window] == owners[0]
+                first = int(np.argmax([np.count_nonzero(p & mine) for p in pieces]))
+                for j, piece in enumerate(pieces):
+                    if j == first:
+                        out[piece] = owners[0]
+                    else:
+                        out[piece] = next_id
+                        next_id += 1
+                split_ids.add(owners[0])
         else:
             out[blob] = _divide_among_owners(blob, pred[window], owners,
                                              None if side_rgb is None else side_rgb[window],
@@ -427,6 +446,30 @@ def _calibrated(top: Segmentation, side: Segmentation, rig: Rig,
     return FusionResult(labels=labels, method='calibrated', predicted_side=pred,
                         instances=_instances_from_labels(top_labels, side_labels, split_ids),
                         timings_ms=timings)
+
+
+def _depth_pieces_of_blob(blob: np.ndarray, own: np.ndarray, depth_groups: np.ndarray,
+                          params: FusionParams) -> list[np.ndarray]:
+    """The pieces of one side blob that its segmentation's depth split made: one bool mask
+    per depth group (the blob's pixels of other labels join the nearest piece); none unless
+    there are two or more, each with ``min_visible_px`` pixels.
+
+    ``blob`` and ``own`` (the side segmentation's labels) are cut to the blob's window."""
+    ids = np.unique(own[blob])
+    ids = ids[(ids > 0) & (ids <= len(depth_groups))]
+    groups = depth_groups[ids - 1] if ids.size else ids
+    if np.count_nonzero(np.unique(groups)) < 2:
+        return []
+    group_of = np.zeros(int(own.max()) + 1, np.int32)
+    group_of[ids] = groups
+    grouped = np.where(blob, group_of[own], 0)
+    holes = blob & (grouped == 0)
+    if holes.any():
+        _fill_from_nearest(grouped, holes)
+    pieces = [grouped == g for g in np.unique(groups) if g]
+    if any(np.count_nonzero(p) < params.min_visible_px for p in pieces):
+        return []
+    return pieces
 
 
 def _divide_among_owners(blob: np.ndarray, pred: np.ndarray, owners: list[int],

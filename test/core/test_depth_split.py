@@ -1,0 +1,143 @@
+"""Touching parts told apart by depth: the hole-tolerant depth vote, range jumps, the depth
+split of a blob and the fusion that keeps the side view's depth split."""
+from __future__ import annotations
+
+import numpy as np
+
+from tlessbot_ros.core.common import MeshRenderer, default_rig, make_transform
+from tlessbot_ros.core.localise import (
+    FusionParams,
+    Segmentation,
+    SegmentationParams,
+    boxes_from_labels,
+    fuse_views,
+    lift_top_blobs,
+    predict_side_regions,
+    segment,
+    split_touching,
+)
+from tlessbot_ros.core.localise.cues import range_jumps
+
+W, H = 320, 240
+
+
+def test_range_jumps_mark_steps_not_slopes() -> None:
+    step = np.full((20, 40), 0.60, np.float32)
+    step[:, 20:] = 0.65   # one surface 5 cm behind the other
+    jumps = range_jumps(step, 0.02)
+    assert jumps[:, 19:21].all() and jumps.sum() == 2 * 20
+    ramp = np.tile(np.linspace(0.60, 0.70, 40, dtype=np.float32), (20, 1))   # 2.5 mm a pixel
+    assert not range_jumps(ramp, 0.02).any()
+    holed = step.copy()
+    holed[:, 19:21] = 0.0   # holes are not jumps, and never marked
+    assert not range_jumps(holed, 0.02).any()
+
+
+def _top_view_of_box(hole_fraction: float):
+    """Top view of a dark 120x80x30 mm box on a dark table, part depth mostly holes: rgb,
+    depth_m, truth mask, camera."""
+    cam = default_rig(W, H)['top']
+    v = np.array([[x, y, z] for x in (-0.06, 0.06) for y in (-0.04, 0.04) for z in (0, 0.03)])
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    renderer = MeshRenderer()
+    renderer.add_mesh(v, f, make_transform(np.eye(3), [0.0, 0.0, 0.0]))
+    res = renderer.render(cam.intrinsics, cam.T_world_camera)
+    truth = res.instance == 0
+    rays = np.linalg.inv(cam.intrinsics.K) @ np.vstack([
+        np.mgrid[0:H, 0:W][::-1].reshape(2, -1), np.ones((1, H * W))])
+    R, t = cam.T_world_camera[:3, :3], cam.T_world_camera[:3, 3]
+    table_z = (-t[2] / (R[2] @ rays)).reshape(H, W)
+    rng = np.random.default_rng(4)
+    depth = np.where(truth, res.depth_m, table_z).astype(np.float32)
+    depth += rng.normal(0, 0.001, depth.shape).astype(np.float32)
+    depth[truth & (rng.random(depth.shape) < hole_fraction)] = np.nan
+    rgb = np.where(truth[..., None], 34.0, 30.0) + rng.normal(0, 2.0, (H, W, 3))
+    return np.clip(rgb, 0, 255).astype(np.uint8), depth, truth, cam
+
+
+def _best_iou(labels: np.ndarray, truth: np.ndarray) -> float:
+    ids = [i for i in np.unique(labels[truth]) if i]
+    return max((float((truth & (labels == i)).sum() / (truth | (labels == i)).sum())
+                for i in ids), default=0.0)
+
+
+def test_depth_vote_finds_a_part_whose_depth_is_mostly_holes() -> None:
+    # A dark part seen from afar returns depth in scattered pixels only.
+    rgb, depth, truth, cam = _top_view_of_box(0.6)
+    kwargs = dict(depth_m=depth, intrinsics=cam.intrinsics, T_world_camera=cam.T_world_camera)
+    seg = segment(rgb, **kwargs)
+    assert seg.count == 1
+    assert _best_iou(seg.labels, truth) > 0.85
+    # The median that counts holes as table height loses most of it.
+    median = segment(rgb, params=SegmentationParams(depth_vote_valid=False), **kwargs)
+    assert _best_iou(median.labels, truth) < 0.5
+
+
+def _two_blocks(gap_height_m: float):
+    """Two 60x40 px blocks 30 mm high side by side in a top view, one grey blob in colour,
+    a 2 px seam between them at ``gap_height_m``: mask, rgb, height, depth, truth labels."""
+    rng = np.random.default_rng(7)
+    height = rng.normal(0.0, 0.0005, (H, W)).astype(np.float32)
+    truth = np.zeros((H, W), np.int32)
+    truth[100:140, 100:160] = 1
+    truth[100:140, 162:222] = 2
+    height[truth > 0] += 0.030
+    height[100:140, 160:162] += np.float32(gap_height_m)
+    mask = np.zeros((H, W), bool)
+    mask[100:140, 100:222] = True
+    rgb = np.full((H, W, 3), 150, np.uint8)
+    rgb[mask] = 60
+    depth = (1.0 - height).astype(np.float32)   # a camera 1 m above the table, looking down
+    return mask, rgb, height, depth, truth
+
+
+def test_touching_parts_are_split_where_the_table_shows_between_them() -> None:
+    mask, rgb, height, depth, truth = _two_blocks(0.0)
+    assert split_touching(mask, rgb).max() == 1   # one rectangle: no colour or shape cue
+    labels = split_touching(mask, rgb, height_m=height, depth_m=depth)
+    assert labels.max() == 2
+    for k in (1, 2):
+        assert _best_iou(labels, truth == k) > 0.9
+    off = SegmentationParams(depth_split_jump=0.0)
+    assert split_touching(mask, rgb, height_m=height, depth_m=depth, params=off).max() == 1
+
+
+def test_a_groove_of_one_part_is_not_a_seam() -> None:
+    # The groove breaks the surface (range jumps, low pixels) but shows no table.
+    mask, rgb, height, depth, _ = _two_blocks(0.006)
+    assert split_touching(mask, rgb, height_m=height, depth_m=depth).max() == 1
+
+
+def _segmentation(labels: np.ndarray, groups: list[int]) -> Segmentation:
+    boxes, areas = boxes_from_labels(labels)
+    return Segmentation(labels=labels.astype(np.uint16), boxes=boxes, areas=areas,
+                        foreground=labels > 0, depth_groups=np.array(groups, np.int32))
+
+
+def test_fusion_keeps_the_side_views_depth_split_of_a_blob_the_top_saw_as_one() -> None:
+    rig = default_rig(W, H)
+    top = np.zeros((H, W), np.int32)
+    top[100:130, 140:180] = 1
+    predicted = predict_side_regions(lift_top_blobs(top, rig), rig) == 1
+    ys, xs = np.nonzero(predicted)
+    side = np.zeros((H, W), np.int32)
+    side[predicted] = 1
+    cut = int(np.percentile(xs, 70))   # the smaller piece: a part behind, seen from the side
+    side[predicted & (np.arange(W)[None, :] >= cut)] = 2
+    top_seg = _segmentation(top, [0])
+
+    def fused(groups, **params):
+        return fuse_views(top_seg, _segmentation(side, groups), rig=rig,
+                          params=FusionParams(**params))
+
+    result = fused([1, 2])
+    assert len(result.instances) == 2
+    first, second = result.instances
+    assert first.views == ('top', 'side') and second.views == ('side',)
+    assert np.array_equal(result.labels['side'] == 1, side == 1)   # the larger overlap
+    assert np.array_equal(result.labels['side'] == second.instance_id, side == 2)
+    # Pieces of another kind of split (colour, distance cores) are the top blob's, as before,
+    # and so are depth pieces when the option is off.
+    assert len(fused([0, 0]).instances) == 1
+    assert len(fused([1, 2], keep_depth_splits=False).instances) == 1
