@@ -375,7 +375,9 @@ def _seam_is_real(seam: np.ndarray, a: np.ndarray, b: np.ndarray, surfaces: _Sur
                   params: SegmentationParams) -> bool:
     """Whether the depth confirms the border ``seam`` between pieces ``a`` and ``b`` (bool
     masks of one crop) as the seam of two parts: table seen in it, or a step."""
-    if np.count_nonzero(seam & surfaces.table) >= _SEAM_MIN_PX:
+    # The table along a third of the border between the pieces, not in a hole of one part.
+    border = np.count_nonzero(a & cv2.dilate(b.view(np.uint8), _CROSS).view(bool))
+    if np.count_nonzero(seam & surfaces.table) >= max(_SEAM_MIN_PX, border / 3):
         return True
     if params.depth_split_step <= 0:
         return False
@@ -389,6 +391,7 @@ def _seam_is_real(seam: np.ndarray, a: np.ndarray, b: np.ndarray, surfaces: _Sur
 
 # Table pixels (cue scale) that show a seam; the depth samples each side needs for a step.
 _SEAM_MIN_PX = 3
+_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
 
 def _divide_by_seeds(blob: np.ndarray, seeds: np.ndarray, keep: list[int],
