@@ -286,24 +286,24 @@ def _depth_cue(height: np.ndarray, params: SegmentationParams, *,
     high = max(params.depth_sure_height_m, 1.5 * k * sigma)
     table_h = max(params.depth_table_height_m, 0.5 * k * sigma)
     high_raw = valid & (filled > low)
+    # The median over a hole's neighbours fills it (invalid pixels count as table height,
+    # so they never make an object on their own).
+    candidate = filtered > low
+    sure = filtered > high
     if r > 1 and params.depth_vote_valid:
-        # A pixel is high when most of the *valid* pixels of its window are: a dark part seen
-        # from afar returns depth in scattered pixels only (40-70 % holes), which a median
-        # that counts holes as table height would call table. A hole with no valid neighbour
-        # votes for nothing, so holes never make an object on their own.
+        # ... but a dark part seen from afar returns depth in scattered pixels only (40-70 %
+        # holes), which that median calls table. So a hole, or a high pixel, is also high
+        # when most of the *valid* pixels of its window are (holes abstain); a valid pixel
+        # at table height stays what it reads.
         votes = cv2.boxFilter(valid.view(np.uint8), cv2.CV_16U, (r, r), normalize=False)
 
         def majority(mask: np.ndarray) -> np.ndarray:
             return 2 * cv2.boxFilter(mask.view(np.uint8), cv2.CV_16U, (r, r),
                                      normalize=False) > votes
 
-        candidate = majority(high_raw)
-        sure = majority(valid & (filled > high))
-    else:
-        # The median over a hole's neighbours fills it (invalid pixels count as table
-        # height, so they never make an object on their own).
-        candidate = filtered > low
-        sure = filtered > high
+        candidate |= majority(high_raw) & (~valid | high_raw)
+        high_sure = valid & (filled > high)
+        sure |= majority(high_sure) & (~valid | high_sure)
     table = valid & (filtered < table_h) & (filled < table_h)
     surfaces = None
     if depth is not None:
