@@ -28,3 +28,13 @@ def test_model_geometry_is_in_millimetres():
 def test_packaged_symmetries_cover_the_shipped_models():
     symmetries = packaged_symmetries()
     assert symmetries and all(isinstance(k, int) and 1 <= k <= 30 for k in symmetries)
+
+
+def test_pipeline_overrides_reach_the_segmentation_and_the_fusion():
+    from tlessbot_ros.tools.support.overrides import stage_overrides
+
+    stages = stage_overrides(['depth_split_jump=0', 'keep_depth_splits=false',
+                              'verify_accept_fitness=0.9'])
+    assert stages['segmentation'].depth_split_jump == 0.0
+    assert stages['fusion'].keep_depth_splits is False
+    assert stages['fit_params'].verify_accept_fitness == 0.9

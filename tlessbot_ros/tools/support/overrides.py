@@ -36,12 +36,15 @@ def apply_overrides(params: Params, assignments: Iterable[str] | None) -> Params
 
 def stage_overrides(assignments: Iterable[str] | None) -> dict[str, Any]:
     """``NAME=VALUE`` overrides sent each to the pipeline stage dataclass that has the field
-    NAME (LocaliseParams, ClassifyParams, FitParams), as PerceptionPipeline keyword arguments;
-    a value the dataclass rejects is reported in one line, with its reason."""
+    NAME (LocaliseParams, ClassifyParams, FitParams, SegmentationParams, FusionParams; no field
+    name is in two of them), as PerceptionPipeline keyword arguments; a value the dataclass
+    rejects is reported in one line, with its reason."""
+    from tlessbot_ros.core.localise import FusionParams, SegmentationParams
     from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
 
     stages: dict[str, Any] = {'localise_params': LocaliseParams(),
-                              'classify_params': ClassifyParams(), 'fit_params': FitParams()}
+                              'classify_params': ClassifyParams(), 'fit_params': FitParams(),
+                              'segmentation': SegmentationParams(), 'fusion': FusionParams()}
     owner = {f.name: key for key, params in stages.items() for f in dataclasses.fields(params)}
     for assignment in assignments or []:
         key = owner.get(assignment.partition('=')[0])
