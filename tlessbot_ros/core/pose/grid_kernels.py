@@ -237,9 +237,11 @@ def gauss_newton(R, t, points, origin, spacing, index_grid, model, normals, max_
         max_d: (I,) correspondence distance of each of the I iterations, metres.
         stop_below: a pose whose update has no component reaching this (rad, m), or that has
             fewer than 6 points in range, is left as it is until the correspondence distance
-            changes (0: every pose runs all I). Each pose then ends where it would alone: a
-            batch that waited for its slowest pose (as it once did) polished the others
-            on, and one that stopped at the first distance skipped the closer one.
+            changes (0: every pose runs all I). Each pose then ends where it would alone,
+            and costs only its own steps: stopping the batch once every pose had settled
+            ran ~29 of 30 polish steps on average (40 % of poses never settle: 2-cycles
+            between grid correspondences, free turns about a symmetry axis) and skipped
+            the closer distance when all settled at the first.
 
     Returns:
         (R, t) refined copies.

@@ -45,7 +45,8 @@ class PoseParams:
             wrong ones converge too. 30: on 12 simulated scenes (6 moved rigs, 6 exact) 319 ->
             327 of 356 parts within 5 cm / 5° on the moved rigs, 325 -> 329 on the exact
             ones, the demo bag stays at 26 of 27; about +25 % pose-stage CPU per frame
-            (docs/bench/moved-rig-accuracy.md, session 12).
+            (docs/bench/moved-rig-accuracy.md, session 12), about half of that since session
+            13 (a faster ICP kernel, per-pose stopping, ``polish_margin_fitness``).
         polish_distance_voxels: their correspondence distance (the first half at twice it).
         polish_margin_fitness: only the finalists whose fitness before the polish is within
             this of the former winner's are polished (the winner always); the others keep
