@@ -116,6 +116,38 @@ def test_gauss_newton_equals_the_python_loop(setup, planar):
                                                                          - T[0, :3, 3])
 
 
+
+def test_each_pose_of_a_batch_ends_where_it_would_alone(setup):
+    """With stop_below, a pose stops on its own small update (until the correspondence
+    distance changes), so a batch gives every pose what a run of that pose alone gives; the
+    batch once stopped only when all had converged, and at the first distance if they had."""
+    from tlessbot_ros.core.pose import gauss_newton
+
+    model, normals, grid, T, points = setup
+    start = T.copy()
+    start[:, :3, 3] = T[0, :3, 3] + 0.002
+    start[0] = T[0]                                  # converges at once
+    max_d = np.repeat([0.008, 0.004], 8)
+    args = (points, grid.origin, grid.spacing, grid.index, model, normals, max_d, False, 1e-6)
+    R, t = gauss_newton(np.ascontiguousarray(start[:, :3, :3]),
+                        np.ascontiguousarray(start[:, :3, 3]), *args)
+    for k in range(len(start)):
+        R_k, t_k = gauss_newton(np.ascontiguousarray(start[k:k + 1, :3, :3]),
+                                np.ascontiguousarray(start[k:k + 1, :3, 3]), *args)
+        np.testing.assert_allclose(R[k], R_k[0], atol=1e-12)
+        np.testing.assert_allclose(t[k], t_k[0], atol=1e-12)
+    # the second distance still refines a pose that stopped in the first
+    R_first, t_first = gauss_newton(np.ascontiguousarray(start[:1, :3, :3]),
+                                    np.ascontiguousarray(start[:1, :3, 3]), points,
+                                    grid.origin, grid.spacing, grid.index, model, normals,
+                                    max_d[:8], False, 1e-6)
+    A, b, count = normal_equations(R_first, t_first, points, grid.origin, grid.spacing,
+                                   grid.index, model, normals, 0.004, False)
+    delta = np.linalg.solve(A[0] + 1e-9 * np.eye(6), b[0])
+    assert np.abs(delta).max() >= 1e-6              # the closer distance has work to do
+    assert not np.allclose(t[0], t_first[0], rtol=0, atol=1e-9)
+
+
 def _visible_reference(points_c, normals_c, cell_rad, depth_tolerance_m):
     """The numpy z-buffer the kernel replaced."""
     facing = np.sum(normals_c * points_c, axis=1) < 0

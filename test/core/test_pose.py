@@ -224,6 +224,34 @@ def test_polishing_later_is_polishing_in_place(setup):
     assert estimator.polish(points, later) is later          # nothing left to polish
 
 
+
+def test_finalists_far_behind_the_winner_are_not_polished(setup):
+    # A finalist more than polish_margin_fitness behind the former winner keeps its fit
+    # (the same candidate, ranked after the polished ones that fit better); the winner and
+    # those near it are polished.
+    import dataclasses
+    model, db = setup
+    T_wo = _place(db, 0, 37.0, 0.03, -0.02)
+    points = _view(model, T_wo, noise_m=0.002, seed=3)
+    kwargs = {'T_world_camera': SIDE.T_world_camera, 'fallback': False}
+    short = PoseEstimator(db, params=PoseParams(polish_iterations=30)).estimate(
+        points, 21, polish=False, **kwargs)
+    assert len(short.finalists) == 3
+    winner = short.finalists[0]
+    behind = dataclasses.replace(short.finalists[2], fitness=winner.fitness - 0.25)
+    near = dataclasses.replace(short.finalists[1], fitness=winner.fitness - 0.15)
+    result = dataclasses.replace(short, finalists=[winner, near, behind])
+    polished = PoseEstimator(db, params=PoseParams(polish_margin_fitness=0.2)).polish(
+        points, result)
+    assert polished.finalists[-1] is behind
+    assert all(c is not winner and c is not near for c in polished.finalists)
+    everything = PoseEstimator(db, params=PoseParams(polish_margin_fitness=1.0)).polish(
+        points, result)
+    assert not {id(c) for c in everything.finalists} & {id(winner), id(near), id(behind)}
+    with pytest.raises(ValueError, match='polish_margin_fitness'):
+        PoseParams(polish_margin_fitness=-0.1)
+
+
 def test_the_polish_overturns_the_winner_only_on_a_clear_gain_of_fitness():
     # obj_07 on simulated D415 depth: the pose turned by 180° covers more of the back-face
     # "visible" model (self-occlusion ignored) but, converged, explains fewer ROI points.

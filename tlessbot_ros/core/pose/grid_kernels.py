@@ -95,8 +95,21 @@ def normal_equations(R, t, points, origin, spacing, index_grid, model, normals, 
         A: (K, D, D) sum of J J^T, b: (K, D) sum of J r (D = 3 planar, else 6), and
         count: (K,) points used.
     """
+    active = np.ones(R.shape[0], np.bool_)
+    if planar:
+        return _planar_equations(R, t, points, origin, spacing, index_grid, model, normals,
+                                 max_d, active)
+    return _full_equations(R, t, points, origin, spacing, index_grid, model, normals, max_d,
+                           active)
+
+
+@njit(cache=True, nogil=True)
+def _planar_equations(R, t, points, origin, spacing, index_grid, model, normals, max_d,
+                      active):
+    """:func:`normal_equations` in the plane (D = 3), of the poses where ``active`` (K,) is
+    True (zeros elsewhere)."""
     K, N = R.shape[0], points.shape[0]
-    D = 3 if planar else 6
+    D = 3
     shape = index_grid.shape
     A = np.zeros((K, D, D))
     b = np.zeros((K, D))
@@ -104,6 +117,8 @@ def normal_equations(R, t, points, origin, spacing, index_grid, model, normals, 
     J = np.empty(D)
     limit = max_d * max_d
     for k in range(K):
+        if not active[k]:
+            continue
         for i in range(N):
             px, py, pz = points[i, 0], points[i, 1], points[i, 2]
             qx, qy, qz = _to_object(R, t, k, px, py, pz)
@@ -125,17 +140,9 @@ def normal_equations(R, t, points, origin, spacing, index_grid, model, normals, 
             nz = R[k, 2, 0] * ux + R[k, 2, 1] * uy + R[k, 2, 2] * uz
             r = (nx * (px - t[k, 0] - ax) + ny * (py - t[k, 1] - ay)
                  + nz * (pz - t[k, 2] - az))
-            if planar:
-                J[0] = ax * ny - ay * nx
-                J[1] = nx
-                J[2] = ny
-            else:
-                J[0] = ay * nz - az * ny
-                J[1] = az * nx - ax * nz
-                J[2] = ax * ny - ay * nx
-                J[3] = nx
-                J[4] = ny
-                J[5] = nz
+            J[0] = ax * ny - ay * nx
+            J[1] = nx
+            J[2] = ny
             for a in range(D):
                 b[k, a] += J[a] * r
                 for c in range(a, D):
@@ -144,6 +151,74 @@ def normal_equations(R, t, points, origin, spacing, index_grid, model, normals, 
         for a in range(D):
             for c in range(a):
                 A[k, a, c] = A[k, c, a]
+    return A, b, count
+
+
+@njit(cache=True, nogil=True)
+def _full_equations(R, t, points, origin, spacing, index_grid, model, normals, max_d,
+                    active):
+    """:func:`normal_equations` in 6-DOF (D = 6) of the poses where ``active`` (K,) is True
+    (zeros elsewhere), summed in the object frame.
+
+    The camera-frame row [ (R m) x (R n), R n ] is B j with j = [ m x n, n ] (object frame)
+    and B = diag(R, R), so A = B (sum j j^T) B^T and b = B (sum j r): the sums need no
+    rotation per point, one per pose at the end (about 0.6x the time of rotating every row,
+    the 6-DOF ICP's main cost; equal up to rounding)."""
+    K, N = R.shape[0], points.shape[0]
+    shape = index_grid.shape
+    A = np.zeros((K, 6, 6))
+    b = np.zeros((K, 6))
+    count = np.zeros(K, np.int64)
+    A_o = np.empty((6, 6))
+    b_o = np.empty(6)
+    J = np.empty(6)
+    limit = max_d * max_d
+    for k in range(K):
+        if not active[k]:
+            continue
+        A_o[:] = 0.0
+        b_o[:] = 0.0
+        for i in range(N):
+            qx, qy, qz = _to_object(R, t, k, points[i, 0], points[i, 1], points[i, 2])
+            cx, cy, cz = _cell(qx, qy, qz, origin, spacing, shape)
+            if cx < 0:
+                continue
+            j = index_grid[cx, cy, cz]
+            mx, my, mz = model[j, 0], model[j, 1], model[j, 2]
+            ex, ey, ez = qx - mx, qy - my, qz - mz
+            if ex * ex + ey * ey + ez * ez >= limit:
+                continue
+            ux, uy, uz = normals[j, 0], normals[j, 1], normals[j, 2]
+            # n . (p - t - R m) = n_model . (q - m): the residual needs no rotation either
+            r = ux * ex + uy * ey + uz * ez
+            J[0] = my * uz - mz * uy
+            J[1] = mz * ux - mx * uz
+            J[2] = mx * uy - my * ux
+            J[3] = ux
+            J[4] = uy
+            J[5] = uz
+            for a in range(6):
+                b_o[a] += J[a] * r
+                for c in range(a, 6):
+                    A_o[a, c] += J[a] * J[c]
+            count[k] += 1
+        for a in range(6):
+            for c in range(a):
+                A_o[a, c] = A_o[c, a]
+        # A = B A_o B^T, b = B b_o; B's blocks are R (rows 0-2 and 3-5)
+        for a in range(6):
+            ra, oa = a % 3, (a // 3) * 3
+            for c in range(6):
+                rc, oc = c % 3, (c // 3) * 3
+                s = 0.0
+                for u in range(3):
+                    for v in range(3):
+                        s += R[k, ra, u] * A_o[oa + u, oc + v] * R[k, rc, v]
+                A[k, a, c] = s
+            s = 0.0
+            for u in range(3):
+                s += R[k, ra, u] * b_o[oa + u]
+            b[k, a] = s
     return A, b, count
 
 
@@ -160,7 +235,13 @@ def gauss_newton(R, t, points, origin, spacing, index_grid, model, normals, max_
 
     Args:
         max_d: (I,) correspondence distance of each of the I iterations, metres.
-        stop_below: stop once no component of any delta reaches this (0: run all I).
+        stop_below: a pose whose update has no component reaching this (rad, m), or that has
+            fewer than 6 points in range, is left as it is until the correspondence distance
+            changes (0: every pose runs all I). Each pose then ends where it would alone,
+            and costs only its own steps: stopping the batch once every pose had settled
+            ran ~29 of 30 polish steps on average (40 % of poses never settle: 2-cycles
+            between grid correspondences, free turns about a symmetry axis) and skipped
+            the closer distance when all settled at the first.
 
     Returns:
         (R, t) refined copies.
@@ -170,14 +251,27 @@ def gauss_newton(R, t, points, origin, spacing, index_grid, model, normals, max_
     K = R.shape[0]
     D = 3 if planar else 6
     eye = np.eye(D)
+    active = np.ones(K, np.bool_)
     for it in range(max_d.shape[0]):
-        A, b, count = normal_equations(R, t, points, origin, spacing, index_grid, model,
-                                       normals, max_d[it], planar)
-        largest = 0.0
+        if it > 0 and max_d[it] != max_d[it - 1]:
+            active[:] = True    # new correspondences: every pose may move again
+        elif not active.any():
+            continue
+        if planar:
+            A, b, count = _planar_equations(R, t, points, origin, spacing, index_grid, model,
+                                            normals, max_d[it], active)
+        else:
+            A, b, count = _full_equations(R, t, points, origin, spacing, index_grid, model,
+                                          normals, max_d[it], active)
         for k in range(K):
+            if not active[k]:
+                continue
             if count[k] < 6:
+                # no update, and none later at this distance (the same correspondences)
+                active[k] = stop_below <= 0.0
                 continue
             delta = np.linalg.solve(A[k] + 1e-9 * eye, b[k])
+            largest = 0.0
             for a in range(D):
                 largest = max(largest, abs(delta[a]))
             if planar:
@@ -190,8 +284,8 @@ def gauss_newton(R, t, points, origin, spacing, index_grid, model, normals, max_
                 t[k, 1] += delta[4]
                 t[k, 2] += delta[5]
             R[k] = step @ R[k]
-        if stop_below > 0.0 and largest < stop_below:
-            break
+            if largest < stop_below:
+                active[k] = False
     return R, t
 
 

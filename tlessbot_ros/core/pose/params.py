@@ -45,8 +45,15 @@ class PoseParams:
             wrong ones converge too. 30: on 12 simulated scenes (6 moved rigs, 6 exact) 319 ->
             327 of 356 parts within 5 cm / 5° on the moved rigs, 325 -> 329 on the exact
             ones, the demo bag stays at 26 of 27; about +25 % pose-stage CPU per frame
-            (docs/bench/moved-rig-accuracy.md, session 12).
+            (docs/bench/moved-rig-accuracy.md, session 12), about half of that since session
+            13 (a faster ICP kernel, per-pose stopping, ``polish_margin_fitness``).
         polish_distance_voxels: their correspondence distance (the first half at twice it).
+        polish_margin_fitness: only the finalists whose fitness before the polish is within
+            this of the former winner's are polished (the winner always); the others keep
+            their fit and rank after it. 0.2: on 12 simulated scenes (741 polished parts)
+            the finalists that the polish made winners had been at most 0.13 behind (62 of 65
+            within 0.06), and 14 % of the finalists' ICP and scoring is saved
+            (docs/bench/moved-rig-accuracy.md, session 13). 1: polish all.
         polish_overturn_fitness: after the polish, another finalist replaces the former
             winner only when its fitness (a fraction of the ROI points) is higher by more than
             this (:func:`~tlessbot_ros.core.pose.estimator.after_polish`): the polish lets
@@ -126,6 +133,7 @@ class PoseParams:
     icp_points: int = 250
     polish_iterations: int = 30
     polish_distance_voxels: float = 1.0
+    polish_margin_fitness: float = 0.2
     polish_overturn_fitness: float = 0.01
     inlier_voxels: float = 1.0
     inlier_plane_m: float = 0.0025
@@ -188,6 +196,9 @@ class PoseParams:
             raise ValueError('polish_iterations must be >= 0 (0: off) and '
                              'polish_distance_voxels > 0 (1: one voxel), got '
                              f'{self.polish_iterations}, {self.polish_distance_voxels}')
+        if self.polish_margin_fitness < 0:
+            raise ValueError('polish_margin_fitness must be >= 0 (a fitness difference; 1: '
+                             f'polish every finalist), got {self.polish_margin_fitness}')
         if self.polish_overturn_fitness < 0:
             raise ValueError('polish_overturn_fitness must be >= 0 (a fitness difference; 1: '
                              f'rank by score), got {self.polish_overturn_fitness}')
