@@ -105,7 +105,7 @@ class FitParams:
             that vote (a sign test, :func:`~tlessbot_ros.core.pose.lookalike.clear_margin`);
             0: on any surplus (before session 13). On the 12 two-view scenes of
             docs/bench/lookalike-twins.md the wrong overturns were decided by 1-3 pixels of
-            1500-4400 (features facing the table), the right ones by 15-370.
+            about 3000 (features facing the table), the right ones by 21-473 but one (2).
         lookalike_all_views: the pixels of the part in the other cameras (rig extrinsics,
             at least ``min_instance_px`` there) vote too, at the fitted pose carried into
             those cameras: the top camera often sees the face the side camera sees edge-on.
