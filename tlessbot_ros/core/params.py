@@ -108,7 +108,9 @@ class FitParams:
             about 3000 (features facing the table), the right ones by 21-473 but one (2).
         lookalike_all_views: the pixels of the part in the other cameras (rig extrinsics,
             at least ``min_instance_px`` there) vote too, at the fitted pose carried into
-            those cameras: the top camera often sees the face the side camera sees edge-on.
+            those cameras (about +2 ms a twin). On those 12 scenes it changed one decision
+            (a part whose pose was turned anyway): a feature the side camera cannot see
+            faces the table, out of the top camera's sight too.
         fragment_overlap: two rigid parts cannot sit inside each other: a detection whose
             fitted centre lies closer than this fraction of the smaller part's diameter to the
             centre of a detection with more ROI points is a fragment of that part (the
