@@ -17,10 +17,13 @@ from tlessbot_ros.core.pose import (
     LookalikeCheck,
     ObjectTemplates,
     TemplateDatabase,
+    clear_margin,
+    depth_errors,
     depth_vote,
     lookalike_pairs,
     shared_surface,
     visible_difference,
+    vote_counts,
 )
 from tlessbot_ros.errors import ModelFileError
 
@@ -160,3 +163,40 @@ def test_version_2_database_loads_without_lookalikes(tmp_path):
     loaded = TemplateDatabase.load(path)
     assert loaded[1].lookalikes == () and loaded[1].mesh_faces is None
     assert 1 not in loaded.lookalike_check()
+
+
+def test_vote_counts_and_the_clear_margin():
+    assert vote_counts(np.zeros(5), np.array([0.0, 0.005, 0.005, 0.001, -0.004]), 0.002) == (2, 1)
+    assert clear_margin(20, 2, 2.0) and not clear_margin(2, 0, 2.0)   # 2 > 2 * sqrt(2)? no
+    assert clear_margin(2, 0, 0.0) and not clear_margin(3, 3, 0.0) and not clear_margin(0, 0, 0)
+    assert not clear_margin(13, 11, 2.0)   # an even split stays a coin toss
+
+
+def test_a_few_pixels_do_not_overturn_the_fitted_class():
+    points, _ = _seen_from_above(BOSSED, BOSS_UP, noise_m=0.0005)
+    errors_plain = depth_errors(raycasting_scene(*PLAIN), BOSS_UP, points)
+    on_boss = np.flatnonzero(errors_plain > 0.004)
+    assert len(on_boss) > 100
+    few = np.concatenate([np.flatnonzero(errors_plain <= 0.004), on_boss[:2]])
+    strict = LookalikeCheck({1: PLAIN, 2: BOSSED}, {1: (2,), 2: (1,)}, min_z=2.0)
+    loose = LookalikeCheck({1: PLAIN, 2: BOSSED}, {1: (2,), 2: (1,)}, min_z=0.0)
+    assert loose.resolve(1, BOSS_UP, points[few])[0] == 2    # two pixels decide
+    assert strict.resolve(1, BOSS_UP, points[few]) == (1, 0.0)
+    assert strict.resolve(1, BOSS_UP, points)[0] == 2        # the whole boss does
+
+
+@pytest.mark.parametrize('truth', [1, 2])
+def test_a_second_camera_that_sees_the_feature_decides(truth):
+    mesh = {1: PLAIN, 2: BOSSED}[truth]
+    down, _ = _seen_from_above(mesh, BOSS_DOWN, noise_m=0.0005)
+    up, _ = _seen_from_above(mesh, BOSS_UP, noise_m=0.0005, seed=1)
+    T_up_down = BOSS_UP @ np.linalg.inv(BOSS_DOWN)   # the first camera in the second's frame
+    check = LookalikeCheck({1: PLAIN, 2: BOSSED}, {1: (2,), 2: (1,)}, min_z=2.0)
+    for fitted_as in (1, 2):
+        assert check.resolve(fitted_as, BOSS_DOWN, down)[0] == fitted_as   # cannot tell
+        winner, vote = check.resolve(fitted_as, BOSS_DOWN, down, more_views=[(up, T_up_down)])
+        assert winner == truth
+        assert (vote > 0.02) if fitted_as != truth else vote == 0.0
+    # a view without points adds nothing
+    assert check.resolve(1, BOSS_DOWN, down, more_views=[(np.zeros((0, 3)), T_up_down)]) == \
+        (1, 0.0)

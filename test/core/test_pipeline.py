@@ -218,6 +218,42 @@ def test_a_lookalike_is_named_by_the_depth_it_explains(lookalikes):
     assert without.estimate_poses(inputs, labels, {1: (22,)})[0].obj_id == 22
 
 
+def test_the_lookalike_check_reads_the_part_in_the_other_view_too(lookalikes):
+    from tlessbot_ros.core.common import MeshRenderer
+
+    db, inputs, labels, models = lookalikes
+    top = default_rig()['top']
+    [detection] = PerceptionPipeline(templates=db).estimate_poses(inputs, labels, {1: (22,)})
+    T_world_object = SIDE.T_world_camera @ detection.pose.T_camera_object
+    renderer = MeshRenderer()
+    renderer.add_mesh(models[21].vertices, models[21].faces, T_world_object)
+    view = renderer.render(top.intrinsics, top.T_world_camera)
+    mask = view.instance == 0
+    both = {**inputs, 'top': ViewInput(rgb=None, depth_m=np.where(mask, view.depth_m, 0).astype(
+        np.float32), intrinsics=top.intrinsics, T_world_camera=top.T_world_camera)}
+    both_labels = {**labels, 'top': mask.astype(np.uint16)}
+    seen = []
+    for all_views in (True, False):
+        pipeline = PerceptionPipeline(templates=db,
+                                      fit_params=FitParams(lookalike_all_views=all_views))
+        resolve = pipeline.lookalike.resolve
+
+        def spy(obj_id, T, points, *, more_views=(), resolve=resolve):
+            seen.append(more_views)
+            return resolve(obj_id, T, points, more_views=more_views)
+
+        pipeline.lookalike.resolve = spy
+        [found] = pipeline.estimate_poses(both, both_labels, {1: (22,)})
+        assert found.obj_id == 21 and found.view == 'side'
+    [(points, T_top_side)], none = seen
+    assert none == () and len(points) == mask.sum()
+    np.testing.assert_allclose(T_top_side, np.linalg.inv(top.T_world_camera) @ SIDE.T_world_camera)
+    # the top view's points lie on the part where the side view's pose, carried over, puts it
+    in_top = transform_points(T_top_side @ detection.pose.T_camera_object,
+                              models[21].vertices.astype(np.float64))
+    assert np.linalg.norm(points.mean(axis=0) - in_top.mean(axis=0)) < 0.02
+
+
 def test_replace_changes_settings_and_shares_the_templates(lookalikes):
     from tlessbot_ros.core.pose import PoseParams
 
@@ -258,6 +294,7 @@ def test_a_sure_classifier_alone_names_a_part_seen_only_from_the_top():
     (ClassifyParams, 'min_instance_px', 0, 'at least 1'),
     (ClassifyParams, 'top_view_verify_below_margin', -1.0, 'inf: always verify'),
     (FitParams, 'lookalike_tolerance_m', 0.0, '> 0 m'),
+    (FitParams, 'lookalike_min_z', -1.0, '0: any surplus'),
     (FitParams, 'fragment_overlap', 1.5, '[0, 1)'),
     (FitParams, 'fallback_min_fitness', 1.5, '0..1'),
     (FitParams, 'min_roi_points', 2, 'at least 3'),
@@ -276,6 +313,7 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'class_candidates', 'top_view_verify_below_margin', 'verify_accept_fitness',
         'verify_rmse_weight', 'fallback_min_fitness', 'lookalike_check',
         'lookalike_tolerance_m', 'parallel_views',
+        'lookalike_min_z', 'lookalike_all_views',   # session 13: the twins
         'fragment_overlap',   # added after the split (one part, one pose)
         'table_plane', 'table_plane_max_angle_deg', 'table_plane_max_offset_m'])   # #23
 

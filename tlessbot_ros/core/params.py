@@ -100,6 +100,17 @@ class FitParams:
             part (:class:`~tlessbot_ros.core.pose.LookalikeCheck`).
         lookalike_tolerance_m: a pixel votes for one look-alike when it explains the depth
             better by more than this (metres).
+        lookalike_min_z: the look-alike overturns the fitted class only when its surplus of
+            votes is more than this many standard deviations of a coin toss over the pixels
+            that vote (a sign test, :func:`~tlessbot_ros.core.pose.lookalike.clear_margin`);
+            0: on any surplus (before session 13). On the 12 two-view scenes of
+            docs/bench/lookalike-twins.md the wrong overturns were decided by 1-3 pixels of
+            about 3000 (features facing the table), the right ones by 21-473 but one (2).
+        lookalike_all_views: the pixels of the part in the other cameras (rig extrinsics,
+            at least ``min_instance_px`` there) vote too, at the fitted pose carried into
+            those cameras (about +2 ms a twin). On those 12 scenes it changed one decision
+            (a part whose pose was turned anyway): a feature the side camera cannot see
+            faces the table, out of the top camera's sight too.
         fragment_overlap: two rigid parts cannot sit inside each other: a detection whose
             fitted centre lies closer than this fraction of the smaller part's diameter to the
             centre of a detection with more ROI points is a fragment of that part (the
@@ -131,6 +142,8 @@ class FitParams:
     fallback_min_fitness: float = 0.1
     lookalike_check: bool = True
     lookalike_tolerance_m: float = 0.002
+    lookalike_min_z: float = 2.0
+    lookalike_all_views: bool = True
     fragment_overlap: float = 0.5
     table_plane: str = 'auto'
     table_plane_max_angle_deg: float = 0.1
@@ -151,6 +164,9 @@ class FitParams:
                f'(a fitness), got {self.fallback_min_fitness}')
         _check(self.lookalike_tolerance_m > 0, 'lookalike_tolerance_m must be > 0 m (e.g. '
                f'0.002), got {self.lookalike_tolerance_m}')
+        _check(self.lookalike_min_z >= 0 and math.isfinite(self.lookalike_min_z),
+               'lookalike_min_z must be a finite value >= 0 (standard deviations; 0: any '
+               f'surplus), got {self.lookalike_min_z}')
         _check(self.table_plane in TABLE_PLANE_MODES, f'table_plane must be one of '
                f'{", ".join(TABLE_PLANE_MODES)}, got {self.table_plane!r}')
         _check(self.table_plane_max_angle_deg >= 0 and self.table_plane_max_offset_m >= 0,

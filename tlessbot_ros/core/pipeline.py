@@ -14,7 +14,8 @@ Stages (each a method, each usable alone, so the ROS nodes and the evaluator run
    fitted and the best fit names the part (verification by geometry, our addition: the
    near-identical T-LESS parts differ by millimetres that a 60 px crop cannot show). A part
    named as one of a look-alike pair (obj_21/22, obj_25/26) is then compared with its twin at
-   the fitted pose, pixel by pixel on the measured depth (:mod:`tlessbot_ros.core.pose.lookalike`).
+   the fitted pose, pixel by pixel on the measured depth of every view that sees it
+   (:mod:`tlessbot_ros.core.pose.lookalike`).
 
 Inputs per view are :class:`ViewInput`; a two-view frame is ``{'top': ..., 'side': ...}``.
 
@@ -153,12 +154,16 @@ class PartJob:
     """One part to fit: its detection (filled in by the fit), its ROI cloud ((N, 3) metres in
     the optical frame of ``detection.view``), its class candidates best first, and that
     view's table frame ``T_world_camera`` (:meth:`PerceptionPipeline.table_frame`; None: no
-    table frame, the pose stage's fallback)."""
+    table frame, the pose stage's fallback). ``more_views``: for a part whose candidates have
+    a look-alike, its ROI clouds in the other cameras, each as ((M, 3) points in that
+    camera's optical frame, (4, 4) ``T_other_camera``), for the look-alike check
+    (:meth:`PerceptionPipeline.check_lookalike`; the fit does not use them)."""
 
     detection: Detection
     points: np.ndarray
     candidates: tuple[int, ...]
     T_world_camera: np.ndarray | None
+    more_views: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
 
 
 class PartFitter(Protocol):
@@ -273,7 +278,8 @@ class PerceptionPipeline:
         self._tables: dict[str, tuple[tuple[object, object], TableFrame]] = {}
         self.pose_estimator = PoseEstimator(templates, params=pose) if templates else None
         self.lookalike = templates.lookalike_check(
-            tolerance_m=fit_params.lookalike_tolerance_m) \
+            tolerance_m=fit_params.lookalike_tolerance_m,
+            min_z=fit_params.lookalike_min_z) \
             if templates and fit_params.lookalike_check else None
 
     def replace(self, **changes: Any) -> PerceptionPipeline:
@@ -297,10 +303,11 @@ class PerceptionPipeline:
             new.pose_estimator = PoseEstimator(self.pose_estimator.database,
                                                params=changes['pose'])
         old, fit = self.fit_params, new.fit_params
-        if self.pose_estimator is not None and (old.lookalike_check, old.lookalike_tolerance_m) \
-                != (fit.lookalike_check, fit.lookalike_tolerance_m):
+        if self.pose_estimator is not None and _lookalike_options(old) != \
+                _lookalike_options(fit):
             database = self.pose_estimator.database
-            new.lookalike = database.lookalike_check(tolerance_m=fit.lookalike_tolerance_m) \
+            new.lookalike = database.lookalike_check(tolerance_m=fit.lookalike_tolerance_m,
+                                                     min_z=fit.lookalike_min_z) \
                 if fit.lookalike_check else None
             if new.lookalike is not None:
                 new.lookalike.warm_up()
@@ -519,19 +526,52 @@ class PerceptionPipeline:
                     points = points[height > self.fit_params.table_clearance_m]
                 detection.n_points = len(points)
                 if len(points) >= self.fit_params.min_roi_points:
-                    jobs.append(PartJob(detection, points, candidates, T_world_camera))
+                    jobs.append(PartJob(detection, points, candidates, T_world_camera,
+                                        self._lookalike_views(views, labels, counts, boxes,
+                                                              instance, view, candidates)))
                     continue
             done(detection)
         arbiter = self._fragment_filter(jobs, done)
+
+        def fitted(job: PartJob) -> None:
+            # here, not in fit_part: the check reads every view, which a worker does not have
+            self.check_lookalike(job)
+            arbiter.fitted(job.detection, *self._fitted_centre(job))
+
         if fitter is None:
             for job in jobs:
                 self.fit_part(job)
-                arbiter.fitted(job.detection, *self._fitted_centre(job))
+                fitted(job)
         else:
-            fitter.fit_all(jobs, self.fit_part,
-                           lambda job: arbiter.fitted(job.detection, *self._fitted_centre(job)))
+            fitter.fit_all(jobs, self.fit_part, fitted)
         dropped = {id(d) for d in arbiter.dropped}
         return [d for d in detections if id(d) not in dropped]
+
+    def _lookalike_views(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
+                         counts: dict[str, np.ndarray], boxes: dict[str, np.ndarray],
+                         instance: int, view: str, candidates: Sequence[int]
+                         ) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+        """:attr:`PartJob.more_views` of one part read in ``view``: its ROI clouds in the
+        other views where it has at least ``min_instance_px`` pixels, with the rig's
+        transforms into them (none without extrinsics or depth, or when no candidate has a
+        look-alike, or with ``lookalike_all_views`` off)."""
+        if self.lookalike is None or not self.fit_params.lookalike_all_views or \
+                not any(c in self.lookalike for c in candidates) or \
+                views[view].T_world_camera is None:
+            return ()
+        more = []
+        for other in _view_order(labels):
+            data = views.get(other)
+            if other == view or data is None or data.depth_m is None or \
+                    data.T_world_camera is None or instance >= len(counts[other]) or \
+                    counts[other][instance] < self.classify_params.min_instance_px:
+                continue
+            box = _box(boxes[other], instance)
+            points = roi_cloud(data.depth_m, _mask_in_box(labels[other], instance, box),
+                               data.intrinsics, box=box)
+            more.append((points, np.linalg.inv(data.T_world_camera) @
+                         views[view].T_world_camera))
+        return tuple(more)
 
     def _fragment_filter(self, jobs: Sequence[PartJob],
                          publish: Callable[[Detection], None]) -> FragmentFilter:
@@ -571,8 +611,8 @@ class PerceptionPipeline:
         it; the polish, ``PoseParams.polish_iterations``, would let it converge as well as the
         right one): the fits name the class, then the winner's finalists alone are polished
         (:meth:`PoseEstimator.polish`) and the fallback runs once, for the winner, if its fit
-        stays poor. Last, a part with a look-alike is compared with it at the fitted pose
-        (``lookalike_check``)."""
+        stays poor. The look-alike check comes after, in :meth:`estimate_poses`
+        (:meth:`check_lookalike`)."""
         p = self.fit_params
         estimator = self.pose_estimator
         detection, points, T_world_camera = job.detection, job.points, job.T_world_camera
@@ -602,15 +642,22 @@ class PerceptionPipeline:
                                         scenes=scenes)
             if result.best is not None and result.best.score > detection.pose.score:
                 detection.pose, detection.second = result.best, result.second
-        if self.lookalike is not None and detection.pose is not None and \
-                detection.obj_id in self.lookalike:
-            winner, _ = self.lookalike.resolve(detection.obj_id,
-                                               detection.pose.T_camera_object, points)
-            if winner != detection.obj_id:
-                # the twins share their model frame, so the fitted pose is the twin's too
-                detection.obj_id = winner
-                detection.class_rank = job.candidates.index(winner) \
-                    if winner in job.candidates else len(job.candidates)
+
+    def check_lookalike(self, job: PartJob) -> None:
+        """A fitted part whose class has a look-alike is compared with it at the fitted pose,
+        on the depth of its view and of ``job.more_views`` (``lookalike_*``); the look-alike
+        names the part when it explains that depth better by a clear margin."""
+        detection = job.detection
+        if self.lookalike is None or detection.pose is None or \
+                detection.obj_id not in self.lookalike:
+            return
+        winner, _ = self.lookalike.resolve(detection.obj_id, detection.pose.T_camera_object,
+                                           job.points, more_views=job.more_views)
+        if winner != detection.obj_id:
+            # the twins share their model frame, so the fitted pose is the twin's too
+            detection.obj_id = winner
+            detection.class_rank = job.candidates.index(winner) \
+                if winner in job.candidates else len(job.candidates)
 
     # ---------------------------------------------------------------------------- all stages
     def process(self, views: dict[str, ViewInput], *,
@@ -632,6 +679,11 @@ class PerceptionPipeline:
         return FrameResult(detections, fusion.labels, {
             'segmentation': 1e3 * (t1 - t0), 'classification': 1e3 * (t2 - t1),
             'pose': 1e3 * (t3 - t2), 'frame': 1e3 * (t3 - t0)}, self.table_frames)
+
+
+def _lookalike_options(fit: FitParams) -> tuple[bool, float, float]:
+    """The fields of ``fit`` the look-alike check is built with."""
+    return fit.lookalike_check, fit.lookalike_tolerance_m, fit.lookalike_min_z
 
 
 def _instance_ids(counts: dict[str, np.ndarray]) -> list[int]:

@@ -18,8 +18,9 @@ Publishes (RELIABLE, depth 10):
 Parameters: ``templates_path`` (.npz from ``tlessbot templates``; default: the packaged one),
 ``output_frame`` ('camera' or 'world'), ``world_frame``, ``min_fitness``,
 ``verify_accept_fitness``, ``verify_rmse_weight`` and ``fallback_min_fitness`` (how candidates
-are verified), ``lookalike_check`` and ``lookalike_tolerance_m`` (look-alike parts told apart by
-their depth at the fitted pose; these and ``min_roi_points``, ``table_clearance_m``: FitParams),
+are verified), ``lookalike_check``, ``lookalike_tolerance_m``, ``lookalike_min_z`` and
+``lookalike_all_views`` (look-alike parts told apart by their depth in both views at the fitted
+pose, checked in this process; these and ``min_roi_points``, ``table_clearance_m``: FitParams),
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
 fits others, on frames that find ``parallel.min_spare_cores`` idle: SpareCpuParams),

@@ -254,12 +254,14 @@ class TemplateDatabase:
     def __contains__(self, obj_id: object) -> bool:
         return obj_id in self.objects
 
-    def lookalike_check(self, *, tolerance_m: float = 0.002) -> LookalikeCheck:
+    def lookalike_check(self, *, tolerance_m: float = 0.002, min_z: float = 0.0
+                        ) -> LookalikeCheck:
         """A :class:`~tlessbot_ros.core.pose.LookalikeCheck` over the stored look-alikes
-        (it checks nothing for a database without any)."""
+        (it checks nothing for a database without any); the options are its own."""
         objects = [o for o in self.objects.values() if o.lookalikes and o.mesh_faces is not None]
         return LookalikeCheck({o.obj_id: (o.mesh_vertices, o.mesh_faces) for o in objects},
-                              {o.obj_id: o.lookalikes for o in objects}, tolerance_m=tolerance_m)
+                              {o.obj_id: o.lookalikes for o in objects}, tolerance_m=tolerance_m,
+                              min_z=min_z)
 
     def save(self, path: str | Path) -> None:
         """Write the database as a compressed ``.npz`` (no pickled objects; template normals and
