@@ -59,6 +59,40 @@ def test_clear_forgets_open_frames():
     assert frames.try_admit(2, 0.0)
 
 
+def test_the_newest_refused_frame_waits_for_the_next_free_slot():
+    frames = InFlightFrames(AdmissionParams(max_in_flight=1))
+    assert frames.try_admit(1, 0.0)
+    assert not frames.try_admit(2, 0.1)
+    assert frames.hold(2, 'frame 2') is None
+    assert frames.take_waiting(0.2) is None            # frame 1 still open: 2 keeps waiting
+    assert not frames.try_admit(3, 0.3)
+    assert frames.hold(3, 'frame 3') == 'frame 2'      # newer replaces it: 2 is dropped
+    assert frames.waiting_stamp_ns == 3
+    assert frames.finish(1, 0.4)
+    assert frames.take_waiting(0.4) == 'frame 3'       # admitted: it holds the slot now
+    assert (frames.open_count, frames.waiting_stamp_ns, frames.released) == (1, None, 1)
+    assert frames.take_waiting(0.5) is None
+    assert frames.finish(3, 0.6)
+
+
+def test_without_hold_newest_a_refused_frame_is_dropped_at_once():
+    frames = InFlightFrames(AdmissionParams(max_in_flight=1, hold_newest=False))
+    assert frames.try_admit(1, 0.0) and not frames.try_admit(2, 0.1)
+    assert frames.hold(2, 'frame 2') == 'frame 2'
+    assert frames.finish(1, 0.2) and frames.take_waiting(0.2) is None
+
+
+def test_a_waiting_frame_is_given_up_on_request_and_takes_an_expired_slot():
+    frames = InFlightFrames(AdmissionParams(max_in_flight=1, min_expiry_s=1.0))
+    frames.try_admit(1, 0.0)
+    frames.hold(2, 'frame 2')
+    assert frames.drop_waiting() == 'frame 2' and frames.waiting_stamp_ns is None
+    frames.hold(3, 'frame 3')
+    assert frames.take_waiting(0.5) is None
+    assert frames.take_waiting(1.5) == 'frame 3'       # frame 1's outcome was lost
+    assert frames.expired == 1
+
+
 @pytest.mark.parametrize('field, value', [('max_in_flight', -1), ('expiry_factor', 0.5),
                                           ('min_expiry_s', 0.0)])
 def test_invalid_params_say_what_to_fix(field, value):

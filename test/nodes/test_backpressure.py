@@ -99,7 +99,9 @@ def test_the_localiser_admits_only_while_fewer_than_max_in_flight_are_unfinished
     from tlessbot_ros.nodes.localiser import LocaliserNode
 
     executor, nodes = ros
-    localiser = LocaliserNode(parameter_overrides=[Parameter('admission.max_in_flight', value=1)])
+    localiser = LocaliserNode(parameter_overrides=[
+        Parameter('admission.max_in_flight', value=1),
+        Parameter('admission.hold_newest', value=False)])
     nodes.append(localiser)
     executor.add_node(localiser)
     # No pose estimator reports outcomes yet: nothing to wait for, every frame is taken.
@@ -132,3 +134,40 @@ def test_the_localiser_admits_only_while_fewer_than_max_in_flight_are_unfinished
     classifier_outcomes.publish(frame_outcome(12, 'dropped'))  # never reaches the pose stage
     assert _spin_until(executor, lambda: localiser.in_flight.open_count == 0)
     assert localiser.in_flight.refused == 1
+
+
+def test_a_refused_frame_waits_at_the_entrance_and_is_taken_when_a_slot_frees(ros):
+    """With admission.hold_newest (the default) the newest refused frame is not lost: the
+    outcome that frees a slot hands it to the worker; an older waiting frame is dropped."""
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.conversions.outcomes import frame_outcome
+    from tlessbot_ros.nodes.common import RESULT_QOS, message_class
+    from tlessbot_ros.nodes.inputs import newest_stamp_ns
+    from tlessbot_ros.nodes.localiser import LocaliserNode
+
+    executor, nodes = ros
+    localiser = LocaliserNode(parameter_overrides=[Parameter('admission.max_in_flight', value=1)])
+    nodes.append(localiser)
+    executor.add_node(localiser)
+    taken = []
+    localiser.take_frame = lambda views, held=False: taken.append(newest_stamp_ns(views))
+    downstream = rclpy_node('fake_pose_stage')
+    pose_outcomes = downstream.create_publisher(message_class('std_msgs/msg/Header'),
+                                                '/pose_estimator/frames', RESULT_QOS)
+    nodes.append(downstream)
+    executor.add_node(downstream)
+    assert _spin_until(executor, lambda: pose_outcomes.get_subscription_count() > 0
+                       and localiser._downstream['pose_estimator'].get_publisher_count() > 0)
+
+    assert localiser.admit(_views(10))
+    assert not localiser.admit(_views(11)) and not localiser.admit(_views(12))
+    assert localiser.entrance_dropped == 1            # 11, replaced by 12; 12 waits
+    assert localiser.in_flight.waiting_stamp_ns == 12
+    pose_outcomes.publish(frame_outcome(10, 'done'))
+    assert _spin_until(executor, lambda: taken == [12])
+    assert localiser.in_flight.open_count == 1 and localiser.in_flight.released == 1
+    localiser.set_parameters([Parameter('admission.hold_newest', value=False)])
+    localiser.parameters.apply_pending()   # what the worker does before its next frame
+    assert not localiser.admit(_views(13))
+    assert localiser.entrance_dropped == 2 and localiser.in_flight.waiting_stamp_ns is None

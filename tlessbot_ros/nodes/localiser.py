@@ -19,8 +19,9 @@ Subscribes (RELIABLE), for backpressure:
                                                  frame_id = done | dropped | failed
 Admission: a complete frame is taken only while fewer than ``admission.max_in_flight`` frames
 it has taken are still unfinished downstream (:mod:`~tlessbot_ros.core.common.admission`), so
-frames are dropped here, at the entrance, instead of queueing in the later stages. Without a
-pose estimator publishing outcomes, every frame is taken.
+frames are dropped here, at the entrance, instead of queueing in the later stages; the newest
+refused frame waits here for the next free slot (``admission.hold_newest``). Without a pose
+estimator publishing outcomes, every frame is taken.
 Parameters: ``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParams: segment
 both views at once, in two threads, while ``parallel.min_spare_cores`` are idle: SpareCpuParams),
 ``segmentation.*`` (SegmentationParams), ``fusion.*``
@@ -144,13 +145,35 @@ class LocaliserNode(StageNode):
     def admit(self, views: Views, *, held: bool = False) -> bool:
         """Backpressure: take the frame only while fewer than ``admission.max_in_flight`` are
         unfinished downstream (every frame when no pose estimator reports outcomes, and the
-        frames released at a time jump: they are few, once)."""
+        frames released at a time jump: they are few, once). A refused frame waits at the
+        entrance for the next free slot (``admission.hold_newest``), replacing an older one;
+        an older frame still waiting when a slot is free goes first."""
         if self._downstream[DOWNSTREAM[-1]].get_publisher_count() == 0:
             return True
         stamp_ns = newest_stamp_ns(views)
+        if stamp_ns is None:
+            return True
+        now = time.monotonic()
         with self._in_flight_lock:
-            return stamp_ns is None or self.in_flight.try_admit(stamp_ns, time.monotonic(),
-                                                                force=held)
+            older = self.in_flight.take_waiting(now)
+            admitted = self.in_flight.try_admit(stamp_ns, now, force=held)
+            dropped = None if admitted else self.in_flight.hold(stamp_ns, views)
+        if older is not None:
+            self.take_frame(older)
+        if dropped is not None:
+            self.entrance_dropped += 1
+        return admitted
+
+    def _take_waiting(self) -> None:
+        """A slot may have freed: take the frame waiting at the entrance, if any (only with a
+        worker thread: without one a frame is processed inside the callback that freed the
+        slot, and the next frame to arrive takes the waiting one instead)."""
+        if self._worker is None:
+            return
+        with self._in_flight_lock:
+            views = self.in_flight.take_waiting(time.monotonic())
+        if views is not None:
+            self.take_frame(views)
 
     def on_admitted(self, views: Views) -> None:
         """Relay the admitted frame's camera messages, as received, to the later stages."""
@@ -165,6 +188,7 @@ class LocaliserNode(StageNode):
         if outcome != DONE:
             with self._in_flight_lock:
                 self.in_flight.finish(stamp_ns, time.monotonic(), completed=False)
+            self._take_waiting()
 
     def _on_downstream_outcome(self, stage: str, msg: Any) -> None:
         try:
@@ -178,16 +202,25 @@ class LocaliserNode(StageNode):
             with self._in_flight_lock:
                 self.in_flight.finish(stamp_ns, time.monotonic(),
                                       completed=last_stage and outcome == DONE)
+            self._take_waiting()
 
     def _on_time_jump(self, jump_ns: int) -> None:
         """Stamps jumped: the open frames belong to the old timeline; forget them."""
         super()._on_time_jump(jump_ns)
         with self._in_flight_lock:
             self.in_flight.clear()
+            self._drop_waiting()
 
     def _apply_admission(self, params: AdmissionParams) -> None:
         with self._in_flight_lock:
             self.in_flight.params = params
+            if not params.hold_newest:
+                self._drop_waiting()
+
+    def _drop_waiting(self) -> None:
+        """Give up the frame waiting at the entrance (caller holds ``_in_flight_lock``)."""
+        if self.in_flight.drop_waiting() is not None:
+            self.entrance_dropped += 1
 
     def _warm_up(self) -> None:
         """Segment and fuse a synthetic frame once, and estimate a rig from it (first calls,
@@ -274,6 +307,7 @@ class LocaliserNode(StageNode):
             admission = {'views_in_parallel': int(self._views_in_parallel),
                          'in_flight': self.in_flight.open_count,
                          'entrance_refused': self.in_flight.refused,
+                         'entrance_waited': self.in_flight.released,
                          'in_flight_expired': self.in_flight.expired}
         self.record_stats({**{f'{k}_ms': v for k, v in fusion.timings_ms.items()}, **admission})
         for camera, msgs in views.items():

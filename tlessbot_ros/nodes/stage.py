@@ -418,10 +418,14 @@ class StageNode(Node):
             self.rate_dropped += 1
             return
         if not self.admit(views, held=held):
-            self.entrance_dropped += 1
             return
-        self.on_admitted(views)
         self._last_start = now
+        self.take_frame(views, held=held)
+
+    def take_frame(self, views: Views, *, held: bool = False) -> None:
+        """Take an admitted frame: tell :meth:`on_admitted`, then hand it to the worker (the
+        frame it replaces, still waiting for the worker, is dropped) or process it here."""
+        self.on_admitted(views)
         if self._worker is None:
             self.parameters.apply_pending()
             self._process_safely(views)
@@ -439,9 +443,10 @@ class StageNode(Node):
             self.report_outcome(replaced, DROPPED)
 
     def admit(self, views: Views, *, held: bool = False) -> bool:
-        """Whether to take a complete frame (after ``sync.max_rate_hz``); the entrance of the
-        graph overrides it to apply backpressure (``held`` frames are always taken, see
-        :meth:`_on_views`). A refused frame is counted, not reported."""
+        """Whether to take a complete frame now (after ``sync.max_rate_hz``); the entrance of
+        the graph overrides it to apply backpressure (``held`` frames are always taken, see
+        :meth:`_on_views`) and counts in ``entrance_dropped`` the frames it refuses for good
+        (counted, not reported: they never entered the graph)."""
         return True
 
     def on_admitted(self, views: Views) -> None:

@@ -9,6 +9,14 @@ whose outcome the last stage has not yet reported, and admits a new frame only w
 inside, at any camera rate and on any host; with ``max_in_flight`` 2 the entrance segments
 frame N+1 while the later stages work on frame N (pipelining).
 
+A refused frame is not dropped at once: the newest one waits at the entrance (one slot,
+``hold_newest``) and is taken as soon as a slot frees, unless a newer frame replaces it first.
+At a camera rate the graph can follow on average, a frame that arrives while a slow one is
+still being fitted is then answered a little later instead of lost (a replay at 2 frames/s
+lost 1-3 of 15 frames per run on a busy host without it); at a rate it cannot follow, all but
+the newest frame are still dropped here, and the one that waits is at most one camera period
+old when it is taken.
+
 An outcome may never come (the last stage restarted, a message was lost, the pairing dropped
 the frame): an open frame expires after ``expiry_factor`` times the slowest recent
 admission-to-outcome time, and never sooner than ``min_expiry_s``, so the timeout follows the
@@ -18,6 +26,7 @@ from __future__ import annotations
 
 from collections import OrderedDict, deque
 from dataclasses import dataclass
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -34,11 +43,15 @@ class AdmissionParams:
             slowest of the recent admission-to-outcome times is given up (its outcome was lost).
         min_expiry_s: the expiry is never shorter than this (the first frames after start-up,
             a stage that restarts).
+        hold_newest: a frame refused while ``max_in_flight`` are open waits at the entrance
+            (the newest only; an older waiting frame is then dropped) and is taken as soon as
+            one finishes. False: a refused frame is dropped at once.
     """
 
     max_in_flight: int = 2
     expiry_factor: float = 3.0
     min_expiry_s: float = 1.0
+    hold_newest: bool = True
 
     def __post_init__(self) -> None:
         if self.max_in_flight < 0:
@@ -65,6 +78,8 @@ class InFlightFrames:
         self.finished = 0
         self.expired = 0
         self.refused = 0
+        self.released = 0     # refused frames that waited, then were admitted
+        self._waiting: tuple[int, Any] | None = None   # (stamp_ns, frame) held at the entrance
 
     @property
     def enabled(self) -> bool:
@@ -85,12 +100,44 @@ class InFlightFrames:
         if not self.enabled:
             return True
         self._expire(now_s)
-        if not force and len(self._open) >= self.params.max_in_flight:
+        if not force and not self._has_room(now_s):
             self.refused += 1
             return False
         self._open[int(stamp_ns)] = now_s
         self.admitted += 1
         return True
+
+    @property
+    def waiting_stamp_ns(self) -> int | None:
+        """The stamp of the frame waiting at the entrance (None: none waits)."""
+        return None if self._waiting is None else self._waiting[0]
+
+    def hold(self, stamp_ns: int, frame: Any) -> Any | None:
+        """Keep a refused ``frame`` waiting for a slot (``hold_newest``). Returns the frame
+        this drops: the older one that was waiting, ``frame`` itself when holding is off, or
+        None."""
+        if not self.params.hold_newest:
+            return frame
+        dropped = None if self._waiting is None else self._waiting[1]
+        self._waiting = (int(stamp_ns), frame)
+        return dropped
+
+    def take_waiting(self, now_s: float) -> Any | None:
+        """Admit and return the waiting frame if a slot is free now (None otherwise)."""
+        if self._waiting is None or not self._has_room(now_s):
+            return None
+        stamp_ns, frame = self._waiting
+        self._waiting = None
+        self._open[stamp_ns] = now_s
+        self.admitted += 1
+        self.released += 1
+        return frame
+
+    def drop_waiting(self) -> Any | None:
+        """Give up the waiting frame (time jumped, holding turned off); returns it."""
+        frame = None if self._waiting is None else self._waiting[1]
+        self._waiting = None
+        return frame
 
     def finish(self, stamp_ns: int, now_s: float, *, completed: bool = True) -> bool:
         """The outcome of frame ``stamp_ns`` is known: it leaves the open set. ``completed``
@@ -105,8 +152,13 @@ class InFlightFrames:
         return True
 
     def clear(self) -> None:
-        """Forget every open frame (time jumped; the stages downstream restarted)."""
+        """Forget every open frame (time jumped; the stages downstream restarted). A frame
+        waiting at the entrance stays: :meth:`drop_waiting` gives it up."""
         self._open.clear()
+
+    def _has_room(self, now_s: float) -> bool:
+        self._expire(now_s)
+        return len(self._open) < self.params.max_in_flight
 
     def _expire(self, now_s: float) -> None:
         limit = self.expiry_s()
