@@ -164,3 +164,26 @@ def test_replay_echo_and_record_end_cleanly_when_interrupted(pose_bag, tmp_path,
     from tlessbot_ros.io.bags import read_bag
 
     assert len(list(read_bag(tmp_path / 'rec', [POSE_TOPIC]))) >= 1
+
+
+def test_a_terminated_graph_command_stops_the_nodes_it_started():
+    """SIGTERM to the tool alone (as `timeout` or `kill` send it, not to its process group)
+    stops the graph it started: nodes left running answer the next run's frames a second
+    time."""
+    import time
+
+    import psutil
+
+    demo = Running([*CLI, 'demo'])
+    tool = psutil.Process(demo.process.pid)
+    deadline = time.monotonic() + 120
+    nodes: list[psutil.Process] = []
+    while len(nodes) < 3 and time.monotonic() < deadline and demo.process.poll() is None:
+        nodes = [child for child in tool.children(recursive=True)
+                 if any('tlessbot_ros.nodes.' in part for part in child.cmdline())]
+        time.sleep(0.2)
+    assert len(nodes) >= 3, demo.output
+    demo.process.send_signal(signal.SIGTERM)
+    assert demo.wait(90) is not None, demo.output
+    _, alive = psutil.wait_procs(nodes, timeout=30)
+    assert not alive, [node.cmdline() for node in alive]
