@@ -1,0 +1,82 @@
+"""What the localiser spends receiving camera frames it does not admit (issue #20).
+
+    python scripts/localiser_receive_cost.py [--rate 2]
+
+Starts the localiser (config/cell.yaml) and a stand-in pose estimator that publishes no
+outcome, so after its first two frames the entrance stays closed (``admission.min_expiry_s``
+set out of reach). Then prints the localiser's CPU (share of one core, from /proc) over 30 s
+idle, 30 s while ``tlessbot replay bags/demo --loop --restamp`` publishes at ``--rate`` times
+the bag's 15 frames/s, and 30 s idle again. The difference is the cost of taking in frames
+only to refuse them. Set ROS_DOMAIN_ID to a free domain; it defaults to 79.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# A pose estimator that never reports an outcome: the localiser's two slots stay open.
+_STAND_IN = """
+import rclpy
+from tlessbot_ros.nodes.common import RESULT_QOS, init_ros, message_class
+init_ros()
+node = rclpy.create_node('pose_estimator_stand_in')
+node.create_publisher(message_class('std_msgs/msg/Header'), '/pose_estimator/frames', RESULT_QOS)
+try:
+    rclpy.spin(node)
+except KeyboardInterrupt:
+    pass
+"""
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (s)."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def share_of_a_core(pid: int, seconds: float) -> float:
+    cpu0, t0 = cpu_seconds(pid), time.monotonic()
+    time.sleep(seconds)
+    return (cpu_seconds(pid) - cpu0) / (time.monotonic() - t0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--rate', type=float, default=2.0, help='replay speed factor')
+    parser.add_argument('--seconds', type=float, default=30.0, help='length of each window')
+    args = parser.parse_args()
+    env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    env.setdefault('ROS_DOMAIN_ID', '79')
+    quiet = dict(env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    localiser = subprocess.Popen(
+        [sys.executable, '-m', 'tlessbot_ros.nodes.localiser', '--ros-args', '--params-file',
+         str(ROOT / 'config' / 'cell.yaml'), '-p', 'admission.min_expiry_s:=100000.0'], **quiet)
+    stand_in = subprocess.Popen([sys.executable, '-c', _STAND_IN], **quiet)
+    try:
+        time.sleep(25)   # ready, and matched with the stand-in
+        print(f'idle: {100 * share_of_a_core(localiser.pid, args.seconds):.1f} % of a core')
+        replay = subprocess.Popen(
+            [sys.executable, '-m', 'tlessbot_ros.tools.cli', 'replay', str(ROOT / 'bags' / 'demo'),
+             '--rate', str(args.rate), '--loop', '--restamp'], **quiet)
+        time.sleep(15)   # the replay's wait for subscribers, then steady
+        busy = share_of_a_core(localiser.pid, args.seconds)
+        print(f'replay at {args.rate:g} x the bag rate, entrance closed: {100 * busy:.1f} % '
+              'of a core')
+        replay.send_signal(signal.SIGINT)
+        replay.wait(30)
+        print(f'idle again: {100 * share_of_a_core(localiser.pid, args.seconds):.1f} % of a core')
+    finally:
+        for process in (localiser, stand_in):
+            process.send_signal(signal.SIGINT)
+            process.wait(30)
+
+
+if __name__ == '__main__':
+    main()
