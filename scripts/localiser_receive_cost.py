@@ -28,10 +28,7 @@ from tlessbot_ros.nodes.common import RESULT_QOS, init_ros, message_class
 init_ros()
 node = rclpy.create_node('pose_estimator_stand_in')
 node.create_publisher(message_class('std_msgs/msg/Header'), '/pose_estimator/frames', RESULT_QOS)
-try:
-    rclpy.spin(node)
-except KeyboardInterrupt:
-    pass
+rclpy.spin(node)
 """
 
 
@@ -73,9 +70,13 @@ def main() -> None:
         replay.wait(30)
         print(f'idle again: {100 * share_of_a_core(localiser.pid, args.seconds):.1f} % of a core')
     finally:
+        localiser.send_signal(signal.SIGINT)
+        stand_in.kill()   # holds nothing; its spin does not return on SIGINT
         for process in (localiser, stand_in):
-            process.send_signal(signal.SIGINT)
-            process.wait(30)
+            try:
+                process.wait(30)
+            except subprocess.TimeoutExpired:
+                process.kill()
 
 
 if __name__ == '__main__':
