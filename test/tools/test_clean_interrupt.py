@@ -168,8 +168,8 @@ def test_replay_echo_and_record_end_cleanly_when_interrupted(pose_bag, tmp_path,
 
 def test_a_terminated_graph_command_stops_the_nodes_it_started():
     """SIGTERM to the tool alone (as `timeout` or `kill` send it, not to its process group)
-    stops the graph it started: nodes left running answer the next run's frames a second
-    time."""
+    stops the graph it started (``init_ros`` turns it into KeyboardInterrupt before the
+    nodes start): nodes left running would answer the next run's frames a second time."""
     import time
 
     import psutil

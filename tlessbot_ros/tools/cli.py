@@ -15,9 +15,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import signal
 import sys
-import threading
 from pathlib import Path
 
 from tlessbot_ros.errors import TlessbotError
@@ -55,7 +53,6 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     module.add_arguments(parser)
     args = parser.parse_args(argv[1:])
-    _terminate_as_interrupt()
     try:
         return int(module.run(args) or 0)
     except TlessbotError as error:
@@ -63,26 +60,6 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
-
-
-def _terminate_as_interrupt() -> None:
-    """SIGTERM (``timeout``, ``kill``, a CI runner giving up) ends a command as Ctrl-C does.
-
-    Python's default SIGTERM ends the process at once: a bench or demo killed that way left its
-    graph's nodes running, and they answered the next run's frames a second time (seen as
-    duplicates and false positives in every frame). As KeyboardInterrupt, the command's
-    ``finally`` blocks stop the processes it started. Only the first signal interrupts; more
-    are ignored so the clean-up can finish (SIGKILL still ends a stuck one). Commands that
-    spin ROS set their own handlers over this one (``interrupt_on_signals``)."""
-    received: list[int] = []
-
-    def on_terminate(signum: int, frame: object) -> None:
-        if not received:
-            received.append(signum)
-            raise KeyboardInterrupt
-
-    if threading.current_thread() is threading.main_thread():   # else Python refuses
-        signal.signal(signal.SIGTERM, on_terminate)
 
 
 if __name__ == '__main__':
