@@ -269,3 +269,16 @@ def test_a_pool_leaves_no_worker_behind_when_its_node_is_killed(tmp_path):
         assert 'Traceback' not in log.read_text()
     finally:
         node.kill()
+
+
+def test_a_worker_builds_no_lookalike_check(scene):
+    """The node checks look-alikes on the fitted poses (every view); a worker only fits, so it
+    must not build and warm up the check's meshes, also after new settings."""
+    from tlessbot_ros.parallel.pose_worker import pipeline_from_config, with_settings
+
+    path, db = scene[0], scene[1]
+    assert PerceptionPipeline(templates=db, fit_params=FitParams()).lookalike is not None
+    worker = pipeline_from_config({'templates': str(path), 'fit': {'lookalike_check': True}})
+    assert worker.lookalike is None
+    changed = with_settings(worker, {'fit': {'lookalike_tolerance_m': 0.003}})
+    assert changed.lookalike is None and changed.fit_params.lookalike_tolerance_m == 0.003

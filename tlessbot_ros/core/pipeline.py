@@ -64,6 +64,7 @@ from tlessbot_ros.core.localise import (
 )
 from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
 from tlessbot_ros.core.pose import (
+    LookalikeCheck,
     PoseCandidate,
     PoseEstimator,
     PoseParams,
@@ -277,10 +278,7 @@ class PerceptionPipeline:
         # per view: (the depth and extrinsics it was found for, its frame)
         self._tables: dict[str, tuple[tuple[object, object], TableFrame]] = {}
         self.pose_estimator = PoseEstimator(templates, params=pose) if templates else None
-        self.lookalike = templates.lookalike_check(
-            tolerance_m=fit_params.lookalike_tolerance_m,
-            min_z=fit_params.lookalike_min_z) \
-            if templates and fit_params.lookalike_check else None
+        self.lookalike = _lookalike_check(templates, fit_params) if templates else None
 
     def replace(self, **changes: Any) -> PerceptionPipeline:
         """A pipeline like this one with some of the constructor's arguments changed
@@ -305,10 +303,7 @@ class PerceptionPipeline:
         old, fit = self.fit_params, new.fit_params
         if self.pose_estimator is not None and _lookalike_options(old) != \
                 _lookalike_options(fit):
-            database = self.pose_estimator.database
-            new.lookalike = database.lookalike_check(tolerance_m=fit.lookalike_tolerance_m,
-                                                     min_z=fit.lookalike_min_z) \
-                if fit.lookalike_check else None
+            new.lookalike = _lookalike_check(self.pose_estimator.database, fit)
             if new.lookalike is not None:
                 new.lookalike.warm_up()
         return new
@@ -679,6 +674,14 @@ class PerceptionPipeline:
         return FrameResult(detections, fusion.labels, {
             'segmentation': 1e3 * (t1 - t0), 'classification': 1e3 * (t2 - t1),
             'pose': 1e3 * (t3 - t2), 'frame': 1e3 * (t3 - t0)}, self.table_frames)
+
+
+def _lookalike_check(database: TemplateDatabase, fit: FitParams) -> LookalikeCheck | None:
+    """The look-alike check ``fit``'s ``lookalike_*`` ask for (None when it is off)."""
+    if not fit.lookalike_check:
+        return None
+    return database.lookalike_check(tolerance_m=fit.lookalike_tolerance_m,
+                                    min_z=fit.lookalike_min_z)
 
 
 def _lookalike_options(fit: FitParams) -> tuple[bool, float, float]:

@@ -25,6 +25,7 @@ import signal
 import sys
 import threading
 import time
+from dataclasses import replace
 from typing import Any, BinaryIO
 
 from tlessbot_ros.core.pipeline import Detection, FitParams, PartJob, PerceptionPipeline
@@ -45,14 +46,21 @@ def pipeline_from_config(config: dict[str, Any]) -> PerceptionPipeline:
     """The pipeline a worker fits with, from its start-up message."""
     return PerceptionPipeline(templates=TemplateDatabase.load(config['templates']),
                               pose=params_from_json(PoseParams, config.get('pose', {})),
-                              fit_params=params_from_json(FitParams, config.get('fit', {})))
+                              fit_params=_fit_params(config.get('fit', {})))
+
+
+def _fit_params(values: dict[str, Any]) -> FitParams:
+    """The node's FitParams without the look-alike check: the node runs it on the fitted
+    poses (it reads every view, which a worker does not have), so a worker would only build
+    and warm up its meshes for nothing."""
+    return replace(params_from_json(FitParams, values), lookalike_check=False)
 
 
 def with_settings(pipeline: PerceptionPipeline, settings: dict[str, Any]) -> PerceptionPipeline:
     """The pipeline with a job's new ``{"pose": {PoseParams}, "fit": {FitParams}}`` (the
     node's parameters changed); templates and their caches are kept."""
     return pipeline.replace(pose=params_from_json(PoseParams, settings.get('pose', {})),
-                            fit_params=params_from_json(FitParams, settings.get('fit', {})))
+                            fit_params=_fit_params(settings.get('fit', {})))
 
 
 def fit(pipeline: PerceptionPipeline, header: dict[str, Any], payload: bytes) -> dict[str, Any]:

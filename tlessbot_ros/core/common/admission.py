@@ -99,8 +99,7 @@ class InFlightFrames:
         expiring the overdue ones), or anyway when ``force``d; count a refusal otherwise."""
         if not self.enabled:
             return True
-        self._expire(now_s)
-        if not force and not self._has_room(now_s):
+        if not self._has_room(now_s) and not force:   # expires overdue frames first
             self.refused += 1
             return False
         self._open[int(stamp_ns)] = now_s
