@@ -43,6 +43,21 @@ def _to_object(R, t, k, px, py, pz):
             R[k, 0, 2] * dx + R[k, 1, 2] * dy + R[k, 2, 2] * dz)
 
 
+@njit(cache=True, inline='always')
+def _match(R, t, k, px, py, pz, origin, spacing, index_grid, model, limit):
+    """The grid-nearest model sample of point p under pose k, if closer than sqrt(limit):
+    (its index j, the object-frame point q - m) or (-1, 0, 0, 0)."""
+    qx, qy, qz = _to_object(R, t, k, px, py, pz)
+    cx, cy, cz = _cell(qx, qy, qz, origin, spacing, index_grid.shape)
+    if cx < 0:
+        return -1, 0.0, 0.0, 0.0
+    j = index_grid[cx, cy, cz]
+    ex, ey, ez = qx - model[j, 0], qy - model[j, 1], qz - model[j, 2]
+    if ex * ex + ey * ey + ez * ez >= limit:
+        return -1, 0.0, 0.0, 0.0
+    return j, ex, ey, ez
+
+
 @njit(cache=True, nogil=True)
 def truncated_cost(R, t, points, origin, spacing, distance_grid, tau):
     """(K,) mean over the points of min(grid distance to the model, tau); tau outside."""
@@ -64,19 +79,14 @@ def truncated_cost(R, t, points, origin, spacing, distance_grid, tau):
 def inlier_fraction(R, t, points, origin, spacing, index_grid, model, inlier_m):
     """(K,) fraction of points closer than inlier_m to their grid-nearest model sample."""
     K, N = R.shape[0], points.shape[0]
-    shape = index_grid.shape
     fraction = np.empty(K)
     limit = inlier_m * inlier_m
     for k in range(K):
         count = 0
         for i in range(N):
-            qx, qy, qz = _to_object(R, t, k, points[i, 0], points[i, 1], points[i, 2])
-            cx, cy, cz = _cell(qx, qy, qz, origin, spacing, shape)
-            if cx < 0:
-                continue
-            j = index_grid[cx, cy, cz]
-            ex, ey, ez = qx - model[j, 0], qy - model[j, 1], qz - model[j, 2]
-            if ex * ex + ey * ey + ez * ez < limit:
+            j, _, _, _ = _match(R, t, k, points[i, 0], points[i, 1], points[i, 2], origin,
+                                spacing, index_grid, model, limit)
+            if j >= 0:
                 count += 1
         fraction[k] = count / max(N, 1)
     return fraction
@@ -110,7 +120,6 @@ def _planar_equations(R, t, points, origin, spacing, index_grid, model, normals,
     True (zeros elsewhere)."""
     K, N = R.shape[0], points.shape[0]
     D = 3
-    shape = index_grid.shape
     A = np.zeros((K, D, D))
     b = np.zeros((K, D))
     count = np.zeros(K, np.int64)
@@ -121,15 +130,10 @@ def _planar_equations(R, t, points, origin, spacing, index_grid, model, normals,
             continue
         for i in range(N):
             px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-            qx, qy, qz = _to_object(R, t, k, px, py, pz)
-            cx, cy, cz = _cell(qx, qy, qz, origin, spacing, shape)
-            if cx < 0:
+            j, _, _, _ = _match(R, t, k, px, py, pz, origin, spacing, index_grid, model, limit)
+            if j < 0:
                 continue
-            j = index_grid[cx, cy, cz]
             mx, my, mz = model[j, 0], model[j, 1], model[j, 2]
-            ex, ey, ez = qx - mx, qy - my, qz - mz
-            if ex * ex + ey * ey + ez * ez >= limit:
-                continue
             # arm = R m (the model point about the object origin), n = R n_model
             ax = R[k, 0, 0] * mx + R[k, 0, 1] * my + R[k, 0, 2] * mz
             ay = R[k, 1, 0] * mx + R[k, 1, 1] * my + R[k, 1, 2] * mz
@@ -165,7 +169,6 @@ def _full_equations(R, t, points, origin, spacing, index_grid, model, normals, m
     rotation per point, one per pose at the end (about 0.6x the time of rotating every row,
     the 6-DOF ICP's main cost; equal up to rounding)."""
     K, N = R.shape[0], points.shape[0]
-    shape = index_grid.shape
     A = np.zeros((K, 6, 6))
     b = np.zeros((K, 6))
     count = np.zeros(K, np.int64)
@@ -179,15 +182,11 @@ def _full_equations(R, t, points, origin, spacing, index_grid, model, normals, m
         A_o[:] = 0.0
         b_o[:] = 0.0
         for i in range(N):
-            qx, qy, qz = _to_object(R, t, k, points[i, 0], points[i, 1], points[i, 2])
-            cx, cy, cz = _cell(qx, qy, qz, origin, spacing, shape)
-            if cx < 0:
+            j, ex, ey, ez = _match(R, t, k, points[i, 0], points[i, 1], points[i, 2], origin,
+                                   spacing, index_grid, model, limit)
+            if j < 0:
                 continue
-            j = index_grid[cx, cy, cz]
             mx, my, mz = model[j, 0], model[j, 1], model[j, 2]
-            ex, ey, ez = qx - mx, qy - my, qz - mz
-            if ex * ex + ey * ey + ez * ez >= limit:
-                continue
             ux, uy, uz = normals[j, 0], normals[j, 1], normals[j, 2]
             # n . (p - t - R m) = n_model . (q - m): the residual needs no rotation either
             r = ux * ex + uy * ey + uz * ez
