@@ -1,13 +1,14 @@
 """What the localiser spends receiving camera frames it does not admit (issue #20).
 
-    python scripts/localiser_receive_cost.py [--rate 2]
+    python scripts/localiser_receive_cost.py [--rate 2] [--read-when-full]
 
 Starts the localiser (config/cell.yaml) and a stand-in pose estimator that publishes no
 outcome, so after its first two frames the entrance stays closed (``admission.min_expiry_s``
 set out of reach). Then prints the localiser's CPU (share of one core, from /proc) over 30 s
 idle, 30 s while ``tlessbot replay bags/demo --loop --restamp`` publishes at ``--rate`` times
-the bag's 15 frames/s, and 30 s idle again. The difference is the cost of taking in frames
-only to refuse them. Set ROS_DOMAIN_ID to a free domain; it defaults to 79.
+the bag's 15 frames/s, and 30 s idle again. The difference is the cost of the frames the
+entrance cannot take: by default it leaves them unread (``admission.pause_inputs``);
+``--read-when-full`` takes each one only to refuse it, as before. Set ROS_DOMAIN_ID to a free domain; it defaults to 79.
 """
 from __future__ import annotations
 
@@ -48,13 +49,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--rate', type=float, default=2.0, help='replay speed factor')
     parser.add_argument('--seconds', type=float, default=30.0, help='length of each window')
+    parser.add_argument('--read-when-full', action='store_true',
+                        help='admission.pause_inputs false: read every message while full')
     args = parser.parse_args()
     env = dict(os.environ, PYTHONPATH=str(ROOT), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     env.setdefault('ROS_DOMAIN_ID', '79')
     quiet = dict(env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     localiser = subprocess.Popen(
         [sys.executable, '-m', 'tlessbot_ros.nodes.localiser', '--ros-args', '--params-file',
-         str(ROOT / 'config' / 'cell.yaml'), '-p', 'admission.min_expiry_s:=100000.0'], **quiet)
+         str(ROOT / 'config' / 'cell.yaml'), '-p', 'admission.min_expiry_s:=100000.0',
+         '-p', f'admission.pause_inputs:={str(not args.read_when_full).lower()}'], **quiet)
     stand_in = subprocess.Popen([sys.executable, '-c', _STAND_IN], **quiet)
     try:
         time.sleep(25)   # ready, and matched with the stand-in

@@ -53,6 +53,28 @@ def test_a_late_frame_is_not_paired_with_the_previous_frame_of_the_other_camera(
     assert sync.dropped == 1                                  # t3
 
 
+def test_a_late_frame_waits_for_its_partner_even_when_most_steps_are_skipped_frames():
+    """A reader that leaves frames unread (the paused entrance) sees steps of several periods
+    as often as single ones; the period is still one step, so top 633 waits for side 633
+    instead of taking side 600, the frame before it."""
+    sync = StampSynchroniser(['top', 'side'], slop_ns=50 * MS, queue_size=2)
+    for stamp in (0, 33, 200, 367, 400, 567):   # steps 33, 167, 167, 33, 167 ms
+        sync.add('top', stamp * MS, f't{stamp}')
+        assert sync.add('side', stamp * MS, f's{stamp}') == {'top': f't{stamp}',
+                                                             'side': f's{stamp}'}
+    assert sync.add('side', 600 * MS, 's600') is None   # its top set never completed
+    assert sync.add('top', 633 * MS, 't633') is None    # side 633 is due: not side 600
+    assert sync.add('side', 633 * MS, 's633') == {'top': 't633', 'side': 's633'}
+
+
+def test_the_period_of_a_stream_is_its_lower_quartile_step():
+    from tlessbot_ros.core.common import stream_period_ns
+
+    assert stream_period_ns([5]) is None and stream_period_ns([5, 5]) is None
+    assert stream_period_ns([0, 33, 200, 367, 400, 567, 600]) == 33   # median would be 167
+    assert stream_period_ns([0, 33, 66, 67, 100, 133, 166, 200, 233]) == 33   # one stray
+
+
 def test_free_running_cameras_with_a_phase_offset_still_pair_at_once():
     sync = StampSynchroniser(['top', 'side'], slop_ns=50 * MS, queue_size=4)
     emitted = []
@@ -323,3 +345,20 @@ def test_a_stray_frame_on_every_topic_is_not_confirmed_by_strays_that_differ_per
         assert jumps.check(topic, 91 * S + k * MS) == 'stale'
     assert jumps.count == 0
     assert jumps.check('color', 100 * S + S // 30) == 'in order'
+
+
+def test_skipped_frames_are_counted_from_the_gaps_once_the_period_is_known():
+    from tlessbot_ros.core.common import SkippedFrames
+
+    skipped = SkippedFrames(window=4)
+    skipped.add(0)
+    skipped.add(100)             # a gap, but no period is known yet
+    assert skipped.count == 0
+    skipped.add(133)             # the period is 33: the first step skipped two frames
+    assert skipped.count == 2
+    for stamp in (166, 299, 332):   # one more gap of four periods: three more
+        skipped.add(stamp)
+    assert skipped.count == 5    # the first steps left the window with their count
+    skipped.add(10)              # a new timeline: counted so far is kept
+    skipped.add(43)
+    assert skipped.count == 5

@@ -171,3 +171,80 @@ def test_a_refused_frame_waits_at_the_entrance_and_is_taken_when_a_slot_frees(ro
     localiser.parameters.apply_pending()   # what the worker does before its next frame
     assert not localiser.admit(_views(13))
     assert localiser.entrance_dropped == 2 and localiser.in_flight.waiting_stamp_ns is None
+
+
+def _publish_camera_frame(publishers: dict, stamp_ns: int) -> None:
+    """One tiny frame (colour, aligned depth, camera_info) on every camera's topics."""
+    from tlessbot_ros.conversions.camera_info import intrinsics_to_camera_info
+    from tlessbot_ros.conversions.image_cdr import image_to_cdr
+    from tlessbot_ros.conversions.messages import RclpyFactory
+    from tlessbot_ros.core.common import d415_intrinsics
+
+    for camera, topics in publishers.items():
+        frame = f'{camera}_color_optical_frame'
+        topics['color'].publish(image_to_cdr(np.zeros((6, 8, 3), np.uint8), 'rgb8',
+                                             frame_id=frame, stamp_ns=stamp_ns))
+        topics['depth'].publish(image_to_cdr(np.full((6, 8), 500, np.uint16), '16UC1',
+                                             frame_id=frame, stamp_ns=stamp_ns))
+        topics['info'].publish(intrinsics_to_camera_info(
+            d415_intrinsics(8, 6), frame_id=frame, stamp_ns=stamp_ns, factory=RclpyFactory()))
+
+
+def test_a_full_entrance_leaves_camera_messages_unread_and_takes_the_newest_when_a_slot_frees(
+        ros):
+    """admission.pause_inputs (the default): while max_in_flight frames are open, the camera
+    subscriptions are not read at all (nothing is paired or refused); the outcome that frees a
+    slot reads what waited in DDS and takes only its newest complete frame. With it off, every
+    message is read and each complete frame is refused on its own."""
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.conversions.outcomes import frame_outcome
+    from tlessbot_ros.conversions.topics import camera_topic
+    from tlessbot_ros.nodes.common import RESULT_QOS, SENSOR_QOS, message_class
+    from tlessbot_ros.nodes.inputs import newest_stamp_ns
+    from tlessbot_ros.nodes.localiser import LocaliserNode
+    from tlessbot_ros.nodes.stage import CAMERA_INPUTS
+
+    executor, nodes = ros
+    localiser = LocaliserNode(parameter_overrides=[Parameter('admission.max_in_flight', value=1)])
+    nodes.append(localiser)
+    executor.add_node(localiser)
+    taken = []
+    localiser.take_frame = lambda views, held=False: taken.append(newest_stamp_ns(views))
+    cameras = rclpy_node('fake_cameras')
+    publishers = {camera: {key: cameras.create_publisher(message_class(msg_type),
+                                                         camera_topic(camera, topic), SENSOR_QOS)
+                           for key, (msg_type, topic) in CAMERA_INPUTS.items()}
+                  for camera in ('top', 'side')}
+    pose_outcomes = cameras.create_publisher(message_class('std_msgs/msg/Header'),
+                                             '/pose_estimator/frames', RESULT_QOS)
+    nodes.append(cameras)
+    executor.add_node(cameras)
+    assert _spin_until(executor, localiser.ready.is_set, timeout_s=120.0)
+    assert _spin_until(executor, lambda: pose_outcomes.get_subscription_count() > 0
+                       and localiser._downstream['pose_estimator'].get_publisher_count() > 0
+                       and all(p.get_subscription_count() > 0
+                               for topics in publishers.values() for p in topics.values()))
+    second = 1_000_000_000
+    _publish_camera_frame(publishers, 1 * second)   # the entrance is open: taken at once
+    assert _spin_until(executor, lambda: taken == [1 * second])
+    inputs = localiser._inputs
+    for stamp in (2, 3, 4):   # a frame is open: these wait in DDS, unread
+        _publish_camera_frame(publishers, stamp * second)
+        _spin_until(executor, lambda: False, timeout_s=0.3)
+    assert taken == [1 * second] and localiser.in_flight.refused == 0
+    assert sum(inputs._per_camera['top'].pending().values()) == 0   # none was read
+    pose_outcomes.publish(frame_outcome(1 * second, 'done'))
+    assert _spin_until(executor, lambda: len(taken) == 2)
+    _spin_until(executor, lambda: False, timeout_s=0.3)
+    assert taken == [1 * second, 4 * second]       # the newest; 3 read and dropped (depth 2)
+    assert inputs.superseded == 1 and localiser.in_flight.refused == 0
+    assert inputs.unread_estimate == 1             # frame 2 was replaced in DDS, never read
+
+    localiser.set_parameters([Parameter('admission.pause_inputs', value=False)])
+    localiser.parameters.apply_pending()
+    _spin_until(executor, lambda: False, timeout_s=0.3)   # the change reads what waits: none
+    for stamp in (5, 6):   # frame 4 is open: both are read, and each is refused
+        _publish_camera_frame(publishers, stamp * second)
+        assert _spin_until(executor, lambda: localiser.in_flight.refused == stamp - 4)
+    assert taken == [1 * second, 4 * second] and inputs.superseded == 1

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
 from typing import Any
@@ -167,13 +168,28 @@ class LocaliserNode(StageNode):
     def _take_waiting(self) -> None:
         """A slot may have freed: take the frame waiting at the entrance, if any (only with a
         worker thread: without one a frame is processed inside the callback that freed the
-        slot, and the next frame to arrive takes the waiting one instead)."""
-        if self._worker is None:
-            return
+        slot, and the next frame to arrive takes the waiting one instead), and read the camera
+        messages that waited unread while the entrance was full (``admission.pause_inputs``)."""
+        if self._worker is not None:
+            with self._in_flight_lock:
+                views = self.in_flight.take_waiting(time.monotonic())
+            if views is not None:
+                self.take_frame(views)
+        if self._inputs is not None:
+            self._inputs.reopen(keep_newest=self.in_flight.params.hold_newest)
+
+    def input_gate(self) -> Callable[[], bool]:
+        """While the entrance is full (``admission.pause_inputs``), the camera subscriptions
+        are not read: nothing they bring could be taken before a slot frees."""
+        return self._entrance_open
+
+    def _entrance_open(self) -> bool:
+        """Whether the camera messages are read now (executor thread, every turn)."""
+        if not self.in_flight.params.pause_inputs or \
+                self._downstream[DOWNSTREAM[-1]].get_publisher_count() == 0:
+            return True
         with self._in_flight_lock:
-            views = self.in_flight.take_waiting(time.monotonic())
-        if views is not None:
-            self.take_frame(views)
+            return self.in_flight.has_room(time.monotonic())
 
     def on_admitted(self, views: Views) -> None:
         """Relay the admitted frame's camera messages, as received, to the later stages."""
@@ -216,6 +232,8 @@ class LocaliserNode(StageNode):
             self.in_flight.params = params
             if not params.hold_newest:
                 self._drop_waiting()
+        if self._inputs is not None:   # more room, or no more pausing: read what waited
+            self._inputs.reopen(keep_newest=params.hold_newest)
 
     def _drop_waiting(self) -> None:
         """Give up the frame waiting at the entrance (caller holds ``_in_flight_lock``)."""

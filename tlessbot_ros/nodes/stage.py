@@ -369,7 +369,14 @@ class StageNode(Node):
         self._inputs = TwoViewInputs(
             self, {k: (message_class(t), topic) for k, (t, topic) in topics.items()},
             self.cameras, self.sync_params, self._on_views,
-            qos=input_profile(self.input_qos, self.input_depth), on_time_jump=self._on_time_jump)
+            qos=input_profile(self.input_qos, self.input_depth), on_time_jump=self._on_time_jump,
+            gate=self.input_gate())
+
+    def input_gate(self) -> Callable[[], bool] | None:
+        """Hook: a function that says whether the inputs are read now (the entrance pauses
+        them while it is full, :class:`~tlessbot_ros.nodes.inputs.TwoViewInputs`); None: they
+        always are."""
+        return None
 
     def _on_time_jump(self, jump_ns: int) -> None:
         """The input stamps jumped (the queues are empty already): ages start again. The
@@ -563,6 +570,8 @@ class StageNode(Node):
                   **self._clock_values(),
                   'zero_stamps': self._inputs.zero_stamps if self._inputs else 0,
                   'malformed': self._inputs.malformed if self._inputs else 0,
+                  **({'unread_frames_est': self._inputs.unread_estimate}
+                     if self._inputs and self._inputs.gated else {}),
                   **{k: f'{v:.3g}' for k, v in self._stats.items()}}
         if self.parameters.changes:
             values.update(parameter_changes=self.parameters.changes,

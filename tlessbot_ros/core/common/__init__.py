@@ -81,6 +81,8 @@ _HOME = {
     'StampSynchroniser': 'sync',
     'TimelineGate': 'sync',
     'SyncParams': 'sync',
+    'SkippedFrames': 'sync',
+    'stream_period_ns': 'sync',
 }
 __all__ = sorted(_HOME)
 
@@ -152,10 +154,12 @@ if TYPE_CHECKING:
         JUMP,
         STALE,
         Item,
+        SkippedFrames,
         StampJumps,
         StampSynchroniser,
         SyncParams,
         TimelineGate,
+        stream_period_ns,
     )
     from tlessbot_ros.core.common.table_plane import (  # noqa: F401
         TABLE_PLANE_MODES,

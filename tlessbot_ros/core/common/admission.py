@@ -46,12 +46,19 @@ class AdmissionParams:
         hold_newest: a frame refused while ``max_in_flight`` are open waits at the entrance
             (the newest only; an older waiting frame is then dropped) and is taken as soon as
             one finishes. False: a refused frame is dropped at once.
+        pause_inputs: while ``max_in_flight`` frames are open, leave the camera messages
+            unread in the subscriptions' DDS history (the newest ``input_depth`` of each
+            topic) instead of taking every one only to refuse it; when a slot frees, read what
+            waited and take its newest complete frame (``hold_newest``; without it, drop what
+            waited). At 30 fps a closed entrance that takes every message costs about a
+            quarter of a core (``scripts/localiser_receive_cost.py``).
     """
 
     max_in_flight: int = 2
     expiry_factor: float = 3.0
     min_expiry_s: float = 1.0
     hold_newest: bool = True
+    pause_inputs: bool = True
 
     def __post_init__(self) -> None:
         if self.max_in_flight < 0:
@@ -154,6 +161,10 @@ class InFlightFrames:
         """Forget every open frame (time jumped; the stages downstream restarted). A frame
         waiting at the entrance stays: :meth:`drop_waiting` gives it up."""
         self._open.clear()
+
+    def has_room(self, now_s: float) -> bool:
+        """Whether a frame would be admitted now (after expiring the overdue ones)."""
+        return not self.enabled or self._has_room(now_s)
 
     def _has_room(self, now_s: float) -> bool:
         self._expire(now_s)

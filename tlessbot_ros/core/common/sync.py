@@ -9,8 +9,9 @@ arrives, it looks in every other stream for the item nearest in stamp; if all li
 A slop wider than the frame period (two free-running cameras, or a stage's output waiting for
 its inputs) would otherwise pair an item with the *previous* frame of a stream whose current
 frame is merely late. So a partner older than the arriving item is not taken while that
-stream's next item, expected one median period after its newest, would match clearly better;
-the set forms when that item arrives (or the arriving item is dropped once newer sets form).
+stream's next item, expected one period after its newest (:func:`stream_period_ns`), would
+match clearly better; the set forms when that item arrives (or the arriving item is dropped
+once newer sets form).
 
 Stamps that jump (a bag replayed in a loop without restamping goes back to its first stamp; a
 camera's clock can step) are noticed by :class:`StampJumps`: a synchroniser given one empties
@@ -408,17 +409,64 @@ class StampSynchroniser(Generic[Item]):
         return 0
 
     def _better_partner_due(self, stream: str, partner_ns: int, pivot_ns: int) -> bool:
-        """True when ``stream``'s next item, expected one median period after its newest,
-        would lie less than half as far from the pivot as the partner it has now."""
+        """True when ``stream``'s next item, expected one period after its newest, would lie
+        less than half as far from the pivot as the partner it has now."""
         if partner_ns >= pivot_ns:
             return False   # items arrive in stamp order: later ones would only be farther
         stamps = list(self._recent[stream])
-        steps = [b - a for a, b in zip(stamps, stamps[1:]) if b > a]
-        if not steps:
+        period = stream_period_ns(stamps)
+        if period is None:
             return False   # no period known yet: take what is there
-        expected = stamps[-1] + sorted(steps)[len(steps) // 2]
-        return abs(expected - pivot_ns) < (pivot_ns - partner_ns) / 2
+        return abs(stamps[-1] + period - pivot_ns) < (pivot_ns - partner_ns) / 2
 
     def pending(self) -> dict[str, int]:
         """Items waiting per stream."""
         return {name: len(queue) for name, queue in self._queues.items()}
+
+
+def stream_period_ns(stamps_ns: Sequence[int]) -> int | None:
+    """A stream's period from its recent stamps (ns, in arrival order): the lower quartile of
+    the steps between them, None before two distinct stamps.
+
+    Not the median: a reader that skips frames (an entrance that leaves them unread while the
+    graph is full, a best-effort subscription that loses some) sees steps of several periods,
+    often as many as single ones; the smallest steps are the period. Not the minimum either: one
+    stray stamp close to another would pass for it.
+    """
+    steps = sorted(b - a for a, b in zip(stamps_ns, stamps_ns[1:]) if b > a)
+    return steps[len(steps) // 4] if steps else None
+
+
+class SkippedFrames:
+    """Estimates how many frames of a stream were never seen, from the gaps in the stamps
+    that were (ns, in order): a step of k periods (:func:`stream_period_ns`) skipped k - 1.
+
+    The steps in the recent window are counted with the period known now, so a gap seen
+    before the stream's period was is counted right once it is; older steps keep the count
+    they had when they left the window. A step back (a new timeline) starts the window again.
+    """
+
+    def __init__(self, window: int = 9) -> None:
+        self._stamps: deque[int] = deque(maxlen=window)
+        self._settled = 0
+
+    def add(self, stamp_ns: int) -> None:
+        stamps = self._stamps
+        if stamps and stamp_ns <= stamps[-1]:
+            self._settled = self.count
+            stamps.clear()
+        elif len(stamps) == stamps.maxlen:
+            period = stream_period_ns(list(stamps))
+            self._settled += self._skipped(stamps[1] - stamps[0], period)
+        stamps.append(int(stamp_ns))
+
+    @property
+    def count(self) -> int:
+        stamps = list(self._stamps)
+        period = stream_period_ns(stamps)
+        return self._settled + sum(self._skipped(b - a, period)
+                                   for a, b in zip(stamps, stamps[1:]))
+
+    @staticmethod
+    def _skipped(step_ns: int, period_ns: int | None) -> int:
+        return max(0, round(step_ns / period_ns) - 1) if period_ns else 0
