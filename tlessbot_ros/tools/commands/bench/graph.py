@@ -204,7 +204,9 @@ def run(args: argparse.Namespace) -> int:
         values = result.diagnostics.get(label, {})
         rows.append((f'{label}: CPU while replaying, frames processed / dropped',
                      f'{100 * result.cpu_s[label] / max(args.duration, 1e-9):.0f} % of one core; '
-                     f"{values.get('frames', '?')} / {values.get('dropped', '?')}; "
+                     f"{values.get('frames', '?')} / {values.get('dropped', '?')}"
+                     + (f" (and about {values['unread_frames_est']} left unread in DDS)"
+                        if 'unread_frames_est' in values else '') + '; '
                      f"processing p50 {values.get('latency_ms_p50', '?')} ms, "
                      f"p95 {values.get('latency_ms_p95', '?')} ms; input age at its start "
                      f"p50 {values.get('input_age_ms_p50', '?')} ms, "
