@@ -98,3 +98,28 @@ def test_a_waiting_frame_is_given_up_on_request_and_takes_an_expired_slot():
 def test_invalid_params_say_what_to_fix(field, value):
     with pytest.raises(ValueError, match=field):
         AdmissionParams(**{field: value})
+
+
+def test_a_second_frame_in_flight_needs_a_spare_core_or_a_camera_slower_than_the_graph():
+    """pipeline_min_spare_cores: on a busy host at 30 fps one frame is in the graph at a
+    time; a free core, or frames that come no faster than the graph finishes them (a bag at
+    2 frames/s), let the entrance take a second."""
+    host = {'spare': 0.4, 'period': 1 / 30}
+    frames = InFlightFrames(AdmissionParams(max_in_flight=2, pipeline_min_spare_cores=1.0),
+                            spare_cores=lambda: host['spare'],
+                            camera_period_s=lambda: host['period'])
+    assert frames.try_admit(1, 0.0)                      # the first needs nothing
+    assert not frames.try_admit(2, 0.01)                 # busy host, nothing timed yet
+    host['spare'] = 1.2
+    assert frames.try_admit(3, 0.02) and not frames.try_admit(4, 0.03)   # max_in_flight
+    for stamp, done in ((1, 0.25), (3, 0.27)):           # frames take about 0.25 s
+        frames.finish(stamp, done)
+    host['spare'] = 0.2
+    assert frames.try_admit(5, 0.3) and not frames.try_admit(6, 0.31)    # 30 fps: one
+    host['period'] = 0.5                                 # 2 frames/s: worth answering each
+    assert frames.try_admit(7, 0.8)
+    unlimited = InFlightFrames(AdmissionParams(max_in_flight=2, pipeline_min_spare_cores=0.0),
+                               spare_cores=lambda: 0.0)
+    assert unlimited.try_admit(1, 0.0) and unlimited.try_admit(2, 0.0)
+    with pytest.raises(ValueError, match='pipeline_min_spare_cores'):
+        AdmissionParams(pipeline_min_spare_cores=float('nan'))

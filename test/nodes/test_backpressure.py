@@ -136,12 +136,11 @@ def test_the_localiser_admits_only_while_fewer_than_max_in_flight_are_unfinished
     assert localiser.in_flight.refused == 1
 
 
-def test_a_refused_frame_waits_at_the_entrance_and_is_taken_when_a_slot_frees(ros):
-    """With admission.hold_newest (the default) the newest refused frame is not lost: the
-    outcome that frees a slot hands it to the worker; an older waiting frame is dropped."""
+def _localiser_taking_into(ros, taken: list):
+    """A localiser with one frame in flight whose taken frames' stamps go to ``taken``, and a
+    node publishing the pose estimator's outcomes: (localiser, that node, its publisher)."""
     from rclpy.parameter import Parameter
 
-    from tlessbot_ros.conversions.outcomes import frame_outcome
     from tlessbot_ros.nodes.common import RESULT_QOS, message_class
     from tlessbot_ros.nodes.inputs import newest_stamp_ns
     from tlessbot_ros.nodes.localiser import LocaliserNode
@@ -150,13 +149,25 @@ def test_a_refused_frame_waits_at_the_entrance_and_is_taken_when_a_slot_frees(ro
     localiser = LocaliserNode(parameter_overrides=[Parameter('admission.max_in_flight', value=1)])
     nodes.append(localiser)
     executor.add_node(localiser)
-    taken = []
     localiser.take_frame = lambda views, held=False: taken.append(newest_stamp_ns(views))
     downstream = rclpy_node('fake_pose_stage')
     pose_outcomes = downstream.create_publisher(message_class('std_msgs/msg/Header'),
                                                 '/pose_estimator/frames', RESULT_QOS)
     nodes.append(downstream)
     executor.add_node(downstream)
+    return localiser, downstream, pose_outcomes
+
+
+def test_a_refused_frame_waits_at_the_entrance_and_is_taken_when_a_slot_frees(ros):
+    """With admission.hold_newest (the default) the newest refused frame is not lost: the
+    outcome that frees a slot hands it to the worker; an older waiting frame is dropped."""
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.conversions.outcomes import frame_outcome
+
+    executor, _ = ros
+    taken = []
+    localiser, _, pose_outcomes = _localiser_taking_into(ros, taken)
     assert _spin_until(executor, lambda: pose_outcomes.get_subscription_count() > 0
                        and localiser._downstream['pose_estimator'].get_publisher_count() > 0)
 
@@ -200,26 +211,16 @@ def test_a_full_entrance_leaves_camera_messages_unread_and_takes_the_newest_when
 
     from tlessbot_ros.conversions.outcomes import frame_outcome
     from tlessbot_ros.conversions.topics import camera_topic
-    from tlessbot_ros.nodes.common import RESULT_QOS, SENSOR_QOS, message_class
-    from tlessbot_ros.nodes.inputs import newest_stamp_ns
-    from tlessbot_ros.nodes.localiser import LocaliserNode
+    from tlessbot_ros.nodes.common import SENSOR_QOS, message_class
     from tlessbot_ros.nodes.stage import CAMERA_INPUTS
 
-    executor, nodes = ros
-    localiser = LocaliserNode(parameter_overrides=[Parameter('admission.max_in_flight', value=1)])
-    nodes.append(localiser)
-    executor.add_node(localiser)
+    executor, _ = ros
     taken = []
-    localiser.take_frame = lambda views, held=False: taken.append(newest_stamp_ns(views))
-    cameras = rclpy_node('fake_cameras')
+    localiser, cameras, pose_outcomes = _localiser_taking_into(ros, taken)
     publishers = {camera: {key: cameras.create_publisher(message_class(msg_type),
                                                          camera_topic(camera, topic), SENSOR_QOS)
                            for key, (msg_type, topic) in CAMERA_INPUTS.items()}
                   for camera in ('top', 'side')}
-    pose_outcomes = cameras.create_publisher(message_class('std_msgs/msg/Header'),
-                                             '/pose_estimator/frames', RESULT_QOS)
-    nodes.append(cameras)
-    executor.add_node(cameras)
     assert _spin_until(executor, localiser.ready.is_set, timeout_s=120.0)
     assert _spin_until(executor, lambda: pose_outcomes.get_subscription_count() > 0
                        and localiser._downstream['pose_estimator'].get_publisher_count() > 0
@@ -246,5 +247,5 @@ def test_a_full_entrance_leaves_camera_messages_unread_and_takes_the_newest_when
     _spin_until(executor, lambda: False, timeout_s=0.3)   # the change reads what waits: none
     for stamp in (5, 6):   # frame 4 is open: both are read, and each is refused
         _publish_camera_frame(publishers, stamp * second)
-        assert _spin_until(executor, lambda: localiser.in_flight.refused == stamp - 4)
+        assert _spin_until(executor, lambda n=stamp - 4: localiser.in_flight.refused == n)
     assert taken == [1 * second, 4 * second] and inputs.superseded == 1

@@ -312,6 +312,12 @@ class TwoViewInputs:
             self._skipped.add(max(stamps))
 
     @property
+    def frame_period_s(self) -> float | None:
+        """The period of the complete frames' stamps, seconds (None: not known yet)."""
+        period_ns = self._skipped.period_ns
+        return None if period_ns is None else period_ns / 1e9
+
+    @property
     def unread_estimate(self) -> int:
         """Frames between the complete frames formed here that never formed: left unread
         while the gate was closed, lost on the way, or never complete (an estimate from the

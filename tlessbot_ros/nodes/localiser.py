@@ -20,8 +20,10 @@ Subscribes (RELIABLE), for backpressure:
 Admission: a complete frame is taken only while fewer than ``admission.max_in_flight`` frames
 it has taken are still unfinished downstream (:mod:`~tlessbot_ros.core.common.admission`), so
 frames are dropped here, at the entrance, instead of queueing in the later stages; the newest
-refused frame waits here for the next free slot (``admission.hold_newest``). Without a pose
-estimator publishing outcomes, every frame is taken.
+refused frame waits here for the next free slot (``admission.hold_newest``). While the
+entrance is full the camera subscriptions are not read at all (``admission.pause_inputs``):
+their messages wait in DDS and the outcome that frees a slot reads them and takes the newest
+complete frame. Without a pose estimator publishing outcomes, every frame is taken.
 Parameters: ``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParams: segment
 both views at once, in two threads, while ``parallel.min_spare_cores`` are idle: SpareCpuParams),
 ``segmentation.*`` (SegmentationParams), ``fusion.*``
@@ -126,7 +128,9 @@ class LocaliserNode(StageNode):
                 apply=partial(self._apply_background, camera),
                 on_start_error=self._run_without_background))
         self.in_flight = InFlightFrames(self.parameters.dataclass(
-            AdmissionParams(), prefix='admission.', apply=self._apply_admission))
+            AdmissionParams(), prefix='admission.', apply=self._apply_admission),
+            spare_cores=self.spare_cpu.cores, camera_period_s=self._camera_period_s)
+        self._entrance_was_open = True
         self._in_flight_lock = threading.Lock()
         self._downstream = {
             stage: self.create_subscription(
@@ -178,18 +182,28 @@ class LocaliserNode(StageNode):
         if self._inputs is not None:
             self._inputs.reopen(keep_newest=self.in_flight.params.hold_newest)
 
+    def _camera_period_s(self) -> float | None:
+        return None if self._inputs is None else self._inputs.frame_period_s
+
     def input_gate(self) -> Callable[[], bool]:
         """While the entrance is full (``admission.pause_inputs``), the camera subscriptions
         are not read: nothing they bring could be taken before a slot frees."""
         return self._entrance_open
 
     def _entrance_open(self) -> bool:
-        """Whether the camera messages are read now (executor thread, every turn)."""
+        """Whether the camera messages are read now (executor thread, every turn). An
+        entrance that opens without an outcome (a frame expired, the host's cores came free
+        for a second frame) reads what waited as :meth:`_take_waiting` does: newest first."""
         if not self.in_flight.params.pause_inputs or \
                 self._downstream[DOWNSTREAM[-1]].get_publisher_count() == 0:
-            return True
-        with self._in_flight_lock:
-            return self.in_flight.has_room(time.monotonic())
+            is_open = True
+        else:
+            with self._in_flight_lock:
+                is_open = self.in_flight.has_room(time.monotonic())
+        if is_open and not self._entrance_was_open and self._inputs is not None:
+            self._inputs.reopen(keep_newest=self.in_flight.params.hold_newest)
+        self._entrance_was_open = is_open
+        return is_open
 
     def on_admitted(self, views: Views) -> None:
         """Relay the admitted frame's camera messages, as received, to the later stages."""

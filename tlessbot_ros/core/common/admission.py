@@ -17,6 +17,16 @@ lost 1-3 of 15 frames per run on a busy host without it); at a rate it cannot fo
 the newest frame are still dropped here, and the one that waits is at most one camera period
 old when it is taken.
 
+A second frame in flight pays only where a core is free for it: on two cores, with the camera
+drivers or a replay taking a third of one, the localiser segmenting frame N+1 while the pose
+estimator fits frame N made every stage run at about half its speed alone (30 fps, paired
+runs: one frame in flight gave 0.57 x the p95 latency for 0.91 x the frames). So a frame beyond
+the first is admitted only while ``pipeline_min_spare_cores`` of the host were idle lately, or
+while the camera's frames come no faster than the graph finishes them (a bag at its recorded
+2 frames/s: each frame is worth answering, and no newer one would replace a refused one soon).
+On a host with cores to spare the graph pipelines at any rate; on a busy or small one at 30 fps
+it does not.
+
 An outcome may never come (the last stage restarted, a message was lost, the pairing dropped
 the frame): an open frame expires after ``expiry_factor`` times the slowest recent
 admission-to-outcome time, and never sooner than ``min_expiry_s``, so the timeout follows the
@@ -24,7 +34,9 @@ host's speed instead of being tuned to one.
 """
 from __future__ import annotations
 
+import math
 from collections import OrderedDict, deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -52,6 +64,14 @@ class AdmissionParams:
             waited and take its newest complete frame (``hold_newest``; without it, drop what
             waited). At 30 fps a closed entrance that takes every message costs about a
             quarter of a core (``scripts/localiser_receive_cost.py``).
+        pipeline_min_spare_cores: a frame beyond the first in flight is admitted only while
+            at least this many of the host's cores were idle lately (the owner's reading, e.g.
+            :class:`~tlessbot_ros.parallel.spare_cpu.SpareCpu`), or while the camera period is
+            at least the median time a frame takes to finish: where the cores are free the
+            entrance segments frame N+1 while the later stages finish frame N; where they are
+            not (two cores, with the camera drivers, at 30 fps), a second frame in flight only
+            slows every stage and adds to each frame's latency. 0: up to ``max_in_flight``
+            whatever the load.
     """
 
     max_in_flight: int = 2
@@ -59,6 +79,7 @@ class AdmissionParams:
     min_expiry_s: float = 1.0
     hold_newest: bool = True
     pause_inputs: bool = True
+    pipeline_min_spare_cores: float = 1.0
 
     def __post_init__(self) -> None:
         if self.max_in_flight < 0:
@@ -68,17 +89,26 @@ class AdmissionParams:
             raise ValueError(f'expiry_factor must be >= 1, got {self.expiry_factor}')
         if self.min_expiry_s <= 0:
             raise ValueError(f'min_expiry_s must be > 0 seconds, got {self.min_expiry_s}')
+        if not self.pipeline_min_spare_cores >= 0:   # NaN too
+            raise ValueError(f'pipeline_min_spare_cores must be >= 0, got '
+                             f'{self.pipeline_min_spare_cores}')
 
 
 class InFlightFrames:
     """The frames admitted at the entrance and not yet finished downstream, by stamp (ns).
 
     Times are the caller's monotonic clock in seconds. Not thread-safe: the owner serialises
-    calls (the node's executor thread and worker thread share one lock).
+    calls (the node's executor thread and worker thread share one lock). For
+    ``pipeline_min_spare_cores``, ``spare_cores`` returns how many of the host's cores were idle
+    lately (without it the host is taken to have cores to spare) and ``camera_period_s`` the
+    period of the frames coming in (None: not known yet).
     """
 
-    def __init__(self, params: AdmissionParams = AdmissionParams()) -> None:
+    def __init__(self, params: AdmissionParams = AdmissionParams(), *,
+                 spare_cores: Callable[[], float] = lambda: math.inf,
+                 camera_period_s: Callable[[], float | None] = lambda: None) -> None:
         self.params = params
+        self._spare_cores, self._camera_period_s = spare_cores, camera_period_s
         self._open: OrderedDict[int, float] = OrderedDict()   # stamp_ns -> admitted at (s)
         self._recent_s: deque[float] = deque(maxlen=20)
         self.admitted = 0
@@ -168,7 +198,21 @@ class InFlightFrames:
 
     def _has_room(self, now_s: float) -> bool:
         self._expire(now_s)
-        return len(self._open) < self.params.max_in_flight
+        if len(self._open) >= self.params.max_in_flight:
+            return False
+        if not self._open or self.params.pipeline_min_spare_cores <= 0:
+            return True
+        return self._spare_cores() >= self.params.pipeline_min_spare_cores or \
+            self._camera_slower_than_the_graph()
+
+    def _camera_slower_than_the_graph(self) -> bool:
+        """Whether frames come no faster than the graph finishes them (median of the recent
+        admission-to-outcome times; unknown before the first finishes: False)."""
+        period = self._camera_period_s()
+        if period is None or not self._recent_s:
+            return False
+        recent = sorted(self._recent_s)
+        return period >= recent[len(recent) // 2]
 
     def _expire(self, now_s: float) -> None:
         limit = self.expiry_s()

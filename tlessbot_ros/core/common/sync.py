@@ -461,6 +461,11 @@ class SkippedFrames:
         stamps.append(int(stamp_ns))
 
     @property
+    def period_ns(self) -> int | None:
+        """The stream's period (:func:`stream_period_ns` of the recent stamps)."""
+        return stream_period_ns(list(self._stamps))
+
+    @property
     def count(self) -> int:
         stamps = list(self._stamps)
         period = stream_period_ns(stamps)
