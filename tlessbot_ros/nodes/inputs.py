@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 
 from tlessbot_ros.conversions.cdr import header_stamp_ns
@@ -284,10 +285,13 @@ class TwoViewInputs:
             return
         waiting = []
         for subscription, handler in self._subscriptions:
-            with subscription.handle:
-                while (taken := subscription.handle.take_message(
-                        subscription.msg_type, True)) is not None:
-                    waiting.append((_stamp_or_zero(taken[0]), handler, taken[0]))
+            try:
+                with subscription.handle:
+                    while (taken := subscription.handle.take_message(
+                            subscription.msg_type, True)) is not None:
+                        waiting.append((_stamp_or_zero(taken[0]), handler, taken[0]))
+            except InvalidHandle:   # destroyed: the node is shutting down
+                return
         waiting.sort(key=lambda entry: entry[0])   # stable: one stamp keeps topic order
         frames: list[tuple[Views, bool]] = []
         self._collected = frames
