@@ -116,9 +116,9 @@ def test_a_second_frame_in_flight_needs_a_spare_core_or_a_camera_slower_than_the
         frames.finish(stamp, done)
     host['spare'] = 0.2
     assert frames.try_admit(5, 0.3) and not frames.try_admit(6, 0.31)    # 30 fps: one
-    host['period'] = 0.1                                 # 10 fps: two periods < 0.25 s
+    host['period'] = 0.08                                # 12.5 fps: 3 stages x 0.08 < 0.25 s
     assert not frames.try_admit(7, 0.32)
-    host['period'] = 0.15                                # two in the graph keep up: each
+    host['period'] = 0.09                                # a pipelined graph keeps up: each
     assert frames.try_admit(8, 0.33)                     # frame is worth answering
     unlimited = InFlightFrames(AdmissionParams(max_in_flight=2, pipeline_min_spare_cores=0.0),
                                spare_cores=lambda: 0.0)

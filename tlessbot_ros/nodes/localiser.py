@@ -129,7 +129,8 @@ class LocaliserNode(StageNode):
                 on_start_error=self._run_without_background))
         self.in_flight = InFlightFrames(self.parameters.dataclass(
             AdmissionParams(), prefix='admission.', apply=self._apply_admission),
-            spare_cores=self.spare_cpu.cores, camera_period_s=self._camera_period_s)
+            spare_cores=self.spare_cpu.cores, camera_period_s=self._camera_period_s,
+            stages=1 + len(DOWNSTREAM))
         self._entrance_was_open = True
         self._in_flight_lock = threading.Lock()
         self._downstream = {

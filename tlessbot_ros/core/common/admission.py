@@ -22,9 +22,9 @@ drivers or a replay taking a third of one, the localiser segmenting frame N+1 wh
 estimator fits frame N made every stage run at about half its speed alone (30 fps, paired
 runs: one frame in flight gave 0.57 x the p95 latency for 0.91 x the frames). So a frame beyond
 the first is admitted only while ``pipeline_min_spare_cores`` of the host were idle lately, or
-while the camera's frames come no faster than the graph with ``max_in_flight`` frames in it
-finishes them (a bag at its recorded 2 frames/s on a busy host: each frame is worth answering,
-and a refused one would be lost: one slot cost up to 4 of 15 frames there).
+while the camera's frames come no faster than the graph's average stage works (a bag at its
+recorded 2 frames/s on a busy host: each frame is worth answering, and a refused one would be
+lost: one slot cost up to 4 of 15 frames there).
 On a host with cores to spare the graph pipelines at any rate; on a busy or small one at 30 fps
 it does not.
 
@@ -67,9 +67,10 @@ class AdmissionParams:
             quarter of a core (``scripts/localiser_receive_cost.py``).
         pipeline_min_spare_cores: a frame beyond the first in flight is admitted only while
             at least this many of the host's cores were idle lately (the owner's reading, e.g.
-            :class:`~tlessbot_ros.parallel.spare_cpu.SpareCpu`), or while ``max_in_flight``
-            camera periods are at least the median time a frame takes to finish (the graph
-            can answer every frame): where the cores are free the
+            :class:`~tlessbot_ros.parallel.spare_cpu.SpareCpu`), or while the camera period
+            is at least the graph's average stage time (the median time a frame takes to
+            finish over the stages it passes: pipelined, the graph answers every frame):
+            where the cores are free the
             entrance segments frame N+1 while the later stages finish frame N; where they are
             not (two cores, with the camera drivers, at 30 fps), a second frame in flight only
             slows every stage and adds to each frame's latency. 0: up to ``max_in_flight``
@@ -102,15 +103,18 @@ class InFlightFrames:
     Times are the caller's monotonic clock in seconds. Not thread-safe: the owner serialises
     calls (the node's executor thread and worker thread share one lock). For
     ``pipeline_min_spare_cores``, ``spare_cores`` returns how many of the host's cores were idle
-    lately (without it the host is taken to have cores to spare) and ``camera_period_s`` the
-    period of the frames coming in (None: not known yet).
+    lately (without it the host is taken to have cores to spare), ``camera_period_s`` the
+    period of the frames coming in (None: not known yet), and ``stages`` how many stages a
+    frame passes between its admission and its outcome.
     """
 
     def __init__(self, params: AdmissionParams = AdmissionParams(), *,
                  spare_cores: Callable[[], float] = lambda: math.inf,
-                 camera_period_s: Callable[[], float | None] = lambda: None) -> None:
+                 camera_period_s: Callable[[], float | None] = lambda: None,
+                 stages: int = 3) -> None:
         self.params = params
         self._spare_cores, self._camera_period_s = spare_cores, camera_period_s
+        self._stages = stages
         self._open: OrderedDict[int, float] = OrderedDict()   # stamp_ns -> admitted at (s)
         self._recent_s: deque[float] = deque(maxlen=20)
         self.admitted = 0
@@ -208,15 +212,16 @@ class InFlightFrames:
             self._camera_within_reach()
 
     def _camera_within_reach(self) -> bool:
-        """Whether frames come no faster than the graph, with ``max_in_flight`` frames in
-        it, finishes them (from the median of the recent admission-to-outcome times; unknown
-        before the first finishes: False). Then every frame can be answered, and one refused
-        would be lost: a slow frame at 2 frames/s on a busy host must not cost the next."""
+        """Whether frames come no faster than the graph's average stage works: the median
+        recent admission-to-outcome time over the ``stages`` a frame passes (unknown before
+        the first finishes: False). A pipelined graph then keeps up and every frame can be
+        answered, while one refused would be lost: a slow frame at 2 frames/s on a busy host
+        must not cost the next."""
         period = self._camera_period_s()
         if period is None or not self._recent_s:
             return False
         recent = sorted(self._recent_s)
-        return period * self.params.max_in_flight >= recent[len(recent) // 2]
+        return period * self._stages >= recent[len(recent) // 2]
 
     def _expire(self, now_s: float) -> None:
         limit = self.expiry_s()
