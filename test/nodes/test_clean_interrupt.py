@@ -131,3 +131,24 @@ def test_a_half_built_rclpy_task_after_a_signal_prints_no_traceback(capsys, monk
     del task
     gc.collect()
     assert len(reported) == 1 and isinstance(reported[0].exc_value, AttributeError)
+
+
+def test_an_error_from_a_turn_cut_by_a_signal_is_the_interrupt(monkeypatch):
+    """A KeyboardInterrupt that lands inside pybind11 (rclpy converting a message it takes)
+    comes out as a RuntimeError; after a signal it is the interrupt, before one it is not."""
+    import pytest
+
+    from tlessbot_ros.nodes import common
+
+    def cut_turn():
+        raise RuntimeError("Unable to convert call argument '0' to Python object")
+
+    monkeypatch.setattr(common, '_SIGNALS_RECEIVED', [])
+    with pytest.raises(RuntimeError):
+        common.spin_once_or_interrupt(cut_turn)
+    common.spin_once_or_interrupt(lambda: None)   # a quiet turn, no signal: nothing raised
+    monkeypatch.setattr(common, '_SIGNALS_RECEIVED', [2])
+    with pytest.raises(KeyboardInterrupt):
+        common.spin_once_or_interrupt(cut_turn)
+    with pytest.raises(KeyboardInterrupt):
+        common.spin_once_or_interrupt(lambda: None)

@@ -15,6 +15,7 @@ import argparse
 import math
 import sys
 import time
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -79,7 +80,7 @@ def _wait_for_publisher(node: Any, topic: str, deadline: float | None,
     """The type of ``topic`` once it has a publisher (the QoS is chosen from the publishers)."""
     import rclpy
 
-    from tlessbot_ros.nodes.common import raise_if_interrupted
+    from tlessbot_ros.nodes.common import spin_once_or_interrupt
 
     noticed_at = time.monotonic() + WAITING_NOTICE_S
     while True:
@@ -93,8 +94,7 @@ def _wait_for_publisher(node: Any, topic: str, deadline: float | None,
             if topic not in types:
                 raise TlessbotError(f'topic {topic} does not exist in the ROS graph')
             raise TlessbotError(f'no publisher on {topic} within {timeout_s} s')
-        rclpy.spin_once(node, timeout_sec=0.1)
-        raise_if_interrupted()
+        spin_once_or_interrupt(partial(rclpy.spin_once, node, timeout_sec=0.1))
 
 
 def matching_qos(publishers: list[Any]) -> Any:
@@ -165,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
         format_message,
         init_ros,
         message_class,
-        raise_if_interrupted,
+        spin_once_or_interrupt,
     )
 
     topic = args.topic if args.topic.startswith('/') else '/' + args.topic
@@ -194,8 +194,7 @@ def run(args: argparse.Namespace) -> int:
         subscription = _Subscription(node, message_class(type_name), topic, on_message)
         limit = 1 if args.once else args.count
         while rclpy.ok() and not (limit and received >= limit):
-            rclpy.spin_once(node, timeout_sec=0.1)
-            raise_if_interrupted()
+            spin_once_or_interrupt(partial(rclpy.spin_once, node, timeout_sec=0.1))
             subscription.follow_publishers()
             if deadline is not None and time.monotonic() > deadline:
                 if received == 0:

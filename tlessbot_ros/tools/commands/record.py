@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from functools import partial
 from pathlib import Path
 
 from tlessbot_ros.errors import BagError
@@ -26,7 +27,12 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import ExternalShutdownException
 
     from tlessbot_ros.io.bag_writer import BagWriter, offered_qos
-    from tlessbot_ros.nodes.common import SENSOR_QOS, init_ros, message_class, raise_if_interrupted
+    from tlessbot_ros.nodes.common import (
+        SENSOR_QOS,
+        init_ros,
+        message_class,
+        spin_once_or_interrupt,
+    )
 
     out = Path(args.out)
     if out.exists():
@@ -42,8 +48,7 @@ def run(args: argparse.Namespace) -> int:
         while len(types) < len(topics) and time.monotonic() < deadline:
             graph = dict(node.get_topic_names_and_types())
             types = {t: graph[t][0] for t in topics if graph.get(t)}
-            rclpy.spin_once(node, timeout_sec=0.1)
-            raise_if_interrupted()
+            spin_once_or_interrupt(partial(rclpy.spin_once, node, timeout_sec=0.1))
         missing = sorted(set(topics) - set(types))
         if missing:
             raise BagError(f'topic(s) {missing} not found in the ROS graph')
@@ -68,8 +73,7 @@ def run(args: argparse.Namespace) -> int:
               flush=True)
         stop = time.monotonic() + args.duration if args.duration > 0 else None
         while rclpy.ok() and (stop is None or time.monotonic() < stop):
-            rclpy.spin_once(node, timeout_sec=0.1)
-            raise_if_interrupted()
+            spin_once_or_interrupt(partial(rclpy.spin_once, node, timeout_sec=0.1))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
