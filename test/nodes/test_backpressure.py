@@ -136,9 +136,10 @@ def test_the_localiser_admits_only_while_fewer_than_max_in_flight_are_unfinished
     assert localiser.in_flight.refused == 1
 
 
-def _localiser_taking_into(ros, taken: list):
-    """A localiser with one frame in flight whose taken frames' stamps go to ``taken``, and a
-    node publishing the pose estimator's outcomes: (localiser, that node, its publisher)."""
+def _localiser_taking_into(ros, taken: list, *parameters):
+    """A localiser with one frame in flight (and ``parameters``) whose taken frames' stamps go
+    to ``taken``, and a node publishing the pose estimator's outcomes: (localiser, that node,
+    its publisher)."""
     from rclpy.parameter import Parameter
 
     from tlessbot_ros.nodes.common import RESULT_QOS, message_class
@@ -146,7 +147,8 @@ def _localiser_taking_into(ros, taken: list):
     from tlessbot_ros.nodes.localiser import LocaliserNode
 
     executor, nodes = ros
-    localiser = LocaliserNode(parameter_overrides=[Parameter('admission.max_in_flight', value=1)])
+    localiser = LocaliserNode(parameter_overrides=[Parameter('admission.max_in_flight', value=1),
+                                                   *parameters])
     nodes.append(localiser)
     executor.add_node(localiser)
     localiser.take_frame = lambda views, held=False: taken.append(newest_stamp_ns(views))
@@ -207,18 +209,21 @@ def test_a_full_entrance_leaves_camera_messages_unread_and_takes_the_newest_when
     subscriptions are not read at all (nothing is paired or refused); the outcome that frees a
     slot reads what waited in DDS and takes only its newest complete frame. With it off, every
     message is read and each complete frame is refused on its own."""
+    from rclpy.duration import Duration
     from rclpy.parameter import Parameter
 
     from tlessbot_ros.conversions.outcomes import frame_outcome
     from tlessbot_ros.conversions.topics import camera_topic
-    from tlessbot_ros.nodes.common import SENSOR_QOS, message_class
+    from tlessbot_ros.nodes.common import RESULT_QOS, message_class
     from tlessbot_ros.nodes.stage import CAMERA_INPUTS
 
     executor, _ = ros
     taken = []
-    localiser, cameras, pose_outcomes = _localiser_taking_into(ros, taken)
+    # reliable inputs: a publisher then knows when the localiser's readers hold its frames
+    localiser, cameras, pose_outcomes = _localiser_taking_into(
+        ros, taken, Parameter('input_qos', value='reliable'))
     publishers = {camera: {key: cameras.create_publisher(message_class(msg_type),
-                                                         camera_topic(camera, topic), SENSOR_QOS)
+                                                         camera_topic(camera, topic), RESULT_QOS)
                            for key, (msg_type, topic) in CAMERA_INPUTS.items()}
                   for camera in ('top', 'side')}
     assert _spin_until(executor, localiser.ready.is_set, timeout_s=120.0)
@@ -232,19 +237,21 @@ def test_a_full_entrance_leaves_camera_messages_unread_and_takes_the_newest_when
     inputs = localiser._inputs
     for stamp in (2, 3, 4):   # a frame is open: these wait in DDS, unread
         _publish_camera_frame(publishers, stamp * second)
-        _spin_until(executor, lambda: False, timeout_s=0.3)
+        executor.spin_once(timeout_sec=0.05)
+    assert all(p.wait_for_all_acked(Duration(seconds=60))   # in the localiser's readers
+               for topics in publishers.values() for p in topics.values())
+    executor.spin_once(timeout_sec=0.05)
     assert taken == [1 * second] and localiser.in_flight.refused == 0
     assert sum(inputs._per_camera['top'].pending().values()) == 0   # none was read
     pose_outcomes.publish(frame_outcome(1 * second, 'done'))
-    assert _spin_until(executor, lambda: len(taken) == 2)
-    _spin_until(executor, lambda: False, timeout_s=0.3)
+    assert _spin_until(executor, lambda: len(taken) == 2)   # one read takes all that waited
     assert taken == [1 * second, 4 * second]       # the newest; 3 read and dropped (depth 2)
     assert inputs.superseded == 1 and localiser.in_flight.refused == 0
     assert inputs.unread_estimate == 1             # frame 2 was replaced in DDS, never read
 
     localiser.set_parameters([Parameter('admission.pause_inputs', value=False)])
     localiser.parameters.apply_pending()
-    _spin_until(executor, lambda: False, timeout_s=0.3)   # the change reads what waits: none
+    assert _spin_until(executor, lambda: not inputs._reopening)   # the change read: none
     for stamp in (5, 6):   # frame 4 is open: both are read, and each is refused
         _publish_camera_frame(publishers, stamp * second)
         assert _spin_until(executor, lambda n=stamp - 4: localiser.in_flight.refused == n)

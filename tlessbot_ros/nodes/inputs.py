@@ -281,7 +281,7 @@ class TwoViewInputs:
         released at a time jump and the newest other complete frame; the older ones are
         counted in :attr:`superseded`."""
         self._reopening = False
-        if self._is_open is None or not self._is_open():
+        if not self._is_open():
             return
         waiting = []
         for subscription, handler in self._subscriptions:

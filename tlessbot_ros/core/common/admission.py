@@ -24,9 +24,8 @@ runs: one frame in flight gave 0.57 x the p95 latency for 0.91 x the frames). So
 the first is admitted only while ``pipeline_min_spare_cores`` of the host were idle lately, or
 while the camera's frames come no faster than the graph's average stage works (a bag at its
 recorded 2 frames/s on a busy host: each frame is worth answering, and a refused one would be
-lost: one slot cost up to 4 of 15 frames there).
-On a host with cores to spare the graph pipelines at any rate; on a busy or small one at 30 fps
-it does not.
+lost: one slot cost up to 4 of 15 frames there). On a host with cores to spare the graph
+pipelines at any rate; on a busy or small one at 30 fps it does not.
 
 An outcome may never come (the last stage restarted, a message was lost, the pairing dropped
 the frame): an open frame expires after ``expiry_factor`` times the slowest recent
@@ -69,12 +68,11 @@ class AdmissionParams:
             at least this many of the host's cores were idle lately (the owner's reading, e.g.
             :class:`~tlessbot_ros.parallel.spare_cpu.SpareCpu`), or while the camera period
             is at least the graph's average stage time (the median time a frame takes to
-            finish over the stages it passes: pipelined, the graph answers every frame):
-            where the cores are free the
-            entrance segments frame N+1 while the later stages finish frame N; where they are
-            not (two cores, with the camera drivers, at 30 fps), a second frame in flight only
-            slows every stage and adds to each frame's latency. 0: up to ``max_in_flight``
-            whatever the load.
+            finish over the stages it passes: pipelined, the graph answers every frame).
+            Where the cores are free the entrance segments frame N+1 while the later stages
+            finish frame N; where they are not (two cores, with the camera drivers, at 30 fps),
+            a second frame in flight only slows every stage and adds to each frame's latency.
+            0: up to ``max_in_flight`` whatever the load.
     """
 
     max_in_flight: int = 2
