@@ -24,20 +24,26 @@ class _Captured:
         self.messages.append(msg)
 
 
-def _host(idle_cores: float):
-    """A SpareCpu over a 2-core host that is always ``idle_cores`` idle."""
+def _host(free_cores: float):
+    """A SpareCpu over a 2-core host on which ``free_cores`` are always free beside the
+    stage's own thread (one core of its own)."""
     from tlessbot_ros.parallel.spare_cpu import SpareCpu, SpareCpuParams
 
     clock = iter(range(0, 10_000))
     ticks = {'idle': 0, 'total': 0}
+    own = iter(range(0, 10_000))
 
     def counters():
-        ticks['idle'] += int(100 * idle_cores)
+        ticks['idle'] += int(100 * free_cores)
         ticks['total'] += 200
         return ticks['idle'], ticks['total']
 
-    return SpareCpu(SpareCpuParams(min_spare_cores=0.5, window_s=0.5), counters=counters,
-                    cores=2, clock=lambda: float(next(clock)))
+    spare = SpareCpu(SpareCpuParams(min_spare_cores=0.5, window_s=0.5), counters=counters,
+                     cores=2, clock=lambda: float(next(clock)),
+                     own_cpu_s=lambda: float(next(own)))
+    with spare.work():   # the first span: nothing measured before it
+        pass
+    return spare
 
 
 def test_the_localiser_segments_its_views_in_one_thread_on_a_busy_host(ros):
@@ -52,7 +58,6 @@ def test_the_localiser_segments_its_views_in_one_thread_on_a_busy_host(ros):
     labels = {}
     for idle, expected in ((0.1, 0), (1.5, 1)):
         node.spare_cpu = _host(idle)
-        node.spare_cpu.cores()   # the first reading: nothing measured yet
         node._label_publishers = {c: _Captured() for c in node.cameras}
         for frame in frames:
             node.process({c: dict(m) for c, m in frame.items()})

@@ -99,3 +99,19 @@ def test_window_table_reports_each_window_and_the_trends():
     assert rows[0] == '| 0-1 | 5 | 80.0 / 80.0 | 901 / 40 / 12 |'
     assert rows[1] == '| 1-2 | 5 | 120.0 / 120.0 | 902 / 41 / 12 |'
     assert rows[2] == '| pose_estimator | +1.00 | 41-41 | 12-12 |'
+
+
+def test_the_report_shows_each_stages_split_and_the_hosts_idle_and_stolen_cpu():
+    from tlessbot_ros.tools.commands.bench.graph import host_rows, split_rows
+
+    rows = split_rows({'localiser': {'frames_split': '30', 'frames_kept_whole': '10',
+                                     'cores_free_beside_work': '0.62'},
+                       'classifier': {'frames': '40'}})
+    assert rows == [('localiser: frames split over a second core',
+                     '30 of 40; cores free beside its work lately 0.62')]
+    # user nice system idle iowait irq softirq steal
+    start = [100, 0, 10, 500, 0, 0, 0, 0]
+    end = [400, 0, 60, 950, 50, 0, 0, 150]   # 1000 ticks: 500 idle (incl. iowait), 150 stolen
+    assert host_rows((start, end)) == [('host while replaying: idle / stolen by the hypervisor',
+                                        '50.0 % / 15.0 % of its CPU time')]
+    assert host_rows((None, end)) == [] and host_rows((end, end)) == []

@@ -25,7 +25,8 @@ entrance is full the camera subscriptions are not read at all (``admission.pause
 their messages wait in DDS and the outcome that frees a slot reads them and takes the newest
 complete frame. Without a pose estimator publishing outcomes, every frame is taken.
 Parameters: ``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParams: segment
-both views at once, in two threads, while ``parallel.min_spare_cores`` are idle: SpareCpuParams),
+both views at once, in two threads, while ``parallel.min_spare_cores`` are free beside its
+work: SpareCpuParams),
 ``segmentation.*`` (SegmentationParams), ``fusion.*``
 (FusionParams: method calibrated | algorithm1 | side_only), ``sync.*`` (SyncParams),
 ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*`` (extrinsics),
@@ -332,17 +333,19 @@ class LocaliserNode(StageNode):
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         inputs = {camera: self._view_input(camera, msgs) for camera, msgs in views.items()}
-        # two threads only while a core is spare (parallel.min_spare_cores)
-        self._views_in_parallel = self.localise_params.parallel_views and \
-            self.spare_cpu.allows_split()
-        fusion = self._refined_pipeline(inputs).localise(inputs)
+        # two threads only while a core was free beside this stage's work lately
+        # (parallel.min_spare_cores)
+        with self.spare_cpu.work(self.localise_params.parallel_views) as split:
+            self._views_in_parallel = split
+            fusion = self._refined_pipeline(inputs).localise(inputs)
         with self._in_flight_lock:
             admission = {'views_in_parallel': int(self._views_in_parallel),
                          'in_flight': self.in_flight.open_count,
                          'entrance_refused': self.in_flight.refused,
                          'entrance_waited': self.in_flight.released,
                          'in_flight_expired': self.in_flight.expired}
-        self.record_stats({**{f'{k}_ms': v for k, v in fusion.timings_ms.items()}, **admission})
+        self.record_stats({**{f'{k}_ms': v for k, v in fusion.timings_ms.items()}, **admission,
+                           **self.spare_cpu.stats()})
         for camera, msgs in views.items():
             header = msgs['color'].header
             self._label_publishers[camera].publish(image_to_cdr(   # raw CDR: one copy

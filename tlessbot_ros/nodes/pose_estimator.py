@@ -23,7 +23,8 @@ are verified), ``lookalike_check``, ``lookalike_tolerance_m``, ``lookalike_min_z
 pose, checked in this process; these and ``min_roi_points``, ``table_clearance_m``: FitParams),
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
-fits others, on frames that find ``parallel.min_spare_cores`` idle: SpareCpuParams),
+fits others, on frames that find ``parallel.min_spare_cores`` free beside its work:
+SpareCpuParams),
 ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*``
 (extrinsics; the table path needs them), ``rig_source`` ('localiser': the camera poses the
 localiser publishes on /localiser/rig once it refines the rig from the scene replace
@@ -35,6 +36,7 @@ localiser publishes on /localiser/rig once it refines the rig from the scene rep
 """
 from __future__ import annotations
 
+import time
 from functools import partial
 from typing import Any
 
@@ -116,6 +118,7 @@ class PoseEstimatorNode(StageNode):
         self.workers = PoseWorkerPool(path, pose=pose_params, fit=fit_params,
                                       params=worker_params) if worker_params.count else None
         self.spare_cpu = declare_spare_cpu(self)
+        self.spare_cpu.own_cpu_s = self._own_cpu_s
         self._worker_errors_seen = 0
         self._factory = RclpyFactory()
         self._templates_path = path
@@ -167,11 +170,11 @@ class PoseEstimatorNode(StageNode):
                     detection, views[detection.view]['depth'].header.frame_id, stamp_ns))
                 published.append(detection)
 
-        # the workers fit parts beside this thread only while a core is spare
-        # (parallel.min_spare_cores); otherwise every part is fitted here
-        split = self.workers is not None and self.spare_cpu.allows_split()
-        self.pipeline.estimate_poses(inputs, labels, classes, on_detection=publish_pose,
-                                     fitter=self.workers if split else None)
+        # the workers fit parts beside this thread only while a core was free beside this
+        # stage's work lately (parallel.min_spare_cores); otherwise every part is fitted here
+        with self.spare_cpu.work(self.workers is not None) as split:
+            self.pipeline.estimate_poses(inputs, labels, classes, on_detection=publish_pose,
+                                         fitter=self.workers if split else None)
         self._log_worker_errors()
         self._publish_debug(published, views, inputs, labels, stamp_ns)
         self.record_stats(self._frame_stats(published))
@@ -200,9 +203,7 @@ class PoseEstimatorNode(StageNode):
         if self.workers is not None:
             stats.update(workers_ready=self.workers.ready_count,
                          workers_replaced=self.workers.replaced,
-                         worker_fits=self.workers.worker_fits,
-                         frames_split=self.spare_cpu.splits,
-                         frames_kept_whole=self.spare_cpu.kept_whole)
+                         worker_fits=self.workers.worker_fits, **self.spare_cpu.stats())
         return stats
 
     def _apply_pose_params(self, params: PoseParams) -> None:
@@ -218,6 +219,11 @@ class PoseEstimatorNode(StageNode):
         if self.workers is not None:
             self.workers.update(pose=self.pipeline.pose_estimator.params,
                                 fit=self.pipeline.fit_params)
+
+    def _own_cpu_s(self) -> float:
+        """CPU time of this stage so far, seconds: this process and its pose workers."""
+        workers = self.workers
+        return time.process_time() + (workers.cpu_seconds() if workers is not None else 0.0)
 
     def _apply_worker_params(self, params: PoseWorkerParams) -> None:
         """Start or stop worker processes (new ones fit parts once they are ready)."""

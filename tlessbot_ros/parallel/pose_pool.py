@@ -24,6 +24,7 @@ from typing import Any
 
 from tlessbot_ros.core.pipeline import FitParams, PartJob
 from tlessbot_ros.core.pose import PoseParams
+from tlessbot_ros.parallel.spare_cpu import read_process_cpu_s
 from tlessbot_ros.parallel.wire import (
     WireError,
     candidate_from_json,
@@ -204,6 +205,11 @@ class PoseWorkerPool:
                 if time.monotonic() > deadline:
                     return False
         return True
+
+    def cpu_seconds(self) -> float:
+        """CPU time the current workers have used so far, seconds (a replaced worker's
+        is no longer counted)."""
+        return sum(read_process_cpu_s(w.process.pid) or 0.0 for w in self._workers)
 
     @property
     def ready_count(self) -> int:

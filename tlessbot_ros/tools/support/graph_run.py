@@ -27,6 +27,7 @@ from tlessbot_ros.conversions.topics import (
 )
 from tlessbot_ros.core.common import SIDE
 from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.parallel.spare_cpu import read_cpu_ticks, read_process_cpu_s
 from tlessbot_ros.tools.support.processes import (
     PERCEPTION_NODES,
     GraphProcesses,
@@ -69,6 +70,8 @@ class GraphRunResult:
     fd_samples: dict[str, list[int]] = field(default_factory=dict)
     thread_samples: dict[str, list[int]] = field(default_factory=dict)
     cpu_s: dict[str, float] = field(default_factory=dict)   # CPU seconds used while replaying
+    # the host's CPU ticks (read_cpu_ticks) when the replay started and ended
+    host_ticks: tuple[list[int] | None, list[int] | None] = (None, None)
     diagnostics: dict[str, dict[str, str]] = field(default_factory=dict)  # last, per node
     # When each stage's side output of a frame arrived here: {stage: {stamp_ns: time_ns}}
     stage_arrivals: dict[str, dict[int, int]] = field(default_factory=dict)
@@ -102,12 +105,10 @@ def cpu_seconds(pid: int, *, descendants: bool = True) -> float:
     """User + system CPU time used by a process (and its descendants), seconds (Linux /proc)."""
     total = 0.0
     for member in process_tree(pid) if descendants else [pid]:
-        try:
-            fields = Path(f'/proc/{member}/stat').read_text().rsplit(')', 1)[1].split()
-            total += (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
-        except (OSError, IndexError, ValueError):
-            if member == pid:
-                return float('nan')
+        seconds = read_process_cpu_s(member)
+        if seconds is None and member == pid:
+            return float('nan')
+        total += seconds or 0.0
     return total
 
 
@@ -270,6 +271,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         def cpu_now(label: str) -> float:   # the monitor's children are the nodes
             return cpu_seconds(cpu_pids[label], descendants=label != MONITOR)
         cpu_start = {label: cpu_now(label) for label in cpu_pids}
+        host_start = read_cpu_ticks()
         replay_start = time.monotonic()
         result.replay_start_ns = time.time_ns()
         stop_at = replay_start + duration_s if duration_s else None
@@ -301,6 +303,7 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         if end_alongside is not None:
             end_alongside()
         result.cpu_s = {label: cpu_now(label) - cpu_start[label] for label in cpu_pids}
+        result.host_ticks = (host_start, read_cpu_ticks())
         drain_until = time.monotonic() + drain_timeout_s
         with lock:
             last_pose[0] = time.monotonic()

@@ -155,6 +155,34 @@ def window_table(result, window_s: float) -> str:
     return '\n'.join(lines)
 
 
+def host_rows(ticks: tuple[list[int] | None, list[int] | None]) -> list[tuple[str, str]]:
+    """The host's idle and stolen CPU while replaying (/proc/stat): a run on a virtual machine
+    whose hypervisor gave cores to other machines is slower for it, whatever the code."""
+    start, end = ticks
+    if start is None or end is None or sum(end) <= sum(start):
+        return []
+    delta = [b - a for a, b in zip(start, end)]
+    total = sum(delta)
+    idle, steal = delta[3] + delta[4], delta[7]
+    return [('host while replaying: idle / stolen by the hypervisor',
+             f'{100 * idle / total:.1f} % / {100 * steal / total:.1f} % of its CPU time')]
+
+
+def split_rows(diagnostics: dict[str, dict[str, str]]) -> list[tuple[str, str]]:
+    """How often each stage split a frame's work over a second core (parallel.*), from its
+    last /diagnostics."""
+    rows = []
+    for label in sorted(diagnostics):
+        values = diagnostics[label]
+        if 'frames_split' in values:
+            rows.append((f'{label}: frames split over a second core',
+                         f"{values['frames_split']} of "
+                         f"{int(values['frames_split']) + int(values.get('frames_kept_whole', 0))}"
+                         f"; cores free beside its work lately "
+                         f"{values.get('cores_free_beside_work', '?')}"))
+    return rows
+
+
 def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.tools.support.bag_scoring import Estimate, frame_duplicates
     from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
@@ -211,6 +239,7 @@ def run(args: argparse.Namespace) -> int:
                      f"p95 {values.get('latency_ms_p95', '?')} ms; input age at its start "
                      f"p50 {values.get('input_age_ms_p50', '?')} ms, "
                      f"p95 {values.get('input_age_ms_p95', '?')} ms"))
+    rows += split_rows(result.diagnostics) + host_rows(result.host_ticks)
     table = '| measure | value |\n|---|---|\n' + '\n'.join(f'| {k} | {v} |' for k, v in rows)
     if args.duration >= 2 * args.window:
         table += '\n\n' + window_table(result, args.window)
