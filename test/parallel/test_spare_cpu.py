@@ -102,6 +102,20 @@ def test_only_the_stages_own_work_counts_not_the_time_between_its_frames():
     assert spare.allows_split()
 
 
+def test_an_idle_host_splits_even_when_another_stage_overlapped_the_work():
+    """Frames that come slower than the graph works: the host is mostly idle, but the work of
+    the previous frame's later stage overlapped this stage's. Idle cores over the wall-clock
+    time are enough to split (else the frame, kept whole, overlaps the next ever more)."""
+    host = _Host(cores=2)
+    stage = _Stage(host)
+    spare = _stage_spare(host, stage, min_spare_cores=0.5, window_s=0.5)
+    for _ in range(6):
+        stage.work(spare, 0.1, own_cores=1.0, others_cores=1.0)   # beside the work: 0 free
+        host.run(0.3, idle_cores=2.0)                               # then nothing runs
+    assert spare.cores_beside_work() == pytest.approx(0.0)
+    assert spare.cores() >= 0.5 and spare.allows_split()
+
+
 def test_work_spans_are_summed_until_a_window_is_measured():
     host = _Host(cores=2)
     stage = _Stage(host)
