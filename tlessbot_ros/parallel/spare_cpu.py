@@ -16,8 +16,10 @@ stage worked is the host's busy time less the stage's own; the cores left beside
 stage's thread needs are the figure. Only the spans of the stage's own work count: a graph
 whose other stages work between this stage's frames (one frame in flight) leaves a core free
 *while this stage works*, and a reading over the whole wall-clock time would hide it (paired
-runs, docs/bench/backpressure.md: the split it gives cut the p95 latency to 0.89-0.94 x at
-30 frames/s). Time of processes run with a raised nice value counts as busy: work the scheduler
+runs, docs/bench/backpressure.md). Either reading lets a stage split: frames that come slower
+than the graph works leave the host idle over the wall-clock time while a later stage of the
+previous frame may overlap this stage's work, and a frame kept whole for it overlaps the next
+one even more. Time of processes run with a raised nice value counts as busy: work the scheduler
 would preempt for us is not told apart from ours. Where the counters cannot be read (another
 OS) the host is taken to have cores to spare, which keeps the split as configured.
 """
