@@ -106,12 +106,25 @@ def test_the_report_shows_each_stages_split_and_the_hosts_idle_and_stolen_cpu():
 
     rows = split_rows({'localiser': {'frames_split': '30', 'frames_kept_whole': '10',
                                      'cores_free_beside_work': '0.62'},
+                       'pose_estimator': {'frames_split': '1.1e+03', 'frames_kept_whole': '7'},
                        'classifier': {'frames': '40'}})
     assert rows == [('localiser: frames split over a second core',
-                     '30 of 40; cores free beside its work lately 0.62')]
+                     '30 of 40; cores free beside its work lately 0.62'),
+                    ('pose_estimator: frames split over a second core',   # older nodes' format
+                     '1100 of 1107; cores free beside its work lately ?')]
     # user nice system idle iowait irq softirq steal
     start = [100, 0, 10, 500, 0, 0, 0, 0]
     end = [400, 0, 60, 950, 50, 0, 0, 150]   # 1000 ticks: 500 idle (incl. iowait), 150 stolen
     assert host_rows((start, end)) == [('host while replaying: idle / stolen by the hypervisor',
                                         '50.0 % / 15.0 % of its CPU time')]
     assert host_rows((None, end)) == [] and host_rows((end, end)) == []
+
+
+def test_diagnostics_show_counts_in_full_and_measures_to_three_digits():
+    import numpy as np
+
+    from tlessbot_ros.nodes.stage import _stat_text
+
+    assert _stat_text(1093) == '1093' and _stat_text(np.int64(12345)) == '12345'
+    assert _stat_text(True) == '1'
+    assert _stat_text(12.3456) == '12.3' and _stat_text(float('inf')) == 'inf'

@@ -154,6 +154,14 @@ def follow_observed_rig(node: StageNode) -> str:
     return source
 
 
+def _stat_text(value: float) -> str:
+    """A frame figure for /diagnostics: counts in full (a running count above 999 must not
+    become '1.1e+03'), measures to 3 significant digits."""
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    return f'{value:.3g}'
+
+
 def declare_spare_cpu(node: StageNode) -> SpareCpu:
     """Declare ``parallel.*`` (:class:`~tlessbot_ros.parallel.spare_cpu.SpareCpuParams`, live)
     and return the node's :class:`~tlessbot_ros.parallel.spare_cpu.SpareCpu`: whether a frame's
@@ -572,7 +580,7 @@ class StageNode(Node):
                   'malformed': self._inputs.malformed if self._inputs else 0,
                   **({'unread_frames_est': self._inputs.unread_estimate}
                      if self._inputs and self._inputs.gated else {}),
-                  **{k: f'{v:.3g}' for k, v in self._stats.items()}}
+                  **{k: _stat_text(v) for k, v in self._stats.items()}}
         if self.parameters.changes:
             values.update(parameter_changes=self.parameters.changes,
                           last_parameter_change=self.parameters.last_change)
