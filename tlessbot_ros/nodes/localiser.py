@@ -26,7 +26,7 @@ their messages wait in DDS and the outcome that frees a slot reads them and take
 complete frame. Without a pose estimator publishing outcomes, every frame is taken.
 Parameters: ``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParams: segment
 both views at once, in two threads, while ``parallel.min_spare_cores`` are free beside its
-work: SpareCpuParams),
+work or idle lately: SpareCpuParams),
 ``segmentation.*`` (SegmentationParams), ``fusion.*``
 (FusionParams: method calibrated | algorithm1 | side_only), ``sync.*`` (SyncParams),
 ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*`` (extrinsics),
@@ -333,7 +333,7 @@ class LocaliserNode(StageNode):
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
         inputs = {camera: self._view_input(camera, msgs) for camera, msgs in views.items()}
-        # two threads only while a core was free beside this stage's work lately
+        # two threads only while a core was free beside this stage's work, or idle, lately
         # (parallel.min_spare_cores)
         with self.spare_cpu.work(self.localise_params.parallel_views) as split:
             self._views_in_parallel = split

@@ -23,7 +23,7 @@ are verified), ``lookalike_check``, ``lookalike_tolerance_m``, ``lookalike_min_z
 pose, checked in this process; these and ``min_roi_points``, ``table_clearance_m``: FitParams),
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
-fits others, on frames that find ``parallel.min_spare_cores`` free beside its work:
+fits others, on frames that find ``parallel.min_spare_cores`` free beside its work or idle:
 SpareCpuParams),
 ``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*``
 (extrinsics; the table path needs them), ``rig_source`` ('localiser': the camera poses the
@@ -171,7 +171,8 @@ class PoseEstimatorNode(StageNode):
                 published.append(detection)
 
         # the workers fit parts beside this thread only while a core was free beside this
-        # stage's work lately (parallel.min_spare_cores); otherwise every part is fitted here
+        # stage's work, or idle, lately (parallel.min_spare_cores); otherwise every part is
+        # fitted here
         with self.spare_cpu.work(self.workers is not None) as split:
             self.pipeline.estimate_poses(inputs, labels, classes, on_detection=publish_pose,
                                          fitter=self.workers if split else None)
