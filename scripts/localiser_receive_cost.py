@@ -8,7 +8,8 @@ set out of reach). Then prints the localiser's CPU (share of one core, from /pro
 idle, 30 s while ``tlessbot replay bags/demo --loop --restamp`` publishes at ``--rate`` times
 the bag's 15 frames/s, and 30 s idle again. The difference is the cost of the frames the
 entrance cannot take: by default it leaves them unread (``admission.pause_inputs``);
-``--read-when-full`` takes each one only to refuse it, as before. Set ROS_DOMAIN_ID to a free domain; it defaults to 79.
+``--read-when-full`` takes each one only to refuse it, as before. Set ROS_DOMAIN_ID to a free
+domain; it defaults to 79.
 """
 from __future__ import annotations
 
@@ -33,16 +34,12 @@ rclpy.spin(node)
 """
 
 
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU time of a process so far (s)."""
-    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
-
-
 def share_of_a_core(pid: int, seconds: float) -> float:
-    cpu0, t0 = cpu_seconds(pid), time.monotonic()
+    from tlessbot_ros.parallel.spare_cpu import read_process_cpu_s
+
+    cpu0, t0 = read_process_cpu_s(pid), time.monotonic()
     time.sleep(seconds)
-    return (cpu_seconds(pid) - cpu0) / (time.monotonic() - t0)
+    return (read_process_cpu_s(pid) - cpu0) / (time.monotonic() - t0)
 
 
 def main() -> None:

@@ -106,12 +106,12 @@ def test_the_report_shows_each_stages_split_and_the_hosts_idle_and_stolen_cpu():
 
     rows = split_rows({'localiser': {'frames_split': '30', 'frames_kept_whole': '10',
                                      'cores_free_beside_work': '0.62'},
-                       'pose_estimator': {'frames_split': '1.1e+03', 'frames_kept_whole': '7'},
+                       'pose_estimator': {'frames_split': '1093', 'frames_kept_whole': '7'},
                        'classifier': {'frames': '40'}})
     assert rows == [('localiser: frames split over a second core',
                      '30 of 40; cores free beside its work lately 0.62'),
-                    ('pose_estimator: frames split over a second core',   # older nodes' format
-                     '1100 of 1107; cores free beside its work lately ?')]
+                    ('pose_estimator: frames split over a second core',
+                     '1093 of 1100; cores free beside its work lately ?')]
     # user nice system idle iowait irq softirq steal
     start = [100, 0, 10, 500, 0, 0, 0, 0]
     end = [400, 0, 60, 950, 50, 0, 0, 150]   # 1000 ticks: 500 idle (incl. iowait), 150 stolen

@@ -168,11 +168,6 @@ def host_rows(ticks: tuple[list[int] | None, list[int] | None]) -> list[tuple[st
              f'{100 * idle / total:.1f} % / {100 * steal / total:.1f} % of its CPU time')]
 
 
-def _count(text: str | int) -> int:
-    """A count from /diagnostics (older nodes wrote large ones as '1.1e+03')."""
-    return round(float(text))
-
-
 def split_rows(diagnostics: dict[str, dict[str, str]]) -> list[tuple[str, str]]:
     """How often each stage split a frame's work over a second core (parallel.*), from its
     last /diagnostics."""
@@ -180,8 +175,8 @@ def split_rows(diagnostics: dict[str, dict[str, str]]) -> list[tuple[str, str]]:
     for label in sorted(diagnostics):
         values = diagnostics[label]
         if 'frames_split' in values:
-            split = _count(values['frames_split'])
-            whole = _count(values.get('frames_kept_whole', 0))
+            split = int(values['frames_split'])
+            whole = int(values.get('frames_kept_whole', 0))
             rows.append((f'{label}: frames split over a second core',
                          f"{split} of {split + whole}; cores free beside its work lately "
                          f"{values.get('cores_free_beside_work', '?')}"))
