@@ -362,3 +362,62 @@ def test_skipped_frames_are_counted_from_the_gaps_once_the_period_is_known():
     skipped.add(10)              # a new timeline: counted so far is kept
     skipped.add(43)
     assert skipped.count == 5
+
+
+
+def test_items_read_after_a_pause_keep_each_streams_order_and_interleave_by_timeline():
+    jumps = _jumps()
+    for stream in ('color', 'depth'):
+        assert jumps.check(stream, 100 * S) == 'in order'
+    color = [(101 * S, 'c1'), (9 * S, 'c-stray'), (102 * S, 'c2'), (10**9 * S, 'c-ahead'),
+             (103 * S, 'c3')]
+    depth = [(101 * S, 'd1'), (102 * S, 'd2'), (0, 'd-zero'), (103 * S, 'd3')]
+    order = jumps.reading_order({'color': color, 'empty': [], 'depth': depth})
+    items = [item for _, _, item in order]
+    assert sorted(items) == sorted(item for _, item in color + depth)   # each once
+    assert [(stream, stamp) for stream, stamp, _ in order if stream == 'color'] == \
+        [('color', stamp) for stamp, _ in color]   # each stream's own order, as it came
+    # a stray comes right after the item before it in its stream; by timeline across streams
+    assert items == ['c1', 'c-stray', 'd1', 'c2', 'c-ahead', 'd2', 'd-zero', 'c3', 'd3']
+    assert jumps.count == 0 and jumps.outliers == 0   # reading the order changes nothing
+
+
+def test_strays_read_together_after_a_pause_stay_strays_and_every_good_frame_pairs():
+    """A paused entrance reads every topic's waiting messages at once (nodes.inputs). Garbage
+    with a few kinds of stamps taking turns between good messages: read in the order they
+    came, no two strays of a kind are in line, so there is no jump and every good frame pairs.
+    Sorted by their own stamps, the strays of each kind come in a row and confirm a jump to
+    their timeline."""
+    from tlessbot_ros.core.common import SyncParams, TimelineGate
+
+    rng = np.random.default_rng(5)
+    kinds = (lambda: 1 * S + int(rng.integers(0, 5 * S)),        # the 1970s
+             lambda: 10**8 * S + int(rng.integers(0, 5 * S)),    # years ahead
+             lambda: 90 * S - int(rng.integers(0, 5 * S)))       # seconds before the frames
+    waiting = {}
+    for key in ('color', 'depth', 'info'):
+        waiting[key] = []
+        for frame in range(1, 7):
+            waiting[key].append((100 * S + frame * S // 2, f'good{frame}'))
+            waiting[key] += [(kind(), 'stray') for kind in kinds for _ in range(2)]
+
+    def read(order_of):
+        jumps = _jumps(confirmations=4)
+        sync = StampSynchroniser(list(waiting), slop_ns=5 * MS,
+                                 queue_size=SyncParams().queue_size)
+        gate = TimelineGate(jumps, [sync])
+        for key in waiting:   # the frame read before the pause
+            gate.admit(key, 100 * S, 'good0')
+            sync.add(key, 100 * S, 'good0')
+        frames = []
+        for key, stamp, item in order_of(jumps):
+            for name, at, held in gate.admit(key, stamp, item)[1]:
+                if (complete := sync.add(name, at, held)) and complete['color'] != 'stray':
+                    frames.append(complete['color'])
+        return jumps.count, frames
+
+    assert read(lambda jumps: jumps.reading_order(waiting)) == \
+        (0, [f'good{i}' for i in range(1, 7)])
+    by_stamp = sorted(((key, stamp, item) for key, items in waiting.items()
+                       for stamp, item in items), key=lambda entry: entry[1])
+    assert read(lambda _: by_stamp)[0] > 0

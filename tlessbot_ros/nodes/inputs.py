@@ -174,13 +174,13 @@ class TwoViewInputs:
         # executor must not take the oldest waiting messages one by one itself
         self._reopening = False
         group = GatedCallbackGroup(self._readable) if gate is not None else None
-        self._subscriptions = []
+        self._subscriptions = []   # (subscription, its stream (camera, key), its handler)
         for camera in cameras:
             for key, (msg_class, topic) in topics.items():
                 handler = self._handler(camera, key, msg_class)
                 self._subscriptions.append((node.create_subscription(
                     msg_class, topic(camera), handler, qos, raw=True, callback_group=group),
-                    handler))
+                    (camera, key), handler))
         self._reopened = None if gate is None else node.create_guard_condition(self._read_paused)
 
     def _build_synchronisers(self, sync: SyncParams) -> None:
@@ -277,26 +277,27 @@ class TwoViewInputs:
 
     def _read_paused(self) -> None:
         """Take every message waiting in the subscriptions (guard condition, executor thread),
-        pair them in stamp order as if they had come one by one, then hand on the frames
-        released at a time jump and the newest other complete frame; the older ones are
-        counted in :attr:`superseded`."""
+        pair them as if they had come one by one (each topic's in the order it came, across
+        topics by stamp: :meth:`~tlessbot_ros.core.common.StampJumps.reading_order`), then
+        hand on the frames released at a time jump and the newest other complete frame;
+        the older ones are counted in :attr:`superseded`."""
         self._reopening = False
         if not self._is_open():
             return
-        waiting = []
-        for subscription, handler in self._subscriptions:
+        waiting = {}   # per subscription, in the order its messages came
+        for subscription, stream, handler in self._subscriptions:
+            taken_here = waiting.setdefault(stream, [])
             try:
                 with subscription.handle:
                     while (taken := subscription.handle.take_message(
                             subscription.msg_type, True)) is not None:
-                        waiting.append((_stamp_or_zero(taken[0]), handler, taken[0]))
+                        taken_here.append((_stamp_or_zero(taken[0]), (handler, taken[0])))
             except InvalidHandle:   # destroyed: the node is shutting down
                 return
-        waiting.sort(key=lambda entry: entry[0])   # stable: one stamp keeps topic order
         frames: list[tuple[Views, bool]] = []
         self._collected = frames
         try:
-            for _, handler, data in waiting:
+            for _, _, (handler, data) in self.jumps.reading_order(waiting):
                 handler(data)
         finally:
             self._collected = None

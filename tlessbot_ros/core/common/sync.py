@@ -21,7 +21,7 @@ drops the old timeline's stragglers that arrive after the jump.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Hashable, Sequence
+from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Generic, Literal, TypeVar
 
@@ -216,6 +216,37 @@ class StampJumps:
             return STALE
         self._last[stream], self._epoch[stream] = stamp_ns, self.count
         return verdict
+
+    def reading_order(self, waiting: Mapping[Hashable, Sequence[tuple[int, Item]]]
+                      ) -> list[tuple[Hashable, int, Item]]:
+        """The order in which to check items that waited unread in several streams (a paused
+        entrance reads them all at once): as if they had come one by one. Each stream's items
+        keep the order they came in; across streams they go by their stamps on the streams'
+        timelines. An item off its stream's timeline (a stray, or a jump's new timeline) comes
+        right after the item before it in its stream, as it did when it came: sorted by its
+        own stamp, a run of strays that came one at a time between good items would come in a
+        row and confirm a jump to their timeline.
+
+        Args:
+            waiting: stream -> ``[(stamp_ns, item)]`` in arrival order.
+        Returns:
+            ``[(stream, stamp_ns, item)]``, every item once (pass each to :meth:`check`, or
+            :meth:`TimelineGate.admit`, in this order). Nothing is changed here.
+        """
+        entries = []
+        for index, (stream, items) in enumerate(waiting.items()):
+            timeline = self._last.get(stream)   # the stamp the stream's timeline is at
+            key = None
+            for position, (stamp, item) in enumerate(items):
+                stamp = int(stamp)
+                if timeline is None or self._in_line(timeline, stamp):
+                    timeline = stamp
+                    key = stamp if key is None else max(key, stamp)   # the stream's order kept
+                elif key is None:
+                    key = timeline
+                entries.append((key, index, position, stream, stamp, item))
+        entries.sort(key=lambda entry: entry[:3])
+        return [(stream, stamp, item) for *_, stream, stamp, item in entries]
 
     @property
     def jump_target_ns(self) -> int:
