@@ -125,3 +125,38 @@ def test_a_second_frame_in_flight_needs_a_spare_core_or_a_camera_slower_than_the
     assert unlimited.try_admit(1, 0.0) and unlimited.try_admit(2, 0.0)
     with pytest.raises(ValueError, match='pipeline_min_spare_cores'):
         AdmissionParams(pipeline_min_spare_cores=float('nan'))
+
+
+def test_a_second_frame_follows_the_first_only_once_it_is_with_the_last_stage():
+    """pipeline_behind_last_stage: the second frame's first stages overlap the last stage's
+    work on the first, not the middle stage's (where it would catch up and wait inside)."""
+    middle = {'reports': True}
+    frames = InFlightFrames(AdmissionParams(max_in_flight=2, pipeline_min_spare_cores=0.0),
+                            middle_reports=lambda: middle['reports'])
+    assert frames.try_admit(1, 0.0)
+    assert not frames.try_admit(2, 0.01)              # frame 1 is still before the last stage
+    assert not frames.reached_last_stage(99)          # not open: nothing changes
+    assert frames.reached_last_stage(1)
+    assert frames.try_admit(3, 0.05)                  # frame 1 is with the last stage
+    assert not frames.try_admit(4, 0.06)              # max_in_flight
+    frames.finish(1, 0.1)
+    assert not frames.try_admit(5, 0.11)              # frame 3 is not with the last stage yet
+    middle['reports'] = False                         # no middle stage reports: gate off
+    assert frames.try_admit(6, 0.12)
+    frames.clear()
+    middle['reports'] = True
+    assert frames.try_admit(7, 0.2) and not frames.reached_last_stage(3)   # forgotten
+    off = InFlightFrames(AdmissionParams(max_in_flight=2, pipeline_min_spare_cores=0.0,
+                                         pipeline_behind_last_stage=False),
+                         middle_reports=lambda: True)
+    assert off.try_admit(1, 0.0) and off.try_admit(2, 0.0)
+
+
+def test_an_expired_frame_no_longer_holds_a_second_back():
+    frames = InFlightFrames(AdmissionParams(max_in_flight=2, pipeline_min_spare_cores=0.0,
+                                            min_expiry_s=1.0), middle_reports=lambda: True)
+    assert frames.try_admit(1, 0.0) and frames.reached_last_stage(1)
+    assert frames.try_admit(2, 0.1)          # its outcome is lost
+    assert not frames.try_admit(3, 0.5)      # two open
+    assert frames.try_admit(4, 1.2)          # both expired: a first frame again
+    assert not frames.try_admit(5, 1.25)     # frame 4 is not with the last stage

@@ -136,6 +136,45 @@ def test_the_localiser_admits_only_while_fewer_than_max_in_flight_are_unfinished
     assert localiser.in_flight.refused == 1
 
 
+def test_a_second_frame_enters_once_the_classifier_has_passed_the_first_on(ros):
+    """admission.pipeline_behind_last_stage: with two frames allowed in flight, the second
+    enters only once the classifier reported the first done (it is with the pose estimator)."""
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.conversions.outcomes import frame_outcome
+    from tlessbot_ros.nodes.common import RESULT_QOS, message_class
+    from tlessbot_ros.nodes.localiser import LocaliserNode
+
+    executor, nodes = ros
+    localiser = LocaliserNode(parameter_overrides=[
+        Parameter('admission.max_in_flight', value=2),
+        Parameter('admission.pipeline_min_spare_cores', value=0.0),
+        Parameter('admission.hold_newest', value=False)])
+    nodes.append(localiser)
+    executor.add_node(localiser)
+    downstream = rclpy_node('fake_stages')
+    header = message_class('std_msgs/msg/Header')
+    pose_outcomes = downstream.create_publisher(header, '/pose_estimator/frames', RESULT_QOS)
+    classifier_outcomes = downstream.create_publisher(header, '/classifier/frames', RESULT_QOS)
+    nodes.append(downstream)
+    executor.add_node(downstream)
+    assert _spin_until(executor, lambda: all(
+        localiser._downstream[stage].get_publisher_count() > 0
+        for stage in ('classifier', 'pose_estimator')))
+    assert localiser.admit(_views(10))
+    assert not localiser.admit(_views(11))             # frame 10 is before the pose stage
+    classifier_outcomes.publish(frame_outcome(10, 'done'))
+    assert _spin_until(executor, lambda: 10 in localiser.in_flight._at_last_stage)
+    assert localiser.admit(_views(12))                 # it follows frame 10 in
+    assert not localiser.admit(_views(13))             # two in flight
+    pose_outcomes.publish(frame_outcome(10, 'done'))
+    assert _spin_until(executor, lambda: localiser.in_flight.open_count == 1)
+    assert not localiser.admit(_views(14))             # frame 12 is before the pose stage
+    localiser.set_parameters([Parameter('admission.pipeline_behind_last_stage', value=False)])
+    localiser.parameters.apply_pending()
+    assert localiser.admit(_views(15))
+
+
 def _localiser_taking_into(ros, taken: list, *parameters):
     """A localiser with one frame in flight (and ``parameters``) whose taken frames' stamps go
     to ``taken``, and a node publishing the pose estimator's outcomes: (localiser, that node,

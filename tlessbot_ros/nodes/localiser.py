@@ -131,7 +131,7 @@ class LocaliserNode(StageNode):
         self.in_flight = InFlightFrames(self.parameters.dataclass(
             AdmissionParams(), prefix='admission.', apply=self._apply_admission),
             spare_cores=self.spare_cpu.cores, camera_period_s=self._camera_period_s,
-            stages=1 + len(DOWNSTREAM))
+            stages=1 + len(DOWNSTREAM), middle_reports=self._middle_stages_report)
         self._entrance_was_open = True
         self._in_flight_lock = threading.Lock()
         self._downstream = {
@@ -235,6 +235,17 @@ class LocaliserNode(StageNode):
                 self.in_flight.finish(stamp_ns, time.monotonic(),
                                       completed=last_stage and outcome == DONE)
             self._take_waiting()
+            return
+        with self._in_flight_lock:   # with the last stage now: a frame may follow it
+            reached = self.in_flight.reached_last_stage(stamp_ns)
+        if reached:
+            self._take_waiting()
+
+    def _middle_stages_report(self) -> bool:
+        """Whether every stage between this one and the last publishes its outcomes
+        (``admission.pipeline_behind_last_stage``)."""
+        return all(self._downstream[stage].get_publisher_count() > 0
+                   for stage in DOWNSTREAM[:-1])
 
     def _on_time_jump(self, jump_ns: int) -> None:
         """Stamps jumped: the open frames belong to the old timeline; forget them."""

@@ -73,6 +73,12 @@ class AdmissionParams:
             finish frame N; where they are not (two cores, with the camera drivers, at 30 fps),
             a second frame in flight only slows every stage and adds to each frame's latency.
             0: up to ``max_in_flight`` whatever the load.
+        pipeline_behind_last_stage: a frame beyond the first in flight is admitted only once
+            every open frame has left the stages before the last (the middle stage, the
+            classifier, reported it done), when that stage reports at all. The new frame's
+            first stages then run while the last stage works on the previous one, and it
+            reaches the last stage about when that is free, instead of waiting inside behind
+            it (and taking the cores from it meanwhile).
     """
 
     max_in_flight: int = 2
@@ -81,6 +87,7 @@ class AdmissionParams:
     hold_newest: bool = True
     pause_inputs: bool = True
     pipeline_min_spare_cores: float = 1.0
+    pipeline_behind_last_stage: bool = True
 
     def __post_init__(self) -> None:
         if self.max_in_flight < 0:
@@ -103,17 +110,21 @@ class InFlightFrames:
     ``pipeline_min_spare_cores``, ``spare_cores`` returns how many of the host's cores were idle
     lately (without it the host is taken to have cores to spare), ``camera_period_s`` the
     period of the frames coming in (None: not known yet), and ``stages`` how many stages a
-    frame passes between its admission and its outcome.
+    frame passes between its admission and its outcome. For ``pipeline_behind_last_stage``,
+    ``middle_reports`` says whether the stages before the last report the frames they finish
+    (:meth:`reached_last_stage`; without them that gate is off).
     """
 
     def __init__(self, params: AdmissionParams = AdmissionParams(), *,
                  spare_cores: Callable[[], float] = lambda: math.inf,
                  camera_period_s: Callable[[], float | None] = lambda: None,
-                 stages: int = 3) -> None:
+                 stages: int = 3, middle_reports: Callable[[], bool] = lambda: False) -> None:
         self.params = params
         self._spare_cores, self._camera_period_s = spare_cores, camera_period_s
         self._stages = stages
+        self._middle_reports = middle_reports
         self._open: OrderedDict[int, float] = OrderedDict()   # stamp_ns -> admitted at (s)
+        self._at_last_stage: set[int] = set()   # open frames the stages before the last finished
         self._recent_s: deque[float] = deque(maxlen=20)
         self.admitted = 0
         self.finished = 0
@@ -184,6 +195,7 @@ class InFlightFrames:
         frames (processed by the last stage, not dropped on the way) teach the expiry how long
         a frame takes. False when the frame was not open (another entrance's, or expired)."""
         admitted_at = self._open.pop(int(stamp_ns), None)
+        self._at_last_stage.discard(int(stamp_ns))
         if admitted_at is None:
             return False
         self.finished += 1
@@ -195,6 +207,15 @@ class InFlightFrames:
         """Forget every open frame (time jumped; the stages downstream restarted). A frame
         waiting at the entrance stays: :meth:`drop_waiting` gives it up."""
         self._open.clear()
+        self._at_last_stage.clear()
+
+    def reached_last_stage(self, stamp_ns: int) -> bool:
+        """The stages before the last finished open frame ``stamp_ns`` (it is with the last
+        stage now). False when the frame is not open."""
+        if int(stamp_ns) not in self._open:
+            return False
+        self._at_last_stage.add(int(stamp_ns))
+        return True
 
     def has_room(self, now_s: float) -> bool:
         """Whether a frame would be admitted now (after expiring the overdue ones)."""
@@ -204,7 +225,12 @@ class InFlightFrames:
         self._expire(now_s)
         if len(self._open) >= self.params.max_in_flight:
             return False
-        if not self._open or self.params.pipeline_min_spare_cores <= 0:
+        if not self._open:
+            return True
+        if self.params.pipeline_behind_last_stage and self._middle_reports() and \
+                any(stamp not in self._at_last_stage for stamp in self._open):
+            return False
+        if self.params.pipeline_min_spare_cores <= 0:
             return True
         return self._spare_cores() >= self.params.pipeline_min_spare_cores or \
             self._camera_within_reach()
@@ -228,4 +254,5 @@ class InFlightFrames:
             if now_s - admitted_at <= limit:
                 break
             del self._open[stamp]
+            self._at_last_stage.discard(stamp)
             self.expired += 1
