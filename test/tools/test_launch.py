@@ -187,3 +187,26 @@ def test_a_running_process_is_not_restarted():
             graph.restart('sleeper')
     finally:
         graph.stop(timeout_s=5)
+
+
+
+def test_the_graphs_children_run_this_processs_tlessbot_ros_wherever_they_start(tmp_path):
+    """A child started in a directory holding another tlessbot_ros (a source checkout, while
+    this process runs a tree on PYTHONPATH) imports this process's package, not that one."""
+    import os
+
+    import tlessbot_ros
+    from tlessbot_ros.tools.support.processes import same_code_env
+
+    (tmp_path / 'tlessbot_ros').mkdir()
+    (tmp_path / 'tlessbot_ros' / '__init__.py').write_text('')
+    env = same_code_env({**os.environ, 'PYTHONPATH': '/nowhere'})
+    assert env['PYTHONPATH'].split(os.pathsep)[-1] == '/nowhere'   # kept, after ours
+    printed = subprocess.run([sys.executable, '-c',
+                              'import tlessbot_ros; print(tlessbot_ros.__file__)'],
+                             cwd=tmp_path, env=env, capture_output=True, text=True, check=True)
+    assert printed.stdout.strip() == tlessbot_ros.__file__
+    shadowed = subprocess.run([sys.executable, '-c',
+                               'import tlessbot_ros; print(tlessbot_ros.__file__)'],
+                              cwd=tmp_path, capture_output=True, text=True, check=True)
+    assert shadowed.stdout.strip() != tlessbot_ros.__file__   # what it guards against

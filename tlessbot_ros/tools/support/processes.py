@@ -1,6 +1,7 @@
 """The perception graph's processes: what to start (pure) and running them together."""
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -15,7 +16,8 @@ from tlessbot_ros.tools.support.cell_graph import (
     graph_description,
 )
 
-__all__ = ['PERCEPTION_NODES', 'GraphProcesses', 'ProcessSpec', 'graph_processes']
+__all__ = ['PERCEPTION_NODES', 'GraphProcesses', 'ProcessSpec', 'graph_processes',
+           'same_code_env']
 
 
 @dataclass(frozen=True)
@@ -52,13 +54,31 @@ def _argv(process: GraphProcess, config: Path, extra_ros_args: list[str]) -> lis
     return argv
 
 
+def same_code_env(env: dict[str, str] | None = None) -> dict[str, str]:
+    """``env`` (default: this process's) for children that must run the same tlessbot_ros as
+    this process: the directory holding it goes first on ``PYTHONPATH``, and
+    ``PYTHONSAFEPATH`` keeps ``python -m`` from putting the working directory before it
+    (Python 3.11+). Otherwise a child started in a source checkout imports that checkout's
+    package, whatever this process runs: a benchmark of another tree (``git archive`` on
+    ``PYTHONPATH``) started from the repository measured the repository's nodes."""
+    env = dict(os.environ if env is None else env)
+    root = Path(__file__).resolve().parents[3]
+    # an installed package is found by the children as by this process; a site directory
+    # first on PYTHONPATH would come before the standard library
+    if root.name not in ('site-packages', 'dist-packages'):
+        paths = [p for p in env.get('PYTHONPATH', '').split(os.pathsep) if p and p != str(root)]
+        env['PYTHONPATH'] = os.pathsep.join([str(root), *paths])
+    env['PYTHONSAFEPATH'] = '1'
+    return env
+
+
 class GraphProcesses:
     """Runs ProcessSpecs as children, prefixes their output, restarts one that exited
     (:meth:`restart`), stops them all together."""
 
     def __init__(self, specs: list[ProcessSpec], *, env: dict[str, str] | None = None) -> None:
         self.specs = specs
-        self.env = env
+        self.env = same_code_env(env)   # the children run this process's tlessbot_ros
         self.children: dict[str, subprocess.Popen] = {}
         self.started: dict[str, float] = {}   # monotonic time of each child's (re)start
         self._threads: list[threading.Thread] = []
