@@ -91,11 +91,29 @@ def rclpy_node(name: str):
     return Node(name)
 
 
+def _fake_downstream(ros, localiser):
+    """A node publishing the classifier's and the pose estimator's outcomes, matched with
+    ``localiser``'s subscriptions: (pose outcomes, classifier outcomes) publishers."""
+    from tlessbot_ros.nodes.common import RESULT_QOS, message_class
+
+    executor, nodes = ros
+    downstream = rclpy_node('fake_stages')
+    header = message_class('std_msgs/msg/Header')
+    pose_outcomes = downstream.create_publisher(header, '/pose_estimator/frames', RESULT_QOS)
+    classifier_outcomes = downstream.create_publisher(header, '/classifier/frames', RESULT_QOS)
+    nodes.append(downstream)
+    executor.add_node(downstream)
+    assert _spin_until(executor, lambda: pose_outcomes.get_subscription_count() > 0
+                       and classifier_outcomes.get_subscription_count() > 0
+                       and all(localiser._downstream[stage].get_publisher_count() > 0
+                               for stage in ('classifier', 'pose_estimator')))
+    return pose_outcomes, classifier_outcomes
+
+
 def test_the_localiser_admits_only_while_fewer_than_max_in_flight_are_unfinished(ros):
     from rclpy.parameter import Parameter
 
     from tlessbot_ros.conversions.outcomes import frame_outcome
-    from tlessbot_ros.nodes.common import RESULT_QOS, message_class
     from tlessbot_ros.nodes.localiser import LocaliserNode
 
     executor, nodes = ros
@@ -108,15 +126,7 @@ def test_the_localiser_admits_only_while_fewer_than_max_in_flight_are_unfinished
     assert localiser.admit(_views(1)) and localiser.admit(_views(2))
     assert localiser.in_flight.open_count == 0
 
-    downstream = rclpy_node('fake_stages')
-    header = message_class('std_msgs/msg/Header')
-    pose_outcomes = downstream.create_publisher(header, '/pose_estimator/frames', RESULT_QOS)
-    classifier_outcomes = downstream.create_publisher(header, '/classifier/frames', RESULT_QOS)
-    nodes.append(downstream)
-    executor.add_node(downstream)
-    assert _spin_until(executor, lambda: pose_outcomes.get_subscription_count() > 0
-                       and classifier_outcomes.get_subscription_count() > 0
-                       and localiser._downstream['pose_estimator'].get_publisher_count() > 0)
+    pose_outcomes, classifier_outcomes = _fake_downstream(ros, localiser)
 
     assert localiser.admit(_views(10))
     assert not localiser.admit(_views(11))           # frame 10 is still in the graph
@@ -142,7 +152,6 @@ def test_a_second_frame_enters_once_the_classifier_has_passed_the_first_on(ros):
     from rclpy.parameter import Parameter
 
     from tlessbot_ros.conversions.outcomes import frame_outcome
-    from tlessbot_ros.nodes.common import RESULT_QOS, message_class
     from tlessbot_ros.nodes.localiser import LocaliserNode
 
     executor, nodes = ros
@@ -152,15 +161,7 @@ def test_a_second_frame_enters_once_the_classifier_has_passed_the_first_on(ros):
         Parameter('admission.hold_newest', value=False)])
     nodes.append(localiser)
     executor.add_node(localiser)
-    downstream = rclpy_node('fake_stages')
-    header = message_class('std_msgs/msg/Header')
-    pose_outcomes = downstream.create_publisher(header, '/pose_estimator/frames', RESULT_QOS)
-    classifier_outcomes = downstream.create_publisher(header, '/classifier/frames', RESULT_QOS)
-    nodes.append(downstream)
-    executor.add_node(downstream)
-    assert _spin_until(executor, lambda: all(
-        localiser._downstream[stage].get_publisher_count() > 0
-        for stage in ('classifier', 'pose_estimator')))
+    pose_outcomes, classifier_outcomes = _fake_downstream(ros, localiser)
     assert localiser.admit(_views(10))
     assert not localiser.admit(_views(11))             # frame 10 is before the pose stage
     classifier_outcomes.publish(frame_outcome(10, 'done'))

@@ -206,7 +206,9 @@ def test_the_graphs_children_run_this_processs_tlessbot_ros_wherever_they_start(
                               'import tlessbot_ros; print(tlessbot_ros.__file__)'],
                              cwd=tmp_path, env=env, capture_output=True, text=True, check=True)
     assert printed.stdout.strip() == tlessbot_ros.__file__
+    plain = {k: v for k, v in os.environ.items() if k != 'PYTHONSAFEPATH'}
     shadowed = subprocess.run([sys.executable, '-c',
                                'import tlessbot_ros; print(tlessbot_ros.__file__)'],
-                              cwd=tmp_path, capture_output=True, text=True, check=True)
+                              cwd=tmp_path, env=plain, capture_output=True, text=True,
+                              check=True)
     assert shadowed.stdout.strip() != tlessbot_ros.__file__   # what it guards against

@@ -237,8 +237,9 @@ class LocaliserNode(StageNode):
             self._take_waiting()
             return
         with self._in_flight_lock:   # with the last stage now: a frame may follow it
-            reached = self.in_flight.reached_last_stage(stamp_ns)
-        if reached:
+            room = self.in_flight.reached_last_stage(stamp_ns) and \
+                self.in_flight.has_room(time.monotonic())
+        if room:
             self._take_waiting()
 
     def _middle_stages_report(self) -> bool:

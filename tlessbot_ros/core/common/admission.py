@@ -227,8 +227,9 @@ class InFlightFrames:
             return False
         if not self._open:
             return True
-        if self.params.pipeline_behind_last_stage and self._middle_reports() and \
-                any(stamp not in self._at_last_stage for stamp in self._open):
+        if self.params.pipeline_behind_last_stage and \
+                any(stamp not in self._at_last_stage for stamp in self._open) and \
+                self._middle_reports():   # last: the owner may ask the middleware
             return False
         if self.params.pipeline_min_spare_cores <= 0:
             return True

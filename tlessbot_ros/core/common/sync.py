@@ -235,15 +235,12 @@ class StampJumps:
         """
         entries = []
         for index, (stream, items) in enumerate(waiting.items()):
-            timeline = self._last.get(stream)   # the stamp the stream's timeline is at
-            key = None
+            timeline = key = self._last.get(stream)   # the stamp its timeline is at
             for position, (stamp, item) in enumerate(items):
                 stamp = int(stamp)
                 if timeline is None or self._in_line(timeline, stamp):
                     timeline = stamp
                     key = stamp if key is None else max(key, stamp)   # the stream's order kept
-                elif key is None:
-                    key = timeline
                 entries.append((key, index, position, stream, stamp, item))
         entries.sort(key=lambda entry: entry[:3])
         return [(stream, stamp, item) for *_, stream, stamp, item in entries]
