@@ -222,6 +222,15 @@ def test_jump_thresholds_are_validated():
         StampJumps(back_ns=0, forward_ns=S)
 
 
+def test_the_executor_is_one_rclpy_has():
+    from tlessbot_ros.core.common import SyncParams
+
+    assert SyncParams().executor == 'events'
+    assert SyncParams(executor='single_threaded').executor == 'single_threaded'
+    with pytest.raises(ValueError, match="executor must be one of.*'multi'"):
+        SyncParams(executor='multi')
+
+
 def test_full_queue_drops_an_item_that_can_never_pair_first():
     """A flood on one stream at stamps nobody else has pushes out the flood, not the item
     that waits for its partner (a later stage's input waiting for its upstream result)."""

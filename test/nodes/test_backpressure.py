@@ -32,12 +32,15 @@ def _spin_until(executor, condition, timeout_s: float = 30.0) -> bool:
 
 
 @pytest.fixture
-def ros():
+def ros(request):
+    """(executor, nodes to destroy); the executor is named as sync.executor: a test
+    parametrised with ``indirect=['ros']`` picks it, else 'single_threaded'."""
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
+
+    from tlessbot_ros.nodes.common import make_executor
 
     rclpy.init()
-    executor = SingleThreadedExecutor()
+    executor = make_executor(getattr(request, 'param', 'single_threaded'), None)
     nodes = []
     yield executor, nodes
     for node in nodes:
@@ -243,12 +246,16 @@ def _publish_camera_frame(publishers: dict, stamp_ns: int) -> None:
             d415_intrinsics(8, 6), frame_id=frame, stamp_ns=stamp_ns, factory=RclpyFactory()))
 
 
+@pytest.mark.parametrize('ros, executor_kind', [('single_threaded', 'single_threaded'),
+                                                ('events', 'events')], indirect=['ros'])
 def test_a_full_entrance_leaves_camera_messages_unread_and_takes_the_newest_when_a_slot_frees(
-        ros):
+        ros, executor_kind):
     """admission.pause_inputs (the default): while max_in_flight frames are open, the camera
     subscriptions are not read at all (nothing is paired or refused); the outcome that frees a
     slot reads what waited in DDS and takes only its newest complete frame. With it off, every
-    message is read and each complete frame is refused on its own."""
+    message is read and each complete frame is refused on its own. The same with rclpy's
+    EventsExecutor (sync.executor 'events'), which delivers every message while the entrance
+    is full: the localiser keeps them, as many per topic as DDS would, unread."""
     from rclpy.duration import Duration
     from rclpy.parameter import Parameter
 
@@ -261,7 +268,8 @@ def test_a_full_entrance_leaves_camera_messages_unread_and_takes_the_newest_when
     taken = []
     # reliable inputs: a publisher then knows when the localiser's readers hold its frames
     localiser, cameras, pose_outcomes = _localiser_taking_into(
-        ros, taken, Parameter('input_qos', value='reliable'))
+        ros, taken, Parameter('input_qos', value='reliable'),
+        Parameter('sync.executor', value=executor_kind))
     publishers = {camera: {key: cameras.create_publisher(message_class(msg_type),
                                                          camera_topic(camera, topic), RESULT_QOS)
                            for key, (msg_type, topic) in CAMERA_INPUTS.items()}

@@ -22,7 +22,7 @@ camera poses the localiser publishes on /localiser/rig replace ``rig.CAMERA.*`` 
 the rig; 'config'), ``sync.*``. All are live (``ros2
 param set``, from the next frame; a new ``model_path`` is loaded at once, or refused, and used
 once warmed up) but ``rig.cameras``, ``rig_source``, ``input_qos``, ``input_depth``,
-``sync.worker_thread``.
+``sync.worker_thread``, ``sync.executor``.
 """
 from __future__ import annotations
 

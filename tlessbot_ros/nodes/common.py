@@ -187,19 +187,37 @@ def quiet_half_built_futures(unraisable: Any) -> None:
 SIGNAL_POLL_S = 0.1
 
 
-def spin_until_interrupted(node: Node) -> None:
+def spin_until_interrupted(node: Node, executor: str = 'single_threaded') -> None:
     """Spin ``node`` in this thread until Ctrl-C, SIGTERM (KeyboardInterrupt, see
-    :func:`interrupt_on_signals`) or the context's shutdown."""
+    :func:`interrupt_on_signals`) or the context's shutdown, with the ``executor`` named as
+    :attr:`~tlessbot_ros.core.common.SyncParams.executor` ('events', 'single_threaded')."""
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
 
-    executor = SingleThreadedExecutor(context=node.context)
-    executor.add_node(node)
+    spinner = make_executor(executor, node.context)
+    spinner.add_node(node)
     try:
         while rclpy.ok(context=node.context):
-            spin_once_or_interrupt(partial(executor.spin_once, timeout_sec=SIGNAL_POLL_S))
+            spin_once_or_interrupt(partial(spinner.spin_once, timeout_sec=SIGNAL_POLL_S))
     finally:
-        executor.remove_node(node)
+        spinner.remove_node(node)
+
+
+def make_executor(kind: str, context: Any) -> Any:
+    """An rclpy executor for ``context``: 'events' (rclpy's EventsExecutor, which ignores
+    callback groups: a node that pauses its inputs must also cope with messages delivered
+    while paused, as :class:`~tlessbot_ros.nodes.inputs.TwoViewInputs` does) or
+    'single_threaded'.
+
+    Raises:
+        ValueError: another name.
+    """
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    if kind == 'single_threaded':
+        from rclpy.executors import SingleThreadedExecutor
+        return SingleThreadedExecutor(context=context)
+    raise ValueError(f"executor must be 'events' or 'single_threaded', got {kind!r}")
 
 
 def attribute_docs(cls: type) -> dict[str, str]:
@@ -431,7 +449,7 @@ def run_node(node_class: type, args: list[str] | None = None) -> None:
         rclpy.try_shutdown()
         return
     try:
-        spin_until_interrupted(node)
+        spin_until_interrupted(node, getattr(node, 'executor_kind', 'single_threaded'))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -19,14 +19,20 @@ A gate (the graph's entrance, while it is full) can keep the subscriptions out o
 executor's wait set altogether (:class:`GatedCallbackGroup`): their messages then stay unread
 in the DDS history, where newer ones replace older ones at no cost to Python, and
 :meth:`TwoViewInputs.reopen` reads what waited once the gate opens and passes on only its newest
-complete frame. Taking each message through rclpy's executor costs far more than its bytes
-(the executor rebuilds its wait set for every message taken): 1-2 ms for each of six topics at
-30 fps.
+complete frame. Taking each message through rclpy's SingleThreadedExecutor costs far more
+than its bytes (the executor rebuilds its wait set for every message taken): 1-2 ms for each
+of six topics at 30 fps. rclpy's EventsExecutor (``sync.executor: events``, the default) has
+no such turn and ignores callback groups: it delivers every message, and those that come while
+the gate is closed are kept as the DDS history would keep them (the QoS depth per topic, the
+newest) and read the same way when it opens.
 """
 from __future__ import annotations
 
+import threading
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
@@ -147,15 +153,24 @@ class TwoViewInputs:
         qos: subscription QoS (sensor data by default).
         on_time_jump: called with the jump's size (ns, < 0 back) when stamps jump, after the
             queues were emptied.
-        gate: while it returns False, no message is taken (:class:`GatedCallbackGroup`); call
+        gate: while it returns False, no message is read (see ``pause_in_dds``); call
             :meth:`reopen` when it may have opened. None: every message is taken as it comes.
+        pause_in_dds: while the gate is closed, leave the messages in the DDS history
+            (:class:`GatedCallbackGroup`, and a guard condition that carries :meth:`reopen` to
+            the executor's thread): for rclpy's SingleThreadedExecutor, which asks the
+            callback groups. False: take every message and keep those that come while the gate
+            is closed (as many per topic as the QoS depth, the newest), read the same way when
+            it opens: at once on the executor's thread, or with the next message when
+            :meth:`reopen` came from another thread. That works with any executor; rclpy's
+            EventsExecutor needs it (it ignores callback groups and has no guard conditions).
     """
 
     def __init__(self, node: Node, topics: dict[str, tuple[type, Callable[[str], str]]],
                  cameras: Sequence[str], sync: SyncParams,
                  callback: Callable[[Views, bool], None], *, qos: Any = SENSOR_QOS,
                  on_time_jump: Callable[[int], None] | None = None,
-                 gate: Callable[[], bool] | None = None) -> None:
+                 gate: Callable[[], bool] | None = None,
+                 pause_in_dds: bool = True) -> None:
         self._callback = callback
         self._on_time_jump = on_time_jump
         self._stale_before = 0   # counted by gates replaced by reconfigure
@@ -173,15 +188,26 @@ class TwoViewInputs:
         # set by reopen() until the guard's callback has read what waited: meanwhile the
         # executor must not take the oldest waiting messages one by one itself
         self._reopening = False
-        group = GatedCallbackGroup(self._readable) if gate is not None else None
+        group = GatedCallbackGroup(self._readable) if gate is not None and pause_in_dds \
+            else None
+        # Messages an executor that ignores callback groups (rclpy's EventsExecutor) delivered
+        # while the gate was closed: kept per stream as the DDS history would keep them (its
+        # depth, the newest), and read with what still waits there when the gate opens.
+        self._paused_depth = max(1, int(getattr(qos, 'depth', 1) or 1))
+        self._delivered_while_paused: dict[tuple[str, str], deque[bytes]] = {}
         self._subscriptions = []   # (subscription, its stream (camera, key), its handler)
         for camera in cameras:
             for key, (msg_class, topic) in topics.items():
                 handler = self._handler(camera, key, msg_class)
+                delivered = handler if gate is None else partial(self._delivered, (camera, key),
+                                                                 handler)
                 self._subscriptions.append((node.create_subscription(
-                    msg_class, topic(camera), handler, qos, raw=True, callback_group=group),
+                    msg_class, topic(camera), delivered, qos, raw=True, callback_group=group),
                     (camera, key), handler))
-        self._reopened = None if gate is None else node.create_guard_condition(self._read_paused)
+        self._reopened = node.create_guard_condition(self._read_paused) \
+            if gate is not None and pause_in_dds else None
+        self._executor_thread: int | None = None   # the thread that delivers messages
+        self._delivering = False   # in _delivered or _read_paused: a reopen waits for its end
 
     def _build_synchronisers(self, sync: SyncParams) -> None:
         self.sync = sync
@@ -220,6 +246,37 @@ class TwoViewInputs:
         """Messages and camera sets held while they wait for partners."""
         return sum(sum(s.pending().values())
                    for s in (self._across, *self._per_camera.values()))
+
+    def _delivered(self, stream: tuple[str, str], handler: Callable[[bytes], None],
+                   data: bytes) -> None:
+        """A gated subscription's message from the executor: handled now if the gate is open,
+        else kept for :meth:`_read_paused` (with ``pause_in_dds`` the executor delivers
+        nothing while it is closed, but for a message it took just before). A :meth:`reopen`
+        without a guard condition is carried out here, with this message read last."""
+        self._executor_thread = threading.get_ident()
+        self._delivering = True
+        try:
+            readable = self._readable()   # may reopen (the entrance opened meanwhile)
+            if not readable:
+                self._delivered_while_paused.setdefault(
+                    stream, deque(maxlen=self._paused_depth)).append(data)
+            if self._reopening and self._reopened is None:
+                self._read_paused()
+            elif readable:
+                handler(data)
+        finally:
+            self._delivering = False
+        self._read_if_reopened()
+
+    def _read_if_reopened(self) -> None:
+        """Carry out a :meth:`reopen` that came while a message was being handled (no guard
+        condition: rclpy's EventsExecutor)."""
+        while self._reopening and self._reopened is None and not self._delivering:
+            self._delivering = True
+            try:
+                self._read_paused()
+            finally:
+                self._delivering = False
 
     def _handler(self, camera: str, key: str, msg_class: type) -> Callable[[bytes], None]:
         topic = self._topics[key][1](camera)
@@ -267,10 +324,14 @@ class TwoViewInputs:
         """The gate may have opened: read, on the executor's thread, the messages that waited
         in the subscriptions and pass on the newest complete frame they hold (with
         ``keep_newest``; else none: the entrance refused them all). Any thread may call it."""
+        if self._is_open is None:
+            return
+        self._keep_newest = keep_newest
+        self._reopening = True
         if self._reopened is not None:
-            self._keep_newest = keep_newest
-            self._reopening = True
             self._reopened.trigger()
+        elif threading.get_ident() == self._executor_thread:
+            self._read_if_reopened()   # at once, unless a message is being handled
 
     def _readable(self) -> bool:
         return not self._reopening and self._is_open()
@@ -287,6 +348,8 @@ class TwoViewInputs:
         waiting = {}   # per subscription, in the order its messages came
         for subscription, stream, handler in self._subscriptions:
             taken_here = waiting.setdefault(stream, [])
+            delivered = self._delivered_while_paused.pop(stream, ())
+            taken_here.extend((_stamp_or_zero(data), (handler, data)) for data in delivered)
             try:
                 with subscription.handle:
                     while (taken := subscription.handle.take_message(

@@ -35,7 +35,8 @@ estimated from the table planes and the parts both cameras see,
 :mod:`~tlessbot_ros.core.calibrate.refinement`, and used by the fusion once confident),
 ``background.CAMERA`` (path of an empty-table PNG for background subtraction; '' = none; a new
 one that cannot be read is refused). All are live (``ros2 param set``, from the next frame)
-but ``rig.cameras``, ``input_qos``, ``input_depth``, ``sync.worker_thread``: read-only.
+but ``rig.cameras``, ``input_qos``, ``input_depth``, ``sync.worker_thread``, ``sync.executor``:
+read-only.
 Frames: outputs keep each source image's frame and stamp.
 """
 from __future__ import annotations

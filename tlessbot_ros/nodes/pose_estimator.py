@@ -32,7 +32,7 @@ localiser publishes on /localiser/rig once it refines the rig from the scene rep
 (``ros2 param set``, from the next frame; the worker processes fit their next part with new
 ``pose.*`` and FitParams; ``workers.count`` starts or stops workers) but ``templates_path``
 (its objects name the pose topics), ``rig.cameras``, ``rig_source``, ``input_qos``,
-``input_depth``, ``sync.worker_thread``: read-only.
+``input_depth``, ``sync.worker_thread``, ``sync.executor``: read-only.
 """
 from __future__ import annotations
 

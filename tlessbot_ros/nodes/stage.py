@@ -33,8 +33,9 @@ comes in.
 
 Parameters (:mod:`~tlessbot_ros.nodes.parameters`): ``rig.CAMERA.*`` and each stage's tuning
 are live (``ros2 param set``; applied by the worker thread between frames), ``sync.*`` too
-(applied at once); ``rig.cameras``, ``input_qos``, ``input_depth`` and ``sync.worker_thread``
-are read-only. ``/diagnostics`` also counts accepted parameter changes and shows the last.
+(applied at once); ``rig.cameras``, ``input_qos``, ``input_depth``, ``sync.worker_thread`` and
+``sync.executor`` are read-only. ``/diagnostics`` also counts accepted parameter changes and
+shows the last.
 
 Restarts (``tlessbot launch`` and ``respawn`` in a launch file start a dead node again): a new
 process never publishes anything of a frame that reached the dead one. Everything a frame
@@ -267,7 +268,7 @@ class StageNode(Node):
         # strays), so a step back counts at once; on the camera topics it must be confirmed.
         self.sync_params = self.parameters.dataclass(
             SyncParams().behind_relay() if self.input_source == 'localiser' else SyncParams(),
-            prefix='sync.', when=AT_ONCE, read_only=('worker_thread',),
+            prefix='sync.', when=AT_ONCE, read_only=('worker_thread', 'executor'),
             apply=self._apply_sync)
         self.input_qos = self.parameters.read_only('input_qos', 'sensor_data', (
             "QoS of the subscriptions: 'sensor_data' (best effort, the ROS convention for "
@@ -310,6 +311,12 @@ class StageNode(Node):
             self._worker = threading.Thread(target=self._work, name=f'{name}_worker',
                                             daemon=True)
             self._worker.start()
+
+    @property
+    def executor_kind(self) -> str:
+        """The executor :func:`~tlessbot_ros.nodes.common.run_node` spins this node with
+        (``sync.executor``)."""
+        return self.sync_params.executor
 
     def start_when_ready(self, warm_up: Callable[[], None],
                          topics: dict[str, tuple[str, Callable[[str], str]]]) -> None:
@@ -378,7 +385,7 @@ class StageNode(Node):
             self, {k: (message_class(t), topic) for k, (t, topic) in topics.items()},
             self.cameras, self.sync_params, self._on_views,
             qos=input_profile(self.input_qos, self.input_depth), on_time_jump=self._on_time_jump,
-            gate=self.input_gate())
+            gate=self.input_gate(), pause_in_dds=self.executor_kind == 'single_threaded')
 
     def input_gate(self) -> Callable[[], bool] | None:
         """Hook: a function that says whether the inputs are read now (the entrance pauses

@@ -28,6 +28,9 @@ from typing import Generic, Literal, TypeVar
 Item = TypeVar('Item')
 
 
+EXECUTORS = ('events', 'single_threaded')   # SyncParams.executor
+
+
 @dataclass(frozen=True)
 class SyncParams:
     """Synchronisation thresholds shared by the nodes.
@@ -86,6 +89,13 @@ class SyncParams:
             counted as malformed and never queued (a 4K colour image is 24 MiB: thirty of them
             waiting for partners would hold 0.7 GiB per topic). The D415's largest stream,
             1920x1080 rgb8, is 5.9 MiB.
+        executor: how the node's thread takes messages, timers and services: 'events'
+            (rclpy's EventsExecutor: it waits in C++ and calls each callback as its event
+            comes) or 'single_threaded' (rclpy's SingleThreadedExecutor, which rebuilds its
+            wait set in Python at every turn). In the graph at 30 fps the single-threaded
+            executor's own Python took 7-10 ms of CPU per processed frame in each stage
+            node, beside the frame's work and holding the same interpreter lock
+            (docs/bench/backpressure.md); the events executor took about half that.
     """
 
     slop_s: float = 0.010
@@ -98,8 +108,12 @@ class SyncParams:
     live_stamp_window_s: float = 5.0
     jump_confirmations: int = 4
     max_message_mb: float = 8.0
+    executor: str = 'events'
 
     def __post_init__(self) -> None:
+        if self.executor not in EXECUTORS:
+            raise ValueError(f'executor must be one of {list(EXECUTORS)}, got '
+                             f'{self.executor!r}')
         for name in ('slop_s', 'max_age_s', 'max_rate_hz', 'max_message_mb'):
             if not getattr(self, name) >= 0:   # NaN too
                 raise ValueError(f'{name} must be >= 0, got {getattr(self, name)}')
