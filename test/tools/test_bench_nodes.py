@@ -35,3 +35,15 @@ def test_bench_nodes_runs_the_stages_with_the_graphs_parameters(capsys, tmp_path
     assert main(['bench', 'nodes', '--repeats', '1', '--config', str(config),
                  '--pose-workers', '1']) == 0   # the option wins over the config
     assert 'parallel_views False, pose_estimator workers.count 1.' in capsys.readouterr().out
+
+
+def test_bench_nodes_can_wait_before_each_stage(capsys):
+    """--idle-before-ms: the stages' figures after a pause, asleep or spinning."""
+    assert main(['bench', 'nodes', '--repeats', '1', '--idle-before-ms', '5']) == 0
+    assert "5 ms idle before each stage's frame." in capsys.readouterr().out
+    assert main(['bench', 'nodes', '--repeats', '1', '--idle-before-ms', '5',
+                 '--idle-busy']) == 0
+    out = capsys.readouterr().out
+    assert "5 ms spent spinning before each stage's frame." in out
+    rows = [line for line in out.splitlines() if line.startswith('| ') and 'median' not in line]
+    assert len(rows) == 3 and all(float(row.split('|')[3]) > 0 for row in rows)

@@ -1,6 +1,7 @@
 """Node callbacks in-process: ms per frame of each stage node's process() on a bag's frames.
 
     tlessbot bench nodes [--bag bags/demo] [--repeats 3] [--config config/cell.yaml] [--json FILE]
+                         [--idle-before-ms MS [--idle-busy]]
 
 The bag's camera messages are read as a node's subscription delivers them (images in place,
 the rest through rclpy) and fed straight to LocaliserNode, ClassifierNode and PoseEstimatorNode
@@ -11,6 +12,12 @@ core, building the outgoing messages); what the graph adds on top of it is trans
 and the other nodes' share of the CPU (``tlessbot bench graph``, which runs this first and
 compares). ``--json`` also writes, per stage, the median and p90 ms per frame and the CPU ms
 per frame (this process and its children: the pose estimator's worker counts).
+
+``--idle-before-ms`` waits that long before each stage's frame, as a stage in the graph waits
+for its input between frames, and ``--idle-busy`` spins through the wait instead of sleeping.
+Against the back-to-back default, the first shows what a frame costs after the host's cores
+went idle; the second, that the wait itself (not the pause in the work) is what costs
+(docs/bench/backpressure.md, eighteenth session).
 """
 from __future__ import annotations
 
@@ -44,6 +51,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--templates', default=None, help='templates file (default: packaged)')
     parser.add_argument('--json', default=None, metavar='FILE',
                         help='also write the per-stage figures as JSON here')
+    parser.add_argument('--idle-before-ms', type=float, default=0.0, metavar='MS',
+                        help="wait this long before each stage's frame (as a stage in the graph "
+                             'waits for its input); default 0: back to back')
+    parser.add_argument('--idle-busy', action='store_true',
+                        help='spin through --idle-before-ms instead of sleeping (the cores '
+                             'never go idle)')
 
 
 class _Captured:
@@ -74,6 +87,18 @@ def bag_frames(bag: str) -> list[dict[str, dict]]:
     count = min((len(v) for v in by_topic.values()), default=0)
     return [{c: {k: by_topic[camera_topic(c, t)][i] for k, t in INPUTS.items()}
              for c in CAMERA_NAMES} for i in range(count)]
+
+
+def _idle(seconds: float, *, busy: bool) -> None:
+    """Wait ``seconds``: asleep, or spinning on the clock (``busy``)."""
+    if seconds <= 0:
+        return
+    if not busy:
+        time.sleep(seconds)
+        return
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        pass
 
 
 def run(args: argparse.Namespace) -> int:
@@ -131,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
                 for name, node, outputs, key in (('localiser', localiser, labels, 'labels'),
                                                  ('classifier', classifier, classes, 'classes'),
                                                  ('pose_estimator', pose, None, None)):
+                    _idle(args.idle_before_ms / 1e3, busy=args.idle_busy)
                     cpu0 = cpu_now()
                     t0 = time.perf_counter()
                     node.process(views)
@@ -157,6 +183,9 @@ def run(args: argparse.Namespace) -> int:
     load = ', '.join(f'{v:.2f}' for v in os.getloadavg())
     lines += ['', f'{len(frames)} frames x {max(1, args.repeats)} passes from {args.bag}; '
               f'load average {load} on {os.cpu_count()} cores.', ran_with + '.']
+    if args.idle_before_ms > 0:
+        lines.append(f"{args.idle_before_ms:g} ms {'spent spinning' if args.idle_busy else 'idle'}"
+                     " before each stage's frame.")
     print('\n'.join(lines))
     if args.json:
         Path(args.json).write_text(json.dumps({name: {
