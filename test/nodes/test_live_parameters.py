@@ -160,7 +160,8 @@ def test_a_stage_spins_the_executor_sync_executor_names(ros):
         assert isinstance(make_executor(nodes[0].executor_kind, None), SingleThreadedExecutor)
         assert not isinstance(make_executor(nodes[1].executor_kind, None),
                               SingleThreadedExecutor)
-        with pytest.raises(ValueError, match="'events' or 'single_threaded'"):
+        with pytest.raises(ValueError, match="one of \\['events', 'single_threaded'\\], got "
+                                             "'multi_threaded'"):
             make_executor('multi_threaded', None)
     finally:
         for node in nodes:

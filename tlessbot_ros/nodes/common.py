@@ -23,6 +23,7 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from tlessbot_ros.conversions.messages import message_class  # noqa: F401 (re-exported)
+from tlessbot_ros.core.common.sync import EXECUTORS
 
 SENSOR_QOS = qos_profile_sensor_data
 RESULT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
@@ -203,10 +204,10 @@ def spin_until_interrupted(node: Node, executor: str = 'single_threaded') -> Non
 
 
 def make_executor(kind: str, context: Any) -> Any:
-    """An rclpy executor for ``context``: 'events' (rclpy's EventsExecutor, which ignores
-    callback groups: a node that pauses its inputs must also cope with messages delivered
-    while paused, as :class:`~tlessbot_ros.nodes.inputs.TwoViewInputs` does) or
-    'single_threaded'.
+    """An rclpy executor for ``context``, one of :data:`~tlessbot_ros.core.common.sync.EXECUTORS`:
+    'events' (rclpy's EventsExecutor, which ignores callback groups: a node that pauses its
+    inputs must also cope with messages delivered while paused, as
+    :class:`~tlessbot_ros.nodes.inputs.TwoViewInputs` does) or 'single_threaded'.
 
     Raises:
         ValueError: another name.
@@ -217,7 +218,7 @@ def make_executor(kind: str, context: Any) -> Any:
     if kind == 'single_threaded':
         from rclpy.executors import SingleThreadedExecutor
         return SingleThreadedExecutor(context=context)
-    raise ValueError(f"executor must be 'events' or 'single_threaded', got {kind!r}")
+    raise ValueError(f'executor must be one of {list(EXECUTORS)}, got {kind!r}')
 
 
 def attribute_docs(cls: type) -> dict[str, str]:

@@ -199,8 +199,8 @@ class TwoViewInputs:
         for camera in cameras:
             for key, (msg_class, topic) in topics.items():
                 handler = self._handler(camera, key, msg_class)
-                delivered = handler if gate is None else partial(self._delivered, (camera, key),
-                                                                 handler)
+                delivered = handler if gate is None or pause_in_dds else \
+                    partial(self._delivered, (camera, key), handler)
                 self._subscriptions.append((node.create_subscription(
                     msg_class, topic(camera), delivered, qos, raw=True, callback_group=group),
                     (camera, key), handler))
@@ -249,21 +249,17 @@ class TwoViewInputs:
 
     def _delivered(self, stream: tuple[str, str], handler: Callable[[bytes], None],
                    data: bytes) -> None:
-        """A gated subscription's message from the executor: handled now if the gate is open,
-        else kept for :meth:`_read_paused` (with ``pause_in_dds`` the executor delivers
-        nothing while it is closed, but for a message it took just before). A :meth:`reopen`
-        without a guard condition is carried out here, with this message read last."""
+        """A gated subscription's message without ``pause_in_dds``: handled now if the gate is
+        open, else kept for :meth:`_read_paused`; a :meth:`reopen` that came meanwhile is
+        carried out after it, with this message read last."""
         self._executor_thread = threading.get_ident()
         self._delivering = True
         try:
-            readable = self._readable()   # may reopen (the entrance opened meanwhile)
-            if not readable:
+            if self._readable():   # may reopen (the entrance opened meanwhile)
+                handler(data)
+            else:
                 self._delivered_while_paused.setdefault(
                     stream, deque(maxlen=self._paused_depth)).append(data)
-            if self._reopening and self._reopened is None:
-                self._read_paused()
-            elif readable:
-                handler(data)
         finally:
             self._delivering = False
         self._read_if_reopened()
