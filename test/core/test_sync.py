@@ -225,8 +225,8 @@ def test_jump_thresholds_are_validated():
 def test_the_executor_is_one_rclpy_has():
     from tlessbot_ros.core.common import SyncParams
 
-    assert SyncParams().executor == 'single_threaded'
-    assert SyncParams(executor='events').executor == 'events'
+    assert SyncParams().executor == 'events'
+    assert SyncParams(executor='single_threaded').executor == 'single_threaded'
     with pytest.raises(ValueError, match="executor must be one of.*'multi'"):
         SyncParams(executor='multi')
 

@@ -129,7 +129,7 @@ def test_fields_checked_together_can_be_changed_together(ros):
 @pytest.mark.parametrize('name, value', [('rig.cameras', ['side', 'top']),
                                          ('input_qos', 'reliable'), ('input_depth', 5),
                                          ('sync.worker_thread', False),
-                                         ('sync.executor', 'events')])
+                                         ('sync.executor', 'single_threaded')])
 def test_structural_parameters_are_read_only(ros, name, value):
     node = _probe_class()()
     try:
@@ -143,9 +143,10 @@ def test_structural_parameters_are_read_only(ros, name, value):
         node.destroy_node()
 
 
-def test_a_stage_spins_the_executor_sync_executor_names(ros):
-    """'single_threaded' by default; 'events' from a cell YAML or an override. run_node spins
-    each node with its ``executor_kind``."""
+def test_the_entrance_keeps_the_single_threaded_executor_and_the_later_stages_use_events(ros):
+    """The localiser pauses its camera inputs in DDS, which only the SingleThreadedExecutor
+    allows; the classifier and the pose estimator spin the EventsExecutor; run_node spins each
+    with its own (``executor_kind``), and a cell YAML may choose either."""
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
@@ -153,10 +154,10 @@ def test_a_stage_spins_the_executor_sync_executor_names(ros):
     from tlessbot_ros.nodes.common import make_executor
     from tlessbot_ros.nodes.localiser import LocaliserNode
 
-    nodes = [LocaliserNode(), ClassifierNode(parameter_overrides=[
-        Parameter('sync.executor', value='events')])]
+    nodes = [LocaliserNode(), ClassifierNode(),
+             LocaliserNode(parameter_overrides=[Parameter('sync.executor', value='events')])]
     try:
-        assert [node.executor_kind for node in nodes] == ['single_threaded', 'events']
+        assert [node.executor_kind for node in nodes] == ['single_threaded', 'events', 'events']
         assert isinstance(make_executor(nodes[0].executor_kind, None), SingleThreadedExecutor)
         assert not isinstance(make_executor(nodes[1].executor_kind, None),
                               SingleThreadedExecutor)

@@ -67,15 +67,19 @@ def test_ratio_rows_compare_the_graph_with_its_stages_alone():
              'classifier': {'median_ms': 10.0, 'cpu_ms_per_frame': 10.0},
              'pose_estimator': {'median_ms': 50.0, 'cpu_ms_per_frame': 50.0}}
     result = GraphRunResult(cpu_s={'localiser': 6.0, 'classifier': 2.0, 'pose_estimator': 10.0,
-                                   'monitor': 99.0},
+                                   'replay and monitor': 5.0},
                             diagnostics={'pose_estimator': {'frames': '100'}})
-    rows = dict(ratio_rows(alone, p95_ms=117.0, duration_s=10.0, result=result))
+    rows = dict(ratio_rows(alone, p95_ms=117.0, duration_s=10.0, result=result, cores=2))
     assert rows['p95 latency / sum of the stages alone'] == '1.30'
     # 10 frames/s processed against 20 for the slowest stage (50 ms) alone
     assert rows['frames processed per s / (1 / slowest stage alone)'].endswith('= 0.50')
-    # 18 CPU s over 100 frames (the monitor is not a node) against 100 ms of the stages' own
+    # 18 CPU s over 100 frames (the replay and monitor is not a node) against 100 ms of the stages' own
     assert rows["CPU of the three nodes per processed frame / the stages' own CPU per frame"] \
         == '180.0 / 100.0 ms = 1.80'
+    # two cores less half a core for the replay and monitor, at 100 ms a frame: 15 frames/s,
+    # 0.75 x the slowest stage's 20
+    ceiling = [value for name, value in rows.items() if name.startswith('ceiling')]
+    assert ceiling == ['(2 - 0.50) cores / 100.0 ms = 15.00 / 20.00 = 0.75']
 
 
 def test_window_table_reports_each_window_and_the_trends():

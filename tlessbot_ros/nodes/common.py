@@ -209,6 +209,11 @@ def make_executor(kind: str, context: Any) -> Any:
     inputs must also cope with messages delivered while paused, as
     :class:`~tlessbot_ros.nodes.inputs.TwoViewInputs` does) or 'single_threaded'.
 
+    Spin it with ``spin_once`` (:func:`spin_until_interrupted`): the EventsExecutor's own
+    ``spin()`` (rclpy 7.1) fires no timer and, when another thread creates a subscription or a
+    publisher meanwhile, loops at 100 % of a core holding the interpreter lock
+    (``scripts/events_executor_check.py --how spin``). Its ``spin_once`` loop does neither.
+
     Raises:
         ValueError: another name.
     """

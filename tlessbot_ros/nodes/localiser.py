@@ -102,7 +102,7 @@ class LocaliserNode(StageNode):
     """Segmentation + two-view fusion -> instance label images."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('localiser', **kwargs)
+        super().__init__('localiser', pauses_inputs=True, **kwargs)
         self.segmentation = self.parameters.dataclass(
             SegmentationParams(), prefix='segmentation.', apply=self._apply_segmentation)
         self.fusion = self.parameters.dataclass(FusionParams(), prefix='fusion.',

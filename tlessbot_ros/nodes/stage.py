@@ -249,10 +249,13 @@ class StageNode(Node):
     """Base of the three perception nodes. Subclasses call :meth:`setup_inputs` and implement
     :meth:`process`."""
 
-    def __init__(self, name: str, *, after_localiser: bool = False, **kwargs: Any) -> None:
+    def __init__(self, name: str, *, after_localiser: bool = False,
+                 pauses_inputs: bool = False, **kwargs: Any) -> None:
         """``after_localiser``: a stage that may read the localiser's relay of the frames it
         admitted; it declares ``input_source`` (:attr:`input_source`; the localiser itself
-        reads the cameras)."""
+        reads the cameras). ``pauses_inputs``: a stage whose :meth:`input_gate` pauses its
+        subscriptions (the entrance); its ``sync.executor`` defaults to 'single_threaded',
+        which leaves the paused messages in DDS (:class:`~.inputs.TwoViewInputs`)."""
         self._created = time.monotonic()
         super().__init__(name, **kwargs)
         self.ready = threading.Event()
@@ -266,8 +269,9 @@ class StageNode(Node):
         self.input_source = declare_input_source(self) if after_localiser else 'cameras'
         # Behind the relay the localiser has already confirmed every time jump (and dropped
         # strays), so a step back counts at once; on the camera topics it must be confirmed.
+        sync_defaults = SyncParams(executor='single_threaded') if pauses_inputs else SyncParams()
         self.sync_params = self.parameters.dataclass(
-            SyncParams().behind_relay() if self.input_source == 'localiser' else SyncParams(),
+            sync_defaults.behind_relay() if self.input_source == 'localiser' else sync_defaults,
             prefix='sync.', when=AT_ONCE, read_only=('worker_thread', 'executor'),
             apply=self._apply_sync)
         self.input_qos = self.parameters.read_only('input_qos', 'sensor_data', (

@@ -89,19 +89,21 @@ class SyncParams:
             counted as malformed and never queued (a 4K colour image is 24 MiB: thirty of them
             waiting for partners would hold 0.7 GiB per topic). The D415's largest stream,
             1920x1080 rgb8, is 5.9 MiB.
-        executor: how the node's thread takes messages, timers and services:
-            'single_threaded' (rclpy's SingleThreadedExecutor, which rebuilds its wait set in
-            Python at every turn) or 'events' (rclpy's experimental EventsExecutor: it waits
-            in C++ and calls each callback as its event comes). In the graph at 30 fps the
-            single-threaded executor's own Python took 7-10 ms of CPU per processed frame in
-            each stage node, under the interpreter lock the worker thread needs; the events
-            executor took about 4. Paired 30 fps runs with 'events' in the classifier and the
-            pose estimator: 1.10-1.17 x the frames at 0.95 x the p95; in all three stages
-            1.04-1.06 x (the entrance then takes every camera message instead of leaving them
-            in DDS while it is full). Not the default: the same executor, spinning on a
-            thread of the bench's monitor, once looped at 100 % of a core and blocked another
-            thread creating a publisher, and a stage creates its subscriptions on its warm-up
-            thread while the executor spins (docs/bench/backpressure.md).
+        executor: how the node's thread takes messages, timers and services: 'events'
+            (rclpy's EventsExecutor: it waits in C++ and calls each callback as its event
+            comes) or 'single_threaded' (rclpy's SingleThreadedExecutor, which rebuilds its
+            wait set in Python at every turn). In the graph at 30 fps the single-threaded
+            executor's own Python took 7-10 ms of CPU per processed frame in each stage node,
+            beside the frame's work and under the same interpreter lock; the events executor
+            took about 4 (docs/bench/backpressure.md). The localiser's default is
+            'single_threaded': while its entrance is full it leaves the camera messages unread
+            in DDS, which only an executor that asks the callback groups allows; the events
+            executor would hand it every message of every camera topic. Paired 30 fps runs:
+            1.04-1.06 x the frames answered with 'events' in all three stages, 1.10-1.17 x
+            with the localiser on 'single_threaded', at the same or lower latency. The nodes
+            spin it with ``spin_once`` in a loop, never its ``spin()``, which in rclpy 7.1
+            fires no timer and stalls holding the interpreter lock when another thread
+            creates an entity (scripts/events_executor_check.py).
     """
 
     slop_s: float = 0.010
@@ -114,7 +116,7 @@ class SyncParams:
     live_stamp_window_s: float = 5.0
     jump_confirmations: int = 4
     max_message_mb: float = 8.0
-    executor: str = 'single_threaded'
+    executor: str = 'events'
 
     def __post_init__(self) -> None:
         if self.executor not in EXECUTORS:

@@ -12,12 +12,14 @@ fill during the first frames; a leak keeps its slope in the second half).
 Before the graph it runs ``tlessbot bench nodes`` on the same bag (each stage's callbacks alone,
 one process, no DDS) and prints the ratios that hold on any host, since both sides are measured
 in the same run: p95 latency / the sum of the stages' medians alone; frames processed per
-second / (1 / the slowest stage alone); the graph's CPU per processed frame / the stages' own.
+second / (1 / the slowest stage alone); the graph's CPU per processed frame / the stages' own;
+and the host's ceiling on the second ratio (its cores at the stages' own CPU per frame).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -29,7 +31,7 @@ from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_TEMPLATES
 from tlessbot_ros.io.bags import read_bag
 from tlessbot_ros.io.config import default_config_path
 from tlessbot_ros.tools.support.defaults import DEFAULT_BAG
-from tlessbot_ros.tools.support.graph_run import FRAME_TOPIC
+from tlessbot_ros.tools.support.graph_run import FRAME_TOPIC, MONITOR
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -98,8 +100,15 @@ def stages_alone(bag: str, classifier: str, templates: str, config: Path
 
 
 def ratio_rows(alone: dict[str, dict[str, float]], p95_ms: float, duration_s: float,
-               result) -> list[tuple[str, str]]:
-    """The host-independent figures: the graph against its stages alone, same run."""
+               result, cores: int | None = None) -> list[tuple[str, str]]:
+    """The host-independent figures: the graph against its stages alone, same run.
+
+    The last row is the host's ceiling: the frames per second its ``cores`` (default: those
+    this process may run on) could process at the stages' own CPU per frame, with nothing
+    else to run but the replay and monitor (their measured share taken out) and no graph
+    overhead at all. Throughput against 1 / slowest stage alone cannot pass that ratio
+    however the graph is scheduled.
+    """
     medians = {name: figures['median_ms'] for name, figures in alone.items()}
     total, slowest = sum(medians.values()), max(medians.values())
     processed = float(result.diagnostics.get('pose_estimator', {}).get('frames', 'nan'))
@@ -107,6 +116,9 @@ def ratio_rows(alone: dict[str, dict[str, float]], p95_ms: float, duration_s: fl
     graph_cpu_ms = 1e3 * sum(result.cpu_s[label] for label in nodes) / max(processed, 1.0)
     own_cpu_ms = sum(figures['cpu_ms_per_frame'] for figures in alone.values())
     fps = processed / max(duration_s, 1e-9)
+    cores = len(os.sched_getaffinity(0)) if cores is None else cores
+    monitor_cores = result.cpu_s.get(MONITOR, 0.0) / max(duration_s, 1e-9)
+    ceiling_fps = (cores - monitor_cores) * 1e3 / max(own_cpu_ms, 1e-9)
     return [
         ('stages alone, median ms/frame (bench nodes, same bag)',
          ', '.join(f'{name} {ms:.1f}' for name, ms in medians.items()) + f'; sum {total:.1f}'),
@@ -115,6 +127,10 @@ def ratio_rows(alone: dict[str, dict[str, float]], p95_ms: float, duration_s: fl
          f'{fps:.2f} / {1e3 / slowest:.2f} = {fps * slowest / 1e3:.2f}'),
         ("CPU of the three nodes per processed frame / the stages' own CPU per frame",
          f'{graph_cpu_ms:.1f} / {own_cpu_ms:.1f} ms = {graph_cpu_ms / max(own_cpu_ms, 1e-9):.2f}'),
+        ("ceiling: frames/s the cores left by the replay and monitor give at the stages' own "
+         'CPU per frame, / (1 / slowest stage alone)',
+         f'({cores} - {monitor_cores:.2f}) cores / {own_cpu_ms:.1f} ms = {ceiling_fps:.2f} / '
+         f'{1e3 / slowest:.2f} = {ceiling_fps * slowest / 1e3:.2f}'),
     ]
 
 
