@@ -73,7 +73,7 @@ def test_ratio_rows_compare_the_graph_with_its_stages_alone():
     assert rows['p95 latency / sum of the stages alone'] == '1.30'
     # 10 frames/s processed against 20 for the slowest stage (50 ms) alone
     assert rows['frames processed per s / (1 / slowest stage alone)'].endswith('= 0.50')
-    # 18 CPU s over 100 frames (the replay and monitor is not a node) against 100 ms of the stages' own
+    # 18 CPU s over 100 frames (the replay and monitor is no node), against 100 ms own
     assert rows["CPU of the three nodes per processed frame / the stages' own CPU per frame"] \
         == '180.0 / 100.0 ms = 1.80'
     # two cores less half a core for the replay and monitor, at 100 ms a frame: 15 frames/s,
