@@ -79,7 +79,15 @@ def test_ratio_rows_compare_the_graph_with_its_stages_alone():
     # two cores less half a core for the replay and monitor, at 100 ms a frame: 15 frames/s,
     # 0.75 x the slowest stage's 20
     ceiling = [value for name, value in rows.items() if name.startswith('ceiling')]
-    assert ceiling == ['(2 - 0.50) cores / 100.0 ms = 15.00 / 20.00 = 0.75']
+    assert ceiling == ['(2 - 0.50 - 0.00) cores / 100.0 ms = 15.00 / 20.00 = 0.75']
+    # the host busy all the time (2 cores) while the graph took 1.2 and the replay and
+    # monitor 0.3 of a core: something else (a hog) took 0.5
+    result.cpu_s.update(localiser=3.0, classifier=2.0, pose_estimator=7.0, **{
+        'replay and monitor': 3.0})
+    result.host_ticks = ([0] * 10, [100, 0, 0, 0, 0, 0, 0, 0, 0, 0])
+    rows = dict(ratio_rows(alone, p95_ms=117.0, duration_s=10.0, result=result, cores=2))
+    ceiling = [value for name, value in rows.items() if name.startswith('ceiling')]
+    assert ceiling == ['(2 - 0.30 - 0.50) cores / 100.0 ms = 12.00 / 20.00 = 0.60']
 
 
 def test_window_table_reports_each_window_and_the_trends():

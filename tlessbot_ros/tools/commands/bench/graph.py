@@ -104,10 +104,11 @@ def ratio_rows(alone: dict[str, dict[str, float]], p95_ms: float, duration_s: fl
     """The host-independent figures: the graph against its stages alone, same run.
 
     The last row is the host's ceiling: the frames per second its ``cores`` (default: those
-    this process may run on) could process at the stages' own CPU per frame, with nothing
-    else to run but the replay and monitor (their measured share taken out) and no graph
-    overhead at all. Throughput against 1 / slowest stage alone cannot pass that ratio
-    however the graph is scheduled.
+    this process may run on) could process at the stages' own CPU per frame, with no graph
+    overhead at all, after the replay and monitor and whatever else ran on the host meanwhile
+    (a CPU hog: the host's busy time beyond the graph's, from ``result.host_ticks``).
+    Throughput against 1 / slowest stage alone cannot pass that ratio however the graph is
+    scheduled.
     """
     medians = {name: figures['median_ms'] for name, figures in alone.items()}
     total, slowest = sum(medians.values()), max(medians.values())
@@ -118,7 +119,11 @@ def ratio_rows(alone: dict[str, dict[str, float]], p95_ms: float, duration_s: fl
     fps = processed / max(duration_s, 1e-9)
     cores = len(os.sched_getaffinity(0)) if cores is None else cores
     monitor_cores = result.cpu_s.get(MONITOR, 0.0) / max(duration_s, 1e-9)
-    ceiling_fps = (cores - monitor_cores) * 1e3 / max(own_cpu_ms, 1e-9)
+    graph_cores = sum(result.cpu_s[label] for label in nodes) / max(duration_s, 1e-9)
+    shares = host_shares(result.host_ticks)
+    other_cores = 0.0 if shares is None else \
+        max(0.0, cores * (1.0 - sum(shares)) - graph_cores - monitor_cores)
+    ceiling_fps = (cores - monitor_cores - other_cores) * 1e3 / max(own_cpu_ms, 1e-9)
     return [
         ('stages alone, median ms/frame (bench nodes, same bag)',
          ', '.join(f'{name} {ms:.1f}' for name, ms in medians.items()) + f'; sum {total:.1f}'),
@@ -127,10 +132,10 @@ def ratio_rows(alone: dict[str, dict[str, float]], p95_ms: float, duration_s: fl
          f'{fps:.2f} / {1e3 / slowest:.2f} = {fps * slowest / 1e3:.2f}'),
         ("CPU of the three nodes per processed frame / the stages' own CPU per frame",
          f'{graph_cpu_ms:.1f} / {own_cpu_ms:.1f} ms = {graph_cpu_ms / max(own_cpu_ms, 1e-9):.2f}'),
-        ("ceiling: frames/s the cores left by the replay and monitor give at the stages' own "
-         'CPU per frame, / (1 / slowest stage alone)',
-         f'({cores} - {monitor_cores:.2f}) cores / {own_cpu_ms:.1f} ms = {ceiling_fps:.2f} / '
-         f'{1e3 / slowest:.2f} = {ceiling_fps * slowest / 1e3:.2f}'),
+        ("ceiling: frames/s the cores left by the replay and monitor (and other processes) "
+         "give at the stages' own CPU per frame, / (1 / slowest stage alone)",
+         f'({cores} - {monitor_cores:.2f} - {other_cores:.2f}) cores / {own_cpu_ms:.1f} ms = '
+         f'{ceiling_fps:.2f} / {1e3 / slowest:.2f} = {ceiling_fps * slowest / 1e3:.2f}'),
     ]
 
 
@@ -171,17 +176,27 @@ def window_table(result, window_s: float) -> str:
     return '\n'.join(lines)
 
 
+def host_shares(ticks: tuple[list[int] | None, list[int] | None]
+                ) -> tuple[float, float] | None:
+    """The shares of the host's CPU time that were idle and stolen by the hypervisor between
+    two /proc/stat readings (``read_cpu_ticks``); None without both."""
+    start, end = ticks
+    if start is None or end is None or sum(end) <= sum(start):
+        return None
+    delta = [b - a for a, b in zip(start, end)]
+    total = sum(delta)
+    return (delta[3] + delta[4]) / total, delta[7] / total
+
+
 def host_rows(ticks: tuple[list[int] | None, list[int] | None]) -> list[tuple[str, str]]:
     """The host's idle and stolen CPU while replaying (/proc/stat): a run on a virtual machine
     whose hypervisor gave cores to other machines is slower for it, whatever the code."""
-    start, end = ticks
-    if start is None or end is None or sum(end) <= sum(start):
+    shares = host_shares(ticks)
+    if shares is None:
         return []
-    delta = [b - a for a, b in zip(start, end)]
-    total = sum(delta)
-    idle, steal = delta[3] + delta[4], delta[7]
+    idle, steal = shares
     return [('host while replaying: idle / stolen by the hypervisor',
-             f'{100 * idle / total:.1f} % / {100 * steal / total:.1f} % of its CPU time')]
+             f'{100 * idle:.1f} % / {100 * steal:.1f} % of its CPU time')]
 
 
 def split_rows(diagnostics: dict[str, dict[str, str]]) -> list[tuple[str, str]]:
