@@ -99,7 +99,7 @@ class SyncParams:
             'single_threaded': while its entrance is full it leaves the camera messages unread
             in DDS, which only an executor that asks the callback groups allows; the events
             executor would hand it every message of every camera topic. Paired 30 fps runs:
-            1.04-1.06 x the frames answered with 'events' in all three stages, 1.10-1.17 x
+            1.04-1.06 x the frames answered with 'events' in all three stages, 1.10-1.23 x
             with the localiser on 'single_threaded', at the same or lower latency. The nodes
             spin it with ``spin_once`` in a loop, never its ``spin()``, which in rclpy 7.1
             fires no timer and stalls holding the interpreter lock when another thread

@@ -105,8 +105,9 @@ def ratio_rows(alone: dict[str, dict[str, float]], p95_ms: float, duration_s: fl
 
     The last row is the host's ceiling: the frames per second its ``cores`` (default: those
     this process may run on) could process at the stages' own CPU per frame, with no graph
-    overhead at all, after the replay and monitor and whatever else ran on the host meanwhile
-    (a CPU hog: the host's busy time beyond the graph's, from ``result.host_ticks``).
+    overhead at all, after the replay and monitor and whatever else took the host's cores
+    meanwhile (a CPU hog, the hypervisor's steal: the host's time not idle beyond the graph's,
+    from ``result.host_ticks``).
     Throughput against 1 / slowest stage alone cannot pass that ratio however the graph is
     scheduled.
     """
@@ -114,15 +115,17 @@ def ratio_rows(alone: dict[str, dict[str, float]], p95_ms: float, duration_s: fl
     total, slowest = sum(medians.values()), max(medians.values())
     processed = float(result.diagnostics.get('pose_estimator', {}).get('frames', 'nan'))
     nodes = [label for label in result.cpu_s if label in alone]
-    graph_cpu_ms = 1e3 * sum(result.cpu_s[label] for label in nodes) / max(processed, 1.0)
+    graph_cpu_s = sum(result.cpu_s[label] for label in nodes)
+    graph_cpu_ms = 1e3 * graph_cpu_s / max(processed, 1.0)
     own_cpu_ms = sum(figures['cpu_ms_per_frame'] for figures in alone.values())
     fps = processed / max(duration_s, 1e-9)
     cores = len(os.sched_getaffinity(0)) if cores is None else cores
     monitor_cores = result.cpu_s.get(MONITOR, 0.0) / max(duration_s, 1e-9)
-    graph_cores = sum(result.cpu_s[label] for label in nodes) / max(duration_s, 1e-9)
+    graph_cores = graph_cpu_s / max(duration_s, 1e-9)
     shares = host_shares(result.host_ticks)
+    # the host's time neither idle nor the graph's: other processes, and the hypervisor's steal
     other_cores = 0.0 if shares is None else \
-        max(0.0, cores * (1.0 - sum(shares)) - graph_cores - monitor_cores)
+        max(0.0, cores * (1.0 - shares[0]) - graph_cores - monitor_cores)
     ceiling_fps = (cores - monitor_cores - other_cores) * 1e3 / max(own_cpu_ms, 1e-9)
     return [
         ('stages alone, median ms/frame (bench nodes, same bag)',
@@ -132,7 +135,7 @@ def ratio_rows(alone: dict[str, dict[str, float]], p95_ms: float, duration_s: fl
          f'{fps:.2f} / {1e3 / slowest:.2f} = {fps * slowest / 1e3:.2f}'),
         ("CPU of the three nodes per processed frame / the stages' own CPU per frame",
          f'{graph_cpu_ms:.1f} / {own_cpu_ms:.1f} ms = {graph_cpu_ms / max(own_cpu_ms, 1e-9):.2f}'),
-        ("ceiling: frames/s the cores left by the replay and monitor (and other processes) "
+        ("ceiling: frames/s the cores left by the replay and monitor (and others) "
          "give at the stages' own CPU per frame, / (1 / slowest stage alone)",
          f'({cores} - {monitor_cores:.2f} - {other_cores:.2f}) cores / {own_cpu_ms:.1f} ms = '
          f'{ceiling_fps:.2f} / {1e3 / slowest:.2f} = {ceiling_fps * slowest / 1e3:.2f}'),
