@@ -187,3 +187,47 @@ def test_a_terminated_graph_command_stops_the_nodes_it_started():
     assert demo.wait(90) is not None, demo.output
     _, alive = psutil.wait_procs(nodes, timeout=30)
     assert not alive, [node.cmdline() for node in alive]
+
+
+def test_a_signal_inside_a_recorded_write_waits_for_the_message(tmp_path):
+    """Ctrl-C that comes while `tlessbot record` appends a message lets the message finish,
+    then stops the loop: the bag closed afterwards reads back whole. (Raised inside the mcap
+    writer, the interrupt once left a half-written record and an unreadable bag.)"""
+    from tlessbot_ros.io.bag_writer import RELIABLE_OFFER, BagWriter
+    from tlessbot_ros.io.bags import read_bag
+    from tlessbot_ros.nodes import common
+    from tlessbot_ros.tools.commands.record import message_recorder
+
+    factory = RosbagsFactory()
+    pose = transform_to_pose_stamped(np.eye(4), frame_id='top', stamp_ns=5, factory=factory)
+    raw = bytes(factory.typestore.serialize_cdr(pose, pose.__msgtype__))
+    writer = BagWriter(tmp_path / 'rec')
+    writer.open()
+    writer.add_topic(POSE_TOPIC, 'geometry_msgs/msg/PoseStamped', [RELIABLE_OFFER])
+    mcap_writer = writer._file._writer
+    add_message = mcap_writer.add_message
+
+    def interrupted_add_message(*args, **kwargs):
+        signal.raise_signal(signal.SIGINT)             # Ctrl-C halfway through the write
+        sum(range(10_000))                             # more bytecodes: the handler has run
+        return add_message(*args, **kwargs)
+
+    mcap_writer.add_message = interrupted_add_message
+    counts = {POSE_TOPIC: 0}
+    on_raw = message_recorder(writer, POSE_TOPIC, counts)
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        assert common.interrupt_on_signals()
+        try:
+            on_raw(raw)
+        except KeyboardInterrupt:
+            pytest.fail('the interrupt cut the write in half')
+        with pytest.raises(KeyboardInterrupt):
+            common.raise_if_interrupted()              # the spin loop stops after the turn
+    finally:
+        common._SIGNALS_RECEIVED.clear()
+        for signum, handler in saved.items():
+            signal.signal(signum, handler)
+    writer.close()
+    assert counts == {POSE_TOPIC: 1}
+    assert [m.topic for m in read_bag(tmp_path / 'rec')] == [POSE_TOPIC]

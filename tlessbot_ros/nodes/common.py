@@ -14,7 +14,8 @@ from __future__ import annotations
 import dataclasses
 import os
 import sys
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterator
+from contextlib import contextmanager
 from functools import partial
 from typing import Any
 
@@ -105,6 +106,23 @@ def init_ros(args: list[str] | None = None) -> None:
 
 # Signals :func:`interrupt_on_signals` turned into KeyboardInterrupt (the first one only).
 _SIGNALS_RECEIVED: list[int] = []
+# How many :func:`interrupts_deferred` blocks the main thread is in.
+_DEFERRING = [0]
+
+
+@contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Run a block that must not be cut in half: a signal that comes inside it raises no
+    KeyboardInterrupt there; the spin loop's :func:`raise_if_interrupted` raises it after the
+    turn. ``tlessbot record`` writes each message inside one, since an interrupt that landed
+    inside the mcap writer's ``add_message`` left a half-written record in the chunk, and the
+    bag closed on Ctrl-C could not be read back ("unpack requires a buffer of 22 bytes", seen
+    once in CI)."""
+    _DEFERRING[0] += 1
+    try:
+        yield
+    finally:
+        _DEFERRING[0] -= 1
 
 
 def raise_if_interrupted() -> None:
@@ -134,7 +152,8 @@ def spin_once_or_interrupt(spin_once: Callable[[], Any]) -> None:
 
 
 def interrupt_on_signals() -> bool:
-    """Make SIGINT and SIGTERM raise KeyboardInterrupt in the main thread, once.
+    """Make SIGINT and SIGTERM raise KeyboardInterrupt in the main thread, once (after the
+    block, if it comes inside :func:`interrupts_deferred`).
 
     rclpy's own handlers shut the ROS context down from their thread the moment a signal comes:
     a worker thread still publishing a frame, or logging, then fails ("publisher's context is
@@ -153,7 +172,8 @@ def interrupt_on_signals() -> bool:
     def on_signal(signum: int, frame: object) -> None:
         if not _SIGNALS_RECEIVED:
             _SIGNALS_RECEIVED.append(signum)
-            raise KeyboardInterrupt
+            if not _DEFERRING[0]:
+                raise KeyboardInterrupt
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, on_signal)

@@ -6,10 +6,15 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tlessbot_ros.errors import BagError
+
+if TYPE_CHECKING:
+    from tlessbot_ros.io.bag_writer import BagWriter
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -59,15 +64,10 @@ def run(args: argparse.Namespace) -> int:
             writer.add_topic(topic, msgtype, [offered_qos(info.qos_profile) for info
                                               in node.get_publishers_info_by_topic(topic)])
 
-        def subscriber(topic: str):
-            def on_raw(raw: bytes) -> None:
-                writer.write(topic, time.time_ns(), raw)
-                counts[topic] += 1
-            return on_raw
-
         for topic, msgtype in types.items():
-            node.create_subscription(message_class(msgtype), topic, subscriber(topic),
-                                     SENSOR_QOS, raw=True)
+            node.create_subscription(message_class(msgtype), topic,
+                                     message_recorder(writer, topic, counts), SENSOR_QOS,
+                                     raw=True)
         print(f'recording {len(types)} topic(s) into {out}'
               + (f' for {args.duration:g} s' if args.duration > 0 else '; Ctrl-C stops'),
               flush=True)
@@ -83,3 +83,17 @@ def run(args: argparse.Namespace) -> int:
         rclpy.try_shutdown()
     print('recorded ' + ', '.join(f'{t}: {n}' for t, n in counts.items()) + f' into {out}')
     return 0
+
+
+def message_recorder(writer: BagWriter, topic: str,
+                     counts: dict[str, int]) -> Callable[[bytes], None]:
+    """The subscription callback that appends ``topic``'s serialized messages to ``writer``,
+    stamped with the time of arrival, and counts them in ``counts``. A message is written
+    whole or not at all: Ctrl-C inside the write is deferred to the end of the turn."""
+    from tlessbot_ros.nodes.common import interrupts_deferred
+
+    def on_raw(raw: bytes) -> None:
+        with interrupts_deferred():
+            writer.write(topic, time.time_ns(), raw)
+            counts[topic] += 1
+    return on_raw
