@@ -222,3 +222,18 @@ def test_writer_errors(tmp_path):
         with pytest.raises(BagError, match='added twice'):
             bag.add_topic('/a', 'std_msgs/msg/String')
     assert _metadata(tmp_path / 'b')['message_count'] == 0
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_a_bag_given_up_is_removed(tmp_path, written, storage):
+    """An error inside ``with BagWriter(...)`` removes the folder it made, half-written file and
+    all, and lets the error through."""
+    _, messages = written
+    folder = tmp_path / 'cut'
+    with pytest.raises(RuntimeError, match='source failed'):
+        with BagWriter(folder, storage=storage) as bag:
+            bag.add_topic(POSE_TOPIC, 'geometry_msgs/msg/PoseStamped', [SENSOR_OFFER])
+            bag.write(*next(m for m in messages if m[0] == POSE_TOPIC))
+            raise RuntimeError('source failed')
+    assert not folder.exists()
+    BagWriter(folder)                                 # a second try is not refused

@@ -244,3 +244,20 @@ def test_replay_waits_until_the_existing_subscribers_have_matched(pose_bag):
     assert 'no subscriber on 1 topic(s): /side/color/image_raw' in replay.stdout
     assert POSE_TOPIC not in replay.stdout.split('replayed')[0]
     assert out.split() == [str((i + 1) * 50_000_000) for i in range(5)], err
+
+
+@pytest.mark.rosbag
+def test_rebag_of_a_corrupt_bag_leaves_no_half_bag(tmp_path, old_style_bag):
+    """The last message's zstd frame damaged: rebag fails on it in one line, after writing the
+    messages before it, and removes its output instead of leaving a bag that reads as corrupt."""
+    mcap = old_style_bag / 'old.mcap'
+    data = bytearray(mcap.read_bytes())
+    last_frame = data.rfind(ZSTD_FRAME_MAGIC)
+    data[last_frame + 4:last_frame + 12] = b'\xff' * 8
+    mcap.write_bytes(bytes(data))
+    out = tmp_path / 'new'
+    result = _run('rebag', str(old_style_bag), str(out))
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'is corrupt or truncated' in lines[0], result.stderr
+    assert not out.exists()

@@ -19,6 +19,7 @@ sqlite3 bags are written by rosbags.
 """
 from __future__ import annotations
 
+import shutil
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -175,8 +176,19 @@ class BagWriter:
     def __exit__(self, exc_type: Any, *_: Any) -> None:
         if exc_type is None:
             self.close()
-        elif self._file is not None:
-            self._file.abort()
+        else:
+            self.abort()
+
+    def abort(self) -> None:
+        """Give the bag up: close the file and remove the folder this writer made. A write cut
+        short (a corrupt source in ``tlessbot rebag``, Ctrl-C in ``tlessbot simulate``) then
+        leaves no half-written bag that would read as corrupt later, nor a folder that a
+        second try would refuse as existing."""
+        if self._file is None:
+            return
+        self._file.abort()
+        self._file = None
+        shutil.rmtree(self.path, ignore_errors=True)
 
     def open(self) -> None:
         file_type = _McapFile if self.storage == 'mcap' else _Sqlite3File
