@@ -35,7 +35,9 @@ def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.nodes.common import (
         SENSOR_QOS,
         init_ros,
+        interrupts_deferred,
         message_class,
+        raise_if_interrupted,
         spin_once_or_interrupt,
     )
 
@@ -57,12 +59,14 @@ def run(args: argparse.Namespace) -> int:
         missing = sorted(set(topics) - set(types))
         if missing:
             raise BagError(f'topic(s) {missing} not found in the ROS graph')
-        writer = BagWriter(out, storage=args.storage)
-        writer.open()
-        for topic, msgtype in types.items():
-            # What the publishers offer, so that a replay offers it again (as ros2 bag does).
-            writer.add_topic(topic, msgtype, [offered_qos(info.qos_profile) for info
-                                              in node.get_publishers_info_by_topic(topic)])
+        with interrupts_deferred():   # Ctrl-C here would leave half a schema or channel
+            writer = BagWriter(out, storage=args.storage)
+            writer.open()
+            for topic, msgtype in types.items():
+                # What the publishers offer, so that a replay offers it again (as ros2 bag does).
+                writer.add_topic(topic, msgtype, [offered_qos(info.qos_profile) for info
+                                                  in node.get_publishers_info_by_topic(topic)])
+        raise_if_interrupted()
 
         for topic, msgtype in types.items():
             node.create_subscription(message_class(msgtype), topic,
