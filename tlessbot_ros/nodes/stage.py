@@ -56,6 +56,7 @@ import time
 import traceback
 from collections import deque
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 from functools import partial
 from typing import Any
 
@@ -261,7 +262,6 @@ class StageNode(Node):
         self.ready = threading.Event()
         self.ready_after_s: float | None = None   # from construction to ready
         self.warm_up_s: float | None = None
-        self._warm_thread: threading.Thread | None = None
         self.parameters = LiveParameters(self)
         self.cameras = declare_cameras(self.parameters)
         self.extrinsics = declare_extrinsics(self.parameters, self.cameras,
@@ -296,6 +296,7 @@ class StageNode(Node):
         self._wakeup = threading.Condition()
         self._stopping = False
         self._worker: threading.Thread | None = None
+        self._jobs: deque[tuple[Callable[[], Any], Future]] = deque()   # see on_frame_thread
         self.last_error = ''
         self._latencies_ms: deque[float] = deque(maxlen=100)
         self._input_ages_ms: deque[float] = deque(maxlen=100)
@@ -324,7 +325,8 @@ class StageNode(Node):
 
     def start_when_ready(self, warm_up: Callable[[], None],
                          topics: dict[str, tuple[str, Callable[[str], str]]]) -> None:
-        """Run ``warm_up`` on a thread, then subscribe ``topics`` and report ready.
+        """Run ``warm_up`` on the frame thread (:meth:`on_frame_thread`), then subscribe
+        ``topics`` and report ready.
 
         The executor spins meanwhile, so ``/diagnostics`` says WARN 'starting' until the stage
         is ready and OK with ``ready: true`` and the warm-up time after. Subscribing only once
@@ -356,9 +358,38 @@ class StageNode(Node):
                                        f'(warm-up {self.warm_up_s:.1f} s)')
                 self._publish_diagnostics()
 
-        self._warm_thread = threading.Thread(target=run, name=f'{self.get_name()}_warm_up',
-                                             daemon=True)
-        self._warm_thread.start()
+        def report(done: Future) -> None:   # subscribing failed: said, as a warm-up failure
+            if not done.cancelled() and done.exception() is not None:
+                error = done.exception()
+                self.last_error = f'start-up failed: {type(error).__name__}: {error}'
+                self.get_logger().error(self.last_error)
+
+        self.on_frame_thread(run).add_done_callback(report)
+
+    def on_frame_thread(self, job: Callable[[], Any]) -> Future:
+        """Run ``job`` on the thread that processes this stage's frames, before the next
+        frame; the Future gives its result (cancelled if the node is destroyed first).
+
+        The warm-up runs there so that the first frame costs what the hundredth does: the
+        thread's own memory grows and stays with it (glibc gives each thread its own malloc
+        arena; OpenCV keeps per-thread buffers). Warmed on another thread, the localiser's
+        first 4-6 frames took 1.5-2.5 x the steady time, in CPU as well as wall time, with
+        ~2400 page faults on the first (docs/bench/stage-cpu.md). Without a worker thread
+        (``sync.worker_thread`` false) frames run on the executor's thread, which a job
+        cannot borrow: the job then runs on a thread of its own.
+        """
+        done: Future = Future()
+        if self._worker is None:
+            threading.Thread(target=_run_job, args=(job, done), daemon=True,
+                             name=f'{self.get_name()}_job').start()
+            return done
+        with self._wakeup:
+            if self._stopping:
+                done.cancel()
+            else:
+                self._jobs.append((job, done))
+                self._wakeup.notify_all()
+        return done
 
     def warm_up_frame(self, backgrounds: dict[str, Any] | None = None
                       ) -> tuple[dict[str, ViewInput], dict[str, np.ndarray]]:
@@ -496,15 +527,23 @@ class StageNode(Node):
     def _work(self) -> None:
         while True:
             with self._wakeup:
-                while self._pending is None and not self._held_frames and not self._stopping:
+                while (self._pending is None and not self._held_frames and not self._jobs
+                       and not self._stopping):
                     self._wakeup.wait()
                 if self._stopping:
                     return
-                if self._held_frames:   # older than any pending frame: first, in order
-                    views = self._held_frames.popleft()
+                if self._jobs:   # the warm-up, a tool's call: before any frame
+                    job, done = self._jobs.popleft()
                 else:
-                    views, self._pending = self._pending, None
-                self._busy = True
+                    job = None
+                    if self._held_frames:   # older than any pending frame: first, in order
+                        views = self._held_frames.popleft()
+                    else:
+                        views, self._pending = self._pending, None
+                    self._busy = True
+            if job is not None:
+                _run_job(job, done)
+                continue
             self.parameters.apply_pending()   # between frames: a frame sees all or nothing
             self._process_safely(views)
 
@@ -521,8 +560,14 @@ class StageNode(Node):
     def destroy_node(self) -> None:
         with self._wakeup:
             self._stopping = True
+            for _, done in self._jobs:
+                done.cancel()
+            self._jobs.clear()
             self._wakeup.notify_all()
-        if self._worker is not None and self._worker is not threading.current_thread():
+        # A node not ready yet has no frame to finish: Ctrl-C during the warm-up does not wait
+        # for it (it stops at its end, seeing _stopping).
+        if (self._worker is not None and self._worker is not threading.current_thread()
+                and self.ready.is_set()):
             self._worker.join(timeout=30.0)
         super().destroy_node()
 
@@ -625,3 +670,13 @@ def _percentiles(name: str, values: deque[float]) -> dict[str, str]:
         return {}
     p50, p95 = np.percentile(np.asarray(values), [50, 95])
     return {f'{name}_p50': f'{p50:.1f}', f'{name}_p95': f'{p95:.1f}'}
+
+
+def _run_job(job: Callable[[], Any], done: Future) -> None:
+    """Run ``job`` into ``done`` (a job cancelled meanwhile is skipped)."""
+    if not done.set_running_or_notify_cancel():
+        return
+    try:
+        done.set_result(job())
+    except BaseException as error:  # the caller of on_frame_thread gets it from the Future
+        done.set_exception(error)
