@@ -374,7 +374,7 @@ class StageNode(Node):
         thread's own memory grows and stays with it (glibc gives each thread its own malloc
         arena; OpenCV keeps per-thread buffers). Warmed on another thread, the localiser's
         first 4-6 frames took 1.5-2.5 x the steady time, in CPU as well as wall time, with
-        ~2400 page faults on the first (docs/bench/stage-cpu.md). Without a worker thread
+        ~2400 page faults on the first (docs/bench/first-frame.md). Without a worker thread
         (``sync.worker_thread`` false) frames run on the executor's thread, which a job
         cannot borrow: the job then runs on a thread of its own.
         """
