@@ -98,6 +98,14 @@ def _timed_ms(call, *args) -> float:
     return 1e3 * (time.perf_counter() - start)
 
 
+def _first_pass_over_later(times_ms: list[float], frames: int) -> float | None:
+    """Median ms of the first pass over ``frames`` frames / median of the later passes
+    (None with a single pass)."""
+    if len(times_ms) <= frames:
+        return None
+    return float(np.median(times_ms[:frames]) / np.median(times_ms[frames:]))
+
+
 def _idle(seconds: float, *, busy: bool) -> None:
     """Wait ``seconds``: asleep, or spinning on the clock (``busy``)."""
     if seconds <= 0:
@@ -187,13 +195,13 @@ def run(args: argparse.Namespace) -> int:
              'first / median | same frame, later passes (median ms) | '
              'first pass / later passes (medians) |',
              '|---|---|---|---|---|---|---|---|']
+    first_pass_ratio = {name: _first_pass_over_later(v, len(frames))
+                        for name, v in times.items()}
     for name, v in times.items():
         later = v[len(frames)::len(frames)]
-        first_pass, later_passes = v[:len(frames)], v[len(frames):]
         lines.append(f'| {name} | {ready_s[name]:.1f} | {np.median(v):.1f} | '
                      f'{np.percentile(v, 90):.1f} | {v[0]:.1f} | {v[0] / np.median(v):.2f} | '
-                     + (f'{np.median(later):.1f} | '
-                        f'{np.median(first_pass) / np.median(later_passes):.2f} |'
+                     + (f'{np.median(later):.1f} | {first_pass_ratio[name]:.2f} |'
                         if later else '- | - |'))
     load = ', '.join(f'{v:.2f}' for v in os.getloadavg())
     lines += ['', f'{len(frames)} frames x {max(1, args.repeats)} passes from {args.bag}; '
@@ -206,9 +214,7 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps({name: {
             'median_ms': float(np.median(v)), 'p90_ms': float(np.percentile(v, 90)),
             'first_frame_ms': v[0],
-            'first_pass_over_later': (float(np.median(v[:len(frames)])
-                                      / np.median(v[len(frames):])) if len(v) > len(frames)
-                                      else None),
+            'first_pass_over_later': first_pass_ratio[name],
             'cpu_ms_per_frame': 1e3 * cpu_s[name] / len(v)} for name, v in times.items()},
             indent=1))
     return 0
