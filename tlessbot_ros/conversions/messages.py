@@ -176,3 +176,27 @@ def message_bytes(data: Any) -> np.ndarray:
     if isinstance(data, np.ndarray):
         return data.reshape(-1).view(np.uint8)
     return np.frombuffer(data, dtype=np.uint8)
+
+
+def format_message(msg: Any, *, max_array: int = 16, indent: int = 0) -> str:
+    """A YAML-like multi-line rendering of an rclpy message; long arrays are summarised."""
+    lines = []
+    pad = '  ' * indent
+    for name in msg.get_fields_and_field_types():
+        value = getattr(msg, name)
+        if hasattr(value, 'get_fields_and_field_types'):
+            lines.append(f'{pad}{name}:')
+            lines.append(format_message(value, max_array=max_array, indent=indent + 1))
+            continue
+        if hasattr(value, '__len__') and not isinstance(value, str):
+            if len(value) > max_array:
+                lines.append(f'{pad}{name}: <{len(value)} elements>')
+                continue
+            items = [v if not hasattr(v, 'get_fields_and_field_types') else
+                     '{' + format_message(v, max_array=max_array).replace('\n', ', ') + '}'
+                     for v in value]
+            lines.append(f'{pad}{name}: [{", ".join(str(v) for v in items)}]')
+            continue
+        lines.append(f'{pad}{name}: {value!r}' if isinstance(value, str) else
+                     f'{pad}{name}: {value}')
+    return '\n'.join(lines)

@@ -1,0 +1,95 @@
+"""Spinning a node: the executor named by ``sync.executor`` (:func:`make_executor`), a spin
+loop that hears signals (:func:`spin_until_interrupted`), and :func:`run_node`, the ``main()`` of
+every node."""
+from __future__ import annotations
+
+from functools import partial
+from typing import Any
+
+from rclpy.node import Node
+
+from tlessbot_ros.core.common.sync import EXECUTORS
+from tlessbot_ros.nodes.process_setup import init_ros, limit_blas_threads
+from tlessbot_ros.nodes.signals import (
+    ignore_interrupts_while_stopping,
+    spin_once_or_interrupt,
+)
+
+# between bytecodes, and a wait inside rclpy would hold them off until a message came.
+SIGNAL_POLL_S = 0.1
+
+
+def spin_until_interrupted(node: Node, executor: str = 'single_threaded') -> None:
+    """Spin ``node`` in this thread until Ctrl-C, SIGTERM (KeyboardInterrupt, see
+    :func:`interrupt_on_signals`) or the context's shutdown, with the ``executor`` named as
+    :attr:`~tlessbot_ros.core.common.SyncParams.executor` ('events', 'single_threaded')."""
+    import rclpy
+
+    spinner = make_executor(executor, node.context)
+    spinner.add_node(node)
+    try:
+        while rclpy.ok(context=node.context):
+            spin_once_or_interrupt(partial(spinner.spin_once, timeout_sec=SIGNAL_POLL_S))
+    finally:
+        spinner.remove_node(node)
+
+
+def make_executor(kind: str, context: Any) -> Any:
+    """An rclpy executor for ``context``, one of :data:`~tlessbot_ros.core.common.sync.EXECUTORS`:
+    'events' (rclpy's EventsExecutor, which ignores callback groups: a node that pauses its
+    inputs must also cope with messages delivered while paused, as
+    :class:`~tlessbot_ros.nodes.inputs.TwoViewInputs` does) or 'single_threaded'.
+
+    Spin it with ``spin_once`` (:func:`spin_until_interrupted`): the EventsExecutor's own
+    ``spin()`` (rclpy 7.1) fires no timer and, when another thread creates a subscription or a
+    publisher meanwhile, loops at 100 % of a core holding the interpreter lock
+    (``scripts/events_executor_check.py --how spin``). Its ``spin_once`` loop does neither.
+
+    Raises:
+        ValueError: another name.
+    """
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    if kind == 'single_threaded':
+        from rclpy.executors import SingleThreadedExecutor
+        return SingleThreadedExecutor(context=context)
+    raise ValueError(f'executor must be one of {list(EXECUTORS)}, got {kind!r}')
+
+
+def run_node(node_class: type, args: list[str] | None = None) -> None:
+    """``main()`` of every node: init, spin until Ctrl-C or shutdown, clean up (Jazzy style).
+
+    BLAS runs on one thread per node process (:func:`limit_blas_threads`). A
+    :class:`~tlessbot_ros.errors.TlessbotError` while constructing the node (a missing model
+    file, a bad parameter file) prints one line and exits with code 1. Ctrl-C or SIGTERM, also
+    while the node is being constructed, ends it in order with exit code 0: the node is
+    destroyed (its ``destroy_node`` joins its threads, which finish the frame in hand) while
+    the ROS context is still valid, and only then is the context shut down.
+    """
+    import sys
+
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    from tlessbot_ros.errors import TlessbotError
+
+    limit_blas_threads()
+    init_ros(args)
+    try:
+        node = node_class()
+    except TlessbotError as error:
+        print(f'{node_class.__name__}: error: {error}', file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(1)
+    except KeyboardInterrupt:
+        rclpy.try_shutdown()
+        return
+    try:
+        spin_until_interrupted(node, getattr(node, 'executor_kind', 'single_threaded'))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        ignore_interrupts_while_stopping()
+        node.destroy_node()
+        rclpy.try_shutdown()
