@@ -17,13 +17,11 @@ Publishes (RELIABLE, depth 10):
 Subscribes (RELIABLE), for backpressure:
     /classifier/frames, /pose_estimator/frames   std_msgs/Header: stamp = a frame's stamp,
                                                  frame_id = done | dropped | failed
-Admission: a complete frame is taken only while fewer than ``admission.max_in_flight`` frames
-it has taken are still unfinished downstream (:mod:`~tlessbot_ros.core.common.admission`), so
-frames are dropped here, at the entrance, instead of queueing in the later stages; the newest
-refused frame waits here for the next free slot (``admission.hold_newest``). While the
-entrance is full the camera subscriptions are not read at all (``admission.pause_inputs``):
-their messages wait in DDS and the outcome that frees a slot reads them and takes the newest
-complete frame. Without a pose estimator publishing outcomes, every frame is taken.
+Admission: the localiser is the graph's entrance; it holds the
+:class:`~tlessbot_ros.nodes.admission.Entrance` (backpressure, ``admission.*``): a complete
+frame is taken only while fewer than ``admission.max_in_flight`` frames it has taken are still
+unfinished downstream, and the camera subscriptions are not read while it is full
+(:mod:`~tlessbot_ros.nodes.admission` says how).
 Parameters: ``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParams: segment
 both views at once, in two threads, while ``parallel.min_spare_cores`` are free beside its
 work or idle lately: SpareCpuParams),
@@ -41,9 +39,6 @@ Frames: outputs keep each source image's frame and stamp.
 """
 from __future__ import annotations
 
-import threading
-import time
-from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
 from typing import Any
@@ -58,8 +53,8 @@ from tlessbot_ros.conversions import (
     stamp_to_ns,
 )
 from tlessbot_ros.conversions.image_cdr import image_to_cdr
-from tlessbot_ros.conversions.messages import RclpyFactory
-from tlessbot_ros.conversions.outcomes import DONE, read_frame_outcome
+from tlessbot_ros.conversions.messages import RclpyFactory, message_class
+from tlessbot_ros.conversions.outcomes import read_frame_outcome
 from tlessbot_ros.conversions.pose import camera_poses_to_pose_array
 from tlessbot_ros.conversions.topics import (
     OBSERVED_RIG,
@@ -82,8 +77,10 @@ from tlessbot_ros.core.localise import (
 )
 from tlessbot_ros.core.pipeline import LocaliseParams, PerceptionPipeline, ViewInput
 from tlessbot_ros.errors import TlessbotError
-from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
-from tlessbot_ros.nodes.inputs import Views, newest_stamp_ns
+from tlessbot_ros.nodes.admission import Entrance
+from tlessbot_ros.nodes.inputs import Views
+from tlessbot_ros.nodes.qos import RESULT_QOS
+from tlessbot_ros.nodes.spin import run_node
 from tlessbot_ros.nodes.stage import (
     CAMERA_INPUTS,
     IMAGE,
@@ -129,145 +126,52 @@ class LocaliserNode(StageNode):
                 build=lambda values, name=name: read_empty_table(values[name]),
                 apply=partial(self._apply_background, camera),
                 on_start_error=self._run_without_background))
-        self.in_flight = InFlightFrames(self.parameters.dataclass(
-            AdmissionParams(), prefix='admission.', apply=self._apply_admission),
-            spare_cores=self.spare_cpu.cores, camera_period_s=self._camera_period_s,
-            stages=1 + len(DOWNSTREAM), middle_reports=self._middle_stages_report)
-        self._entrance_was_open = True
-        self._in_flight_lock = threading.Lock()
+        self.entrance = Entrance(
+            self.parameters.dataclass(AdmissionParams(), prefix='admission.',
+                                      apply=lambda params: self.entrance.set_params(params)),
+            last_stage_reports=self._last_stage_reports,
+            middle_reports=self._middle_stages_report,
+            take=lambda views: self.take_frame(views), reopen=self.reopen_inputs,
+            threaded=self.sync_params.worker_thread, spare_cores=self.spare_cpu.cores,
+            camera_period_s=lambda: None if self._inputs is None else self._inputs.frame_period_s,
+            stages=1 + len(DOWNSTREAM))
         self._downstream = {
             stage: self.create_subscription(
                 message_class('std_msgs/msg/Header'), outcome_topic(stage),
                 lambda msg, stage=stage: self._on_downstream_outcome(stage, msg), RESULT_QOS)
             for stage in DOWNSTREAM}
-        self._relays = {camera: {
-            key: self.create_publisher(message_class(msg_type), relay_topic(camera, topic),
-                                       RESULT_QOS)
-            for key, (msg_type, topic) in CAMERA_INPUTS.items()} for camera in self.cameras}
+        self.relay = FrameRelay(self, self.cameras)
+        self.status.extras.append(lambda: self._rig_status)   # a snapshot the frame thread made
         self._label_publishers = {
             camera: self.create_publisher(message_class(IMAGE),
                                           node_relative(labels_topic(camera)), RESULT_QOS)
             for camera in self.cameras}
         self.start_when_ready(self._warm_up, camera_inputs(CAMERA_INPUTS))
 
-    def admit(self, views: Views, *, held: bool = False) -> bool:
-        """Backpressure: take the frame only while fewer than ``admission.max_in_flight`` are
-        unfinished downstream (every frame when no pose estimator reports outcomes, and the
-        frames released at a time jump: they are few, once). A refused frame waits at the
-        entrance for the next free slot (``admission.hold_newest``), replacing an older one;
-        an older frame still waiting when a slot is free goes first."""
-        if self._downstream[DOWNSTREAM[-1]].get_publisher_count() == 0:
-            return True
-        stamp_ns = newest_stamp_ns(views)
-        if stamp_ns is None:
-            return True
-        now = time.monotonic()
-        with self._in_flight_lock:
-            older = self.in_flight.take_waiting(now)
-            admitted = self.in_flight.try_admit(stamp_ns, now, force=held)
-            dropped = None if admitted else self.in_flight.hold(stamp_ns, views)
-        if older is not None:
-            self.take_frame(older)
-        if dropped is not None:
-            self.entrance_dropped += 1
-        return admitted
-
-    def _take_waiting(self) -> None:
-        """A slot may have freed: take the frame waiting at the entrance, if any (only with a
-        worker thread: without one a frame is processed inside the callback that freed the
-        slot, and the next frame to arrive takes the waiting one instead), and read the camera
-        messages that waited unread while the entrance was full (``admission.pause_inputs``)."""
-        if self._worker is not None:
-            with self._in_flight_lock:
-                views = self.in_flight.take_waiting(time.monotonic())
-            if views is not None:
-                self.take_frame(views)
-        if self._inputs is not None:
-            self._inputs.reopen(keep_newest=self.in_flight.params.hold_newest)
-
-    def _camera_period_s(self) -> float | None:
-        return None if self._inputs is None else self._inputs.frame_period_s
-
-    def input_gate(self) -> Callable[[], bool]:
-        """While the entrance is full (``admission.pause_inputs``), the camera subscriptions
-        are not read: nothing they bring could be taken before a slot frees."""
-        return self._entrance_open
-
-    def _entrance_open(self) -> bool:
-        """Whether the camera messages are read now (executor thread, every turn). An
-        entrance that opens without an outcome (a frame expired, the host's cores came free
-        for a second frame) reads what waited as :meth:`_take_waiting` does: newest first."""
-        if not self.in_flight.params.pause_inputs or \
-                self._downstream[DOWNSTREAM[-1]].get_publisher_count() == 0:
-            is_open = True
-        else:
-            with self._in_flight_lock:
-                is_open = self.in_flight.has_room(time.monotonic())
-        if is_open and not self._entrance_was_open and self._inputs is not None:
-            self._inputs.reopen(keep_newest=self.in_flight.params.hold_newest)
-        self._entrance_was_open = is_open
-        return is_open
-
-    def on_admitted(self, views: Views) -> None:
-        """Relay the admitted frame's camera messages, as received, to the later stages."""
-        for camera, msgs in views.items():
-            for key, raw in msgs.items():
-                publisher = self._relays[camera][key]
-                if publisher.get_subscription_count() > 0:
-                    publisher.publish(raw.data)   # CDR bytes: no copy into a Python message
-
-    def on_outcome(self, stamp_ns: int, outcome: str) -> None:
-        """A frame this node dropped or failed never reaches the later stages."""
-        if outcome != DONE:
-            with self._in_flight_lock:
-                self.in_flight.finish(stamp_ns, time.monotonic(), completed=False)
-            self._take_waiting()
-
     def _on_downstream_outcome(self, stage: str, msg: Any) -> None:
+        """A later stage's outcome of a frame, for the entrance."""
         try:
             stamp_ns, outcome = read_frame_outcome(msg)
         except ValueError as error:
             self.get_logger().warning(f'{outcome_topic(stage)}: {error}',
                                       throttle_duration_sec=5.0)
             return
-        last_stage = stage == DOWNSTREAM[-1]
-        if last_stage or outcome != DONE:   # the frame's trip ends here
-            with self._in_flight_lock:
-                self.in_flight.finish(stamp_ns, time.monotonic(),
-                                      completed=last_stage and outcome == DONE)
-            self._take_waiting()
-            return
-        with self._in_flight_lock:   # with the last stage now: a frame may follow it
-            room = self.in_flight.reached_last_stage(stamp_ns) and \
-                self.in_flight.has_room(time.monotonic())
-        if room:
-            self._take_waiting()
+        self.entrance.finished_downstream(stamp_ns, outcome, last_stage=stage == DOWNSTREAM[-1])
+
+    @property
+    def in_flight(self) -> InFlightFrames:
+        """The frames the entrance admitted that are still unfinished downstream."""
+        return self.entrance.in_flight
+
+    def _last_stage_reports(self) -> bool:
+        """Whether the last stage (the pose estimator) publishes its outcomes now."""
+        return self._downstream[DOWNSTREAM[-1]].get_publisher_count() > 0
 
     def _middle_stages_report(self) -> bool:
         """Whether every stage between this one and the last publishes its outcomes
         (``admission.pipeline_behind_last_stage``)."""
         return all(self._downstream[stage].get_publisher_count() > 0
                    for stage in DOWNSTREAM[:-1])
-
-    def _on_time_jump(self, jump_ns: int) -> None:
-        """Stamps jumped: the open frames belong to the old timeline; forget them."""
-        super()._on_time_jump(jump_ns)
-        with self._in_flight_lock:
-            self.in_flight.clear()
-            self._drop_waiting()
-
-    def _apply_admission(self, params: AdmissionParams) -> None:
-        with self._in_flight_lock:
-            self.in_flight.params = params
-            if not params.hold_newest:
-                self._drop_waiting()
-        if self._inputs is not None:   # more room, or no more pausing: read what waited
-            self._inputs.reopen(keep_newest=params.hold_newest)
-
-    def _drop_waiting(self) -> None:
-        """Give up the frame waiting at the entrance (caller holds ``_in_flight_lock``)."""
-        if self.in_flight.drop_waiting() is not None:
-            self.entrance_dropped += 1
 
     def _warm_up(self) -> None:
         """Segment and fuse a synthetic frame once, and estimate a rig from it (first calls,
@@ -321,10 +225,6 @@ class LocaliserNode(StageNode):
         if self.refiner is not None:
             self.refiner.set_params(params)
 
-    def extra_status(self) -> tuple[str, dict[str, str]]:
-        """The rig refinement's warning and figures (a snapshot the frame thread made)."""
-        return self._rig_status
-
     def _run_without_background(self, error: Exception) -> None:
         self.get_logger().error(f'{error}; not using it')   # the node runs without it
 
@@ -351,12 +251,8 @@ class LocaliserNode(StageNode):
         with self.spare_cpu.work(self.localise_params.parallel_views) as split:
             self._views_in_parallel = split
             fusion = self._refined_pipeline(inputs).localise(inputs)
-        with self._in_flight_lock:
-            admission = {'views_in_parallel': int(self._views_in_parallel),
-                         'in_flight': self.in_flight.open_count,
-                         'entrance_refused': self.in_flight.refused,
-                         'entrance_waited': self.in_flight.released,
-                         'in_flight_expired': self.in_flight.expired}
+        admission = {'views_in_parallel': int(self._views_in_parallel),
+                     **self.entrance.stats()}
         self.record_stats({**{f'{k}_ms': v for k, v in fusion.timings_ms.items()}, **admission,
                            **self.spare_cpu.stats()})
         for camera, msgs in views.items():
@@ -374,6 +270,25 @@ class LocaliserNode(StageNode):
         return ViewInput(rgb=rgb, depth_m=depth_image_to_metres(msgs['depth']),
                          intrinsics=intrinsics, T_world_camera=self.extrinsics[camera],
                          background=self.backgrounds.get(camera))
+
+
+class FrameRelay:
+    """Passes the camera messages of each frame the localiser takes, as received, to the later
+    stages (``input_source: localiser``): ``/localiser/<camera>/...``."""
+
+    def __init__(self, node: Any, cameras: tuple[str, ...]) -> None:
+        self._publishers = {camera: {
+            key: node.create_publisher(message_class(msg_type), relay_topic(camera, topic),
+                                       RESULT_QOS)
+            for key, (msg_type, topic) in CAMERA_INPUTS.items()} for camera in cameras}
+
+    def publish(self, views: Views) -> None:
+        """Relay a taken frame to the stages subscribed to it."""
+        for camera, msgs in views.items():
+            for key, raw in msgs.items():
+                publisher = self._publishers[camera][key]
+                if publisher.get_subscription_count() > 0:
+                    publisher.publish(raw.data)   # CDR bytes: no copy into a Python message
 
 
 def same_rig(a: Rig, b: Rig) -> bool:
