@@ -50,7 +50,7 @@ from tlessbot_ros.core.common import (
     SyncParams,
     TimelineGate,
 )
-from tlessbot_ros.nodes.common import SENSOR_QOS
+from tlessbot_ros.nodes.qos import SENSOR_QOS
 
 Views = dict[str, dict[str, Any]]
 
