@@ -18,7 +18,7 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
 
-Views = dict[str, dict[str, Any]]
+from tlessbot_ros.nodes.inputs import Views
 
 
 class FrameWorker:

@@ -83,7 +83,9 @@ from tlessbot_ros.nodes.stage_config import (  # noqa: F401 (the stages import t
     input_profile,
     rig_with_intrinsics,
 )
-from tlessbot_ros.nodes.stage_status import StageStatus
+from tlessbot_ros.nodes.stage_status import StageStatus, stat_text
+
+_stat_text = stat_text   # its name before stage_status.py (tools' tests import it from here)
 
 
 def _read_out(part: str, name: str) -> property:

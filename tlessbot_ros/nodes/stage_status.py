@@ -106,7 +106,7 @@ class StageStatus:
                   'malformed': inputs.malformed if inputs else 0,
                   **({'unread_frames_est': inputs.unread_estimate}
                      if inputs and inputs.gated else {}),
-                  **{k: _stat_text(v) for k, v in self.stats.items()}}
+                  **{k: stat_text(v) for k, v in self.stats.items()}}
         if parameters.changes:
             values.update(parameter_changes=parameters.changes,
                           last_parameter_change=parameters.last_change)
@@ -129,7 +129,7 @@ def _percentiles(name: str, values: deque[float]) -> dict[str, str]:
     return {f'{name}_p50': f'{p50:.1f}', f'{name}_p95': f'{p95:.1f}'}
 
 
-def _stat_text(value: float) -> str:
+def stat_text(value: float) -> str:
     """A frame figure for /diagnostics: counts in full (a running count above 999 must not
     become '1.1e+03'), measures to 3 significant digits."""
     if isinstance(value, (int, np.integer)):
