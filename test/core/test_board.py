@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.calibrate.board import (
+from tlessbot_ros.core.calibrate import (
     BoardDetection,
     BoardSpec,
     board_on_table,

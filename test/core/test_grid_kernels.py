@@ -87,7 +87,7 @@ def test_gauss_newton_equals_the_python_loop(setup, planar):
     """The fused iterations equal one normal_equations call, a numpy solve and the update per
     iteration, and a 6-DOF run converges towards the pose the scene was drawn from."""
     from tlessbot_ros.core.pose import gauss_newton
-    from tlessbot_ros.core.pose.estimator import _rodrigues, _rz
+    from tlessbot_ros.core.pose.hypotheses import rodrigues, rotations_about_z
 
     model, normals, grid, T, points = setup
     start = T.copy()
@@ -101,10 +101,10 @@ def test_gauss_newton_equals_the_python_loop(setup, planar):
         delta = np.linalg.solve(A + 1e-9 * np.eye(size), b[..., None])[..., 0]
         delta[count < 6] = 0.0
         if planar:
-            R = _rz(delta[:, 0]) @ R
+            R = rotations_about_z(delta[:, 0]) @ R
             t = t + np.column_stack([delta[:, 1], delta[:, 2], np.zeros(len(t))])
         else:
-            R = _rodrigues(delta[:, :3]) @ R
+            R = rodrigues(delta[:, :3]) @ R
             t = t + delta[:, 3:]
     R_fused, t_fused = gauss_newton(np.ascontiguousarray(start[:, :3, :3]),
                                     np.ascontiguousarray(start[:, :3, 3]), points, grid.origin,

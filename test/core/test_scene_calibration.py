@@ -7,6 +7,13 @@ import dataclasses
 import numpy as np
 import pytest
 
+from tlessbot_ros.core.calibrate import (
+    SceneCalibrationParams,
+    SceneCalibrator,
+    observe_view,
+    rig_differences,
+    rig_errors,
+)
 from tlessbot_ros.core.calibrate.inplane import (
     inplane_parameters,
     inplane_transform,
@@ -14,13 +21,6 @@ from tlessbot_ros.core.calibrate.inplane import (
     procrustes_2d,
 )
 from tlessbot_ros.core.calibrate.refinement import RigRefinementParams, RigRefiner
-from tlessbot_ros.core.calibrate.scene import (
-    SceneCalibrationParams,
-    SceneCalibrator,
-    observe_view,
-    rig_differences,
-    rig_errors,
-)
 from tlessbot_ros.core.common import (
     CameraMount,
     Rig,

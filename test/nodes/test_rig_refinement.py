@@ -95,7 +95,7 @@ def _diagnostics(node):
 
 
 def test_a_wrong_rig_is_reported_and_replaced_by_the_one_the_cameras_show(ros, frames):
-    from tlessbot_ros.core.calibrate.scene import rig_errors
+    from tlessbot_ros.core.calibrate import rig_errors
     from tlessbot_ros.nodes.diagnostics import WARN
     from tlessbot_ros.nodes.localiser import LocaliserNode
     from tlessbot_ros.tools.support.rig import load_rig

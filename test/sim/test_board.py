@@ -3,7 +3,7 @@ frames give the simulated rig back through the board calibration."""
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.calibrate.board import BoardSpec, calibrate_rig
+from tlessbot_ros.core.calibrate import BoardSpec, calibrate_rig
 from tlessbot_ros.core.common import (
     CameraMount,
     Rig,

@@ -3,7 +3,7 @@ import cv2
 import numpy as np
 import yaml
 
-from tlessbot_ros.core.calibrate.board import BoardSpec, detect_board
+from tlessbot_ros.core.calibrate import BoardSpec, detect_board
 from tlessbot_ros.core.common import rotation_angle_deg
 from tlessbot_ros.io.config import default_config_path
 from tlessbot_ros.tools.cli import main

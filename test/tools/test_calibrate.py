@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.calibrate.scene import rig_errors
+from tlessbot_ros.core.calibrate import rig_errors
 from tlessbot_ros.core.common import CameraMount, Rig, look_at_params, rig_from_params
 from tlessbot_ros.core.common import rotation_about_axis as turn
 from tlessbot_ros.errors import TlessbotError

@@ -24,16 +24,17 @@ Every stage reads heights in a table frame (world z = 0 the table, z up): the vi
 (:mod:`tlessbot_ros.core.common.table_plane`), as ``FitParams.table_plane`` says
 (:meth:`PerceptionPipeline.table_frame`). So one RGB-D view without extrinsics still takes the
 pose stage's fast table path.
+
+What a frame takes and gives is in :mod:`tlessbot_ros.core.frame`, the label images' per-view
+bookkeeping in :mod:`tlessbot_ros.core.label_views`, one part's fit in
+:mod:`tlessbot_ros.core.part_fit`.
 """
 from __future__ import annotations
 
 import copy
-import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -41,21 +42,36 @@ from tlessbot_ros.core.common import (
     CAMERA_NAMES,
     SIDE,
     TOP,
-    CameraIntrinsics,
     Rig,
     TableFrame,
     TablePlaneParams,
     TablePlaneTracker,
     choose_table_frame,
     find_table_plane,
-    label_boxes,
-    pixel_counts,
     plane_of_frame,
     transform_points,
 )
 from tlessbot_ros.core.fragments import FragmentFilter
+from tlessbot_ros.core.frame import (
+    ClassGuess,
+    Detection,
+    FrameResult,
+    PartFitter,
+    PartJob,
+    ViewInput,
+)
+from tlessbot_ros.core.label_views import (
+    PREFERRED_VIEWS,
+    instance_ids,
+    label_box,
+    label_counts,
+    label_stats,
+    mask_in_box,
+    preferred_view,
+    second_view_thread,
+    view_order,
+)
 from tlessbot_ros.core.localise import (
-    BackgroundModel,
     FusionParams,
     FusionResult,
     SegmentationParams,
@@ -63,181 +79,19 @@ from tlessbot_ros.core.localise import (
     segment,
 )
 from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
+from tlessbot_ros.core.part_fit import (
+    check_lookalike,
+    fit_part,
+    lookalike_check,
+    lookalike_options,
+)
 from tlessbot_ros.core.pose import (
-    LookalikeCheck,
-    PoseCandidate,
     PoseEstimator,
     PoseParams,
     TemplateDatabase,
     roi_cloud,
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
-
-PREFERRED_VIEWS = (SIDE, TOP)
-
-
-@dataclass
-class ViewInput:
-    """One camera's data for one frame.
-
-    Attributes:
-        rgb: (H, W, 3) uint8 RGB.
-        depth_m: (H, W) float32 aligned depth in metres, NaN or 0 = invalid (None if absent).
-        intrinsics: colour intrinsics (aligned depth shares them).
-        T_world_camera: (4, 4) camera pose in the table frame (world z = 0 is the table), or
-            None when uncalibrated (then the table plane seen in the depth gives the frame,
-            see ``FitParams.table_plane``).
-        background: empty-table image of this camera (for background subtraction), or None.
-    """
-
-    rgb: np.ndarray
-    depth_m: np.ndarray | None
-    intrinsics: CameraIntrinsics
-    T_world_camera: np.ndarray | None = None
-    background: BackgroundModel | np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class ClassGuess:
-    """Class of one instance: object id (0 = unknown), score and margin (summed over the views
-    that see it), its preferred view, and the classes for the pose stage to verify, best first
-    (``candidates[0] == obj_id``; ``obj_id`` alone when the classifier is sure of a part seen
-    only from the top, see ``top_view_verify_below_margin``; empty when unknown)."""
-
-    obj_id: int
-    score: float
-    margin: float
-    view: str
-    candidates: tuple[int, ...] = ()
-
-
-@dataclass
-class Detection:
-    """One found part.
-
-    Attributes:
-        instance_id: id in the label images.
-        obj_id: recognised class (0 = unknown).
-        view: camera whose data gave the pose (its optical frame holds ``T_camera_object``).
-        box: (x, y, w, h) in that view.
-        class_score, class_margin: classifier outputs.
-        class_rank: rank of ``obj_id`` among the classifier's candidates (0 = its first
-            choice; more when the pose fit overruled it).
-        pose, second: best and second-best pose candidates (None when not estimated).
-        n_points: ROI points used.
-    """
-
-    instance_id: int
-    obj_id: int
-    view: str
-    box: tuple[int, int, int, int]
-    class_score: float = 0.0
-    class_margin: float = 0.0
-    class_rank: int = 0
-    pose: PoseCandidate | None = None
-    second: PoseCandidate | None = None
-    n_points: int = 0
-
-
-@dataclass
-class FrameResult:
-    """Detections of one frame, the label images, per-stage wall times (ms) and the table
-    frame each view was read in (with the rig's difference from the observed plane)."""
-
-    detections: list[Detection]
-    labels: dict[str, np.ndarray]
-    timings_ms: dict[str, float] = field(default_factory=dict)
-    tables: dict[str, TableFrame] = field(default_factory=dict)
-
-
-@dataclass
-class PartJob:
-    """One part to fit: its detection (filled in by the fit), its ROI cloud ((N, 3) metres in
-    the optical frame of ``detection.view``), its class candidates best first, and that
-    view's table frame ``T_world_camera`` (:meth:`PerceptionPipeline.table_frame`; None: no
-    table frame, the pose stage's fallback). ``more_views``: for a part whose candidates have
-    a look-alike, its ROI clouds in the other cameras, each as ((M, 3) points in that
-    camera's optical frame, (4, 4) ``T_other_camera``), for the look-alike check
-    (:meth:`PerceptionPipeline.check_lookalike`; the fit does not use them)."""
-
-    detection: Detection
-    points: np.ndarray
-    candidates: tuple[int, ...]
-    T_world_camera: np.ndarray | None
-    more_views: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
-
-
-class PartFitter(Protocol):
-    """Runs the fits of one frame's parts, e.g. several at once (``tlessbot_ros.parallel``)."""
-
-    def fit_all(self, jobs: Sequence[PartJob], fit_here: Callable[[PartJob], None],
-                on_done: Callable[[PartJob], None]) -> None:
-        """Fit every job (``fit_here`` fits one in this process) and call ``on_done`` once per
-        job as soon as it is fitted, never from two threads at once."""
-
-
-_VIEW_THREAD: ThreadPoolExecutor | None = None
-_VIEW_THREAD_LOCK = threading.Lock()
-
-
-def _view_thread() -> ThreadPoolExecutor:
-    """One helper thread for the whole process, started on first use and kept (a thread per
-    frame would cost its start each time and spread the frames' arrays over malloc arenas).
-    Callers submit work and wait for it in the same call."""
-    global _VIEW_THREAD
-    with _VIEW_THREAD_LOCK:
-        if _VIEW_THREAD is None:
-            _VIEW_THREAD = ThreadPoolExecutor(1, thread_name_prefix='second_view')
-        return _VIEW_THREAD
-
-
-def _view_order(views) -> list[str]:
-    """View names in preference order: side, top, then any other in name order."""
-    return [v for v in (*PREFERRED_VIEWS, *sorted(set(views) - set(PREFERRED_VIEWS)))
-            if v in views]
-
-
-def label_counts(labels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Per view, the pixel count of every label (index = label id)."""
-    return {view: pixel_counts(image) for view, image in labels.items()}
-
-
-def _label_stats(labels: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray],
-                                                          dict[str, np.ndarray]]:
-    """Per view, the pixel count (L,) and the (x, y, w, h) box (L, 4) of every label, from one
-    pass over each image (:func:`~tlessbot_ros.core.common.label_boxes`)."""
-    stats = {view: label_boxes(image) for view, image in labels.items()}
-    return ({view: counts for view, (counts, _) in stats.items()},
-            {view: boxes for view, (_, boxes) in stats.items()})
-
-
-def _box(boxes: np.ndarray, label: int) -> tuple[int, int, int, int]:
-    x, y, w, h = (int(v) for v in boxes[label])
-    return x, y, w, h
-
-
-def _mask_in_box(labels: np.ndarray, label: int, box: tuple[int, int, int, int]
-                 ) -> np.ndarray:
-    """``labels == label`` as an (H, W) bool mask, compared only inside the label's box (the
-    rest is False anyway): a part covers a few % of the frame."""
-    x, y, w, h = box
-    mask = np.zeros(labels.shape, bool)
-    mask[y:y + h, x:x + w] = labels[y:y + h, x:x + w] == label
-    return mask
-
-
-def preferred_view(counts: dict[str, np.ndarray], instance_id: int, *,
-                   min_px: int) -> str | None:
-    """The view in which the pose and class of an instance are read: side first, then top.
-
-    Args:
-        counts: per view, the pixel count of every label (:func:`label_counts`).
-    """
-    for view in _view_order(counts):
-        if instance_id < len(counts[view]) and counts[view][instance_id] >= min_px:
-            return view
-    return None
-
 
 _REPLACEABLE = frozenset({'rig', 'classifier', 'localise_params', 'classify_params',
                           'fit_params', 'segmentation', 'fusion', 'pose'})
@@ -278,7 +132,7 @@ class PerceptionPipeline:
         # per view: (the depth and extrinsics it was found for, its frame)
         self._tables: dict[str, tuple[tuple[object, object], TableFrame]] = {}
         self.pose_estimator = PoseEstimator(templates, params=pose) if templates else None
-        self.lookalike = _lookalike_check(templates, fit_params) if templates else None
+        self.lookalike = lookalike_check(templates, fit_params) if templates else None
 
     def replace(self, **changes: Any) -> PerceptionPipeline:
         """A pipeline like this one with some of the constructor's arguments changed
@@ -301,9 +155,9 @@ class PerceptionPipeline:
             new.pose_estimator = PoseEstimator(self.pose_estimator.database,
                                                params=changes['pose'])
         old, fit = self.fit_params, new.fit_params
-        if self.pose_estimator is not None and _lookalike_options(old) != \
-                _lookalike_options(fit):
-            new.lookalike = _lookalike_check(self.pose_estimator.database, fit)
+        if self.pose_estimator is not None and lookalike_options(old) != \
+                lookalike_options(fit):
+            new.lookalike = lookalike_check(self.pose_estimator.database, fit)
             if new.lookalike is not None:
                 new.lookalike.warm_up()
         return new
@@ -383,7 +237,7 @@ class PerceptionPipeline:
                            params=self.segmentation)
 
         if self.localise_params.parallel_views:
-            top_future = _view_thread().submit(seg, TOP)
+            top_future = second_view_thread().submit(seg, TOP)
             side = seg(SIDE)
             top = top_future.result()   # re-raises the top view's error here
         else:
@@ -410,7 +264,7 @@ class PerceptionPipeline:
         """
         if self.classifier is None:
             raise ValueError('no classifier loaded')
-        counts, boxes = _label_stats(labels)
+        counts, boxes = label_stats(labels)
         min_px = self.classify_params.min_instance_px
         # per view, the instances with enough pixels there
         seen = {view: [int(i) for i in np.flatnonzero(view_counts >= min_px) if i]
@@ -421,14 +275,14 @@ class PerceptionPipeline:
             instances = seen[view]
             if not instances or view not in rgb:
                 continue
-            masks = [_mask_in_box(labels[view], i, _box(boxes[view], i)) for i in instances]
+            masks = [mask_in_box(labels[view], i, label_box(boxes[view], i)) for i in instances]
             depth = {}
             data = None if views is None else views.get(view)
             if self.classifier.uses_depth and data is not None and data.depth_m is not None:
                 depth = {'depth_m': data.depth_m, 'K': data.intrinsics.K,
                          'T_world_camera': self.table_frame(view, data).T_world_camera}
             described.append((instances, self.classifier.describe(
-                rgb[view], masks, [_box(boxes[view], i) for i in instances], **depth)))
+                rgb[view], masks, [label_box(boxes[view], i) for i in instances], **depth)))
         if not described:
             return {}
         # Both views' crops in one call: the model's matrices (~6 MB) are read once a frame.
@@ -500,8 +354,8 @@ class PerceptionPipeline:
         database = self.pose_estimator.database
         detections, jobs = [], []
         done = on_detection or (lambda detection: None)
-        counts, boxes = _label_stats(labels)
-        for instance in _instance_ids(counts):
+        counts, boxes = label_stats(labels)
+        for instance in instance_ids(counts):
             candidates = classes.get(instance, UNKNOWN_ID)
             candidates = (candidates,) if np.isscalar(candidates) else tuple(candidates)
             candidates = tuple(int(c) for c in candidates if c != UNKNOWN_ID and c in database)
@@ -509,8 +363,8 @@ class PerceptionPipeline:
             if not candidates or view is None:
                 continue
             data = views[view]
-            box = _box(boxes[view], instance)
-            mask = _mask_in_box(labels[view], instance, box)
+            box = label_box(boxes[view], instance)
+            mask = mask_in_box(labels[view], instance, box)
             detection = Detection(instance, candidates[0], view, box)
             detections.append(detection)
             if data.depth_m is not None:
@@ -555,14 +409,14 @@ class PerceptionPipeline:
                 views[view].T_world_camera is None:
             return ()
         more = []
-        for other in _view_order(labels):
+        for other in view_order(labels):
             data = views.get(other)
             if other == view or data is None or data.depth_m is None or \
                     data.T_world_camera is None or instance >= len(counts[other]) or \
                     counts[other][instance] < self.classify_params.min_instance_px:
                 continue
-            box = _box(boxes[other], instance)
-            points = roi_cloud(data.depth_m, _mask_in_box(labels[other], instance, box),
+            box = label_box(boxes[other], instance)
+            points = roi_cloud(data.depth_m, mask_in_box(labels[other], instance, box),
                                data.intrinsics, box=box)
             more.append((points, np.linalg.inv(data.T_world_camera) @
                          views[view].T_world_camera))
@@ -597,62 +451,12 @@ class PerceptionPipeline:
                 detection.pose.fitness)
 
     def fit_part(self, job: PartJob) -> None:
-        """Fit one part's class candidates in order and keep the best (fills the detection's
-        class, rank and poses); stop at the first whose fitness reaches
-        ``verify_accept_fitness``.
-
-        With several candidates and a table frame, each is fitted by the table path alone
-        and unpolished (a wrong class fits poorly, and the fallback would spend its time on
-        it; the polish, ``PoseParams.polish_iterations``, would let it converge as well as the
-        right one): the fits name the class, then the winner's finalists alone are polished
-        (:meth:`PoseEstimator.polish`) and the fallback runs once, for the winner, if its fit
-        stays poor. The look-alike check comes after, in :meth:`estimate_poses`
-        (:meth:`check_lookalike`)."""
-        p = self.fit_params
-        estimator = self.pose_estimator
-        detection, points, T_world_camera = job.detection, job.points, job.T_world_camera
-        quick = len(job.candidates) > 1 and T_world_camera is not None
-        best_value, winner = None, None
-        scenes: dict[float, np.ndarray] = {}   # the ROI prepared once per voxel edge
-        for rank, obj_id in enumerate(job.candidates):
-            result = estimator.estimate(points, obj_id, T_world_camera=T_world_camera,
-                                        fallback=False if quick else None,
-                                        polish=False if quick else None, scenes=scenes)
-            if result.best is None:
-                continue
-            value = result.best.fitness - p.verify_rmse_weight * result.best.inlier_rmse_m
-            if best_value is None or value > best_value:
-                best_value, winner = value, result
-                detection.obj_id, detection.class_rank = obj_id, rank
-            if rank == 0 and result.best.fitness >= p.verify_accept_fitness:
-                break
-        if winner is not None:
-            if quick:
-                winner = estimator.polish(points, winner, scenes=scenes)
-            detection.pose, detection.second = winner.best, winner.second
-        pose_params = estimator.params
-        if quick and detection.pose is not None and pose_params.fallback and \
-                p.fallback_min_fitness <= detection.pose.fitness < pose_params.fallback_fitness:
-            result = estimator.estimate(points, detection.obj_id, T_world_camera=T_world_camera,
-                                        scenes=scenes)
-            if result.best is not None and result.best.score > detection.pose.score:
-                detection.pose, detection.second = result.best, result.second
+        """Fit one part's class candidates, keep the best (:func:`~.part_fit.fit_part`)."""
+        fit_part(self.pose_estimator, self.fit_params, job)
 
     def check_lookalike(self, job: PartJob) -> None:
-        """A fitted part whose class has a look-alike is compared with it at the fitted pose,
-        on the depth of its view and of ``job.more_views`` (``lookalike_*``); the look-alike
-        names the part when it explains that depth better by a clear margin."""
-        detection = job.detection
-        if self.lookalike is None or detection.pose is None or \
-                detection.obj_id not in self.lookalike:
-            return
-        winner, _ = self.lookalike.resolve(detection.obj_id, detection.pose.T_camera_object,
-                                           job.points, more_views=job.more_views)
-        if winner != detection.obj_id:
-            # the twins share their model frame, so the fitted pose is the twin's too
-            detection.obj_id = winner
-            detection.class_rank = job.candidates.index(winner) \
-                if winner in job.candidates else len(job.candidates)
+        """Compare a fitted part with its look-alike (:func:`~.part_fit.check_lookalike`)."""
+        check_lookalike(self.lookalike, job)
 
     # ---------------------------------------------------------------------------- all stages
     def process(self, views: dict[str, ViewInput], *,
@@ -676,22 +480,7 @@ class PerceptionPipeline:
             'pose': 1e3 * (t3 - t2), 'frame': 1e3 * (t3 - t0)}, self.table_frames)
 
 
-def _lookalike_check(database: TemplateDatabase, fit: FitParams) -> LookalikeCheck | None:
-    """The look-alike check ``fit``'s ``lookalike_*`` ask for (None when it is off)."""
-    if not fit.lookalike_check:
-        return None
-    return database.lookalike_check(tolerance_m=fit.lookalike_tolerance_m,
-                                    min_z=fit.lookalike_min_z)
-
-
-def _lookalike_options(fit: FitParams) -> tuple[bool, float, float]:
-    """The fields of ``fit`` the look-alike check is built with."""
-    return fit.lookalike_check, fit.lookalike_tolerance_m, fit.lookalike_min_z
-
-
-def _instance_ids(counts: dict[str, np.ndarray]) -> list[int]:
-    """Sorted non-zero labels present in any view, from per-view pixel counts (bincount)."""
-    ids: set[int] = set()
-    for view_counts in counts.values():
-        ids.update(int(v) for v in np.flatnonzero(view_counts) if v != 0)
-    return sorted(ids)
+# the frame's types and label helpers are also importable from here, where they first lived
+__all__ = ['PREFERRED_VIEWS', 'ClassGuess', 'ClassifyParams', 'Detection', 'FitParams',
+           'FrameResult', 'LocaliseParams', 'PartFitter', 'PartJob', 'PerceptionPipeline',
+           'ViewInput', 'label_counts', 'preferred_view']

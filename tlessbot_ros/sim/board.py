@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tlessbot_ros.core.calibrate.board import BoardSpec, board_on_table
+from tlessbot_ros.core.calibrate import BoardSpec, board_on_table
 from tlessbot_ros.core.common.geometry import invert_transform
 from tlessbot_ros.sim.materials import Decal
 

@@ -56,15 +56,15 @@ class SceneParams:
 
 
 @dataclass
-class _HullInfo:
+class HullInfo:
     equations: np.ndarray  # (F, 4): n . x + d <= 0 inside, model frame
     samples: np.ndarray  # (S, 3) points on the hull surface, model frame
     vertices: np.ndarray  # (H, 3) hull vertices, model frame
     radius: float  # bounding sphere radius about the model origin
 
 
-def _hull_info(model: ObjectModel, samples: int) -> _HullInfo:
-    def build() -> _HullInfo:
+def hull_info(model: ObjectModel, samples: int) -> HullInfo:
+    def build() -> HullInfo:
         from scipy.spatial import ConvexHull
 
         hull = ConvexHull(model.vertices)
@@ -74,12 +74,12 @@ def _hull_info(model: ObjectModel, samples: int) -> _HullInfo:
         verts = hull.points[hull.vertices]
         # Coplanar hull triangles share a plane: keep each plane once.
         eq = np.unique(np.round(hull.equations, 9), axis=0)
-        return _HullInfo(eq, np.vstack([verts, pts]), verts,
+        return HullInfo(eq, np.vstack([verts, pts]), verts,
                          float(np.linalg.norm(verts, axis=1).max()))
     return model.cached(('hull_info', samples), build)
 
 
-def _penetrates(a: _HullInfo, T_a: np.ndarray, b: _HullInfo, T_b: np.ndarray,
+def _penetrates(a: HullInfo, T_a: np.ndarray, b: HullInfo, T_b: np.ndarray,
                 tol: float) -> bool:
     """Do the two placed hulls overlap deeper than ``tol`` (surface samples inside the other)?"""
     if np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]) > a.radius + b.radius:
@@ -89,7 +89,7 @@ def _penetrates(a: _HullInfo, T_a: np.ndarray, b: _HullInfo, T_b: np.ndarray,
             or _inside(transform_points(np.linalg.inv(T_b_a), b.samples), a, tol))
 
 
-def _inside(pts: np.ndarray, hull: _HullInfo, tol: float) -> bool:
+def _inside(pts: np.ndarray, hull: HullInfo, tol: float) -> bool:
     """Is any of the (N, 3) points deeper than ``tol`` inside the hull (its own frame)?"""
     lo, hi = hull.vertices.min(axis=0) + tol, hull.vertices.max(axis=0) - tol
     pts = pts[np.all((pts > lo) & (pts < hi), axis=1)]
@@ -99,7 +99,7 @@ def _inside(pts: np.ndarray, hull: _HullInfo, tol: float) -> bool:
                               axis=1)))
 
 
-def _in_views(info: _HullInfo, T_world_object: np.ndarray, rig: Rig, margin_px: int) -> bool:
+def _in_views(info: HullInfo, T_world_object: np.ndarray, rig: Rig, margin_px: int) -> bool:
     pts_w = transform_points(T_world_object, info.vertices)
     for cam in rig.cameras.values():
         pts_c = transform_points(cam.T_camera_world, pts_w)
@@ -113,7 +113,7 @@ def _in_views(info: _HullInfo, T_world_object: np.ndarray, rig: Rig, margin_px: 
     return True
 
 
-def _lean(T_world_object: np.ndarray, info: _HullInfo, rng: np.random.Generator,
+def _lean(T_world_object: np.ndarray, info: HullInfo, rng: np.random.Generator,
           angle_deg: tuple[float, float]) -> np.ndarray:
     """The pose tilted by an angle in ``angle_deg`` about a random horizontal axis through its
     origin, then lowered so that its lowest hull vertex touches the table (z = 0)."""
@@ -161,10 +161,10 @@ def sample_scene(models: dict[int, ObjectModel], rig: Rig, rng: np.random.Genera
         classes = list(rng.choice(ids, count))
     centre = work_area_centre(rig)
     placed: list[PlacedObject] = []
-    infos: list[_HullInfo] = []
+    infos: list[HullInfo] = []
     for obj_id in classes:
         model = models[int(obj_id)]
-        info = _hull_info(model, params.hull_samples)
+        info = hull_info(model, params.hull_samples)
         poses = stable_poses(model)
         probs = np.array([p.probability for p in poses])
         material = str(materials[int(rng.integers(len(materials)))])

@@ -42,7 +42,7 @@ from tlessbot_ros.sim.materials import (
     random_light,
 )
 from tlessbot_ros.sim.noise import DepthNoiseParams, add_colour_noise, add_depth_noise
-from tlessbot_ros.sim.scene import PlacedObject, SceneParams, _hull_info, sample_scene
+from tlessbot_ros.sim.scene import PlacedObject, SceneParams, hull_info, sample_scene
 
 __all__ = ['GroundTruthObject', 'PlacedObject', 'SimParams', 'SimulatedFrame', 'SimulatedView',
            'Simulator']
@@ -354,7 +354,7 @@ class Simulator:
             items = tqdm(items, desc='resting poses', unit='model')
         for model in items:
             stable_poses(model)
-            _hull_info(model, self.params.scene_params.hull_samples)
+            hull_info(model, self.params.scene_params.hull_samples)
 
     # -- randomness: one independent stream per (seed, index, purpose) ------------------------
     def _rng(self, index: int, *purpose: int) -> np.random.Generator:
@@ -389,7 +389,7 @@ class Simulator:
         for obj in objects:
             model = self.models[obj.obj_id]
             # Convex-hull vertices suffice: extremes of any projection are hull vertices.
-            hull = _hull_info(model, self.params.scene_params.hull_samples).vertices
+            hull = hull_info(model, self.params.scene_params.hull_samples).vertices
             meshes_w.append((transform_points(obj.T_world_object, hull), None))
         # Camera rays, shadow rays and the objects-alone counts all go through the parts' cached
         # per-model scenes.

@@ -29,19 +29,15 @@ Images are (H, W, 3) uint8 RGB or (H, W) uint8 grey; pixels and intrinsics follo
 """
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from tlessbot_ros.core.common.geometry import (
-    CameraIntrinsics,
-    invert_transform,
     make_transform,
     rotation_about_axis,
 )
-from tlessbot_ros.core.common.rig import CameraMount, Rig
 from tlessbot_ros.errors import CalibrationError
 
 # OpenCV's object frame (origin top-left, y down, z into the face) -> the board frame (origin
@@ -109,7 +105,7 @@ class BoardSpec:
 
     def cv_board(self) -> Any:
         """The ``cv2.aruco.CharucoBoard`` of this spec."""
-        aruco = _aruco()
+        aruco = aruco_module()
         dictionary = aruco.getPredefinedDictionary(getattr(aruco, self.dictionary))
         return aruco.CharucoBoard((self.squares_x, self.squares_y), self.square_length_m,
                                   self.marker_length_m, dictionary)
@@ -145,7 +141,7 @@ class BoardSpec:
 
 
 def _dictionary_size(name: str) -> int:
-    aruco = _aruco()
+    aruco = aruco_module()
     if not name.startswith('DICT_') or not hasattr(aruco, name):
         known = sorted(n for n in dir(aruco) if n.startswith('DICT_'))
         raise ValueError(f'unknown ArUco dictionary {name!r}; choose one of {known}')
@@ -192,7 +188,7 @@ def detect_board(image: np.ndarray, board: BoardSpec) -> BoardDetection:
         raise ValueError(f'image must be (H, W) or (H, W, 3) uint8, got {image.shape} '
                          f'{image.dtype}')
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
-    aruco = _aruco()
+    aruco = aruco_module()
     markers = aruco.DetectorParameters()
     # Read each marker bit from 8 x 8 samples of the unwarped marker (default 4 x 4), ignoring
     # the outer 30 % of each cell (default 13 %): markers ~20 px wide, as the top camera sees
@@ -241,45 +237,7 @@ def _refine_window(corners: np.ndarray, ids: np.ndarray, board: BoardSpec) -> in
     return int(np.clip(np.floor(gap_px) - 1, 2, 6))
 
 
-@dataclass
-class BoardPose:
-    """The board seen by one camera in one image.
-
-    Attributes:
-        T_camera_board: (4, 4) board frame -> camera optical frame, metres.
-        rms_px: root-mean-square reprojection error of the corners kept, pixels.
-        max_px: largest reprojection error of the corners kept, pixels.
-        corners: corners the pose was fitted to.
-        rejected: corners dropped as outliers (e.g. refined onto the edge of a part).
-        sigma_mm: one standard deviation of the camera centre (relative to the board) along
-            its worst direction, from the residuals (first-order propagation), mm.
-        sigma_deg: the same for the camera's orientation, degrees.
-    """
-
-    T_camera_board: np.ndarray
-    rms_px: float
-    max_px: float
-    corners: int
-    rejected: int
-    sigma_mm: float = float('nan')
-    sigma_deg: float = float('nan')
-
-
-def _camera_arrays(intrinsics: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
-    """K (3, 3) and OpenCV distortion coefficients (empty when all are zero, whatever the model
-    is called: realsense-ros names the D415's zero colour distortion in several ways)."""
-    D = np.asarray(intrinsics.D, np.float64).ravel()
-    if not np.any(D):
-        return np.asarray(intrinsics.K, np.float64), np.zeros(0)
-    if intrinsics.distortion_model not in ('plumb_bob', 'rational_polynomial'):
-        raise CalibrationError(
-            f'distortion model {intrinsics.distortion_model!r} is not supported by the board '
-            "calibration; give a 'plumb_bob' or 'rational_polynomial' CameraInfo (rectify "
-            'fisheye images first)')
-    return np.asarray(intrinsics.K, np.float64), D
-
-
-def _aruco() -> Any:
+def aruco_module() -> Any:
     """OpenCV's aruco module, with the ChArUco API of OpenCV 4.7 and later."""
     import cv2
 
@@ -291,316 +249,9 @@ def _aruco() -> Any:
     return cv2.aruco
 
 
-def _reprojection(points: np.ndarray, pixels: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
-                  K: np.ndarray, D: np.ndarray) -> np.ndarray:
-    import cv2
-
-    projected, _ = cv2.projectPoints(points, rvec, tvec, K, D)
-    return np.linalg.norm(projected.reshape(-1, 2) - pixels, axis=1)
-
-
-def fit_board_pose(points: np.ndarray, pixels: np.ndarray, intrinsics: CameraIntrinsics, *,
-                   initial: np.ndarray | None = None, min_corners: int = 6,
-                   outlier_px: float = 2.0) -> BoardPose:
-    """``T_camera_board`` from board points and their pixels by planar PnP.
-
-    Without ``initial``, IPPE gives the (up to two) poses of the plane and the one with the
-    smaller reprojection error is kept. Corners farther than ``outlier_px`` (or 3x the median
-    error, if larger) from its reprojection are dropped, and Levenberg-Marquardt refines the
-    pose on the rest (``cv2.solvePnPRefineLM``), twice. The intrinsics' distortion
-    coefficients are used (the D415's colour stream has nearly none).
-
-    Args:
-        points: (N, 3) board-frame corner positions, metres, z = 0 (the same corner may come
-            several times, from several images of a camera and board that did not move).
-        pixels: (N, 2) their image positions, pixels.
-        intrinsics: the images' intrinsics (from their CameraInfo).
-        initial: (4, 4) a ``T_camera_board`` to start from instead of IPPE.
-        min_corners: fewest corners a pose is computed from (at least 4).
-        outlier_px: reprojection error beyond which a corner is an outlier, pixels.
-
-    Raises:
-        CalibrationError: fewer than ``min_corners`` corners agree with one pose.
-    """
-    import cv2
-
-    min_corners = max(int(min_corners), 4)
-    points = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
-    pixels = np.ascontiguousarray(pixels, np.float64).reshape(-1, 2)
-    K, D = _camera_arrays(intrinsics)
-    if len(points) < min_corners:
-        raise CalibrationError(f'{len(points)} corners, {min_corners} needed for a pose')
-    if initial is None:
-        _, rvecs, tvecs, errors = cv2.solvePnPGeneric(points, pixels, K, D,
-                                                      flags=cv2.SOLVEPNP_IPPE)
-        best = int(np.argmin(np.asarray(errors).ravel()))
-        rvec, tvec = rvecs[best].copy(), tvecs[best].copy()
-    else:
-        rvec = cv2.Rodrigues(np.asarray(initial, np.float64)[:3, :3])[0]
-        tvec = np.asarray(initial, np.float64)[:3, 3].reshape(3, 1).copy()
-    keep = np.ones(len(points), bool)
-    for _ in range(2):
-        residual = _reprojection(points, pixels, rvec, tvec, K, D)
-        keep = residual <= max(outlier_px, 3.0 * float(np.median(residual[keep])))
-        if keep.sum() < min_corners:
-            raise CalibrationError(
-                f'only {int(keep.sum())} of {len(points)} corners agree with one pose within '
-                f'{outlier_px} px, {min_corners} needed')
-        rvec, tvec = cv2.solvePnPRefineLM(points[keep], pixels[keep], K, D, rvec, tvec)
-    residual = _reprojection(points[keep], pixels[keep], rvec, tvec, K, D)
-    rms = float(np.sqrt(np.mean(residual ** 2)))
-    R, _ = cv2.Rodrigues(rvec)
-    sigma_mm, sigma_deg = _pose_uncertainty(points[keep], rvec, tvec, K, D, rms)
-    return BoardPose(T_camera_board=make_transform(R, tvec.ravel()), rms_px=rms,
-                     max_px=float(residual.max()), corners=int(keep.sum()),
-                     rejected=int((~keep).sum()), sigma_mm=sigma_mm, sigma_deg=sigma_deg)
-
-
-def _pose_uncertainty(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, K: np.ndarray,
-                      D: np.ndarray, rms_px: float) -> tuple[float, float]:
-    """(mm, deg): the largest standard deviation of the camera centre and of its orientation,
-    for pixel errors of ``rms_px`` per corner: covariance ``s^2 (J^T J)^-1`` of the pose
-    parameters (Gauss-Newton at the solution; s^2 per image coordinate, with the 6 degrees of
-    freedom taken out), propagated to the centre ``-R^T t`` by a numeric Jacobian."""
-    import cv2
-
-    _, jacobian = cv2.projectPoints(points, rvec, tvec, K, D)
-    J = jacobian[:, :6]
-    dof = max(2 * len(points) - 6, 1)
-    variance = (rms_px ** 2) * 2 * len(points) / (2.0 * dof)
-    try:
-        covariance = variance * np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        return float('inf'), float('inf')
-
-    def centre(params: np.ndarray) -> np.ndarray:
-        R, _ = cv2.Rodrigues(params[:3])
-        return -R.T @ params[3:]
-
-    x0 = np.concatenate([np.ravel(rvec), np.ravel(tvec)])
-    step = 1e-6
-    C = np.column_stack([(centre(x0 + step * e) - centre(x0 - step * e)) / (2 * step)
-                         for e in np.eye(6)])
-    centre_cov = C @ covariance @ C.T
-    sigma_m = float(np.sqrt(max(np.linalg.eigvalsh(centre_cov).max(), 0.0)))
-    sigma_rad = float(np.sqrt(max(np.linalg.eigvalsh(covariance[:3, :3]).max(), 0.0)))
-    return 1000.0 * sigma_m, float(np.degrees(sigma_rad))
-
-
-def board_pose(detection: BoardDetection, board: BoardSpec, intrinsics: CameraIntrinsics, *,
-               min_corners: int = 6, outlier_px: float = 2.0) -> BoardPose:
-    """``T_camera_board`` of one image's detected corners (:func:`fit_board_pose`).
-
-    Raises:
-        CalibrationError: fewer than ``min_corners`` corners found (the board is not seen,
-            too small, blurred or hidden), or fewer that agree with one pose.
-    """
-    if len(detection) < max(int(min_corners), 4):
-        raise CalibrationError(_not_seen(detection, board, min_corners))
-    try:
-        return fit_board_pose(board.corner_points(detection.ids), detection.corners_px,
-                              intrinsics, min_corners=min_corners, outlier_px=outlier_px)
-    except CalibrationError as error:
-        raise CalibrationError(f'the board is not seen well: {error}') from None
-
-
-def camera_pose_from_board(image: np.ndarray, board: BoardSpec, intrinsics: CameraIntrinsics,
-                           *, T_world_board: np.ndarray | None = None,
-                           min_corners: int = 6) -> tuple[np.ndarray, BoardPose]:
-    """``T_world_camera`` (4, 4) of the camera that took ``image``, and the board's pose in it.
-
-    ``T_world_board`` places the board on the table (:func:`board_on_table`; default identity:
-    the board is the world).
-
-    Raises:
-        CalibrationError: the board is not seen (:func:`board_pose`).
-    """
-    pose = board_pose(detect_board(image, board), board, intrinsics, min_corners=min_corners)
-    T_world_board = np.eye(4) if T_world_board is None else np.asarray(T_world_board, float)
-    return T_world_board @ invert_transform(pose.T_camera_board), pose
-
-
-@dataclass
-class CameraCalibration:
-    """One camera's pose from the board over several images.
-
-    Attributes:
-        name: camera name.
-        T_world_camera: (4, 4) the camera's pose, or None if no image gave one.
-        images: images offered.
-        seen: images that showed at least ``min_corners`` corners.
-        used: images with corners in the fit.
-        corners: corners of the fit (counted once per image), after dropping outliers.
-        rejected: corners dropped as outliers.
-        rms_px: reprojection error of the fit, pixels (root mean square).
-        worst_image_px: the largest per-image RMS reprojection error under the fitted pose
-            (a board that moved between images shows here), pixels.
-        sigma_mm, sigma_deg: the fit's standard deviations (:class:`BoardPose`).
-        failures: why images were left out (one message per distinct reason).
-        intrinsics: the intrinsics of the last image offered.
-    """
-
-    name: str
-    T_world_camera: np.ndarray | None
-    images: int = 0
-    seen: int = 0
-    used: int = 0
-    corners: int = 0
-    rejected: int = 0
-    rms_px: float = float('nan')
-    worst_image_px: float = float('nan')
-    sigma_mm: float = float('nan')
-    sigma_deg: float = float('nan')
-    failures: list[str] = field(default_factory=list)
-    intrinsics: CameraIntrinsics | None = None
-
-
-def calibrate_camera(name: str, images: Iterable[tuple[np.ndarray, CameraIntrinsics]],
-                     board: BoardSpec, *, T_world_board: np.ndarray | None = None,
-                     min_corners: int = 6, outlier_px: float = 2.0) -> CameraCalibration:
-    """One fixed camera's ``T_world_camera`` from its images of the board lying still.
-
-    The camera and the board do not move, so the corners of all images are observations of
-    one pose, fitted together (:func:`fit_board_pose` on their union, each image's corners
-    counted): images that each see part of the board (parts hiding different corners in
-    different frames) add up to all of it, where a pose per image and their mean would be as
-    poor as the poorest part view (from 1.1 m, 8 corners of one half of the default board give
-    a pose 5 cm and 3 degrees off). Corners that do not agree with the fit (refined onto a
-    part's edge, or from an image in which the board had moved) are dropped. Images with other
-    intrinsics than the last are left out.
-
-    Args:
-        name: the camera's name, for the report.
-        images: (H, W, 3) uint8 RGB (or (H, W) grey) images with their intrinsics.
-        board: the board on the table.
-        T_world_board: (4, 4) where it lies (:func:`board_on_table`; default identity).
-        min_corners, outlier_px: see :func:`fit_board_pose`.
-
-    Returns:
-        The :class:`CameraCalibration`; its ``T_world_camera`` is None when the board was not
-        seen (``failures`` says why).
-    """
-    import cv2
-
-    detections, intrinsics_seen = [], []
-    for image, intrinsics in images:
-        detections.append(detect_board(image, board))
-        intrinsics_seen.append(intrinsics)
-    report = CameraCalibration(name, None, images=len(detections),
-                               intrinsics=intrinsics_seen[-1] if intrinsics_seen else None)
-    if not detections:
-        report.failures.append('no images')
-        return report
-    last = intrinsics_seen[-1]
-    chosen = []
-    for k, (detection, intrinsics) in enumerate(zip(detections, intrinsics_seen)):
-        if not _same_intrinsics(intrinsics, last):
-            _note(report, 'images with other intrinsics than the last were left out')
-        elif len(detection):
-            chosen.append(k)
-        if len(detection) < min_corners:
-            _note(report, _not_seen(detection, board, min_corners))
-    report.seen = sum(len(d) >= min_corners for d in detections)
-    if not chosen:
-        return report
-    points = np.concatenate([board.corner_points(detections[k].ids) for k in chosen])
-    pixels = np.concatenate([detections[k].corners_px for k in chosen])
-    image_of = np.concatenate([np.full(len(detections[k]), k) for k in chosen])
-    K, D = _camera_arrays(last)
-    initial = _consensus_start(points, pixels, image_of, K, D, min_corners=min_corners,
-                               outlier_px=outlier_px)
-    try:
-        fit = fit_board_pose(points, pixels, last, initial=initial, min_corners=min_corners,
-                             outlier_px=outlier_px)
-    except CalibrationError as error:
-        _note(report, f'all images together: {error}')
-        return report
-    rvec = cv2.Rodrigues(fit.T_camera_board[:3, :3])[0]
-    residual = _reprojection(points, pixels, rvec, fit.T_camera_board[:3, 3], K, D)
-    T_world_board = np.eye(4) if T_world_board is None else np.asarray(T_world_board, float)
-    report.T_world_camera = T_world_board @ invert_transform(fit.T_camera_board)
-    report.used = len(chosen)
-    report.corners, report.rejected, report.rms_px = fit.corners, fit.rejected, fit.rms_px
-    report.worst_image_px = max(float(np.sqrt(np.mean(residual[image_of == k] ** 2)))
-                                for k in chosen)
-    report.sigma_mm, report.sigma_deg = fit.sigma_mm, fit.sigma_deg
-    return report
-
-
-def _consensus_start(points: np.ndarray, pixels: np.ndarray, image_of: np.ndarray,
-                     K: np.ndarray, D: np.ndarray, *, min_corners: int,
-                     outlier_px: float) -> np.ndarray | None:
-    """A ``T_camera_board`` to start the joint fit from: of the IPPE poses of all corners
-    together and of each image alone, the one most corners agree with (within
-    ``outlier_px``), as RANSAC with images as the samples. The poses of all corners alone would
-    be a compromise between a board that moved and where it was, with no corner left out."""
-    import cv2
-
-    candidates = [np.ones(len(points), bool)]
-    candidates += [image_of == k for k in np.unique(image_of)
-                   if np.count_nonzero(image_of == k) >= max(min_corners, 4)]
-    best, best_score = None, (-1, 0.0)
-    for subset in candidates:
-        if np.count_nonzero(subset) < 4:
-            continue
-        _, rvecs, tvecs, _ = cv2.solvePnPGeneric(points[subset], pixels[subset], K, D,
-                                                 flags=cv2.SOLVEPNP_IPPE)
-        for rvec, tvec in zip(rvecs, tvecs):
-            residual = _reprojection(points, pixels, rvec, tvec, K, D)
-            score = (int(np.count_nonzero(residual <= outlier_px)), -float(np.median(residual)))
-            if score > best_score:
-                R, _ = cv2.Rodrigues(rvec)
-                best, best_score = make_transform(R, np.ravel(tvec)), score
-    return best
-
-
-def _note(report: CameraCalibration, message: str) -> None:
-    if message not in report.failures:
-        report.failures.append(message)
-
-
-def _not_seen(detection: BoardDetection, board: BoardSpec, min_corners: int) -> str:
+def not_seen_message(detection: BoardDetection, board: BoardSpec, min_corners: int) -> str:
     return (f'the board is not seen: {len(detection)} of its {board.corner_count} corners found '
             f'({detection.markers} markers), {max(int(min_corners), 4)} needed; check that the '
             'board in the image is the one described (squares, dictionary), flat, lit and in '
             'view')
 
-
-def _same_intrinsics(a: CameraIntrinsics, b: CameraIntrinsics) -> bool:
-    return ((a.width, a.height) == (b.width, b.height) and np.allclose(a.K, b.K)
-            and a.D.shape == b.D.shape and np.allclose(a.D, b.D))
-
-
-def calibrate_rig(images: Mapping[str, Iterable[tuple[np.ndarray, CameraIntrinsics]]],
-                  board: BoardSpec, *, T_world_board: np.ndarray | None = None,
-                  world_frame: str = 'world', min_corners: int = 6
-                  ) -> tuple[Rig, dict[str, CameraCalibration]]:
-    """The rig measured from each camera's images of one board lying still on the table.
-
-    Args:
-        images: camera name -> its (image, intrinsics) pairs; each camera's last intrinsics
-            are the rig's.
-        board: the board on the table.
-        T_world_board: where it lies (:func:`board_on_table`); default: the board is the world.
-        world_frame: the rig's world frame name.
-        min_corners: see :func:`board_pose`.
-
-    Returns:
-        The rig, and per camera its :class:`CameraCalibration`.
-
-    Raises:
-        CalibrationError: a camera saw the board in none of its images (the message gives
-            that camera's reasons).
-    """
-    cameras, reports = {}, {}
-    for name, pairs in images.items():
-        report = calibrate_camera(name, pairs, board, T_world_board=T_world_board,
-                                  min_corners=min_corners)
-        reports[name] = report
-        if report.T_world_camera is None:
-            reasons = '; '.join(report.failures) or 'no images'
-            raise CalibrationError(f'camera {name!r}: no pose from the board in '
-                                   f'{report.images} image(s): {reasons}')
-        assert report.intrinsics is not None  # set whenever a pose was found
-        cameras[name] = CameraMount(name, report.intrinsics, report.T_world_camera)
-    return Rig(cameras=cameras, world_frame=world_frame), reports

@@ -18,13 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tlessbot_ros.core.calibrate.scene import (
-    RigDifference,
-    RigEstimate,
-    SceneCalibrationParams,
-    SceneCalibrator,
-    rig_differences,
-)
+from tlessbot_ros.core.calibrate.comparison import RigDifference, rig_differences
+from tlessbot_ros.core.calibrate.params import SceneCalibrationParams
+from tlessbot_ros.core.calibrate.scene import RigEstimate, SceneCalibrator
 from tlessbot_ros.core.common.rig import Rig
 from tlessbot_ros.core.common.table_plane import TablePlane
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput

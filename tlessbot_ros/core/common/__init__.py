@@ -75,11 +75,11 @@ _HOME = {
     'plane_of_frame': 'table_plane',
     'table_frame_from_plane': 'table_plane',
     'Item': 'sync',
-    'JUMP': 'sync',
-    'STALE': 'sync',
-    'StampJumps': 'sync',
+    'JUMP': 'timeline',
+    'STALE': 'timeline',
+    'StampJumps': 'timeline',
     'StampSynchroniser': 'sync',
-    'TimelineGate': 'sync',
+    'TimelineGate': 'timeline',
     'SyncParams': 'sync',
     'SkippedFrames': 'sync',
     'stream_period_ns': 'sync',
@@ -151,14 +151,10 @@ if TYPE_CHECKING:
         symmetries_to_models_info,
     )
     from tlessbot_ros.core.common.sync import (  # noqa: F401
-        JUMP,
-        STALE,
         Item,
         SkippedFrames,
-        StampJumps,
         StampSynchroniser,
         SyncParams,
-        TimelineGate,
         stream_period_ns,
     )
     from tlessbot_ros.core.common.table_plane import (  # noqa: F401
@@ -173,5 +169,11 @@ if TYPE_CHECKING:
         plane_difference,
         plane_of_frame,
         table_frame_from_plane,
+    )
+    from tlessbot_ros.core.common.timeline import (  # noqa: F401
+        JUMP,
+        STALE,
+        StampJumps,
+        TimelineGate,
     )
     from tlessbot_ros.core.common.warm_frame import table_with_box  # noqa: F401

@@ -29,13 +29,13 @@ _HOME = {
     'Segmentation': 'segmentation',
     'segment': 'segmentation',
     'robust_quadratic_fit': 'surface_fit',
-    'FUSION_METHODS': 'two_view',
-    'FusedInstance': 'two_view',
-    'FusionParams': 'two_view',
-    'FusionResult': 'two_view',
+    'FUSION_METHODS': 'fusion_result',
+    'FusedInstance': 'fusion_result',
+    'FusionParams': 'fusion_result',
+    'FusionResult': 'fusion_result',
     'fuse_views': 'two_view',
-    'lift_top_blobs': 'two_view',
-    'predict_side_regions': 'two_view',
+    'lift_top_blobs': 'calibrated_fusion',
+    'predict_side_regions': 'calibrated_fusion',
     'table_homography': 'two_view',
 }
 __all__ = sorted(_HOME)
@@ -43,6 +43,10 @@ __all__ = sorted(_HOME)
 __getattr__, __dir__ = lazy_api(__name__, _HOME)
 
 if TYPE_CHECKING:
+    from tlessbot_ros.core.localise.calibrated_fusion import (  # noqa: F401
+        lift_top_blobs,
+        predict_side_regions,
+    )
     from tlessbot_ros.core.localise.colour import (  # noqa: F401
         histogram_background_peak,
         remove_trend,
@@ -55,6 +59,12 @@ if TYPE_CHECKING:
         height_above_table,
         lab_masks,
         prepare_background,
+    )
+    from tlessbot_ros.core.localise.fusion_result import (  # noqa: F401
+        FUSION_METHODS,
+        FusedInstance,
+        FusionParams,
+        FusionResult,
     )
     from tlessbot_ros.core.localise.instances import (  # noqa: F401
         boxes_from_labels,
@@ -74,12 +84,6 @@ if TYPE_CHECKING:
         robust_quadratic_fit,
     )
     from tlessbot_ros.core.localise.two_view import (  # noqa: F401
-        FUSION_METHODS,
-        FusedInstance,
-        FusionParams,
-        FusionResult,
         fuse_views,
-        lift_top_blobs,
-        predict_side_regions,
         table_homography,
     )

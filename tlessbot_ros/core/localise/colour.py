@@ -37,7 +37,7 @@ _OD_LUTS: dict[int, np.ndarray] = {}
 _LAB8_TO_LAB = np.array([[100.0 / 255.0, 0, 0, 0], [0, 1, 0, -128], [0, 0, 1, -128]], np.float32)
 
 
-def _check_rgb(rgb: np.ndarray, name: str = 'rgb') -> np.ndarray:
+def check_rgb(rgb: np.ndarray, name: str = 'rgb') -> np.ndarray:
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f'{name} must be an (H, W, 3) RGB image, got shape {rgb.shape}')
@@ -60,7 +60,7 @@ def rgb_to_hed(rgb: np.ndarray, *, dark_level: int = 0) -> np.ndarray:
         ``skimage.color.rgb2hed`` before its clipping at 0 (negative values are kept: they
         carry the "lighter than the stain" side that light parts fall on).
     """
-    rgb = _check_rgb(rgb)
+    rgb = check_rgb(rgb)
     if not 0 <= dark_level <= 255:
         raise ValueError(f'dark_level must be in [0, 255], got {dark_level}')
     lut = _OD_LUTS.get(dark_level)
@@ -77,7 +77,7 @@ def rgb_to_lab(rgb: np.ndarray) -> np.ndarray:
     Computed by OpenCV's 8-bit conversion (4x faster than float input here) and rescaled, so
     values are quantised to 100/255 in L and 1 in a, b.
     """
-    rgb = _check_rgb(rgb)
+    rgb = check_rgb(rgb)
     lab8 = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab)
     return cv2.transform(lab8.astype(np.float32), _LAB8_TO_LAB)
 

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.localise.colour import (
-    _check_rgb,
+    check_rgb,
     histogram_background_peak,
     remove_trend,
     rgb_to_hed,
@@ -55,14 +55,14 @@ def prepare_background(background: np.ndarray, *,
                        params: SegmentationParams = SegmentationParams()) -> BackgroundModel:
     """Convert an (H, W, 3) uint8 RGB empty-table image once, for repeated
     :func:`~tlessbot_ros.core.localise.segment`."""
-    background = _check_rgb(background, 'background')
-    small = _downscale(background, params.cue_scale)
+    background = check_rgb(background, 'background')
+    small = downscale(background, params.cue_scale)
     return BackgroundModel(rgb=background, lab=rgb_to_lab(small),
                            hed=rgb_to_hed(small, dark_level=params.hed_dark_level),
                            scale=params.cue_scale)
 
 
-def _downscale(rgb: np.ndarray, scale: float) -> np.ndarray:
+def downscale(rgb: np.ndarray, scale: float) -> np.ndarray:
     if scale == 1.0:
         return rgb
     return cv2.resize(rgb, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
@@ -138,7 +138,7 @@ def _lab_cue(small: np.ndarray, lab: np.ndarray, bgm: BackgroundModel | None,
 # The colour cues of SegmentationParams.methods in the order segment() adds them, each
 # (RGB and LAB at cue scale, empty table or None, params) -> (candidate, sure) masks.
 # 'watershed' contributes the grey level (LAB's L) extremes.
-_COLOUR_CUES = (('watershed', _grey_cue), ('hed', _hed_cue), ('lab', _lab_cue))
+COLOUR_CUES = (('watershed', _grey_cue), ('hed', _hed_cue), ('lab', _lab_cue))
 
 
 # --------------------------------------------------------------------------- depth
@@ -202,16 +202,16 @@ def height_above_table(depth_m: np.ndarray, K: np.ndarray, T_world_camera: np.nd
 
 
 @dataclass
-class _DepthCue:
+class DepthCue:
     candidate: np.ndarray  # object candidates (cue scale)
     sure: np.ndarray  # sure object
     table: np.ndarray  # valid depth on the table plane
     sigma_m: float  # robust height noise of the table
-    surfaces: _Surfaces | None = None  # for the depth split (None: no depth image given)
+    surfaces: Surfaces | None = None  # for the depth split (None: no depth image given)
 
 
 @dataclass
-class _Surfaces:
+class Surfaces:
     """What depth says about the surfaces of a view, at the cue scale, for the depth split
     of touching parts (``SegmentationParams.depth_split_jump``)."""
 
@@ -220,9 +220,9 @@ class _Surfaces:
     depth_m: np.ndarray  # (h, w) float32 depth, 0 = invalid
 
 
-def _view_depth_cue(depth_m: np.ndarray, intrinsics, T_world_camera: np.ndarray,
+def view_depth_cue(depth_m: np.ndarray, intrinsics, T_world_camera: np.ndarray,
                     shape: tuple[int, ...], cue_shape: tuple[int, ...],
-                    params: SegmentationParams, *, with_surfaces: bool = True) -> _DepthCue:
+                    params: SegmentationParams, *, with_surfaces: bool = True) -> DepthCue:
     """The depth cue at the cue scale of a view: ``shape`` is the colour image's, ``cue_shape``
     the downscaled one's; ``intrinsics`` a CameraIntrinsics or a (3, 3) K; with its surfaces
     (for the depth split) if ``with_surfaces`` and ``params.depth_split_jump`` > 0."""
@@ -237,7 +237,7 @@ def _view_depth_cue(depth_m: np.ndarray, intrinsics, T_world_camera: np.ndarray,
         depth = np.nan_to_num(np.asarray(depth_m, np.float32), nan=0.0, posinf=0.0)
         if depth.shape != cue_shape[:2]:
             depth = cv2.resize(depth, size, interpolation=cv2.INTER_NEAREST)
-    return _depth_cue(height, params, depth=depth)
+    return depth_cue(height, params, depth=depth)
 
 
 def range_jumps(depth_m: np.ndarray, ratio: float) -> np.ndarray:
@@ -269,8 +269,8 @@ def range_jumps(depth_m: np.ndarray, ratio: float) -> np.ndarray:
             out[:-1] |= jump
     return out & valid
 
-def _depth_cue(height: np.ndarray, params: SegmentationParams, *,
-               depth: np.ndarray | None = None) -> _DepthCue:
+def depth_cue(height: np.ndarray, params: SegmentationParams, *,
+               depth: np.ndarray | None = None) -> DepthCue:
     """Object / table masks from a (h, w) height map (NaN invalid); with the (h, w) depth of
     the same pixels (metres, 0 invalid) also its surfaces (``depth_split_jump``)."""
     valid = ~np.isnan(height)
@@ -308,23 +308,23 @@ def _depth_cue(height: np.ndarray, params: SegmentationParams, *,
     surfaces = None
     if depth is not None:
         solid = high_raw & ~range_jumps(depth, params.depth_split_jump)
-        surfaces = _Surfaces(solid, valid & (filled < table_h), np.asarray(depth, np.float32))
-    return _DepthCue(candidate, sure, table, sigma, surfaces)
+        surfaces = Surfaces(solid, valid & (filled < table_h), np.asarray(depth, np.float32))
+    return DepthCue(candidate, sure, table, sigma, surfaces)
 
 
 
 # --------------------------------------------------------------------------- empty-table change
-def _background_change(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams, *,
+def background_change(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams, *,
                        shadow: np.ndarray | None = None) -> np.ndarray:
     """LAB distance to the empty table above ``background_delta_e``, shadows excluded."""
     diff = lab - bg_lab
     delta_e_sq = np.einsum('ijk,ijk->ij', diff, diff)
     if shadow is None:
-        shadow = _shadow(lab, bg_lab, params)
+        shadow = shadow_mask(lab, bg_lab, params)
     return (delta_e_sq > params.background_delta_e ** 2) & ~shadow
 
 
-def _shadow(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> np.ndarray:
+def shadow_mask(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> np.ndarray:
     """Pixels that look like the empty table darkened by a cast shadow.
 
     A shadow scales the table's colour: the luminance ratio lies in ``shadow_ratio`` and the
@@ -339,11 +339,11 @@ def _shadow(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> 
 
 
 # --------------------------------------------------------------------------- morphology
-def _erode(mask: np.ndarray, radius: int) -> np.ndarray:
+def eroded(mask: np.ndarray, radius: int) -> np.ndarray:
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
     return cv2.erode(mask.view(np.uint8), kernel).astype(bool)
 
 
-def _open(mask: np.ndarray, radius: int) -> np.ndarray:
+def opened(mask: np.ndarray, radius: int) -> np.ndarray:
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
     return cv2.morphologyEx(mask.view(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)

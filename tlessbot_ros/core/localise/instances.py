@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.common import label_boxes
-from tlessbot_ros.core.localise.cues import _depth_cue, _open, _Surfaces
+from tlessbot_ros.core.localise.cues import Surfaces, depth_cue, opened
 from tlessbot_ros.core.localise.params import SegmentationParams
 
 
@@ -117,13 +117,13 @@ def split_touching(mask: np.ndarray, rgb: np.ndarray | None = None, *,
                              f'must have the shape of the mask, {np.shape(mask)}')
         if params.depth_split_jump > 0:
             depth = np.nan_to_num(np.asarray(depth_m, np.float32), nan=0.0, posinf=0.0)
-            surfaces = _depth_cue(np.asarray(height_m, np.float32), params,
+            surfaces = depth_cue(np.asarray(height_m, np.float32), params,
                                   depth=depth).surfaces
     return _instances(mask, rgb, params, surfaces)[0]
 
 
 def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationParams,
-               surfaces: _Surfaces | None = None
+               surfaces: Surfaces | None = None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(labels (H, W) int32, boxes (N, 4) int32, areas (N,) int64, depth groups (N,) int32)
     of :func:`split_touching`; the instances cut from one piece of a depth split share a
@@ -152,7 +152,7 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
         blob = comp[y0:y1, x0:x1] == i
         crop = None if rgb is None else rgb[y0:y1, x0:x1]
         by_depth = [blob] if surfaces is None else \
-            _depth_pieces(blob, _Surfaces(*(a[y0:y1, x0:x1] for a in (
+            _depth_pieces(blob, Surfaces(*(a[y0:y1, x0:x1] for a in (
                 surfaces.solid, surfaces.table, surfaces.depth_m))), crop, params)
         found = []
         for depth_piece in by_depth:
@@ -196,8 +196,8 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
             np.array(areas, np.int64), np.array(groups, np.int32))
 
 
-def _instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarray,
-                        params: SegmentationParams, surfaces: _Surfaces | None = None
+def instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarray,
+                        params: SegmentationParams, surfaces: Surfaces | None = None
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Instance separation at the cue scale, labels carried back to the full-resolution mask.
 
@@ -291,7 +291,7 @@ def _colour_pieces(blob: np.ndarray, rgb: np.ndarray, params: SegmentationParams
     seeds = np.zeros(blob.shape, np.int32)
     n_seeds = 0
     for c in (1, 2):
-        m = _open((cluster == c), 1).view(np.uint8)
+        m = opened((cluster == c), 1).view(np.uint8)
         n, comp, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
         for j in range(1, n):
             if stats[j, cv2.CC_STAT_AREA] >= min_piece:
@@ -300,7 +300,7 @@ def _colour_pieces(blob: np.ndarray, rgb: np.ndarray, params: SegmentationParams
     if n_seeds < 2:
         return [blob]
     # Every blob pixel joins the nearest seed piece (the seeds lie inside the blob).
-    owner = _fill_from_nearest(seeds, blob & (seeds == 0))
+    owner = fill_from_nearest(seeds, blob & (seeds == 0))
     pieces = [owner == k for k in range(1, n_seeds + 1)]
     if depth >= 1:
         return pieces
@@ -324,7 +324,7 @@ def _split_at_distance_cores(blob: np.ndarray, rgb: np.ndarray | None,
     return _divide_by_seeds(blob, core_labels, keep, rgb, dist)
 
 
-def _depth_pieces(blob: np.ndarray, surfaces: _Surfaces, rgb: np.ndarray | None,
+def _depth_pieces(blob: np.ndarray, surfaces: Surfaces, rgb: np.ndarray | None,
                   params: SegmentationParams) -> list[np.ndarray]:
     """Bool masks of the parts of one blob (a crop with a one-pixel border) that its depth
     tells apart (``[blob]``: none).
@@ -371,7 +371,7 @@ def _depth_pieces(blob: np.ndarray, surfaces: _Surfaces, rgb: np.ndarray | None,
 _SEAM_KERNEL = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
 
 
-def _seam_is_real(seam: np.ndarray, a: np.ndarray, b: np.ndarray, surfaces: _Surfaces,
+def _seam_is_real(seam: np.ndarray, a: np.ndarray, b: np.ndarray, surfaces: Surfaces,
                   params: SegmentationParams) -> bool:
     """Whether the depth confirms the border ``seam`` between pieces ``a`` and ``b`` (bool
     masks of one crop) as the seam of two parts: table seen in it, or a step."""
@@ -416,11 +416,11 @@ def _divide_by_seeds(blob: np.ndarray, seeds: np.ndarray, keep: list[int],
     # Watershed-line pixels inside the blob go to their nearest piece.
     holes = blob & (out == 0)
     if holes.any():
-        _fill_from_nearest(out, holes)
+        fill_from_nearest(out, holes)
     return out
 
 
-def _fill_from_nearest(labels: np.ndarray, holes: np.ndarray) -> np.ndarray:
+def fill_from_nearest(labels: np.ndarray, holes: np.ndarray) -> np.ndarray:
     """Give every ``holes`` pixel of an (H, W) integer label image the label of the nearest
     labelled (non-zero) pixel, in place; returns ``labels``."""
     _, nearest = cv2.distanceTransformWithLabels((labels == 0).astype(np.uint8), cv2.DIST_L2, 3,

@@ -23,20 +23,20 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.localise.colour import _check_rgb, rgb_to_lab
+from tlessbot_ros.core.localise.colour import check_rgb, rgb_to_lab
 from tlessbot_ros.core.localise.cues import (
-    _COLOUR_CUES,
+    COLOUR_CUES,
     BackgroundModel,
-    _background_change,
-    _DepthCue,
-    _downscale,
-    _erode,
-    _open,
-    _shadow,
-    _view_depth_cue,
+    DepthCue,
+    background_change,
+    downscale,
+    eroded,
+    opened,
     prepare_background,
+    shadow_mask,
+    view_depth_cue,
 )
-from tlessbot_ros.core.localise.instances import _instances_at_scale, watershed_refine
+from tlessbot_ros.core.localise.instances import instances_at_scale, watershed_refine
 from tlessbot_ros.core.localise.params import SegmentationParams
 
 
@@ -122,33 +122,33 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         :class:`Segmentation` with uint16 labels (0 = background), (N, 4) boxes and timings.
     """
     watch = _Stopwatch()
-    rgb = _check_rgb(rgb)
+    rgb = check_rgb(rgb)
     bgm = _background_for(rgb, background, params)
     if depth_m is not None:
         _check_depth(rgb, depth_m, intrinsics, T_world_camera)
-    small = _downscale(rgb, params.cue_scale)
+    small = downscale(rgb, params.cue_scale)
     lab = rgb_to_lab(small)
     watch.lap('lab')
     depth_cue = None
     if depth_m is not None and 'depth' in params.methods:
-        depth_cue = _view_depth_cue(depth_m, intrinsics, T_world_camera, rgb.shape,
+        depth_cue = view_depth_cue(depth_m, intrinsics, T_world_camera, rgb.shape,
                                     small.shape, params, with_surfaces=split_by_depth)
         watch.lap('depth')
     cues, candidate, sure = _union_of_cues(small, lab, bgm, depth_cue, params, watch)
     if params.open_px > 0:
-        candidate = _open(candidate, params.open_px)
+        candidate = opened(candidate, params.open_px)
         sure &= candidate
     candidate = _upscale(candidate, rgb.shape)
     sure = _upscale(sure, rgb.shape)
-    table = None if depth_cue is None else _upscale(_erode(depth_cue.table, 1), rgb.shape)
+    table = None if depth_cue is None else _upscale(eroded(depth_cue.table, 1), rgb.shape)
     watch.lap('cues')
     if 'watershed' in params.methods:
-        foreground = watershed_refine(rgb, candidate, _erode(sure, 1), band_px=params.band_px,
+        foreground = watershed_refine(rgb, candidate, eroded(sure, 1), band_px=params.band_px,
                                       sure_background=table)
     else:
         foreground = candidate
     watch.lap('watershed')
-    labels, boxes, areas, groups = _instances_at_scale(
+    labels, boxes, areas, groups = instances_at_scale(
         foreground, rgb, small, params,
         surfaces=None if depth_cue is None or not split_by_depth else depth_cue.surfaces)
     watch.lap('instances')
@@ -182,17 +182,17 @@ def _check_depth(rgb: np.ndarray, depth_m: np.ndarray, intrinsics,
 
 
 def _union_of_cues(small: np.ndarray, lab: np.ndarray, bgm: BackgroundModel | None,
-                   depth_cue: _DepthCue | None, params: SegmentationParams,
+                   depth_cue: DepthCue | None, params: SegmentationParams,
                    watch: _Stopwatch) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
     """Each cue of ``params.methods`` at the cue scale: ({method: candidates}, union of the
     candidates, union of the sure-object masks)."""
     # Pixels where colour evidence is not trusted: cast shadows, and table seen by depth.
-    shadow = None if bgm is None else _shadow(lab, bgm.lab, params)
+    shadow = None if bgm is None else shadow_mask(lab, bgm.lab, params)
     veto = shadow
     if depth_cue is not None:
         veto = depth_cue.table if veto is None else veto | depth_cue.table
     masks: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for name, cue in _COLOUR_CUES:
+    for name, cue in COLOUR_CUES:
         if name in params.methods:
             cand, sure = cue(small, lab, bgm, params)
             if veto is not None:
@@ -201,10 +201,10 @@ def _union_of_cues(small: np.ndarray, lab: np.ndarray, bgm: BackgroundModel | No
             masks[name] = cand, sure
             watch.lap(f'cue_{name}')
     if 'background' in params.methods and bgm is not None:
-        cand = _background_change(lab, bgm.lab, params, shadow=shadow)
+        cand = background_change(lab, bgm.lab, params, shadow=shadow)
         if depth_cue is not None:
             cand &= ~depth_cue.table
-        masks['background'] = cand, _erode(cand, 1)
+        masks['background'] = cand, eroded(cand, 1)
     if depth_cue is not None:
         masks['depth'] = depth_cue.candidate, depth_cue.sure
     candidate = np.zeros(small.shape[:2], bool)

@@ -4,8 +4,9 @@ searches with their refinement, and the look-alike check.
 Modules: ``cloud`` (ROI clouds, normals, FPFH), ``database`` (what the templates store, the
 file format), ``building`` (rendering and building the templates), ``params`` and
 ``candidates`` (the settings and results of the pose search), ``estimator`` (the table-plane
-search and the orchestration), ``refinement`` (ICP, planar Gauss-Newton, scoring: swap it with
-``PoseEstimator(refiner=...)``), ``ransac`` (the paper's FPFH + RANSAC path), ``grid_kernels``
+search and the orchestration), ``hypotheses`` (the table path's resting hypotheses),
+``refinement`` (ICP, planar Gauss-Newton, scoring: swap it with ``PoseEstimator(refiner=...)``),
+``ransac`` (the paper's FPFH + RANSAC path), ``grid_kernels``
 and ``buckets`` (the fast lookups), ``fallback`` (the bounded 6-DOF search for parts off the
 table path), ``lookalike``, ``derived`` (start-up arrays to cache).
 Surface sampling is :func:`tlessbot_ros.core.common.sample_surface`.

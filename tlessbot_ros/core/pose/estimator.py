@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
@@ -46,79 +45,18 @@ from tlessbot_ros.core.pose.buckets import PointBuckets
 from tlessbot_ros.core.pose.candidates import PoseCandidate, PoseResult, poses_differ
 from tlessbot_ros.core.pose.cloud import remove_statistical_outliers, voxel_downsample
 from tlessbot_ros.core.pose.database import (
-    CONTINUOUS_YAW_PERIOD,
     ObjectTemplates,
     TemplateDatabase,
 )
 from tlessbot_ros.core.pose.fallback import fallback_candidates, view_grid
+from tlessbot_ros.core.pose.hypotheses import (
+    HALF_TURNS,
+    resting_hypotheses,
+    rotations_about_z,
+)
 from tlessbot_ros.core.pose.params import METHODS, PoseParams
 from tlessbot_ros.core.pose.ransac import ransac_candidates
 from tlessbot_ros.core.pose.refinement import Refiner
-
-
-def _rodrigues(omega: np.ndarray) -> np.ndarray:
-    """Batched (K, 3) rotation vectors -> (K, 3, 3) matrices."""
-    theta = np.linalg.norm(omega, axis=-1)[..., None, None]
-    safe = np.where(theta > 1e-12, theta, 1.0)
-    k = omega / safe[..., 0]
-    K = np.zeros(omega.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2] = -k[..., 2], k[..., 1]
-    K[..., 1, 0], K[..., 1, 2] = k[..., 2], -k[..., 0]
-    K[..., 2, 0], K[..., 2, 1] = -k[..., 1], k[..., 0]
-    eye = np.broadcast_to(np.eye(3), K.shape)
-    return eye + np.sin(theta) * K + (1 - np.cos(theta)) * (K @ K)
-
-
-def _rz(yaw: np.ndarray) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    R = np.zeros(np.shape(yaw) + (3, 3))
-    R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
-    return R
-
-
-# Half turns about the object's x, y and z axes (the final ICP's flipped starts).
-_HALF_TURNS = _rodrigues(np.pi * np.eye(3))
-
-
-@dataclass(frozen=True)
-class _RestingHypotheses:
-    """What the table path's hypotheses of one stable pose owe to the object alone (the same
-    for every part: made once, :meth:`ObjectTemplates.derived`).
-
-    Attributes:
-        Rz: (Y, 3, 3) rotations about the table normal by the yaw hypotheses (0 <= yaw <
-            period in ``yaw_step_deg`` steps; yaw 0 alone for a continuous symmetry).
-        T_world_object: (Y, 4, 4) the object resting at each yaw, its origin above the world
-            origin (the scene's centroid then shifts x and y).
-        points, normals: (M, 3) the model subset resting at yaw 0, table frame.
-        normal_dot_point: (M,) ``normals . points`` row by row (the back-face test's offset).
-    """
-
-    Rz: np.ndarray
-    T_world_object: np.ndarray
-    points: np.ndarray
-    normals: np.ndarray
-    normal_dot_point: np.ndarray
-
-
-def _resting_hypotheses(obj: ObjectTemplates, stable: int, yaw_step_deg: float
-                        ) -> _RestingHypotheses:
-    """The :class:`_RestingHypotheses` of stable pose ``stable`` (index into ``stable_poses``)
-    with yaws ``yaw_step_deg`` apart."""
-    period = obj.yaw_periods[stable]
-    if period == CONTINUOUS_YAW_PERIOD:
-        yaws = np.zeros(1)
-    else:
-        yaws = np.arange(0.0, period - 1e-9, np.radians(yaw_step_deg))
-    Rz = _rz(yaws)                                                  # (Y, 3, 3)
-    T_s = obj.stable_poses[stable]
-    model, normals = obj.model_subset()
-    points = model @ T_s[:3, :3].T + T_s[:3, 3]                     # resting, yaw 0
-    normals = normals @ T_s[:3, :3].T
-    T = np.tile(np.eye(4), (len(yaws), 1, 1))
-    T[:, :3, :3] = Rz @ T_s[:3, :3]
-    T[:, :3, 3] = Rz @ T_s[:3, 3]
-    return _RestingHypotheses(Rz, T, points, normals, np.sum(normals * points, axis=1))
 
 
 def after_polish(polished: list[PoseCandidate], margin: float) -> list[PoseCandidate]:
@@ -251,6 +189,19 @@ class PoseEstimator:
                 result.finalists, result.polished = candidates, polish
                 return result
             scene = self._prepare(points_c, obj, 1.0, timings, scenes)
+        candidates = self._fallback_path(scene, obj, candidates, timings, method=method,
+                                         after_table=use_table, start=start)
+        timings['total'] = sum(v for k, v in timings.items()
+                               if k in ('prep', 'table', 'ransac', 'fallback'))
+        result.best, result.second = self._best_two(candidates)
+        return result
+
+    def _fallback_path(self, scene: np.ndarray, obj: ObjectTemplates,
+                       candidates: list[PoseCandidate], timings: dict[str, float], *,
+                       method: str, after_table: bool, start: float) -> list[PoseCandidate]:
+        """The table path's ``candidates`` with the fallback's (view grid or RANSAC), ranked;
+        ``after_table``: the table path ran first and its fit was poor (bounded fallback)."""
+        p = self.params
         t0 = time.perf_counter()
         if method == 'table' and p.fallback_method == 'views':
             candidates = self._rank(candidates + fallback_candidates(
@@ -260,7 +211,7 @@ class PoseEstimator:
             timings['fallback'] = 1e3 * (time.perf_counter() - t0)
         else:
             indices, max_iteration, deadline = None, p.ransac_max_iteration, None
-            if use_table:
+            if after_table:
                 # Today's fallback: a few templates near the table path's best views, fewer
                 # iterations, and no new template once the budget is spent.
                 indices = self._fallback_templates(obj, candidates)
@@ -270,10 +221,7 @@ class PoseEstimator:
                 scene, obj, timings, params=p, refiner=self.refiner, indices=indices,
                 max_iteration=max_iteration, deadline=deadline))
             timings['ransac'] = 1e3 * (time.perf_counter() - t0)
-        timings['total'] = sum(v for k, v in timings.items()
-                               if k in ('prep', 'table', 'ransac', 'fallback'))
-        result.best, result.second = self._best_two(candidates)
-        return result
+        return candidates
 
     def polish(self, points_c: np.ndarray, result: PoseResult, *,
                scenes: dict[float, np.ndarray] | None = None) -> PoseResult:
@@ -362,7 +310,7 @@ class PoseEstimator:
         keep = np.concatenate([keep, np.array(extra, dtype=keep.dtype)])
         # Add the 180° yaw turn (about the vertical through the ROI centroid) of the best
         # hypotheses: near-symmetric parts fit both ways on the coarse grid.
-        flip = make_transform(_rz(np.array(np.pi)), np.zeros(3))
+        flip = make_transform(rotations_about_z(np.array(np.pi)), np.zeros(3))
         flip[:2, 3] = 2.0 * centroid[:2]
         keep = np.concatenate([keep, keep[:p.flip_hypotheses]])
         T_start = T_all[keep].copy()
@@ -445,7 +393,7 @@ class PoseEstimator:
             if obj.stable_probabilities[s] < p.min_stable_probability and poses:
                 continue
             rest = obj.derived(('resting', int(s), p.yaw_step_deg),
-                               partial(_resting_hypotheses, obj, int(s), p.yaw_step_deg))
+                               partial(resting_hypotheses, obj, int(s), p.yaw_step_deg))
             # (Rz n) . (view - Rz m) > 0  <=>  n . (Rz^T view) - n . m > 0
             facing = rest.normals @ (view @ rest.Rz).T - rest.normal_dot_point[:, None] > 0
             visible = facing.astype(np.float64)                      # (M, Y)
@@ -479,7 +427,7 @@ class PoseEstimator:
             centre = obj.derived('surface_centre',
                                  lambda: obj.model_points.mean(axis=0).astype(np.float64))
             T_best = starts[0][0]
-            for half_turn in _HALF_TURNS:
+            for half_turn in HALF_TURNS:
                 T = T_best.copy()
                 T[:3, :3] = T_best[:3, :3] @ half_turn
                 T[:3, 3] += T_best[:3, :3] @ centre - T[:3, :3] @ centre

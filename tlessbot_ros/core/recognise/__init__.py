@@ -33,8 +33,8 @@ _HOME = {
     'read_model_arrays': 'model',
     'FILE_MAGIC': 'model_file',
     'FORMAT_VERSION': 'model_file',
-    'load_linear_classifier': 'model_file',
-    'save_linear_classifier': 'model_file',
+    'load_linear_classifier': 'classifier',
+    'save_linear_classifier': 'classifier',
     'ShapeParams': 'shape',
     'region_points_world': 'shape',
     'shape_features': 'shape',
@@ -52,6 +52,8 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.recognise.classifier import (  # noqa: F401
         LinearClassifier,
         Prediction,
+        load_linear_classifier,
+        save_linear_classifier,
     )
     from tlessbot_ros.core.recognise.feature_map import (  # noqa: F401
         EIGEN_CUTOFF,
@@ -75,8 +77,6 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.recognise.model_file import (  # noqa: F401
         FILE_MAGIC,
         FORMAT_VERSION,
-        load_linear_classifier,
-        save_linear_classifier,
     )
     from tlessbot_ros.core.recognise.shape import (  # noqa: F401
         ShapeParams,

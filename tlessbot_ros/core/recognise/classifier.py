@@ -29,14 +29,20 @@ References:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 
 from tlessbot_ros.core.recognise.feature_map import RbfFeatureMap
-from tlessbot_ros.core.recognise.hog import HogParams, _box_from_mask, describe_regions
-from tlessbot_ros.core.recognise.model import UNKNOWN_ID
+from tlessbot_ros.core.recognise.hog import HogParams, box_from_mask, describe_regions
+from tlessbot_ros.core.recognise.model import LOADERS, UNKNOWN_ID
+from tlessbot_ros.core.recognise.model_file import (
+    FILE_MAGIC,
+    corrupt_model,
+    read_linear_classifier,
+    write_linear_classifier,
+)
 from tlessbot_ros.core.recognise.shape import (
     ShapeParams,
     region_points_world,
@@ -146,7 +152,7 @@ class LinearClassifier:
             region's shape part is ``shape_fill``.
         """
         if boxes is None and masks is not None:  # one box per mask, shared by both steps
-            boxes = [_box_from_mask(mask) for mask in masks]
+            boxes = [box_from_mask(mask) for mask in masks]
         hog = describe_regions(image, boxes, masks, params=self.hog_params)
         if self.shape_params is None:
             return hog
@@ -210,17 +216,32 @@ class LinearClassifier:
 
     def save(self, path: str | Path) -> None:
         """Write the model as a compressed ``.npz`` (no pickled objects); the keys are listed
-        in :func:`~tlessbot_ros.core.recognise.model_file.save_linear_classifier`."""
-        from tlessbot_ros.core.recognise.model_file import save_linear_classifier
-
-        save_linear_classifier(self, path)
+        in :func:`~tlessbot_ros.core.recognise.model_file.write_linear_classifier`."""
+        write_linear_classifier(path, **{f.name: getattr(self, f.name) for f in fields(self)})
 
     @classmethod
     def load(cls, path: str | Path) -> LinearClassifier:
         """Read a model written by :meth:`save`; raises ``ModelFileError`` if it is not one."""
-        from tlessbot_ros.core.recognise.model_file import load_linear_classifier
+        kwargs = read_linear_classifier(path)
+        try:
+            return cls(**kwargs)
+        except (ValueError, TypeError) as error:
+            raise corrupt_model(Path(path), error) from None
 
-        return load_linear_classifier(path)
+
+def save_linear_classifier(model: LinearClassifier, path: str | Path) -> None:
+    """Write ``model`` as a compressed ``.npz`` (:meth:`LinearClassifier.save`)."""
+    model.save(path)
+
+
+def load_linear_classifier(path: str | Path) -> LinearClassifier:
+    """Read a model written by :func:`save_linear_classifier` (:meth:`LinearClassifier.load`);
+    raises ``ModelFileError`` if it is not one (missing, unreadable, another magic, a newer
+    format or corrupt)."""
+    return LinearClassifier.load(path)
+
+
+LOADERS[FILE_MAGIC] = load_linear_classifier
 
 
 def _box_mask(box, shape: tuple[int, int]) -> np.ndarray:

@@ -102,7 +102,7 @@ def _to_gray(image: np.ndarray) -> np.ndarray:
     raise ValueError(f'image must be (H, W) grey or (H, W, 3|4) RGB(A), got shape {image.shape}')
 
 
-def _box_from_mask(mask: np.ndarray) -> tuple[int, int, int, int]:
+def box_from_mask(mask: np.ndarray) -> tuple[int, int, int, int]:
     box = mask_box(mask)
     if box[2] == 0:
         raise ValueError('mask is empty: nothing to crop')
@@ -155,7 +155,7 @@ def normalise_crop(image: np.ndarray, box: Sequence[float] | None = None,
         if mask.shape != gray.shape:
             raise ValueError(f'mask shape {mask.shape} differs from image shape {gray.shape}')
     if box is None:
-        box = _box_from_mask(mask) if mask is not None else (0, 0, gray.shape[1], gray.shape[0])
+        box = box_from_mask(mask) if mask is not None else (0, 0, gray.shape[1], gray.shape[0])
     x0, y0, side = _square_window(box, params.margin_frac)
     n = params.crop_px
     if mask is None:

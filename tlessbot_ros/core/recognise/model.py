@@ -11,7 +11,7 @@ To add a kind of model (a kernel SVM, a small network):
 2. give its model file its own ``magic`` entry (read it with :func:`read_model_arrays`, so
    ``allow_pickle=False`` and the ``ModelFileError`` messages hold) and, at the end of the
    module that reads the file, register the reader: ``LOADERS[MY_MAGIC] = load_my_model``
-   (as ``model_file.py`` does for ``LinearClassifier``);
+   (as ``classifier.py`` does for ``LinearClassifier``);
 3. add that module's name to :data:`_REGISTERING` below, so that :func:`load_classifier`
    imports it (and so registers the reader) before it looks the magic up;
 4. export the new names in this package's ``__init__.py`` (``_HOME``).
@@ -70,7 +70,7 @@ class Classifier(Protocol):
 LOADERS: dict[str, Callable[[Path], Classifier]] = {}
 
 # modules of this package that register a loader in LOADERS when imported
-_REGISTERING = ('model_file',)
+_REGISTERING = ('classifier',)
 
 
 def read_model_arrays(path: str | Path, keys: tuple[str, ...] | None = None

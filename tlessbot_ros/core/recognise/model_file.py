@@ -2,22 +2,23 @@
 ``.npz`` of plain arrays and JSON strings, read with ``allow_pickle=False`` (a model file can
 come from anywhere; unpickling one could run code).
 
-Importing this module registers :func:`load_linear_classifier` for :data:`FILE_MAGIC` in
-:data:`~tlessbot_ros.core.recognise.model.LOADERS`, which
-:func:`~tlessbot_ros.core.recognise.load_classifier` reads.
+This module knows the file, not the class: it writes a model's fields and reads them back as
+the class's keyword arguments. :mod:`.classifier` builds the model from them and registers
+``load_linear_classifier`` for :data:`FILE_MAGIC` in
+:data:`~tlessbot_ros.core.recognise.model.LOADERS`.
 """
 from __future__ import annotations
 
 import json
 from dataclasses import fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from tlessbot_ros.core.recognise.classifier import LinearClassifier
 from tlessbot_ros.core.recognise.feature_map import RbfFeatureMap
 from tlessbot_ros.core.recognise.hog import HogParams
-from tlessbot_ros.core.recognise.model import LOADERS, read_model_arrays
+from tlessbot_ros.core.recognise.model import read_model_arrays
 from tlessbot_ros.core.recognise.shape import ShapeParams
 from tlessbot_ros.errors import ModelFileError
 
@@ -25,8 +26,12 @@ FORMAT_VERSION = 3  # 2 adds shape_params / shape_fill, 3 the feature map; 1 and
 FILE_MAGIC = 'tlessbot_ros.linear_classifier'
 
 
-def save_linear_classifier(model: LinearClassifier, path: str | Path) -> None:
-    """Write the model as a compressed ``.npz`` (no pickled objects).
+def write_linear_classifier(path: str | Path, *, weights: np.ndarray, intercepts: np.ndarray,
+                            class_ids: np.ndarray, hog_params: HogParams, kind: str,
+                            reject_margin: float, info: dict, shape_params: ShapeParams | None,
+                            shape_fill: np.ndarray | None, feature_map: RbfFeatureMap | None,
+                            margin_scale: float) -> None:
+    """Write a linear model's fields as a compressed ``.npz`` (no pickled objects).
 
     Keys: ``magic``, ``format_version``, ``kind``, ``weights`` (D, C) float32,
     ``intercepts`` (C,) float32, ``class_ids`` (C,) int64, ``hog_params`` (JSON),
@@ -35,30 +40,29 @@ def save_linear_classifier(model: LinearClassifier, path: str | Path) -> None:
     ``map_projection`` (D, k) and ``map_landmarks`` (M, k) float16, ``map_gamma`` (all
     empty / 0 without a feature map), ``margin_scale`` (absent from older files: 0).
     """
-    fmap = model.feature_map
+    fmap = feature_map
     empty = np.zeros(0, np.float32)
-    shape_json = json.dumps(None if model.shape_params is None else
-                            model.shape_params.to_dict())
-    fill = empty if model.shape_fill is None else model.shape_fill
+    shape_json = json.dumps(None if shape_params is None else shape_params.to_dict())
+    fill = empty if shape_fill is None else shape_fill
     np.savez_compressed(
         Path(path), magic=np.array(FILE_MAGIC), format_version=np.array(FORMAT_VERSION),
-        kind=np.array(model.kind), weights=model.weights.astype(np.float32),
-        intercepts=model.intercepts.astype(np.float32),
-        class_ids=model.class_ids.astype(np.int64),
-        hog_params=np.array(json.dumps(model.hog_params.to_dict())),
-        reject_margin=np.array(float(model.reject_margin)),
-        info=np.array(json.dumps(model.info)), shape_params=np.array(shape_json),
+        kind=np.array(kind), weights=weights.astype(np.float32),
+        intercepts=intercepts.astype(np.float32), class_ids=class_ids.astype(np.int64),
+        hog_params=np.array(json.dumps(hog_params.to_dict())),
+        reject_margin=np.array(float(reject_margin)),
+        info=np.array(json.dumps(info)), shape_params=np.array(shape_json),
         shape_fill=np.asarray(fill, np.float32),
         map_mean=empty if fmap is None else fmap.mean,
         map_projection=empty if fmap is None else fmap.projection.astype(np.float16),
         map_landmarks=empty if fmap is None else fmap.landmarks.astype(np.float16),
         map_gamma=np.array(0.0 if fmap is None else fmap.gamma),
-        margin_scale=np.array(float(model.margin_scale)))
+        margin_scale=np.array(float(margin_scale)))
 
 
-def load_linear_classifier(path: str | Path) -> LinearClassifier:
-    """Read a model written by :func:`save_linear_classifier`; raises ``ModelFileError`` if
-    it is not one (missing, unreadable, another magic, a newer format or corrupt)."""
+def read_linear_classifier(path: str | Path) -> dict[str, Any]:
+    """The fields of a model written by :func:`write_linear_classifier`, as the keyword
+    arguments of ``LinearClassifier``; raises ``ModelFileError`` if it is not one (missing,
+    unreadable, another magic, a newer format or corrupt)."""
     path = Path(path)
     arrays = read_model_arrays(path)
     if str(arrays.get('magic', '')) != FILE_MAGIC:
@@ -81,17 +85,19 @@ def load_linear_classifier(path: str | Path) -> LinearClassifier:
                 projection=arrays['map_projection'].astype(np.float32),
                 landmarks=arrays['map_landmarks'].astype(np.float32),
                 gamma=float(arrays['map_gamma']))
-        return LinearClassifier(weights=arrays['weights'].astype(np.float32),
-                                intercepts=arrays['intercepts'].astype(np.float32),
-                                class_ids=arrays['class_ids'].astype(np.int64),
-                                hog_params=hog_params, kind=str(arrays['kind']),
-                                reject_margin=float(arrays['reject_margin']),
-                                info=json.loads(str(arrays['info'])), shape_params=shape_params,
-                                shape_fill=None if shape_params is None else
-                                arrays['shape_fill'].astype(np.float32), feature_map=feature_map,
-                                margin_scale=float(arrays.get('margin_scale', 0.0)))
+        return dict(weights=arrays['weights'].astype(np.float32),
+                    intercepts=arrays['intercepts'].astype(np.float32),
+                    class_ids=arrays['class_ids'].astype(np.int64),
+                    hog_params=hog_params, kind=str(arrays['kind']),
+                    reject_margin=float(arrays['reject_margin']),
+                    info=json.loads(str(arrays['info'])), shape_params=shape_params,
+                    shape_fill=None if shape_params is None else
+                    arrays['shape_fill'].astype(np.float32), feature_map=feature_map,
+                    margin_scale=float(arrays.get('margin_scale', 0.0)))
     except (KeyError, ValueError, TypeError) as error:
-        raise ModelFileError(f'{path} is a corrupt classifier model: {error}') from None
+        raise corrupt_model(path, error) from None
 
 
-LOADERS[FILE_MAGIC] = load_linear_classifier
+def corrupt_model(path: Path, error: Exception) -> ModelFileError:
+    """The error for a model file whose fields do not make a model."""
+    return ModelFileError(f'{path} is a corrupt classifier model: {error}')

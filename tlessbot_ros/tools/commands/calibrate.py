@@ -59,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tlessbot_ros.core.calibrate.scene import SceneCalibrationParams
+    from tlessbot_ros.core.calibrate import SceneCalibrationParams
     from tlessbot_ros.io.config import default_config_path
     from tlessbot_ros.tools.support.calibration import (
         bag_frames,

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from tlessbot_ros.core.calibrate.board import BoardSpec, CameraCalibration, board_on_table
+from tlessbot_ros.core.calibrate import BoardSpec, CameraCalibration, board_on_table
 from tlessbot_ros.core.common import Rig, rotation_angle_deg
 from tlessbot_ros.errors import CalibrationError, TlessbotError
 
@@ -167,7 +167,7 @@ def calibrate_with_board(bag_path: Path, rig_prior: Rig, board: BoardSpec, *,
         BagError: unreadable bag or missing topics.
         CalibrationError: a camera did not see the board in any image.
     """
-    from tlessbot_ros.core.calibrate.board import calibrate_rig
+    from tlessbot_ros.core.calibrate import calibrate_rig
 
     cameras = list(rig_prior.cameras)
     frames = read_colour_frames(Path(bag_path), cameras, max_frames=max_frames)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tlessbot_ros.core.calibrate.scene import (
+from tlessbot_ros.core.calibrate import (
     RigErrors,
     RigEstimate,
     SceneCalibrationParams,

@@ -45,7 +45,7 @@ def moved_pose(T_world_camera: np.ndarray, rng: np.random.Generator, *, offset_m
 
 
 def run(args: argparse.Namespace) -> int:
-    from tlessbot_ros.core.calibrate.board import BoardSpec
+    from tlessbot_ros.core.calibrate import BoardSpec
     from tlessbot_ros.core.common import CameraMount, Rig
     from tlessbot_ros.errors import TlessbotError
     from tlessbot_ros.io.config import default_config_path

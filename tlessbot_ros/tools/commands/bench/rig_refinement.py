@@ -33,12 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from tlessbot_ros.core.calibrate import rig_errors
     from tlessbot_ros.core.calibrate.refinement import (
         RigRefinementParams,
         RigRefiner,
         refined_pipeline,
     )
-    from tlessbot_ros.core.calibrate.scene import rig_errors
     from tlessbot_ros.core.common import CameraMount, Rig
     from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
     from tlessbot_ros.tools.support.calibration import bag_frames

@@ -1,0 +1,247 @@
+"""The ``'calibrated'`` fusion method (ours, :mod:`.two_view`): each top blob lifted into the
+world, extruded down to the table and projected into the side camera, far-to-near, predicts
+where each object is visible in the side view; a side blob that holds several predictions is
+divided by a watershed seeded with them."""
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+
+from tlessbot_ros.core.common import Rig, pixel_counts, transform_points
+from tlessbot_ros.core.localise.fusion_result import (
+    FusionParams,
+    FusionResult,
+    instances_from_labels,
+)
+from tlessbot_ros.core.localise.instances import fill_from_nearest
+from tlessbot_ros.core.localise.segmentation import Segmentation
+
+
+# --------------------------------------------------------------------------- calibrated
+def lift_top_blobs(top_labels: np.ndarray, rig: Rig, *, depth_top_m: np.ndarray | None = None,
+                   params: FusionParams = FusionParams(),
+                   top_name: str = 'top') -> dict[int, np.ndarray]:
+    """World points (metres, (N, 3) float64) of each top blob, extruded down to the table.
+
+    With ``depth_top_m`` (NaN read as 0, inf as the largest float, as ``np.nan_to_num``
+    does) the blob's valid depth pixels are back-projected (points within
+    ``[min_height_m, max_height_m]`` above the table are kept); without it, or when too few
+    remain, the pixel rays are cut with the planes z = 0 and z = ``prism_height_m``. Every
+    point is then also dropped vertically onto the table (z = 0), since a part standing on
+    the table fills the space under its top surface.
+    """
+    mount = rig[top_name]
+    K = mount.intrinsics.K
+    step = params.pixel_step
+    sub = top_labels[::step, ::step]   # the pixels used, in row-major order
+    out: dict[int, np.ndarray] = {}
+    n = int(top_labels.max(initial=0))
+    ys_all, xs_all = np.nonzero(sub)
+    ids_all = sub[ys_all, xs_all]
+    ys_all, xs_all = ys_all * step, xs_all * step
+    order = np.argsort(ids_all, kind='stable')
+    ys_all, xs_all, ids_all = ys_all[order], xs_all[order], ids_all[order]
+    bounds = np.searchsorted(ids_all, np.arange(1, n + 2))
+    R, t = mount.T_world_camera[:3, :3], mount.T_world_camera[:3, 3]
+    for k in range(1, n + 1):
+        ys, xs = ys_all[bounds[k - 1]:bounds[k]], xs_all[bounds[k - 1]:bounds[k]]
+        if ys.size == 0:
+            continue
+        pts = np.empty((0, 3))
+        if depth_top_m is not None:
+            # NaN as 0 and inf as the largest float, read for the blob's pixels only (it was
+            # done to the whole image before: the same values)
+            z = np.nan_to_num(depth_top_m[ys, xs]).astype(np.float64)
+            ok = np.isfinite(z) & (z > 0)
+            if ok.any():
+                cam = np.column_stack([(xs[ok] - K[0, 2]) * z[ok] / K[0, 0],
+                                       (ys[ok] - K[1, 2]) * z[ok] / K[1, 1], z[ok]])
+                pts = cam @ R.T + t
+                keep = (pts[:, 2] > params.min_height_m) & (pts[:, 2] < params.max_height_m)
+                pts = pts[keep]
+        if len(pts) < 10:
+            rays = np.column_stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1],
+                                    np.ones(xs.size)]) @ R.T
+            good = rays[:, 2] < -1e-9
+            layers = []
+            for h in (0.0, params.prism_height_m):
+                s = (h - t[2]) / rays[good, 2]
+                layers.append(t + rays[good] * s[:, None])
+            pts = np.concatenate(layers) if layers else pts
+        floor = pts.copy()
+        floor[:, 2] = 0.0
+        out[k] = np.concatenate([pts, floor])
+    return out
+
+
+def predict_side_regions(points: dict[int, np.ndarray], rig: Rig, *,
+                         side_name: str = 'side') -> np.ndarray:
+    """Paint the convex hull of each object's projected points into the side image, far first.
+
+    Returns:
+        (H, W) uint16 predicted visible id per side pixel (0 = none).
+    """
+    mount = rig[side_name]
+    K, size = mount.intrinsics.K, (mount.intrinsics.height, mount.intrinsics.width)
+    pred = np.zeros(size, np.uint16)
+    order = []
+    for k, pts in points.items():
+        cam = transform_points(mount.T_camera_world, pts)
+        cam = cam[cam[:, 2] > 0.05]
+        if len(cam) < 3:
+            continue
+        uv = np.column_stack([K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2],
+                              K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]])
+        order.append((float(np.linalg.norm(cam, axis=1).mean()), k, uv))
+    for _, k, uv in sorted(order, key=lambda o: -o[0]):
+        uv = np.clip(uv, -4 * size[1], 4 * size[1])
+        hull = cv2.convexHull(np.round(uv).astype(np.int32))
+        cv2.fillConvexPoly(pred, hull, int(k))
+    return pred
+
+
+def _side_prediction(top_labels: np.ndarray, side_shape: tuple[int, ...], rig: Rig,
+                     depth_top_m: np.ndarray | None, params: FusionParams, top_name: str,
+                     side_name: str) -> np.ndarray:
+    """The (H, W) side view's predicted ids of the top blobs (:func:`predict_side_regions`)."""
+    if depth_top_m is not None and depth_top_m.shape != top_labels.shape:
+        raise ValueError(f'depth_top_m shape {depth_top_m.shape} differs from the top labels '
+                         f'{top_labels.shape}; align depth to colour first')
+    points = lift_top_blobs(top_labels, rig, depth_top_m=depth_top_m, params=params,
+                            top_name=top_name)
+    pred = predict_side_regions(points, rig, side_name=side_name)
+    if pred.shape != side_shape:
+        raise ValueError(f'side image {side_shape} differs from the rig side camera '
+                         f'{pred.shape}')
+    return pred
+
+
+def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
+                      depth_top_m: np.ndarray | None, side_rgb: np.ndarray | None,
+                      params: FusionParams, top_name: str, side_name: str) -> FusionResult:
+    """The ``'calibrated'`` fusion of a top and a side segmentation (``fuse_views``)."""
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    top_labels = top.labels.astype(np.uint16)
+    pred = _side_prediction(top_labels, side.labels.shape, rig, depth_top_m, params, top_name,
+                            side_name)
+    t1 = time.perf_counter()
+    timings['predict'] = (t1 - t0) * 1e3
+    n_top = int(top_labels.max(initial=0))
+    pred_area = pixel_counts(pred, minlength=n_top + 1)
+    side_fg = side.labels > 0
+    n_blobs, blobs, stats, _ = cv2.connectedComponentsWithStats(side_fg.astype(np.uint8),
+                                                                connectivity=8)
+    # Overlap table: rows = side blobs, columns = predicted ids.
+    both = side_fg & (pred > 0)
+    overlap = np.bincount(blobs[both].astype(np.int64) * (n_top + 1) + pred[both],
+                          minlength=n_blobs * (n_top + 1)).reshape(n_blobs, n_top + 1)
+    side_labels = np.zeros(side.labels.shape, np.uint16)
+    split_ids: set[int] = set()
+    next_id = n_top + 1
+    kernel = cv2.getStructuringElement(
+        cv2.MORPH_ELLIPSE, (2 * params.seed_erode_px + 1, 2 * params.seed_erode_px + 1))
+    for b in range(1, n_blobs):
+        owners = [k for k in range(1, n_top + 1)
+                  if overlap[b, k] >= params.min_overlap_px
+                  and pred_area[k] >= params.min_visible_px
+                  and overlap[b, k] >= params.min_overlap_fraction * pred_area[k]]
+        # Work in the blob's box plus a 1-pixel margin instead of the whole image: a few small
+        # parts cover a few % of it.
+        x, y, w, h = (int(v) for v in stats[b, :4])
+        window = (slice(max(y - 1, 0), y + h + 1), slice(max(x - 1, 0), x + w + 1))
+        blob = blobs[window] == b
+        out = side_labels[window]
+        if not owners and n_top > 0:
+            # A fragment (e.g. of a dark part on a dark square) lying inside one prediction.
+            best = int(np.argmax(overlap[b, 1:])) + 1
+            if overlap[b, best] >= params.fragment_fraction * stats[b, cv2.CC_STAT_AREA]:
+                owners = [best]
+        if not owners and params.drop_unpredicted:
+            continue
+        if not owners:
+            # Not predicted from the top: keep the side segmentation's own instances.
+            own = side.labels[window]
+            for j in np.unique(own[blob]):
+                if j:
+                    out[blob & (own == j)] = next_id
+                    next_id += 1
+        elif len(owners) == 1:
+            pieces = _depth_pieces_of_blob(blob, side.labels[window], side.depth_groups,
+                                           params) if params.keep_depth_splits else []
+            if len(pieces) < 2:
+                out[blob] = owners[0]
+            else:
+                mine = pred[window] == owners[0]
+                first = int(np.argmax([np.count_nonzero(p & mine) for p in pieces]))
+                for j, piece in enumerate(pieces):
+                    if j == first:
+                        out[piece] = owners[0]
+                    else:
+                        out[piece] = next_id
+                        next_id += 1
+                split_ids.add(owners[0])
+        else:
+            out[blob] = _divide_among_owners(blob, pred[window], owners,
+                                             None if side_rgb is None else side_rgb[window],
+                                             kernel)
+            split_ids.update(owners)
+    timings['split'] = (time.perf_counter() - t1) * 1e3
+    labels = {'top': top_labels, 'side': side_labels}
+    return FusionResult(labels=labels, method='calibrated', predicted_side=pred,
+                        instances=instances_from_labels(top_labels, side_labels, split_ids),
+                        timings_ms=timings)
+
+
+def _depth_pieces_of_blob(blob: np.ndarray, own: np.ndarray, depth_groups: np.ndarray,
+                          params: FusionParams) -> list[np.ndarray]:
+    """The pieces of one side blob that its segmentation's depth split made: one bool mask
+    per depth group (the blob's pixels of other labels join the nearest piece); none unless
+    there are two or more, each with ``min_visible_px`` pixels.
+
+    ``blob`` and ``own`` (the side segmentation's labels) are cut to the blob's window."""
+    ids = np.unique(own[blob])
+    ids = ids[(ids > 0) & (ids <= len(depth_groups))]
+    groups = depth_groups[ids - 1] if ids.size else ids
+    if np.count_nonzero(np.unique(groups)) < 2:
+        return []
+    group_of = np.zeros(int(own.max()) + 1, np.int32)
+    group_of[ids] = groups
+    grouped = np.where(blob, group_of[own], 0)
+    holes = blob & (grouped == 0)
+    if holes.any():
+        fill_from_nearest(grouped, holes)
+    pieces = [grouped == g for g in np.unique(groups) if g]
+    if any(np.count_nonzero(p) < params.min_visible_px for p in pieces):
+        return []
+    return pieces
+
+
+def _divide_among_owners(blob: np.ndarray, pred: np.ndarray, owners: list[int],
+                         rgb: np.ndarray | None, kernel: np.ndarray) -> np.ndarray:
+    """Ids for the pixels of one side blob held by several predicted objects.
+
+    ``blob``, ``pred`` and ``rgb`` are cut to the blob's box plus a 1-pixel margin (clipped at
+    the image border), so the watershed's background marker surrounds the blob."""
+    markers = np.zeros(blob.shape, np.int32)
+    markers[~blob] = 1
+    for k in owners:
+        seed = cv2.erode(((pred == k) & blob).astype(np.uint8), kernel).astype(bool)
+        if not seed.any():
+            seed = (pred == k) & blob
+        markers[seed] = k + 1
+    if rgb is not None:
+        image = np.ascontiguousarray(cv2.GaussianBlur(rgb, (3, 3), 0))
+    else:
+        image = np.zeros(blob.shape + (3,), np.uint8)
+    cv2.watershed(image, markers)
+    ids = np.where(blob & (markers > 1), markers - 1, 0)
+    # Pixels left (watershed lines) take the nearest assigned id.
+    holes = blob & (ids == 0)
+    if holes.any() and (ids > 0).any():
+        fill_from_nearest(ids, holes)
+    return ids[blob].astype(np.uint16)
+
+__all__ = ['calibrated_fusion', 'lift_top_blobs', 'predict_side_regions']

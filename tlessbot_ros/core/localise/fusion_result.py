@@ -1,0 +1,147 @@
+"""What the fusion of the two views (:mod:`.two_view`) is tuned with and gives: the instances
+with one id in both views."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tlessbot_ros.core.localise.instances import boxes_from_labels
+
+FUSION_METHODS = ('side_only', 'algorithm1', 'calibrated')
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    """Tuning of :func:`fuse_views`.
+
+    Attributes:
+        method: one of ``FUSION_METHODS``.
+        prism_height_m: height of the prism a top blob is lifted to when there is no top depth.
+        min_height_m: lifted points lower than this above the table are table (ignored).
+        max_height_m: lifted points higher than this are noise (ignored).
+        pixel_step: use every n-th pixel of a top blob when lifting it (speed).
+        min_overlap_px: smallest overlap (pixels) of a predicted region with a side blob for a
+            match.
+        min_overlap_fraction: ... and as a fraction of the predicted visible region.
+        min_visible_px: a prediction with fewer visible side pixels than this is treated as
+            occluded in the side view.
+        seed_erode_px: predicted regions are eroded by this radius before seeding the split.
+        fragment_fraction: a side blob matching no prediction by the rules above but lying
+            at least this much inside one joins it (fragments of one part share its id).
+        drop_unpredicted: drop side blobs that no top blob predicts (fewer false positives
+            when the top view sees the whole work area; off by default).
+        keep_depth_splits: a side blob that one top blob predicts but whose side
+            segmentation divided it by depth (``Segmentation.depth_groups``: two parts whose
+            seam the side depth shows, e.g. one in front of the other, that the top view saw
+            as one) keeps those pieces apart: the piece the prediction covers most takes the
+            top blob's id, the others new ids (seen from the side only).
+        box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
+            in a side box.
+    """
+
+    method: str = 'calibrated'
+    prism_height_m: float = 0.03
+    min_height_m: float = 0.003
+    max_height_m: float = 0.30
+    pixel_step: int = 2
+    min_overlap_px: int = 40
+    min_overlap_fraction: float = 0.15
+    min_visible_px: int = 40
+    seed_erode_px: int = 2
+    box_margin_px: int = 6
+    fragment_fraction: float = 0.5
+    drop_unpredicted: bool = False
+    keep_depth_splits: bool = True
+
+    def __post_init__(self) -> None:
+        if self.method not in FUSION_METHODS:
+            raise ValueError(f'method must be one of {FUSION_METHODS}, got {self.method!r}')
+        if self.pixel_step < 1:
+            raise ValueError(f'pixel_step must be >= 1, got {self.pixel_step}')
+        if not 0.0 <= self.min_overlap_fraction <= 1.0:
+            raise ValueError('min_overlap_fraction must be in [0, 1], got '
+                             f'{self.min_overlap_fraction}')
+
+
+@dataclass
+class FusedInstance:
+    """One object after fusion.
+
+    Attributes:
+        instance_id: its id in both label images (1..65535).
+        in_top, in_side: whether it has pixels in that view's label image.
+        box_top, box_side: (x, y, w, h) int pixels in that view, or None.
+        area_top, area_side: pixel counts.
+        split: True if its side pixels were cut out of a blob holding several objects.
+    """
+
+    instance_id: int
+    in_top: bool
+    in_side: bool
+    box_top: tuple[int, int, int, int] | None = None
+    box_side: tuple[int, int, int, int] | None = None
+    area_top: int = 0
+    area_side: int = 0
+    split: bool = False
+
+    @property
+    def views(self) -> tuple[str, ...]:
+        return tuple(v for v, on in (('top', self.in_top), ('side', self.in_side)) if on)
+
+    @property
+    def preferred_view(self) -> str:
+        """The view the pose estimator should use: side when visible there, else top."""
+        return 'side' if self.in_side else 'top'
+
+
+@dataclass
+class FusionResult:
+    """Output of :func:`fuse_views` for one frame pair.
+
+    Attributes:
+        labels: {'top': (H, W) uint16, 'side': (H, W) uint16}, 0 = background, one id per
+            object shared by both views.
+        instances: the objects, sorted by id.
+        method: the method used.
+        predicted_side: (H, W) uint16 predicted visible side regions (calibrated method only;
+            ids as in ``labels``), for inspection.
+        timings_ms: wall time per stage.
+    """
+
+    labels: dict[str, np.ndarray]
+    instances: list[FusedInstance]
+    method: str
+    predicted_side: np.ndarray | None = None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    def instance(self, instance_id: int) -> FusedInstance:
+        for inst in self.instances:
+            if inst.instance_id == instance_id:
+                return inst
+        raise KeyError(f'no instance {instance_id}')
+
+# --------------------------------------------------------------------------- helpers
+def instances_from_labels(top_labels: np.ndarray, side_labels: np.ndarray,
+                           split_ids: set[int]) -> list[FusedInstance]:
+    n = int(max(top_labels.max(initial=0), side_labels.max(initial=0)))
+    if n == 0:
+        return []
+    tb, ta = boxes_from_labels(top_labels)
+    sb, sa = boxes_from_labels(side_labels)
+    out = []
+    for i in range(1, n + 1):
+        at = int(ta[i - 1]) if i <= ta.size else 0
+        as_ = int(sa[i - 1]) if i <= sa.size else 0
+        if at == 0 and as_ == 0:
+            continue
+        out.append(FusedInstance(
+            instance_id=i, in_top=at > 0, in_side=as_ > 0,
+            box_top=tuple(int(v) for v in tb[i - 1]) if at else None,
+            box_side=tuple(int(v) for v in sb[i - 1]) if as_ else None,
+            area_top=at, area_side=as_, split=i in split_ids))
+    return out
+
+
+__all__ = ['FUSION_METHODS', 'FusedInstance', 'FusionParams', 'FusionResult',
+           'instances_from_labels']

@@ -1,0 +1,83 @@
+"""One part's pose fit within a frame (stage 3 of :mod:`tlessbot_ros.core.pipeline`): its class
+candidates fitted in order, the best kept (verification by geometry), then the look-alike check
+on every view that sees it. A worker process runs :func:`fit_part` alone (it has no views)."""
+from __future__ import annotations
+
+import numpy as np
+
+from tlessbot_ros.core.frame import PartJob
+from tlessbot_ros.core.params import FitParams
+from tlessbot_ros.core.pose import LookalikeCheck, PoseEstimator, TemplateDatabase
+
+
+def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
+    """Fit one part's class candidates in order and keep the best (fills the detection's
+    class, rank and poses); stop at the first whose fitness reaches
+    ``verify_accept_fitness``.
+
+    With several candidates and a table frame, each is fitted by the table path alone
+    and unpolished (a wrong class fits poorly, and the fallback would spend its time on
+    it; the polish, ``PoseParams.polish_iterations``, would let it converge as well as the
+    right one): the fits name the class, then the winner's finalists alone are polished
+    (:meth:`PoseEstimator.polish`) and the fallback runs once, for the winner, if its fit
+    stays poor. The look-alike check comes after, in the pipeline's ``estimate_poses``
+    (:func:`check_lookalike`)."""
+    detection, points, T_world_camera = job.detection, job.points, job.T_world_camera
+    quick = len(job.candidates) > 1 and T_world_camera is not None
+    best_value, winner = None, None
+    scenes: dict[float, np.ndarray] = {}   # the ROI prepared once per voxel edge
+    for rank, obj_id in enumerate(job.candidates):
+        result = estimator.estimate(points, obj_id, T_world_camera=T_world_camera,
+                                    fallback=False if quick else None,
+                                    polish=False if quick else None, scenes=scenes)
+        if result.best is None:
+            continue
+        value = result.best.fitness - params.verify_rmse_weight * result.best.inlier_rmse_m
+        if best_value is None or value > best_value:
+            best_value, winner = value, result
+            detection.obj_id, detection.class_rank = obj_id, rank
+        if rank == 0 and result.best.fitness >= params.verify_accept_fitness:
+            break
+    if winner is not None:
+        if quick:
+            winner = estimator.polish(points, winner, scenes=scenes)
+        detection.pose, detection.second = winner.best, winner.second
+    pose_params = estimator.params
+    if quick and detection.pose is not None and pose_params.fallback and \
+            params.fallback_min_fitness <= detection.pose.fitness < pose_params.fallback_fitness:
+        result = estimator.estimate(points, detection.obj_id, T_world_camera=T_world_camera,
+                                    scenes=scenes)
+        if result.best is not None and result.best.score > detection.pose.score:
+            detection.pose, detection.second = result.best, result.second
+
+
+def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob) -> None:
+    """A fitted part whose class has a look-alike is compared with it at the fitted pose,
+    on the depth of its view and of ``job.more_views`` (``lookalike_*``); the look-alike
+    names the part when it explains that depth better by a clear margin."""
+    detection = job.detection
+    if lookalike is None or detection.pose is None or detection.obj_id not in lookalike:
+        return
+    winner, _ = lookalike.resolve(detection.obj_id, detection.pose.T_camera_object,
+                                  job.points, more_views=job.more_views)
+    if winner != detection.obj_id:
+        # the twins share their model frame, so the fitted pose is the twin's too
+        detection.obj_id = winner
+        detection.class_rank = job.candidates.index(winner) \
+            if winner in job.candidates else len(job.candidates)
+
+
+def lookalike_check(database: TemplateDatabase, fit: FitParams) -> LookalikeCheck | None:
+    """The look-alike check ``fit``'s ``lookalike_*`` ask for (None when it is off)."""
+    if not fit.lookalike_check:
+        return None
+    return database.lookalike_check(tolerance_m=fit.lookalike_tolerance_m,
+                                    min_z=fit.lookalike_min_z)
+
+
+def lookalike_options(fit: FitParams) -> tuple[bool, float, float]:
+    """The fields of ``fit`` the look-alike check is built with."""
+    return fit.lookalike_check, fit.lookalike_tolerance_m, fit.lookalike_min_z
+
+
+__all__ = ['check_lookalike', 'fit_part', 'lookalike_check', 'lookalike_options']
