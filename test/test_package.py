@@ -33,22 +33,33 @@ def test_core_never_imports_ros_or_upper_layers():
 
 
 STAGES = ('localise', 'recognise', 'pose')
+# core modules above the stages: the pipeline that composes them and what it is made of
+ABOVE_STAGES = tuple(f'tlessbot_ros.core.{name}' for name in (
+    'pipeline', 'metrics', 'frame', 'label_views', 'part_fit', 'fragments', 'calibrate'))
 
 
 def test_each_stage_imports_only_itself_and_common():
     core = REPO / 'tlessbot_ros' / 'core'
     for stage in STAGES:
-        others = tuple(f'tlessbot_ros.core.{s}' for s in STAGES if s != stage) + (
-            'tlessbot_ros.core.pipeline', 'tlessbot_ros.core.metrics')
+        others = tuple(f'tlessbot_ros.core.{s}' for s in STAGES if s != stage) + ABOVE_STAGES
         assert not _imports_of(core / stage, others), stage
-    assert not _imports_of(core / 'common', tuple(f'tlessbot_ros.core.{s}' for s in STAGES) + (
-        'tlessbot_ros.core.pipeline', 'tlessbot_ros.core.metrics'))
+    assert not _imports_of(core / 'common',
+                           tuple(f'tlessbot_ros.core.{s}' for s in STAGES) + ABOVE_STAGES)
+
+
+def test_calibration_sits_on_top_of_core():
+    """core/calibrate uses the pipeline; nothing else in core uses it."""
+    core = REPO / 'tlessbot_ros' / 'core'
+    for path in core.glob('*.py'):
+        assert not _imports_of_file(path, ('tlessbot_ros.core.calibrate',)), path.name
+    for package in ('common',) + STAGES:
+        assert not _imports_of(core / package, ('tlessbot_ros.core.calibrate',)), package
 
 
 def test_stage_packages_export_an_explicit_api():
     import importlib
 
-    for package in ('common',) + STAGES:
+    for package in ('common', 'calibrate') + STAGES:
         module = importlib.import_module(f'tlessbot_ros.core.{package}')
         assert module.__all__, package
         for name in module.__all__:
@@ -73,13 +84,18 @@ def test_pose_workers_never_import_ros_or_upper_layers():
 
 def _imports_of(folder: Path, forbidden: tuple[str, ...]) -> list[str]:
     """Import lines under ``folder`` that name one of ``forbidden``."""
+    return [offender for path in folder.rglob('*.py')
+            for offender in _imports_of_file(path, forbidden)]
+
+
+def _imports_of_file(path: Path, forbidden: tuple[str, ...]) -> list[str]:
+    """Import lines of ``path`` that name one of ``forbidden``."""
     offenders = []
-    for path in folder.rglob('*.py'):
-        for line in path.read_text().splitlines():
-            stripped = line.strip()
-            if stripped.startswith(('import ', 'from ')) and any(
-                    f' {name}' in stripped for name in forbidden):
-                offenders.append(f'{path.name}: {stripped}')
+    for line in path.read_text().splitlines():
+        stripped = line.strip()
+        if stripped.startswith(('import ', 'from ')) and any(
+                f' {name}' in stripped for name in forbidden):
+            offenders.append(f'{path.name}: {stripped}')
     return offenders
 
 
@@ -96,3 +112,199 @@ def test_cli_lists_commands():
                             capture_output=True, text=True)
     assert result.returncode == 0
     assert 'usage: tlessbot <command>' in result.stdout
+
+
+# ------------------------------------------------------------------------ rooms that stay small
+PACKAGE = REPO / 'tlessbot_ros'
+MAX_CORE_MODULE_LINES = 500
+MAX_FUNCTION_LINES = 80
+# function bodies exempt from the cap: the benches (a bench is one long script by nature) and
+# the nodes (their runtime is being rebuilt from parts, issue 39 item 1)
+FUNCTION_CAP_EXEMPT = ('tools/commands/bench/', 'nodes/')
+
+
+def _package_sources() -> dict[str, Path]:
+    """Module name -> file, for every module of the package."""
+    modules = {}
+    for path in PACKAGE.rglob('*.py'):
+        parts = list(path.relative_to(REPO).with_suffix('').parts)
+        if parts[-1] == '__init__':
+            parts = parts[:-1]
+        modules['.'.join(parts)] = path
+    return modules
+
+
+def long_functions(limit: int = MAX_FUNCTION_LINES) -> list[str]:
+    """'path:line name (N lines)' of every function longer than ``limit`` lines (its def line
+    to its last line, decorators not counted), outside the exempt folders."""
+    import ast
+
+    found = []
+    for path in sorted(PACKAGE.rglob('*.py')):
+        relative = path.relative_to(PACKAGE).as_posix()
+        if relative.startswith(FUNCTION_CAP_EXEMPT):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                length = node.end_lineno - node.lineno + 1
+                if length > limit:
+                    found.append(f'{relative}:{node.lineno} {node.name} ({length} lines)')
+    return found
+
+
+def _runtime_imports(path: Path, module: str) -> list[tuple[str, tuple[str, ...]]]:
+    """(imported module, names) of every import in ``path`` (module ``module``), those under
+    ``if TYPE_CHECKING:`` left out (they never run)."""
+    import ast
+
+    tree = ast.parse(path.read_text())
+    typing_only = {id(inner) for node in ast.walk(tree)
+                   if isinstance(node, ast.If) and 'TYPE_CHECKING' in ast.unparse(node.test)
+                   for inner in ast.walk(node)}
+    package = module.split('.') if path.name == '__init__.py' else module.split('.')[:-1]
+    imports = []
+    for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
+        if isinstance(node, ast.Import):
+            imports.extend((alias.name, ()) for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ''
+            if node.level:
+                base = '.'.join(package[:len(package) - node.level + 1] + ([base] if base else []))
+            imports.append((base, tuple(alias.name for alias in node.names)))
+    return imports
+
+
+def test_no_core_module_is_over_500_lines():
+    long = {path.relative_to(PACKAGE).as_posix(): n for path in (PACKAGE / 'core').rglob('*.py')
+            if (n := len(path.read_text().splitlines())) > MAX_CORE_MODULE_LINES}
+    assert not long, f'split these by responsibility: {long}'
+
+
+def test_no_function_is_over_80_lines():
+    assert not long_functions(), 'shorten these functions: ' + '; '.join(long_functions())
+
+
+def test_the_function_cap_notices_a_long_function(tmp_path, monkeypatch):
+    package = tmp_path / 'tlessbot_ros'
+    (package / 'nodes').mkdir(parents=True)
+    body = ''.join(f'    x{k} = {k}\n' for k in range(85))
+    (package / 'long.py').write_text(f'def long():\n{body}')
+    (package / 'nodes' / 'exempt.py').write_text(f'def exempt():\n{body}')
+    monkeypatch.setattr(sys.modules[__name__], 'PACKAGE', package)
+    assert long_functions() == ['long.py:1 long (86 lines)']
+
+
+def test_no_module_imports_another_modules_private_names():
+    offenders = []
+    for module, path in _package_sources().items():
+        for source, names in _runtime_imports(path, module):
+            private = [name for name in names if name.startswith('_') and name != '__version__']
+            if source.startswith('tlessbot_ros') and private:
+                offenders.append(f'{module}: from {source} import {", ".join(private)}')
+    assert not offenders, 'make these public or move them: ' + '; '.join(offenders)
+
+
+def _import_graph() -> dict[str, set[str]]:
+    """Module -> the package's modules it imports at run time (function-level imports too)."""
+    modules = _package_sources()
+    graph = {}
+    for module, path in modules.items():
+        edges = set()
+        for source, names in _runtime_imports(path, module):
+            for name in names or ('',):
+                target = f'{source}.{name}' if name else source
+                edges.add(target if target in modules else source)
+        graph[module] = {edge for edge in edges if edge in modules and edge != module}
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found = []
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.append(member)
+                    if member == node:
+                        break
+                if len(component) > 1:
+                    found.append(sorted(component))
+    return found
+
+
+def test_no_import_cycle():
+    assert not _cycles(_import_graph())
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    graph = {'a': {'b'}, 'b': {'c'}, 'c': {'a'}, 'd': {'a'}, 'e': set()}
+    assert _cycles(graph) == [['a', 'b', 'c']]
+
+
+# ------------------------------------------------------------------------ benches, their own tier
+def _bench_modules_after(argv: list[str]) -> list[str]:
+    """The bench modules ``tlessbot <argv>`` imported (run in a fresh interpreter)."""
+    code = ('import sys\n'
+            'from tlessbot_ros.tools.cli import main\n'
+            'try:\n'
+            f'    main({argv!r})\n'
+            'except SystemExit:\n'
+            '    pass\n'
+            "prefix = 'tlessbot_ros.tools.commands.bench.'\n"
+            "print('imported:', *sorted(m for m in sys.modules if m.startswith(prefix)))\n")
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                            cwd=REPO)
+    assert result.returncode == 0, result.stderr
+    return result.stdout.strip().splitlines()[-1].split()[1:]
+
+
+def test_bench_help_imports_no_bench_module():
+    assert _bench_modules_after(['bench', '--help']) == []
+
+
+def test_a_bench_imports_only_itself():
+    assert _bench_modules_after(['bench', 'transport', '--help']) == [
+        'tlessbot_ros.tools.commands.bench.transport']
+
+
+def test_bench_help_lists_every_bench():
+    from tlessbot_ros.tools.commands.bench import benchmark_table
+
+    result = subprocess.run([sys.executable, '-m', 'tlessbot_ros.tools.cli', 'bench', '--help'],
+                            capture_output=True, text=True, cwd=REPO)
+    assert result.returncode == 0, result.stderr
+    table = benchmark_table()
+    assert {'graph', 'nodes', 'transport'} <= set(table)
+    for name, bench in table.items():
+        assert f'  {name} ' in result.stdout and bench.description in result.stdout
+        assert (REPO / (bench.module.replace('.', '/') + '.py')).is_file(), bench.module

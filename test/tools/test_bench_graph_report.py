@@ -42,7 +42,7 @@ def test_a_nodes_memory_and_cpu_include_its_worker_processes():
     import sys
     import time
 
-    from tlessbot_ros.tools.support.graph_run import cpu_seconds, process_tree, rss_mb
+    from tlessbot_ros.tools.support.proc_stats import cpu_seconds, process_tree, rss_mb
 
     alone_mb = rss_mb(os.getpid())
     child = subprocess.Popen([sys.executable, '-c', 'x = bytearray(300 * 2**20)\n'

@@ -65,47 +65,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from tlessbot_ros.io.bop import BopWriter, write_camera_json
-    from tlessbot_ros.io.models import load_models
-    from tlessbot_ros.sim.board import SimBoard
-    from tlessbot_ros.sim.materials import MATERIALS, TABLE_KINDS
-    from tlessbot_ros.sim.simulator import SimParams, Simulator
-
     if args.out is None and args.bag is None:
         raise TlessbotError('nothing to write: give --out DIR and/or --bag FILE')
     if args.frames < 1:
         raise TlessbotError('--frames must be at least 1')
     if args.cloud_stride < 1:
         raise TlessbotError('--cloud-stride must be at least 1')
-    board = None
-    if args.board:
-        x_m, y_m, yaw_deg = args.board_pose
-        board = SimBoard(board_from_args(args), x_m=x_m, y_m=y_m, yaw_deg=yaw_deg)
-    try:
-        params = SimParams(parts_min=args.parts_min, parts_max=args.parts_max,
-                           noise_scale=args.noise_scale,
-                           materials=tuple(args.materials or MATERIALS),
-                           tables=tuple(args.tables or TABLE_KINDS), board=board,
-                           lean_prob=args.lean_prob)
-    except ValueError as error:
-        raise TlessbotError(str(error)) from None
-    models = load_models(args.models, args.ids, progress=not args.no_progress)
-    rig = load_rig(args.config, width=args.width, height=args.height)
-    sim = Simulator(models, rig=rig, params=params, seed=args.seed)
-    sim.prepare(progress=not args.no_progress)
-
-    writers, backgrounds = {}, {}
-    if args.out is not None:
-        if args.out.exists() and not args.out.is_dir():
-            raise DatasetError(f'--out {args.out} exists and is not a folder')
-        args.out.mkdir(parents=True, exist_ok=True)
-        for name, cam in rig.cameras.items():
-            writers[name] = BopWriter(args.out, f'test_{name}', write_masks=not args.no_masks)
-            if args.backgrounds:
-                backgrounds[name] = BopWriter(args.out, f'background_{name}')
-            write_camera_json(args.out / f'camera_{name}.json', cam.intrinsics)
-        (args.out / 'models_info.json').write_text(json.dumps(
-            {str(i): model_geometry_mm(m) for i, m in models.items()}, indent=1))
+    sim = _simulator(args)
+    writers, backgrounds = _dataset_writers(args, sim)
 
     indices = range(args.first, args.first + args.frames)
     bar = tqdm(indices, desc='simulate', unit='frame', disable=args.no_progress)
@@ -145,3 +112,50 @@ def run(args: argparse.Namespace) -> int:
         print(f'wrote {args.frames} two-view frames to {args.out} '
               f'(splits: {", ".join("test_" + n for n in writers)})')
     return 0
+
+
+def _simulator(args: argparse.Namespace):
+    """The prepared :class:`~tlessbot_ros.sim.simulator.Simulator` the arguments describe."""
+    from tlessbot_ros.io.models import load_models
+    from tlessbot_ros.sim.board import SimBoard
+    from tlessbot_ros.sim.materials import MATERIALS, TABLE_KINDS
+    from tlessbot_ros.sim.simulator import SimParams, Simulator
+
+    board = None
+    if args.board:
+        x_m, y_m, yaw_deg = args.board_pose
+        board = SimBoard(board_from_args(args), x_m=x_m, y_m=y_m, yaw_deg=yaw_deg)
+    try:
+        params = SimParams(parts_min=args.parts_min, parts_max=args.parts_max,
+                           noise_scale=args.noise_scale,
+                           materials=tuple(args.materials or MATERIALS),
+                           tables=tuple(args.tables or TABLE_KINDS), board=board,
+                           lean_prob=args.lean_prob)
+    except ValueError as error:
+        raise TlessbotError(str(error)) from None
+    models = load_models(args.models, args.ids, progress=not args.no_progress)
+    rig = load_rig(args.config, width=args.width, height=args.height)
+    sim = Simulator(models, rig=rig, params=params, seed=args.seed)
+    sim.prepare(progress=not args.no_progress)
+    return sim
+
+
+def _dataset_writers(args: argparse.Namespace, sim) -> tuple[dict, dict]:
+    """The BOP writers of ``--out`` per camera: the frames' and the empty tables' (none
+    without ``--out``); the camera and model files are written here."""
+    from tlessbot_ros.io.bop import BopWriter, write_camera_json
+
+    writers, backgrounds = {}, {}
+    if args.out is None:
+        return writers, backgrounds
+    if args.out.exists() and not args.out.is_dir():
+        raise DatasetError(f'--out {args.out} exists and is not a folder')
+    args.out.mkdir(parents=True, exist_ok=True)
+    for name, cam in sim.rig.cameras.items():
+        writers[name] = BopWriter(args.out, f'test_{name}', write_masks=not args.no_masks)
+        if args.backgrounds:
+            backgrounds[name] = BopWriter(args.out, f'background_{name}')
+        write_camera_json(args.out / f'camera_{name}.json', cam.intrinsics)
+    (args.out / 'models_info.json').write_text(json.dumps(
+        {str(i): model_geometry_mm(m) for i, m in sim.models.items()}, indent=1))
+    return writers, backgrounds

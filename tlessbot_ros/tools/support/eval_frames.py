@@ -39,8 +39,7 @@ def pipeline_frames(dataset: Path, split: str, two_view: bool, *, templates: Pat
     if oracle == 'none' and not two_view:
         raise TlessbotError('--oracle none needs a two-view dataset (test_top + test_side); '
                             'use --oracle boxes or boxes+classes for a single split')
-    from tlessbot_ros.core.common import CameraMount, Rig, mask_box
-    from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
+    from tlessbot_ros.core.pipeline import ViewInput
     from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
     from tlessbot_ros.core.recognise import LinearClassifier
     from tlessbot_ros.io.bop import read_split
@@ -60,95 +59,142 @@ def pipeline_frames(dataset: Path, split: str, two_view: bool, *, templates: Pat
     if oracle == 'boxes+classes':
         # the classes are the truth: nothing for the look-alike check to correct
         stage_params['fit_params'] = replace(stage_params['fit_params'], lookalike_check=False)
-    workers = None
-    if pose_workers > 0:
-        from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
-        workers = PoseWorkerPool(templates_path, pose=pose_params, fit=stage_params['fit_params'],
-                                 params=PoseWorkerParams(count=pose_workers))
-        if not workers.wait_ready():
-            workers.close()
-            raise TlessbotError(f'pose workers did not start: {"; ".join(workers.errors)}')
+    workers = _pose_workers(templates_path, pose_params, stage_params['fit_params'],
+                            pose_workers)
     try:
         pipeline = None
         for images in zip(*readers.values()):
             by_view = dict(zip(views, images))
             empty = {v: next(reader).rgb for v, reader in backgrounds.items()}
-            scored = by_view[SIDE]
-            keys = {(im.scene_id, im.im_id) for im in images}
-            if len(keys) != 1:
-                raise DatasetError('test_top and test_side do not hold the same scene/image ids')
-            if two_view and any(im.T_world_camera is None for im in images):
-                raise DatasetError(f'{dataset}: image {scored.im_id} of scene {scored.scene_id} '
-                                   'has no cam_R_w2c/cam_t_w2c: two views need extrinsics (the '
-                                   'top-view poses are scored in the side camera); evaluate '
-                                   'one view with --split test_side')
+            _check_frame(dataset, images, by_view[SIDE], two_view)
             inputs = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera,
                                    background=empty.get(v))
                       for v, im in by_view.items()}
             if pipeline is None:
-                rig = None
-                if all(im.T_world_camera is not None for im in images):
-                    rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
-                               for v, im in by_view.items()})
-                pipeline = PerceptionPipeline(rig=rig, classifier=classifier, templates=templates,
-                                              pose=pose_params, **stage_params)
-                # every object's caches now, as a node does at start: the stage times are
-                # then those of a running graph, not of the first sight of each object
-                pipeline.warm_up()
+                pipeline = _first_pipeline(by_view, classifier=classifier, templates=templates,
+                                           pose=pose_params, **stage_params)
             output = FrameOutput()
             t0 = time.perf_counter()
             if oracle == 'none':
-                result = pipeline.process(inputs, fitter=workers)
-                detections, labels = result.detections, result.labels
-                output.timings_ms.update(result.timings_ms)
-                output.classified = True
-                output.boxes = []
-                side_labels = labels.get(SIDE)
-                by_instance = {d.instance_id: d.obj_id for d in detections}
-                if side_labels is not None:
-                    for instance in np.unique(side_labels):
-                        if instance == 0:
-                            continue
-                        box = mask_box(side_labels == instance)
-                        output.boxes.append((*box, int(by_instance.get(int(instance), 0))))
+                detections = _whole_pipeline(pipeline, inputs, workers, output)
             else:
-                labels = oracle_labels(by_view)
-                if oracle == 'boxes+classes':
-                    classes = {k + 1: gt.obj_id for k, gt in enumerate(scored.gt)}
-                else:
-                    t1 = time.perf_counter()
-                    guesses = pipeline.classify({v: im.rgb for v, im in by_view.items()}, labels,
-                                                views=inputs)
-                    output.timings_ms['classification'] = 1e3 * (time.perf_counter() - t1)
-                    classes = {i: g.candidates for i, g in guesses.items()}
-                t2 = time.perf_counter()
-                detections = pipeline.estimate_poses(inputs, labels, classes, box_mode=True,
-                                                     fitter=workers)
-                if oracle == 'boxes':  # the class after verification by the pose fit
-                    output.classes_by_gt = {i - 1: g.obj_id for i, g in guesses.items()}
-                    output.classes_by_gt.update({d.instance_id - 1: d.obj_id for d in detections})
-                output.timings_ms['pose'] = 1e3 * (time.perf_counter() - t2)
-                output.timings_ms['frame'] = 1e3 * (time.perf_counter() - t0)
-            fitted = sum(d.n_points >= pipeline.fit_params.min_roi_points for d in detections)
-            if fitted and 'pose' in output.timings_ms:
-                output.timings_ms['pose_per_part'] = output.timings_ms['pose'] / fitted
-            tables = [pipeline.table_frames[v] for v in by_view if v in pipeline.table_frames]
-            if any(t.observed is not None for t in tables):
-                output.timings_ms['table_plane'] = sum(t.find_ms for t in tables)
-            frame_s = output.timings_ms.get('frame', 1e3 * (time.perf_counter() - t0)) / 1e3
-            for d in detections:
-                if d.pose is None:
-                    continue
-                T = d.pose.T_camera_object
-                if d.view != SIDE:
-                    src = by_view[d.view]
-                    T = np.linalg.inv(scored.T_world_camera) @ src.T_world_camera @ T
-                output.poses.append(BopEstimate(scored.scene_id, scored.im_id, d.obj_id,
-                                               float(d.pose.fitness), T, frame_s))
-            yield scored, output
+                detections = _oracle_pipeline(pipeline, by_view, inputs, oracle, workers,
+                                              output, t0)
+            _add_poses(output, pipeline, detections, by_view, t0)
+            yield by_view[SIDE], output
     finally:
         if workers is not None:
             workers.close()
+
+
+def _pose_workers(templates_path: Path, pose_params, fit_params, count: int):
+    """A started pool of ``count`` pose worker processes (None for 0)."""
+    if count <= 0:
+        return None
+    from tlessbot_ros.parallel.pose_pool import PoseWorkerParams, PoseWorkerPool
+
+    workers = PoseWorkerPool(templates_path, pose=pose_params, fit=fit_params,
+                             params=PoseWorkerParams(count=count))
+    if not workers.wait_ready():
+        workers.close()
+        raise TlessbotError(f'pose workers did not start: {"; ".join(workers.errors)}')
+    return workers
+
+
+def _check_frame(dataset: Path, images, scored, two_view: bool) -> None:
+    """``DatasetError`` unless the views of one frame are the same image, with extrinsics
+    where two views are scored together."""
+    keys = {(im.scene_id, im.im_id) for im in images}
+    if len(keys) != 1:
+        raise DatasetError('test_top and test_side do not hold the same scene/image ids')
+    if two_view and any(im.T_world_camera is None for im in images):
+        raise DatasetError(f'{dataset}: image {scored.im_id} of scene {scored.scene_id} '
+                           'has no cam_R_w2c/cam_t_w2c: two views need extrinsics (the '
+                           'top-view poses are scored in the side camera); evaluate '
+                           'one view with --split test_side')
+
+
+def _first_pipeline(by_view: dict, **options):
+    """The pipeline for a dataset, its rig from the first frame's extrinsics (if all views
+    have them), warmed up."""
+    from tlessbot_ros.core.common import CameraMount, Rig
+    from tlessbot_ros.core.pipeline import PerceptionPipeline
+
+    rig = None
+    if all(im.T_world_camera is not None for im in by_view.values()):
+        rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
+                   for v, im in by_view.items()})
+    pipeline = PerceptionPipeline(rig=rig, **options)
+    # every object's caches now, as a node does at start: the stage times are then those of
+    # a running graph, not of the first sight of each object
+    pipeline.warm_up()
+    return pipeline
+
+
+def _whole_pipeline(pipeline, inputs: dict, workers, output: FrameOutput) -> list:
+    """Localiser, classifier and poses on one frame; the side view's boxes with their class
+    go into ``output``."""
+    from tlessbot_ros.core.common import mask_box
+
+    result = pipeline.process(inputs, fitter=workers)
+    output.timings_ms.update(result.timings_ms)
+    output.classified = True
+    output.boxes = []
+    side_labels = result.labels.get(SIDE)
+    by_instance = {d.instance_id: d.obj_id for d in result.detections}
+    if side_labels is not None:
+        for instance in np.unique(side_labels):
+            if instance == 0:
+                continue
+            box = mask_box(side_labels == instance)
+            output.boxes.append((*box, int(by_instance.get(int(instance), 0))))
+    return result.detections
+
+
+def _oracle_pipeline(pipeline, by_view: dict, inputs: dict, oracle: str, workers,
+                     output: FrameOutput, t0: float) -> list:
+    """Poses on ground-truth boxes, the classes the classifier's (``boxes``) or the truth
+    (``boxes+classes``)."""
+    labels = oracle_labels(by_view)
+    if oracle == 'boxes+classes':
+        classes = {k + 1: gt.obj_id for k, gt in enumerate(by_view[SIDE].gt)}
+    else:
+        t1 = time.perf_counter()
+        guesses = pipeline.classify({v: im.rgb for v, im in by_view.items()}, labels,
+                                    views=inputs)
+        output.timings_ms['classification'] = 1e3 * (time.perf_counter() - t1)
+        classes = {i: g.candidates for i, g in guesses.items()}
+    t2 = time.perf_counter()
+    detections = pipeline.estimate_poses(inputs, labels, classes, box_mode=True,
+                                         fitter=workers)
+    if oracle == 'boxes':  # the class after verification by the pose fit
+        output.classes_by_gt = {i - 1: g.obj_id for i, g in guesses.items()}
+        output.classes_by_gt.update({d.instance_id - 1: d.obj_id for d in detections})
+    output.timings_ms['pose'] = 1e3 * (time.perf_counter() - t2)
+    output.timings_ms['frame'] = 1e3 * (time.perf_counter() - t0)
+    return detections
+
+
+def _add_poses(output: FrameOutput, pipeline, detections: list, by_view: dict,
+               t0: float) -> None:
+    """The frame's per-part and table-plane times and its poses, in the side camera."""
+    scored = by_view[SIDE]
+    fitted = sum(d.n_points >= pipeline.fit_params.min_roi_points for d in detections)
+    if fitted and 'pose' in output.timings_ms:
+        output.timings_ms['pose_per_part'] = output.timings_ms['pose'] / fitted
+    tables = [pipeline.table_frames[v] for v in by_view if v in pipeline.table_frames]
+    if any(t.observed is not None for t in tables):
+        output.timings_ms['table_plane'] = sum(t.find_ms for t in tables)
+    frame_s = output.timings_ms.get('frame', 1e3 * (time.perf_counter() - t0)) / 1e3
+    for d in detections:
+        if d.pose is None:
+            continue
+        T = d.pose.T_camera_object
+        if d.view != SIDE:
+            src = by_view[d.view]
+            T = np.linalg.inv(scored.T_world_camera) @ src.T_world_camera @ T
+        output.poses.append(BopEstimate(scored.scene_id, scored.im_id, d.obj_id,
+                                       float(d.pose.fitness), T, frame_s))
 
 
 def oracle_labels(by_view: dict) -> dict[str, np.ndarray]:

@@ -171,6 +171,46 @@ def _match_boxes(image, boxes) -> tuple[dict[int, int], int]:
     return matched, len(boxes) - len(used)
 
 
+def _score_pose(target: _Target, T_est: np.ndarray, T_gt: np.ndarray, model: ScoringModel,
+                image) -> None:
+    """Fill ``target``'s pose measures of an estimate against the truth."""
+    error = pose_error(T_est, T_gt, model.symmetries)
+    target.pose_5cm5deg = is_correct_cm_deg(error)
+    target.pose_1cm5deg = is_correct_cm_deg(error, translation_m=0.01)
+    target.adds_ok = adds(T_est, T_gt, model.points) < ADDS_THRESHOLD * model.diameter_m
+    target.mssd_error = mssd(T_est, T_gt, model.points, model.symmetry_stack)
+    target.mspd_error = mspd(T_est, T_gt, model.points, image.intrinsics.K,
+                             model.symmetry_stack)
+    if image.depth_m is not None:
+        target.vsd_ok = bool(vsd(T_est, T_gt, image.depth_m, image.intrinsics,
+                                 model.renderer)[0] < VSD_THRESHOLD)
+
+
+def _measures(group: list[_Target], models: dict[int, ScoringModel], *, has_depth: bool,
+              detection_ran: bool, recognition_ran: bool) -> dict:
+    """The recalls, detection and recognition rates of a group of targets."""
+    n = len(group)
+    if n == 0:
+        return {'objects_gt': 0}
+    diam = np.array([models[t.obj_id].diameter_m for t in group])
+    mssd_rel = np.array([t.mssd_error for t in group]) / diam
+    mspd_px = np.array([t.mspd_error * t.mspd_scale for t in group])
+    out = {
+        'objects_gt': n,
+        'recall_5cm5deg': sum(t.pose_5cm5deg for t in group) / n,
+        'recall_1cm5deg': sum(t.pose_1cm5deg for t in group) / n,
+        'recall_vsd03': sum(t.vsd_ok for t in group) / n if has_depth else None,
+        'recall_adds01d': sum(t.adds_ok for t in group) / n,
+        'mssd_recall': average_recall(mssd_rel, BOP19_THRESHOLDS),
+        'mspd_recall': average_recall(mspd_px, BOP19_MSPD_THRESHOLDS_PX),
+        'iou07_rate': (sum(bool(t.detected) for t in group) / n) if detection_ran else None,
+    }
+    detected = [t for t in group if t.detected or t.recognised is not None]
+    out['top1'] = (sum(bool(t.recognised) for t in detected) / len(detected)
+                   if recognition_ran and detected else None)
+    return out
+
+
 def score_frames(frames: list[tuple[object, FrameOutput]],
                  models: dict[int, ScoringModel]) -> dict:
     """The report dictionary (see issue 8) from (BopImage, FrameOutput) pairs."""
@@ -203,42 +243,13 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
                 target.recognised = output.classes_by_gt.get(k) == gt.obj_id
             est = matches.get(k)
             if est is not None:
-                T_est, T_gt = est.T_camera_object, gt.T_camera_object
-                error = pose_error(T_est, T_gt, model.symmetries)
-                target.pose_5cm5deg = is_correct_cm_deg(error)
-                target.pose_1cm5deg = is_correct_cm_deg(error, translation_m=0.01)
-                target.adds_ok = adds(T_est, T_gt, model.points) \
-                    < ADDS_THRESHOLD * model.diameter_m
-                target.mssd_error = mssd(T_est, T_gt, model.points, model.symmetry_stack)
-                target.mspd_error = mspd(T_est, T_gt, model.points, image.intrinsics.K,
-                                         model.symmetry_stack)
-                if image.depth_m is not None:
-                    target.vsd_ok = bool(vsd(T_est, T_gt, image.depth_m, image.intrinsics,
-                                             model.renderer)[0] < VSD_THRESHOLD)
+                _score_pose(target, est.T_camera_object, gt.T_camera_object, model, image)
             targets.append(target)
     has_depth = all(image.depth_m is not None for image, _ in frames)
 
     def measures(group: list[_Target]) -> dict:
-        n = len(group)
-        if n == 0:
-            return {'objects_gt': 0}
-        diam = np.array([models[t.obj_id].diameter_m for t in group])
-        mssd_rel = np.array([t.mssd_error for t in group]) / diam
-        mspd_px = np.array([t.mspd_error * t.mspd_scale for t in group])
-        out = {
-            'objects_gt': n,
-            'recall_5cm5deg': sum(t.pose_5cm5deg for t in group) / n,
-            'recall_1cm5deg': sum(t.pose_1cm5deg for t in group) / n,
-            'recall_vsd03': sum(t.vsd_ok for t in group) / n if has_depth else None,
-            'recall_adds01d': sum(t.adds_ok for t in group) / n,
-            'mssd_recall': average_recall(mssd_rel, BOP19_THRESHOLDS),
-            'mspd_recall': average_recall(mspd_px, BOP19_MSPD_THRESHOLDS_PX),
-            'iou07_rate': (sum(bool(t.detected) for t in group) / n) if detection_ran else None,
-        }
-        detected = [t for t in group if t.detected or t.recognised is not None]
-        out['top1'] = (sum(bool(t.recognised) for t in detected) / len(detected)
-                       if recognition_ran and detected else None)
-        return out
+        return _measures(group, models, has_depth=has_depth, detection_ran=detection_ran,
+                         recognition_ran=recognition_ran)
 
     overall = measures(targets)
     per_object = {}

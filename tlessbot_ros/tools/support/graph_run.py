@@ -2,7 +2,10 @@
 
 The three perception nodes run as separate processes (as ``tlessbot launch`` starts them);
 this process replays the bag's raw CDR and listens to the pose topics
-(:func:`~tlessbot_ros.conversions.topics.pose_topic`) over DDS.
+(:func:`~tlessbot_ros.conversions.topics.pose_topic`) over DDS. A :class:`GraphRun` does it in
+four steps (start, wait until ready, replay, drain) with two helpers: a :class:`GraphMonitor`
+that records what the graph publishes and a :class:`ProcessSampler` that measures its
+processes (:mod:`.proc_stats`) while the bag plays.
 """
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -27,7 +31,14 @@ from tlessbot_ros.conversions.topics import (
 )
 from tlessbot_ros.core.common import SIDE
 from tlessbot_ros.errors import TlessbotError
-from tlessbot_ros.parallel.spare_cpu import read_cpu_ticks, read_process_cpu_s
+from tlessbot_ros.parallel.spare_cpu import read_cpu_ticks
+from tlessbot_ros.tools.support.proc_stats import (
+    children_by_parent,
+    cpu_seconds,
+    open_fds,
+    rss_mb,
+    thread_count,
+)
 from tlessbot_ros.tools.support.processes import (
     PERCEPTION_NODES,
     GraphProcesses,
@@ -78,79 +89,249 @@ class GraphRunResult:
     node_output: str = ''
 
 
-def children_by_parent() -> dict[int, list[int]]:
-    """{parent pid: child pids} of every process (one scan of Linux /proc)."""
-    parents: dict[int, list[int]] = {}
-    for stat in Path('/proc').glob('[0-9]*/stat'):
+@dataclass(frozen=True)
+class GraphRunOptions:
+    """How a :class:`GraphRun` replays and waits (see :func:`run_graph_on_bag`)."""
+
+    rate: float = 1.0
+    loop: bool = False
+    duration_s: float = 0.0
+    restamp: bool = False
+    startup_timeout_s: float = 300.0
+    settle_s: float = 3.0
+    drain_timeout_s: float = 60.0
+    lockstep: bool = False
+    quiet: bool = True
+
+
+class GraphMonitor:
+    """Records what the graph publishes into a :class:`GraphRunResult`: the poses, when each
+    stage's side output of a frame arrived, and the nodes' last /diagnostics (its callbacks
+    run on the executor's thread)."""
+
+    def __init__(self, node: Any, result: GraphRunResult) -> None:
+        from tlessbot_ros.nodes.common import RESULT_QOS, message_class
+
+        self.result = result
+        self.lock = threading.Lock()
+        self.last_pose_s = time.monotonic()
+        self.handled = 0                      # frames the pose estimator reported done
+        self.work_changed_s = time.monotonic()   # when the stages' counts last changed
+        self._work_counts: tuple = ()
+        node.create_subscription(message_class('diagnostic_msgs/msg/DiagnosticArray'),
+                                 DIAGNOSTICS, self._on_diagnostics, RESULT_QOS)
+        image_class = message_class('sensor_msgs/msg/Image')
+        for stage, topic in STAGE_OUTPUTS.items():   # raw: only the stamp is read
+            node.create_subscription(image_class, topic, self._on_stage_output(stage),
+                                     RESULT_QOS, raw=True)
+        pose_class = message_class('geometry_msgs/msg/PoseStamped')
+        for obj_id in ALL_OBJECT_IDS:
+            node.create_subscription(pose_class, pose_topic(obj_id), self._on_pose(obj_id),
+                                     RESULT_QOS)
+
+    def _on_pose(self, obj_id: int) -> Callable[[Any], None]:
+        from tlessbot_ros.conversions.pose import pose_stamped_to_transform
+
+        def callback(msg: Any) -> None:
+            T, frame_id, stamp = pose_stamped_to_transform(msg)
+            with self.lock:
+                self.result.poses.append(ReceivedPose(stamp, obj_id, T, frame_id,
+                                                      time.time_ns()))
+                self.last_pose_s = time.monotonic()
+        return callback
+
+    def _on_diagnostics(self, msg: Any) -> None:
+        for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
+            self.result.diagnostics[status.name] = values
+            if status.name == 'pose_estimator':
+                self.handled = int(values.get('frames', 0)) + int(values.get('failures', 0))
+        counts = tuple(self.result.diagnostics.get(name, {}).get(key)
+                       for name in PERCEPTION_NODES for key in ('frames', 'failures', 'dropped'))
+        if counts != self._work_counts:
+            self.work_changed_s, self._work_counts = time.monotonic(), counts
+
+    def _on_stage_output(self, stage: str) -> Callable[[bytes], None]:
+        from tlessbot_ros.conversions.cdr import header_stamp_ns
+
+        arrivals = self.result.stage_arrivals.setdefault(stage, {})
+
+        def callback(data: bytes) -> None:
+            try:
+                arrivals[header_stamp_ns(data)] = time.time_ns()
+            except ValueError:   # not from the stage (bench fuzz publishes garbage here)
+                pass
+        return callback
+
+    def restart_quiet_clock(self) -> None:
+        """Count the silence of the pose topics from now."""
+        with self.lock:
+            self.last_pose_s = time.monotonic()
+
+    def done(self, settle_s: float) -> bool:
+        """No pose for ``settle_s``, and every replayed frame answered or (frames were
+        dropped) no stage has counted anything new for a while: the graph is done."""
+        now = time.monotonic()
+        return now - self.last_pose_s > settle_s and (
+            self.handled >= len(self.result.frames_replayed)
+            or now - self.work_changed_s > settle_s + 1.0)
+
+
+class ProcessSampler:
+    """The nodes' CPU over the replay, and once a second their RSS, open files and threads
+    (their worker processes included), taken on the replay's thread as frames go out."""
+
+    def __init__(self, pids: dict[str, int], result: GraphRunResult) -> None:
+        self.pids = pids
+        self.result = result
+        self._cpu_pids = {**pids, MONITOR: os.getpid()}
+        self._cpu_start = {label: self._cpu(label) for label in self._cpu_pids}
+        self._host_start = read_cpu_ticks()
+        self.start_s = time.monotonic()
+        result.replay_start_ns = time.time_ns()
+        self._next_sample_s = self.start_s
+
+    def _cpu(self, label: str) -> float:
+        # the monitor's children are the nodes: its own time alone
+        return cpu_seconds(self._cpu_pids[label], descendants=label != MONITOR)
+
+    def on_publish(self, message: Any) -> None:
+        """Called with every replayed message: notes the frames, samples when one is due."""
+        from tlessbot_ros.conversions.cdr import header_stamp_ns
+
+        if message.topic == FRAME_TOPIC:
+            self.result.frames_replayed.append(header_stamp_ns(message.raw))
+            self.result.frames_replayed_at_ns.append(time.time_ns())
+        if time.monotonic() >= self._next_sample_s:
+            self._sample()
+            self._next_sample_s = time.monotonic() + 1.0
+
+    def _sample(self) -> None:
+        result = self.result
+        parents = children_by_parent()   # one /proc scan per sample
+        result.sample_times_s.append(time.monotonic() - self.start_s)
+        for label, pid in self.pids.items():
+            result.rss_mb_samples.setdefault(label, []).append(rss_mb(pid, parents))
+            result.fd_samples.setdefault(label, []).append(open_fds(pid, parents))
+            result.thread_samples.setdefault(label, []).append(thread_count(pid, parents))
+
+    def finish(self) -> None:
+        """The CPU each used since the replay started, and the host's ticks."""
+        self.result.cpu_s = {label: self._cpu(label) - self._cpu_start[label]
+                             for label in self._cpu_pids}
+        self.result.host_ticks = (self._host_start, read_cpu_ticks())
+
+
+class GraphRun:
+    """The perception nodes started as processes, ``bag`` replayed into them, what they
+    publish collected: :meth:`run` once (arguments as :func:`run_graph_on_bag`)."""
+
+    def __init__(self, bag: str | Path, *, config: Path, options: GraphRunOptions,
+                 ros_args: list[str] | None = None,
+                 node_prefixes: dict[str, list[str]] | None = None,
+                 alongside: Callable[[GraphRunResult], Callable[[], None]] | None = None
+                 ) -> None:
+        if options.lockstep:  # one frame at a time: no frame may be skipped by a rate cap
+            ros_args = [*(ros_args or []), '-p', 'sync.max_rate_hz:=0.0']
+        self.bag, self.options, self.alongside = str(bag), options, alongside
+        self.specs = [ProcessSpec(spec.label,
+                                  [*(node_prefixes or {}).get(spec.label, []), *spec.argv])
+                      for spec in graph_processes(config, nodes=list(PERCEPTION_NODES),
+                                                  extra_ros_args=ros_args)]
+        self.graph = GraphProcesses(self.specs, env=dict(os.environ))
+        self.result = GraphRunResult()
+        self.output: list[str] = []
+
+    def run(self) -> GraphRunResult:
+        """Start, wait until ready, replay, drain; the nodes are stopped in any case."""
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        from tlessbot_ros.nodes.common import init_ros
+
+        init_ros()
+        monitor_node = rclpy.create_node('tlessbot_graph_monitor')
+        self.player = rclpy.create_node('tlessbot_graph_replay')
+        self.monitor = GraphMonitor(monitor_node, self.result)
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(monitor_node)
+        spinner = threading.Thread(target=self.executor.spin, daemon=True)
         try:
-            ppid = int(stat.read_text().rsplit(')', 1)[1].split()[1])
-        except (OSError, IndexError, ValueError):
-            continue
-        parents.setdefault(ppid, []).append(int(stat.parent.name))
-    return parents
+            self._start(spinner)
+            pids = self._wait_until_ready()
+            self.result.rss_mb_start = {label: rss_mb(pid) for label, pid in pids.items()}
+            sampler = ProcessSampler(pids, self.result)
+            self._replay(sampler)
+            self._drain()
+            self.result.rss_mb_end = {label: rss_mb(pid) for label, pid in pids.items()}
+        finally:
+            self.graph.stop()
+            self.executor.shutdown()
+            if spinner.is_alive():   # a spinning executor thread left behind aborts the exit
+                spinner.join(timeout=10.0)
+            monitor_node.destroy_node()
+            self.player.destroy_node()
+            rclpy.try_shutdown()
+            self.result.node_output = ''.join(self.output)
+        return self.result
 
+    def _start(self, spinner: threading.Thread) -> None:
+        if self.options.quiet:
+            self.graph.start_capturing(self.output)
+        else:
+            self.graph.start()
+        spinner.start()
 
-def process_tree(pid: int, parents: dict[int, list[int]] | None = None) -> list[int]:
-    """``pid`` and all its descendants (a node's worker processes count as the node's);
-    ``parents`` from :func:`children_by_parent`, scanned here when not given."""
-    parents = children_by_parent() if parents is None else parents
-    tree, frontier = [pid], [pid]
-    while frontier:
-        frontier = [child for parent in frontier for child in parents.get(parent, [])]
-        tree += frontier
-    return tree
+    def _wait_until_ready(self) -> dict[str, int]:
+        """Until every perception node subscribes the side depth; the nodes' pids."""
+        deadline = time.monotonic() + self.options.startup_timeout_s
+        while sum(self.player.count_subscribers(t) for t in READY_TOPICS) < \
+                len(PERCEPTION_NODES):
+            self._raise_if_exited(' during start-up')
+            if time.monotonic() > deadline:
+                raise TlessbotError('the perception nodes did not come up within '
+                                    f'{self.options.startup_timeout_s:.0f} s:\n'
+                                    f'{"".join(self.output[-20:])}')
+            time.sleep(0.2)
+        time.sleep(1.0)  # let DDS match the remaining topics
+        return {spec.label: self.graph.children[spec.label].pid for spec in self.specs}
 
+    def _replay(self, sampler: ProcessSampler) -> None:
+        from tlessbot_ros.tools.support.replay import replay
 
-def cpu_seconds(pid: int, *, descendants: bool = True) -> float:
-    """User + system CPU time used by a process (and its descendants), seconds (Linux /proc)."""
-    total = 0.0
-    for member in process_tree(pid) if descendants else [pid]:
-        seconds = read_process_cpu_s(member)
-        if seconds is None and member == pid:
-            return float('nan')
-        total += seconds or 0.0
-    return total
+        options = self.options
+        stop_at = sampler.start_s + options.duration_s if options.duration_s else None
+        end_alongside = self.alongside(self.result) if self.alongside is not None else None
+        if options.lockstep:
+            _replay_lockstep(self.player, self.bag, lambda: self.monitor.handled,
+                             sampler.on_publish, self.graph, options.drain_timeout_s)
+        else:
+            # as tlessbot replay does: not before every subscriber has matched (a message sent
+            # earlier is lost to it; under load discovery of ~20 topics takes seconds)
+            replay(self.player, self.bag, rate=options.rate, loop=options.loop,
+                   restamp=options.restamp, wait_for_subscribers_s=30.0,
+                   on_publish=sampler.on_publish,
+                   should_stop=(lambda: stop_at is not None and time.monotonic() > stop_at))
+        if end_alongside is not None:
+            end_alongside()
+        sampler.finish()
 
+    def _drain(self) -> None:
+        """Until the graph is done with the replay (:meth:`GraphMonitor.done`), at most
+        ``drain_timeout_s``."""
+        drain_until = time.monotonic() + self.options.drain_timeout_s
+        self.monitor.restart_quiet_clock()
+        while time.monotonic() < drain_until and self.graph.first_exited() is None:
+            time.sleep(0.1)
+            if self.monitor.done(self.options.settle_s):
+                break
+        self._raise_if_exited('')
 
-def open_fds(pid: int, parents: dict[int, list[int]] | None = None) -> int:
-    """Open file descriptors of a process and its descendants (Linux /proc; -1: none read)."""
-    total, found = 0, False
-    for member in process_tree(pid, parents):
-        try:
-            total += sum(1 for _ in Path(f'/proc/{member}/fd').iterdir())
-            found = True
-        except OSError:
-            pass
-    return total if found else -1
-
-
-def thread_count(pid: int, parents: dict[int, list[int]] | None = None) -> int:
-    """Threads of a process and its descendants (Linux /proc; -1: none read)."""
-    total, found = 0, False
-    for member in process_tree(pid, parents):
-        try:
-            for line in Path(f'/proc/{member}/status').read_text().splitlines():
-                if line.startswith('Threads:'):
-                    total += int(line.split()[1])
-                    found = True
-        except (OSError, ValueError):
-            pass
-    return total if found else -1
-
-
-def rss_mb(pid: int, parents: dict[int, list[int]] | None = None) -> float:
-    """Resident set size of a process and its descendants in MiB (Linux /proc; ``parents``
-    as for :func:`process_tree`)."""
-    total, found = 0.0, False
-    for member in process_tree(pid, parents):
-        try:
-            for line in Path(f'/proc/{member}/status').read_text().splitlines():
-                if line.startswith('VmRSS:'):
-                    total += int(line.split()[1]) / 1024.0
-                    found = True
-        except OSError:
-            pass
-    return total if found else float('nan')
+    def _raise_if_exited(self, when: str) -> None:
+        exited = self.graph.first_exited()
+        if exited is not None:
+            raise TlessbotError(f'{exited[0]} exited with code {exited[1]}{when}:\n'
+                                f'{"".join(self.output[-20:])}')
 
 
 def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | None = None,
@@ -180,160 +361,15 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             it returns is called when the replay ends, before the drain (bench fuzz starts
             and stops its garbage publisher so).
     """
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-
-    from tlessbot_ros.conversions.cdr import header_stamp_ns
-    from tlessbot_ros.conversions.pose import pose_stamped_to_transform
-    from tlessbot_ros.nodes.common import RESULT_QOS, init_ros, message_class
-    from tlessbot_ros.tools.support.replay import replay
-
-    if lockstep:  # one frame at a time: no frame may be skipped by a rate cap
-        ros_args = [*(ros_args or []), '-p', 'sync.max_rate_hz:=0.0']
-    specs = [ProcessSpec(spec.label, [*(node_prefixes or {}).get(spec.label, []), *spec.argv])
-             for spec in graph_processes(config, nodes=list(PERCEPTION_NODES),
-                                         extra_ros_args=ros_args)]
-    graph = GraphProcesses(specs, env=dict(os.environ))
-    result = GraphRunResult()
-    output: list[str] = []
-    init_ros()
-    monitor = rclpy.create_node('tlessbot_graph_monitor')
-    player = rclpy.create_node('tlessbot_graph_replay')
-    executor = SingleThreadedExecutor()
-    executor.add_node(monitor)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    lock = threading.Lock()
-    last_pose = [time.monotonic()]
-
-    def on_pose(obj_id: int):
-        def callback(msg) -> None:
-            T, frame_id, stamp = pose_stamped_to_transform(msg)
-            with lock:
-                result.poses.append(ReceivedPose(stamp, obj_id, T, frame_id, time.time_ns()))
-                last_pose[0] = time.monotonic()
-        return callback
-
-    handled = [0]
-    work_seen = [time.monotonic(), ()]   # when the stages' frame counts last changed, and them
-
-    def on_diagnostics(msg) -> None:
-        for status in msg.status:
-            values = {kv.key: kv.value for kv in status.values}
-            result.diagnostics[status.name] = values
-            if status.name == 'pose_estimator':
-                handled[0] = int(values.get('frames', 0)) + int(values.get('failures', 0))
-        counts = tuple(result.diagnostics.get(name, {}).get(key) for name in PERCEPTION_NODES
-                       for key in ('frames', 'failures', 'dropped'))
-        if counts != work_seen[1]:
-            work_seen[:] = [time.monotonic(), counts]
-
-    monitor.create_subscription(message_class('diagnostic_msgs/msg/DiagnosticArray'),
-                                DIAGNOSTICS, on_diagnostics, RESULT_QOS)
-    def on_stage_output(stage: str):
-        arrivals = result.stage_arrivals.setdefault(stage, {})
-
-        def callback(data: bytes) -> None:
-            try:
-                arrivals[header_stamp_ns(data)] = time.time_ns()
-            except ValueError:   # not from the stage (bench fuzz publishes garbage here)
-                pass
-        return callback
-
-    image_class = message_class('sensor_msgs/msg/Image')
-    for stage, topic in STAGE_OUTPUTS.items():   # raw: only the stamp is read
-        monitor.create_subscription(image_class, topic, on_stage_output(stage), RESULT_QOS,
-                                    raw=True)
-    pose_class = message_class('geometry_msgs/msg/PoseStamped')
-    for obj_id in ALL_OBJECT_IDS:
-        monitor.create_subscription(pose_class, pose_topic(obj_id), on_pose(obj_id), RESULT_QOS)
-    try:
-        if quiet:
-            graph.start_capturing(output)
-        else:
-            graph.start()
-        spinner.start()
-        deadline = time.monotonic() + startup_timeout_s
-        # Ready when every perception node subscribes the side depth.
-        while sum(player.count_subscribers(t) for t in READY_TOPICS) < len(PERCEPTION_NODES):
-            exited = graph.first_exited()
-            if exited is not None:
-                raise TlessbotError(f'{exited[0]} exited with code {exited[1]} during start-up:'
-                                    f'\n{"".join(output[-20:])}')
-            if time.monotonic() > deadline:
-                raise TlessbotError('the perception nodes did not come up within '
-                                    f'{startup_timeout_s:.0f} s:\n{"".join(output[-20:])}')
-            time.sleep(0.2)
-        time.sleep(1.0)  # let DDS match the remaining topics
-        pids = {spec.label: graph.children[spec.label].pid for spec in specs}
-        result.rss_mb_start = {label: rss_mb(pid) for label, pid in pids.items()}
-        cpu_pids = {**pids, MONITOR: os.getpid()}
-
-        def cpu_now(label: str) -> float:   # the monitor's children are the nodes
-            return cpu_seconds(cpu_pids[label], descendants=label != MONITOR)
-        cpu_start = {label: cpu_now(label) for label in cpu_pids}
-        host_start = read_cpu_ticks()
-        replay_start = time.monotonic()
-        result.replay_start_ns = time.time_ns()
-        stop_at = replay_start + duration_s if duration_s else None
-        end_alongside = alongside(result) if alongside is not None else None
-        next_sample = [replay_start]
-
-        def on_publish(message) -> None:
-            if message.topic == FRAME_TOPIC:
-                result.frames_replayed.append(header_stamp_ns(message.raw))
-                result.frames_replayed_at_ns.append(time.time_ns())
-            if time.monotonic() >= next_sample[0]:
-                parents = children_by_parent()   # one /proc scan per sample: replay thread
-                result.sample_times_s.append(time.monotonic() - replay_start)
-                for label, pid in pids.items():
-                    result.rss_mb_samples.setdefault(label, []).append(rss_mb(pid, parents))
-                    result.fd_samples.setdefault(label, []).append(open_fds(pid, parents))
-                    result.thread_samples.setdefault(label, []).append(
-                        thread_count(pid, parents))
-                next_sample[0] = time.monotonic() + 1.0
-
-        if lockstep:
-            _replay_lockstep(player, str(bag), handled, on_publish, graph, drain_timeout_s)
-        else:
-            # as tlessbot replay does: not before every subscriber has matched (a message sent
-            # earlier is lost to it; under load discovery of ~20 topics takes seconds)
-            replay(player, str(bag), rate=rate, loop=loop, restamp=restamp,
-                   wait_for_subscribers_s=30.0, on_publish=on_publish,
-                   should_stop=(lambda: stop_at is not None and time.monotonic() > stop_at))
-        if end_alongside is not None:
-            end_alongside()
-        result.cpu_s = {label: cpu_now(label) - cpu_start[label] for label in cpu_pids}
-        result.host_ticks = (host_start, read_cpu_ticks())
-        drain_until = time.monotonic() + drain_timeout_s
-        with lock:
-            last_pose[0] = time.monotonic()
-        while time.monotonic() < drain_until and graph.first_exited() is None:
-            time.sleep(0.1)
-            quiet = time.monotonic() - last_pose[0] > settle_s
-            # every frame answered, or (frames were dropped) no stage has counted anything new
-            # for a while: the graph is done with the replay
-            if quiet and (handled[0] >= len(result.frames_replayed)
-                          or time.monotonic() - work_seen[0] > settle_s + 1.0):
-                break
-        exited = graph.first_exited()
-        if exited is not None:
-            raise TlessbotError(f'{exited[0]} exited with code {exited[1]}:\n'
-                                f'{"".join(output[-20:])}')
-        result.rss_mb_end = {label: rss_mb(pid) for label, pid in pids.items()}
-    finally:
-        graph.stop()
-        executor.shutdown()
-        if spinner.is_alive():   # a spinning executor thread left behind aborts the exit
-            spinner.join(timeout=10.0)
-        monitor.destroy_node()
-        player.destroy_node()
-        rclpy.try_shutdown()
-        result.node_output = ''.join(output)
-    return result
+    options = GraphRunOptions(rate=rate, loop=loop, duration_s=duration_s, restamp=restamp,
+                              startup_timeout_s=startup_timeout_s, settle_s=settle_s,
+                              drain_timeout_s=drain_timeout_s, lockstep=lockstep, quiet=quiet)
+    return GraphRun(bag, config=config, options=options, ros_args=ros_args,
+                    node_prefixes=node_prefixes, alongside=alongside).run()
 
 
-def _replay_lockstep(node, bag: str, handled: list[int], on_publish, graph: GraphProcesses,
-                     frame_timeout_s: float) -> None:
+def _replay_lockstep(node: Any, bag: str, handled: Callable[[], int], on_publish,
+                     graph: GraphProcesses, frame_timeout_s: float) -> None:
     """Publish frame after frame, each once the pose estimator reported the previous one."""
     from itertools import groupby
 
@@ -350,7 +386,7 @@ def _replay_lockstep(node, bag: str, handled: list[int], on_publish, graph: Grap
             publishers[message.topic].publish(message.raw)
             on_publish(message)
         deadline = time.monotonic() + frame_timeout_s
-        while handled[0] < count and time.monotonic() < deadline:
+        while handled() < count and time.monotonic() < deadline:
             if graph.first_exited() is not None:
                 return
             time.sleep(0.05)

@@ -26,13 +26,8 @@ from tlessbot_ros.core.common import SIDE, Symmetries
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.io.ground_truth import GroundTruthInstance, read_ground_truth
 from tlessbot_ros.tools.support.bag_scoring import Estimate, score_frame
-from tlessbot_ros.tools.support.graph_run import (
-    ALL_OBJECT_IDS,
-    FRAME_TOPIC,
-    ReceivedPose,
-    children_by_parent,
-    process_tree,
-)
+from tlessbot_ros.tools.support.graph_run import ALL_OBJECT_IDS, FRAME_TOPIC, ReceivedPose
+from tlessbot_ros.tools.support.proc_stats import children_by_parent, process_tree
 from tlessbot_ros.tools.support.processes import PERCEPTION_NODES
 from tlessbot_ros.tools.support.respawn import LAUNCH_STATUS
 
@@ -248,18 +243,7 @@ def run_respawn_trial(bag: str | Path, *, config: Path, symmetries: dict[int, Sy
     from tlessbot_ros.tools.support.replay import replay
 
     truth = read_ground_truth(bag)
-    argv = [sys.executable, '-m', 'tlessbot_ros.tools.cli', 'launch', '--config', str(config),
-            '--nodes', *PERCEPTION_NODES, *[a for p in params for a in ('-p', p)]]
-    launch = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                              bufsize=1, env=dict(os.environ))
-    output: list[str] = []
-
-    def pump() -> None:
-        for line in launch.stdout:
-            output.append(line)
-            if echo is not None:
-                echo(line.rstrip('\n'))
-    threading.Thread(target=pump, daemon=True).start()
+    launch, output = _start_launch(config, params, echo)
     init_ros()
     listener_node = rclpy.create_node('tlessbot_respawn_trial')
     player = rclpy.create_node('tlessbot_respawn_replay')
@@ -290,12 +274,7 @@ def run_respawn_trial(bag: str | Path, *, config: Path, symmetries: dict[int, Sy
         _drain(listener)
     finally:
         stop_replay.set()
-        if launch.poll() is None:
-            launch.send_signal(signal.SIGINT)
-            try:
-                launch.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                launch.kill()
+        _stop_launch(launch)
         executor.shutdown()
         if spinner.is_alive():
             spinner.join(timeout=10.0)
@@ -305,6 +284,34 @@ def run_respawn_trial(bag: str | Path, *, config: Path, symmetries: dict[int, Sy
     trial.launch_output = ''.join(output)
     _count_wrong(trial, listener, truth, symmetries, reference_wrong)
     return trial
+
+
+def _start_launch(config: Path, params: Sequence[str], echo: Callable[[str], None] | None
+                  ) -> tuple[subprocess.Popen, list[str]]:
+    """``tlessbot launch`` of the perception nodes, and the list its output lines go to."""
+    argv = [sys.executable, '-m', 'tlessbot_ros.tools.cli', 'launch', '--config', str(config),
+            '--nodes', *PERCEPTION_NODES, *[a for p in params for a in ('-p', p)]]
+    launch = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              bufsize=1, env=dict(os.environ))
+    output: list[str] = []
+
+    def pump() -> None:
+        for line in launch.stdout:
+            output.append(line)
+            if echo is not None:
+                echo(line.rstrip('\n'))
+    threading.Thread(target=pump, daemon=True).start()
+    return launch, output
+
+
+def _stop_launch(launch: subprocess.Popen) -> None:
+    """SIGINT to launch (it stops its nodes), SIGKILL after a minute."""
+    if launch.poll() is None:
+        launch.send_signal(signal.SIGINT)
+        try:
+            launch.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            launch.kill()
 
 
 def _kill_and_recover(node: str, launch: subprocess.Popen, listener: _Listener, truth,

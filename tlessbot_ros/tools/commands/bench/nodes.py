@@ -125,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.nodes.common import init_ros, limit_blas_threads
     from tlessbot_ros.nodes.localiser import LocaliserNode
     from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
-    from tlessbot_ros.tools.support.graph_run import cpu_seconds, process_tree
+    from tlessbot_ros.tools.support.proc_stats import cpu_seconds, process_tree
 
     frames = bag_frames(args.bag)
     if not frames:
