@@ -68,9 +68,8 @@ def declare_input_source(node: StageNode) -> str:
         TlessbotError: a source other than :data:`INPUT_SOURCES`.
     """
     source = node.parameters.read_only('input_source', INPUT_SOURCES[0], (
-        "where the camera images come from: 'localiser' (its relay of the frames it admitted, "
-        '/localiser/<camera>/...: a frame the localiser skipped costs this node nothing) or '
-        "'cameras' (every frame of the camera topics)"))
+        "where the camera images come from: 'localiser' (its relay of the frames it admitted) "
+        "or 'cameras' (every frame of the camera topics)"))
     if source not in INPUT_SOURCES:
         raise TlessbotError(f'input_source must be one of {INPUT_SOURCES}, got {source!r}')
     return source
@@ -81,10 +80,8 @@ def follow_observed_rig(node: StageNode) -> str:
     'localiser', subscribe to the camera poses it publishes (:data:`OBSERVED_RIG`) when it
     fuses with a rig refined from the scene: :meth:`StageNode.camera_pose` then gives them."""
     source = node.parameters.read_only('rig_source', RIG_SOURCES[0], (
-        "the camera poses this stage reads the views in (table frame, output_frame 'world'): "
-        "'localiser': those the localiser publishes on /localiser/rig once it refines the rig "
-        "from what the cameras see (rig_refinement.mode 'use'), rig.CAMERA.* until then; "
-        "'config': rig.CAMERA.* always"))
+        "the camera poses of the views: 'localiser' (its refined rig on /localiser/rig, "
+        "rig.CAMERA.* until then) or 'config' (rig.CAMERA.* always)"))
     if source not in RIG_SOURCES:
         raise TlessbotError(f'rig_source must be one of {RIG_SOURCES}, got {source!r}')
     if source == 'localiser':

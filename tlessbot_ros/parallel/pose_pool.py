@@ -42,9 +42,8 @@ class PoseWorkerParams:
     """Worker processes of the pose stage.
 
     Attributes:
-        count: worker processes besides the node's own thread (0: every part is fitted in the
-            node, one after the other). Each holds its own templates and caches
-            (~430 MiB resident with the 23 packaged objects).
+        count: worker processes besides the node's own thread (>= 0; 0: parts are fitted in the
+            node); each holds its own templates.
         job_timeout_s: a worker silent for this long on one part is replaced, and the part is
             fitted in the node.
         start_timeout_s: a worker not ready this long after its start (loading the templates,

@@ -47,14 +47,9 @@ class SpareCpuParams:
     """When a stage splits one frame's work.
 
     Attributes:
-        min_spare_cores: split a frame's work (the localiser's two views in two threads, the
-            pose estimator's parts over its worker processes) only while at least this many of
-            the host's cores were free beside the stage's own thread while it worked lately,
-            or idle lately; otherwise do it in one thread, which costs less CPU per frame.
-            0: always split (as configured by ``parallel_views`` and ``workers.count``).
-        window_s: shortest span over which the free cores are measured, seconds: of the
-            stage's own work (summed over frames) for the split, of wall-clock time for the
-            host's idle cores.
+        min_spare_cores: split a frame's work (two views, parts over workers) only while this many
+            cores were free lately (>= 0; 0: always).
+        window_s: shortest span over which the free cores are measured, s (> 0).
     """
 
     min_spare_cores: float = 0.5

@@ -33,35 +33,32 @@ class RigRefinementParams:
     """How the localiser checks and refines the configured rig from what the cameras see.
 
     Attributes:
-        mode: 'none': the configured rig, unchecked (not 'off': YAML reads that as false);
-            'report': the rig is estimated from the table planes and the parts both views
-            see, and /diagnostics says how far the
-            configured one is from it (WARN past ``warn_angle_deg`` / ``warn_offset_m``);
-            'use': as 'report', and the fusion uses the estimated rig once it is confident
-            and differs from the configured one by more than ``use_min_angle_deg`` /
-            ``use_min_offset_m`` (before that: the configured cameras levelled onto the
-            tables they see, when that differs by as much).
+        mode: 'none' (the configured rig, unchecked), 'report' (estimate it, warn on /diagnostics)
+            or 'use' (fuse with it once confident).
         warn_angle_deg, warn_offset_m: /diagnostics is WARN while a camera, or the top -> side
             transform, of the configured rig differs from the estimate by more than this.
-        use_min_angle_deg, use_min_offset_m: a configured rig that the scene confirms to this
-            is kept as it is ('use'), so a right config/cell.yaml gives the same labels as
-            without refinement.
-        solve_every_frames: the estimate is solved again after this many more frames with
-            parts in both views; before it is confident, after each of the first
-            2 x ``min_frames`` such frames (a scene that never becomes confident, e.g.
-            parts the side camera never sees, costs no more than a confident one).
-        observe_every_frames: once confident, the part points are taken from every this
-            many-th frame only (the tables from every frame: a camera that moves is noticed
-            at once); the estimate then follows the scene at a fifth of the cost.
-        provisional_min_overlap, provisional_overlap_gain: before the estimate is confident
-            (``min_frames`` frames), 'use' already fuses with its in-plane fit when that
-            places at least this share of the side view's part points on the top view's, and
-            this much more than the configured rig does: a rig that explains the scene so
-            much better is the better bet from the first frame with parts (1: wait).
-        min_frames, min_matches, max_frames: the estimator's
-            (:class:`~tlessbot_ros.core.calibrate.scene.SceneCalibrationParams`): confident
-            from this many frames with parts matched between the views and this many matched
-            parts; the latest ``max_frames`` frames with parts in both views are fitted.
+        use_min_angle_deg, use_min_offset_m: 'use': a configured rig that the scene confirms to
+            within this angle, deg, and offset, m, is kept.
+        solve_every_frames: the estimate is solved again after this many more frames with parts in
+            both views (>= 1).
+        observe_every_frames: once confident, part points are taken from every this many-th frame
+            only (>= 1; the tables: every frame).
+        provisional_min_overlap, provisional_overlap_gain: before confident, 'use' fuses with a fit
+            that places this share of side part points on the top's (0..1), and this much more than
+            the config.
+        min_frames, min_matches, max_frames: confident from min_frames frames with matched parts
+            and min_matches matched parts; the latest max_frames are fitted.
+
+    ``mode`` is 'none', not 'off' (YAML reads that as false). 'report' estimates the rig from
+    the table planes and the parts both views see and says on /diagnostics how far the
+    configured one is from it (WARN past ``warn_angle_deg`` / ``warn_offset_m``); 'use' also
+    fuses with the estimate once it is confident and differs from the configured rig by more
+    than ``use_min_angle_deg`` / ``use_min_offset_m`` (before that: the configured cameras
+    levelled onto the tables they see, when that differs by as much), so a right
+    config/cell.yaml gives the same labels as without refinement. Before it is confident the
+    estimate is solved after each of the first two ``min_frames`` frames with parts, so a
+    scene that never becomes confident costs no more than a confident one. The estimator's
+    settings are :class:`~tlessbot_ros.core.calibrate.params.SceneCalibrationParams`.
     """
 
     mode: str = 'use'

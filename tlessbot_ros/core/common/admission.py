@@ -43,42 +43,33 @@ from typing import Any
 
 @dataclass(frozen=True)
 class AdmissionParams:
-    """Backpressure at the graph's entrance (the localiser's ``admission.*`` parameters).
+    """Backpressure at the graph's entrance (the localiser's ``admission.*`` parameters; the
+    measurements behind the defaults: docs/bench/parameter-notes.md).
 
     Attributes:
-        max_in_flight: frames admitted whose outcome the last stage (the pose estimator) has
-            not reported yet; a frame that completes while this many are open is dropped at
-            the entrance. 1: one frame in the graph at a time; 2: the localiser works on the
-            next frame while the later stages finish the previous one. 0: no backpressure
-            (every frame is admitted, subject to ``sync.max_rate_hz``).
-        expiry_factor: an open frame whose outcome has not come after this many times the
-            slowest of the recent admission-to-outcome times is given up (its outcome was lost).
-        min_expiry_s: the expiry is never shorter than this (the first frames after start-up,
-            a stage that restarts).
-        hold_newest: a frame refused while ``max_in_flight`` are open waits at the entrance
-            (the newest only; an older waiting frame is then dropped) and is taken as soon as
-            one finishes. False: a refused frame is dropped at once.
-        pause_inputs: while ``max_in_flight`` frames are open, leave the camera messages
-            unread in the subscriptions' DDS history (the newest ``input_depth`` of each
-            topic) instead of taking every one only to refuse it; when a slot frees, read what
-            waited and take its newest complete frame (``hold_newest``; without it, drop what
-            waited). At 30 fps a closed entrance that takes every message costs about a
-            quarter of a core (``scripts/localiser_receive_cost.py``).
-        pipeline_min_spare_cores: a frame beyond the first in flight is admitted only while
-            at least this many of the host's cores were idle lately (the owner's reading, e.g.
-            :class:`~tlessbot_ros.parallel.spare_cpu.SpareCpu`), or while the camera period
-            is at least the graph's average stage time (the median time a frame takes to
-            finish over the stages it passes: pipelined, the graph answers every frame).
-            Where the cores are free the entrance segments frame N+1 while the later stages
-            finish frame N; where they are not (two cores, with the camera drivers, at 30 fps),
-            a second frame in flight only slows every stage and adds to each frame's latency.
-            0: up to ``max_in_flight`` whatever the load.
-        pipeline_behind_last_stage: a frame beyond the first in flight is admitted only once
-            every open frame has left the stages before the last (the middle stage, the
-            classifier, reported it done), when that stage reports at all. The new frame's
-            first stages then run while the last stage works on the previous one, and it
-            reaches the last stage about when that is free, instead of waiting inside behind
-            it (and taking the cores from it meanwhile).
+        max_in_flight: frames admitted and not yet finished by the last stage (>= 0); another is
+            dropped at the entrance. 0: no backpressure.
+        expiry_factor: an open frame is given up after this many times the slowest recent
+            admission-to-outcome time (>= 1).
+        min_expiry_s: the expiry is never shorter than this, s (> 0).
+        hold_newest: a frame refused while the graph is full waits at the entrance (the newest
+            only); False: it is dropped.
+        pause_inputs: while the graph is full, leave camera messages unread in DDS and take the
+            newest frame when a slot frees.
+        pipeline_min_spare_cores: a second frame in flight only while this many host cores were
+            idle lately, cores (>= 0; 0: always).
+        pipeline_behind_last_stage: a second frame in flight only once every open frame has passed
+            the middle stage (the classifier).
+
+    With ``max_in_flight`` 2 the localiser works on the next frame while the later stages
+    finish the previous one. ``pipeline_min_spare_cores`` also admits a second frame while the
+    camera period is at least the graph's average stage time (the median time a frame takes
+    over the stages it passes: pipelined, the graph answers every frame); where the cores are
+    not free, a second frame in flight only slows every stage. With
+    ``pipeline_behind_last_stage`` the new frame's first stages run while the last stage works
+    on the previous one, and it reaches the last stage about when that is free instead of
+    waiting inside behind it. ``pause_inputs`` keeps the newest ``input_depth`` messages of
+    each topic in DDS instead of taking every one only to refuse it.
     """
 
     max_in_flight: int = 2

@@ -33,77 +33,32 @@ EXECUTORS = ('events', 'single_threaded')   # SyncParams.executor
 
 @dataclass(frozen=True)
 class SyncParams:
-    """Synchronisation thresholds shared by the nodes.
+    """Synchronisation thresholds shared by the nodes (why each default is what it is, with the
+    measurements: docs/bench/parameter-notes.md).
 
     Attributes:
-        slop_s: largest stamp difference within one camera's colour / depth / camera_info set.
-            realsense-ros stamps aligned depth with the colour frame's stamp, so a small slop
-            suffices.
-        queue_size: items kept per stream while waiting for partners; it must cover the
-            upstream latency (a pose estimator holds depth until the classes of the same frame
-            arrive): 30 is one second at 30 fps.
-        max_age_s: largest stamp difference between the top and the side camera sets that are
-            fused into one two-view frame.
-        max_rate_hz: most two-view frames processed per second (wall clock); a frame that
-            completes sooner after the last one processed is dropped and counted (0 = no
-            limit). On a small machine a stage that runs ahead (the localiser, the cheapest)
-            takes the CPU the later stages need, and every frame's latency grows.
-        worker_thread: process frames on a worker thread while the subscriptions keep
-            feeding the synchroniser. A frame that completes while the worker is busy waits as
-            the single pending frame; a newer one replaces it (the older is dropped and
-            counted), so a slow stage works on the newest frame and never queues. Without the
-            worker, frames are processed inside the subscription callback and the DDS history
-            (``input_depth``) overflows meanwhile: a later stage then loses the camera frames
-            it must pair with its upstream results and drops whole frames.
-        jump_back_s: a topic whose stamp goes back by more than this (seconds) has jumped to a
-            new timeline: a bag replayed in a loop without ``--restamp`` (the demo bag goes
-            back 0.33 s), a camera clock stepped back. One publisher's stamps never go back,
-            so this only needs to clear a driver's small timestamp corrections. The node
-            empties its synchronisation queues, counts the jump (``time_jumps`` on
-            /diagnostics) and goes on with the new timeline.
-        jump_forward_s: a topic whose stamp leaps forward by more than this (seconds) has
-            jumped too (a clock stepped forward, a camera back after a long gap); handled as
-            a jump back.
-        live_stamp_window_s: a frame whose newest stamp lies within this many seconds of the
-            node's clock was stamped by that clock (a live camera on a synchronised host):
-            /diagnostics reports its input age. Stamps further away come from another clock
-            (a bag replayed without ``--restamp``, a camera whose clock is not synchronised):
-            their age would measure the clocks' offset, not a delay, so only that offset
-            (``stamp_offset_s``) is reported.
-        jump_confirmations: how many more items of a topic must follow, in line, the first one
-            that stepped back off its timeline before the step counts as a time jump on that
-            topic's word alone; one is enough when another topic's held items carry exactly the
-            same stamps (whole frames jumped: one camera stamps its colour, depth and
-            camera_info alike). Until then the items are held (at most this many per topic);
-            once the jump is confirmed they are paired as if it had been declared at once. A
-            stray message with an absurd stamp (another publisher on a camera topic, a driver
-            glitch) is then dropped instead of emptying every queue (under garbage at 100 Hz
-            on every input, ``tlessbot bench fuzz``, 0 answered none of the good frames).
-            0: every step back beyond ``jump_back_s`` is a jump at once. That is what a stage
-            behind the localiser's relay needs (:meth:`behind_relay`): it sees only the frames
-            the localiser admitted, whose timeline the localiser has confirmed, and may see a
-            single frame of a short loop per pass, which could never confirm a jump. A leap
-            forward is never held: a camera that paused, or frames sent on demand, go through
-            at once.
-        max_message_mb: largest input message taken, MiB (0 = no limit); a larger one is
-            counted as malformed and never queued (a 4K colour image is 24 MiB: thirty of them
-            waiting for partners would hold 0.7 GiB per topic). The D415's largest stream,
-            1920x1080 rgb8, is 5.9 MiB.
-        executor: how the node's thread takes messages, timers and services: 'events'
-            (rclpy's EventsExecutor: it waits in C++ and calls each callback as its event
-            comes) or 'single_threaded' (rclpy's SingleThreadedExecutor, which rebuilds its
-            wait set in Python at every turn). In the graph at 30 fps the single-threaded
-            executor's own Python took 7-10 ms of CPU per processed frame in each stage node,
-            beside the frame's work and under the same interpreter lock; the events executor
-            took about 4 (docs/bench/backpressure.md). The localiser's default is
-            'single_threaded': while its entrance is full it leaves the camera messages unread
-            in DDS, which only an executor that asks the callback groups allows; the events
-            executor would hand it every message of every camera topic. Paired 30 fps runs:
-            1.04-1.06 x the frames answered with 'events' in all three stages, 1.10-1.23 x
-            with the localiser on 'single_threaded', at the same or lower latency. The nodes
-            spin it with ``spin_once`` in a loop, never its ``spin()``, which in rclpy 7.1
-            fires no timer and stalls holding the interpreter lock when another thread
-            creates an entity (scripts/events_executor_check.py).
+        slop_s: largest stamp difference within one camera's colour / depth / camera_info set, s
+            (>= 0).
+        queue_size: items kept per stream while waiting for partners (>= 1); must cover the
+            upstream latency (30: one second at 30 fps).
+        max_age_s: largest stamp difference between the top and side camera sets fused into one
+            frame, s (>= 0).
+        max_rate_hz: most two-view frames processed per second (wall clock), Hz (>= 0); a frame
+            sooner is dropped. 0: no limit.
+        worker_thread: process frames on a worker thread, the newest frame waiting (never a queue);
+            False: in the subscription callback.
+        jump_back_s: a topic whose stamp goes back by more than this, s (> 0), has jumped to a new
+            timeline: the queues are emptied.
+        jump_forward_s: a topic whose stamp leaps forward by more than this, s (> 0), has jumped
+            too.
+        live_stamp_window_s: stamps within this of the node's clock, s (> 0), are live:
+            /diagnostics reports input age, else clock offset.
+        jump_confirmations: items of a topic that must follow a step back, in line, before it
+            counts as a jump (>= 0; 0: at once).
+        max_message_mb: largest input message taken, MiB (>= 0; 0: no limit); a larger one counts
+            as malformed.
+        executor: how the node takes its callbacks: 'events' (rclpy's EventsExecutor) or
+            'single_threaded' (SingleThreadedExecutor).
     """
 
     slop_s: float = 0.010

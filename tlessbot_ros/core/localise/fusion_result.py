@@ -26,16 +26,14 @@ class FusionParams:
         min_overlap_fraction: ... and as a fraction of the predicted visible region.
         min_visible_px: a prediction with fewer visible side pixels than this is treated as
             occluded in the side view.
-        seed_erode_px: predicted regions are eroded by this radius before seeding the split.
+        seed_erode_px: predicted regions are eroded by this radius before seeding the split, px (>=
+            0).
         fragment_fraction: a side blob matching no prediction by the rules above but lying
             at least this much inside one joins it (fragments of one part share its id).
         drop_unpredicted: drop side blobs that no top blob predicts (fewer false positives
             when the top view sees the whole work area; off by default).
-        keep_depth_splits: a side blob that one top blob predicts but whose side
-            segmentation divided it by depth (``Segmentation.depth_groups``: two parts whose
-            seam the side depth shows, e.g. one in front of the other, that the top view saw
-            as one) keeps those pieces apart: the piece the prediction covers most takes the
-            top blob's id, the others new ids (seen from the side only).
+        keep_depth_splits: a side blob that one top blob predicts but that the side depth divided
+            keeps its pieces apart (new ids).
         box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
             in a side box.
     """

@@ -12,21 +12,16 @@ class SegmentationParams:
     two-view scenes.
 
     Attributes:
-        methods: cues whose union forms the foreground; any of ``METHODS``. 'watershed' adds
-            the grey-level histogram extremes as markers *and* refines the union by flooding;
-            without it the union is used as is. 'background' is used only when an empty-table
-            image is given, 'depth' only when an aligned depth image and the camera pose are
-            given (leave 'depth' out for the paper's RGB-only method).
+        methods: cues whose union forms the foreground: any of 'watershed', 'hed', 'lab',
+            'background', 'depth'.
         cutoff_sigma: candidate cut-off, in robust standard deviations of the background peak.
         sure_sigma: sure-object marker cut-off (histogram extreme), same unit.
-        grey_floor, hed_floor, lab_floor: smallest cut-off distance from the background peak
-            per channel (grey in L units 0-100, HED in optical-density units, a/b in LAB
-            units); stops sensor noise on a very plain table from becoming objects.
+        grey_floor, hed_floor, lab_floor: smallest cut-off distance from the background peak per
+            channel (grey: L 0-100, HED: optical density, a/b: LAB).
         hed_dark_level: intensities below this are clamped before the HED logarithm, so the
             noise of near-black pixels does not swamp the stain channels.
-        border_fraction: the background peak of each histogram is read from a frame of this
-            width (fraction of the image size) along the image border, where the table is;
-            0 uses the whole image.
+        border_fraction: width of the image border the background peak is read from, fraction of
+            the image size [0, 0.5); 0: all.
         background_delta_e: LAB distance to the empty-table image above which a pixel differs.
         shadow_ratio: (low, high) brightness ratio to the empty table treated as a cast shadow
             when the chromaticity also stays within ``shadow_chroma``.
@@ -40,36 +35,36 @@ class SegmentationParams:
         split_min_core_px: cores smaller than this (pixels) are ignored.
         split_min_depth_px: largest distance of a blob (pixels) below which it is never split.
         cue_scale: image scale at which the colour cues are computed (1.0 = full resolution).
-        colour_split_delta: a blob whose pixels form two chroma clusters (a / L, b / L, x100)
-            further apart than this is divided between them first (touching parts of different
-            materials); 0 disables.
+        colour_split_delta: a blob with two chroma clusters further apart than this (a / L, b / L,
+            x100) is divided first (>= 0; 0: off).
         colour_split_min_share: smallest share of the blob for a colour piece (so specular
             highlights do not become parts).
         depth_min_height_m: depth cue: pixels whose back-projected point lies higher than
             this above the table plane (world z) are object candidates...
         depth_sure_height_m: ... and higher than this, sure object markers.
-        depth_noise_k: both heights are raised to this many robust standard deviations of
-            the table's measured height (the depth noise grows with distance).
-        depth_table_height_m: pixels with valid depth lower than this (and lower than
-            ``depth_noise_k / 2`` noise deviations) are table: colour candidates there are
-            dropped (cast shadows, dark table squares) and they seed the watershed's
-            background. Invalid depth (0 / NaN) votes for nothing, so the colour cues decide.
+        depth_noise_k: both heights are raised to this many robust deviations of the table's
+            measured height (>= 0).
+        depth_table_height_m: pixels with valid depth lower than this over the table are table: no
+            colour candidates there, m.
         depth_filter_px: aperture of the median filter on the height map (1 = none).
-        depth_vote_valid: a pixel is a depth candidate (sure object) when most of the valid
-            pixels of its ``depth_filter_px`` window are high, holes abstaining (False: the
-            median with holes counted as table height, which loses dark parts whose depth
-            is mostly holes).
-        depth_split_jump: a blob whose solid pixels (valid depth above the candidate height,
-            off every range jump larger than this fraction of the depth) fall into two or
-            more large 4-connected pieces is divided between them first, where the table
-            shows between two pieces (touching parts; a groove of one part breaks its
-            surface too but shows no table); 0 disables.
+        depth_vote_valid: depth candidate when most valid pixels of the filter window are high
+            (holes abstain); False: holes count as table.
+        depth_split_jump: a blob whose solid pixels split into pieces at depth jumps above this
+            fraction of the depth is divided (>= 0; 0: off).
         depth_split_min_px: smallest solid piece (full-resolution pixels) that counts as a
             part for that split.
-        depth_split_step: two pieces with no table between them are also kept apart when
-            one is nearer than the other along their border by more than this fraction of
-            the depth (one part in front of another); 0 (default): never, since a part's
-            own self-occlusion makes steps of 2-4 % of the depth in the side view.
+        depth_split_step: pieces with no table between them are kept apart at a depth step above
+            this fraction of the depth (>= 0; 0: never).
+
+    ``methods``: 'watershed' adds the grey-level histogram extremes as markers *and* refines the
+    union by flooding (without it the union is used as is); 'background' is used only when an
+    empty-table image is given, 'depth' only with an aligned depth image and the camera pose
+    (leave 'depth' out for the paper's RGB-only method). The floors stop sensor noise on a
+    very plain table from becoming objects. Depth-table pixels also seed the watershed's
+    background; invalid depth (0 / NaN) votes for nothing, so the colour cues decide there.
+    ``depth_split_jump`` divides where the table shows between two pieces (touching parts; a
+    groove of one part breaks its surface too but shows no table); ``depth_split_step`` is off
+    by default since a part's own self-occlusion makes small steps in the side view.
     """
 
     methods: tuple[str, ...] = METHODS

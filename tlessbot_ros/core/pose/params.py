@@ -14,7 +14,8 @@ FALLBACK_METHODS = ('views', 'templates')
 @dataclass(frozen=True)
 class PoseParams:
     """Pose-estimation parameters (voxel scales are multiples of the database voxel, which is a
-    fraction of the object's diameter).
+    fraction of the object's diameter; the measurements behind the defaults:
+    docs/bench/parameter-notes.md).
 
     Attributes:
         method: 'table' (fast path, with a fallback when its fit is poor or there is no table
@@ -35,54 +36,26 @@ class PoseParams:
         icp_distance_voxels: ICP correspondence distance (final iterations; the first ones
             start at twice this).
         icp_points: ICP uses at most this many scene points (evenly strided).
-        polish_iterations: table path: the ``final_candidates`` get this many more
-            point-to-plane ICP steps on every ROI point before the answer is taken (0: off).
-            The short ICP of the many starts stops a few degrees short on noisy depth, so a
-            pose turned by ~180° ranked as high as the right one. In the class verification
-            (``PerceptionPipeline.fit_part``) the candidate classes are compared unpolished
-            and only the winner's finalists are polished
-            (:meth:`~tlessbot_ros.core.pose.PoseEstimator.polish`): polishing every class let
-            wrong ones converge too. 30: on 12 simulated scenes (6 moved rigs, 6 exact) 319 ->
-            327 of 356 parts within 5 cm / 5° on the moved rigs, 325 -> 329 on the exact
-            ones, the demo bag stays at 26 of 27; about +25 % pose-stage CPU per frame
-            (docs/bench/moved-rig-accuracy.md, session 12), about half of that since session
-            13 (a faster ICP kernel, per-pose stopping, ``polish_margin_fitness``).
+        polish_iterations: table path: more point-to-plane ICP steps for the final candidates on
+            every ROI point (>= 0; 0: off).
         polish_distance_voxels: their correspondence distance (the first half at twice it).
-        polish_margin_fitness: only the finalists whose fitness before the polish is within
-            this of the former winner's are polished (the winner always); the others keep
-            their fit and rank after it. 0.2: on 12 simulated scenes (741 polished parts)
-            the finalists that the polish made winners had been at most 0.13 behind (62 of 65
-            within 0.06), and 14 % of the finalists' ICP and scoring is saved
-            (docs/bench/moved-rig-accuracy.md, session 13). 1: polish all.
-        polish_overturn_fitness: after the polish, another finalist replaces the former
-            winner only when its fitness (a fraction of the ROI points) is higher by more than
-            this (:func:`~tlessbot_ros.core.pose.estimator.after_polish`): the polish lets
-            wrong finalists converge too, and the score's coverage term (blind to
-            self-occlusion) favours some poses turned by ~180°. 1: rank them by score.
+        polish_margin_fitness: only finalists within this fitness of the winner before the polish
+            are polished (0..1; 1: all).
+        polish_overturn_fitness: after the polish, another finalist replaces the winner only when
+            fitter by more than this (0..1; 1: by score).
         inlier_voxels: distance of a scene point to the model surface counted as an inlier.
         inlier_plane_m: an inlier must also lie this close to the tangent plane of its nearest
             model sample (0: off); used for the final ranking.
-        fallback_fitness: the table path falls back below this fitness. 0.85 rather than
-            0.7 since the fallback is cheap: a part leaning on another often gets a wrong
-            table pose with fitness 0.7-0.85 (on 65 leaning simulated parts 0.74 right at
-            5 cm / 5° with 0.7, 0.95 with 0.85), while 4 % of resting parts go to the fallback
-            (docs/bench/fallback.md).
+        fallback_fitness: the table path falls back below this fitness (0..1).
         fallback: run that fallback at all (off: the table path's best is returned).
-        fallback_method: 'views' (default) the bounded 6-DOF search of
-            :mod:`tlessbot_ros.core.pose.fallback`: a grid of views scored on the model's
-            nearest-sample grid, ICP at the template voxel, the near-symmetry turns, ~20-40 ms
-            a part; 'templates' the former fallback: FPFH + RANSAC against the templates
-            nearest the table path's best (all of them, ``ransac_max_iteration`` each, without
-            a table frame: 1-3 s a part). Also used without a table frame.
-        force_fallback: send every part straight to the fallback, without trying the table
-            path (parts known to lean or lie on others; benchmarks).
+        fallback_method: 'views' (bounded 6-DOF search over a grid of views, tens of ms a part) or
+            'templates' (FPFH + RANSAC, seconds).
+        force_fallback: send every part straight to the fallback, without trying the table path.
         fallback_templates: 'templates' fallback: the templates whose view is closest in
             rotation to the table path's best hypotheses, at most this many.
         fallback_max_iteration: 'templates' fallback: RANSAC iterations per template.
-        fallback_budget_ms: a safety net, in ms since
-            :meth:`~tlessbot_ros.core.pose.PoseEstimator.estimate` began: once spent, the
-            'views' fallback skips its near-symmetry turns and the 'templates' fallback starts
-            no further template.
+        fallback_budget_ms: time budget of the fallback from the start of the estimate, ms (> 0);
+            then it stops early.
         fallback_directions: 'views': viewing directions spread over the sphere (300: about
             12° apart).
         fallback_in_plane_steps: 'views': turns about the line of sight per direction (24:
@@ -91,30 +64,49 @@ class PoseParams:
             template voxel.
         fallback_coarse_points: 'views': every view is scored on this many coarse ROI points,
             the best ``fallback_keep`` again on ``score_points``.
-        fallback_keep: see ``fallback_coarse_points``.
-        fallback_icp_starts: 'views': the best this many views get ``fallback_icp_iterations``
-            point-to-plane ICP steps on the coarse points, correspondences within
-            ``fallback_icp_distance_voxels`` voxels (twice that in the first half: a view's
-            position comes from surface centroids, which occlusion shifts by a few voxels).
-        fallback_icp_iterations, fallback_icp_distance_voxels: see ``fallback_icp_starts``.
+        fallback_keep: 'views': the best this many views are scored again on ``score_points``
+            (>= 1).
+        fallback_icp_starts: 'views': the best this many views get ICP on the coarse points (>= 1).
+        fallback_icp_iterations: 'views': ICP steps of each of those starts (>= 1).
+        fallback_icp_distance_voxels: 'views': their correspondence distance, template voxels
+            (> 0).
         fallback_refine: 'views': the best distinct coarse poses refined at the template
             voxel (``icp_iterations``).
         fallback_turned: 'views': the best this many of those are turned by each of the part's
             near-symmetries and refined again.
         fallback_fine_iterations: 'views': the final ICP steps of the ``final_candidates``
             survivors, with every ROI point.
-        fallback_drop_planes: 'views': first remove up to this many RANSAC planes
-            (``cloud.plane_distance_m``) wider than ``fallback_plane_width`` times the part's
-            diameter from the ROI: the table in a box ROI without a table frame (one view,
-            no plane found: 0.74 -> 0.88 at 5 cm / 5° on 119 simulated parts). No face of the
-            part is wider than its diameter. 0: off.
-        fallback_plane_width: see ``fallback_drop_planes``.
-        ransac_distance_voxels, ransac_edge_length, ransac_mutual_filter,
-        ransac_max_iteration, ransac_confidence: the SAC-IA settings (algo-notes §C.4).
+        fallback_drop_planes: 'views': remove up to this many wide planes (the table) from the ROI
+            first (>= 0; 0: off).
+        fallback_plane_width: 'views': only planes wider than this many part diameters are
+            removed (> 0).
+        ransac_distance_voxels: SAC-IA: inlier distance of the RANSAC registration, template
+            voxels.
+        ransac_edge_length: SAC-IA: edge-length similarity of the correspondence check (0..1).
+        ransac_mutual_filter: SAC-IA: keep only mutual FPFH correspondences.
+        ransac_max_iteration: SAC-IA: most RANSAC iterations per template (>= 1).
+        ransac_confidence: SAC-IA: confidence at which RANSAC stops early (0..1).
         fpfh_radius_voxels, fpfh_max_nn: scene FPFH support (as in the templates).
         refine: refine RANSAC candidates with ICP (off = the paper's plain pipeline).
         ransac_candidates: RANSAC candidates (best by raw fitness) that get refined.
         seed: seeds the hypothesis subset and Open3D's RANSAC.
+
+    The polish (``polish_iterations``): the short ICP of the many starts stops a few degrees short
+    on noisy depth, so a pose turned by ~180° could rank as high as the right one. In the class
+    verification (``PerceptionPipeline.fit_part``) the candidate classes are compared unpolished
+    and only the winner's finalists are polished
+    (:meth:`~tlessbot_ros.core.pose.PoseEstimator.polish`): polishing every class lets wrong
+    ones converge too, and the score's coverage term (blind to self-occlusion) favours some
+    poses turned by ~180°, hence ``polish_overturn_fitness``
+    (:func:`~tlessbot_ros.core.pose.estimator.after_polish`). The 'views' fallback is the
+    bounded search of :mod:`tlessbot_ros.core.pose.fallback` (a grid of views scored on the
+    model's nearest-sample grid, ICP at the template voxel, the near-symmetry turns); it is
+    also used without a table frame. A view's position comes from surface centroids, which
+    occlusion shifts by a few voxels, so its first ICP steps use twice
+    ``fallback_icp_distance_voxels``. ``fallback_drop_planes`` removes RANSAC planes
+    (``cloud.plane_distance_m``) wider than ``fallback_plane_width`` times the part's diameter
+    (no face of a part is wider): the table in a box ROI without a table frame. The ``ransac_*``
+    settings are SAC-IA's (algo-notes §C.4).
     """
 
     method: str = 'table'
