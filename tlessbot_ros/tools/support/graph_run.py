@@ -241,6 +241,8 @@ class GraphRun:
         self.graph = GraphProcesses(self.specs, env=dict(os.environ))
         self.result = GraphRunResult()
         self.output: list[str] = []
+        self.player: Any = None        # the replaying node, made in run()
+        self.monitor: GraphMonitor | None = None
 
     def run(self) -> GraphRunResult:
         """Start, wait until ready, replay, drain; the nodes are stopped in any case."""
