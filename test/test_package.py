@@ -273,14 +273,13 @@ def test_the_cycle_finder_finds_a_cycle():
 # ------------------------------------------------------------------------ benches, their own tier
 def _bench_modules_after(argv: list[str]) -> list[str]:
     """The bench modules ``tlessbot <argv>`` imported (run in a fresh interpreter)."""
-    code = ('import sys\n'
-            'from tlessbot_ros.tools.cli import main\n'
-            'try:\n'
-            f'    main({argv!r})\n'
-            'except SystemExit:\n'
-            '    pass\n'
-            "prefix = 'tlessbot_ros.tools.commands.bench.'\n"
-            "print('imported:', *sorted(m for m in sys.modules if m.startswith(prefix)))\n")
+    code = '\n'.join((
+        'import contextlib, sys',
+        'from tlessbot_ros.tools.cli import main',
+        'with contextlib.suppress(SystemExit):',
+        f'    main({argv!r})',
+        "bench = [m for m in sys.modules if m.startswith('tlessbot_ros.tools.commands.bench.')]",
+        "print('imported:', *sorted(bench))"))
     result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                             cwd=REPO)
     assert result.returncode == 0, result.stderr
