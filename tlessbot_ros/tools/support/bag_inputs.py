@@ -1,0 +1,189 @@
+"""A cell's bag made ready for a replay through the graph (``tlessbot approve`` / ``check``).
+
+Cells record their cameras as realsense-ros names them: ``/top/color/image_raw``, or under a
+namespace remap ``/top/top/color/image_raw`` or ``/cell/top/...`` (realsense-ros 4.5x puts a
+camera at ``/<camera_namespace>/<camera_name>``; its default ``/camera/camera``). And
+``ros2 bag record`` logs each message when it arrived, so one frame's images carry several log
+times, unlike the bags tlessbot writes.
+
+:func:`find_cameras` finds each graph camera's topic prefix; :func:`stage_bag` copies the
+messages the graph reads (colour, aligned depth, its camera_info, per camera) into a new bag
+under the graph's names, one frame per log time: the side colour image's stamp, the top
+camera's nearest frame within ``sync.max_age_s``. A lock-step replay then sends whole frames,
+one at a time, in the same order every run. A frame one of the cameras lacks a message of is
+left out and counted.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tlessbot_ros.conversions.topics import COLOR, COLOR_INFO, DEPTH, DEPTH_INFO, camera_topic
+from tlessbot_ros.core.common import SIDE
+from tlessbot_ros.errors import BagError
+
+# What the stages read of each camera (nodes/stage.py CAMERA_INPUTS); colour camera_info is
+# copied when the bag has it.
+NEEDED = (COLOR, DEPTH, DEPTH_INFO)
+OPTIONAL = (COLOR_INFO,)
+WHY = {COLOR: 'colour', DEPTH: 'aligned depth (realsense-ros align_depth.enable:=true)',
+       DEPTH_INFO: 'aligned depth camera_info'}
+
+
+class SetupError(BagError):
+    """The bag cannot be replayed through the graph as it is (exit 2 of ``tlessbot check``)."""
+
+
+def parse_camera_map(values: Sequence[str] | None) -> dict[str, str]:
+    """``['side=/camera/camera']`` -> ``{'side': '/camera/camera'}``."""
+    mapping = {}
+    for value in values or ():
+        name, sep, prefix = value.partition('=')
+        if not sep or not name or not prefix.startswith('/'):
+            raise SetupError(f'--camera wants NAME=/PREFIX (e.g. side=/camera/camera), got '
+                             f'{value!r}')
+        mapping[name] = prefix.rstrip('/')
+    return mapping
+
+
+def _prefixes(topics: Sequence[str]) -> list[str]:
+    """Topic prefixes that carry a colour image (``/a/b`` of ``/a/b/color/image_raw``)."""
+    suffix = '/' + COLOR
+    return sorted(t[:-len(suffix)] for t in topics if t.endswith(suffix) and
+                  len(t) > len(suffix))
+
+
+def find_cameras(topics: Sequence[str], cameras: Sequence[str],
+                 given: Mapping[str, str] | None = None, *, bag: str = 'bag'
+                 ) -> dict[str, str]:
+    """{graph camera: topic prefix in the bag}.
+
+    A camera's prefix is ``given`` or found: ``/<camera>``, else the one prefix that ends in
+    ``/<camera>`` (``/top/top``, ``/cell/top``).
+
+    Raises:
+        SetupError: a camera not found, or its prefix lacks a topic a stage needs; the line
+            names the topics.
+    """
+    given = dict(given or {})
+    unknown = sorted(set(given) - set(cameras))
+    if unknown:
+        raise SetupError(f"--camera names {unknown}; the graph's cameras are {list(cameras)}")
+    prefixes = _prefixes(topics)
+    found: dict[str, str] = {}
+    for camera in cameras:
+        if camera in given:
+            found[camera] = given[camera]
+            continue
+        exact = f'/{camera}'
+        ending = [p for p in prefixes if p.endswith(exact)]
+        if exact in ending:
+            found[camera] = exact
+        elif len(ending) == 1:
+            found[camera] = ending[0]
+    missing_cameras = [c for c in cameras if c not in found]
+    if missing_cameras:
+        others = [p for p in prefixes if p not in found.values()]
+        hint = (f'; it has camera topics under {", ".join(others)}: map them with --camera '
+                f'{missing_cameras[0]}={others[0]}' if others else '')
+        needed = ', '.join(camera_topic(c, t) for c in missing_cameras for t in NEEDED)
+        raise SetupError(f'{bag} lacks the topics of camera(s) {", ".join(missing_cameras)} '
+                         f'(the graph fuses {" and ".join(cameras)}): {needed}{hint}')
+    absent = [(f'{found[c]}/{t}', t) for c in cameras for t in NEEDED
+              if f'{found[c]}/{t}' not in topics]
+    if absent:
+        what = '; '.join(dict.fromkeys(WHY[t] for _, t in absent))
+        raise SetupError(f'{bag} lacks {", ".join(t for t, _ in absent)} (the stages need '
+                         f'the {what})')
+    return found
+
+
+@dataclass
+class StagedBag:
+    """A bag :func:`stage_bag` wrote, and what it made of the source."""
+
+    path: Path
+    cameras: dict[str, str]                 # graph camera -> prefix in the source bag
+    frames: list[int] = field(default_factory=list)   # side colour stamps, ns
+    skipped: int = 0                        # side frames left out: a message missing
+
+
+def _stamped_messages(bag: str | Path, sources: Mapping[str, tuple[str, str]]
+                      ) -> tuple[dict[tuple[str, str], dict[int, bytes]], dict[str, str]]:
+    """{(camera, relative topic): {header stamp: raw}} and {source topic: type}."""
+    from tlessbot_ros.conversions.cdr import header_stamp_ns
+    from tlessbot_ros.io.bags import read_bag
+
+    by_key: dict[tuple[str, str], dict[int, bytes]] = {}
+    types: dict[str, str] = {}
+    for message in read_bag(bag, list(sources)):
+        camera, relative = sources[message.topic]
+        try:
+            stamp = header_stamp_ns(message.raw)
+        except ValueError:
+            raise SetupError(f'{bag}: a message on {message.topic} has no header') from None
+        by_key.setdefault((camera, relative), {})[stamp] = message.raw
+        types[relative] = message.msgtype
+    return by_key, types
+
+
+def _nearest(stamps: Sequence[int], stamp: int) -> int | None:
+    return min(stamps, key=lambda s: abs(s - stamp)) if stamps else None
+
+
+def _frame(by_key: Mapping[tuple[str, str], Mapping[int, bytes]], cameras: Sequence[str],
+           relatives: Sequence[str], stamp: int, max_age_ns: int) -> dict[str, bytes] | None:
+    """{graph topic: raw} of the frame of side stamp ``stamp``; None when a camera has no
+    frame within ``max_age_ns`` or lacks a needed message of it."""
+    frame = {}
+    for camera in cameras:
+        own = stamp if camera == SIDE else _nearest(list(by_key.get((camera, COLOR), {})), stamp)
+        if own is None or abs(own - stamp) > max_age_ns:
+            return None
+        for rel in relatives:
+            raw = by_key.get((camera, rel), {}).get(own)
+            if raw is None and rel in NEEDED:
+                return None
+            if raw is not None:
+                frame[camera_topic(camera, rel)] = raw
+    return frame
+
+
+def stage_bag(bag: str | Path, out: str | Path, cameras: Mapping[str, str], *,
+              max_age_s: float = 0.050) -> StagedBag:
+    """Copy the frames of ``bag`` the graph reads to a new mcap bag ``out``, under the graph's
+    topic names, one log time (the side colour stamp) per whole frame.
+
+    Args:
+        cameras: {graph camera: prefix in ``bag``} (:func:`find_cameras`).
+        max_age_s: largest stamp difference between the side frame and the other cameras'
+            frames joined to it (seconds; the nodes' ``sync.max_age_s``).
+    """
+    from tlessbot_ros.io.bag_writer import BagWriter
+    from tlessbot_ros.io.bags import bag_topics
+
+    relatives = [*NEEDED, *OPTIONAL]
+    sources = {f'{prefix}/{rel}': (camera, rel) for camera, prefix in cameras.items()
+               for rel in relatives}
+    available = bag_topics(bag)
+    sources = {topic: key for topic, key in sources.items() if topic in available}
+    by_key, types = _stamped_messages(bag, sources)
+    staged = StagedBag(Path(out), dict(cameras))
+    present = sorted({rel for _, rel in by_key})
+    with BagWriter(out) as writer:
+        for camera in cameras:
+            for rel in present:
+                writer.add_topic(camera_topic(camera, rel), types[rel])
+        for stamp in sorted(by_key.get((SIDE, COLOR), {})):
+            frame = _frame(by_key, cameras, present, stamp, int(max_age_s * 1e9))
+            if frame is None:
+                staged.skipped += 1
+                continue
+            for topic, raw in frame.items():
+                writer.write(topic, stamp, raw)
+            staged.frames.append(stamp)
+    if not staged.frames:
+        raise SetupError(f'{bag}: no whole frame (colour, aligned depth and its camera_info of '
+                         f'{" and ".join(cameras)} within {1e3 * max_age_s:.0f} ms)')
+    return staged
