@@ -91,7 +91,8 @@ class PartCheck:
         """One line: what happened to the part, with the figures."""
         if self.status in (MATCH, MOVED):
             assert self.error is not None
-            return (f'{self.status}: moved {1e3 * self.error.translation_m:.2f} mm, '
+            return (f'{"within tolerance" if self.ok else "moved"}: '
+                    f'{1e3 * self.error.translation_m:.2f} mm, '
                     f'{self.error.rotation_deg:.2f} deg')
         if self.status == FRAME_CHANGED:
             assert self.expected is not None and self.actual is not None

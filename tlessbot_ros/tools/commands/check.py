@@ -83,8 +83,11 @@ def run(args: argparse.Namespace) -> int:
     failed = [c for c in checks if c.status != MATCH]
     mode = 'free-running' if args.free_running else 'lock-step'
     if not failed:
+        errors = [c.error for c in checks if c.error is not None]
+        largest = (f'largest change {1e3 * max(e.translation_m for e in errors):.2f} mm, '
+                   f'{max(e.rotation_deg for e in errors):.2f} deg; ' if errors else '')
         print(f'check: all {len(checks)} parts match in {len(actual)} frames ({mode}, '
-              f'{outcome.seconds:.0f} s; {1e3 * tolerance.position_m:g} mm, '
+              f'{outcome.seconds:.0f} s; {largest}tolerance {1e3 * tolerance.position_m:g} mm, '
               f'{tolerance.angle_deg:g} deg)')
         return 0
     print(f'check: REGRESSION: {len(failed)} of {len(checks)} parts in '

@@ -1,0 +1,132 @@
+"""tlessbot approve / check without the graph: cells' bags (realsense-ros names, ros2 bag record
+log times, sqlite3 and mcap), the expected-poses file, JUnit XML, exit 2 on a broken set-up."""
+
+import numpy as np
+import pytest
+from cell_bags import CAMERA_TOPICS, cell_bag
+from rosbags.rosbag2 import StoragePlugin
+
+from tlessbot_ros.conversions.cdr import header_stamp_ns
+from tlessbot_ros.core.common import make_transform
+from tlessbot_ros.core.regression import PartPose, check_frames
+from tlessbot_ros.io.bags import read_bag
+from tlessbot_ros.tools.cli import main
+from tlessbot_ros.tools.commands.check import format_table
+from tlessbot_ros.tools.support.bag_inputs import SetupError, find_cameras, stage_bag
+from tlessbot_ros.tools.support.defaults import DEFAULT_BAG
+from tlessbot_ros.tools.support.expected_poses import (
+    ApprovedRun,
+    ExpectedFileError,
+    read_expected,
+    write_expected,
+)
+from tlessbot_ros.tools.support.junit import write_junit
+
+pytestmark = pytest.mark.rosbag
+def test_find_cameras_under_realsense_names():
+    names = [f'{p}/{t}' for p in ('/cell/top', '/cell/side') for t in CAMERA_TOPICS]
+    assert find_cameras(names, ['top', 'side']) == {'top': '/cell/top', 'side': '/cell/side'}
+    names = [f'{p}/{t}' for p in ('/top/top', '/camera/camera') for t in CAMERA_TOPICS]
+    assert find_cameras(names, ['top', 'side'], {'side': '/camera/camera'}) == \
+        {'top': '/top/top', 'side': '/camera/camera'}
+    # one camera, realsense-ros's default namespace: the line names what is missing and how
+    # to map the camera there is
+    one = [f'/camera/camera/{t}' for t in CAMERA_TOPICS]
+    with pytest.raises(SetupError) as error:
+        find_cameras(one, ['top', 'side'], bag='run1')
+    message = str(error.value)
+    assert '\n' not in message
+    assert 'run1 lacks the topics of camera(s) top, side' in message
+    assert '/side/aligned_depth_to_color/image_raw' in message
+    assert '--camera top=/camera/camera' in message
+    with pytest.raises(SetupError, match='lacks /camera/camera/aligned_depth_to_color/image_raw'
+                       r'.*\(the stages need the aligned depth'):
+        find_cameras([f'/camera/camera/{t}' for t in CAMERA_TOPICS[:2]], ['side'],
+                     {'side': '/camera/camera'})
+
+
+@pytest.mark.parametrize('storage', [StoragePlugin.SQLITE3, StoragePlugin.MCAP])
+def test_a_recorded_bag_is_staged_as_whole_frames(tmp_path, storage):
+    bag = cell_bag(tmp_path / 'rec', {'top': '/top/top', 'side': '/camera/camera'},
+                   storage=storage)
+    staged = stage_bag(bag, tmp_path / 'staged', {'top': '/top/top', 'side': '/camera/camera'})
+    assert len(staged.frames) == 3 and staged.skipped == 0
+    messages = list(read_bag(staged.path))
+    assert {m.topic for m in messages} == {f'/{c}/{t}' for c in ('top', 'side')
+                                           for t in CAMERA_TOPICS}
+    # one log time per frame, the side colour stamp, every message of the frame under it
+    assert sorted({m.log_time_ns for m in messages}) == staged.frames
+    for message in messages:
+        assert header_stamp_ns(message.raw) == message.log_time_ns
+    assert len(messages) == 3 * 8
+    source = {header_stamp_ns(m.raw): m.raw for m in read_bag(bag, ['/top/top/color/image_raw'])}
+    staged_top = [m for m in messages if m.topic == '/top/color/image_raw']
+    assert all(source[m.log_time_ns] == m.raw for m in staged_top)   # bytes kept as recorded
+
+
+def test_a_frame_missing_a_message_is_left_out(tmp_path):
+    bag = cell_bag(tmp_path / 'rec', {'top': '/top', 'side': '/side'}, frames=3)
+    # drop the top depth of every frame but keep the messages of the others: no whole frame
+    with pytest.raises(SetupError, match='no whole frame'):
+        stage_bag(cell_bag(tmp_path / 'nodepth', {'top': '/top', 'side': '/side'},
+                           drop=('top/aligned_depth_to_color/camera_info',)),
+                  tmp_path / 'x', {'top': '/top', 'side': '/side'})
+    staged = stage_bag(bag, tmp_path / 'ok', {'top': '/top', 'side': '/side'})
+    assert staged.skipped == 0 and len(staged.frames) == 3
+
+
+def test_check_exits_2_with_one_line_on_a_broken_set_up(tmp_path, capsys):
+    expected = tmp_path / 'expected.yaml'
+    write_expected(expected, ApprovedRun({1: []}, {'bag': 'x'}))
+    no_depth = cell_bag(tmp_path / 'nodepth', {'top': '/top', 'side': '/side'},
+                        drop=('top/aligned_depth_to_color/image_raw',
+                              'side/aligned_depth_to_color/image_raw'))
+    cases = [
+        ([str(no_depth)], 'lacks /top/aligned_depth_to_color/image_raw, '
+                          '/side/aligned_depth_to_color/image_raw (the stages need the aligned '
+                          'depth (realsense-ros align_depth.enable:=true))'),
+        ([str(tmp_path / 'none')], 'bag not found'),
+        ([str(DEFAULT_BAG), '--templates', str(tmp_path / 'none.npz')], 'model file not found'),
+    ]
+    for argv, reason in cases:
+        assert main(['check', *argv, '--expected', str(expected)]) == 2
+        err = capsys.readouterr().err
+        assert reason in err and err.count('\n') == 1, err
+    (tmp_path / 'bad.yaml').write_text('format: something-else\n')
+    assert main(['check', str(DEFAULT_BAG), '--expected', str(tmp_path / 'bad.yaml')]) == 2
+    assert 'is not a tlessbot-expected-poses file' in capsys.readouterr().err
+    assert main(['approve', str(no_depth), '--out', str(tmp_path / 'e.yaml')]) == 2
+    assert 'lacks /top/aligned_depth_to_color/image_raw' in capsys.readouterr().err
+    assert not (tmp_path / 'e.yaml').exists()
+
+
+def test_expected_file_round_trip_and_junit_read_by_junitparser(tmp_path):
+    junitparser = pytest.importorskip('junitparser')
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    parts = [PartPose('obj_05', make_transform(R, [0.1, -0.02, 0.6]), 'side_color_optical_frame',
+                      0.93), PartPose('obj_06', np.eye(4), 'world', None)]
+    path = tmp_path / 'expected.yaml'
+    write_expected(path, ApprovedRun({20: parts, 10: []}, {'bag': 'b', 'replay': 'lockstep'}))
+    back = read_expected(path)
+    assert sorted(back.frames) == [10, 20] and back.info['replay'] == 'lockstep'
+    assert [p.name for p in back.frames[20]] == ['obj_05', 'obj_06']
+    assert np.allclose(back.frames[20][0].T, parts[0].T, atol=1e-6)
+    assert back.frames[20][0].score == 0.93 and back.frames[20][1].score is None
+    with pytest.raises(ExpectedFileError, match='not found'):
+        read_expected(tmp_path / 'none.yaml')
+
+    moved = PartPose('obj_05', make_transform(R, [0.1, -0.01, 0.6]), parts[0].frame_id, 0.9)
+    checks = check_frames(back.frames, {10: [], 20: [moved, parts[1]]}, {})
+    table = format_table(checks, {10: 0, 20: 1})
+    assert 'obj_05  MOVED   10.00' in table and 'obj_06  ok' in table
+    xml = tmp_path / 'report.xml'
+    write_junit(xml, checks, suite='tlessbot check b', frame_index={10: 0, 20: 1})
+    suites = junitparser.JUnitXml.fromfile(str(xml))
+    (suite,) = list(suites)
+    cases = list(suite)
+    assert (suite.tests, suite.failures) == (2, 1)
+    failed = [c for c in cases if not c.is_passed]
+    assert [c.name for c in failed] == ['frame 001 (stamp 20) obj_05']
+    (result,) = failed[0].result
+    assert isinstance(result, junitparser.Failure) and result.type == 'moved'
+    assert result.message == 'moved: 10.00 mm, 0.00 deg'
