@@ -55,9 +55,10 @@ setup(
             'ros-jazzy-common-interfaces',
             'ros-jazzy-rmw-fastrtps-cpp',
         ],
-        # scikit-image and trimesh: reference implementations the tests compare against.
+        # scikit-image and trimesh: reference implementations the tests compare against;
+        # junitparser: an independent reader of tlessbot check's JUnit XML.
         'test': ['pytest>=8', 'pytest-timeout>=2.2', 'ruff>=0.5', 'scikit-image>=0.22',
-                 'trimesh>=4.0'],
+                 'trimesh>=4.0', 'junitparser>=3'],
     },
     zip_safe=True,
     maintainer='tlessbot_ros team',

@@ -2,6 +2,7 @@
 as a cell records it (realsense-ros names under a namespace, ros2 bag record log times,
 sqlite3) is approved, checked unchanged (exit 0), and checked after a parameter change that
 moves poses (exit 1, the frame and the part named, JUnit XML read by junitparser)."""
+import junitparser
 import pytest
 from cell_bags import cell_bag
 
@@ -39,7 +40,6 @@ def test_approve_writes_every_frame_and_a_review_page(approved):
 
 
 def test_check_passes_unchanged_and_fails_on_moved_poses(approved, tmp_path, capsys):
-    junitparser = pytest.importorskip('junitparser')
     bag, expected = approved
     capsys.readouterr()
     assert main(['check', str(bag), '--expected', str(expected)]) == 0

@@ -1,6 +1,7 @@
 """tlessbot approve / check without the graph: cells' bags (realsense-ros names, ros2 bag record
 log times, sqlite3 and mcap), the expected-poses file, JUnit XML, exit 2 on a broken set-up."""
 
+import junitparser
 import numpy as np
 import pytest
 from cell_bags import CAMERA_TOPICS, cell_bag
@@ -101,7 +102,6 @@ def test_check_exits_2_with_one_line_on_a_broken_set_up(tmp_path, capsys):
 
 
 def test_expected_file_round_trip_and_junit_read_by_junitparser(tmp_path):
-    junitparser = pytest.importorskip('junitparser')
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     parts = [PartPose('obj_05', make_transform(R, [0.1, -0.02, 0.6]), 'side_color_optical_frame',
                       0.93), PartPose('obj_06', np.eye(4), 'world', None)]
