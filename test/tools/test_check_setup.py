@@ -40,6 +40,8 @@ def test_find_cameras_under_realsense_names():
     assert 'run1 lacks the topics of camera(s) top, side' in message
     assert '/side/aligned_depth_to_color/image_raw' in message
     assert '--camera top=/camera/camera' in message
+    with pytest.raises(SetupError, match='two cameras to one prefix'):
+        find_cameras(one, ['top', 'side'], {'top': '/camera/camera', 'side': '/camera/camera'})
     with pytest.raises(SetupError, match='lacks /camera/camera/aligned_depth_to_color/image_raw'
                        r'.*\(the stages need the aligned depth'):
         find_cameras([f'/camera/camera/{t}' for t in CAMERA_TOPICS[:2]], ['side'],

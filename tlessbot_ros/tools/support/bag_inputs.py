@@ -70,6 +70,9 @@ def find_cameras(topics: Sequence[str], cameras: Sequence[str],
     unknown = sorted(set(given) - set(cameras))
     if unknown:
         raise SetupError(f"--camera names {unknown}; the graph's cameras are {list(cameras)}")
+    if len(set(given.values())) < len(given):
+        raise SetupError(f'--camera maps two cameras to one prefix ({given}); the graph fuses '
+                         'two different views')
     prefixes = _prefixes(topics)
     found: dict[str, str] = {}
     for camera in cameras:
