@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
              f'{len(frames)} frames, {len(outcome.parts)} parts{skipped}. Expected poses: '
              f'`{args.out.name}`. Check every overlay before committing both.']
     pngs = write_review_page(page, frames, outcome.overlays,
-                             title=f'Approved poses of {args.bag.name}', notes=notes)
+                             title=f'Approved poses of {args.bag}', notes=notes)
     print(f'approved {len(outcome.parts)} parts in {len(frames)} frames -> {args.out}; review '
           f'{page} ({pngs} overlays){skipped}')
     return 0
