@@ -132,3 +132,28 @@ def test_expected_file_round_trip_and_junit_read_by_junitparser(tmp_path):
     (result,) = failed[0].result
     assert isinstance(result, junitparser.Failure) and result.type == 'moved'
     assert result.message == 'moved: 10.00 mm, 0.00 deg'
+
+
+def test_the_ci_recipe_parses_and_uses_real_options():
+    import argparse
+    import re
+    from pathlib import Path
+
+    import yaml
+
+    from tlessbot_ros.tools.commands import approve, check
+
+    text = (Path(__file__).resolve().parents[2] / 'docs' / 'ci.md').read_text()
+    (block,) = re.findall(r'```yaml\n(.*?)```', text, re.S)
+    workflow = yaml.safe_load(block)
+    assert set(workflow['jobs']) == {'standalone', 'colcon'}
+    colcon = ' '.join(s.get('run', '') for s in workflow['jobs']['colcon']['steps'])
+    assert 'colcon build' in colcon and 'ros2 run tlessbot_ros tlessbot check' in colcon
+    for module, command in ((check, 'check'), (approve, 'approve')):
+        parser = argparse.ArgumentParser()
+        module.add_arguments(parser)
+        known = {o for action in parser._actions for o in action.option_strings}
+        used = set(re.findall(rf'tlessbot {command} [^\n]*(?:\\\n[^\n]*)*', text))
+        assert used
+        for line in used:
+            assert set(re.findall(r'(?<=\s)--[a-z-]+', line)) <= known, line
