@@ -157,3 +157,17 @@ def test_the_ci_recipe_parses_and_uses_real_options():
         assert used
         for line in used:
             assert set(re.findall(r'(?<=\s)--[a-z-]+', line)) <= known, line
+
+
+def test_a_graph_that_fails_to_start_is_told_in_one_line():
+    from tlessbot_ros.tools.support.approval_run import one_line
+
+    # the shape of run_graph_on_bag's error: a first line, then the nodes' last output
+    message = ('pose_estimator exited with code 1 during start-up:\n[INFO] [localiser]: ready\n'
+               "[pose_estimator] PoseEstimatorNode: error: output_frame must be 'camera' or "
+               "'world', got 'bogus'\n\n")
+    assert one_line(message) == (
+        'pose_estimator exited with code 1 during start-up: [pose_estimator] PoseEstimatorNode: '
+        "error: output_frame must be 'camera' or 'world', got 'bogus'")
+    assert one_line('the perception nodes did not come up within 3 s:\n') == \
+        'the perception nodes did not come up within 3 s'

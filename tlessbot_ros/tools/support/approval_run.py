@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import re
+import sys
 import tempfile
 import threading
 import time
@@ -145,6 +146,16 @@ class _Extras:
         return best[0][1] if best and best[0][0] < 1e-3 else None
 
 
+def one_line(message: str) -> str:
+    """A graph error's first line and, from the nodes' output after it, the last line that
+    names an error (else the last line): 'pose_estimator exited with code 1 during start-up:
+    ... output_frame must be ...'."""
+    head, *rest = [line.strip() for line in message.splitlines() if line.strip()] or ['']
+    errors = [line for line in rest if 'error' in line.lower()]
+    detail = (errors or rest or [''])[-1]
+    return f'{head.rstrip(":")}: {detail}' if detail else head.rstrip(':')
+
+
 def _part_name(pose) -> str:
     return getattr(pose, 'name', None) or f'obj_{pose.obj_id:02d}'
 
@@ -178,13 +189,16 @@ def replay_bag(args: argparse.Namespace, *, overlays: bool = False) -> ReplayOut
         ros_args = ['-p', f'model_path:={args.classifier}', '-p',
                     f'templates_path:={args.templates}',
                     *(a for value in args.param for a in ('-p', value))]
-        try:
+        argv, sys.argv = sys.argv, sys.argv[:1]   # rclpy.init reads sys.argv, where rcl
+        try:                                      # would take '-p a:=b' for a remap rule
             run = run_graph_on_bag(staged.path, config=Path(config), ros_args=ros_args,
                                    lockstep=not args.free_running,
                                    startup_timeout_s=args.startup_timeout,
                                    alongside=extras.start)
         except TlessbotError as error:
-            raise SetupError(f'graph: {str(error).splitlines()[0]}') from None
+            raise SetupError(f'graph: {one_line(str(error))}') from None
+        finally:
+            sys.argv = argv
     outcome = ReplayOutcome(staged, frames=list(run.frames_replayed),
                             overlays=dict(extras.overlays),
                             seconds=time.monotonic() - started)
