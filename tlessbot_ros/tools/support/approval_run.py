@@ -31,7 +31,7 @@ from tlessbot_ros.tools.support.bag_inputs import (
     stage_bag,
 )
 
-_LABEL = re.compile(r'^(?P<name>\S+) \((?P<score>[0-9.]+)\)$')
+_LABEL = re.compile(r'\((?P<score>[0-9.]+)\)$')   # 'obj_05 (0.93)': the score at the end
 MATCH_WAIT_S = 15.0   # for the marker and overlay subscriptions to match the pose estimator
 TAIL_WAIT_S = 10.0    # after the replay, for the last frames' markers and overlays
 
@@ -75,7 +75,7 @@ class _Extras:
 
     def __init__(self, overlays: bool) -> None:
         self.want_overlays = overlays
-        self.scores: dict[int, list[tuple[str, np.ndarray, float]]] = {}
+        self.scores: dict[int, list[tuple[np.ndarray, float]]] = {}
         self.overlays: dict[int, np.ndarray] = {}
         self._lock = threading.Lock()
 
@@ -83,13 +83,13 @@ class _Extras:
         from tlessbot_ros.conversions import stamp_to_ns
 
         for marker in msg.markers:
-            found = _LABEL.match(marker.text or '') if marker.ns == 'label' else None
+            found = _LABEL.search(marker.text or '') if marker.ns == 'label' else None
             if found is None:
                 continue
             p = marker.pose.position
             with self._lock:
                 self.scores.setdefault(stamp_to_ns(marker.header.stamp), []).append(
-                    (found['name'], np.array([p.x, p.y, p.z]), float(found['score'])))
+                    (np.array([p.x, p.y, p.z]), float(found['score'])))
 
     def _on_overlay(self, msg) -> None:
         from tlessbot_ros.conversions import image_to_rgb, stamp_to_ns
@@ -138,10 +138,11 @@ class _Extras:
             return scored and (not self.want_overlays or
                                all(s in self.overlays for s in result.frames_replayed))
 
-    def score(self, stamp: int, name: str, position: np.ndarray) -> float | None:
-        """The score of the marker of this frame and name nearest ``position`` (1 mm)."""
+    def score(self, stamp: int, position: np.ndarray) -> float | None:
+        """The score of this frame's label marker at ``position`` (within 1 mm; a label sits
+        at its part's origin, in the pose's frame)."""
         best = [(float(np.linalg.norm(p - position)), s)
-                for n, p, s in self.scores.get(stamp, ()) if n == name]
+                for p, s in self.scores.get(stamp, ())]
         best.sort()
         return best[0][1] if best and best[0][0] < 1e-3 else None
 
@@ -204,6 +205,6 @@ def replay_bag(args: argparse.Namespace, *, overlays: bool = False) -> ReplayOut
                             seconds=time.monotonic() - started)
     for pose in run.poses:
         part = PartPose(_part_name(pose), pose.T, pose.frame_id,
-                        extras.score(pose.stamp_ns, _part_name(pose), pose.T[:3, 3]))
+                        extras.score(pose.stamp_ns, pose.T[:3, 3]))
         outcome.parts.append((pose.stamp_ns, part))
     return outcome
