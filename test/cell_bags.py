@@ -17,7 +17,9 @@ def cell_bag(path: Path, prefixes: dict[str, str], *, storage=StoragePlugin.SQLI
              frames: int = 3, drop: tuple[str, ...] = ()) -> Path:
     """The demo bag's first ``frames`` camera frames as a cell records them with realsense-ros
     and ``ros2 bag record``: topics under ``prefixes``, each message logged a few ms after its
-    stamp (one frame over many log times), written by rosbags (not tlessbot's writer)."""
+    stamp (one frame over many log times), written by rosbags (not tlessbot's writer).
+    ``drop``: topics to leave out (``top/color/image_raw``), or one frame's message of a topic
+    (``top/color/image_raw@1``)."""
     stamps: list[int] = []
     messages = []
     for message in read_bag(DEFAULT_BAG):
@@ -27,7 +29,9 @@ def cell_bag(path: Path, prefixes: dict[str, str], *, storage=StoragePlugin.SQLI
         stamp = header_stamp_ns(message.raw)
         if stamp not in stamps:
             stamps.append(stamp)
-        if stamps.index(stamp) >= frames or f'{camera}/{relative}' in drop:
+        index = stamps.index(stamp)
+        if index >= frames or {f'{camera}/{relative}', f'{camera}/{relative}@{index}'} & \
+                set(drop):
             continue
         lag_ns = 1_000_000 * (1 + (len(messages) * 7) % 9)
         messages.append((stamp + lag_ns, f'{prefixes[camera]}/{relative}', message))

@@ -15,13 +15,14 @@ left out and counted.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from tlessbot_ros.conversions.topics import COLOR, COLOR_INFO, DEPTH, DEPTH_INFO, camera_topic
 from tlessbot_ros.core.common import SIDE
 from tlessbot_ros.errors import BagError
+from tlessbot_ros.io.bags import BagMessage
 
 # What the stages read of each camera (nodes/stage.py CAMERA_INPUTS); colour camera_info is
 # copied when the bag has it.
@@ -112,51 +113,48 @@ class StagedBag:
     skipped: int = 0                        # side frames left out: a message missing
 
 
-def _stamped_messages(bag: str | Path, sources: Mapping[str, tuple[str, str]]
-                      ) -> tuple[dict[tuple[str, str], dict[int, bytes]], dict[str, str]]:
-    """{(camera, relative topic): {header stamp: raw}} and {source topic: type}."""
+def _stamped(bag: str | Path, sources: Mapping[str, tuple[str, str]]
+             ) -> Iterator[tuple[tuple[str, str], int, BagMessage]]:
+    """((camera, relative topic), header stamp, message) of the ``sources`` topics."""
     from tlessbot_ros.conversions.cdr import header_stamp_ns
     from tlessbot_ros.io.bags import read_bag
 
-    by_key: dict[tuple[str, str], dict[int, bytes]] = {}
-    types: dict[str, str] = {}
     for message in read_bag(bag, list(sources)):
-        camera, relative = sources[message.topic]
         try:
             stamp = header_stamp_ns(message.raw)
         except ValueError:
             raise SetupError(f'{bag}: a message on {message.topic} has no header') from None
-        by_key.setdefault((camera, relative), {})[stamp] = message.raw
-        types[relative] = message.msgtype
-    return by_key, types
+        yield sources[message.topic], stamp, message
 
 
 def _nearest(stamps: Sequence[int], stamp: int) -> int | None:
     return min(stamps, key=lambda s: abs(s - stamp)) if stamps else None
 
 
-def _frame(by_key: Mapping[tuple[str, str], Mapping[int, bytes]], cameras: Sequence[str],
-           relatives: Sequence[str], stamp: int, max_age_ns: int) -> dict[str, bytes] | None:
-    """{graph topic: raw} of the frame of side stamp ``stamp``; None when a camera has no
-    frame within ``max_age_ns`` or lacks a needed message of it."""
-    frame = {}
+def _frame(stamps: Mapping[tuple[str, str], set[int]], cameras: Sequence[str],
+           relatives: Sequence[str], stamp: int, max_age_ns: int
+           ) -> list[tuple[str, str, int]] | None:
+    """The messages (camera, relative topic, stamp) of the frame of side stamp ``stamp``; None
+    when a camera has no frame within ``max_age_ns`` or lacks a needed message of it."""
+    frame = []
     for camera in cameras:
-        own = stamp if camera == SIDE else _nearest(list(by_key.get((camera, COLOR), {})), stamp)
+        own = stamp if camera == SIDE else _nearest(sorted(stamps.get((camera, COLOR), ())),
+                                                    stamp)
         if own is None or abs(own - stamp) > max_age_ns:
             return None
         for rel in relatives:
-            raw = by_key.get((camera, rel), {}).get(own)
-            if raw is None and rel in NEEDED:
+            if own in stamps.get((camera, rel), ()):
+                frame.append((camera, rel, own))
+            elif rel in NEEDED:
                 return None
-            if raw is not None:
-                frame[camera_topic(camera, rel)] = raw
     return frame
 
 
 def stage_bag(bag: str | Path, out: str | Path, cameras: Mapping[str, str], *,
               max_age_s: float = 0.050) -> StagedBag:
     """Copy the frames of ``bag`` the graph reads to a new mcap bag ``out``, under the graph's
-    topic names, one log time (the side colour stamp) per whole frame.
+    topic names, one log time (the side colour stamp) per whole frame. Two passes over the bag
+    (the stamps, then the messages), so a long bag is never held in memory.
 
     Args:
         cameras: {graph camera: prefix in ``bag``} (:func:`find_cameras`).
@@ -166,26 +164,31 @@ def stage_bag(bag: str | Path, out: str | Path, cameras: Mapping[str, str], *,
     from tlessbot_ros.io.bag_writer import BagWriter
     from tlessbot_ros.io.bags import bag_topics
 
-    relatives = [*NEEDED, *OPTIONAL]
-    sources = {f'{prefix}/{rel}': (camera, rel) for camera, prefix in cameras.items()
-               for rel in relatives}
     available = bag_topics(bag)
-    sources = {topic: key for topic, key in sources.items() if topic in available}
-    by_key, types = _stamped_messages(bag, sources)
+    sources = {f'{prefix}/{rel}': (camera, rel) for camera, prefix in cameras.items()
+               for rel in (*NEEDED, *OPTIONAL) if f'{prefix}/{rel}' in available}
+    stamps: dict[tuple[str, str], set[int]] = {}
+    for key, stamp, _ in _stamped(bag, sources):
+        stamps.setdefault(key, set()).add(stamp)
     staged = StagedBag(Path(out), dict(cameras))
-    present = sorted({rel for _, rel in by_key})
-    with BagWriter(out) as writer:
+    present = sorted({rel for _, rel in stamps})
+    log_times: dict[tuple[str, str, int], list[int]] = {}   # a message -> its frames' stamps
+    for stamp in sorted(stamps.get((SIDE, COLOR), ())):
+        frame = _frame(stamps, list(cameras), present, stamp, int(max_age_s * 1e9))
+        if frame is None:
+            staged.skipped += 1
+            continue
+        staged.frames.append(stamp)
+        for member in frame:
+            log_times.setdefault(member, []).append(stamp)
+    with BagWriter(out) as writer:   # readers sort by log time: the write order is free
+        types = {rel: available[f'{cameras[c]}/{rel}'] for c, rel in stamps}
         for camera in cameras:
             for rel in present:
                 writer.add_topic(camera_topic(camera, rel), types[rel])
-        for stamp in sorted(by_key.get((SIDE, COLOR), {})):
-            frame = _frame(by_key, cameras, present, stamp, int(max_age_s * 1e9))
-            if frame is None:
-                staged.skipped += 1
-                continue
-            for topic, raw in frame.items():
-                writer.write(topic, stamp, raw)
-            staged.frames.append(stamp)
+        for (camera, rel), stamp, message in _stamped(bag, sources):
+            for log_time in log_times.pop((camera, rel, stamp), ()):
+                writer.write(camera_topic(camera, rel), log_time, message.raw)
     if not staged.frames:
         raise SetupError(f'{bag}: no whole frame (colour, aligned depth and its camera_info of '
                          f'{" and ".join(cameras)} within {1e3 * max_age_s:.0f} ms)')
