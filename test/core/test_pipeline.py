@@ -315,7 +315,9 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'lookalike_tolerance_m', 'parallel_views',
         'lookalike_min_z', 'lookalike_all_views',   # session 13: the twins
         'fragment_overlap',   # added after the split (one part, one pose)
-        'table_plane', 'table_plane_max_angle_deg', 'table_plane_max_offset_m'])   # #23
+        'table_plane', 'table_plane_max_angle_deg', 'table_plane_max_offset_m',   # #23
+        'fit_rank_below_margin', 'fit_rank_max_candidates', 'fit_rank_min_fitness',
+        'fit_rank_coverage_weight'])   # #40: recognition by fit
 
 
 # ------------------------------------------------------------------ the table plane seen in depth

@@ -45,18 +45,25 @@ class ClassifyParams:
             classifier alone decides).
         top_view_verify_below_margin: a part read in the top view has its other classes fitted only
             below this margin, in model margins (>= 0; inf: always).
+        fit_rank_below_margin: below this margin, in model margins, more parts are ranked by
+            their template fit (>= 0; 0: off).
+        fit_rank_max_candidates: parts fitted for an unsure part, the classifier's best first
+            (>= 0; 0: all; a count, not time).
 
     ``top_view_verify_below_margin`` is in units of the model's median margin on its training
     crops (``LinearClassifier.margin_scale``): seen from straight above a part shows mostly one
     face, which the templates of many parts fit, so only its least sure top-view crops are
     verified by the pose fit; side-view parts are always verified. ``class_candidates`` is at
-    most 4, the channels of a 16UC4 image.
+    most 4, the channels of a 16UC4 image. ``fit_rank_*``: recognition by fit
+    (:mod:`tlessbot_ros.core.by_fit`); between the nodes at most 4 candidates travel.
     """
 
     min_instance_px: int = 60
     reject_margin: float = 0.0
     class_candidates: int = 3
     top_view_verify_below_margin: float = 0.25
+    fit_rank_below_margin: float = 0.0
+    fit_rank_max_candidates: int = 8
 
     def __post_init__(self) -> None:
         _check(self.min_instance_px >= 1, f'min_instance_px must be at least 1 pixel, got '
@@ -67,6 +74,10 @@ class ClassifyParams:
                f'of a 16UC<k> image), got {self.class_candidates}')
         _check(self.top_view_verify_below_margin >= 0, 'top_view_verify_below_margin must be '
                f'>= 0 (inf: always verify), got {self.top_view_verify_below_margin}')
+        _check(self.fit_rank_below_margin >= 0, 'fit_rank_below_margin must be >= 0 (0: off), '
+               f'got {self.fit_rank_below_margin}')
+        _check(self.fit_rank_max_candidates >= 0, 'fit_rank_max_candidates must be >= 0 '
+               f'(0: all parts), got {self.fit_rank_max_candidates}')
 
 
 @dataclass(frozen=True)
@@ -98,6 +109,10 @@ class FitParams:
             each depth) or 'auto' (rig while it agrees).
         table_plane_max_angle_deg, table_plane_max_offset_m: in 'auto', the rig's table is kept
             while the observed plane is within this angle, deg, and height, m.
+        fit_rank_min_fitness: a part whose candidates (more than one) all fit below this is
+            reported unknown, without a pose (0..1; 0: off).
+        fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
+            visible surface (>= 0; 0: off).
 
     ``table_plane``: 'rig' reads heights in the extrinsics alone (no table frame without them:
     every part goes to RANSAC); 'observed' uses the plane found in each view's depth
@@ -122,6 +137,8 @@ class FitParams:
     table_plane: str = 'auto'
     table_plane_max_angle_deg: float = 0.1
     table_plane_max_offset_m: float = 0.001
+    fit_rank_min_fitness: float = 0.0
+    fit_rank_coverage_weight: float = 0.0
 
     def __post_init__(self) -> None:
         _check(self.min_roi_points >= 3, f'min_roi_points must be at least 3 (a pose needs '
@@ -136,6 +153,10 @@ class FitParams:
                f'{self.verify_rmse_weight}')
         _check(0 <= self.fallback_min_fitness <= 1, 'fallback_min_fitness must be in 0..1 '
                f'(a fitness), got {self.fallback_min_fitness}')
+        _check(0 <= self.fit_rank_min_fitness <= 1, 'fit_rank_min_fitness must be in 0..1 '
+               f'(a fitness; 0: off), got {self.fit_rank_min_fitness}')
+        _check(self.fit_rank_coverage_weight >= 0, 'fit_rank_coverage_weight must be >= 0 '
+               f'(0: off), got {self.fit_rank_coverage_weight}')
         _check(self.lookalike_tolerance_m > 0, 'lookalike_tolerance_m must be > 0 m (e.g. '
                f'0.002), got {self.lookalike_tolerance_m}')
         _check(self.lookalike_min_z >= 0 and math.isfinite(self.lookalike_min_z),

@@ -8,6 +8,7 @@ import numpy as np
 from tlessbot_ros.core.frame import PartJob
 from tlessbot_ros.core.params import FitParams
 from tlessbot_ros.core.pose import LookalikeCheck, PoseEstimator, TemplateDatabase
+from tlessbot_ros.core.recognise import UNKNOWN_ID
 
 
 def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
@@ -32,7 +33,8 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
                                     polish=False if quick else None, scenes=scenes)
         if result.best is None:
             continue
-        value = result.best.fitness - params.verify_rmse_weight * result.best.inlier_rmse_m
+        value = result.best.fitness - params.verify_rmse_weight * result.best.inlier_rmse_m + \
+            params.fit_rank_coverage_weight * result.best.coverage
         if best_value is None or value > best_value:
             best_value, winner = value, result
             detection.obj_id, detection.class_rank = obj_id, rank
@@ -49,6 +51,10 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
                                     scenes=scenes)
         if result.best is not None and result.best.score > detection.pose.score:
             detection.pose, detection.second = result.best, result.second
+    if detection.pose is not None and len(job.candidates) > 1 and \
+            detection.pose.fitness < params.fit_rank_min_fitness:   # core/by_fit.py
+        detection.obj_id, detection.class_rank = UNKNOWN_ID, len(job.candidates)
+        detection.pose = detection.second = None
 
 
 def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob) -> None:

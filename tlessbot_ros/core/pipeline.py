@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from tlessbot_ros.core.by_fit import fit_ranked, ranking_depth
 from tlessbot_ros.core.common import (
     CAMERA_NAMES,
     SIDE,
@@ -296,7 +297,10 @@ class PerceptionPipeline:
         scores = np.stack([summed[i] for i in instances])
         prediction = self.classifier.predict_scores(
             scores, reject_margin=self.classify_params.reject_margin or None)
-        ranked = self.classifier.ranked_classes(scores, self.classify_params.class_candidates)
+        cp = self.classify_params
+        ranked = self.classifier.ranked_classes(scores, ranking_depth(
+            cp.class_candidates, cp.fit_rank_below_margin, cp.fit_rank_max_candidates,
+            scores.shape[1]))
         guesses = {}
         for k, instance in enumerate(instances):
             obj_id = int(prediction.class_ids[k])
@@ -310,12 +314,19 @@ class PerceptionPipeline:
     def verification_candidates(self, obj_id: int, margin: float, ranked: Sequence[int],
                                 view: str | None) -> tuple[int, ...]:
         """The classes the pose stage fits for a part the classifier names ``obj_id`` with
-        ``margin``, its pose read in ``view``: its ranked classes, except in the top view when
-        the classifier is sure (``top_view_verify_below_margin``): then ``obj_id`` alone;
-        none when unknown."""
+        ``margin``, its pose read in ``view``: its best ``class_candidates`` ranked classes,
+        except in the top view when the classifier is sure (``top_view_verify_below_margin``):
+        then ``obj_id`` alone; none when unknown. Below ``fit_rank_below_margin``, more of its
+        ranked classes, to be ranked by fit (:mod:`tlessbot_ros.core.by_fit`)."""
         if obj_id == UNKNOWN_ID:
             return ()
         scale = self.classifier.margin_scale if self.classifier is not None else 0.0
+        cp = self.classify_params
+        by_fit = fit_ranked(margin, ranked, scale, below_margin=cp.fit_rank_below_margin,
+                            max_candidates=cp.fit_rank_max_candidates)
+        if by_fit is not None:
+            return by_fit
+        ranked = ranked[:cp.class_candidates]
         limit = self.classify_params.top_view_verify_below_margin * scale \
             if view == TOP and scale > 0 else np.inf
         return tuple(int(c) for c in ranked) if margin < limit else (int(obj_id),)

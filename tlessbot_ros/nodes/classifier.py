@@ -8,7 +8,8 @@ Subscribes (``input_qos``), for CAMERA in top, side:
 Publishes (RELIABLE, depth 10):
     classifier/CAMERA/classes    sensor_msgs/Image 16UC<k> class-instance labels,
                                  obj_id * 1000 + instance (0 * 1000 + i = unknown), channel c
-                                 for the c-th best class (k = class_candidates; 16UC1 when 1);
+                                 for the c-th best class (k = class_candidates; 16UC1 when 1;
+                                 up to 4 for unsure parts with ``fit_rank_below_margin``);
                                  the scores of an instance are summed over the views that see
                                  it and written in both views (header = the labels' header)
     /diagnostics                 frames, failures, dropped, latency, last classes and margins
@@ -37,6 +38,7 @@ from tlessbot_ros.conversions import (
 )
 from tlessbot_ros.conversions.image_cdr import image_from_cdr, image_to_cdr
 from tlessbot_ros.conversions.topics import classes_topic, labels_topic, node_relative
+from tlessbot_ros.core.by_fit import candidate_channels
 from tlessbot_ros.core.common import encode_candidates
 from tlessbot_ros.core.pipeline import ClassifyParams, PerceptionPipeline, ViewInput
 from tlessbot_ros.core.recognise import Classifier, load_classifier
@@ -65,7 +67,7 @@ class ClassifierNode(StageNode):
         path = self.get_parameter('model_path').value
         self.classify_params = self.parameters.dataclass(ClassifyParams(),
                                                          apply=self._apply_classify_params)
-        self.candidates = self.classify_params.class_candidates
+        self.candidates = _channels(self.classify_params)
         self.pipeline = PerceptionPipeline(classifier=self.model,
                                            classify_params=self.classify_params)
         self._class_publishers = {
@@ -100,7 +102,7 @@ class ClassifierNode(StageNode):
                                f'{len(model.class_ids)} objects')
 
     def _apply_classify_params(self, params: ClassifyParams) -> None:
-        self.classify_params, self.candidates = params, params.class_candidates
+        self.classify_params, self.candidates = params, _channels(params)
         self.pipeline = self.pipeline.replace(classify_params=params)
 
     def process(self, views: dict[str, dict[str, Any]]) -> None:
@@ -129,6 +131,12 @@ def _labels(camera: str, msg: Any, shape: tuple[int, int]) -> Any:
     if labels.shape != shape:
         raise ValueError(f'{camera}: labels {labels.shape} and colour {shape} sizes differ')
     return labels
+
+
+def _channels(params: ClassifyParams) -> int:
+    """Candidate channels sent per part (``class_candidates``; more with fit ranking on)."""
+    return candidate_channels(params.class_candidates, params.fit_rank_below_margin,
+                              params.fit_rank_max_candidates)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -46,6 +46,8 @@ class BagParams:
         with_clouds: write ``depth/color/points``.
         compress: zstd-compress the mcap file's chunks (messages inside stay plain CDR, so
             every MCAP reader decodes them).
+        with_ground_truth: write the ground-truth topics (off: the cameras' topics alone, as
+            a recording of the cell holds).
     """
 
     fps: float = 15.0
@@ -53,6 +55,7 @@ class BagParams:
     cloud_stride: int = 1
     with_clouds: bool = True
     compress: bool = True
+    with_ground_truth: bool = True
 
 
 def frame_messages(frame: Any, stamp_ns: int, *, params: BagParams,
@@ -64,6 +67,8 @@ def frame_messages(frame: Any, stamp_ns: int, *, params: BagParams,
                                        with_cloud=params.with_clouds,
                                        cloud_stride=params.cloud_stride, factory=factory)
         messages += [(f'/{name}/{topic}', msg) for topic, msg in camera.items()]
+    if not params.with_ground_truth:
+        return messages
     statuses = []
     for index, placed in enumerate(frame.objects):
         values = {'obj_id': str(placed.obj_id), 'instance': str(index)}

@@ -379,10 +379,17 @@ class Simulator:
     def frame(self, index: int) -> SimulatedFrame:
         """The scene ``index``: parts, and per camera colour, depth, instances and ground truth."""
         t0 = time.perf_counter()
-        materials = tuple(self.params.materials)
         objects = sample_scene(self.models, self.rig, self._rng(index, 0),
-                               self.params.scene_params, materials=materials)
-        env = self._environment(index)
+                               self.params.scene_params, materials=tuple(self.params.materials))
+        return self.frame_of(index, objects, t0=t0)
+
+    def frame_of(self, index: int, objects: list[PlacedObject], *,
+                 environment: int | None = None, t0: float | None = None) -> SimulatedFrame:
+        """Frame ``index`` (its noise) with the given parts placed, on the table and under the
+        light of frame ``environment`` (default ``index``): e.g. one part on a turntable
+        (:mod:`tlessbot_ros.sim.capture`)."""
+        t0 = time.perf_counter() if t0 is None else t0
+        env = self._environment(index if environment is None else environment)
         part_rng = self._rng(index, 4)
         albedo_scale = part_rng.uniform(0.9, 1.1, len(objects))
         meshes_w = []

@@ -182,9 +182,9 @@ def _background(shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
     return np.clip(base + 0.12 * noise, 0.0, 1.0).astype(np.float32)
 
 
-def _augment(rgb: np.ndarray, mask: np.ndarray, params: TurntableParams,
-             rng: np.random.Generator, depth_m: np.ndarray, K: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def augment_view(rgb: np.ndarray, mask: np.ndarray, params: TurntableParams,
+                 rng: np.random.Generator, depth_m: np.ndarray, K: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Random shear and zoom about the silhouette centre, then an optional occlusion cut.
 
     The depth is warped with the image (nearest neighbour) and the returned camera matrix is
@@ -275,7 +275,8 @@ class Turntable:
             yield TurntableSample(obj_id, rgb, mask, position, angle, 0, depth, K,
                                   T_world_camera)
             for copy in range(1, p.augmentations + 1):
-                aug_rgb, aug_mask, aug_depth, aug_K = _augment(rgb, mask, p, rng, depth, K)
+                aug_rgb, aug_mask, aug_depth, aug_K = augment_view(rgb, mask, p, rng, depth,
+                                                                   K)
                 yield TurntableSample(obj_id, aug_rgb, aug_mask, position, angle, copy,
                                       aug_depth, aug_K, T_world_camera)
 

@@ -28,6 +28,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    counts = record(args.topics, Path(args.out), storage=args.storage, duration_s=args.duration,
+                    discovery_timeout_s=args.discovery_timeout)
+    print('recorded ' + ', '.join(f'{t}: {n}' for t, n in counts.items()) + f' into {args.out}')
+    return 0
+
+
+def record(topics: list[str], out: Path, *, storage: str = 'mcap', duration_s: float = 0.0,
+           discovery_timeout_s: float = 5.0, until: Callable[[], bool] | None = None,
+           on_message: Callable[[str, bytes], None] | None = None) -> dict[str, int]:
+    """Record ``topics`` into the new bag folder ``out`` until ``duration_s`` (0: no limit)
+    has passed, ``until()`` says so, or Ctrl-C; ``on_message(topic, raw)`` sees every message
+    written. Returns the message count per topic.
+
+    Raises:
+        BagError: ``out`` exists, or a topic is not in the graph within the discovery time.
+    """
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
@@ -41,16 +57,15 @@ def run(args: argparse.Namespace) -> int:
         spin_once_or_interrupt,
     )
 
-    out = Path(args.out)
     if out.exists():
         raise BagError(f'output {out} exists; choose a new folder')
-    topics = [t if t.startswith('/') else '/' + t for t in args.topics]
+    topics = [t if t.startswith('/') else '/' + t for t in topics]
     init_ros()
     node = rclpy.create_node('tlessbot_record')
     writer = None
     counts = dict.fromkeys(topics, 0)
     try:
-        deadline = time.monotonic() + args.discovery_timeout
+        deadline = time.monotonic() + discovery_timeout_s
         types: dict[str, str] = {}
         while len(types) < len(topics) and time.monotonic() < deadline:
             graph = dict(node.get_topic_names_and_types())
@@ -60,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         if missing:
             raise BagError(f'topic(s) {missing} not found in the ROS graph')
         with interrupts_deferred():   # Ctrl-C here would leave half a schema or channel
-            writer = BagWriter(out, storage=args.storage)
+            writer = BagWriter(out, storage=storage)
             writer.open()
             for topic, msgtype in types.items():
                 # What the publishers offer, so that a replay offers it again (as ros2 bag does).
@@ -70,13 +85,14 @@ def run(args: argparse.Namespace) -> int:
 
         for topic, msgtype in types.items():
             node.create_subscription(message_class(msgtype), topic,
-                                     message_recorder(writer, topic, counts), SENSOR_QOS,
-                                     raw=True)
+                                     message_recorder(writer, topic, counts, on_message),
+                                     SENSOR_QOS, raw=True)
         print(f'recording {len(types)} topic(s) into {out}'
-              + (f' for {args.duration:g} s' if args.duration > 0 else '; Ctrl-C stops'),
+              + (f' for {duration_s:g} s' if duration_s > 0 else '; Ctrl-C stops'),
               flush=True)
-        stop = time.monotonic() + args.duration if args.duration > 0 else None
-        while rclpy.ok() and (stop is None or time.monotonic() < stop):
+        stop = time.monotonic() + duration_s if duration_s > 0 else None
+        while rclpy.ok() and (stop is None or time.monotonic() < stop) and \
+                not (until is not None and until()):
             spin_once_or_interrupt(partial(rclpy.spin_once, node, timeout_sec=0.1))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -85,19 +101,22 @@ def run(args: argparse.Namespace) -> int:
             writer.close()
         node.destroy_node()
         rclpy.try_shutdown()
-    print('recorded ' + ', '.join(f'{t}: {n}' for t, n in counts.items()) + f' into {out}')
-    return 0
+    return counts
 
 
-def message_recorder(writer: BagWriter, topic: str,
-                     counts: dict[str, int]) -> Callable[[bytes], None]:
+def message_recorder(writer: BagWriter, topic: str, counts: dict[str, int],
+                     on_message: Callable[[str, bytes], None] | None = None
+                     ) -> Callable[[bytes], None]:
     """The subscription callback that appends ``topic``'s serialized messages to ``writer``,
-    stamped with the time of arrival, and counts them in ``counts``. A message is written
-    whole or not at all: Ctrl-C inside the write is deferred to the end of the turn."""
+    stamped with the time of arrival, and counts them in ``counts`` (then calls
+    ``on_message(topic, raw)``). A message is written whole or not at all: Ctrl-C inside the
+    write is deferred to the end of the turn."""
     from tlessbot_ros.nodes.common import interrupts_deferred
 
     def on_raw(raw: bytes) -> None:
         with interrupts_deferred():
             writer.write(topic, time.time_ns(), raw)
             counts[topic] += 1
+            if on_message is not None:
+                on_message(topic, raw)
     return on_raw

@@ -29,6 +29,12 @@ D415-noised depth of each view (heights above the plate, footprint, height map; 
 tlessbot_ros.core.recognise.shape) to the HOG; --features paper keeps the paper's HOG
 only.
 Image folders have no depth, so they always give paper-feature models.
+
+From labelled capture bags (tlessbot capture; docs/capture.md), alone or mixed with CAD
+renders: the localiser cuts the part out of every frame, described as CAD crops are:
+
+    tlessbot train --captures captures/obj_* [--models DIR --ids ...] \
+        [--capture-augmentations 3] --out classifier.npz
 """
 from __future__ import annotations
 
@@ -58,10 +64,21 @@ DEFAULT_AUGMENTATIONS = 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    source = parser.add_mutually_exclusive_group(required=True)
+    source = parser.add_mutually_exclusive_group()
     source.add_argument('--models', type=Path, help='folder of obj_NN.stl|ply|obj CAD models')
     source.add_argument('--from-images', type=Path, metavar='DIR',
                         help='folder of <obj_id>/*.png crops (real turntable captures)')
+    parser.add_argument('--captures', type=Path, nargs='+', metavar='BAG',
+                        help='labelled capture bags (tlessbot capture): the part cut out by '
+                             'the localiser in every frame; alone or with --models')
+    parser.add_argument('--capture-every', type=int, default=1, metavar='N',
+                        help='use every N-th frame of the capture bags (default 1)')
+    parser.add_argument('--capture-augmentations', type=int, default=0, metavar='N',
+                        help='shear/zoom copies of each capture crop, as the CAD turntable '
+                             'makes them (paper: 3; default 0)')
+    parser.add_argument('--config', type=Path,
+                        help='the cell YAML of the capture bags (its rig; default '
+                             'config/cell.yaml)')
     parser.add_argument('--out', type=Path, required=True, help='model file to write (.npz)')
     parser.add_argument('--classifier', default='sgd',
                         help=f"learner: {', '.join(KINDS)}, a comma list, or 'all' "
@@ -260,8 +277,15 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise TlessbotError(str(error)) from None
     started = time.perf_counter()
-    shape = ShapeParams() if args.features == 'ours' and args.models is not None else None
-    if args.models is not None:
+    if args.models is None and args.from_images is None and not args.captures:
+        raise TlessbotError('nothing to train on: give --models, --from-images or --captures')
+    if args.from_images is not None and args.captures:
+        raise TlessbotError('--captures goes with --models, not --from-images')
+    shape = ShapeParams() if args.features == 'ours' and (
+        args.models is not None or args.captures) else None
+    if args.models is None and args.captures:
+        features, labels, source = np.empty((0, 0), np.float32), np.empty(0, np.int64), {}
+    elif args.models is not None:
         features, labels = turntable_features(
             args.models, hog, ids=args.ids, steps_deg=args.steps_deg, positions=args.positions,
             augmentations=args.augmentations, seed=args.seed, shape=shape)
@@ -280,9 +304,17 @@ def run(args: argparse.Namespace) -> int:
             print('image folders have no depth: training a paper-features (HOG only) model')
         features, labels = image_folder_features(args.from_images, hog)
         source = {'source': 'images', 'folder': str(args.from_images)}
+    if args.captures:
+        from tlessbot_ros.tools.support.captures import add_captures
+
+        features, labels = add_captures(args.captures, hog, shape, features, labels, source,
+                                        config=args.config, every=args.capture_every,
+                                        copies=args.capture_augmentations, seed=args.seed)
     source['features'] = 'ours' if shape is not None else 'paper'
     data_s = time.perf_counter() - started
     ids = np.unique(labels)
+    if len(ids) < 2:
+        raise TlessbotError(f'need crops of at least 2 parts to train, got {ids.tolist()}')
     print(f'{len(labels)} crops of {len(ids)} objects in {data_s:.1f} s')
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for kind, path in output_paths(args.out, kinds).items():
