@@ -101,3 +101,40 @@ def test_the_localiser_warms_up_at_the_size_of_its_empty_table_image(ros, tmp_pa
         assert node.wait_ready(120.0), node.last_error
     finally:
         node.destroy_node()
+
+
+def test_the_nodes_declare_the_fit_ranking_parameters_off_by_default(ros):
+    """Recognition by fit (core/by_fit.py): node parameters from the core dataclasses, off by
+    default; a bad value is refused live."""
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.core.params import ClassifyParams, FitParams
+    from tlessbot_ros.nodes.classifier import ClassifierNode
+    from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
+
+    classifier = ClassifierNode()
+    try:
+        assert classifier.classify_params == ClassifyParams()
+        assert classifier.candidates == ClassifyParams().class_candidates   # 16UC3 as before
+        for name in ('fit_rank_below_margin', 'fit_rank_max_candidates'):
+            assert classifier.get_parameter(name).value == getattr(ClassifyParams(), name)
+            text = classifier.describe_parameters([name])[0].description
+            assert 'fit' in text and len(text) < 250
+        refused = classifier.set_parameters([Parameter('fit_rank_below_margin', value=-1.0)])
+        assert not refused[0].successful and 'fit_rank_below_margin' in refused[0].reason
+    finally:
+        classifier.destroy_node()
+    # with fit ranking on, unsure parts send up to 4 candidates (16UC4), the most an image holds
+    unsure = ClassifierNode(parameter_overrides=[Parameter('fit_rank_below_margin', value=1.0)])
+    try:
+        assert unsure.candidates == 4 and unsure.classify_params.fit_rank_below_margin == 1.0
+    finally:
+        unsure.destroy_node()
+    pose = PoseEstimatorNode(parameter_overrides=[
+        Parameter('workers.count', value=0), Parameter('fit_rank_min_fitness', value=0.4)])
+    try:
+        assert pose.get_parameter('fit_rank_coverage_weight').value == \
+            FitParams().fit_rank_coverage_weight
+        assert pose.pipeline.fit_params.fit_rank_min_fitness == 0.4
+    finally:
+        pose.destroy_node()
