@@ -105,25 +105,22 @@ def test_the_label_round_trips(tmp_path):
 @pytest.mark.ros
 @pytest.mark.rosbag
 def test_capture_records_any_publisher_of_the_camera_topics(capture_bags, tmp_path):
-    import subprocess
     import sys
+
+    from running import Running
 
     from tlessbot_ros.tools.support.captures import capture_crops
 
     cli = [sys.executable, '-m', 'tlessbot_ros.tools.cli']
     out = tmp_path / 'live'
-    capture = subprocess.Popen([*cli, 'capture', '--part', 'obj_19', '--cameras', 'side',
-                                '--frames', '4', '--turntable-deg-per-s', '30', '--out', str(out),
-                                '--discovery-timeout', '20'],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    replay = subprocess.Popen([*cli, 'replay', str(capture_bags[1]), '--loop', '--restamp'],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    capture = Running([*cli, 'capture', '--part', 'obj_19', '--cameras', 'side', '--frames', '4',
+                       '--turntable-deg-per-s', '30', '--out', str(out),
+                       '--discovery-timeout', '20'])
+    replay = Running([*cli, 'replay', str(capture_bags[1]), '--loop', '--restamp'])
     try:
-        _, err = capture.communicate(timeout=90)
+        assert capture.wait(90) == 0, capture.output
     finally:
-        replay.terminate()
-        replay.wait(timeout=20)
-    assert capture.returncode == 0, err
+        replay.interrupt(20)
     label = read_capture_label(out)
     assert (label.part, label.obj_id, label.cameras) == ('obj_19', 19, ['side'])
     assert len(label.frames) >= 4
