@@ -30,6 +30,7 @@ def test_frames_faster_than_max_rate_are_dropped_and_counted():
         node._on_views({})
         node._on_views({})                   # 0.2 s have not passed: dropped
         assert (node.processed, node.rate_dropped, node.frames) == (1, 1, 1)
+        assert node.diagnostics_report()[2]['dropped'] == 1   # /diagnostics counts it too
         time.sleep(0.25)
         node._on_views({})
         assert (node.processed, node.rate_dropped, node.frames) == (2, 1, 2)

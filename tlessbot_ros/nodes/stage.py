@@ -364,9 +364,13 @@ class StageNode(Node):
         """/diagnostics keys on the input stamps' clock (:meth:`StageStatus.clock_values`)."""
         return self.status.clock_values(self._inputs.jumps if self._inputs else None)
 
+    def diagnostics_report(self) -> tuple[Any, str, dict[str, Any]]:
+        """(level, message, values) that /diagnostics shows for this node now."""
+        return self.status.report(
+            inputs=self._inputs, rate_dropped=self.rate_cap.dropped,
+            entrance_dropped=self.entrance_dropped, parameters=self.parameters)
+
     def _publish_diagnostics(self) -> None:
-        level, message, values = self.status.report(
-            inputs=self._inputs, entrance_dropped=self.entrance_dropped,
-            parameters=self.parameters)
+        level, message, values = self.diagnostics_report()
         self._diagnostics.publish(diagnostic_array(
             self.get_clock().now().to_msg(), self.get_name(), level, message, values))

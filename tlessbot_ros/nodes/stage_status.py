@@ -42,7 +42,6 @@ class StageStatus:
         self.warm_up_s: float | None = None
         self.frames = 0
         self.failures = 0
-        self.rate_dropped = 0   # complete frames skipped by sync.max_rate_hz
         self.busy_dropped = 0   # complete frames replaced by a newer one while the worker ran
         self.last_error = ''
         self.latencies_ms: deque[float] = deque(maxlen=100)
@@ -84,12 +83,13 @@ class StageStatus:
             values['last_time_jump_s'] = f'{jumps.last_jump_ns / 1e9:.3f}'
         return values
 
-    def report(self, *, inputs: Any, entrance_dropped: int, parameters: Any
-               ) -> tuple[Any, str, dict[str, Any]]:
+    def report(self, *, inputs: Any, rate_dropped: int, entrance_dropped: int,
+               parameters: Any) -> tuple[Any, str, dict[str, Any]]:
         """(level, message, values) of the status now. ``inputs``: the node's
         :class:`~tlessbot_ros.nodes.inputs.TwoViewInputs` (None before it subscribed);
+        ``rate_dropped``: frames the :class:`~tlessbot_ros.nodes.admission.RateCap` skipped;
         ``parameters``: its :class:`~tlessbot_ros.nodes.parameters.LiveParameters`."""
-        dropped = (inputs.dropped if inputs else 0) + self.rate_dropped + \
+        dropped = (inputs.dropped if inputs else 0) + rate_dropped + \
             self.busy_dropped + entrance_dropped
         level = OK if not self.failures else (ERROR if self.frames == 0 else WARN)
         readiness = {'ready': 'true', 'ready_after_s': f'{self.ready_after_s:.2f}',
