@@ -23,3 +23,7 @@ class DatasetError(TlessbotError):
 
 class DeviceError(TlessbotError):
     """A camera is missing, busy or stopped delivering frames."""
+
+
+class PartNameError(TlessbotError):
+    """A part's name (its CAD file's stem) cannot name a ROS topic or frame."""

@@ -7,6 +7,10 @@ Camera names themselves come from the rig (:data:`~tlessbot_ros.core.common.CAME
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
+
+from tlessbot_ros.core.common.names import part_name
+
 COLOR = 'color/image_raw'
 COLOR_INFO = 'color/camera_info'
 DEPTH = 'aligned_depth_to_color/image_raw'
@@ -45,9 +49,12 @@ def classes_topic(camera: str) -> str:
     return f'/classifier/{camera}/classes'
 
 
-def pose_topic(obj_id: int) -> str:
-    """The PoseStamped topic of one T-LESS object, ``/objects/obj_05/pose``."""
-    return f'/objects/obj_{obj_id:02d}/pose'
+def pose_topic(part: int | str, names: Mapping[int, str] | None = None) -> str:
+    """The PoseStamped topic of one part, ``/objects/<name>/pose``: ``part`` is its name, or
+    its id named by ``names`` (:func:`~tlessbot_ros.core.common.part_name`; T-LESS:
+    ``/objects/obj_05/pose``)."""
+    name = part if isinstance(part, str) else part_name(part, names)
+    return f'/objects/{name}/pose'
 
 
 def ground_truth_pose_topic(obj_id: int) -> str:

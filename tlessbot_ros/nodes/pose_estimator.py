@@ -66,6 +66,7 @@ from tlessbot_ros.core.common import (
     decode_candidates,
     depth_overlay,
     label_boxes,
+    part_name,
 )
 from tlessbot_ros.core.pipeline import Detection, FitParams, PerceptionPipeline, ViewInput
 from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
@@ -112,6 +113,7 @@ class PoseEstimatorNode(StageNode):
                                              apply=self._apply_worker_params)
         fit_params = parameters.dataclass(FitParams(), apply=self._apply_fit_params)
         self.templates = TemplateDatabase.load(path)
+        self.part_names: dict[int, str] = {}   # names of the parts folder; none: obj_NN
         self.pipeline = PerceptionPipeline(templates=self.templates, pose=pose_params,
                                            fit_params=fit_params)
         # Workers load their templates while this process builds its caches below.
@@ -130,8 +132,9 @@ class PoseEstimatorNode(StageNode):
     def _create_publishers(self) -> None:
         pose_class = message_class('geometry_msgs/msg/PoseStamped')
         self._pose_publishers = {
-            obj_id: self.create_publisher(pose_class, node_relative(pose_topic(obj_id)),
-                                          RESULT_QOS) for obj_id in sorted(self.templates.objects)}
+            obj_id: self.create_publisher(
+                pose_class, node_relative(pose_topic(obj_id, self.part_names)), RESULT_QOS)
+            for obj_id in sorted(self.templates.objects)}
         self._markers = self.create_publisher(
             message_class('visualization_msgs/msg/MarkerArray'), node_relative(MARKERS),
             RESULT_QOS)
@@ -266,13 +269,13 @@ class PoseEstimatorNode(StageNode):
             parts = []
             for d in detections:
                 T, frame = self._pose_in_output_frame(d, views[d.view]['depth'].header.frame_id)
-                parts.append(PartMarker(f'obj_{d.obj_id:02d} ({d.pose.fitness:.2f})', T, frame,
-                                        self.templates[d.obj_id].model_points))
+                label = f'{part_name(d.obj_id, self.part_names)} ({d.pose.fitness:.2f})'
+                parts.append(PartMarker(label, T, frame, self.templates[d.obj_id].model_points))
             self._markers.publish(parts_to_marker_array(parts, stamp_ns, factory=self._factory))
         if self._overlay.get_subscription_count() > 0:
             side = inputs[SIDE]
             canvas = depth_overlay(side.depth_m, labels[SIDE], side.intrinsics.K, [
-                OverlayPart(f'obj_{d.obj_id:02d}', d.box, d.pose.T_camera_object,
+                OverlayPart(part_name(d.obj_id, self.part_names), d.box, d.pose.T_camera_object,
                             self.templates[d.obj_id].model_points)
                 for d in detections if d.view == SIDE])
             self._overlay.publish(array_to_image(

@@ -38,6 +38,12 @@ _HOME = {
     'instance_masks': 'labels',
     'label_boxes': 'labels',
     'pixel_counts': 'labels',
+    'check_part_name': 'names',
+    'check_part_names': 'names',
+    'default_part_name': 'names',
+    'part_id': 'names',
+    'part_name': 'names',
+    'suggest_part_name': 'names',
     'OverlayPart': 'overlay',
     'depth_overlay': 'overlay',
     'MeshRenderer': 'render',
@@ -117,6 +123,14 @@ if TYPE_CHECKING:
         instance_masks,
         label_boxes,
         pixel_counts,
+    )
+    from tlessbot_ros.core.common.names import (  # noqa: F401
+        check_part_name,
+        check_part_names,
+        default_part_name,
+        part_id,
+        part_name,
+        suggest_part_name,
     )
     from tlessbot_ros.core.common.overlay import OverlayPart, depth_overlay  # noqa: F401
     from tlessbot_ros.core.common.render import (  # noqa: F401
