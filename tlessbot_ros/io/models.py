@@ -122,7 +122,13 @@ def _model_files(folder: Path) -> dict[int, Path]:
     return files
 
 
-def _read_mesh_mm(path: Path) -> tuple[np.ndarray, np.ndarray]:
+def read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(V, 3) float64 vertices in the file's own units and (F, 3) int32 faces of a mesh file
+    (STL / PLY / OBJ), duplicate vertices merged.
+
+    Raises:
+        ModelFileError: unreadable, empty or non-finite.
+    """
     import open3d as o3d
 
     try:
@@ -165,7 +171,7 @@ def load_model(path: str | Path, obj_id: int | None = None,
         obj_id = object_id_from_path(path)
         if obj_id is None:
             raise ModelFileError(f'cannot read an object id from {path.name} (want obj_NN.*)')
-    vertices_mm, faces = _read_mesh_mm(path)
+    vertices_mm, faces = read_mesh(path)
     vertices = vertices_mm / 1000.0
     discrete = continuous = None
     if info is not None:

@@ -21,6 +21,9 @@ tlessbot_ros.core.recognise.feature_map) instead of the descriptor itself. The p
     tlessbot train --models DIR --scenes 800 --kernel 4000 --kernel-axes 256 --hog-weight 0.3 \
         --classifier perceptron --average --epochs 20 --out classifier.npz
 
+is the named recipe ``--recipe packaged`` (RECIPES below; ``tlessbot parts build`` uses it by
+default). A recipe sets these options; options given beside it win.
+
 Several learners can share one rendering pass: --classifier all (or sgd,pa1) writes
 <out>_<kind>.npz per learner.
 
@@ -61,6 +64,11 @@ from tlessbot_ros.errors import DatasetError, TlessbotError
 DEFAULT_STEP_DEG = 8.0
 SCENE_SEED_OFFSET = 1_000_003   # training scenes never reuse a benchmark's simulator stream
 DEFAULT_AUGMENTATIONS = 1
+# Named recipes: option values (argparse destinations) that made a packaged model.
+RECIPES = {
+    'packaged': {'scenes': 800, 'kernel': 4000, 'kernel_axes': 256, 'hog_weight': 0.3,
+                 'classifier': 'perceptron', 'average': True, 'epochs': 20},
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -80,6 +88,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='the cell YAML of the capture bags (its rig; default '
                              'config/cell.yaml)')
     parser.add_argument('--out', type=Path, required=True, help='model file to write (.npz)')
+    parser.add_argument('--recipe', choices=sorted(RECIPES),
+                        help='set the options to a named recipe (packaged: the packaged '
+                             "model's); options given beside it win")
     parser.add_argument('--classifier', default='sgd',
                         help=f"learner: {', '.join(KINDS)}, a comma list, or 'all' "
                              '(default: sgd)')
@@ -262,9 +273,19 @@ def image_folder_features(folder: Path, hog: HogParams) -> tuple[np.ndarray, np.
     return hog_features(crops, params=hog), np.array([obj_id for obj_id, _ in files], np.int64)
 
 
+def apply_recipe(args: argparse.Namespace) -> argparse.Namespace:
+    """``args`` with ``args.recipe``'s value for every option left at its default."""
+    defaults = argparse.ArgumentParser()
+    add_arguments(defaults)
+    values = {key: value for key, value in RECIPES.get(args.recipe or '', {}).items()
+              if getattr(args, key) == defaults.get_default(key)}
+    return argparse.Namespace(**{**vars(args), **values})
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    args = apply_recipe(args)
     kinds = parse_kinds(args.classifier)
     try:  # settings are checked before minutes of rendering
         hog = HogParams(cell_px=args.cell, bins=args.bins)

@@ -1,0 +1,69 @@
+"""Your own parts: build a parts folder from CAD files, or generate example CAD parts.
+
+    tlessbot parts build --models MY_CAD --out my_parts [--units m] [--config my_cell.yaml]
+    tlessbot parts generate --out my_cad      # 8 example parts (plates, brackets, a tube), STL
+
+build reads every STL / PLY / OBJ of --models (millimetres, or --units m; any file names, each
+stem a valid ROS name: it names the part's topic /objects/<stem>/pose) and writes into --out
+the classifier (train --recipe packaged by default), the templates for the rig's side camera,
+the models with their info (diameters, symmetries) and manifest.json (name, id, size, symmetry,
+look-alikes, the rig). It ends with a self-check: simulated scenes of the parts seen by the rig,
+evaluated, one row per part (self_check.md). Run the graph on it with
+``tlessbot launch --parts my_parts`` (or ``parts_path:`` in the cell YAML).
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from tlessbot_ros.tools.support.parts_build import CHECK_FRAMES, DEFAULT_RECIPE
+
+    sub = parser.add_subparsers(dest='action', required=True, metavar='ACTION')
+    build = sub.add_parser('build', help='CAD folder -> parts folder')
+    build.add_argument('--models', type=Path, required=True,
+                       help='folder of STL / PLY / OBJ files, one part each')
+    build.add_argument('--out', type=Path, required=True, help='parts folder to write')
+    build.add_argument('--units', choices=('mm', 'm'), default='mm',
+                       help="the CAD files' units (default mm)")
+    build.add_argument('--config', type=Path, help='the cell YAML whose rig the parts are '
+                       'seen by (default config/cell.yaml)')
+    build.add_argument('--recipe', default=DEFAULT_RECIPE,
+                       help=f"classifier recipe of tlessbot train (default {DEFAULT_RECIPE}; "
+                            "'defaults': train's own defaults)")
+    build.add_argument('--check-frames', type=int, default=CHECK_FRAMES,
+                       help=f'simulated frames of the self-check (default {CHECK_FRAMES}; 0: '
+                            'none)')
+    build.add_argument('--seed', type=int, default=0)
+    build.add_argument('--train-arg', action='append', default=[], metavar='ARG',
+                       help='pass ARG on to tlessbot train (repeatable; --train-arg=--scenes='
+                            '200)')
+    generate = sub.add_parser('generate', help='write example CAD parts (STL, mm)')
+    generate.add_argument('--out', type=Path, required=True, help='folder to write')
+    generate.add_argument('--names', nargs='+', help='only these parts')
+
+
+def run(args: argparse.Namespace) -> int:
+    from tlessbot_ros.errors import TlessbotError
+
+    if args.action == 'generate':
+        from tlessbot_ros.tools.support.part_generator import generate_parts, part_shapes
+
+        unknown = sorted(set(args.names or ()) - set(part_shapes()))
+        if unknown:
+            raise TlessbotError(f'no generated part {unknown}; choose from '
+                                f'{sorted(part_shapes())}')
+        paths = generate_parts(args.out, args.names)
+        print(f'{len(paths)} parts -> {args.out}: {", ".join(p.stem for p in paths)}')
+        return 0
+    from tlessbot_ros.tools.support.parts_build import BuildOptions, build_parts
+
+    if args.check_frames < 0:
+        raise TlessbotError('--check-frames must be >= 0')
+    options = BuildOptions(units=args.units, config=args.config,
+                           recipe=None if args.recipe == 'defaults' else args.recipe,
+                           check_frames=args.check_frames, seed=args.seed,
+                           train_args=args.train_arg)
+    build_parts(args.models, args.out, options, check=args.check_frames > 0)
+    return 0

@@ -1,0 +1,223 @@
+"""``tlessbot parts build``: a CAD folder -> a parts folder (:mod:`tlessbot_ros.io.parts`).
+
+The classifier and the templates are made by ``tlessbot train`` and ``tlessbot templates``, run
+as they are run by hand (so a change of their defaults reaches every parts folder); the
+self-check by ``tlessbot simulate`` and ``tlessbot evaluate``. ``tlessbot evaluate`` without
+--classifier / --templates builds through :func:`build_parts` too (cached by the CAD content).
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.io import parts as parts_io
+
+DEFAULT_RECIPE = 'packaged'
+CHECK_FRAMES = 12
+HARD_RECALL = 0.8        # a part below this 5 cm / 5 deg recall in the self-check is "hard"
+
+
+@dataclass
+class BuildOptions:
+    """How a parts folder is built (the defaults are ``tlessbot parts build``'s)."""
+
+    units: str = 'mm'
+    recipe: str | None = DEFAULT_RECIPE
+    config: Path | None = None
+    check_frames: int = CHECK_FRAMES
+    seed: int = 0
+    train_args: list[str] = field(default_factory=list)
+
+
+def run_tool(command: str, *args: str) -> None:
+    """``tlessbot <command> ARGS`` in a child process (its own progress bars).
+
+    Raises:
+        TlessbotError: it failed.
+    """
+    result = subprocess.run([sys.executable, '-m', 'tlessbot_ros.tools.cli', command, *args])
+    if result.returncode != 0:
+        raise TlessbotError(f'tlessbot {command} failed (exit {result.returncode}); its '
+                            'message is above')
+
+
+def _write_models(cad: Path, out: Path, options: BuildOptions) -> list[dict]:
+    """The CAD files as ``out/models/obj_NN.ply`` (mm) + models_info.json; manifest entries."""
+    from tlessbot_ros.core.common import (
+        detect_symmetries,
+        symmetries_from_models_info,
+        symmetries_to_models_info,
+    )
+    from tlessbot_ros.io.models import load_models
+    from tlessbot_ros.tools.support.models_info import model_geometry_mm
+
+    models_dir = out / parts_io.MODELS
+    models_dir.mkdir(parents=True, exist_ok=True)
+    parts = parts_io.cad_parts(cad)
+    for part in parts:
+        vertices, faces, warnings = parts_io.read_part_mesh(part.path, units=options.units)
+        for warning in warnings:
+            print(f'warning: {warning}')
+        parts_io.write_mesh(models_dir / f'obj_{part.obj_id:02d}.ply', vertices * 1000.0, faces)
+    listed = {}
+    if (cad / 'models_info.json').is_file():   # a BOP folder: keep its symmetries
+        listed = json.loads((cad / 'models_info.json').read_text(encoding='utf-8'))
+    models = load_models(models_dir)
+    info, entries = {}, []
+    for part in parts:
+        model = models[part.obj_id]
+        if str(part.obj_id) in listed and part.name.startswith('obj_'):
+            entry = {k: v for k, v in listed[str(part.obj_id)].items() if k.startswith('sym')}
+        else:
+            entry = symmetries_to_models_info(detect_symmetries(
+                model.vertices, model.faces, diameter=model.diameter_m))
+        geometry = {k: round(float(v), 4) for k, v in model_geometry_mm(model).items()}
+        info[str(part.obj_id)] = {**geometry, **entry}
+        entries.append({'id': part.obj_id, 'name': part.name, 'source': part.path.name,
+                        'size_mm': [geometry[f'size_{a}'] for a in 'xyz'],
+                        'diameter_mm': geometry['diameter'],
+                        'symmetry': symmetries_from_models_info(info[str(part.obj_id)])
+                        .describe()})
+    (models_dir / 'models_info.json').write_text(json.dumps(info, indent=1) + '\n')
+    return entries
+
+
+def _lookalikes(out: Path, entries: list[dict]) -> None:
+    """Each manifest entry's look-alike parts (by name), from the templates."""
+    from tlessbot_ros.core.pose import TemplateDatabase
+
+    db = TemplateDatabase.load(out / parts_io.TEMPLATES)
+    names = {e['id']: e['name'] for e in entries}
+    for entry in entries:
+        obj = db.objects.get(entry['id'])
+        entry['lookalikes'] = [names.get(i, str(i)) for i in (obj.lookalikes if obj else ())]
+
+
+def self_check(out: Path, options: BuildOptions) -> list[dict]:
+    """Simulate ``options.check_frames`` scenes of the parts seen by the rig, run the pipeline
+    on them with the new files, and return one row per part (``out/self_check.md`` too)."""
+    config = ['--config', str(options.config)] if options.config else []
+    models = str(out / parts_io.MODELS)
+    with tempfile.TemporaryDirectory(prefix='tlessbot_check_') as tmp:
+        data, report_dir = Path(tmp) / 'scenes', Path(tmp) / 'eval'
+        run_tool('simulate', '--models', models, '--out', str(data), '--frames',
+                 str(options.check_frames), '--seed', str(options.seed + 7919), '--parts-min',
+                 '3', *config)
+        run_tool('evaluate', '--dataset', str(data), '--models', models, '--classifier',
+                 str(out / parts_io.CLASSIFIER), '--templates', str(out / parts_io.TEMPLATES),
+                 '--out', str(report_dir))
+        report = json.loads((report_dir / 'report.json').read_text())
+    manifest = json.loads((out / parts_io.MANIFEST).read_text())
+    rows = []
+    for part in manifest['parts']:
+        stats = report['per_object'].get(str(part['id']), {'objects_gt': 0})
+        rows.append({'name': part['name'], 'seen': stats['objects_gt'],
+                     'pose': stats.get('recall_5cm5deg'), 'top1': stats.get('top1'),
+                     'detected': stats.get('iou07_rate'),
+                     'lookalikes': part.get('lookalikes', [])})
+    summary = {'frames': report['frames'], 'pose': report['pose']['recall_5cm5deg'],
+               'top1': report['recognition']['top1'],
+               'detected': report['detection']['iou07_rate'],
+               'false_pos_per_frame': report['detection']['false_pos_per_frame']}
+    (out / 'self_check.md').write_text(self_check_table(rows, summary) + '\n')
+    manifest['self_check'] = summary
+    parts_io.write_manifest(out, manifest)
+    return rows
+
+
+def self_check_table(rows: list[dict], summary: dict) -> str:
+    """The self-check as Markdown: one row per part, then all parts."""
+    def cell(value):
+        return '-' if value is None else f'{value:.2f}'
+
+    lines = ['| part | seen | 5 cm / 5° | top-1 | detected | look-alikes | note |',
+             '|---|---|---|---|---|---|---|']
+    for r in rows:
+        hard = r['pose'] is not None and r['pose'] < HARD_RECALL
+        note = 'hard' if hard else ('not seen' if not r['seen'] else '')
+        lines.append(f"| {r['name']} | {r['seen']} | {cell(r['pose'])} | {cell(r['top1'])} | "
+                     f"{cell(r['detected'])} | {', '.join(r['lookalikes']) or '-'} | {note} |")
+    lines.append(f"| **all** ({summary['frames']} frames) | | {cell(summary['pose'])} | "
+                 f"{cell(summary['top1'])} | {cell(summary['detected'])} | | false positives "
+                 f"{cell(summary['false_pos_per_frame'])} / frame |")
+    return '\n'.join(lines)
+
+
+def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = True
+                ) -> parts_io.PartsFolder:
+    """Build the parts folder ``out`` from the CAD folder ``cad`` (see the module docstring);
+    prints each step's time. A folder left by a failed build is removed."""
+    from tqdm import tqdm
+
+    from tlessbot_ros.tools.support.rig import load_rig
+
+    rig = load_rig(options.config)   # refused before minutes of work
+    cad_list = parts_io.cad_parts(cad)
+    if len(cad_list) < 2:
+        raise TlessbotError(f'{cad} holds {len(cad_list)} part; a parts set needs at least 2')
+    if out.exists() and any(out.iterdir()):
+        if not (out / parts_io.MANIFEST).is_file():
+            raise TlessbotError(f'{out} exists and is not a parts folder: choose another --out')
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    config = ['--config', str(options.config)] if options.config else []
+    recipe = ['--recipe', options.recipe] if options.recipe else []
+    manifest = {'units': options.units, 'recipe': options.recipe or 'train defaults',
+                'fingerprint': parts_io.cad_fingerprint(cad_list, units=options.units),
+                'rig': parts_io.rig_summary(rig), 'source': str(cad)}
+    steps = [('meshes + symmetries', lambda: manifest.update(parts=_write_models(
+                 cad, out, options))),
+             ('templates', lambda: run_tool('templates', '--models', str(out / 'models'),
+                                            '--out', str(out / parts_io.TEMPLATES), *config)),
+             ('classifier', lambda: run_tool(
+                 'train', '--models', str(out / 'models'), '--out',
+                 str(out / parts_io.CLASSIFIER), '--seed', str(options.seed), *recipe,
+                 *options.train_args)),
+             ('manifest', lambda: (_lookalikes(out, manifest['parts']),
+                                   parts_io.write_manifest(out, manifest)))]
+    if check:
+        steps.append(('self-check', lambda: print(self_check_table(
+            self_check(out, options), json.loads(
+                (out / parts_io.MANIFEST).read_text())['self_check']))))
+    times = {}
+    try:
+        with tqdm(steps, desc='parts build', unit='step') as bar:
+            for name, step in bar:
+                bar.set_postfix_str(name)
+                started = time.perf_counter()
+                step()
+                times[name] = time.perf_counter() - started
+                tqdm.write(f'[parts build] {name}: {times[name]:.1f} s')
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    manifest = json.loads((out / parts_io.MANIFEST).read_text())
+    manifest['build_s'] = {k: round(v, 1) for k, v in times.items()}
+    parts_io.write_manifest(out, manifest)
+    print(f'{len(cad_list)} parts -> {out} in {sum(times.values()):.0f} s ('
+          + ', '.join(f'{k} {v:.0f} s' for k, v in times.items()) + ')')
+    return parts_io.open_parts_folder(out, rig=rig)
+
+
+def cached_parts(cad: Path, options: BuildOptions) -> parts_io.PartsFolder:
+    """The parts folder of ``cad`` built without the self-check, kept under the start-up cache
+    by the CAD files' content, units and recipe: built once, reused after."""
+    from tlessbot_ros.io.cache import cache_dir
+
+    fingerprint = parts_io.cad_fingerprint(parts_io.cad_parts(cad), units=options.units)
+    key = f'{fingerprint[:16]}_{options.recipe or "defaults"}'
+    out = cache_dir() / 'parts' / key
+    try:
+        folder = parts_io.open_parts_folder(out)
+        print(f'using the parts built before from the same CAD files: {out}')
+        return folder
+    except parts_io.PartsFolderError:
+        print(f'building the classifier and templates of {cad} into {out} (once)')
+        return build_parts(cad, out, options, check=False)
