@@ -3,6 +3,7 @@
     ros2 launch tlessbot_ros cell.launch.py top_serial:=123456789 side_serial:=987654321
     ros2 launch tlessbot_ros cell.launch.py replay:=/path/to/bag rate:=0.5 loop:=true
     ros2 launch tlessbot_ros cell.launch.py config:=/path/to/my_cell.yaml output_frame:=world
+    ros2 launch tlessbot_ros cell.launch.py parts:=/path/to/my_parts   # tlessbot parts build
 
 It starts the processes ``tlessbot launch`` starts, from the same description
 (tlessbot_ros/tools/support/cell_graph.py): two camera drivers in /top and /side, or with
@@ -22,7 +23,9 @@ from launch_ros.substitutions import ExecutableInPackage, FindPackageShare
 
 from tlessbot_ros.core.common.rig import CAMERA_NAMES
 from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.io.parts import open_parts_folder
 from tlessbot_ros.tools.support.cell_graph import RESPAWN_DELAY_S, graph_description
+from tlessbot_ros.tools.support.rig import load_rig
 
 PACKAGE = 'tlessbot_ros'
 BOOLEANS = {'true': True, '1': True, 'false': False, '0': False}
@@ -39,6 +42,9 @@ def launch_arguments() -> list[DeclareLaunchArgument]:
                 [FindPackageShare(PACKAGE), 'config', 'cell.yaml']),
             description='parameter YAML of every node'),
         *serials,
+        DeclareLaunchArgument('parts', default_value='',
+                              description="parts folder of tlessbot parts build (empty: the "
+                                          "config's parts_path, else the packaged T-LESS parts)"),
         DeclareLaunchArgument('replay', default_value='',
                               description='replay this bag instead of starting the cameras'),
         DeclareLaunchArgument('rate', default_value='1.0', description='replay rate'),
@@ -59,6 +65,8 @@ def graph_actions(context) -> list:
     config = argument('config')
     if not Path(config).is_file():
         raise TlessbotError(f'parameter file not found: {config}')
+    if argument('parts'):   # refused in one line before any node starts
+        open_parts_folder(argument('parts'), rig=load_rig(Path(config)))
     try:
         rate = float(argument('rate'))
     except ValueError:
@@ -66,7 +74,7 @@ def graph_actions(context) -> list:
     description = graph_description(
         replay=argument('replay') or None, rate=rate, loop=BOOLEANS[argument('loop')],
         serials={camera: argument(f'{camera}_serial') for camera in CAMERA_NAMES},
-        output_frame=argument('output_frame') or None)
+        output_frame=argument('output_frame') or None, parts=argument('parts') or None)
     respawn = BOOLEANS[argument('respawn')]
     return [_action(process, config, respawn) for process in description]
 

@@ -171,21 +171,25 @@ def rig_summary(rig: Rig) -> dict[str, Any]:
             for name, cam in sorted(rig.cameras.items())}
 
 
-def rig_difference(built: dict[str, Any], rig: Rig, *, camera: str = 'side') -> str | None:
-    """Why ``rig``'s ``camera`` differs from the one a folder was built for (None: same)."""
+def rig_difference(built: dict[str, Any], T_world_camera: np.ndarray, *,
+                   focal_px: float | None = None, width: int | None = None,
+                   camera: str = 'side') -> str | None:
+    """Why a ``camera`` at ``T_world_camera`` (4x4, metres; with ``focal_px`` and ``width``
+    when known) differs from the one a folder was built for; None: the same, within
+    RIG_POSITION_TOL_M, RIG_ANGLE_TOL_DEG and RIG_FOCAL_TOL."""
     if camera not in built:
         return f'the manifest has no {camera} camera'
-    cam = rig[camera]
     T_built = np.asarray(built[camera]['T_world_camera'], float)
-    moved = float(np.linalg.norm(T_built[:3, 3] - cam.T_world_camera[:3, 3]))
-    cos = (np.trace(T_built[:3, :3].T @ cam.T_world_camera[:3, :3]) - 1.0) / 2.0
+    T = np.asarray(T_world_camera, float)
+    moved = float(np.linalg.norm(T_built[:3, 3] - T[:3, 3]))
+    cos = (np.trace(T_built[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0
     turned = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-    focal = float(np.asarray(built[camera]['K'])[0][0])
-    scale = abs(cam.intrinsics.K[0, 0] / focal - 1.0)
     if moved > RIG_POSITION_TOL_M or turned > RIG_ANGLE_TOL_DEG:
         return (f'its {camera} camera stood {100 * moved:.0f} cm and {turned:.0f} deg away '
                 "from this rig's")
-    if scale > RIG_FOCAL_TOL or built[camera]['width'] != cam.intrinsics.width:
+    built_focal = float(np.asarray(built[camera]['K'])[0][0])
+    if (focal_px is not None and abs(focal_px / built_focal - 1.0) > RIG_FOCAL_TOL) or \
+            (width is not None and built[camera]['width'] != width):
         return f'its {camera} camera had another focal length or image size'
     return None
 
@@ -221,9 +225,12 @@ def write_manifest(folder: Path, manifest: dict[str, Any]) -> Path:
     return path
 
 
-def open_parts_folder(path: str | Path, *, rig: Rig | None = None) -> PartsFolder:
+def open_parts_folder(path: str | Path, *, rig: Rig | None = None,
+                      side_pose: np.ndarray | None = None) -> PartsFolder:
     """The parts folder at ``path``, refused with a one-line reason when a file is missing, the
-    manifest is not ours, a name is invalid, or (``rig`` given) it was built for another rig.
+    manifest is not ours, a name is invalid, or it was built for another rig than ``rig`` (or
+    another side camera pose than ``side_pose``, 4x4 T_world_camera; a node knows only that
+    before its first CameraInfo).
 
     Raises:
         PartsFolderError: the reason, and what to do.
@@ -244,9 +251,14 @@ def open_parts_folder(path: str | Path, *, rig: Rig | None = None) -> PartsFolde
             check_part_name(name)
     except (ValueError, KeyError, TypeError, AttributeError, PartNameError) as error:
         raise PartsFolderError(f'{path / MANIFEST} is not a usable manifest: {error}') from None
+    why = None
     if rig is not None:
-        why = rig_difference(manifest.get('rig', {}), rig)
-        if why is not None:
-            raise PartsFolderError(f'parts folder {path} was built for another rig ({why}): '
-                                   'rebuild it with tlessbot parts build --config YOUR_CELL.yaml')
+        side = rig['side']
+        why = rig_difference(manifest.get('rig', {}), side.T_world_camera,
+                             focal_px=side.intrinsics.K[0, 0], width=side.intrinsics.width)
+    elif side_pose is not None:
+        why = rig_difference(manifest.get('rig', {}), side_pose)
+    if why is not None:
+        raise PartsFolderError(f'parts folder {path} was built for another rig ({why}): '
+                               'rebuild it with tlessbot parts build --config YOUR_CELL.yaml')
     return folder

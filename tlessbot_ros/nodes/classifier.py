@@ -13,7 +13,8 @@ Publishes (RELIABLE, depth 10):
                                  the scores of an instance are summed over the views that see
                                  it and written in both views (header = the labels' header)
     /diagnostics                 frames, failures, dropped, latency, last classes and margins
-Parameters: ``model_path`` (.npz from ``tlessbot train``; default: the packaged model),
+Parameters: ``parts_path`` (a parts folder of ``tlessbot parts build``; read-only),
+``model_path`` (.npz from ``tlessbot train``; default: the parts folder's, else packaged),
 ``reject_margin`` (margin below which a part is 'unknown'; 0 = the model's own),
 ``min_instance_px``, ``class_candidates``, ``top_view_verify_below_margin`` (for a part only the
 top camera sees, the candidates after the first are sent only when the classifier is unsure;
@@ -44,6 +45,7 @@ from tlessbot_ros.core.pipeline import ClassifyParams, PerceptionPipeline, ViewI
 from tlessbot_ros.core.recognise import Classifier, load_classifier
 from tlessbot_ros.data import DEFAULT_CLASSIFIER
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
+from tlessbot_ros.nodes.parts import declare_parts
 from tlessbot_ros.nodes.stage import (
     IMAGE,
     StageNode,
@@ -59,9 +61,11 @@ class ClassifierNode(StageNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('classifier', after_localiser=True, **kwargs)
+        parts = declare_parts(self)   # PartsFolderError: one line, exit 1
         self.model = self.parameters.group(   # ModelFileError: one line, exit 1
-            {'model_path': (str(DEFAULT_CLASSIFIER), 'Classifier .npz written by tlessbot '
-                                                     'train')},
+            {'model_path': (str(parts.classifier if parts else DEFAULT_CLASSIFIER),
+                            'Classifier .npz written by tlessbot train (default: the parts '
+                            "folder's, else the packaged one)")},
             build=lambda values: load_classifier(values['model_path']),
             warm=self._warm_model, apply=self._apply_model)
         path = self.get_parameter('model_path').value

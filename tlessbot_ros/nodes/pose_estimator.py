@@ -6,8 +6,9 @@ Subscribes (``input_qos``), for CAMERA in top, side:
     /classifier/CAMERA/classes                   sensor_msgs/Image 16UC1 class-instance labels,
                                                  or 16UC2..4: class candidates, best first
 Publishes (RELIABLE, depth 10):
-    objects/obj_NN/pose     geometry_msgs/PoseStamped, one message per found instance of object
-                            NN, stamped with the source images' stamp, in the optical frame of
+    objects/<name>/pose     geometry_msgs/PoseStamped, one message per found instance of a
+                            part (its name: the parts folder's, T-LESS obj_NN), stamped
+                            with the source images' stamp, in the optical frame of
                             the camera that saw it best (side, else top) or in ``world_frame``
                             when ``output_frame`` is 'world'
     objects/markers         visualization_msgs/MarkerArray: model surface points + text label,
@@ -15,7 +16,9 @@ Publishes (RELIABLE, depth 10):
     objects/debug_image     sensor_msgs/Image rgb8: side depth in false colour, part outlines
                             and the posed models' points, built only while subscribed
     /diagnostics            latency per stage, fitness, frames dropped, failures
-Parameters: ``templates_path`` (.npz from ``tlessbot templates``; default: the packaged one),
+Parameters: ``parts_path`` (a parts folder of ``tlessbot parts build``: its templates and part
+names; default '': the packaged T-LESS parts), ``templates_path`` (.npz from ``tlessbot
+templates``; default: the parts folder's, else the packaged one),
 ``output_frame`` ('camera' or 'world'), ``world_frame``, ``min_fitness``,
 ``verify_accept_fitness``, ``verify_rmse_weight`` and ``fallback_min_fitness`` (how candidates
 are verified), ``lookalike_check``, ``lookalike_tolerance_m``, ``lookalike_min_z`` and
@@ -31,8 +34,8 @@ localiser publishes on /localiser/rig once it refines the rig from the scene rep
 ``rig.CAMERA.*``, also for ``output_frame`` 'world'; 'config'), ``sync.*``. All are live
 (``ros2 param set``, from the next frame; the worker processes fit their next part with new
 ``pose.*`` and FitParams; ``workers.count`` starts or stops workers) but ``templates_path``
-(its objects name the pose topics), ``rig.cameras``, ``rig_source``, ``input_qos``,
-``input_depth``, ``sync.worker_thread``, ``sync.executor``: read-only.
+and ``parts_path`` (their objects name the pose topics), ``rig.cameras``, ``rig_source``,
+``input_qos``, ``input_depth``, ``sync.worker_thread``, ``sync.executor``: read-only.
 """
 from __future__ import annotations
 
@@ -74,6 +77,7 @@ from tlessbot_ros.data import DEFAULT_TEMPLATES
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.io.cache import warm_pose_stage
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
+from tlessbot_ros.nodes.parts import declare_parts
 from tlessbot_ros.nodes.stage import (
     IMAGE,
     StageNode,
@@ -93,9 +97,11 @@ class PoseEstimatorNode(StageNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('pose_estimator', after_localiser=True, **kwargs)
         parameters = self.parameters
-        path = parameters.read_only('templates_path', str(DEFAULT_TEMPLATES), (
-            'Template database .npz written by tlessbot templates; its objects name the pose '
-            'topics'))
+        parts = declare_parts(self)   # PartsFolderError: one line, exit 1
+        path = parameters.read_only(
+            'templates_path', str(parts.templates if parts else DEFAULT_TEMPLATES), (
+                "Template database .npz written by tlessbot templates (default: the parts "
+                "folder's, else the packaged one); its objects are the pose topics"))
         self.output_frame = parameters.group(
             {'output_frame': ('camera', "'camera': poses in the optical frame of the camera "
                                         "used; 'world': in world_frame through the rig "
@@ -113,7 +119,7 @@ class PoseEstimatorNode(StageNode):
                                              apply=self._apply_worker_params)
         fit_params = parameters.dataclass(FitParams(), apply=self._apply_fit_params)
         self.templates = TemplateDatabase.load(path)
-        self.part_names: dict[int, str] = {}   # names of the parts folder; none: obj_NN
+        self.part_names = parts.names if parts else {}   # none: obj_NN
         self.pipeline = PerceptionPipeline(templates=self.templates, pose=pose_params,
                                            fit_params=fit_params)
         # Workers load their templates while this process builds its caches below.

@@ -46,6 +46,9 @@ from tlessbot_ros.tools.support.respawn import (
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--config', default=None,
                         help='parameter YAML (default: config/cell.yaml)')
+    parser.add_argument('--parts', default=None, metavar='DIR',
+                        help="parts folder (tlessbot parts build; default: the config's "
+                             'parts_path, else the packaged T-LESS parts)')
     parser.add_argument('--replay', default=None, metavar='BAG',
                         help='replay this bag instead of starting the camera drivers')
     parser.add_argument('--rate', type=float, default=1.0, help='replay rate')
@@ -91,8 +94,14 @@ def run(args: argparse.Namespace) -> int:
     for override in args.param:
         if ':=' not in override:
             raise TlessbotError(f'parameter override must look like NAME:=VALUE, got {override!r}')
+    if args.parts:   # refused here, in one line, before any process starts
+        from tlessbot_ros.io.parts import open_parts_folder
+        from tlessbot_ros.tools.support.rig import load_rig
+
+        open_parts_folder(args.parts, rig=load_rig(config))
     policy = _policy(args)
     specs = graph_processes(config, replay=args.replay, rate=args.rate, loop=args.loop,
+                            parts=args.parts,
                             nodes=args.nodes, output_frame=args.output_frame,
                             serials={c: getattr(args, f'{c}_serial') for c in CAMERA_NAMES},
                             extra_ros_args=[a for o in args.param for a in ('-p', o)])

@@ -9,6 +9,7 @@ the same parameter file first, then the overrides listed here.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 from tlessbot_ros.core.common.rig import CAMERA_NAMES
 from tlessbot_ros.errors import TlessbotError
@@ -16,6 +17,7 @@ from tlessbot_ros.errors import TlessbotError
 PERCEPTION_NODES = ('localiser', 'classifier', 'pose_estimator')
 CAMERA_DRIVER = 'camera_driver'
 NODE_EXECUTABLES = (CAMERA_DRIVER, *PERCEPTION_NODES)
+PARTS_NODES = ('classifier', 'pose_estimator')   # the nodes that read ``parts_path``
 TOOL_EXECUTABLE = 'tlessbot'
 # A stage node that died is started again after this long (ros2 launch's respawn_delay).
 RESPAWN_DELAY_S = 2.0
@@ -55,13 +57,15 @@ def string_parameter(value: str) -> str:
 
 def graph_description(*, replay: str | None = None, rate: float = 1.0, loop: bool = False,
                       nodes: list[str] | None = None, serials: dict[str, str] | None = None,
-                      output_frame: str | None = None) -> list[GraphProcess]:
+                      output_frame: str | None = None,
+                      parts: str | None = None) -> list[GraphProcess]:
     """The processes of the graph, in start order.
 
     Two camera drivers (namespaced per camera, ``serials[camera]`` selects the device; none =
     the first found) or, with ``replay`` (a bag), the replay tool instead. The replay waits
     until every stage node started here reports ready, then for the bag's subscribers.
     ``output_frame`` overrides the pose estimator's ('camera' or 'world'); None = the file's.
+    ``parts`` (a parts folder) overrides the classifier's and pose estimator's ``parts_path``.
     """
     wanted = list(nodes or NODE_EXECUTABLES)
     unknown = [name for name in wanted if name not in NODE_EXECUTABLES]
@@ -86,6 +90,8 @@ def graph_description(*, replay: str | None = None, rate: float = 1.0, loop: boo
         else:
             overrides = (('output_frame', output_frame),) \
                 if name == 'pose_estimator' and output_frame else ()
+            if parts and name in PARTS_NODES:
+                overrides += (('parts_path', str(Path(parts).expanduser().resolve())),)
             processes.append(GraphProcess(name, name, overrides=overrides, respawn=True))
     return processes
 

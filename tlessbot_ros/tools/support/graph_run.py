@@ -109,7 +109,8 @@ class GraphMonitor:
     stage's side output of a frame arrived, and the nodes' last /diagnostics (its callbacks
     run on the executor's thread)."""
 
-    def __init__(self, node: Any, result: GraphRunResult) -> None:
+    def __init__(self, node: Any, result: GraphRunResult,
+                 part_names: dict[int, str] | None = None) -> None:
         from tlessbot_ros.nodes.common import RESULT_QOS, message_class
 
         self.result = result
@@ -125,9 +126,9 @@ class GraphMonitor:
             node.create_subscription(image_class, topic, self._on_stage_output(stage),
                                      RESULT_QOS, raw=True)
         pose_class = message_class('geometry_msgs/msg/PoseStamped')
-        for obj_id in ALL_OBJECT_IDS:
-            node.create_subscription(pose_class, pose_topic(obj_id), self._on_pose(obj_id),
-                                     RESULT_QOS)
+        for obj_id in (ALL_OBJECT_IDS if part_names is None else sorted(part_names)):
+            node.create_subscription(pose_class, pose_topic(obj_id, part_names),
+                                     self._on_pose(obj_id), RESULT_QOS)
 
     def _on_pose(self, obj_id: int) -> Callable[[Any], None]:
         from tlessbot_ros.conversions.pose import pose_stamped_to_transform
@@ -229,8 +230,8 @@ class GraphRun:
     def __init__(self, bag: str | Path, *, config: Path, options: GraphRunOptions,
                  ros_args: list[str] | None = None,
                  node_prefixes: dict[str, list[str]] | None = None,
-                 alongside: Callable[[GraphRunResult], Callable[[], None]] | None = None
-                 ) -> None:
+                 alongside: Callable[[GraphRunResult], Callable[[], None]] | None = None,
+                 part_names: dict[int, str] | None = None) -> None:
         if options.lockstep:  # one frame at a time: no frame may be skipped by a rate cap
             ros_args = [*(ros_args or []), '-p', 'sync.max_rate_hz:=0.0']
         self.bag, self.options, self.alongside = str(bag), options, alongside
@@ -243,6 +244,7 @@ class GraphRun:
         self.output: list[str] = []
         self.player: Any = None        # the replaying node, made in run()
         self.monitor: GraphMonitor | None = None
+        self.part_names = part_names
 
     def run(self) -> GraphRunResult:
         """Start, wait until ready, replay, drain; the nodes are stopped in any case."""
@@ -254,7 +256,7 @@ class GraphRun:
         init_ros()
         monitor_node = rclpy.create_node('tlessbot_graph_monitor')
         self.player = rclpy.create_node('tlessbot_graph_replay')
-        self.monitor = GraphMonitor(monitor_node, self.result)
+        self.monitor = GraphMonitor(monitor_node, self.result, self.part_names)
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(monitor_node)
         spinner = threading.Thread(target=self.executor.spin, daemon=True)
@@ -342,8 +344,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
                      settle_s: float = 3.0, drain_timeout_s: float = 60.0,
                      lockstep: bool = False, quiet: bool = True,
                      node_prefixes: dict[str, list[str]] | None = None,
-                     alongside: Callable[[GraphRunResult], Callable[[], None]] | None = None
-                     ) -> GraphRunResult:
+                     alongside: Callable[[GraphRunResult], Callable[[], None]] | None = None,
+                     part_names: dict[int, str] | None = None) -> GraphRunResult:
     """Start the perception nodes, replay ``bag`` into them, collect the published poses.
 
     Args:
@@ -362,12 +364,15 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
         alongside: called with the result as the replay starts (the nodes are ready); what
             it returns is called when the replay ends, before the drain (bench fuzz starts
             and stops its garbage publisher so).
+        part_names: {id: name} of the parts whose ``/objects/<name>/pose`` to hear (a parts
+            folder's, with ``-p parts_path:=...`` in ``ros_args``); None: obj_01 to obj_30.
     """
     options = GraphRunOptions(rate=rate, loop=loop, duration_s=duration_s, restamp=restamp,
                               startup_timeout_s=startup_timeout_s, settle_s=settle_s,
                               drain_timeout_s=drain_timeout_s, lockstep=lockstep, quiet=quiet)
     return GraphRun(bag, config=config, options=options, ros_args=ros_args,
-                    node_prefixes=node_prefixes, alongside=alongside).run()
+                    node_prefixes=node_prefixes, alongside=alongside,
+                    part_names=part_names).run()
 
 
 def _replay_lockstep(node: Any, bag: str, handled: Callable[[], int], on_publish,

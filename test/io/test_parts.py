@@ -1,0 +1,102 @@
+"""Parts folders: CAD files of any name, meshes checked, a folder refused with one reason."""
+import json
+
+import numpy as np
+import pytest
+
+from tlessbot_ros.core.common import default_rig
+from tlessbot_ros.errors import ModelFileError, PartNameError
+from tlessbot_ros.io.parts import (
+    FORMAT,
+    REQUIRED,
+    PartsFolderError,
+    cad_parts,
+    check_part_mesh,
+    open_parts_folder,
+    rig_summary,
+    write_mesh,
+)
+from tlessbot_ros.tools.support.part_generator import mesh_part, part_shapes
+
+
+def _cube(edge_mm=20.0):
+    v = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float) * edge_mm
+    f = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
+                  [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]], np.int32)
+    return v, f
+
+
+def test_any_file_names_become_part_names(tmp_path):
+    v, f = _cube()
+    for name in ('zeta.stl', 'alpha.ply', 'obj_07.stl', 'Bracket_2.obj'):
+        write_mesh(tmp_path / name, v, f)
+    parts = cad_parts(tmp_path)
+    assert [(p.obj_id, p.name) for p in parts] == [
+        (1, 'Bracket_2'), (2, 'alpha'), (3, 'zeta'), (7, 'obj_07')]
+
+
+def test_bad_names_and_twins_refused(tmp_path):
+    v, f = _cube()
+    write_mesh(tmp_path / 'M6 bolt.stl', v, f)
+    with pytest.raises(PartNameError, match='rename the file to M6_bolt.stl'):
+        cad_parts(tmp_path)
+    (tmp_path / 'M6 bolt.stl').unlink()
+    write_mesh(tmp_path / 'plate.stl', v, f)
+    write_mesh(tmp_path / 'plate.ply', v, f)
+    with pytest.raises(ModelFileError, match='same name'):
+        cad_parts(tmp_path)
+
+
+def test_unusable_meshes_say_why():
+    v, f = _cube()
+    assert check_part_mesh(v / 1000.0, f, name='cube.stl') == []
+    with pytest.raises(ModelFileError, match=r'probably in m; --units m'):
+        check_part_mesh(v / 1e6, f, name='cube.stl')            # a file in metres read as mm
+    with pytest.raises(ModelFileError, match=r'probably in mm; leave out --units m'):
+        check_part_mesh(v, f, name='cube.stl', units='m')       # mm read as metres
+    flat = v / 1000.0 * np.array([1.0, 1.0, 0.0])
+    with pytest.raises(ModelFileError, match='degenerate'):
+        check_part_mesh(flat, f, name='sheet.stl')
+    with pytest.raises(ModelFileError, match='not closed'):
+        check_part_mesh(v / 1000.0, f[:8], name='open.stl')
+    assert 'not closed' in check_part_mesh(v / 1000.0, f[:11], name='hole.stl',
+                                           max_open_fraction=0.5)[0]
+
+
+def test_generated_part_is_closed_and_outward():
+    sdf, (low, high) = part_shapes()['strip_slotted']
+    v, f = mesh_part(sdf, low, high, spacing_mm=0.5)
+    assert check_part_mesh(v / 1000.0, f, name='strip') == []
+    tri = v[f]
+    volume = np.einsum('ij,ij->i', tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0
+    holes, corners = 3 * np.pi * 2.0 ** 2 * 3.0, 4 * (2.0 * 2.0 / 2) * 3.0   # mm^3
+    assert volume == pytest.approx(80 * 16 * 3 - corners - holes, rel=0.02)
+    assert np.ptp(v, axis=0) == pytest.approx([80, 16, 3], abs=0.5)
+
+
+def _folder(tmp_path, rig):
+    (tmp_path / 'models').mkdir()
+    for name in REQUIRED:
+        (tmp_path / name).write_text('{}')
+    manifest = {'format': FORMAT, 'rig': rig_summary(rig),
+                'parts': [{'id': 1, 'name': 'plate'}, {'id': 2, 'name': 'bracket'}]}
+    (tmp_path / 'manifest.json').write_text(json.dumps(manifest))
+    return tmp_path
+
+
+def test_parts_folder_refused_with_one_reason(tmp_path):
+    rig = default_rig()
+    folder = open_parts_folder(_folder(tmp_path, rig), rig=rig)
+    assert folder.names == {1: 'plate', 2: 'bracket'}
+    assert folder.templates == tmp_path / 'templates.npz'
+    moved = default_rig()
+    moved.cameras['side'].T_world_camera[2, 3] += 0.1
+    with pytest.raises(PartsFolderError, match='built for another rig .*10 cm'):
+        open_parts_folder(tmp_path, rig=moved)
+    with pytest.raises(PartsFolderError, match='another rig'):
+        open_parts_folder(tmp_path, side_pose=moved['side'].T_world_camera)
+    (tmp_path / 'classifier.npz').unlink()
+    with pytest.raises(PartsFolderError, match='has no classifier.npz: rebuild it'):
+        open_parts_folder(tmp_path)
+    with pytest.raises(PartsFolderError, match='not found'):
+        open_parts_folder(tmp_path / 'nowhere')
