@@ -116,16 +116,20 @@ def test_error_lines(dataset, tmp_path, capsys):
     assert 'exactly one of --dataset' in capsys.readouterr().err
 
 
-def test_missing_templates_are_built_once_and_cached(dataset, tmp_path, capsys):
+def test_missing_templates_are_built_once_and_cached(dataset, tmp_path, capsys, monkeypatch):
     models, data = dataset
+    monkeypatch.setenv('TLESSBOT_CACHE_DIR', str(tmp_path / 'cache'))
     out = tmp_path / 'o'
     argv = ['evaluate', '--models', str(models), '--dataset', str(data), '--oracle',
             'boxes+classes', '--limit', '1', '--out', str(out)]
     assert main(argv) == 0
-    assert 'building' in capsys.readouterr().out
-    assert (out / 'templates.npz').is_file() and (out / 'report.json').is_file()
+    assert 'building the templates of' in capsys.readouterr().out
+    built = list((tmp_path / 'cache' / 'parts').glob('*/templates.npz'))
+    assert len(built) == 1 and (out / 'report.json').is_file()
+    manifest = json.loads((built[0].parent / 'manifest.json').read_text())
+    assert [p['name'] for p in manifest['parts']] == ['obj_05', 'obj_11']
     assert main(argv) == 0
-    assert f'using cached {out / "templates.npz"}' in capsys.readouterr().out
+    assert 'using the parts built before' in capsys.readouterr().out
 
 
 def test_pose_workers_give_the_same_estimates(dataset, tmp_path):

@@ -6,8 +6,11 @@
 
 With --poses the given BOP results are only scored. Otherwise the perception pipeline
 (core.pipeline) runs on every frame; --oracle feeds ground-truth boxes (and classes) instead of
-the localiser (and classifier). A dataset with test_top/ and test_side/ is evaluated as two views
-and scored in the side camera. Parts with visib_fract >= 0.3 are the targets.
+the localiser (and classifier). Without --classifier / --templates both are built from
+--models as ``tlessbot parts build`` builds them (same recipe) and kept in the start-up cache
+by the models' content: a dataset of new parts is scored in one command. A dataset with
+test_top/ and test_side/ is evaluated as two views and scored in the side camera. Parts with
+visib_fract >= 0.3 are the targets.
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ from tlessbot_ros.errors import DatasetError, ModelFileError, TlessbotError
 from tlessbot_ros.io.bop_results import read_results, write_results
 from tlessbot_ros.tools.support.eval_frames import TWO_VIEW_SPLITS, bag_frames, pipeline_frames
 from tlessbot_ros.tools.support.eval_scoring import FrameOutput, load_scoring_models, score_frames
+from tlessbot_ros.tools.support.parts_build import BuildOptions, cached_parts
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,9 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='CAD models: obj_NN.stl folder or BOP models/ with models_info.json')
     parser.add_argument('--split', help='evaluate this single split (default: test_top + '
                         'test_side when both exist, else the only split)')
-    parser.add_argument('--classifier', type=Path, help='classifier .npz (tlessbot train)')
-    parser.add_argument('--templates', type=Path, help='template database .npz '
-                        '(tlessbot templates)')
+    parser.add_argument('--classifier', type=Path, help='classifier .npz (tlessbot train; '
+                        'default: built from --models as tlessbot parts build does, cached)')
+    parser.add_argument('--templates', type=Path, help='template database .npz (tlessbot '
+                        'templates; default: built from --models likewise)')
     parser.add_argument('--oracle', choices=('none', 'boxes', 'boxes+classes'), default='none',
                         help='feed ground-truth boxes (and classes) to the pipeline')
     parser.add_argument('--poses', type=Path, help='only score these poses (BOP results CSV)')
@@ -78,29 +83,6 @@ def _given_poses(path: Path) -> dict[tuple[int, int], FrameOutput]:
     return outputs
 
 
-def _cached_model(command: str, *, models: Path, out: Path) -> Path:
-    """``<out>/templates.npz`` or ``<out>/classifier.npz`` built from ``models`` with the
-    default settings (``tlessbot templates`` / ``tlessbot train``, progress bar shown) unless
-    an earlier run cached it."""
-    import subprocess
-    import sys
-
-    name = 'templates.npz' if command == 'templates' else 'classifier.npz'
-    path = out / name
-    if path.is_file():
-        print(f'using cached {path}')
-        return path
-    out.mkdir(parents=True, exist_ok=True)
-    print(f'no --{"templates" if command == "templates" else "classifier"} given: building '
-          f'{path} from {models} with the default settings')
-    result = subprocess.run([sys.executable, '-m', 'tlessbot_ros.tools.cli', command,
-                             '--models', str(models), '--out', str(path)])
-    if result.returncode != 0 or not path.is_file():
-        raise TlessbotError(f'building {path} failed (tlessbot {command} exited with '
-                            f'{result.returncode})')
-    return path
-
-
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -129,11 +111,13 @@ def run(args: argparse.Namespace) -> int:
         mode = f'given poses ({args.poses.name})'
     else:
         split, two_view = _scored_split(args.dataset, args.split)
-        templates = args.templates or _cached_model('templates', models=args.models,
-                                                    out=args.out)
-        classifier = args.classifier
-        if args.oracle != 'boxes+classes' and classifier is None:
-            classifier = _cached_model('train', models=args.models, out=args.out)
+        templates, classifier = args.templates, args.classifier
+        if templates is None or (classifier is None and args.oracle != 'boxes+classes'):
+            # built as tlessbot parts build builds them, once per set of CAD files
+            need_classifier = classifier is None and args.oracle != 'boxes+classes'
+            built = cached_parts(args.models, BuildOptions(), classifier=need_classifier)
+            templates = templates or built.templates
+            classifier = built.classifier if need_classifier else classifier
         iterator = pipeline_frames(
             args.dataset, split, two_view, templates=templates, classifier=classifier,
             oracle=args.oracle, limit=args.limit, pose_overrides=args.pose_param,

@@ -150,10 +150,11 @@ def self_check_table(rows: list[dict], summary: dict) -> str:
     return '\n'.join(lines)
 
 
-def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = True
-                ) -> parts_io.PartsFolder:
+def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = True,
+                classifier: bool = True) -> parts_io.PartsFolder | None:
     """Build the parts folder ``out`` from the CAD folder ``cad`` (see the module docstring);
-    prints each step's time. A folder left by a failed build is removed."""
+    prints each step's time. A folder left by a failed build is removed. Without
+    ``classifier`` (only templates: ``evaluate --oracle boxes+classes``) it returns None."""
     from tqdm import tqdm
 
     from tlessbot_ros.tools.support.rig import load_rig
@@ -179,13 +180,14 @@ def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = Tr
              ('classifier', lambda: run_tool(
                  'train', '--models', str(out / 'models'), '--out',
                  str(out / parts_io.CLASSIFIER), '--seed', str(options.seed), *recipe,
-                 *options.train_args)),
+                 *options.train_args)) if classifier else None,
              ('manifest', lambda: (_lookalikes(out, manifest['parts']),
                                    parts_io.write_manifest(out, manifest)))]
-    if check:
+    if check and classifier:
         steps.append(('self-check', lambda: print(self_check_table(
             self_check(out, options), json.loads(
                 (out / parts_io.MANIFEST).read_text())['self_check']))))
+    steps = [step for step in steps if step is not None]
     times = {}
     try:
         with tqdm(steps, desc='parts build', unit='step') as bar:
@@ -203,21 +205,24 @@ def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = Tr
     parts_io.write_manifest(out, manifest)
     print(f'{len(cad_list)} parts -> {out} in {sum(times.values()):.0f} s ('
           + ', '.join(f'{k} {v:.0f} s' for k, v in times.items()) + ')')
-    return parts_io.open_parts_folder(out, rig=rig)
+    return parts_io.open_parts_folder(out, rig=rig) if classifier else None
 
 
-def cached_parts(cad: Path, options: BuildOptions) -> parts_io.PartsFolder:
-    """The parts folder of ``cad`` built without the self-check, kept under the start-up cache
-    by the CAD files' content, units and recipe: built once, reused after."""
+def cached_parts(cad: Path, options: BuildOptions, *, classifier: bool = True
+                 ) -> parts_io.PartsFolder:
+    """The parts folder of ``cad`` built without the self-check (and without the classifier
+    unless ``classifier``), kept in the start-up cache by the CAD files' content, units and
+    recipe: built once, reused after."""
     from tlessbot_ros.io.cache import cache_dir
 
     fingerprint = parts_io.cad_fingerprint(parts_io.cad_parts(cad), units=options.units)
-    key = f'{fingerprint[:16]}_{options.recipe or "defaults"}'
-    out = cache_dir() / 'parts' / key
-    try:
-        folder = parts_io.open_parts_folder(out)
+    out = cache_dir() / 'parts' / f'{fingerprint[:16]}_{options.recipe or "defaults"}'
+    folder = parts_io.PartsFolder(out, {})
+    wanted = [out / parts_io.MANIFEST, folder.templates] + [folder.classifier] * classifier
+    if all(path.is_file() for path in wanted):
         print(f'using the parts built before from the same CAD files: {out}')
-        return folder
-    except parts_io.PartsFolderError:
-        print(f'building the classifier and templates of {cad} into {out} (once)')
-        return build_parts(cad, out, options, check=False)
+    else:
+        print(f'building the {"classifier and " * classifier}templates of {cad} into {out} '
+              '(once)')
+        build_parts(cad, out, options, check=False, classifier=classifier)
+    return folder
