@@ -123,8 +123,37 @@ def mesh_part(sdf: Sdf, low: np.ndarray, high: np.ndarray, *, spacing_mm: float 
     return verts + start, np.ascontiguousarray(faces[:, ::-1], dtype=np.int32)
 
 
+def _rotation(axis, angle_deg: float, centre=(0.0, 0.0, 0.0)) -> list[float]:
+    """A BOP ``symmetries_discrete`` entry: rotation about ``axis`` through ``centre`` (mm),
+    the 4x4 flattened row by row."""
+    from tlessbot_ros.core.common import rotation_about_axis
+
+    R = rotation_about_axis(np.asarray(axis, float), np.radians(angle_deg))
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(centre) - R @ np.asarray(centre)
+    return [round(float(v), 9) for v in T.ravel()]
+
+
+def true_symmetries() -> dict[str, dict]:
+    """The symmetries each part has by construction (BOP models_info entries, mm); a part not
+    listed has none. ``disc_flange``: 4 holes on a circle (8 elements); ``tube``: about its
+    axis, and end for end."""
+    centre = (0.0, 0.0, 3.0)
+    disc = [_rotation((0, 0, 1), a, centre) for a in (90, 180, 270)]
+    disc += [_rotation((np.cos(np.radians(a)), np.sin(np.radians(a)), 0), 180, centre)
+             for a in (0, 45, 90, 135)]
+    return {'disc_flange': {'symmetries_discrete': disc},
+            'tube': {'symmetries_continuous': [{'axis': [1, 0, 0], 'offset': [0, 0, 0]}],
+                     'symmetries_discrete': [_rotation((0, 0, 1), 180)]}}
+
+
 def generate_parts(out: str | Path, names: list[str] | None = None) -> list[Path]:
-    """Write the parts (all, or ``names``) as ``<out>/<name>.stl`` in mm; the paths."""
+    """Write the parts (all, or ``names``) as ``<out>/<name>.stl`` in mm, and their true
+    symmetries as ``<out>/symmetries.json`` (by name, as ``tlessbot parts build`` reads it);
+    the STL paths."""
+    import json
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     shapes = part_shapes()
@@ -134,4 +163,7 @@ def generate_parts(out: str | Path, names: list[str] | None = None) -> list[Path
         vertices, faces = mesh_part(sdf, low, high)
         paths.append(out / f'{name}.stl')
         write_mesh(paths[-1], vertices, faces)
+    listed = true_symmetries()
+    symmetries = {p.stem: listed.get(p.stem, {'symmetries_discrete': []}) for p in paths}
+    (out / 'symmetries.json').write_text(json.dumps(symmetries, indent=1) + '\n')
     return paths

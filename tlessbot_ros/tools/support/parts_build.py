@@ -66,15 +66,13 @@ def _write_models(cad: Path, out: Path, options: BuildOptions) -> list[dict]:
         for warning in warnings:
             print(f'warning: {warning}')
         parts_io.write_mesh(models_dir / f'obj_{part.obj_id:02d}.ply', vertices * 1000.0, faces)
-    listed = {}
-    if (cad / 'models_info.json').is_file():   # a BOP folder: keep its symmetries
-        listed = json.loads((cad / 'models_info.json').read_text(encoding='utf-8'))
+    listed = _listed_symmetries(cad, parts)
     models = load_models(models_dir)
     info, entries = {}, []
     for part in parts:
         model = models[part.obj_id]
-        if str(part.obj_id) in listed and part.name.startswith('obj_'):
-            entry = {k: v for k, v in listed[str(part.obj_id)].items() if k.startswith('sym')}
+        if part.name in listed:
+            entry = {k: v for k, v in listed[part.name].items() if k.startswith('sym')}
         else:
             entry = symmetries_to_models_info(detect_symmetries(
                 model.vertices, model.faces, diameter=model.diameter_m))
@@ -87,6 +85,23 @@ def _write_models(cad: Path, out: Path, options: BuildOptions) -> list[dict]:
                         .describe()})
     (models_dir / 'models_info.json').write_text(json.dumps(info, indent=1) + '\n')
     return entries
+
+
+def _listed_symmetries(cad: Path, parts: list[parts_io.CadPart]) -> dict[str, dict]:
+    """Symmetries the CAD folder lists, by part name: ``symmetries.json`` (name -> BOP entry,
+    mm) or a BOP ``models_info.json`` (id -> entry, for obj_NN files). The other parts' are
+    detected from their meshes."""
+    listed: dict[str, dict] = {}
+    try:
+        if (cad / 'models_info.json').is_file():
+            by_id = json.loads((cad / 'models_info.json').read_text(encoding='utf-8'))
+            listed = {p.name: by_id[str(p.obj_id)] for p in parts
+                      if p.name.startswith('obj_') and str(p.obj_id) in by_id}
+        if (cad / 'symmetries.json').is_file():
+            listed.update(json.loads((cad / 'symmetries.json').read_text(encoding='utf-8')))
+    except (OSError, ValueError) as error:
+        raise TlessbotError(f'cannot read the symmetries listed in {cad}: {error}') from None
+    return listed
 
 
 def _lookalikes(out: Path, entries: list[dict]) -> None:
