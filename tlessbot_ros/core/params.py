@@ -97,6 +97,8 @@ class FitParams:
             fitness (0..1): no known part.
         lookalike_check: compare a part with its look-alike twin at the fitted pose on the measured
             depth; the better one names it.
+        flip_check: compare a flat part with itself turned over (half turns, each refitted) on
+            the measured depth; the better pose is kept.
         lookalike_tolerance_m: a pixel votes for one look-alike when it explains the depth better
             by more than this, m (>= 0).
         lookalike_min_z: the twin overturns the class only with a vote surplus above this many
@@ -130,6 +132,7 @@ class FitParams:
     verify_rmse_weight: float = 50.0
     fallback_min_fitness: float = 0.1
     lookalike_check: bool = True
+    flip_check: bool = True
     lookalike_tolerance_m: float = 0.002
     lookalike_min_z: float = 2.0
     lookalike_all_views: bool = True

@@ -3,11 +3,13 @@ candidates fitted in order, the best kept (verification by geometry), then the l
 on every view that sees it. A worker process runs :func:`fit_part` alone (it has no views)."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from tlessbot_ros.core.frame import PartJob
 from tlessbot_ros.core.params import FitParams
-from tlessbot_ros.core.pose import LookalikeCheck, PoseEstimator, TemplateDatabase
+from tlessbot_ros.core.pose import FlipCheck, LookalikeCheck, PoseEstimator, TemplateDatabase
 from tlessbot_ros.core.recognise import UNKNOWN_ID
 
 
@@ -73,6 +75,28 @@ def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob) -> None:
             if winner in job.candidates else len(job.candidates)
 
 
+def check_flip(flip: FlipCheck | None, job: PartJob) -> None:
+    """A fitted flat part is turned over when the depth of its views shows it lies the other
+    way up (:class:`~tlessbot_ros.core.pose.FlipCheck`)."""
+    detection = job.detection
+    if flip is None or detection.pose is None or detection.obj_id not in flip:
+        return
+    T, _ = flip.resolve(detection.obj_id, detection.pose.T_camera_object, job.points,
+                        more_views=job.more_views)
+    detection.pose = replace(detection.pose, T_camera_object=T)
+
+
+def flip_check(database: TemplateDatabase, fit: FitParams) -> FlipCheck | None:
+    """The flat parts' flip check (``flip_check``, with the look-alike check's vote settings;
+    None when it is off or no part is flat)."""
+    meshes = {o.obj_id: (o.mesh_vertices, o.mesh_faces) for o in database.objects.values()
+              if o.mesh_faces is not None}
+    if not fit.flip_check or not meshes:
+        return None
+    check = FlipCheck(meshes, tolerance_m=fit.lookalike_tolerance_m, min_z=fit.lookalike_min_z)
+    return check if check.turns else None
+
+
 def lookalike_check(database: TemplateDatabase, fit: FitParams) -> LookalikeCheck | None:
     """The look-alike check ``fit``'s ``lookalike_*`` ask for (None when it is off)."""
     if not fit.lookalike_check:
@@ -81,9 +105,10 @@ def lookalike_check(database: TemplateDatabase, fit: FitParams) -> LookalikeChec
                                     min_z=fit.lookalike_min_z)
 
 
-def lookalike_options(fit: FitParams) -> tuple[bool, float, float]:
-    """The fields of ``fit`` the look-alike check is built with."""
-    return fit.lookalike_check, fit.lookalike_tolerance_m, fit.lookalike_min_z
+def lookalike_options(fit: FitParams) -> tuple[bool, bool, float, float]:
+    """The fields of ``fit`` the look-alike and flip checks are built with."""
+    return fit.lookalike_check, fit.flip_check, fit.lookalike_tolerance_m, fit.lookalike_min_z
 
 
-__all__ = ['check_lookalike', 'fit_part', 'lookalike_check', 'lookalike_options']
+__all__ = ['check_flip', 'check_lookalike', 'fit_part', 'flip_check', 'lookalike_check',
+           'lookalike_options']

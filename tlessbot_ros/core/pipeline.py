@@ -81,8 +81,10 @@ from tlessbot_ros.core.localise import (
 )
 from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
 from tlessbot_ros.core.part_fit import (
+    check_flip,
     check_lookalike,
     fit_part,
+    flip_check,
     lookalike_check,
     lookalike_options,
 )
@@ -134,6 +136,7 @@ class PerceptionPipeline:
         self._tables: dict[str, tuple[tuple[object, object], TableFrame]] = {}
         self.pose_estimator = PoseEstimator(templates, params=pose) if templates else None
         self.lookalike = lookalike_check(templates, fit_params) if templates else None
+        self.flip = flip_check(templates, fit_params) if templates else None
 
     def replace(self, **changes: Any) -> PerceptionPipeline:
         """A pipeline like this one with some of the constructor's arguments changed
@@ -159,8 +162,10 @@ class PerceptionPipeline:
         if self.pose_estimator is not None and lookalike_options(old) != \
                 lookalike_options(fit):
             new.lookalike = lookalike_check(self.pose_estimator.database, fit)
-            if new.lookalike is not None:
-                new.lookalike.warm_up()
+            new.flip = flip_check(self.pose_estimator.database, fit)
+            for check in (new.lookalike, new.flip):
+                if check is not None:
+                    check.warm_up()
         return new
 
     def warm_up(self) -> None:
@@ -168,8 +173,9 @@ class PerceptionPipeline:
         frame is not slower than the others."""
         if self.pose_estimator is not None:
             self.pose_estimator.warm_up()
-        if self.lookalike is not None:
-            self.lookalike.warm_up()
+        for check in (self.lookalike, self.flip):
+            if check is not None:
+                check.warm_up()
         if self.fit_params.table_plane != 'rig':   # compiles the plane search's loop
             flat = np.full((48, 64), 0.5, np.float32)
             find_table_plane(flat, np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]),
@@ -415,8 +421,9 @@ class PerceptionPipeline:
         other views where it has at least ``min_instance_px`` pixels, with the rig's
         transforms into them (none without extrinsics or depth, or when no candidate has a
         look-alike, or with ``lookalike_all_views`` off)."""
-        if self.lookalike is None or not self.fit_params.lookalike_all_views or \
-                not any(c in self.lookalike for c in candidates) or \
+        checks = [c for c in (self.lookalike, self.flip) if c is not None]
+        if not checks or not self.fit_params.lookalike_all_views or \
+                not any(c in check for c in candidates for check in checks) or \
                 views[view].T_world_camera is None:
             return ()
         more = []
@@ -466,7 +473,9 @@ class PerceptionPipeline:
         fit_part(self.pose_estimator, self.fit_params, job)
 
     def check_lookalike(self, job: PartJob) -> None:
-        """Compare a fitted part with its look-alike (:func:`~.part_fit.check_lookalike`)."""
+        """Turn a flat part over if its depth says so (:func:`~.part_fit.check_flip`), then
+        compare it with its look-alike (:func:`~.part_fit.check_lookalike`)."""
+        check_flip(self.flip, job)
         check_lookalike(self.lookalike, job)
 
     # ---------------------------------------------------------------------------- all stages

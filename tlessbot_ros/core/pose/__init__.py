@@ -73,6 +73,8 @@ _HOME = {
     'normal_equations': 'grid_kernels',
     'self_visible': 'grid_kernels',
     'truncated_cost': 'grid_kernels',
+    'FlipCheck': 'flip',
+    'half_turns': 'flip',
     'LookalikeCheck': 'lookalike',
     'MISS_ERROR_M': 'lookalike',
     'Mesh': 'lookalike',
@@ -158,6 +160,7 @@ if TYPE_CHECKING:
         rotation_between,
         view_grid,
     )
+    from tlessbot_ros.core.pose.flip import FlipCheck, half_turns  # noqa: F401
     from tlessbot_ros.core.pose.grid_kernels import (  # noqa: F401
         gauss_newton,
         inlier_fraction,

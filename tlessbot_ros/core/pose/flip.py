@@ -1,0 +1,117 @@
+"""Flat parts turned over: tell a flat part from its mirror image by what the depth shows.
+
+A plate 4 mm thick fits the depth of its upper face as well upside down (turned 180° about an
+axis in its plane) as the right way up: the fit cannot tell them apart, and nor can ADD-S.
+What differs is where its holes, slots and outline features lie. :class:`FlipCheck` ray-casts
+the part's mesh at the fitted pose and at each half turn about the principal axes of the part
+(through the centre of its bounding box, along those axes) along the pixel rays of the part's
+ROI clouds; the pose whose surface explains more pixels by a clear margin (the depth vote of
+:mod:`~tlessbot_ros.core.pose.lookalike`: a pixel the mesh misses, where a hole is, counts as
+a gross error) is kept. A turn that maps the part onto itself (a symmetry) wins no pixels.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import open3d as o3d
+
+from tlessbot_ros.core.common import raycasting_scene, rotation_about_axis
+from tlessbot_ros.core.pose.lookalike import Mesh, clear_margin, depth_errors, vote_counts
+
+# A part is flat when its thinnest principal extent is at most this share of its middle one.
+FLAT_RATIO = 0.3
+
+
+def half_turns(vertices: np.ndarray, *, flat_ratio: float = FLAT_RATIO) -> list[np.ndarray]:
+    """The 4x4 half turns (model frame, metres) about the three principal axes of a flat part,
+    through the centre of its principal-axis bounding box; [] for a part that is not flat.
+
+    Args:
+        vertices: (V, 3) model vertices, metres.
+    """
+    v = np.asarray(vertices, np.float64)
+    mean = v.mean(axis=0)
+    axes = np.linalg.svd(v - mean, full_matrices=False)[2]   # rows: principal axes
+    coords = (v - mean) @ axes.T
+    extent = np.sort(np.ptp(coords, axis=0))
+    if extent[0] > flat_ratio * extent[1]:
+        return []
+    centre = mean + ((coords.max(axis=0) + coords.min(axis=0)) / 2.0) @ axes
+    turns = []
+    for axis in axes:
+        T = np.eye(4)
+        T[:3, :3] = rotation_about_axis(axis, np.pi)
+        T[:3, 3] = centre - T[:3, :3] @ centre
+        turns.append(T)
+    return turns
+
+
+class FlipCheck:
+    """Turns a fitted flat part over when the depth shows it lies the other way up.
+
+    Args:
+        meshes: {obj_id: (vertices m, faces)} of the parts to check (flat ones are kept).
+        tolerance_m, min_z: the depth vote's (:func:`~.lookalike.depth_vote`,
+            :func:`~.lookalike.clear_margin`).
+    """
+
+    def __init__(self, meshes: Mapping[int, Mesh], *, tolerance_m: float = 0.002,
+                 min_z: float = 0.0) -> None:
+        self._meshes: dict[int, Mesh] = {}
+        self.turns: dict[int, list[np.ndarray]] = {}
+        for obj_id, (vertices, faces) in meshes.items():
+            turns = half_turns(vertices)
+            if turns:
+                self._meshes[int(obj_id)] = (vertices, faces)
+                self.turns[int(obj_id)] = turns
+        self.tolerance_m, self.min_z = float(tolerance_m), float(min_z)
+        self._scenes: dict[int, o3d.t.geometry.RaycastingScene] = {}
+
+    def __contains__(self, obj_id: object) -> bool:
+        return obj_id in self.turns
+
+    def warm_up(self) -> None:
+        """Build each part's ray-casting scene (and its BVH) now."""
+        one_ray = o3d.core.Tensor(np.array([[0, 0, -1, 0, 0, 1]], np.float32))
+        for obj_id in self.turns:
+            self._scene(obj_id).cast_rays(one_ray)
+
+    def _scene(self, obj_id: int) -> o3d.t.geometry.RaycastingScene:
+        if obj_id not in self._scenes:
+            self._scenes[obj_id] = raycasting_scene(*self._meshes[obj_id])
+        return self._scenes[obj_id]
+
+    def resolve(self, obj_id: int, T_camera_object: np.ndarray, points_c: np.ndarray, *,
+                more_views: Sequence[tuple[np.ndarray, np.ndarray]] = ()
+                ) -> tuple[np.ndarray, float]:
+        """(pose, its vote): ``T_camera_object`` itself (vote 0) unless a half turn of the part
+        explains the depth of its views better by a clear margin.
+
+        Args:
+            obj_id: the part's class; T_camera_object: (4, 4) its fitted pose.
+            points_c: (N, 3) ROI cloud, metres, optical frame; more_views: as
+                :meth:`~.lookalike.LookalikeCheck.resolve`.
+        """
+        T0 = np.asarray(T_camera_object, np.float64)
+        if int(obj_id) not in self.turns:
+            return T0, 0.0
+        scene = self._scene(int(obj_id))
+        views = [(np.eye(4), points_c)] + [(np.asarray(T, np.float64), points)
+                                           for points, T in more_views]
+        views = [(T, points) for T, points in views if len(points)]
+        if not views:
+            return T0, 0.0
+        own = [depth_errors(scene, T @ T0, points) for T, points in views]
+        total = sum(len(points) for _, points in views)
+        best, best_vote = T0, 0.0
+        for turn in self.turns[int(obj_id)]:
+            favour = against = 0
+            for (T, points), errors in zip(views, own):
+                f, a = vote_counts(depth_errors(scene, T @ T0 @ turn, points), errors,
+                                   self.tolerance_m)
+                favour, against = favour + f, against + a
+            vote = (favour - against) / total
+            if vote > best_vote and clear_margin(favour, against, self.min_z):
+                best, best_vote = T0 @ turn, vote
+        return best, best_vote
