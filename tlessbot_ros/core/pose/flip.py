@@ -14,10 +14,15 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-import open3d as o3d
 
-from tlessbot_ros.core.common import raycasting_scene, rotation_about_axis
-from tlessbot_ros.core.pose.lookalike import Mesh, clear_margin, depth_errors, vote_counts
+from tlessbot_ros.core.common import rotation_about_axis
+from tlessbot_ros.core.pose.lookalike import (
+    Mesh,
+    MeshScenes,
+    clear_margin,
+    depth_errors,
+    vote_counts,
+)
 
 # A part is flat when its thinnest principal extent is at most this share of its middle one.
 FLAT_RATIO = 0.3
@@ -58,29 +63,20 @@ class FlipCheck:
 
     def __init__(self, meshes: Mapping[int, Mesh], *, tolerance_m: float = 0.002,
                  min_z: float = 0.0) -> None:
-        self._meshes: dict[int, Mesh] = {}
         self.turns: dict[int, list[np.ndarray]] = {}
-        for obj_id, (vertices, faces) in meshes.items():
+        for obj_id, (vertices, _) in meshes.items():
             turns = half_turns(vertices)
             if turns:
-                self._meshes[int(obj_id)] = (vertices, faces)
                 self.turns[int(obj_id)] = turns
+        self._scenes = MeshScenes({i: meshes[i] for i in self.turns})
         self.tolerance_m, self.min_z = float(tolerance_m), float(min_z)
-        self._scenes: dict[int, o3d.t.geometry.RaycastingScene] = {}
 
     def __contains__(self, obj_id: object) -> bool:
         return obj_id in self.turns
 
     def warm_up(self) -> None:
         """Build each part's ray-casting scene (and its BVH) now."""
-        one_ray = o3d.core.Tensor(np.array([[0, 0, -1, 0, 0, 1]], np.float32))
-        for obj_id in self.turns:
-            self._scene(obj_id).cast_rays(one_ray)
-
-    def _scene(self, obj_id: int) -> o3d.t.geometry.RaycastingScene:
-        if obj_id not in self._scenes:
-            self._scenes[obj_id] = raycasting_scene(*self._meshes[obj_id])
-        return self._scenes[obj_id]
+        self._scenes.warm_up(self.turns)
 
     def resolve(self, obj_id: int, T_camera_object: np.ndarray, points_c: np.ndarray, *,
                 more_views: Sequence[tuple[np.ndarray, np.ndarray]] = ()
@@ -96,7 +92,7 @@ class FlipCheck:
         T0 = np.asarray(T_camera_object, np.float64)
         if int(obj_id) not in self.turns:
             return T0, 0.0
-        scene = self._scene(int(obj_id))
+        scene = self._scenes[int(obj_id)]
         views = [(np.eye(4), points_c)] + [(np.asarray(T, np.float64), points)
                                            for points, T in more_views]
         views = [(T, points) for T, points in views if len(points)]

@@ -17,7 +17,7 @@ serves both.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 import open3d as o3d
@@ -155,6 +155,27 @@ def clear_margin(favour: int, against: int, min_z: float) -> bool:
     return surplus > 0 and surplus > min_z * np.sqrt(favour + against)
 
 
+class MeshScenes:
+    """Ray-casting scenes of meshes by id, built on first use (or all at :meth:`warm_up`)."""
+
+    def __init__(self, meshes: Mapping[int, Mesh]) -> None:
+        self.meshes = dict(meshes)
+        self._scenes: dict[int, o3d.t.geometry.RaycastingScene] = {}
+
+    def warm_up(self, ids: Iterable[int]) -> None:
+        """Build the scenes of ``ids`` now and cast a ray into each: Open3D builds a scene's
+        BVH at its first query, 15 ms for a T-LESS part, which the first frame with that part
+        paid (4 ms on later frames)."""
+        one_ray = o3d.core.Tensor(np.array([[0, 0, -1, 0, 0, 1]], np.float32))
+        for obj_id in ids:
+            self[obj_id].cast_rays(one_ray)
+
+    def __getitem__(self, obj_id: int) -> o3d.t.geometry.RaycastingScene:
+        if obj_id not in self._scenes:
+            self._scenes[obj_id] = raycasting_scene(*self.meshes[obj_id])
+        return self._scenes[obj_id]
+
+
 class LookalikeCheck:
     """Picks, among a part and its look-alikes, the one whose surface explains the ROI depth.
 
@@ -174,27 +195,21 @@ class LookalikeCheck:
 
     def __init__(self, meshes: Mapping[int, Mesh], lookalikes: Mapping[int, tuple[int, ...]],
                  *, tolerance_m: float = 0.002, min_z: float = 0.0) -> None:
-        self._meshes = dict(meshes)
+        self._scenes = MeshScenes(meshes)
         self.lookalikes = {int(k): tuple(int(i) for i in v) for k, v in lookalikes.items()
-                           if all(i in self._meshes for i in (k, *v))}
+                           if all(i in self._scenes.meshes for i in (k, *v))}
         self.tolerance_m = float(tolerance_m)
         self.min_z = float(min_z)
-        self._scenes: dict[int, o3d.t.geometry.RaycastingScene] = {}
 
     def __contains__(self, obj_id: object) -> bool:
         return obj_id in self.lookalikes
 
     def warm_up(self) -> None:
-        """Build every part's ray-casting scene now instead of on first use, and cast a ray
-        into each: Open3D builds a scene's BVH at its first query, 15 ms for a T-LESS part,
-        which the first frame with that part paid (4 ms on later frames)."""
-        one_ray = o3d.core.Tensor(np.array([[0, 0, -1, 0, 0, 1]], np.float32))
-        for obj_id in self.lookalikes:
-            self._scene(obj_id).cast_rays(one_ray)
+        """Build every part's ray-casting scene now instead of on first use
+        (:meth:`MeshScenes.warm_up`)."""
+        self._scenes.warm_up(self.lookalikes)
 
     def _scene(self, obj_id: int) -> o3d.t.geometry.RaycastingScene:
-        if obj_id not in self._scenes:
-            self._scenes[obj_id] = raycasting_scene(*self._meshes[obj_id])
         return self._scenes[obj_id]
 
     def resolve(self, obj_id: int, T_camera_object: np.ndarray, points_c: np.ndarray, *,

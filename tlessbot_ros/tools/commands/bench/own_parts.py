@@ -16,7 +16,7 @@ import json
 import time
 from pathlib import Path
 
-TLESS_IDS = (1, 5, 8, 11, 14, 19, 25, 29)
+TLESS_IDS = (2, 5, 8, 11, 14, 19, 25, 30)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
