@@ -98,3 +98,18 @@ def test_kernel_settings_are_checked_before_rendering(tmp_path, capsys):
     assert main(['train', '--from-images', str(tmp_path / 'imgs'), '--kernel', '-1',
                  '--out', str(tmp_path / 'm.npz')]) == 1
     assert 'kernel_components' in capsys.readouterr().err
+
+
+def test_packaged_recipe_is_named_and_given_options_win():
+    import argparse
+
+    from tlessbot_ros.tools.commands import train
+
+    parser = argparse.ArgumentParser()
+    train.add_arguments(parser)
+    args = train.apply_recipe(parser.parse_args(
+        ['--models', 'm', '--out', 'c.npz', '--recipe', 'packaged', '--epochs', '3']))
+    assert (args.scenes, args.kernel, args.kernel_axes, args.hog_weight, args.classifier,
+            args.average, args.epochs) == (800, 4000, 256, 0.3, 'perceptron', True, 3)
+    plain = train.apply_recipe(parser.parse_args(['--models', 'm', '--out', 'c.npz']))
+    assert (plain.scenes, plain.classifier) == (0, parser.get_default('classifier'))
