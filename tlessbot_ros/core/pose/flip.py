@@ -14,8 +14,9 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+import open3d as o3d
 
-from tlessbot_ros.core.common import rotation_about_axis
+from tlessbot_ros.core.common import rotation_about_axis, sample_surface
 from tlessbot_ros.core.pose.lookalike import (
     Mesh,
     MeshScenes,
@@ -69,6 +70,7 @@ class FlipCheck:
             if turns:
                 self.turns[int(obj_id)] = turns
         self._scenes = MeshScenes({i: meshes[i] for i in self.turns})
+        self._surfaces: dict[int, o3d.geometry.PointCloud] = {}
         self.tolerance_m, self.min_z = float(tolerance_m), float(min_z)
 
     def __contains__(self, obj_id: object) -> bool:
@@ -102,12 +104,33 @@ class FlipCheck:
         total = sum(len(points) for _, points in views)
         best, best_vote = T0, 0.0
         for turn in self.turns[int(obj_id)]:
+            # the fit placed the wrong side's features over the right side's: the turned
+            # pose is first refitted to the cloud, so that its features can line up
+            turned = self._refit(int(obj_id), T0 @ turn, points_c)
             favour = against = 0
             for (T, points), errors in zip(views, own):
-                f, a = vote_counts(depth_errors(scene, T @ T0 @ turn, points), errors,
+                f, a = vote_counts(depth_errors(scene, T @ turned, points), errors,
                                    self.tolerance_m)
                 favour, against = favour + f, against + a
             vote = (favour - against) / total
             if vote > best_vote and clear_margin(favour, against, self.min_z):
-                best, best_vote = T0 @ turn, vote
+                best, best_vote = turned, vote
         return best, best_vote
+
+    def _refit(self, obj_id: int, T_camera_object: np.ndarray, points_c: np.ndarray
+               ) -> np.ndarray:
+        """``T_camera_object`` refined by point-to-plane ICP of the cloud onto the model
+        surface (Chen & Medioni 1992; Open3D), within 3 mm, at most 20 iterations."""
+        if obj_id not in self._surfaces:
+            points, normals = sample_surface(*self._scenes.meshes[obj_id], 3000, seed=0)
+            target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+            target.normals = o3d.utility.Vector3dVector(normals)
+            self._surfaces[obj_id] = target
+        T_inv = np.linalg.inv(T_camera_object)
+        source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(
+            np.asarray(points_c, np.float64) @ T_inv[:3, :3].T + T_inv[:3, 3]))
+        result = o3d.pipelines.registration.registration_icp(
+            source, self._surfaces[obj_id], 0.003, np.eye(4),
+            o3d.pipelines.registration.TransformationEstimationPointToPlane(),
+            o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=20))
+        return T_camera_object @ np.linalg.inv(result.transformation)
