@@ -138,3 +138,16 @@ def test_the_nodes_declare_the_fit_ranking_parameters_off_by_default(ros):
         assert pose.pipeline.fit_params.fit_rank_min_fitness == 0.4
     finally:
         pose.destroy_node()
+
+
+def test_a_broken_parts_folder_stops_the_stage_nodes_at_start(ros, tmp_path):
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.io.parts import PartsFolderError
+    from tlessbot_ros.nodes.classifier import ClassifierNode
+    from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
+
+    (tmp_path / 'manifest.json').write_text('{}')
+    for node_class in (ClassifierNode, PoseEstimatorNode):
+        with pytest.raises(PartsFolderError, match='has no classifier.npz: rebuild it'):
+            node_class(parameter_overrides=[Parameter('parts_path', value=str(tmp_path))])
