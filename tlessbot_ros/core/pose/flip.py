@@ -17,13 +17,7 @@ import numpy as np
 import open3d as o3d
 
 from tlessbot_ros.core.common import rotation_about_axis, sample_surface
-from tlessbot_ros.core.pose.lookalike import (
-    Mesh,
-    MeshScenes,
-    clear_margin,
-    depth_errors,
-    vote_counts,
-)
+from tlessbot_ros.core.pose.lookalike import Mesh, MeshScenes, depth_errors, pooled_vote
 
 # A part is flat when its thinnest principal extent is at most this share of its middle one.
 FLAT_RATIO = 0.3
@@ -101,19 +95,14 @@ class FlipCheck:
         if not views:
             return T0, 0.0
         own = [depth_errors(scene, T @ T0, points) for T, points in views]
-        total = sum(len(points) for _, points in views)
         best, best_vote = T0, 0.0
         for turn in self.turns[int(obj_id)]:
             # the fit placed the wrong side's features over the right side's: the turned
             # pose is first refitted to the cloud, so that its features can line up
             turned = self._refit(int(obj_id), T0 @ turn, points_c)
-            favour = against = 0
-            for (T, points), errors in zip(views, own):
-                f, a = vote_counts(depth_errors(scene, T @ turned, points), errors,
-                                   self.tolerance_m)
-                favour, against = favour + f, against + a
-            vote = (favour - against) / total
-            if vote > best_vote and clear_margin(favour, against, self.min_z):
+            vote = pooled_vote([depth_errors(scene, T @ turned, points) for T, points in views],
+                               own, self.tolerance_m, self.min_z)
+            if vote > best_vote:
                 best, best_vote = turned, vote
         return best, best_vote
 

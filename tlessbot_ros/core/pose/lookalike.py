@@ -155,6 +155,22 @@ def clear_margin(favour: int, against: int, min_z: float) -> bool:
     return surplus > 0 and surplus > min_z * np.sqrt(favour + against)
 
 
+def pooled_vote(challenger: Sequence[np.ndarray], incumbent: Sequence[np.ndarray],
+                tolerance_m: float, min_z: float) -> float:
+    """The challenger's vote against the incumbent over the pixels of several views (per view
+    the (N,) depth errors of each, :func:`depth_errors`): the share of all pixels it explains
+    better minus the share it explains worse, or 0 without a clear margin
+    (:func:`clear_margin`)."""
+    favour = against = 0
+    for errors_a, errors_b in zip(challenger, incumbent):
+        f, a = vote_counts(errors_a, errors_b, tolerance_m)
+        favour, against = favour + f, against + a
+    total = sum(len(errors) for errors in incumbent)
+    if not total or not clear_margin(favour, against, min_z):
+        return 0.0
+    return (favour - against) / total
+
+
 class MeshScenes:
     """Ray-casting scenes of meshes by id, built on first use (or all at :meth:`warm_up`)."""
 
@@ -239,15 +255,10 @@ class LookalikeCheck:
         if obj_id not in self.lookalikes or not views:
             return obj_id, 0.0
         own = [depth_errors(self._scene(obj_id), T, points) for T, points in views]
-        total = sum(len(points) for _, points in views)
         best, best_vote = obj_id, 0.0
         for other in self.lookalikes[obj_id]:
-            favour = against = 0
-            for (T, points), errors in zip(views, own):
-                f, a = vote_counts(depth_errors(self._scene(other), T, points), errors,
-                                   self.tolerance_m)
-                favour, against = favour + f, against + a
-            vote = (favour - against) / total
-            if vote > best_vote and clear_margin(favour, against, self.min_z):
+            vote = pooled_vote([depth_errors(self._scene(other), T, points)
+                                for T, points in views], own, self.tolerance_m, self.min_z)
+            if vote > best_vote:
                 best, best_vote = other, vote
         return best, best_vote
