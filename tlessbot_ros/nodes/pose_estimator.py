@@ -23,7 +23,8 @@ templates``; default: the parts folder's, else the packaged one),
 ``verify_accept_fitness``, ``verify_rmse_weight`` and ``fallback_min_fitness`` (how candidates
 are verified), ``lookalike_check``, ``lookalike_tolerance_m``, ``lookalike_min_z`` and
 ``lookalike_all_views`` (look-alike parts told apart by their depth in both views at the fitted
-pose, checked in this process; these and ``min_roi_points``, ``table_clearance_m``: FitParams),
+pose, checked in this process), ``flip_check`` (flat parts turned over, likewise; these and
+``min_roi_points``, ``table_clearance_m``: FitParams),
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
 fits others, on frames that find ``parallel.min_spare_cores`` free beside its work or idle:
