@@ -48,7 +48,19 @@ def run_tool(command: str, *args: str) -> None:
                             'message is above')
 
 
-def _write_models(cad: Path, out: Path, options: BuildOptions) -> list[dict]:
+def read_meshes(parts: list[parts_io.CadPart], units: str) -> dict[str, tuple]:
+    """Every part's checked mesh ((V, 3) m, (F, 3)) by name, its warnings printed: a folder
+    with an unusable mesh is refused before any work starts."""
+    meshes = {}
+    for part in parts:
+        vertices, faces, warnings = parts_io.read_part_mesh(part.path, units=units)
+        for warning in warnings:
+            print(f'warning: {warning}')
+        meshes[part.name] = (vertices, faces)
+    return meshes
+
+
+def _write_models(cad: Path, out: Path, meshes: dict[str, tuple]) -> list[dict]:
     """The CAD files as ``out/models/obj_NN.ply`` (mm) + models_info.json; manifest entries."""
     from tlessbot_ros.core.common import (
         detect_symmetries,
@@ -62,9 +74,7 @@ def _write_models(cad: Path, out: Path, options: BuildOptions) -> list[dict]:
     models_dir.mkdir(parents=True, exist_ok=True)
     parts = parts_io.cad_parts(cad)
     for part in parts:
-        vertices, faces, warnings = parts_io.read_part_mesh(part.path, units=options.units)
-        for warning in warnings:
-            print(f'warning: {warning}')
+        vertices, faces = meshes[part.name]
         parts_io.write_mesh(models_dir / f'obj_{part.obj_id:02d}.ply', vertices * 1000.0, faces)
     listed = _listed_symmetries(cad, parts)
     models = load_models(models_dir)
@@ -178,6 +188,7 @@ def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = Tr
     cad_list = parts_io.cad_parts(cad)
     if len(cad_list) < 2:
         raise TlessbotError(f'{cad} holds {len(cad_list)} part; a parts set needs at least 2')
+    meshes = read_meshes(cad_list, options.units)
     if out.exists() and any(out.iterdir()):
         if not (out / parts_io.MANIFEST).is_file():
             raise TlessbotError(f'{out} exists and is not a parts folder: choose another --out')
@@ -189,7 +200,7 @@ def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = Tr
                 'fingerprint': parts_io.cad_fingerprint(cad_list, units=options.units),
                 'rig': parts_io.rig_summary(rig), 'source': str(cad)}
     steps = [('meshes + symmetries', lambda: manifest.update(parts=_write_models(
-                 cad, out, options))),
+                 cad, out, meshes))),
              ('templates', lambda: run_tool('templates', '--models', str(out / 'models'),
                                             '--out', str(out / parts_io.TEMPLATES), *config)),
              ('classifier', lambda: run_tool(

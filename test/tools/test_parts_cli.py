@@ -1,0 +1,36 @@
+"""tlessbot parts: unusable CAD folders are refused in one line, and nothing is left behind."""
+import numpy as np
+
+from tlessbot_ros.io.parts import write_mesh
+from tlessbot_ros.tools.cli import main
+
+
+def _box(path, size_mm):
+    v = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float) * size_mm
+    f = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
+                  [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]], np.int32)
+    write_mesh(path, v, f)
+
+
+def test_wrong_units_refused_before_any_work(tmp_path, capsys):
+    cad, out = tmp_path / 'cad', tmp_path / 'parts'
+    cad.mkdir()
+    _box(cad / 'block.stl', np.array([0.04, 0.03, 0.02]))     # metres, read as mm
+    _box(cad / 'plate.stl', np.array([0.06, 0.04, 0.004]))
+    assert main(['parts', 'build', '--models', str(cad), '--out', str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'probably in m; --units m' in err[0]
+    assert not out.exists()
+
+
+def test_one_part_is_not_a_set_and_names_are_checked(tmp_path, capsys):
+    cad = tmp_path / 'cad'
+    cad.mkdir()
+    _box(cad / 'block.stl', np.array([40.0, 30.0, 20.0]))
+    assert main(['parts', 'build', '--models', str(cad), '--out', str(tmp_path / 'p')]) == 1
+    assert 'needs at least 2' in capsys.readouterr().err
+    _box(cad / '2nd block.stl', np.array([40.0, 30.0, 20.0]))
+    assert main(['parts', 'build', '--models', str(cad), '--out', str(tmp_path / 'p')]) == 1
+    assert 'rename the file to part_2nd_block.stl' in capsys.readouterr().err
+    assert main(['parts', 'generate', '--out', str(tmp_path / 'g'), '--names', 'gear']) == 1
+    assert "no generated part ['gear']" in capsys.readouterr().err
