@@ -105,10 +105,23 @@ def lookalike_check(database: TemplateDatabase, fit: FitParams) -> LookalikeChec
                                     min_z=fit.lookalike_min_z)
 
 
+def depth_checks(database: TemplateDatabase, fit: FitParams
+                 ) -> tuple[LookalikeCheck | None, FlipCheck | None]:
+    """The look-alike and flip checks ``fit`` asks for (each None when off or idle)."""
+    return lookalike_check(database, fit), flip_check(database, fit)
+
+
+def warm_up_checks(*checks: LookalikeCheck | FlipCheck | None) -> None:
+    """Build the ray-casting scenes of each check that is on."""
+    for check in checks:
+        if check is not None:
+            check.warm_up()
+
+
 def lookalike_options(fit: FitParams) -> tuple[bool, bool, float, float]:
     """The fields of ``fit`` the look-alike and flip checks are built with."""
     return fit.lookalike_check, fit.flip_check, fit.lookalike_tolerance_m, fit.lookalike_min_z
 
 
-__all__ = ['check_flip', 'check_lookalike', 'fit_part', 'flip_check', 'lookalike_check',
-           'lookalike_options']
+__all__ = ['check_flip', 'check_lookalike', 'depth_checks', 'fit_part', 'flip_check',
+           'lookalike_check', 'lookalike_options', 'warm_up_checks']

@@ -83,10 +83,10 @@ from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
 from tlessbot_ros.core.part_fit import (
     check_flip,
     check_lookalike,
+    depth_checks,
     fit_part,
-    flip_check,
-    lookalike_check,
     lookalike_options,
+    warm_up_checks,
 )
 from tlessbot_ros.core.pose import (
     PoseEstimator,
@@ -135,8 +135,8 @@ class PerceptionPipeline:
         # per view: (the depth and extrinsics it was found for, its frame)
         self._tables: dict[str, tuple[tuple[object, object], TableFrame]] = {}
         self.pose_estimator = PoseEstimator(templates, params=pose) if templates else None
-        self.lookalike = lookalike_check(templates, fit_params) if templates else None
-        self.flip = flip_check(templates, fit_params) if templates else None
+        self.lookalike, self.flip = depth_checks(templates, fit_params) if templates else \
+            (None, None)
 
     def replace(self, **changes: Any) -> PerceptionPipeline:
         """A pipeline like this one with some of the constructor's arguments changed
@@ -161,11 +161,8 @@ class PerceptionPipeline:
         old, fit = self.fit_params, new.fit_params
         if self.pose_estimator is not None and lookalike_options(old) != \
                 lookalike_options(fit):
-            new.lookalike = lookalike_check(self.pose_estimator.database, fit)
-            new.flip = flip_check(self.pose_estimator.database, fit)
-            for check in (new.lookalike, new.flip):
-                if check is not None:
-                    check.warm_up()
+            new.lookalike, new.flip = depth_checks(self.pose_estimator.database, fit)
+            warm_up_checks(new.lookalike, new.flip)
         return new
 
     def warm_up(self) -> None:
@@ -173,9 +170,7 @@ class PerceptionPipeline:
         frame is not slower than the others."""
         if self.pose_estimator is not None:
             self.pose_estimator.warm_up()
-        for check in (self.lookalike, self.flip):
-            if check is not None:
-                check.warm_up()
+        warm_up_checks(self.lookalike, self.flip)
         if self.fit_params.table_plane != 'rig':   # compiles the plane search's loop
             flat = np.full((48, 64), 0.5, np.float32)
             find_table_plane(flat, np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]),
@@ -420,11 +415,10 @@ class PerceptionPipeline:
         """:attr:`PartJob.more_views` of one part read in ``view``: its ROI clouds in the
         other views where it has at least ``min_instance_px`` pixels, with the rig's
         transforms into them (none without extrinsics or depth, or when no candidate has a
-        look-alike, or with ``lookalike_all_views`` off)."""
+        look-alike or is flat, or with ``lookalike_all_views`` off)."""
         checks = [c for c in (self.lookalike, self.flip) if c is not None]
-        if not checks or not self.fit_params.lookalike_all_views or \
-                not any(c in check for c in candidates for check in checks) or \
-                views[view].T_world_camera is None:
+        if not self.fit_params.lookalike_all_views or views[view].T_world_camera is None or \
+                not any(c in check for c in candidates for check in checks):
             return ()
         more = []
         for other in view_order(labels):
@@ -473,8 +467,7 @@ class PerceptionPipeline:
         fit_part(self.pose_estimator, self.fit_params, job)
 
     def check_lookalike(self, job: PartJob) -> None:
-        """Turn a flat part over if its depth says so (:func:`~.part_fit.check_flip`), then
-        compare it with its look-alike (:func:`~.part_fit.check_lookalike`)."""
+        """Turn a flat part over if need be, then compare it with its look-alike (part_fit)."""
         check_flip(self.flip, job)
         check_lookalike(self.lookalike, job)
 
