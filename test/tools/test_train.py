@@ -39,7 +39,7 @@ def test_train_from_cad_in_clutter_by_default(tless_models_dir, tmp_path):
     assert main(argv[:-1] + [str(again)]) == 0
     np.testing.assert_array_equal(LinearClassifier.load(again).weights, model.weights)
     paper = tmp_path / 'paper.npz'
-    assert main(argv[:-3] + ['--out', str(paper), '--features', 'paper', '--no-box-size',
+    assert main(argv[:-4] + ['--out', str(paper), '--features', 'paper', '--no-box-size',
                              '--clutter-param', 'photometric=false']) == 0
     plain = LinearClassifier.load(paper)
     assert plain.class_ids.tolist() == [5, 19, 21] and not plain.hog_params.box_size
