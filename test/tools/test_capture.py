@@ -68,6 +68,7 @@ def test_train_from_captures_alone_and_mixed_with_cad(capture_bags, tless_models
 
     mixed = tmp_path / 'mixed.npz'
     assert main(['train', '--models', str(tless_models_dir), '--ids', '5', '19', '21',
+                 '--recipe', 'turntable',
                  '--steps-deg', '120', '--positions', '1', '--augmentations', '0',
                  '--captures', *map(str, capture_bags), '--out', str(mixed)]) == 0
     model = LinearClassifier.load(mixed)

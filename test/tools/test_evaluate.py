@@ -170,3 +170,46 @@ def test_one_view_without_extrinsics(dataset, tmp_path, capsys):
     # two views need the extrinsics: the top view's poses are scored in the side camera
     assert main([*common, '--dataset', str(bare), '--out', str(tmp_path / 'p')]) == 1
     assert 'cam_R_w2c' in capsys.readouterr().err
+
+
+def test_frames_without_depth_are_classified_and_their_pose_skipped(dataset, tmp_path, capsys):
+    models, data = dataset
+    some = tmp_path / 'some_depth'
+    shutil.copytree(data, some)
+    for path in sorted((some / 'test_side').glob('*/depth/*.png'))[1:]:
+        path.unlink()  # depth on the first frame only, as on a real RGB set with one RGB-D
+    classifier, templates = tmp_path / 'c.npz', tmp_path / 't.npz'
+    assert main(['train', '--models', str(models), '--steps-deg', '90', '--positions', '1',
+                 '--out', str(classifier)]) == 0
+    assert main(['templates', '--models', str(models), '--out', str(templates),
+                 '--views', '4']) == 0
+    capsys.readouterr()
+    out = tmp_path / 'o'
+    assert main(['evaluate', '--models', str(models), '--dataset', str(some), '--split',
+                 'test_side', '--oracle', 'boxes', '--classifier', str(classifier),
+                 '--templates', str(templates), '--out', str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert 'pose skipped on 2 frames without depth' in printed
+    report = json.loads((out / 'report.json').read_text())
+    assert report['skipped']['pose_frames_without_depth'] == 2
+    recognition = report['recognition']
+    assert recognition['crops'] == report['objects_gt'] > report['skipped']['parts_not_posed']
+    assert 0.0 <= recognition['top1_classifier'] <= 1.0
+    assert sum(map(sum, recognition['confusion'])) == recognition['crops']
+    page = (out / 'recognition.md').read_text()
+    assert '## Confusion' in page and 'obj_05' in page
+    if recognition['top1_classifier'] < 1.0:
+        assert (out / 'worst_crops.png').is_file()
+
+
+def test_near_rotations_in_a_results_file_are_accepted(dataset, tmp_path):
+    models, data = dataset
+    results, expected = _estimates(data)
+    for r in results:   # BOP ground-truth files hold determinants up to 1.014
+        r.T_camera_object = r.T_camera_object.copy()
+        r.T_camera_object[:3, :3] *= 1.004
+    write_results(tmp_path / 'near.csv', results)
+    assert main(['evaluate', '--dataset', str(data), '--models', str(models), '--poses',
+                 str(tmp_path / 'near.csv'), '--out', str(tmp_path / 'o')]) == 0
+    report = json.loads((tmp_path / 'o' / 'report.json').read_text())
+    assert report['pose']['recall_5cm5deg'] == pytest.approx(expected['ok'] / expected['targets'])

@@ -9,6 +9,7 @@ from tlessbot_ros.tools.cli import main
 def test_train_from_cad(tless_models_dir, tmp_path, capsys):
     out = tmp_path / 'model.npz'
     argv = ['train', '--models', str(tless_models_dir), '--ids', '5', '19', '21',
+            '--recipe', 'turntable',
             '--steps-deg', '60', '--positions', '2', '--augmentations', '1', '--seed', '3',
             '--out', str(out)]
     assert main(argv) == 0
@@ -19,6 +20,30 @@ def test_train_from_cad(tless_models_dir, tmp_path, capsys):
     again = tmp_path / 'again.npz'
     assert main(argv[:-1] + [str(again)]) == 0
     np.testing.assert_array_equal(LinearClassifier.load(again).weights, model.weights)
+
+
+def test_train_from_cad_in_clutter_by_default(tless_models_dir, tmp_path):
+    from tlessbot_ros.core.recognise import BACKGROUND_ID
+
+    out = tmp_path / 'clutter.npz'
+    argv = ['train', '--models', str(tless_models_dir), '--ids', '5', '19', '21',
+            '--steps-deg', '90', '--positions', '1', '--seed', '2',
+            '--clutter-param', 'background_share=0.5', '--out', str(out)]
+    assert main(argv) == 0
+    model = LinearClassifier.load(out)
+    assert model.info['source'] == 'clutter' and model.info['copies'] == 2
+    assert model.class_ids.tolist() == [BACKGROUND_ID, 5, 19, 21]
+    assert model.hog_params.crop_mode == 'box' and model.hog_params.box_size
+    assert model.uses_depth and model.info['samples'] == 3 * 4 * 2
+    again = tmp_path / 'again.npz'
+    assert main(argv[:-1] + [str(again)]) == 0
+    np.testing.assert_array_equal(LinearClassifier.load(again).weights, model.weights)
+    paper = tmp_path / 'paper.npz'
+    assert main(argv[:-4] + ['--out', str(paper), '--features', 'paper', '--no-box-size',
+                             '--clutter-param', 'photometric=false']) == 0
+    plain = LinearClassifier.load(paper)
+    assert plain.class_ids.tolist() == [5, 19, 21] and not plain.hog_params.box_size
+    assert not plain.uses_depth
 
 
 def test_train_several_learners_from_images(tless_models_dir, tmp_path):
@@ -41,6 +66,7 @@ def test_train_several_learners_from_images(tless_models_dir, tmp_path):
     (['--classifier', 'svm'], 'unknown classifier'),
     (['--cell', '7'], 'multiple of cell_px'),
     (['--alpha', '0'], 'alpha'),
+    (['--copies', '0'], 'copies'),
 ])
 def test_user_errors(tmp_path, capsys, extra, message):
     (tmp_path / 'imgs').mkdir()
@@ -66,12 +92,12 @@ def test_train_adds_simulated_scene_crops(tless_models_dir, tmp_path):
     assert model.info['scenes'] == 3 and model.info['scene_crops'] > 0
     assert model.info['average'] is True and model.info['alpha'] == 1e-5
     assert model.info['samples'] > model.info['scene_crops']   # turntable crops too
-    from tlessbot_ros.core.recognise import HogParams, ShapeParams
-    features, labels = scene_features(tless_models_dir, HogParams(), ShapeParams(),
+    from tlessbot_ros.core.recognise import ShapeParams
+    features, labels = scene_features(tless_models_dir, model.hog_params, ShapeParams(),
                                       ids=[5, 19, 21], scenes=3, seed=0)
     assert len(labels) == model.info['scene_crops'] and set(labels) <= {5, 19, 21}
     assert features.shape[1] == model.feature_dim
-    assert np.isfinite(features[:, :HogParams().feature_dim]).all()
+    assert np.isfinite(features[:, :model.hog_params.feature_dim]).all()
 
 
 def test_train_kernel_model_from_images_is_reproducible(tless_models_dir, tmp_path):

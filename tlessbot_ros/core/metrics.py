@@ -155,15 +155,17 @@ def add(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> float:
 
 
 def adds(T_est: np.ndarray, T_gt: np.ndarray, points: np.ndarray) -> float:
-    """ADD-S / ADI [ADD]: mean distance from each estimated point to the closest GT point, m.
+    """ADD-S / ADI [ADD]: mean distance from each GT point to the closest estimated point, m.
 
-    Symmetry-aware without knowing the symmetries. Correct if below 0.1 × diameter.
+    Symmetry-aware without knowing the symmetries. Correct if below 0.1 × diameter. The
+    direction (GT to estimate) and the use of every given point are those of the BOP
+    toolkit's ``adi``: pass all the model's vertices to agree with it.
     """
     points = _check_points(points)
     T_est, T_gt = _check_pose(T_est, 'T_est'), _check_pose(T_gt, 'T_gt')
     moved_est = points @ T_est[:3, :3].T + T_est[:3, 3]
     moved_gt = points @ T_gt[:3, :3].T + T_gt[:3, 3]
-    distances, _ = cKDTree(moved_gt).query(moved_est, k=1)
+    distances, _ = cKDTree(moved_est).query(moved_gt, k=1)
     return float(distances.mean())
 
 

@@ -278,8 +278,9 @@ class PerceptionPipeline:
             if not instances or view not in rgb:
                 continue
             masks = [mask_in_box(labels[view], i, label_box(boxes[view], i)) for i in instances]
-            depth = {}
             data = None if views is None else views.get(view)
+            # the focal length is the unit of a model's box-size features
+            depth = {} if data is None else {'K': data.intrinsics.K}
             if self.classifier.uses_depth and data is not None and data.depth_m is not None:
                 depth = {'depth_m': data.depth_m, 'K': data.intrinsics.K,
                          'T_world_camera': self.table_frame(view, data).T_world_camera}

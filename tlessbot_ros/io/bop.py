@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.common import CameraIntrinsics, invert_transform
+from tlessbot_ros.core.common import CameraIntrinsics, invert_transform, nearest_rotation
 from tlessbot_ros.errors import DatasetError
 
 if TYPE_CHECKING:
@@ -78,8 +78,12 @@ def _pose_mm(T: np.ndarray) -> tuple[list[float], list[float]]:
 
 
 def _pose_from_mm(R: Any, t: Any) -> np.ndarray:
+    """(4, 4) pose in metres; an annotated R a little off SO(3) is projected onto it (angles
+    are then those of a rotation, as BOP's own scoring takes them); a far one is kept as is."""
     T = np.eye(4)
-    T[:3, :3] = np.asarray(R, dtype=np.float64).reshape(3, 3)
+    R = np.asarray(R, dtype=np.float64).reshape(3, 3)
+    projected = nearest_rotation(R)
+    T[:3, :3] = R if projected is None else projected
     T[:3, 3] = np.asarray(t, dtype=np.float64).reshape(3) / 1000.0
     return T
 

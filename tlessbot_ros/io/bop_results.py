@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tlessbot_ros.core.common import nearest_rotation
 from tlessbot_ros.errors import DatasetError
 
 HEADER = ('scene_id', 'im_id', 'obj_id', 'score', 'R', 't', 'time')
@@ -74,9 +75,10 @@ def read_results(path: str | Path) -> list[BopEstimate]:
         except ValueError:
             raise DatasetError(f'{where}: scene_id, im_id, obj_id must be integers and score, '
                                'time numbers') from None
-        R = _numbers(row[4], 9, 'R', where).reshape(3, 3)
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
-            raise DatasetError(f'{where}: R is not a rotation matrix')
+        R = nearest_rotation(_numbers(row[4], 9, 'R', where).reshape(3, 3))
+        if R is None:  # near-rotations (BOP's own GT files) are projected onto SO(3)
+            raise DatasetError(f'{where}: R is not a rotation matrix (|R R^T - I| or '
+                               '|det R - 1| above 0.05, or a reflection)')
         t_mm = _numbers(row[5], 3, 't', where)
         T = np.eye(4)
         T[:3, :3] = R

@@ -215,6 +215,24 @@ def rotation_about_axis(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle_rad) * Kx + (1 - np.cos(angle_rad)) * (Kx @ Kx)
 
 
+def nearest_rotation(R: np.ndarray, *, tolerance: float = 0.05) -> np.ndarray | None:
+    """The rotation nearest (Frobenius) to a (3, 3) matrix that is almost one, or None.
+
+    Annotated poses (BOP ground truth, results files) hold matrices a little off SO(3)
+    (determinants up to 1.014); angles taken on them are off too. The SVD projection
+    ``U diag(1, 1, det(U V^T)) V^T`` is exact for a rotation. ``tolerance``: largest
+    ``|R R^T - I|`` entry and ``|det R - 1|`` accepted; beyond it (or a reflection) None.
+    """
+    R = np.asarray(R, dtype=np.float64).reshape(3, 3)
+    if not np.all(np.isfinite(R)):
+        return None
+    det = float(np.linalg.det(R))
+    if det <= 0 or abs(det - 1.0) > tolerance or np.abs(R @ R.T - np.eye(3)).max() > tolerance:
+        return None
+    U, _, Vt = np.linalg.svd(R)
+    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+
+
 def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
     """Geodesic angle between two rotations, in degrees, in [0, 180]."""
     cos = (np.trace(np.asarray(R_a)[:3, :3].T @ np.asarray(R_b)[:3, :3]) - 1.0) / 2.0

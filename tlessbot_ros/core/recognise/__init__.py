@@ -25,6 +25,7 @@ _HOME = {
     'describe_regions': 'hog',
     'hog_features': 'hog',
     'normalise_crop': 'hog',
+    'BACKGROUND_ID': 'model',
     'Classifier': 'model',
     'LOADERS': 'model',
     'UNKNOWN_ID': 'model',
@@ -67,6 +68,7 @@ if TYPE_CHECKING:
         normalise_crop,
     )
     from tlessbot_ros.core.recognise.model import (  # noqa: F401
+        BACKGROUND_ID,
         LOADERS,
         UNKNOWN_ID,
         Classifier,

@@ -36,7 +36,7 @@ import numpy as np
 
 from tlessbot_ros.core.recognise.feature_map import RbfFeatureMap
 from tlessbot_ros.core.recognise.hog import HogParams, box_from_mask, describe_regions
-from tlessbot_ros.core.recognise.model import LOADERS, UNKNOWN_ID
+from tlessbot_ros.core.recognise.model import BACKGROUND_ID, LOADERS, UNKNOWN_ID
 from tlessbot_ros.core.recognise.model_file import (
     FILE_MAGIC,
     corrupt_model,
@@ -73,7 +73,8 @@ class LinearClassifier:
         weights: (D, C) float32, D = :attr:`feature_dim` (or ``feature_map.output_dim`` with
             a feature map), C classes.
         intercepts: (C,) float32.
-        class_ids: (C,) int64 object ids of the columns.
+        class_ids: (C,) int64 object ids of the columns; ``BACKGROUND_ID`` (-1) for a
+            background class, whose wins are reported as ``UNKNOWN_ID``.
         hog_params: the crop normalisation and HOG settings the model was trained with.
         kind: the learner (one of :data:`~tlessbot_ros.core.recognise.training.KINDS`).
         reject_margin: default reject threshold of :meth:`predict`.
@@ -144,7 +145,8 @@ class LinearClassifier:
             masks: N (H, W) bool region masks (or None with ``boxes``).
             boxes: N (x, y, w, h) boxes in pixels (or None: the masks' boxes).
             depth_m: (H, W) aligned z-depth in metres (0/NaN invalid), or None.
-            K: (3, 3) camera matrix of the image (needed with ``depth_m``).
+            K: (3, 3) camera matrix of the image (needed with ``depth_m``; its focal length
+                is the box size's unit with ``hog_params.box_size``).
             T_world_camera: (4, 4) camera pose in the table frame (needed with ``depth_m``).
 
         Returns:
@@ -153,7 +155,8 @@ class LinearClassifier:
         """
         if boxes is None and masks is not None:  # one box per mask, shared by both steps
             boxes = [box_from_mask(mask) for mask in masks]
-        hog = describe_regions(image, boxes, masks, params=self.hog_params)
+        hog = describe_regions(image, boxes, masks, params=self.hog_params,
+                               focal_px=None if K is None else float(np.asarray(K)[0, 0]))
         if self.shape_params is None:
             return hog
         shape = np.tile(np.asarray(self.shape_fill, np.float32), (len(hog), 1))
@@ -203,16 +206,19 @@ class LinearClassifier:
         margins = (top2[:, 0] - top2[:, 1]).astype(np.float32)
         threshold = self.reject_margin if reject_margin is None else reject_margin
         ids = self.class_ids[best_col].astype(np.int64)
-        ids[margins < threshold] = UNKNOWN_ID
+        ids[(margins < threshold) | (ids == BACKGROUND_ID)] = UNKNOWN_ID
         return Prediction(ids, best.astype(np.float32), margins)
 
     def ranked_classes(self, scores: np.ndarray, k: int) -> np.ndarray:
-        """(N, C) class scores -> (N, min(k, C)) int64 object ids, best first."""
+        """(N, C) class scores -> (N, min(k, parts)) int64 object ids, best first (the
+        background class, if learnt, is never among them)."""
         scores = np.asarray(scores)
         if scores.ndim == 1:
             scores = scores[None]
-        k = max(1, min(int(k), scores.shape[1]))
-        return self.class_ids[np.argsort(-scores, axis=1, kind='stable')[:, :k]].astype(np.int64)
+        parts = self.class_ids != BACKGROUND_ID
+        k = max(1, min(int(k), int(parts.sum())))
+        order = np.argsort(-scores[:, parts], axis=1, kind='stable')[:, :k]
+        return self.class_ids[parts][order].astype(np.int64)
 
     def save(self, path: str | Path) -> None:
         """Write the model as a compressed ``.npz`` (no pickled objects); the keys are listed

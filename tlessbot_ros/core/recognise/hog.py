@@ -26,6 +26,9 @@ import numpy as np
 
 from tlessbot_ros.core.common import mask_box
 
+CROP_MODES = ('mask', 'box')
+BOX_SIZE_DIM = 2
+
 
 @dataclass(frozen=True)
 class HogParams:
@@ -41,6 +44,16 @@ class HogParams:
         object_floor: with a mask, the darkest object pixel maps to this grey level (0–1) and
             the background to 0, so the silhouette always has contrast.
         low_percentile, high_percentile: the intensity percentiles stretched to the output range.
+        crop_mode: ``'mask'`` (the paper's way): with a mask, the background is blanked out
+            and the silhouette carries the class; ``'box'``: regions are cut by their box
+            alone, background and neighbours included, the same whether the localiser gives
+            a silhouette or only a box (models trained on cluttered crops,
+            :mod:`tlessbot_ros.sim.clutter`).
+        box_size: append the box's angular size to the HOG: ``log(longer side / fx)`` and
+            ``log(shorter side / fx)`` (2 values; the 60×60 crop throws the size away, and
+            parts of a set often differ most in it). Needs the frame's focal length.
+        focal_px: focal length used for ``box_size`` where a frame's is not given (the
+            training camera's).
     """
 
     crop_px: int = 60
@@ -51,8 +64,15 @@ class HogParams:
     object_floor: float = 0.3
     low_percentile: float = 2.0
     high_percentile: float = 98.0
+    crop_mode: str = 'mask'
+    box_size: bool = False
+    focal_px: float = 615.0
 
     def __post_init__(self) -> None:
+        if not self.focal_px > 0:
+            raise ValueError(f'focal_px must be > 0, got {self.focal_px}')
+        if self.crop_mode not in CROP_MODES:
+            raise ValueError(f'crop_mode must be one of {CROP_MODES}, got {self.crop_mode!r}')
         if self.cell_px < 2:
             raise ValueError(f'cell_px must be >= 2, got {self.cell_px}')
         if self.crop_px % self.cell_px:
@@ -74,12 +94,17 @@ class HogParams:
             raise ValueError(f'margin_frac must be >= 0, got {self.margin_frac}')
 
     @property
-    def feature_dim(self) -> int:
-        """Length of one descriptor: blocks × cells per block × bins."""
+    def hog_dim(self) -> int:
+        """Length of the HOG: blocks × cells per block × bins."""
         blocks = self.crop_px // self.cell_px - self.block_cells + 1
         return blocks * blocks * self.block_cells ** 2 * self.bins
 
-    def to_dict(self) -> dict[str, float | int]:
+    @property
+    def feature_dim(self) -> int:
+        """Length of one descriptor: the HOG, plus 2 with ``box_size``."""
+        return self.hog_dim + (BOX_SIZE_DIM if self.box_size else 0)
+
+    def to_dict(self) -> dict[str, float | int | str]:
         return asdict(self)
 
 
@@ -224,7 +249,8 @@ def hog_features(crops: np.ndarray | Sequence[np.ndarray], *,
         params: HOG settings; must match the ones the crops were made with.
 
     Returns:
-        (N, params.feature_dim) float32 descriptors (L2-Hys normalised blocks, OpenCV order).
+        (N, params.hog_dim) float32 descriptors (L2-Hys normalised blocks, OpenCV order);
+        without the box size, which only :func:`describe_regions` appends.
     """
     crops = np.asarray(crops)
     if crops.ndim == 2:
@@ -235,21 +261,34 @@ def hog_features(crops: np.ndarray | Sequence[np.ndarray], *,
     if crops.dtype != np.uint8:
         raise ValueError(f'crops must be uint8 (from normalise_crop), got {crops.dtype}')
     descriptor = _descriptor(params)
-    out = np.empty((len(crops), params.feature_dim), np.float32)
+    out = np.empty((len(crops), params.hog_dim), np.float32)
     for i, crop in enumerate(crops):
         out[i] = descriptor.compute(np.ascontiguousarray(crop)).ravel()
     return out
 
 
+def box_size_features(boxes: Sequence[Sequence[float]], focal_px: float) -> np.ndarray:
+    """(N, 2) float32 ``log(longer side / focal_px)``, ``log(shorter side / focal_px)`` of N
+    (x, y, w, h) pixel boxes: their angular size (sides of at least one pixel)."""
+    if not focal_px > 0:
+        raise ValueError(f'focal_px must be > 0, got {focal_px}')
+    sides = np.maximum(np.asarray(boxes, np.float64).reshape(-1, 4)[:, 2:], 1.0)
+    return np.log(np.stack([sides.max(axis=1), sides.min(axis=1)], axis=1)
+                  / focal_px).astype(np.float32)
+
+
 def describe_regions(image: np.ndarray, boxes: Sequence[Sequence[float]] | None = None,
                      masks: Sequence[np.ndarray] | None = None, *,
-                     params: HogParams = HogParams()) -> np.ndarray:
+                     params: HogParams = HogParams(),
+                     focal_px: float | None = None) -> np.ndarray:
     """Normalise and describe all regions of one frame (batched).
 
     Args:
         image: (H, W, 3) RGB or (H, W) grey frame.
         boxes: N boxes (x, y, width, height) in pixels, or None to use the masks' boxes.
         masks: N (H, W) bool masks, or None.
+        focal_px: the frame's focal length (for ``params.box_size``; default
+            ``params.focal_px``).
 
     Returns:
         (N, params.feature_dim) float32 descriptors, in the order of the regions.
@@ -259,9 +298,17 @@ def describe_regions(image: np.ndarray, boxes: Sequence[Sequence[float]] | None 
     count = len(boxes) if boxes is not None else len(masks)  # type: ignore[arg-type]
     if boxes is not None and masks is not None and len(masks) != count:
         raise ValueError(f'{count} boxes but {len(masks)} masks')
+    if masks is not None and boxes is None and (params.crop_mode == 'box' or params.box_size):
+        boxes = [box_from_mask(mask) for mask in masks]
+    if params.crop_mode == 'box':  # cut by the box, background kept
+        masks = None
     gray = _to_gray(image)
     crops = np.empty((count, params.crop_px, params.crop_px), np.uint8)
     for i in range(count):
         crops[i] = normalise_crop(gray, None if boxes is None else boxes[i],
                                   None if masks is None else masks[i], params=params)
-    return hog_features(crops, params=params)
+    hog = hog_features(crops, params=params)
+    if not params.box_size:
+        return hog
+    size = box_size_features(boxes, params.focal_px if focal_px is None else focal_px)
+    return np.hstack([hog, size])

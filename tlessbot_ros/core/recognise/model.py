@@ -31,6 +31,9 @@ import numpy as np
 from tlessbot_ros.errors import ModelFileError
 
 UNKNOWN_ID = 0  # T-LESS ids start at 1
+# A class learnt from crops of table and neighbours' fragments (no part of the set in the box);
+# a crop it wins is reported as UNKNOWN_ID, and it is never a candidate part.
+BACKGROUND_ID = -1
 
 
 class Classifier(Protocol):

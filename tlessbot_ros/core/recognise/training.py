@@ -48,8 +48,8 @@ class ClassifierParams:
             scaling is folded into the stored weights.
         reject_margin: default minimum margin (best minus second-best score) to accept a label;
             0 accepts everything.
-        hog_weight: with shape features, the standardised HOG block is multiplied by this
-            fixed factor before learning (a fixed feature map, folded into the stored
+        hog_weight: with shape (or box-size) features, the standardised HOG block is
+            multiplied by this fixed factor before learning (a fixed map, folded into the stored
             weights): the rendered-vs-scene domain gap is larger for HOG than for the metric
             features, and a low weight keeps it from drowning them (measured in the README).
         average: keep the average of the weights over all updates (averaged SGD; for
@@ -236,7 +236,8 @@ def train_classifier(features: np.ndarray, labels: np.ndarray, *,
         features, shape_fill = _fill_shape_gaps(features, hog_dim)
     descriptors = features  # as the model will see them at inference (shape gaps filled)
     features, mean, scale, feature_map, whitening = _learner_inputs(
-        features, hog_dim=hog_dim, with_shape=shape_params is not None, samples=len(labels),
+        features, hog_dim=hog_params.hog_dim,
+        with_shape=shape_params is not None or hog_params.box_size, samples=len(labels),
         params=params, seed=seed)
     trainer = OnlineTrainer(labels, params=params, feature_mean=mean, feature_scale=scale,
                             seed=seed)

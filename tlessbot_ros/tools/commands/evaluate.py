@@ -23,6 +23,7 @@ from tlessbot_ros.core.common import SIDE
 from tlessbot_ros.errors import DatasetError, ModelFileError, TlessbotError
 from tlessbot_ros.io.bop_results import read_results, write_results
 from tlessbot_ros.tools.support.eval_frames import TWO_VIEW_SPLITS, bag_frames, pipeline_frames
+from tlessbot_ros.tools.support.eval_recognition import write_recognition_page
 from tlessbot_ros.tools.support.eval_scoring import FrameOutput, load_scoring_models, score_frames
 from tlessbot_ros.tools.support.parts_build import BuildOptions, cached_parts
 
@@ -131,15 +132,26 @@ def run(args: argparse.Namespace) -> int:
     ids |= {p.obj_id for _, o in frames for p in o.poses}
     models = load_scoring_models(args.models, ids)
     report = score_frames(frames, models)
+    args.out.mkdir(parents=True, exist_ok=True)
+    recognition = write_recognition_page(frames, args.out)
+    if recognition is not None:
+        report['recognition'].update(recognition)
     report['mode'] = mode
     report['dataset'] = str(args.dataset or args.bag)
     report['split'] = ' + '.join(TWO_VIEW_SPLITS) if two_view else split
     report['run_time_s'] = time.perf_counter() - started
-    args.out.mkdir(parents=True, exist_ok=True)
     write_results(args.out / 'estimates.csv', [p for _, o in frames for p in o.poses])
     (args.out / 'report.json').write_text(json.dumps(report, indent=2) + '\n')
     write_report(report, args.out)
     pose = report['pose']
+    skipped = report['skipped']
+    if skipped['pose_frames_without_depth']:
+        print(f'pose skipped on {skipped["pose_frames_without_depth"]} frames without depth '
+              f'({skipped["parts_not_posed"]} parts): pose measures are over the rest')
+    if recognition is not None:
+        print(f'recognition on ground-truth boxes: top-1 {recognition["top1_classifier"]:.3f} '
+              f'(classifier alone), {recognition["top1_after_pose"]:.3f} after the pose stage '
+              f'-> {args.out / "recognition.md"}')
     print(f'{report["frames"]} frames, {report["objects_gt"]} parts: '
           f'5cm5deg {_fmt(pose["recall_5cm5deg"])}, VSD<0.3 {_fmt(pose["recall_vsd03"])}, '
           f'ADD-S {_fmt(pose["recall_adds01d"])}, MSSD AR {_fmt(pose["mssd_recall"])} '

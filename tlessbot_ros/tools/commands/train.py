@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from tlessbot_ros.core.recognise import (
+    BACKGROUND_ID,
     KINDS,
     ClassifierParams,
     HogParams,
@@ -60,6 +61,11 @@ from tlessbot_ros.core.recognise import (
     train_classifier,
 )
 from tlessbot_ros.errors import DatasetError, TlessbotError
+from tlessbot_ros.tools.support.train_clutter import (
+    ClutterRecipe,
+    clutter_features,
+    recipe_with,
+)
 
 DEFAULT_STEP_DEG = 8.0
 SCENE_SEED_OFFSET = 1_000_003   # training scenes never reuse a benchmark's simulator stream
@@ -105,6 +111,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--augmentations', type=int, default=DEFAULT_AUGMENTATIONS,
                         help='shear/zoom copies per view (paper: 3, i.e. 4 images per view; '
                              f'default {DEFAULT_AUGMENTATIONS})')
+    parser.add_argument('--recipe', choices=('clutter', 'turntable'), default='clutter',
+                        help='clutter: views pasted among other parts on random tables, '
+                             're-photographed, cut as loose boxes (default); turntable: the '
+                             "paper's plain views, silhouette crops")
+    parser.add_argument('--copies', type=int, default=ClutterRecipe.copies,
+                        help=f'cluttered crops per view (default {ClutterRecipe.copies})')
+    parser.add_argument('--clutter-param', action='append', metavar='NAME=VALUE',
+                        help='override a ClutterRecipe / ClutterParams field, e.g. '
+                             'neighbours=0,0 or photometric=false (repeatable)')
+    parser.add_argument('--box-size', action=argparse.BooleanOptionalAction, default=True,
+                        help="with --recipe clutter: also learn the box's angular size")
     parser.add_argument('--scenes', type=int, default=0,
                         help='also train on the crops of this many simulated two-view scenes '
                              '(CAD mode, ours features; 0 = turntable only, the paper)')
@@ -288,7 +305,12 @@ def run(args: argparse.Namespace) -> int:
     args = apply_recipe(args)
     kinds = parse_kinds(args.classifier)
     try:  # settings are checked before minutes of rendering
-        hog = HogParams(cell_px=args.cell, bins=args.bins)
+        cad_clutter = args.models is not None and args.recipe == 'clutter'
+        hog = HogParams(cell_px=args.cell, bins=args.bins,
+                        crop_mode='box' if cad_clutter else 'mask',
+                        box_size=cad_clutter and args.box_size)
+        if args.copies < 1:
+            raise ValueError('--copies must be >= 1')
         learners = {kind: ClassifierParams(
             kind=kind, epochs=args.epochs, alpha=args.alpha, pa_c=args.pa_c,
             average=args.average,
@@ -307,19 +329,7 @@ def run(args: argparse.Namespace) -> int:
     if args.models is None and args.captures:
         features, labels, source = np.empty((0, 0), np.float32), np.empty(0, np.int64), {}
     elif args.models is not None:
-        features, labels = turntable_features(
-            args.models, hog, ids=args.ids, steps_deg=args.steps_deg, positions=args.positions,
-            augmentations=args.augmentations, seed=args.seed, shape=shape)
-        source = {'source': 'turntable', 'steps_deg': args.steps_deg,
-                  'positions': args.positions, 'augmentations': args.augmentations}
-        if args.scenes:
-            if shape is None:
-                raise TlessbotError('--scenes needs --features ours')
-            more, more_labels = scene_features(args.models, hog, shape, ids=args.ids,
-                                               scenes=args.scenes, seed=args.seed)
-            features = np.vstack([features, more])
-            labels = np.concatenate([labels, more_labels])
-            source.update(scenes=args.scenes, scene_crops=len(more_labels))
+        features, labels, source = cad_features(args, hog, shape)
     else:
         if args.features == 'ours':
             print('image folders have no depth: training a paper-features (HOG only) model')
@@ -333,10 +343,12 @@ def run(args: argparse.Namespace) -> int:
                                         copies=args.capture_augmentations, seed=args.seed)
     source['features'] = 'ours' if shape is not None else 'paper'
     data_s = time.perf_counter() - started
-    ids = np.unique(labels)
+    ids = np.unique(labels[labels != BACKGROUND_ID])
     if len(ids) < 2:
         raise TlessbotError(f'need crops of at least 2 parts to train, got {ids.tolist()}')
-    print(f'{len(labels)} crops of {len(ids)} objects in {data_s:.1f} s')
+    background = int(np.sum(labels == BACKGROUND_ID))
+    print(f'{len(labels)} crops of {len(ids)} objects'
+          + (f' ({background} of background)' if background else '') + f' in {data_s:.1f} s')
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for kind, path in output_paths(args.out, kinds).items():
         params = learners[kind]
@@ -358,3 +370,33 @@ def run(args: argparse.Namespace) -> int:
         print(f'{kind}: trained in {train_s:.1f} s (data {data_s:.1f} s), training accuracy '
               f'{100 * train_acc:.1f} % -> {path}')
     return 0
+
+
+def cad_features(args: argparse.Namespace, hog: HogParams, shape: ShapeParams | None
+                 ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(features, labels, source info) of CAD training: the cluttered recipe (default) or
+    the paper's turntable, plus the crops of ``--scenes`` simulated scenes."""
+    if args.recipe == 'clutter':
+        features, labels = clutter_features(
+            args.models, hog, ids=args.ids, steps_deg=args.steps_deg, positions=args.positions,
+            seed=args.seed,
+            recipe=dataclasses.replace(recipe_with(args.clutter_param), copies=args.copies),
+            shape_of=None if shape is None else (lambda sample: sample_shape(sample, shape)),
+            shape_dim=0 if shape is None else shape.feature_dim)
+        source = {'source': 'clutter', 'steps_deg': args.steps_deg,
+                  'positions': args.positions, 'copies': args.copies}
+    else:
+        features, labels = turntable_features(
+            args.models, hog, ids=args.ids, steps_deg=args.steps_deg, positions=args.positions,
+            augmentations=args.augmentations, seed=args.seed, shape=shape)
+        source = {'source': 'turntable', 'steps_deg': args.steps_deg,
+                  'positions': args.positions, 'augmentations': args.augmentations}
+    if args.scenes:
+        if shape is None:
+            raise TlessbotError('--scenes needs --features ours')
+        more, more_labels = scene_features(args.models, hog, shape, ids=args.ids,
+                                           scenes=args.scenes, seed=args.seed)
+        features = np.vstack([features, more])
+        labels = np.concatenate([labels, more_labels])
+        source.update(scenes=args.scenes, scene_crops=len(more_labels))
+    return features, labels, source

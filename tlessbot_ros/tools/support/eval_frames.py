@@ -165,12 +165,16 @@ def _oracle_pipeline(pipeline, by_view: dict, inputs: dict, oracle: str, workers
         output.timings_ms['classification'] = 1e3 * (time.perf_counter() - t1)
         classes = {i: g.candidates for i, g in guesses.items()}
     t2 = time.perf_counter()
+    # RGB-only frames (or depth on some frames only): no pose, the rest is scored
+    output.pose_ran = all(_has_depth(im) for im in by_view.values())
     detections = pipeline.estimate_poses(inputs, labels, classes, box_mode=True,
-                                         fitter=workers)
+                                         fitter=workers) if output.pose_ran else []
     if oracle == 'boxes':  # the class after verification by the pose fit
+        output.classifier_by_gt = {i - 1: (g.obj_id, g.margin) for i, g in guesses.items()}
         output.classes_by_gt = {i - 1: g.obj_id for i, g in guesses.items()}
         output.classes_by_gt.update({d.instance_id - 1: d.obj_id for d in detections})
-    output.timings_ms['pose'] = 1e3 * (time.perf_counter() - t2)
+    if output.pose_ran:
+        output.timings_ms['pose'] = 1e3 * (time.perf_counter() - t2)
     output.timings_ms['frame'] = 1e3 * (time.perf_counter() - t0)
     return detections
 
@@ -195,6 +199,11 @@ def _add_poses(output: FrameOutput, pipeline, detections: list, by_view: dict,
             T = np.linalg.inv(scored.T_world_camera) @ src.T_world_camera @ T
         output.poses.append(BopEstimate(scored.scene_id, scored.im_id, d.obj_id,
                                        float(d.pose.fitness), T, frame_s))
+
+
+def _has_depth(image) -> bool:
+    return image.depth_m is not None and bool(np.any(np.isfinite(image.depth_m)
+                                                     & (image.depth_m > 0)))
 
 
 def oracle_labels(by_view: dict) -> dict[str, np.ndarray]:

@@ -34,6 +34,8 @@ IOU_THRESHOLD = 0.7
 VSD_THRESHOLD = 0.3
 ADDS_THRESHOLD = 0.1  # × diameter
 _MAX_METRIC_POINTS = 1000
+_POSE_KEYS = ('recall_5cm5deg', 'recall_1cm5deg', 'recall_vsd03', 'recall_adds01d',
+              'mssd_recall', 'mspd_recall')
 
 
 # ------------------------------------------------------------------------------------------------
@@ -109,7 +111,10 @@ class FrameOutput:
             the localiser did not run (oracle boxes or --poses).
         classified: True when the classes of ``boxes`` came from the classifier.
         classes_by_gt: {GT index: class} when the classifier ran on ground-truth boxes
-            (``--oracle boxes``), else None.
+            (``--oracle boxes``), after the pose stage's verification where it ran; else None.
+        classifier_by_gt: {GT index: (class, margin)} of the classifier alone (before the pose
+            stage) with ``--oracle boxes``, else None.
+        pose_ran: False where the pose stage was skipped (a frame without depth).
         timings_ms: per-stage wall times of this frame (ms); ``pose_per_part``: the pose
             stage over the parts it fitted, ``table_plane``: finding the table plane in the
             views' depth (all views).
@@ -119,6 +124,8 @@ class FrameOutput:
     boxes: list[tuple[int, int, int, int, int]] | None = None
     classified: bool = False
     classes_by_gt: dict[int, int] | None = None
+    classifier_by_gt: dict[int, tuple[int, float]] | None = None
+    pose_ran: bool = True
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -134,6 +141,7 @@ class _Target:
     mspd_scale: float = 1.0
     detected: bool | None = None
     recognised: bool | None = None
+    posed: bool = True
 
 
 def _match_poses(image, poses: list[BopEstimate]) -> dict[int, BopEstimate]:
@@ -177,7 +185,7 @@ def _score_pose(target: _Target, T_est: np.ndarray, T_gt: np.ndarray, model: Sco
     error = pose_error(T_est, T_gt, model.symmetries)
     target.pose_5cm5deg = is_correct_cm_deg(error)
     target.pose_1cm5deg = is_correct_cm_deg(error, translation_m=0.01)
-    target.adds_ok = adds(T_est, T_gt, model.points) < ADDS_THRESHOLD * model.diameter_m
+    target.adds_ok = adds(T_est, T_gt, model.vertices) < ADDS_THRESHOLD * model.diameter_m
     target.mssd_error = mssd(T_est, T_gt, model.points, model.symmetry_stack)
     target.mspd_error = mspd(T_est, T_gt, model.points, image.intrinsics.K,
                              model.symmetry_stack)
@@ -186,26 +194,32 @@ def _score_pose(target: _Target, T_est: np.ndarray, T_gt: np.ndarray, model: Sco
                                  model.renderer)[0] < VSD_THRESHOLD)
 
 
-def _measures(group: list[_Target], models: dict[int, ScoringModel], *, has_depth: bool,
+def _measures(everything: list[_Target], models: dict[int, ScoringModel], *, has_depth: bool,
               detection_ran: bool, recognition_ran: bool) -> dict:
-    """The recalls, detection and recognition rates of a group of targets."""
-    n = len(group)
-    if n == 0:
+    """The recalls, detection and recognition rates of a group of targets; the pose recalls
+    over the targets of frames where the pose stage ran (None if none)."""
+    if not everything:
         return {'objects_gt': 0}
-    diam = np.array([models[t.obj_id].diameter_m for t in group])
-    mssd_rel = np.array([t.mssd_error for t in group]) / diam
-    mspd_px = np.array([t.mspd_error * t.mspd_scale for t in group])
-    out = {
-        'objects_gt': n,
-        'recall_5cm5deg': sum(t.pose_5cm5deg for t in group) / n,
-        'recall_1cm5deg': sum(t.pose_1cm5deg for t in group) / n,
-        'recall_vsd03': sum(t.vsd_ok for t in group) / n if has_depth else None,
-        'recall_adds01d': sum(t.adds_ok for t in group) / n,
-        'mssd_recall': average_recall(mssd_rel, BOP19_THRESHOLDS),
-        'mspd_recall': average_recall(mspd_px, BOP19_MSPD_THRESHOLDS_PX),
-        'iou07_rate': (sum(bool(t.detected) for t in group) / n) if detection_ran else None,
-    }
-    detected = [t for t in group if t.detected or t.recognised is not None]
+    group = [t for t in everything if t.posed]
+    out: dict = {key: None for key in _POSE_KEYS}
+    if group:
+        n = len(group)
+        diam = np.array([models[t.obj_id].diameter_m for t in group])
+        mssd_rel = np.array([t.mssd_error for t in group]) / diam
+        mspd_px = np.array([t.mspd_error * t.mspd_scale for t in group])
+        out.update({
+            'recall_5cm5deg': sum(t.pose_5cm5deg for t in group) / n,
+            'recall_1cm5deg': sum(t.pose_1cm5deg for t in group) / n,
+            'recall_vsd03': sum(t.vsd_ok for t in group) / n if has_depth else None,
+            'recall_adds01d': sum(t.adds_ok for t in group) / n,
+            'mssd_recall': average_recall(mssd_rel, BOP19_THRESHOLDS),
+            'mspd_recall': average_recall(mspd_px, BOP19_MSPD_THRESHOLDS_PX)})
+    out.update({
+        'objects_gt': len(everything),
+        'objects_posed': len(group),
+        'iou07_rate': (sum(bool(t.detected) for t in everything) / len(everything))
+        if detection_ran else None})
+    detected = [t for t in everything if t.detected or t.recognised is not None]
     out['top1'] = (sum(bool(t.recognised) for t in detected) / len(detected)
                    if recognition_ran and detected else None)
     return out
@@ -233,7 +247,8 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
             if gt.obj_id not in models:
                 raise ModelFileError(f'no model for obj_{gt.obj_id:02d}')
             model = models[gt.obj_id]
-            target = _Target(gt.obj_id, mspd_scale=640.0 / image.intrinsics.width)
+            target = _Target(gt.obj_id, mspd_scale=640.0 / image.intrinsics.width,
+                             posed=output.pose_ran)
             if output.boxes is not None:
                 target.detected = k in box_matches
                 if output.classified and target.detected:
@@ -245,7 +260,7 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
             if est is not None:
                 _score_pose(target, est.T_camera_object, gt.T_camera_object, model, image)
             targets.append(target)
-    has_depth = all(image.depth_m is not None for image, _ in frames)
+    has_depth = all(image.depth_m is not None for image, o in frames if o.pose_ran)
 
     def measures(group: list[_Target]) -> dict:
         return _measures(group, models, has_depth=has_depth, detection_ran=detection_ran,
@@ -269,9 +284,9 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
                                     if detection_ran and frames else None),
             'duplicates_per_frame': duplicates / len(frames) if frames else None},
         'recognition': {'top1': overall.get('top1')},
-        'pose': {key: overall.get(key) for key in (
-            'recall_5cm5deg', 'recall_1cm5deg', 'recall_vsd03', 'recall_adds01d',
-            'mssd_recall', 'mspd_recall')},
+        'pose': {key: overall.get(key) for key in _POSE_KEYS},
+        'skipped': {'pose_frames_without_depth': sum(not o.pose_ran for _, o in frames),
+                    'parts_not_posed': len(targets) - overall.get('objects_posed', 0)},
         'timing_ms': {stage: median(stage) for stage in (
             'segmentation', 'classification', 'pose', 'frame', 'pose_per_part',
             'table_plane')},

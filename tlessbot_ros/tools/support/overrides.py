@@ -16,6 +16,11 @@ def _parse(text: str, default: Any, name: str) -> Any:
             if text.lower() not in ('true', 'false', '1', '0'):
                 raise ValueError(text)
             return text.lower() in ('true', '1')
+        if isinstance(default, tuple):  # 'a,b' for a (min, max) pair
+            values = text.split(',')
+            if len(values) != len(default):
+                raise ValueError(text)
+            return tuple(type(d)(v) for d, v in zip(default, values))
         return type(default)(text)
     except ValueError:
         raise TlessbotError(f'{name}: cannot read {text!r} as {type(default).__name__}') from None

@@ -142,20 +142,28 @@ def part_recognition(model, templates, frames, min_pixels: int, candidates: int
 
 
 def real_crops(data: Path):
-    """Real T-LESS crops in the shared data: list of (name, rgb, mask or None, obj_id)."""
+    """Real T-LESS crops in the shared data: list of (name, rgb, mask or None, obj_id, K or
+    None); K where the images' camera is known (the Primesense training images), which is the
+    unit of a model's box-size features."""
     import cv2
+    import yaml
 
     out = []
     for obj_id in (19, 21):
         for path in sorted((data / 'tless_template_pose_demo' / f'tless_{obj_id}').glob(
                 'query_*.png')):
             rgb = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
-            out.append((f'tless_{obj_id}/{path.name}', rgb, None, obj_id))
+            out.append((f'tless_{obj_id}/{path.name}', rgb, None, obj_id, None))
     primesense = data / 'tless_v2_dsynth_sample' / 't-less_v2' / 'train_primesense' / '02'
+    info_path = primesense / 'info.yml'
+    info = yaml.safe_load(info_path.read_text()) if info_path.is_file() else {}
     for path in sorted((primesense / 'rgb').glob('*.png')):
+        entry = info.get(int(path.stem), {}) if path.stem.isdigit() else {}
+        K = np.reshape(entry['cam_K'], (3, 3)) if 'cam_K' in entry else None
         rgb = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
         mask = cv2.imread(str(primesense / 'mask' / path.name), cv2.IMREAD_GRAYSCALE)
-        out.append((f'primesense_02/{path.name}', rgb, None if mask is None else mask > 127, 2))
+        out.append((f'primesense_02/{path.name}', rgb, None if mask is None else mask > 127, 2,
+                    K))
     return out
 
 
@@ -277,11 +285,12 @@ def crop_pose_stage(model, templates, frames, min_pixels: int, scores: np.ndarra
 
 
 def run(args: argparse.Namespace) -> int:
-    from tlessbot_ros.core.recognise import LinearClassifier
+    from tlessbot_ros.core.recognise import BACKGROUND_ID, LinearClassifier
     from tlessbot_ros.io.models import load_models
 
     classifiers = {path: LinearClassifier.load(path) for path in args.classifier}
-    ids = sorted(set().union(*(m.class_ids.tolist() for m in classifiers.values())))
+    ids = sorted(set().union(*(m.class_ids.tolist() for m in classifiers.values()))
+                 - {BACKGROUND_ID})
     models = load_models(args.models, ids)
     views, frames = simulated_crops(models, args.scenes, args.seed, args.min_pixels)
     labels = np.concatenate([v[2] for v in views])
@@ -390,11 +399,11 @@ def run(args: argparse.Namespace) -> int:
                   '| crop | mask | truth | ' + ' | '.join(m.kind for m, _, _ in
                                                           results.values()) + ' |',
                   '|---|---|---|' + '---|' * len(results)]
-        for name, rgb, mask, obj_id in real:
+        for name, rgb, mask, obj_id, K in real:
             guesses = []
             for model, _, _ in results.values():
                 boxes = [(0, 0, rgb.shape[1], rgb.shape[0])] if mask is None else None
-                features = model.describe(rgb, None if mask is None else [mask], boxes)
+                features = model.describe(rgb, None if mask is None else [mask], boxes, K=K)
                 guess = int(model.predict(features, reject_margin=0.0).class_ids[0])
                 guesses.append(f'obj_{guess:02d}' + (' ✓' if guess == obj_id else ''))
             lines.append(f'| {name} | {"GT" if mask is not None else "none"} | obj_{obj_id:02d} | '
