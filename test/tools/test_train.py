@@ -136,6 +136,8 @@ def test_packaged_recipe_is_named_and_given_options_win():
     args = train.apply_recipe(parser.parse_args(
         ['--models', 'm', '--out', 'c.npz', '--recipe', 'packaged', '--epochs', '3']))
     assert (args.scenes, args.kernel, args.kernel_axes, args.hog_weight, args.classifier,
-            args.average, args.epochs) == (800, 4000, 256, 0.3, 'perceptron', True, 3)
+            args.average, args.epochs, args.recipe) == \
+        (800, 4000, 256, 0.3, 'perceptron', True, 3, 'turntable')
     plain = train.apply_recipe(parser.parse_args(['--models', 'm', '--out', 'c.npz']))
-    assert (plain.scenes, plain.classifier) == (0, parser.get_default('classifier'))
+    assert (plain.scenes, plain.classifier, plain.recipe) == \
+        (0, parser.get_default('classifier'), 'clutter')

@@ -21,8 +21,10 @@ tlessbot_ros.core.recognise.feature_map) instead of the descriptor itself. The p
     tlessbot train --models DIR --scenes 800 --kernel 4000 --kernel-axes 256 --hog-weight 0.3 \
         --classifier perceptron --average --epochs 20 --out classifier.npz
 
-is the named recipe ``--recipe packaged`` (RECIPES below; ``tlessbot parts build`` uses it by
-default). A recipe sets these options; options given beside it win.
+with the turntable rendering, is the named recipe ``--recipe packaged`` (RECIPES below;
+``tlessbot parts build`` uses it by default). A recipe sets these options; options given beside
+it win. The default, ``--recipe clutter``, pastes each view among other parts on random tables
+and re-photographs it (docs/recognition-real.md): it is the one that transfers to real images.
 
 Several learners can share one rendering pass: --classifier all (or sgd,pa1) writes
 <out>_<kind>.npz per learner.
@@ -71,9 +73,10 @@ DEFAULT_STEP_DEG = 8.0
 SCENE_SEED_OFFSET = 1_000_003   # training scenes never reuse a benchmark's simulator stream
 DEFAULT_AUGMENTATIONS = 1
 # Named recipes: option values (argparse destinations) that made a packaged model.
+# 'recipe' is the CAD rendering a named recipe uses.
 RECIPES = {
-    'packaged': {'scenes': 800, 'kernel': 4000, 'kernel_axes': 256, 'hog_weight': 0.3,
-                 'classifier': 'perceptron', 'average': True, 'epochs': 20},
+    'packaged': {'recipe': 'turntable', 'scenes': 800, 'kernel': 4000, 'kernel_axes': 256,
+                 'hog_weight': 0.3, 'classifier': 'perceptron', 'average': True, 'epochs': 20},
 }
 
 
@@ -94,9 +97,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='the cell YAML of the capture bags (its rig; default '
                              'config/cell.yaml)')
     parser.add_argument('--out', type=Path, required=True, help='model file to write (.npz)')
-    parser.add_argument('--recipe', choices=sorted(RECIPES),
-                        help='set the options to a named recipe (packaged: the packaged '
-                             "model's); options given beside it win")
     parser.add_argument('--classifier', default='sgd',
                         help=f"learner: {', '.join(KINDS)}, a comma list, or 'all' "
                              '(default: sgd)')
@@ -111,10 +111,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--augmentations', type=int, default=DEFAULT_AUGMENTATIONS,
                         help='shear/zoom copies per view (paper: 3, i.e. 4 images per view; '
                              f'default {DEFAULT_AUGMENTATIONS})')
-    parser.add_argument('--recipe', choices=('clutter', 'turntable'), default='clutter',
+    parser.add_argument('--recipe', choices=('clutter', 'turntable', *sorted(RECIPES)),
+                        default='clutter',
                         help='clutter: views pasted among other parts on random tables, '
                              're-photographed, cut as loose boxes (default); turntable: the '
-                             "paper's plain views, silhouette crops")
+                             "paper's plain views, silhouette crops; packaged: the packaged "
+                             "model's options (turntable + scenes); options given beside win")
     parser.add_argument('--copies', type=int, default=ClutterRecipe.copies,
                         help=f'cluttered crops per view (default {ClutterRecipe.copies})')
     parser.add_argument('--clutter-param', action='append', metavar='NAME=VALUE',
@@ -295,7 +297,7 @@ def apply_recipe(args: argparse.Namespace) -> argparse.Namespace:
     defaults = argparse.ArgumentParser()
     add_arguments(defaults)
     values = {key: value for key, value in RECIPES.get(args.recipe or '', {}).items()
-              if getattr(args, key) == defaults.get_default(key)}
+              if key == 'recipe' or getattr(args, key) == defaults.get_default(key)}
     return argparse.Namespace(**{**vars(args), **values})
 
 
