@@ -130,3 +130,40 @@ def test_axis_point_ignores_the_tiny_singular_value_along_the_axis():
     T = make_transform(R, centre - R @ centre + np.array([0, 0, 1e-7]))
     point = _axis_point(T)
     assert np.linalg.norm(point[:2] - centre[:2]) < 1e-3 and abs(point[2]) < 0.01
+
+
+def _tube(shift_m: float):
+    trimesh = pytest.importorskip('trimesh')
+    mesh = trimesh.creation.annulus(r_min=0.008, r_max=0.012, height=0.06, sections=64)
+    return np.asarray(mesh.vertices) + [0.0, 0.0, shift_m], np.asarray(mesh.faces)
+
+
+@pytest.mark.parametrize('shift_m', [0.0, 0.03])
+def test_tube_with_alike_ends_is_continuous_and_two_fold(shift_m):
+    # a tube's two ends are alike: turning about its axis and flipping end for end both map
+    # it onto itself, wherever the CAD origin lies on the axis (here at the centre or an end)
+    v, f = _tube(shift_m)
+    s = detect_symmetries(v, f)
+    assert s.describe() == 'continuous + 2-fold'
+    axis, offset = s.continuous[0]
+    assert abs(axis[2]) > 0.999
+    assert abs(offset[2] - shift_m) < 1e-3
+    flip = s.discrete[1]
+    ends = np.array([[0.0, 0.0, shift_m - 0.03], [0.0, 0.0, shift_m + 0.03]])
+    moved = ends @ flip[:3, :3].T + flip[:3, 3]
+    assert np.allclose(moved, ends[::-1], atol=1e-3)
+    # every composed transform maps the surface onto itself
+    points, _ = sample_surface(v, f, 400, seed=3)
+    radius = np.hypot(points[:, 0], points[:, 1])
+    for T in s.transforms(step_rad=np.radians(40)):
+        p = points @ T[:3, :3].T + T[:3, 3]
+        assert np.all(np.abs(np.hypot(p[:, 0], p[:, 1]) - radius) < 1e-3)
+        assert np.all((p[:, 2] > shift_m - 0.0305) & (p[:, 2] < shift_m + 0.0305))
+
+
+def test_lying_tube_yaw_period_is_half_a_turn_with_the_origin_at_an_end():
+    from tlessbot_ros.core.pose import yaw_period
+
+    v, f = _tube(0.03)
+    T = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi / 2), [0.0, 0.0, 0.012])
+    assert yaw_period(v, f, T, tolerance_m=0.001) == pytest.approx(np.pi)

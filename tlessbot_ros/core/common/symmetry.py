@@ -370,8 +370,12 @@ def _continuous_axis(test: _SurfaceTest, candidates: list[np.ndarray], centre: n
             found.append(T)
         else:
             continuous_axis = _mean_axis([T[:3, :3] for T in found], axis)
-            centre = np.mean([_axis_point(T) for T in found if _angle(T) > 0.3], axis=0) \
-                if any(_angle(T) > 0.3 for T in found) else centre
+            if any(_angle(T) > 0.3 for T in found):
+                # the rotations fix the axis line, not a point on it: keep the surface
+                # centroid's place along the axis (a tube's flip of its alike ends turns about
+                # a point there, wherever the CAD origin lies)
+                point = np.mean([_axis_point(T) for T in found if _angle(T) > 0.3], axis=0)
+                centre = point + ((centre - point) @ continuous_axis) * continuous_axis
             return continuous_axis, centre
     return None, centre
 

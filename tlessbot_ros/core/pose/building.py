@@ -112,10 +112,14 @@ def yaw_period(vertices: np.ndarray, faces: np.ndarray, T_table_object: np.ndarr
     points, _ = _samples(vertices, faces, samples, seed=seed)
     distance = _mesh_distance(vertices, faces)
     axis = invert_transform(T_table_object)[:3, :3] @ np.array([0.0, 0.0, 1.0])
-    for k in (36, 4, 3, 2):
-        R = rotation_about_axis(axis, 2.0 * np.pi / k)
-        if np.percentile(distance(points @ R.T), 95) < tolerance_m:
-            return CONTINUOUS_YAW_PERIOD if k == 36 else 2.0 * np.pi / k
+    # about the vertical through the origin first, then through the surface centroid (a CAD
+    # origin off the part's centre, e.g. at one end of a tube lying on its side); the table
+    # path places each yaw by the centroid, so either axis prunes the same yaws
+    for centre in (np.zeros(3), points.mean(axis=0)):
+        for k in (36, 4, 3, 2):
+            R = rotation_about_axis(axis, 2.0 * np.pi / k)
+            if np.percentile(distance((points - centre) @ R.T + centre), 95) < tolerance_m:
+                return CONTINUOUS_YAW_PERIOD if k == 36 else 2.0 * np.pi / k
     return 2.0 * np.pi
 
 
