@@ -9,9 +9,10 @@ their own names (no prefix), with the ``Attributes:`` text as descriptions.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from tlessbot_ros.core.common.table_plane import TABLE_PLANE_MODES
+from tlessbot_ros.core.pose.mirror import MirrorParams
 
 
 def _check(ok: bool, message: str) -> None:
@@ -115,6 +116,8 @@ class FitParams:
             reported unknown, without a pose (0..1; 0: off).
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
             visible surface (>= 0; 0: off).
+        mirror: flat parts: the face that is up, the yaw and a look-alike told by the colour
+            image (:class:`~tlessbot_ros.core.pose.mirror.MirrorParams`).
 
     ``table_plane``: 'rig' reads heights in the extrinsics alone (no table frame without them:
     every part goes to RANSAC); 'observed' uses the plane found in each view's depth
@@ -142,6 +145,7 @@ class FitParams:
     table_plane_max_offset_m: float = 0.001
     fit_rank_min_fitness: float = 0.0
     fit_rank_coverage_weight: float = 0.0
+    mirror: MirrorParams = field(default_factory=MirrorParams)
 
     def __post_init__(self) -> None:
         _check(self.min_roi_points >= 3, f'min_roi_points must be at least 3 (a pose needs '

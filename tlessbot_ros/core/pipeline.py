@@ -52,6 +52,7 @@ from tlessbot_ros.core.common import (
     plane_of_frame,
     transform_points,
 )
+from tlessbot_ros.core.flat_parts import check_mirror
 from tlessbot_ros.core.fragments import FragmentFilter
 from tlessbot_ros.core.frame import (
     ClassGuess,
@@ -396,7 +397,8 @@ class PerceptionPipeline:
         arbiter = self._fragment_filter(jobs, done)
 
         def fitted(job: PartJob) -> None:
-            # here, not in fit_part: the check reads every view, which a worker does not have
+            # here, not in fit_part: the checks read every view, which a worker does not have
+            check_mirror(self, job, views, labels)
             self.check_lookalike(job)
             arbiter.fitted(job.detection, *self._fitted_centre(job))
 

@@ -17,6 +17,7 @@ from tlessbot_ros.core.localise.fusion_result import (
 )
 from tlessbot_ros.core.localise.instances import fill_from_nearest
 from tlessbot_ros.core.localise.segmentation import Segmentation
+from tlessbot_ros.core.localise.thin import touching_groups
 
 
 # --------------------------------------------------------------------------- calibrated
@@ -183,6 +184,8 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
                         out[piece] = next_id
                         next_id += 1
                 split_ids.add(owners[0])
+        elif _join_thin_fragments(blob, side, window, owners, top_labels):
+            out[blob] = owners[0]
         else:
             out[blob] = _divide_among_owners(blob, pred[window], owners,
                                              None if side_rgb is None else side_rgb[window],
@@ -217,6 +220,19 @@ def _depth_pieces_of_blob(blob: np.ndarray, own: np.ndarray, depth_groups: np.nd
     if any(np.count_nonzero(p) < params.min_visible_px for p in pieces):
         return []
     return pieces
+
+
+def _join_thin_fragments(blob: np.ndarray, side: Segmentation, window: tuple[slice, slice],
+                         owners: list[int], top_labels: np.ndarray) -> bool:
+    """A side blob of thin parts alone whose top-view owners are the touching fragments of
+    one part: those fragments take the first owner's id in the top labels (True)."""
+    own = np.unique(side.labels[window][blob])
+    own = own[(own > 0) & (own <= len(side.thin))]
+    if own.size == 0 or not side.thin[own - 1].all() or \
+            len(touching_groups(owners, top_labels)) > 1:
+        return False
+    top_labels[np.isin(top_labels, owners[1:])] = owners[0]
+    return True
 
 
 def _divide_among_owners(blob: np.ndarray, pred: np.ndarray, owners: list[int],

@@ -208,6 +208,7 @@ class DepthCue:
     table: np.ndarray  # valid depth on the table plane
     sigma_m: float  # robust height noise of the table
     surfaces: Surfaces | None = None  # for the depth split (None: no depth image given)
+    height_m: np.ndarray | None = None  # (h, w) height above the table, NaN invalid
 
 
 @dataclass
@@ -309,7 +310,7 @@ def depth_cue(height: np.ndarray, params: SegmentationParams, *,
     if depth is not None:
         solid = high_raw & ~range_jumps(depth, params.depth_split_jump)
         surfaces = Surfaces(solid, valid & (filled < table_h), np.asarray(depth, np.float32))
-    return DepthCue(candidate, sure, table, sigma, surfaces)
+    return DepthCue(candidate, sure, table, sigma, surfaces, height)
 
 
 

@@ -26,6 +26,7 @@ import numpy as np
 from tlessbot_ros.core.common import label_boxes
 from tlessbot_ros.core.localise.cues import Surfaces, depth_cue, opened
 from tlessbot_ros.core.localise.params import SegmentationParams
+from tlessbot_ros.core.localise.thin import is_thin
 
 
 # --------------------------------------------------------------------------- watershed
@@ -119,15 +120,17 @@ def split_touching(mask: np.ndarray, rgb: np.ndarray | None = None, *,
             depth = np.nan_to_num(np.asarray(depth_m, np.float32), nan=0.0, posinf=0.0)
             surfaces = depth_cue(np.asarray(height_m, np.float32), params,
                                   depth=depth).surfaces
-    return _instances(mask, rgb, params, surfaces)[0]
+    return _instances(mask, rgb, params, surfaces,
+                      None if height_m is None else np.asarray(height_m, np.float32))[0]
 
 
 def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationParams,
-               surfaces: Surfaces | None = None
+               surfaces: Surfaces | None = None, height_m: np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(labels (H, W) int32, boxes (N, 4) int32, areas (N,) int64, depth groups (N,) int32)
     of :func:`split_touching`; the instances cut from one piece of a depth split share a
-    group id > 0 (0: not divided by depth).
+    group id > 0 (0: not divided by depth). With ``height_m`` (the mask's scale) a thin
+    blob is kept whole (:func:`~tlessbot_ros.core.localise.thin.is_thin`).
 
     Blobs are labelled by one look-up; only blobs that may hold several parts (deep enough
     for a split) are looked at one by one, in a crop.
@@ -150,6 +153,8 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
         x0, y0 = max(x - 1, 0), max(y - 1, 0)
         x1, y1 = min(x + w + 1, W), min(y + h + 1, H)
         blob = comp[y0:y1, x0:x1] == i
+        if is_thin(blob, height_m, (y0, x0), params):
+            continue   # a thin part: its holes and lobes are no seams, its depth too noisy
         crop = None if rgb is None else rgb[y0:y1, x0:x1]
         by_depth = [blob] if surfaces is None else \
             _depth_pieces(blob, Surfaces(*(a[y0:y1, x0:x1] for a in (
@@ -197,7 +202,8 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
 
 
 def instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarray,
-                        params: SegmentationParams, surfaces: Surfaces | None = None
+                        params: SegmentationParams, surfaces: Surfaces | None = None,
+                        height_m: np.ndarray | None = None
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Instance separation at the cue scale, labels carried back to the full-resolution mask.
 
@@ -211,13 +217,13 @@ def instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarra
     h, w = small.shape[:2]
     H, W = foreground.shape
     if (h, w) == (H, W):
-        labels, boxes, areas, groups = _instances(foreground, rgb, params, surfaces)
+        labels, boxes, areas, groups = _instances(foreground, rgb, params, surfaces, height_m)
         return labels.astype(np.uint16), boxes, areas, groups
     s = h / H
     small_params = _scaled_params(params, s)
     fg_small = cv2.resize(foreground.view(np.uint8) * np.uint8(255), (w, h),
                           interpolation=cv2.INTER_AREA) >= 128
-    labels_s, boxes_s, _, groups = _instances(fg_small, small, small_params, surfaces)
+    labels_s, boxes_s, _, groups = _instances(fg_small, small, small_params, surfaces, height_m)
     labels_s = labels_s.astype(np.uint16)
     n = len(boxes_s)
     if n == 0:

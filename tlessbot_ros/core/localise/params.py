@@ -55,6 +55,10 @@ class SegmentationParams:
             part for that split.
         depth_split_step: pieces with no table between them are kept apart at a depth step above
             this fraction of the depth (>= 0; 0: never).
+        thin_max_height_m: a blob lower than this above the table (its ``thin_quantile``) is a
+            thin part, kept whole, m (>= 0; 0: off).
+        thin_quantile: the quantile of a blob's valid heights compared (0..1).
+        thin_min_valid: share of a blob's pixels with depth needed to call it thin (0..1).
 
     ``methods``: 'watershed' adds the grey-level histogram extremes as markers *and* refines the
     union by flooding (without it the union is used as is); 'background' is used only when an
@@ -97,8 +101,16 @@ class SegmentationParams:
     depth_split_jump: float = 0.02
     depth_split_min_px: int = 200
     depth_split_step: float = 0.0
+    thin_max_height_m: float = 0.008
+    thin_quantile: float = 0.75
+    thin_min_valid: float = 0.3
 
     def __post_init__(self) -> None:
+        if self.thin_max_height_m < 0 or not 0.0 <= self.thin_quantile <= 1.0 or \
+                not 0.0 <= self.thin_min_valid <= 1.0:
+            raise ValueError('need thin_max_height_m >= 0 (0: off) and thin_quantile, '
+                             f'thin_min_valid in 0..1, got {self.thin_max_height_m}, '
+                             f'{self.thin_quantile}, {self.thin_min_valid}')
         unknown = set(self.methods) - set(METHODS)
         if unknown or not self.methods:
             raise ValueError(f'methods must be a non-empty subset of {METHODS}, '

@@ -38,6 +38,7 @@ from tlessbot_ros.core.localise.cues import (
 )
 from tlessbot_ros.core.localise.instances import instances_at_scale, watershed_refine
 from tlessbot_ros.core.localise.params import SegmentationParams
+from tlessbot_ros.core.localise.thin import thin_instances
 
 
 @dataclass
@@ -49,6 +50,7 @@ class Segmentation:
         boxes: (N, 4) int32 (x, y, w, h) of instance ``i + 1`` in row ``i``.
         areas: (N,) int64 pixel counts.
         foreground: (H, W) bool union mask before instance separation.
+        thin: (N,) bool; thin parts (:mod:`~tlessbot_ros.core.localise.thin`), kept whole.
         depth_groups: (N,) int32; instances cut from one piece of a depth split share an id
             > 0 (two parts whose seam the depth shows), 0 = not divided by depth.
         cues: per-method bool candidate masks at ``params.cue_scale`` (for inspection).
@@ -62,6 +64,7 @@ class Segmentation:
     areas: np.ndarray
     foreground: np.ndarray
     depth_groups: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    thin: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     cues: dict[str, np.ndarray] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
 
@@ -150,10 +153,12 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     watch.lap('watershed')
     labels, boxes, areas, groups = instances_at_scale(
         foreground, rgb, small, params,
-        surfaces=None if depth_cue is None or not split_by_depth else depth_cue.surfaces)
+        surfaces=None if depth_cue is None or not split_by_depth else depth_cue.surfaces,
+        height_m=None if depth_cue is None else depth_cue.height_m)
+    thin = thin_instances(labels, None if depth_cue is None else depth_cue.height_m, params)
     watch.lap('instances')
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
-                        depth_groups=groups, cues=cues, timings_ms=watch.total())
+                        depth_groups=groups, thin=thin, cues=cues, timings_ms=watch.total())
 
 
 def _background_for(rgb: np.ndarray, background: np.ndarray | BackgroundModel | None,
