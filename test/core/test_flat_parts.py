@@ -1,0 +1,162 @@
+"""Flat and thin parts: the mirror check picks the face that is up; the localiser keeps a part
+4 mm thin whole on a noisy table."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlessbot_ros.core.common import (
+    MeshRenderer,
+    default_rig,
+    depth_to_points,
+    make_transform,
+    rotation_about_axis,
+    rotation_angle_deg,
+)
+from tlessbot_ros.core.localise import SegmentationParams, segment
+from tlessbot_ros.core.localise.thin import is_thin, touching_groups
+from tlessbot_ros.core.pose import PoseParams, Refiner, build_database
+from tlessbot_ros.core.pose.mirror import MirrorCheck, ViewEvidence, flipped_poses, is_flat
+
+SIDE = default_rig()['side']
+TABLE = (np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64),
+         np.array([[0, 1, 2], [0, 2, 3]]))
+
+
+def _boxes(*boxes):
+    """One mesh of axis-aligned boxes ((x0, y0, z0), (x1, y1, z1)) in metres."""
+    trimesh = pytest.importorskip('trimesh')
+    meshes = []
+    for lo, hi in boxes:
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        meshes.append(trimesh.creation.box(extents=hi - lo,
+                                           transform=make_transform(np.eye(3), (lo + hi) / 2)))
+    mesh = trimesh.util.concatenate(meshes)
+    return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+
+
+def _scene(vertices, faces, T_world_object, *, noise_m, seed=0):
+    """Side view of the part on a grey table: (rgb, depth with noise, part mask)."""
+    renderer = MeshRenderer()
+    renderer.add_mesh(*TABLE)
+    renderer.add_mesh(vertices, faces, T_world_object)
+    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
+    rng = np.random.default_rng(seed)
+    part = view.instance == 1
+    rgb = np.clip(rng.normal(120.0, 4.0, part.shape + (3,)), 0, 255)
+    rgb[part] = (70, 100, 190)
+    depth = view.depth_m + rng.normal(0.0, noise_m, part.shape).astype(np.float32)
+    return rgb.astype(np.uint8), np.where(view.depth_m > 0, depth, 0).astype(np.float32), part
+
+
+# ------------------------------------------------------------------------------ mirror check
+@pytest.fixture(scope='module')
+def notched_plate():
+    """A plate 80 x 50 x 4 mm with a 15 mm notch at one corner (no symmetry in the plane: its
+    mirror image has the notch at another corner), its two faces down as stable poses, and
+    its templates."""
+    v, f = _boxes(((0, 0, 0), (0.08, 0.035, 0.004)), ((0, 0.035, 0), (0.065, 0.05, 0.004)))
+    flipped = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi), [0, 0, 0.004])
+    poses = [(np.eye(4), 0.5), (flipped, 0.5)]
+    db = build_database([(1, v, f, poses, None)], intrinsics=SIDE.intrinsics,
+                        T_world_camera=SIDE.T_world_camera)
+    return v, f, db[1]
+
+
+def _evidence(rgb, mask):
+    return [ViewEvidence(rgb, mask, SIDE.intrinsics, np.eye(4))]
+
+
+def test_flipped_poses_keep_the_heights_and_turn_the_face_over():
+    T = make_transform(rotation_about_axis([0, 0, 1], 0.3), [0.01, 0.02, 0.0])
+    corners = np.array([[0, 0, 0], [0.08, 0.05, 0.004]], float)
+    for T_flip in flipped_poses(T, [0.04, 0.025, 0.002], 5):
+        z = (corners @ T_flip[:3, :3].T + T_flip[:3, 3])[:, 2]
+        assert sorted(np.round(z, 9)) == pytest.approx([0.0, 0.004])
+        assert T_flip[2, 2] == pytest.approx(-1.0)
+
+
+def test_mirror_check_picks_the_face_that_is_up(notched_plate):
+    v, f, obj = notched_plate
+    assert is_flat(obj, 0.12)
+    T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(35)),
+                                    [0.01, -0.02, 0.0])
+    rgb, depth, mask = _scene(v, f, T_world_object, noise_m=0.0005)
+    points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
+    T_camera_world = np.linalg.inv(SIDE.T_world_camera)
+    T_true = T_camera_world @ T_world_object
+    check = MirrorCheck(Refiner(PoseParams()))
+    # the depth alone cannot tell: the best flipped fit explains it about as well
+    own, flipped = check.flipped_fits(obj, T_true, points, SIDE.T_world_camera)
+    assert flipped and flipped[0][1] > own - 0.1
+    T_wrong = flipped[0][0]
+    assert rotation_angle_deg(T_wrong[:3, :3], T_true[:3, :3]) > 90
+    # the image can: the right face up is kept, the wrong one is turned over
+    kept, info = check.resolve(obj, T_true, points, SIDE.T_world_camera, _evidence(rgb, mask))
+    assert kept is None and info['agreement'] > info['flip_agreement']
+    turned, info = check.resolve(obj, T_wrong, points, SIDE.T_world_camera,
+                                 _evidence(rgb, mask))
+    assert turned is not None
+    assert rotation_angle_deg(turned[:3, :3], T_true[:3, :3]) < 5.0
+    assert np.linalg.norm(turned[:3, 3] - T_true[:3, 3]) < 0.005
+
+
+def test_mirror_check_leaves_thick_parts_alone(notched_plate):
+    from dataclasses import replace
+    _, _, obj = notched_plate
+    assert MirrorCheck(Refiner(PoseParams())).applies(obj)
+    assert not MirrorCheck(Refiner(PoseParams()), replace(
+        check_params(), flat_ratio=0.01)).applies(obj)
+
+
+def check_params():
+    from tlessbot_ros.core.pose.mirror import MirrorParams
+    return MirrorParams()
+
+
+# ------------------------------------------------------------------------------- thin parts
+def _dumbbell():
+    """Two 3 cm squares joined by a 6 mm bar, 4 mm thick: a distance transform with two
+    cores, one part."""
+    return _boxes(((-0.045, -0.015, 0), (-0.015, 0.015, 0.004)),
+                  ((-0.016, -0.003, 0), (0.016, 0.003, 0.004)),
+                  ((0.015, -0.015, 0), (0.045, 0.015, 0.004)))
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_thin_part_four_mm_above_a_noisy_table_is_found_whole(seed):
+    v, f = _dumbbell()
+    T = make_transform(rotation_about_axis([0, 0, 1], 0.4), [0.02, 0.0, 0.0])
+    rgb, depth, part = _scene(v, f, T, noise_m=0.001, seed=seed)
+    kwargs = dict(depth_m=depth, intrinsics=SIDE.intrinsics,
+                  T_world_camera=SIDE.T_world_camera)
+    found = segment(rgb, **kwargs)
+    assert found.count == 1 and found.thin.tolist() == [True]
+    iou = np.count_nonzero((found.labels == 1) & part) / np.count_nonzero((found.labels > 0)
+                                                                           | part)
+    assert iou > 0.8
+    # without the thin-part rule the outline's two lobes are cut apart
+    split = segment(rgb, params=SegmentationParams(thin_max_height_m=0.0), **kwargs)
+    assert split.count >= 2
+
+
+def test_a_part_taller_than_the_thin_limit_is_not_thin():
+    height = np.full((40, 40), np.nan, np.float32)
+    blob = np.zeros((40, 40), bool)
+    blob[10:30, 10:30] = True
+    height[blob] = 0.02
+    assert not is_thin(blob, height, (0, 0), SegmentationParams())
+    height[blob] = 0.004
+    assert is_thin(blob, height, (0, 0), SegmentationParams())
+    assert not is_thin(blob, None, (0, 0), SegmentationParams())
+    height[blob] = np.nan   # no depth: no opinion
+    assert not is_thin(blob, height, (0, 0), SegmentationParams())
+
+
+def test_touching_top_fragments_group_and_separate_parts_do_not():
+    labels = np.zeros((30, 60), np.uint16)
+    labels[5:20, 5:15] = 1
+    labels[5:20, 16:25] = 2       # 1 px gap: fragments of one part
+    labels[5:20, 40:50] = 3       # table between: another part
+    groups = touching_groups([1, 2, 3], labels)
+    assert sorted(map(sorted, groups)) == [[1, 2], [3]]
