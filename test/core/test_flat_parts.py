@@ -96,7 +96,7 @@ def test_mirror_check_picks_the_face_that_is_up(notched_plate):
     assert kept is None and info['agreement'] > info['flip_agreement']
     turned, info = check.resolve(obj, T_wrong, points, SIDE.T_world_camera,
                                  _evidence(rgb, mask))
-    assert turned is not None
+    assert turned is not None, sorted(info.items())
     assert rotation_angle_deg(turned[:3, :3], T_true[:3, :3]) < 5.0
     assert np.linalg.norm(turned[:3, 3] - T_true[:3, 3]) < 0.005
 

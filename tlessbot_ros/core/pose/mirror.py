@@ -38,6 +38,13 @@ from tlessbot_ros.core.common import (
     rotation_about_axis,
     transform_points,
 )
+from tlessbot_ros.core.pose.silhouette import (
+    agreement,
+    disputed_votes,
+    edge_distance,
+    silhouette,
+    window,
+)
 
 if TYPE_CHECKING:   # this module is light: core.params imports MirrorParams
     from tlessbot_ros.core.pose.database import ObjectTemplates
@@ -55,11 +62,16 @@ class MirrorParams:
             T-LESS part is under 0.2).
         flips: horizontal half-turn axes tried, evenly spaced over 180° (the flipped part's
             yaw then steps by 360°/flips before the ICP).
+        upright: also try the fitted pose turned end for end about the vertical (same face
+            up), judged the same way.
         fitness_margin: a flipped fit competes when its depth fitness is at most this much
             below the winner's.
         candidates: at most this many flipped fits compete (the best by depth fitness).
-        min_gain: a flipped pose wins when its image agreement beats the fitted pose's by
-            more than this (agreement in [0, 1]).
+        min_gain: with few disputed pixels, a turned pose wins when its image agreement beats
+            the fitted pose's by more than this (agreement in [0, 1]).
+        min_disputed_px: pixels where the two silhouettes differ (all views) needed for the
+            colour vote of :func:`~tlessbot_ros.core.pose.silhouette.disputed_votes`.
+        min_share: the turned pose wins that vote with more than this share.
         iou_weight: weight of the label mask's IoU beside the edge agreement.
         edge_px: an outline pixel agrees when a colour edge lies within this many pixels.
         icp_iterations: ICP steps of each flipped start.
@@ -68,9 +80,12 @@ class MirrorParams:
     enabled: bool = True
     flat_ratio: float = 0.12
     flips: int = 8
+    upright: bool = True
     fitness_margin: float = 0.1
-    candidates: int = 2
+    candidates: int = 4
     min_gain: float = 0.04
+    min_disputed_px: int = 20
+    min_share: float = 0.6
     iou_weight: float = 0.5
     edge_px: float = 2.0
     icp_iterations: int = 12
@@ -103,68 +118,23 @@ def is_flat(obj: ObjectTemplates, ratio: float) -> bool:
     return height <= ratio * obj.diameter_m
 
 
-def flipped_poses(T_world_object: np.ndarray, centre_o: np.ndarray, count: int) -> np.ndarray:
+def flipped_poses(T_world_object: np.ndarray, centre_o: np.ndarray, count: int, *,
+                  upright: bool = False) -> np.ndarray:
     """(count, 4, 4) ``T_world_object`` turned by half a turn about ``count`` horizontal axes
     (180°/count apart) through the object point ``centre_o`` (3,) (its bounding-box centre:
-    the turned part occupies the same heights)."""
+    the turned part occupies the same heights); with ``upright`` one more, turned about the
+    vertical (the same face up, end for end: a near-symmetric outline fits the depth both
+    ways too)."""
     T_world_object = np.asarray(T_world_object, np.float64)
     centre_w = transform_points(T_world_object, np.asarray(centre_o, np.float64)[None])[0]
-    out = np.tile(T_world_object, (count, 1, 1))
-    for k, angle in enumerate(np.pi * np.arange(count) / count):
-        R = rotation_about_axis(np.array([np.cos(angle), np.sin(angle), 0.0]), np.pi)
+    axes = [np.array([np.cos(a), np.sin(a), 0.0]) for a in np.pi * np.arange(count) / count]
+    axes += [np.array([0.0, 0.0, 1.0])] if upright else []
+    out = np.tile(T_world_object, (len(axes), 1, 1))
+    for k, axis in enumerate(axes):
+        R = rotation_about_axis(axis, np.pi)
         out[k, :3, :3] = R @ T_world_object[:3, :3]
         out[k, :3, 3] = R @ (T_world_object[:3, 3] - centre_w) + centre_w
     return out
-
-
-def silhouette(points_o: np.ndarray, T_camera_object: np.ndarray,
-               intrinsics: CameraIntrinsics, box: tuple[int, int, int, int],
-               spacing_m: float) -> np.ndarray:
-    """(h, w) bool silhouette of the model samples ``points_o`` (M, 3) at a pose, in the image
-    window ``box`` (x, y, w, h): each sample splatted as a disc as wide as the samples'
-    ``spacing_m``."""
-    import cv2
-
-    x0, y0, w, h = box
-    p = transform_points(T_camera_object, points_o)
-    p = p[p[:, 2] > 1e-3]
-    mask = np.zeros((h, w), np.uint8)
-    if len(p) == 0:
-        return mask.astype(bool)
-    K = intrinsics.K
-    u = np.round(K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2] - x0).astype(int)
-    v = np.round(K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2] - y0).astype(int)
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    mask[v[inside], u[inside]] = 1
-    # a closing fills the gaps between the samples without growing the outline
-    radius = max(1, int(np.ceil(0.6 * spacing_m * K[0, 0] / float(np.median(p[:, 2])))))
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-    pad = radius + 1
-    closed = cv2.morphologyEx(np.pad(mask, pad), cv2.MORPH_CLOSE, kernel)
-    return closed[pad:-pad, pad:-pad].astype(bool)
-
-
-def edge_distance(rgb: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
-    """(h, w) float32 distance (px) to the nearest Canny edge of the colour image in ``box``."""
-    import cv2
-
-    x0, y0, w, h = box
-    grey = cv2.cvtColor(np.ascontiguousarray(rgb[y0:y0 + h, x0:x0 + w]), cv2.COLOR_RGB2GRAY)
-    edges = cv2.Canny(cv2.GaussianBlur(grey, (3, 3), 0), 30, 90)
-    return cv2.distanceTransform((edges == 0).astype(np.uint8), cv2.DIST_L2, 3)
-
-
-def agreement(mask: np.ndarray, distance: np.ndarray, label: np.ndarray, *,
-              edge_px: float, iou_weight: float) -> float:
-    """Image agreement in [0, 1] of a silhouette ``mask`` with a window's edge ``distance``
-    (:func:`edge_distance`) and the localiser's ``label`` mask (same (h, w) shape)."""
-    import cv2
-
-    outline = mask & ~cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    edges = float(np.mean(distance[outline] <= edge_px)) if outline.any() else 0.0
-    union = np.count_nonzero(mask | label)
-    iou = np.count_nonzero(mask & label) / union if union else 0.0
-    return (edges + iou_weight * iou) / (1.0 + iou_weight)
 
 
 class MirrorCheck:
@@ -204,8 +174,8 @@ class MirrorCheck:
         centre = obj.derived('bbox_centre', lambda: (
             obj.model_points.min(axis=0) + obj.model_points.max(axis=0)).astype(np.float64) / 2)
         T_world_object = T_world_camera @ T_camera_object
-        starts = invert_transform(T_world_camera) @ flipped_poses(T_world_object, centre,
-                                                                  p.flips)
+        starts = invert_transform(T_world_camera) @ flipped_poses(
+            T_world_object, centre, p.flips, upright=p.upright)
         refined = self.refiner.icp_batch(scene, obj, starts, iterations=p.icp_iterations)
         fitness = self.refiner.grid_fitness(np.concatenate([T_camera_object[None], refined]),
                                             scene, obj)
@@ -218,47 +188,66 @@ class MirrorCheck:
                 chosen.append((refined[k], float(flipped[k])))
         return own, chosen
 
-    def image_agreement(self, obj: ObjectTemplates, poses: Sequence[np.ndarray],
-                        views: Sequence[ViewEvidence]) -> np.ndarray:
-        """(K,) mean agreement (:func:`agreement`) of K poses over the views, each view read
-        in the window around all the poses' silhouettes."""
+    def image_evidence(self, obj: ObjectTemplates, poses: Sequence[np.ndarray],
+                       views: Sequence[ViewEvidence]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For K poses (the fitted one first): (K,) mean :func:`agreement` over the views,
+        (K,) share of the pixels disputed between pose k and pose 0 that vote for pose k
+        (:func:`disputed_votes`, summed over the views; 0.5 for pose 0 and without any) and
+        (K,) the count of those pixels. Each view is read in the window around all the
+        poses' silhouettes."""
         p = self.params
         points = obj.model_points.astype(np.float64)
         spacing = obj.derived('sample_spacing', lambda: _sample_spacing(points))
         scores = np.zeros(len(poses))
+        votes = np.zeros((len(poses), 2))
         used = 0
         for view in views:
             T = [view.T_view_fit @ np.asarray(T_k, np.float64) for T_k in poses]
-            box = _window(points, T, view.intrinsics, margin_px=8)
+            box = window(points, T, view.intrinsics, margin_px=8)
             if box is None:
                 continue
             x0, y0, w, h = box
             distance = edge_distance(view.rgb, box)
             label = np.asarray(view.mask[y0:y0 + h, x0:x0 + w], bool)
-            for k, T_k in enumerate(T):
-                scores[k] += agreement(silhouette(points, T_k, view.intrinsics, box, spacing),
-                                       distance, label, edge_px=p.edge_px,
+            rgb = view.rgb[y0:y0 + h, x0:x0 + w]
+            masks = [silhouette(points, T_k, view.intrinsics, box, spacing) for T_k in T]
+            for k, mask in enumerate(masks):
+                scores[k] += agreement(mask, distance, label, edge_px=p.edge_px,
                                        iou_weight=p.iou_weight)
+                if k:
+                    votes[k] += disputed_votes(masks[0], mask, rgb)[::-1]
             used += 1
-        return scores / max(used, 1)
+        total = votes.sum(axis=1)
+        share = np.where(total > 0, votes[:, 0] / np.maximum(total, 1), 0.5)
+        return scores / max(used, 1), share, total
 
     def resolve(self, obj: ObjectTemplates, T_camera_object: np.ndarray, points_c: np.ndarray,
                 T_world_camera: np.ndarray, views: Sequence[ViewEvidence]
                 ) -> tuple[np.ndarray | None, dict[str, float]]:
-        """The flipped pose that replaces the fitted one (None: keep it) and what decided:
-        ``{'fitness', 'flip_fitness', 'agreement', 'flip_agreement'}`` (only the depth
-        figures when no flipped fit competes)."""
+        """The turned pose that replaces the fitted one (None: keep it) and what decided:
+        ``{'fitness', 'flip_fitness', 'agreement', 'flip_agreement', 'flip_share',
+        'disputed_px'}`` (only the fitness when no turned fit competes).
+
+        With at least ``min_disputed_px`` pixels disputed between the two silhouettes, the
+        turned pose wins when more than ``min_share`` of them vote for it (and its agreement
+        is not lower by more than ``min_gain``); with fewer, when its agreement is higher by
+        more than ``min_gain``."""
+        p = self.params
         own, flipped = self.flipped_fits(obj, np.asarray(T_camera_object, np.float64),
                                          points_c, np.asarray(T_world_camera, np.float64))
         info = {'fitness': own}
         if not flipped:
             return None, info
-        scores = self.image_agreement(obj, [T_camera_object] + [T for T, _ in flipped], views)
-        k = int(np.argmax(scores[1:]))
-        info.update(flip_fitness=flipped[k][1], agreement=float(scores[0]),
-                    flip_agreement=float(scores[1 + k]))
-        if scores[1 + k] > scores[0] + self.params.min_gain:
-            return flipped[k][0], info
+        scores, share, disputed = self.image_evidence(
+            obj, [T_camera_object] + [T for T, _ in flipped], views)
+        decided = disputed >= p.min_disputed_px
+        gain = np.where(decided, share - p.min_share, scores - scores[0] - p.min_gain)
+        k = 1 + int(np.argmax(gain[1:]))
+        info.update(flip_fitness=flipped[k - 1][1], agreement=float(scores[0]),
+                    flip_agreement=float(scores[k]), flip_share=float(share[k]),
+                    disputed_px=float(disputed[k]))
+        if gain[k] > 0 and (not decided[k] or scores[k] >= scores[0] - p.min_gain):
+            return flipped[k - 1][0], info
         return None, info
 
 
@@ -273,24 +262,3 @@ def _sample_spacing(points: np.ndarray) -> float:
 
     distance, _ = cKDTree(points).query(points, k=2)
     return float(np.median(distance[:, 1]))
-
-
-def _window(points_o: np.ndarray, poses: Sequence[np.ndarray], intrinsics: CameraIntrinsics,
-            *, margin_px: int) -> tuple[int, int, int, int] | None:
-    """(x, y, w, h) image window around the projected samples at every pose (None: outside
-    the image or behind the camera)."""
-    K = intrinsics.K
-    us, vs = [], []
-    for T in poses:
-        p = transform_points(T, points_o)
-        p = p[p[:, 2] > 1e-3]
-        us.append(K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2])
-        vs.append(K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2])
-    u, v = np.concatenate(us), np.concatenate(vs)
-    if len(u) == 0:
-        return None
-    x0 = int(max(0, np.floor(u.min()) - margin_px))
-    y0 = int(max(0, np.floor(v.min()) - margin_px))
-    x1 = int(min(intrinsics.width, np.ceil(u.max()) + margin_px + 1))
-    y1 = int(min(intrinsics.height, np.ceil(v.max()) + margin_px + 1))
-    return (x0, y0, x1 - x0, y1 - y0) if x1 - x0 > 4 and y1 - y0 > 4 else None
