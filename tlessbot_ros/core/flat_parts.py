@@ -61,3 +61,51 @@ def check_mirror(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vi
         detection.pose = replace(detection.pose, T_camera_object=T,
                                  fitness=info['flip_fitness'])
     return info
+
+
+def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+                labels: dict[str, np.ndarray]) -> dict[str, float] | None:
+    """A fitted flat part with a look-alike (one hole more, say) is named by the colour image:
+    both meshes' silhouettes at the fitted pose (look-alikes share their model frame) are
+    compared where they differ (:func:`~tlessbot_ros.core.pose.silhouette.disputed_votes`),
+    and the twin names the part when more than ``mirror.min_share`` of at least
+    ``mirror.min_disputed_px`` such pixels vote for it. Returns what decided (None: not
+    checked)."""
+    from tlessbot_ros.core.common import raycasting_scene
+    from tlessbot_ros.core.pose.silhouette import disputed_votes, mesh_silhouette, window
+
+    detection = job.detection
+    estimator = pipeline.pose_estimator
+    params = pipeline.fit_params.mirror
+    if estimator is None or detection.pose is None or not params.enabled:
+        return None
+    database = estimator.database
+    obj = database[detection.obj_id]
+    twins = [database[i] for i in obj.lookalikes if i in database]
+    if not twins or obj.mesh_faces is None or not MirrorCheck(
+            estimator.refiner, params).applies(obj):
+        return None
+    parts = [obj] + [t for t in twins if t.mesh_faces is not None]
+    scenes = [p.derived('raycasting', lambda p=p: raycasting_scene(p.mesh_vertices,
+                                                                  p.mesh_faces))
+              for p in parts]
+    votes = np.zeros((len(parts), 2))
+    for view in mirror_views(views, labels, detection.instance_id, detection.view):
+        T = view.T_view_fit @ detection.pose.T_camera_object
+        box = window(obj.model_points.astype(np.float64), [T], view.intrinsics, margin_px=8)
+        if box is None:
+            continue
+        x0, y0, w, h = box
+        masks = [mesh_silhouette(scene, T, view.intrinsics, box) for scene in scenes]
+        for k in range(1, len(parts)):
+            votes[k] += disputed_votes(masks[0], masks[k], view.rgb[y0:y0 + h, x0:x0 + w])
+    total = votes.sum(axis=1)
+    share = np.where(total > 0, votes[:, 1] / np.maximum(total, 1), 0.0)
+    k = int(np.argmax(share))
+    info = {'twin': float(parts[k].obj_id), 'twin_share': float(share[k]),
+            'disputed_px': float(total[k])}
+    if k > 0 and total[k] >= params.min_disputed_px and share[k] > params.min_share:
+        detection.obj_id = parts[k].obj_id
+        detection.class_rank = job.candidates.index(detection.obj_id) \
+            if detection.obj_id in job.candidates else len(job.candidates)
+    return info
