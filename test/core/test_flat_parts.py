@@ -87,7 +87,7 @@ def test_mirror_check_picks_the_face_that_is_up(notched_plate):
     T_true = T_camera_world @ T_world_object
     check = MirrorCheck(Refiner(PoseParams()))
     # the depth alone cannot tell: the best flipped fit explains it about as well
-    own, flipped = check.flipped_fits(obj, T_true, points, SIDE.T_world_camera)
+    own, flipped, _ = check.flipped_fits(obj, T_true, points, SIDE.T_world_camera)
     assert flipped and flipped[0][1] > own - 0.1
     T_wrong = flipped[0][0]
     assert rotation_angle_deg(T_wrong[:3, :3], T_true[:3, :3]) > 90

@@ -318,7 +318,8 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'table_plane', 'table_plane_max_angle_deg', 'table_plane_max_offset_m',   # #23
         'fit_rank_below_margin', 'fit_rank_max_candidates', 'fit_rank_min_fitness',
         'fit_rank_coverage_weight',   # #40: recognition by fit
-        'flip_check'])   # #41: flat parts turned over
+        'flip_check',   # #41: flat parts turned over (depth vote)
+        'mirror'])   # #41: flat parts told by the colour image
 
 
 # ------------------------------------------------------------------ the table plane seen in depth

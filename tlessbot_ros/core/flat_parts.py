@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tlessbot_ros.core.pose.mirror import MirrorCheck, ViewEvidence
+from tlessbot_ros.core.pose.mirror import MirrorCheck, ViewEvidence, refine_yaw
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.pipeline import PartJob, PerceptionPipeline, ViewInput
@@ -54,12 +54,16 @@ def check_mirror(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vi
                         sor_neighbors=cloud.sor_neighbors, sor_std_ratio=cloud.sor_std_ratio)
     if not check.applies(obj):
         return None
+    evidence = mirror_views(views, labels, detection.instance_id, detection.view)
     T, info = check.resolve(obj, detection.pose.T_camera_object, job.points, job.T_world_camera,
-                            mirror_views(views, labels, detection.instance_id, detection.view))
+                            evidence)
     if T is not None:
         detection.second = detection.pose
         detection.pose = replace(detection.pose, T_camera_object=T,
                                  fitness=info['flip_fitness'])
+    T, info['yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
+                                    job.T_world_camera, evidence)
+    detection.pose = replace(detection.pose, T_camera_object=T)
     return info
 
 
