@@ -1,4 +1,4 @@
-"""Bar plot and Markdown table of `tlessbot evaluate` reports, side by side (docs/bench/flat-parts.md).
+"""Bar plot and Markdown table of `tlessbot evaluate` reports side by side (docs/bench).
 
     python scripts/plot_flat_parts.py OUT.png LABEL=REPORT.json [LABEL=REPORT.json ...]
 """
@@ -37,7 +37,8 @@ def main(argv: list[str]) -> int:
     ax.set_xticks(x, [m for m, _ in MEASURES])
     ax.axhline(0.9, color='grey', lw=0.8, ls='--')
     ax.axhline(0.2, color='grey', lw=0.8, ls=':')
-    ax.set_ylim(0, 1.15)
+    top = max(f(r) or 0.0 for _, r in reports for _, f in MEASURES)
+    ax.set_ylim(0, max(1.15, 1.1 * top))
     ax.legend(fontsize=8, loc='upper right')
     ax.set_title('Flat parts and T-LESS, same simulator settings (12 two-view frames each)')
     fig.tight_layout()
