@@ -178,8 +178,7 @@ class MirrorCheck:
         if len(scene) >= 10:
             scene = scene[remove_statistical_outliers(scene, neighbors=self._sor[0],
                                                       std_ratio=self._sor[1])]
-        centre = obj.derived('bbox_centre', lambda: (
-            obj.model_points.min(axis=0) + obj.model_points.max(axis=0)).astype(np.float64) / 2)
+        centre = _centre(obj)
         T_world_object = T_world_camera @ T_camera_object
         starts = invert_transform(T_world_camera) @ flipped_poses(
             T_world_object, centre, p.flips, upright=p.upright)
@@ -278,8 +277,7 @@ def refine_yaw(check: MirrorCheck, obj: ObjectTemplates, T_camera_object: np.nda
     if p.yaw_steps < 1:
         return T_camera_object, 0.0
     yaws = p.yaw_step_deg * np.arange(-p.yaw_steps, p.yaw_steps + 1)
-    centre = obj.derived('bbox_centre', lambda: (
-        obj.model_points.min(axis=0) + obj.model_points.max(axis=0)).astype(np.float64) / 2)
+    centre = _centre(obj)
     T_world = np.asarray(T_world_camera, np.float64)
     T_world_object = T_world @ T_camera_object
     c = transform_points(T_world_object, centre[None])[0]
@@ -295,6 +293,12 @@ def refine_yaw(check: MirrorCheck, obj: ObjectTemplates, T_camera_object: np.nda
     if scores[k] > scores[p.yaw_steps] + p.yaw_min_gain:
         return poses[k], float(yaws[k])
     return T_camera_object, 0.0
+
+
+def _centre(obj: ObjectTemplates) -> np.ndarray:
+    """(3,) the centre of the object's bounding box, object frame (cached on the object)."""
+    return obj.derived('bbox_centre', lambda: (
+        obj.model_points.min(axis=0) + obj.model_points.max(axis=0)).astype(np.float64) / 2)
 
 
 def _differ(T_a: np.ndarray, T_b: np.ndarray) -> bool:
