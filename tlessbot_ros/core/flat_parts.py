@@ -15,7 +15,8 @@ import numpy as np
 from tlessbot_ros.core.pose.mirror import MirrorCheck, ViewEvidence, refine_yaw
 
 if TYPE_CHECKING:
-    from tlessbot_ros.core.pipeline import PartJob, PerceptionPipeline, ViewInput
+    from tlessbot_ros.core.frame import PartJob, ViewInput
+    from tlessbot_ros.core.pipeline import PerceptionPipeline
 
 
 def mirror_views(views: dict[str, ViewInput], labels: dict[str, np.ndarray], instance: int,
