@@ -53,31 +53,27 @@ if TYPE_CHECKING:   # this module is light: core.params imports MirrorParams
 
 @dataclass(frozen=True)
 class MirrorParams:
-    """Settings of :class:`MirrorCheck`.
+    """Settings of :class:`MirrorCheck` (the generated plates rest 0.03-0.06 of their
+    diameter high, a 20 mm block 0.34; no T-LESS part under 0.26, so none is checked).
 
     Attributes:
-        enabled: run the check at all.
-        flat_ratio: a part is flat when its most probable resting height is at most this
-            share of its diameter (the generated plates 0.03-0.06, a 20 mm block 0.34; no
-            T-LESS part is under 0.2).
-        flips: horizontal half-turn axes tried, evenly spaced over 180° (the flipped part's
-            yaw then steps by 360°/flips before the ICP).
-        upright: also try the fitted pose turned end for end about the vertical (same face
-            up), judged the same way.
-        fitness_margin: a flipped fit competes when its depth fitness is at most this much
-            below the winner's.
-        candidates: at most this many flipped fits compete (the best by depth fitness).
-        min_gain: with few disputed pixels, a turned pose wins when its image agreement beats
-            the fitted pose's by more than this (agreement in [0, 1]).
-        min_disputed_px: pixels where the two silhouettes differ (all views) needed for the
-            colour vote of :func:`~tlessbot_ros.core.pose.silhouette.disputed_votes`.
-        min_share: the turned pose wins that vote with more than this share.
-        iou_weight: weight of the label mask's IoU beside the edge agreement.
-        edge_px: an outline pixel agrees when a colour edge lies within this many pixels.
-        icp_iterations: ICP steps of each flipped start.
-        yaw_steps, yaw_step_deg: then the yaw is checked on the image, this many steps of
-            this many degrees either way (:func:`refine_yaw`; 0 steps: not).
-        yaw_min_gain: a turned yaw is kept when its image agreement gains more than this.
+        enabled: check flat parts' face, yaw and look-alike on the colour image.
+        flat_ratio: a part is flat when it rests at most this share of its diameter high (0..1).
+        flips: horizontal half-turn axes tried, spread over 180° (>= 1).
+        upright: also try the pose turned end for end about the vertical.
+        fitness_margin: a turned fit competes when its depth fitness is at most this much lower
+            (0..1).
+        candidates: turned fits that compete at most, best by depth fitness first (>= 1).
+        min_gain: with few disputed pixels, a turned pose needs this much more edge/label
+            agreement (0..1).
+        min_disputed_px: pixels where two silhouettes differ needed for the colour vote (>= 1).
+        min_share: a turned pose wins the colour vote with more than this share (0.5..1).
+        iou_weight: weight of the label mask's IoU beside the edge agreement (>= 0).
+        edge_px: an outline pixel agrees when a colour edge is this near, px (> 0).
+        icp_iterations: ICP steps of each turned start (>= 1).
+        yaw_steps, yaw_step_deg: the yaw checked on the image this many steps of this many deg
+            either way (0 steps: off).
+        yaw_min_gain: a new yaw is kept when its agreement gains more than this (0..1).
     """
 
     enabled: bool = True
@@ -97,8 +93,13 @@ class MirrorParams:
     yaw_min_gain: float = 0.02
 
     def __post_init__(self) -> None:
-        if self.flips < 1 or self.candidates < 1 or self.icp_iterations < 1:
-            raise ValueError('flips, candidates and icp_iterations must be >= 1')
+        if self.flips < 1 or self.candidates < 1 or self.icp_iterations < 1 or \
+                self.min_disputed_px < 1 or self.yaw_steps < 0:
+            raise ValueError('flips, candidates, icp_iterations and min_disputed_px must be '
+                             '>= 1 and yaw_steps >= 0')
+        if not 0.5 <= self.min_share <= 1.0 or self.iou_weight < 0 or self.yaw_step_deg <= 0:
+            raise ValueError(f'min_share must be in 0.5..1, iou_weight >= 0, yaw_step_deg > 0; '
+                             f'got {self.min_share}, {self.iou_weight}, {self.yaw_step_deg}')
         if not 0.0 <= self.flat_ratio <= 1.0 or self.edge_px <= 0:
             raise ValueError('flat_ratio must be in [0, 1] and edge_px positive')
 
