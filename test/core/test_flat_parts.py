@@ -160,3 +160,18 @@ def test_touching_top_fragments_group_and_separate_parts_do_not():
     labels[5:20, 40:50] = 3       # table between: another part
     groups = touching_groups([1, 2, 3], labels)
     assert sorted(map(sorted, groups)) == [[1, 2], [3]]
+
+
+def test_views_without_colour_give_no_evidence():
+    # the pose node gets depth and classes only: the image checks then have nothing to read
+    from tlessbot_ros.core.flat_parts import mirror_views
+    from tlessbot_ros.core.frame import ViewInput
+
+    labels = {'side': np.ones((4, 4), np.uint16)}
+    blind = {'side': ViewInput(None, np.zeros((4, 4), np.float32), SIDE.intrinsics,
+                               SIDE.T_world_camera)}
+    assert mirror_views(blind, labels, 1, 'side') == []
+    seeing = {'side': ViewInput(np.zeros((4, 4, 3), np.uint8), None, SIDE.intrinsics,
+                                SIDE.T_world_camera)}
+    (evidence,) = mirror_views(seeing, labels, 1, 'side')
+    assert evidence.mask.all() and np.allclose(evidence.T_view_fit, np.eye(4))

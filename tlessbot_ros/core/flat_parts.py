@@ -22,11 +22,12 @@ if TYPE_CHECKING:
 def mirror_views(views: dict[str, ViewInput], labels: dict[str, np.ndarray], instance: int,
                  fit_view: str) -> list[ViewEvidence]:
     """The :class:`ViewEvidence` of part ``instance`` fitted in ``fit_view``: that view, and
-    every other view with colour, the part's label and rig extrinsics for both."""
+    every other view with colour, the part's label and rig extrinsics for both (views without
+    colour give none)."""
     out = []
     T_fit = views[fit_view].T_world_camera
     for name, view in views.items():
-        if name not in labels:
+        if name not in labels or view.rgb is None:   # no colour (the pose node): no evidence
             continue
         if name == fit_view:
             T_view_fit = np.eye(4)
@@ -56,6 +57,8 @@ def check_mirror(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vi
     if not check.applies(obj):
         return None
     evidence = mirror_views(views, labels, detection.instance_id, detection.view)
+    if not evidence:
+        return None
     T, info = check.resolve(obj, detection.pose.T_camera_object, job.points, job.T_world_camera,
                             evidence)
     if T is not None:
