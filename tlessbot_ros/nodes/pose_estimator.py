@@ -36,7 +36,9 @@ localiser publishes on /localiser/rig once it refines the rig from the scene rep
 (``ros2 param set``, from the next frame; the worker processes fit their next part with new
 ``pose.*`` and FitParams; ``workers.count`` starts or stops workers) but ``templates_path``
 and ``parts_path`` (their objects name the pose topics), ``rig.cameras``, ``rig_source``,
-``input_qos``, ``input_depth``, ``sync.worker_thread``, ``sync.executor``: read-only.
+``input_qos``, ``input_depth``, ``sync.worker_thread``, ``sync.executor``, ``colour_input``
+(with it also /CAMERA/color/image_raw: flat parts checked on the colour image, FitParams
+``mirror.*``): read-only.
 """
 from __future__ import annotations
 
@@ -51,6 +53,7 @@ from tlessbot_ros.conversions import (
     camera_info_to_intrinsics,
     depth_image_to_metres,
     image_to_array,
+    image_to_rgb,
     stamp_to_ns,
     transform_to_pose_stamped,
 )
@@ -98,6 +101,9 @@ class PoseEstimatorNode(StageNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('pose_estimator', after_localiser=True, **kwargs)
         parameters = self.parameters
+        self.colour_input = parameters.read_only('colour_input', False, (
+            'Also subscribe to the colour images: flat parts are then checked on them '
+            '(face up, yaw, look-alike; mirror.*)'))
         parts = declare_parts(self)   # PartsFolderError: one line, exit 1
         path = parameters.read_only(
             'templates_path', str(parts.templates if parts else DEFAULT_TEMPLATES), (
@@ -133,7 +139,8 @@ class PoseEstimatorNode(StageNode):
         self._templates_path = path
         self.rig_source = follow_observed_rig(self)
         self._create_publishers()
-        inputs = camera_inputs(('depth', 'info'), self.input_source)
+        inputs = camera_inputs(('color', 'depth', 'info') if self.colour_input else
+                               ('depth', 'info'), self.input_source)
         self.start_when_ready(self._warm_up, {**inputs, 'classes': (IMAGE, classes_topic)})
 
     def _create_publishers(self) -> None:
@@ -203,7 +210,10 @@ class PoseEstimatorNode(StageNode):
                 class_image.shape[:2] != depth.shape:
             raise ValueError(f'{camera}: depth {depth.shape}, classes {class_image.shape} '
                              f'and CameraInfo {intrinsics.height}x{intrinsics.width} differ')
-        view = ViewInput(rgb=None, depth_m=depth, intrinsics=intrinsics,
+        rgb = image_to_rgb(msgs['color']) if 'color' in msgs else None
+        if rgb is not None and rgb.shape[:2] != depth.shape:
+            raise ValueError(f'{camera}: colour {rgb.shape[:2]} and depth {depth.shape} differ')
+        view = ViewInput(rgb=rgb, depth_m=depth, intrinsics=intrinsics,
                          T_world_camera=self.camera_pose(camera))
         return (view, *decode_candidates(class_image))
 
