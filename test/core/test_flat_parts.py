@@ -14,7 +14,7 @@ from tlessbot_ros.core.common import (
     rotation_angle_deg,
 )
 from tlessbot_ros.core.localise import SegmentationParams, segment
-from tlessbot_ros.core.localise.thin import is_thin, touching_groups
+from tlessbot_ros.core.localise.thin import is_thin
 from tlessbot_ros.core.pose import PoseParams, Refiner, build_database
 from tlessbot_ros.core.pose.mirror import MirrorCheck, ViewEvidence, flipped_poses, is_flat
 
@@ -151,15 +151,6 @@ def test_a_part_taller_than_the_thin_limit_is_not_thin():
     assert not is_thin(blob, None, (0, 0), SegmentationParams())
     height[blob] = np.nan   # no depth: no opinion
     assert not is_thin(blob, height, (0, 0), SegmentationParams())
-
-
-def test_touching_top_fragments_group_and_separate_parts_do_not():
-    labels = np.zeros((30, 60), np.uint16)
-    labels[5:20, 5:15] = 1
-    labels[5:20, 16:25] = 2       # 1 px gap: fragments of one part
-    labels[5:20, 40:50] = 3       # table between: another part
-    groups = touching_groups([1, 2, 3], labels)
-    assert sorted(map(sorted, groups)) == [[1, 2], [3]]
 
 
 def test_views_without_colour_give_no_evidence():

@@ -17,7 +17,6 @@ from tlessbot_ros.core.localise.fusion_result import (
 )
 from tlessbot_ros.core.localise.instances import fill_from_nearest
 from tlessbot_ros.core.localise.segmentation import Segmentation
-from tlessbot_ros.core.localise.thin import touching_groups
 
 
 # --------------------------------------------------------------------------- calibrated
@@ -224,12 +223,13 @@ def _depth_pieces_of_blob(blob: np.ndarray, own: np.ndarray, depth_groups: np.nd
 
 def _join_thin_fragments(blob: np.ndarray, side: Segmentation, window: tuple[slice, slice],
                          owners: list[int], top_labels: np.ndarray) -> bool:
-    """A side blob of thin parts alone whose top-view owners are the touching fragments of
-    one part: those fragments take the first owner's id in the top labels (True)."""
+    """A side blob that the side segmentation keeps as one thin part: the top view, farther
+    away, breaks a thin part up where the side view does not (a dark plate on dark squares),
+    so its several owners are fragments of that part and take the first owner's id in the top
+    labels (True)."""
     own = np.unique(side.labels[window][blob])
     own = own[(own > 0) & (own <= len(side.thin))]
-    if own.size == 0 or not side.thin[own - 1].all() or \
-            len(touching_groups(owners, top_labels)) > 1:
+    if own.size != 1 or not side.thin[own - 1].all():
         return False
     top_labels[np.isin(top_labels, owners[1:])] = owners[0]
     return True

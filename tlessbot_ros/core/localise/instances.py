@@ -153,10 +153,10 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
         x0, y0 = max(x - 1, 0), max(y - 1, 0)
         x1, y1 = min(x + w + 1, W), min(y + h + 1, H)
         blob = comp[y0:y1, x0:x1] == i
-        if is_thin(blob, height_m, (y0, x0), params):
-            continue   # a thin part: its holes and lobes are no seams, its depth too noisy
+        # a thin part: its holes and lobes are no seams, its depth too noisy; colour still is
+        thin = is_thin(blob, height_m, (y0, x0), params)
         crop = None if rgb is None else rgb[y0:y1, x0:x1]
-        by_depth = [blob] if surfaces is None else \
+        by_depth = [blob] if surfaces is None or thin else \
             _depth_pieces(blob, Surfaces(*(a[y0:y1, x0:x1] for a in (
                 surfaces.solid, surfaces.table, surfaces.depth_m))), crop, params)
         found = []
@@ -168,7 +168,8 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
             by_colour = [depth_piece] if crop is None or params.colour_split_delta <= 0 else \
                 _colour_pieces(depth_piece, crop, params)
             for piece_mask in by_colour:
-                parts = _split_at_distance_cores(piece_mask, crop, params)
+                parts = piece_mask.astype(np.int32) if thin else \
+                    _split_at_distance_cores(piece_mask, crop, params)
                 found += [(parts == k, group) for k in range(1, int(parts.max()) + 1)]
         if len(found) > 1:
             pieces[int(i)] = (y0, x0, [(f, g) for f, g in found

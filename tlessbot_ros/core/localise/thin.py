@@ -7,7 +7,9 @@ distance transform of an outline with holes, slots and lobes has several cores. 
 of :func:`~tlessbot_ros.core.localise.split_touching` would cut one thin part into fragments
 (on simulated flat parts: 17 fragments in 6 frames, each a false positive and a part missed).
 :func:`is_thin` marks such blobs, which are then kept whole: their outline comes from the
-colour cues, confirmed by the few millimetres the depth does see.
+colour cues, confirmed by the few millimetres the depth does see. The two-view fusion keeps a
+side blob that is one thin part whole too (the top camera, farther away, breaks thin parts
+up more often than it separates them).
 """
 from __future__ import annotations
 
@@ -55,29 +57,3 @@ def thin_instances(labels: np.ndarray, height_m: np.ndarray | None,
                        interpolation=cv2.INTER_NEAREST)
     return np.array([is_thin(small == k, height_m, (0, 0), params) for k in range(1, n + 1)])
 
-
-def touching_groups(owners: list[int], top_labels: np.ndarray, *, gap_px: int = 2
-                    ) -> list[list[int]]:
-    """``owners`` (top-view instance ids) grouped by contact in the top image: two ids whose
-    blobs come within ``gap_px`` pixels of each other are one group (the fragments of one
-    thin part; two parts have table between them, seen from above)."""
-    import cv2
-
-    parent = {k: k for k in owners}
-
-    def root(k: int) -> int:
-        while parent[k] != k:
-            k = parent[k]
-        return k
-
-    kernel = np.ones((2 * gap_px + 1, 2 * gap_px + 1), np.uint8)
-    for k in owners:
-        grown = cv2.dilate((top_labels == k).view(np.uint8), kernel).astype(bool)
-        for j in np.unique(top_labels[grown]):
-            j = int(j)
-            if j in parent and root(j) != root(k):
-                parent[root(j)] = root(k)
-    groups: dict[int, list[int]] = {}
-    for k in owners:
-        groups.setdefault(root(k), []).append(k)
-    return list(groups.values())
