@@ -19,6 +19,17 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.pipeline import PerceptionPipeline
 
 
+def check_fitted_part(pipeline: PerceptionPipeline, job: PartJob,
+                      views: dict[str, ViewInput], labels: dict[str, np.ndarray]) -> None:
+    """The checks of a fitted part that read every view (so the pipeline runs them, not a
+    worker): the mirror check (:func:`check_mirror`), the depth's look-alike check
+    (:meth:`PerceptionPipeline.check_lookalike`), then the twins on the image
+    (:func:`check_twins`)."""
+    check_mirror(pipeline, job, views, labels)
+    pipeline.check_lookalike(job)
+    check_twins(pipeline, job, views, labels)
+
+
 def mirror_views(views: dict[str, ViewInput], labels: dict[str, np.ndarray], instance: int,
                  fit_view: str) -> list[ViewEvidence]:
     """The :class:`ViewEvidence` of part ``instance`` fitted in ``fit_view``: that view, and

@@ -52,7 +52,7 @@ from tlessbot_ros.core.common import (
     plane_of_frame,
     transform_points,
 )
-from tlessbot_ros.core.flat_parts import check_mirror, check_twins
+from tlessbot_ros.core.flat_parts import check_fitted_part
 from tlessbot_ros.core.fragments import FragmentFilter
 from tlessbot_ros.core.frame import (
     ClassGuess,
@@ -398,9 +398,7 @@ class PerceptionPipeline:
 
         def fitted(job: PartJob) -> None:
             # here, not in fit_part: the checks read every view, which a worker does not have
-            check_mirror(self, job, views, labels)
-            self.check_lookalike(job)
-            check_twins(self, job, views, labels)
+            check_fitted_part(self, job, views, labels)
             arbiter.fitted(job.detection, *self._fitted_centre(job))
 
         if fitter is None:
