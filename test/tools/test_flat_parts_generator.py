@@ -44,3 +44,8 @@ def test_main_writes_stl_in_millimetres(tmp_path, monkeypatch):
                                          np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])))
     assert flat_parts.main([str(tmp_path), '--ids', '6']) == 0
     assert (tmp_path / 'obj_06.stl').stat().st_size > 0
+    # no symmetry listed: a scorer must not take a plate turned over for the same pose
+    import json
+    info = json.loads((tmp_path / 'models_info.json').read_text())['6']
+    assert info['symmetries_discrete'] == [] and info['diameter'] == pytest.approx(
+        np.hypot(60, 40), abs=0.01)

@@ -131,16 +131,30 @@ def _clean(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def write_parts(out: Path, ids: list[int] | None = None) -> list[Path]:
-    """Write ``obj_NN.stl`` (mm) for the parts ``ids`` (default all) into ``out``."""
+    """Write ``obj_NN.stl`` (mm) for the parts ``ids`` (default all) into ``out``, and a BOP
+    ``models_info.json`` that lists no symmetry: none of them has one (a plate turned over
+    shows its mirror outline), though a detector that tolerates small features may call a
+    thin plate 2-fold about its in-plane axes and score a turned-over pose as right."""
+    import json
+
     import trimesh
 
     out.mkdir(parents=True, exist_ok=True)
-    paths = []
+    paths, info = [], {}
     for obj_id in ids or sorted(PARTS):
         vertices, faces = part_mesh(*PARTS[obj_id])
         path = out / f'obj_{obj_id:02d}.stl'
-        trimesh.Trimesh(vertices, faces, process=True).export(path)
+        mesh = trimesh.Trimesh(vertices, faces, process=True)
+        mesh.export(path)
         paths.append(path)
+        hull = mesh.convex_hull.vertices
+        lo, size = mesh.bounds[0], mesh.extents
+        info[str(obj_id)] = {
+            'diameter': float(np.max(np.linalg.norm(hull[:, None] - hull[None], axis=-1))),
+            'min_x': float(lo[0]), 'min_y': float(lo[1]), 'min_z': float(lo[2]),
+            'size_x': float(size[0]), 'size_y': float(size[1]), 'size_z': float(size[2]),
+            'symmetries_discrete': []}
+    (out / 'models_info.json').write_text(json.dumps(info, indent=2) + '\n')
     return paths
 
 
