@@ -10,17 +10,22 @@ jaw on the other side.
 
 :class:`MirrorCheck` runs after the depth fit of a flat part (resting height at most
 ``flat_ratio`` of its diameter): the fitted pose turned over about ``flips`` horizontal axes
-through the part's centre is fitted to the depth again (a short ICP from each start, bounded:
-a fixed count of starts, not a time budget); the flipped fits that explain the depth about as
-well as the winner (within ``fitness_margin``) compete with it on the image: each pose's
-silhouette, projected into every view that sees the part, is compared with
+through the part's centre, and turned end for end about the vertical, is fitted to the depth
+again (a short ICP from each start, bounded: a fixed count of starts, not a time budget); the
+turned fits that explain the depth about as well as the winner (within ``fitness_margin``)
+compete with it on the image. Each pose's silhouette is projected into every view that sees
+the part, and (:mod:`~tlessbot_ros.core.pose.silhouette`)
 
-* the colour image's edges: the share of the silhouette's outline (holes included) within a
-  few pixels of a Canny edge (Canny, PAMI 1986; a chamfer match as in Barrow et al., IJCAI
-  1977), and
-* the localiser's label mask of the part (intersection over union),
+* the pixels where two silhouettes differ vote by their colour: like the part (the pixels both
+  cover) or like its surroundings (a ring just outside both), for the silhouette that calls
+  them so; a turned pose wins with more than ``min_share`` of at least ``min_disputed_px``;
+* with fewer disputed pixels, the silhouettes' agreement with the colour image's edges (the
+  share of the outline, holes included, within a few pixels of a Canny edge: Canny, PAMI
+  1986; a one-sided chamfer match as in Barrow et al., IJCAI 1977) and with the localiser's
+  label mask decides, by ``min_gain``.
 
-and a flipped pose replaces the winner only when it agrees better by ``min_gain``.
+The winner gets the fitted pose's polish. :func:`refine_yaw` then checks the yaw on the image
+(the depth of a part 3 mm thin holds it only by its few edge points).
 
 Poses are ``T_camera_object`` (4, 4) float64, metres, optical frame.
 """
