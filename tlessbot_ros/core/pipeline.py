@@ -397,8 +397,7 @@ class PerceptionPipeline:
         arbiter = self._fragment_filter(jobs, done)
 
         def fitted(job: PartJob) -> None:
-            # here, not in fit_part: the checks read every view, which a worker does not have
-            check_fitted_part(self, job, views, labels)
+            check_fitted_part(self, job, views, labels)   # every view: not in a worker
             arbiter.fitted(job.detection, *self._fitted_centre(job))
 
         if fitter is None:
