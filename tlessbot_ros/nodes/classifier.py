@@ -64,8 +64,8 @@ class ClassifierNode(StageNode):
         parts = declare_parts(self)   # PartsFolderError: one line, exit 1
         self.model = self.parameters.group(   # ModelFileError: one line, exit 1
             {'model_path': (str(parts.classifier if parts else DEFAULT_CLASSIFIER),
-                            "Classifier .npz (tlessbot train); default: the parts folder's, "
-                            'else the packaged one')},
+                            "Classifier .npz; default: the parts folder's, else the "
+                            'packaged one')},
             build=lambda values: load_classifier(values['model_path']),
             warm=self._warm_model, apply=self._apply_model)
         path = self.get_parameter('model_path').value
