@@ -47,6 +47,7 @@ setup(
         'pyyaml>=6',
         'tqdm>=4.60',
         'matplotlib>=3.7',
+        'scikit-image>=0.22',  # tools/support/part_generator.py: marching cubes
     ],
     extras_require={
         'realsense': ['pyrealsense2>=2.54'],

@@ -24,6 +24,7 @@ THIRD_PARTY = {
     'yaml': ('python3-yaml', 'pyyaml'),
     'tqdm': ('python3-tqdm', 'tqdm'),
     'matplotlib': ('python3-matplotlib', 'matplotlib'),
+    'skimage': ('python3-skimage', 'scikit-image'),
     'rosbags': (None, 'rosbags'),
     'mcap': (None, 'mcap'),
     'zstandard': (None, 'zstandard'),
