@@ -1,5 +1,5 @@
-"""The generated packages work from rclpy in a fresh process with no exported paths: a
-Detection3DArray and a TFMessage go through DDS with Jazzy's type hashes, and GetObjects answers."""
+"""The generated packages work from rclpy in a fresh process with no exported paths:
+a Detection3DArray and a TFMessage go through DDS with Jazzy's type hashes, GetObjects answers."""
 import os
 import subprocess
 import sys
@@ -8,7 +8,7 @@ import pytest
 
 pytestmark = pytest.mark.ros
 
-SCRIPT = r'''
+SCRIPT = r"""
 import time
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -40,7 +40,7 @@ print('answer', future.result().message if future.done() else None)
 for topic in ('/check/detections', '/check/tf'):
     info = node.get_publishers_info_by_topic(topic)[0]
     print('hash', info.topic_type, str(info.topic_type_hash))
-'''
+"""
 
 
 def test_generated_packages_from_rclpy():

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 REPO = Path(__file__).resolve().parents[2]
 PREFIX = Path(sys.prefix)
