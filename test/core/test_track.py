@@ -110,3 +110,40 @@ def test_nearest_equivalent_angle():
 def test_params_reject_non_positive(field):
     with pytest.raises(ValueError, match=field):
         TrackParams(**{field: 0.0})
+
+
+class Item:
+    def __init__(self, instance):
+        self.instance, self.part = instance, instance.rsplit('_', 1)[0]
+
+
+def test_request_takes_the_next_frame_after_it():
+    import threading
+
+    from tlessbot_ros.core.track import RequestBook
+    book = RequestBook()
+    book.on_frame(1, [Item('obj_05_1')])   # before the request: not its answer
+    request = book.open(parts=['obj_05'])
+    waiter = threading.Thread(target=request.wait, args=(10.0,))
+    waiter.start()
+    assert book.on_frame(2, [Item('obj_05_1'), Item('obj_07_1')]) == 1
+    waiter.join()
+    assert request.done and request.stamp_ns == 2
+    assert [i.instance for i in request.answer] == ['obj_05_1']
+    assert book.pending() == 0
+
+
+def test_request_agreement_of_frames_and_timeout():
+    from tlessbot_ros.core.track import RequestBook
+    book = RequestBook()
+    request = book.open(frames=3)
+    book.on_frame(1, [Item('obj_05_1'), Item('obj_07_1')])
+    book.on_frame(2, [Item('obj_05_1'), Item('obj_07_1'), Item('obj_09_1')])
+    assert not request.wait(0.0)
+    book.on_frame(3, [Item('obj_05_1'), Item('obj_09_1')])
+    assert request.wait(0.0) and [i.instance for i in request.answer] == ['obj_05_1']
+    late = book.open()
+    assert not late.wait(0.01)
+    assert 'no frame completed within 0.0 s' in book.timeout_reason(0.01)
+    with pytest.raises(ValueError, match='frames'):
+        book.open(frames=1000)

@@ -10,5 +10,7 @@ from tlessbot_ros.core.track.instances import (
     TrackParams,
     nearest_equivalent,
 )
+from tlessbot_ros.core.track.requests import Request, RequestBook
 
-__all__ = ['InstanceTracker', 'Observation', 'TrackParams', 'TrackedPart', 'nearest_equivalent']
+__all__ = ['InstanceTracker', 'Observation', 'Request', 'RequestBook', 'TrackParams',
+           'TrackedPart', 'nearest_equivalent']
