@@ -54,6 +54,9 @@ def make_executor(kind: str, context: Any) -> Any:
     if kind == 'single_threaded':
         from rclpy.executors import SingleThreadedExecutor
         return SingleThreadedExecutor(context=context)
+    if kind == 'multi_threaded':   # nodes whose service calls wait (nodes/objects.py)
+        from rclpy.executors import MultiThreadedExecutor
+        return MultiThreadedExecutor(num_threads=4, context=context)
     raise ValueError(f'executor must be one of {list(EXECUTORS)}, got {kind!r}')
 
 
