@@ -12,7 +12,7 @@ from setuptools import find_packages, setup
 package_name = 'tlessbot_ros'
 
 # Node executables: `ros2 run tlessbot_ros <name>`. Each module is tlessbot_ros.nodes.<name>.
-NODE_NAMES = ['camera_driver', 'localiser', 'classifier', 'pose_estimator']
+NODE_NAMES = ['camera_driver', 'localiser', 'classifier', 'pose_estimator', 'objects']
 
 
 def _node_entry_points():

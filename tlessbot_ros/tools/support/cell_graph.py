@@ -16,11 +16,17 @@ from tlessbot_ros.errors import TlessbotError
 
 PERCEPTION_NODES = ('localiser', 'classifier', 'pose_estimator')
 CAMERA_DRIVER = 'camera_driver'
-NODE_EXECUTABLES = (CAMERA_DRIVER, *PERCEPTION_NODES)
+# The arm's side: instance names, TF, /objects/detections, GetObjects (nodes/objects.py).
+ARM_NODE = 'objects'
+NODE_EXECUTABLES = (CAMERA_DRIVER, *PERCEPTION_NODES, ARM_NODE)
 PARTS_NODES = ('classifier', 'pose_estimator')   # the nodes that read ``parts_path``
 TOOL_EXECUTABLE = 'tlessbot'
 # A stage node that died is started again after this long (ros2 launch's respawn_delay).
 RESPAWN_DELAY_S = 2.0
+# Who may discover the graph (ROS_AUTOMATIC_DISCOVERY_RANGE): this host only unless the launch
+# argument, the cell file's ``discovery_range`` or the environment asks for more.
+DISCOVERY_RANGES = ('LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT', 'OFF')
+DISCOVERY_VARIABLE = 'ROS_AUTOMATIC_DISCOVERY_RANGE'
 # How long the replay waits for the bag's subscribers after the graph is ready (s).
 REPLAY_SUBSCRIBER_WAIT_S = 10
 
@@ -112,3 +118,23 @@ def _replay_process(bag: str, rate: float, loop: bool, stages: list[str]) -> Gra
     if loop:
         arguments.append('--loop')
     return GraphProcess('replay', TOOL_EXECUTABLE, arguments=tuple(arguments))
+
+
+def discovery_range(*, argument: str | None, config_value: object = None,
+                    environ: dict[str, str] | None = None) -> str:
+    """The graph's ROS_AUTOMATIC_DISCOVERY_RANGE: the launch argument, else the cell file's
+    ``discovery_range``, else the environment's, else 'LOCALHOST' (private to this host).
+
+    Raises:
+        TlessbotError: a value outside :data:`DISCOVERY_RANGES`.
+    """
+    for source, value in (('the launch argument', argument),
+                          ('discovery_range in the cell file', config_value),
+                          (DISCOVERY_VARIABLE, (environ or {}).get(DISCOVERY_VARIABLE))):
+        if value:
+            chosen = str(value).upper()
+            if chosen not in DISCOVERY_RANGES:
+                raise TlessbotError(f'{source} must be one of {", ".join(DISCOVERY_RANGES)} '
+                                    f'(any case), got {value!r}')
+            return chosen
+    return 'LOCALHOST'
