@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import threading
 import time
 
 from tlessbot_ros.errors import TlessbotError
@@ -22,7 +23,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--frames', type=int, default=1,
                         help='frames that must agree before the answer (default 1)')
     parser.add_argument('--timeout', type=float, default=5.0, help='seconds per request')
-    parser.add_argument('--count', type=int, default=1, help='requests to make (default 1)')
+    parser.add_argument('--count', type=int, default=1,
+                        help='requests to make (default 1; 0: until --stop-after-failures)')
+    parser.add_argument('--stop-after-failures', type=int, default=0, metavar='N',
+                        help='stop after N unanswered requests in a row once one was '
+                             'answered (default 0: never)')
     parser.add_argument('--interval', type=float, default=0.0,
                         help='seconds between the requests (default 0)')
     parser.add_argument('--json', action='store_true', help='one JSON object per answer')
@@ -62,29 +67,40 @@ def run(args: argparse.Namespace) -> int:
 
     from tlessbot_ros.tools.support.arm_client import ArmClient
 
-    if args.count < 1 or args.timeout <= 0:
-        raise TlessbotError('--count must be >= 1 and --timeout > 0')
+    if args.count < 0 or args.timeout <= 0 or (args.count == 0 and not args.stop_after_failures):
+        raise TlessbotError('--count must be >= 0 (0 needs --stop-after-failures) and '
+                            '--timeout > 0')
     rclpy.init()
     node = rclpy.create_node('tlessbot_objects')
     executor = SingleThreadedExecutor()
     executor.add_node(node)
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+    spinner = threading.Thread(target=spin, daemon=True)
+    spinner.start()
     try:
-        import threading
-        threading.Thread(target=executor.spin, daemon=True).start()
         client = ArmClient(node)
         if not client.wait_for_service(args.wait_for_service):
             raise TlessbotError('no /objects/get_objects service: is the objects node running?')
-        failures = 0
-        for k in range(args.count):
+        answered = in_a_row = k = 0
+        while args.count == 0 or k < args.count:
+            k += 1
             answer = client.request(parts=args.parts, frame_id=args.frame, frames=args.frames,
                                     timeout_s=args.timeout)
-            failures += not answer.success
+            answered += answer.success
+            in_a_row = 0 if answer.success else in_a_row + 1
             print(json.dumps(answer_record(answer)) if args.json else format_answer(answer),
                   flush=True)
-            if k + 1 < args.count:
-                time.sleep(args.interval)
-        return 1 if failures == args.count else 0
+            if answered and args.stop_after_failures and in_a_row >= args.stop_after_failures:
+                break
+            time.sleep(args.interval)
+        return 0 if answered else 1
     finally:
+        stop.set()
+        spinner.join()
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.try_shutdown()
