@@ -66,6 +66,9 @@ def launch_arguments() -> list[DeclareLaunchArgument]:
                               description="frame of the poses (empty: the config file's)"),
         DeclareLaunchArgument('respawn', default_value='true', choices=['true', 'false'],
                               description='start a stage node again when it dies'),
+        DeclareLaunchArgument('foxglove', default_value='false', choices=['true', 'false'],
+                              description='also start the Foxglove live view '
+                                          '(foxglove_view, ws://127.0.0.1:8765)'),
         DeclareLaunchArgument('discovery_range', default_value='',
                               description="ROS_AUTOMATIC_DISCOVERY_RANGE of the graph: LOCALHOST "
                                           "(private), SUBNET (two PCs); empty: the config's "
@@ -90,7 +93,8 @@ def graph_actions(context) -> list:
     description = graph_description(
         replay=argument('replay') or None, rate=rate, loop=BOOLEANS[argument('loop')],
         serials={camera: argument(f'{camera}_serial') for camera in CAMERA_NAMES},
-        output_frame=argument('output_frame') or None, parts=argument('parts') or None)
+        output_frame=argument('output_frame') or None, parts=argument('parts') or None,
+        foxglove=BOOLEANS[argument('foxglove')])
     respawn = BOOLEANS[argument('respawn')]
     scope = discovery_range(argument=argument('discovery_range'),
                             config_value=load_ros_params(config).get('discovery_range'),

@@ -64,7 +64,7 @@ quiet_pip() {
     return "${PIPESTATUS[0]}"
 }
 quiet_pip install -q -c constraints.txt \
-    -r requirements/ros-pypi.txt -r requirements/dev.txt -e '.[realsense]'
+    -r requirements/ros-pypi.txt -r requirements/dev.txt -e '.[realsense,foxglove]'
 install_ros2_cli
 link_cli
 # tf2_msgs, vision_msgs and our GetObjects service: not on PyPI, built from interfaces/ with

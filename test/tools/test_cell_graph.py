@@ -52,3 +52,9 @@ def test_discovery_range_is_private_unless_asked():
         == 'SUBNET'
     with pytest.raises(TlessbotError, match='discovery_range in the cell file'):
         discovery_range(argument=None, config_value='everywhere')
+
+
+def test_foxglove_view_only_when_asked():
+    assert 'foxglove_view' not in {p.label for p in graph_description()}
+    view = [p for p in graph_description(foxglove=True) if p.label == 'foxglove_view']
+    assert len(view) == 1 and not view[0].respawn

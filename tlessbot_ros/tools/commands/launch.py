@@ -62,6 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             help=f'serial number of the {camera} camera (default: any device)')
     parser.add_argument('--output-frame', choices=('camera', 'world'), default=None,
                         help="frame of the published poses (default: the parameter file's)")
+    parser.add_argument('--foxglove', action='store_true',
+                        help='also start the Foxglove live view (ws://127.0.0.1:8765)')
     parser.add_argument('--discovery-range', default=None, metavar='RANGE',
                         help='ROS_AUTOMATIC_DISCOVERY_RANGE of the graph: LOCALHOST (private, '
                              "default), SUBNET (two PCs); default: the config's discovery_range")
@@ -110,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
     specs = graph_processes(config, replay=args.replay, rate=args.rate, loop=args.loop,
                             parts=args.parts,
                             nodes=args.nodes, output_frame=args.output_frame,
+                            foxglove=args.foxglove,
                             serials={c: getattr(args, f'{c}_serial') for c in CAMERA_NAMES},
                             extra_ros_args=[a for o in args.param for a in ('-p', o)])
     # Stop the graph on Ctrl-C and on SIGTERM (systemd, docker stop, kill), never leaving the

@@ -1,0 +1,76 @@
+"""The Foxglove live view: a WebSocket client connects, lists the channels and decodes a pose
+forwarded from ROS (CDR bytes with the ros2msg schema)."""
+import json
+import re
+import struct
+import sys
+import time
+
+import numpy as np
+import pytest
+from running import Running
+
+from tlessbot_ros.conversions.messages import RclpyFactory
+from tlessbot_ros.conversions.pose import transform_to_pose_stamped
+from tlessbot_ros.core.common.geometry import make_transform
+
+pytestmark = pytest.mark.ros
+pytest.importorskip('foxglove')
+websockets_sync = pytest.importorskip('websockets.sync.client')
+TOPIC = '/objects/obj_05/pose'
+
+
+def test_client_lists_channels_and_decodes_a_pose():
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rosbags.typesys import Stores, get_typestore
+
+    view = Running([sys.executable, '-m', 'tlessbot_ros.nodes.foxglove_view', '--ros-args',
+                    '-p', 'port:=0', '-p', 'scan_period_s:=0.2'])
+    rclpy.init()
+    node = rclpy.create_node('foxglove_test')
+    publisher = node.create_publisher(PoseStamped, TOPIC, 10)
+    T = make_transform(np.eye(3), np.array([0.1, -0.2, 0.3]))
+    try:
+        assert view.wait_for('Foxglove live view on ws://127.0.0.1:', 120), view.output
+        port = int(re.search(r'ws://127\.0\.0\.1:(\d+)', view.output).group(1))
+        with websockets_sync.connect(f'ws://127.0.0.1:{port}',
+                                     subprotocols=['foxglove.sdk.v1',
+                                                   'foxglove.websocket.v1']) as socket:
+            channels, deadline = {}, time.monotonic() + 60
+            while TOPIC not in channels and time.monotonic() < deadline:
+                publisher.publish(transform_to_pose_stamped(T, frame_id='world', stamp_ns=7,
+                                                            factory=RclpyFactory()))
+                try:
+                    message = socket.recv(timeout=0.5)
+                except TimeoutError:
+                    continue
+                if isinstance(message, str) and json.loads(message)['op'] == 'advertise':
+                    for channel in json.loads(message)['channels']:
+                        channels[channel['topic']] = channel
+            assert TOPIC in channels, (channels, view.output)
+            channel = channels[TOPIC]
+            assert (channel['encoding'], channel['schemaName'], channel['schemaEncoding']) == \
+                ('cdr', 'geometry_msgs/msg/PoseStamped', 'ros2msg')
+            socket.send(json.dumps({'op': 'subscribe',
+                                    'subscriptions': [{'id': 1, 'channelId': channel['id']}]}))
+            payload, deadline = None, time.monotonic() + 60
+            while payload is None and time.monotonic() < deadline:
+                publisher.publish(transform_to_pose_stamped(T, frame_id='world', stamp_ns=7,
+                                                            factory=RclpyFactory()))
+                try:
+                    message = socket.recv(timeout=0.5)
+                except TimeoutError:
+                    continue
+                if isinstance(message, bytes) and message[0] == 1:   # message data
+                    assert struct.unpack_from('<I', message, 1)[0] == 1
+                    payload = message[13:]
+        pose = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(
+            payload, 'geometry_msgs/msg/PoseStamped')
+        assert pose.header.frame_id == 'world' and pose.header.stamp.nanosec == 7
+        assert (pose.pose.position.x, pose.pose.position.y, pose.pose.position.z) == \
+            pytest.approx((0.1, -0.2, 0.3))
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        view.interrupt()
