@@ -61,7 +61,7 @@ from tlessbot_ros.data import DEFAULT_MODELS_INFO
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
 from tlessbot_ros.nodes.diagnostics import OK, diagnostic_array
 from tlessbot_ros.nodes.parameters import AT_ONCE, LiveParameters
-from tlessbot_ros.nodes.stage import RIG_QOS, declare_cameras, declare_extrinsics
+from tlessbot_ros.nodes.stage_config import RIG_QOS, declare_cameras, declare_extrinsics
 
 TF_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                     depth=100)
