@@ -20,6 +20,17 @@ websockets_sync = pytest.importorskip('websockets.sync.client')
 TOPIC = '/objects/obj_05/pose'
 
 
+def received(socket, publish, done, timeout_s=60.0):
+    """The server's messages, publishing a pose before each wait, until ``done()``."""
+    deadline = time.monotonic() + timeout_s
+    while not done() and time.monotonic() < deadline:
+        publish()
+        try:
+            yield socket.recv(timeout=0.5)
+        except TimeoutError:
+            continue
+
+
 def test_client_lists_channels_and_decodes_a_pose():
     import rclpy
     from geometry_msgs.msg import PoseStamped
@@ -37,14 +48,11 @@ def test_client_lists_channels_and_decodes_a_pose():
         with websockets_sync.connect(f'ws://127.0.0.1:{port}',
                                      subprotocols=['foxglove.sdk.v1',
                                                    'foxglove.websocket.v1']) as socket:
-            channels, deadline = {}, time.monotonic() + 60
-            while TOPIC not in channels and time.monotonic() < deadline:
+            def publish():
                 publisher.publish(transform_to_pose_stamped(T, frame_id='world', stamp_ns=7,
                                                             factory=RclpyFactory()))
-                try:
-                    message = socket.recv(timeout=0.5)
-                except TimeoutError:
-                    continue
+            channels = {}
+            for message in received(socket, publish, lambda: TOPIC in channels):
                 if isinstance(message, str) and json.loads(message)['op'] == 'advertise':
                     for channel in json.loads(message)['channels']:
                         channels[channel['topic']] = channel
@@ -54,19 +62,14 @@ def test_client_lists_channels_and_decodes_a_pose():
                 ('cdr', 'geometry_msgs/msg/PoseStamped', 'ros2msg')
             socket.send(json.dumps({'op': 'subscribe',
                                     'subscriptions': [{'id': 1, 'channelId': channel['id']}]}))
-            payload, deadline = None, time.monotonic() + 60
-            while payload is None and time.monotonic() < deadline:
-                publisher.publish(transform_to_pose_stamped(T, frame_id='world', stamp_ns=7,
-                                                            factory=RclpyFactory()))
-                try:
-                    message = socket.recv(timeout=0.5)
-                except TimeoutError:
-                    continue
+            payloads = []
+            for message in received(socket, publish, lambda: bool(payloads)):
                 if isinstance(message, bytes) and message[0] == 1:   # message data
                     assert struct.unpack_from('<I', message, 1)[0] == 1
-                    payload = message[13:]
+                    payloads.append(message[13:])
+        assert payloads, view.output
         pose = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(
-            payload, 'geometry_msgs/msg/PoseStamped')
+            payloads[0], 'geometry_msgs/msg/PoseStamped')
         assert pose.header.frame_id == 'world' and pose.header.stamp.nanosec == 7
         assert (pose.pose.position.x, pose.pose.position.y, pose.pose.position.z) == \
             pytest.approx((0.1, -0.2, 0.3))
