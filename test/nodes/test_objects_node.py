@@ -33,7 +33,7 @@ def graph():
     from tlessbot_ros.tools.support.arm_client import ArmClient
 
     node_process = Running([sys.executable, '-m', 'tlessbot_ros.nodes.objects', '--ros-args',
-                            '-p', 'rig_source:=config', '-p', 'track.ttl_s:=1.0'])
+                            '-p', 'track.ttl_s:=1.0'])
     rclpy.init()
     node = rclpy.create_node('objects_test')
     publisher = node.create_publisher(Detection3DArray, RAW_DETECTIONS, RESULT_QOS)
@@ -52,7 +52,7 @@ def graph():
     def publish(stamp_ns, parts):
         publisher.publish(parts_to_detection_array(parts, frame_id='world', stamp_ns=stamp_ns,
                                                    factory=RclpyFactory()))
-    yield client, publish, named
+    yield client, publish, named, node
     executor.shutdown(timeout_sec=1.0)
     node.destroy_node()
     rclpy.try_shutdown()
@@ -71,7 +71,7 @@ def ask(client, publish, stamp_ns, frame_parts, **kwargs):
 
 
 def test_request_tf_names_and_timeout(graph):
-    client, publish, named = graph
+    client, publish, named, _ = graph
     scene = [part('obj_05', 0.0, 0.0), part('obj_05', 0.1, 0.0, 30), part('obj_07', 0.0, 0.1)]
     first = ask(client, publish, 1 * SECOND, scene, frame_id='side_color_optical_frame')
     assert first.success, first.message
@@ -103,3 +103,30 @@ def test_request_tf_names_and_timeout(graph):
     assert not late.success and 'no frame completed within 0.5 s' in late.message
     wrong = client.request(frame_id='nowhere', timeout_s=0.5)
     assert not wrong.success and "unknown frame 'nowhere'" in wrong.message
+
+
+def test_tf_static_follows_the_observed_rig(graph):
+    from geometry_msgs.msg import PoseArray
+
+    from tlessbot_ros.conversions.pose import camera_poses_to_pose_array
+    from tlessbot_ros.conversions.topics import OBSERVED_RIG
+    from tlessbot_ros.nodes.stage_config import RIG_QOS
+
+    client, _, _, node = graph
+    deadline = time.monotonic() + 30
+    while 'top_color_optical_frame' not in client.static and time.monotonic() < deadline:
+        time.sleep(0.05)
+    _, T_top = client.static['top_color_optical_frame']
+    _, T_side = client.static['side_color_optical_frame']
+    moved = {'top': T_top @ make_transform(np.eye(3), np.array([0.01, 0.0, 0.0])),
+             'side': T_side}
+    publisher = node.create_publisher(PoseArray, OBSERVED_RIG, RIG_QOS)
+    publisher.publish(camera_poses_to_pose_array(moved, names=('top', 'side'), frame_id='world',
+                                                 factory=RclpyFactory()))
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and not np.allclose(
+            client.static['top_color_optical_frame'][1], moved['top'], atol=1e-6):
+        time.sleep(0.05)
+    np.testing.assert_allclose(client.static['top_color_optical_frame'][1], moved['top'],
+                               atol=1e-6)
+    np.testing.assert_allclose(client.static['side_color_optical_frame'][1], T_side, atol=1e-6)
