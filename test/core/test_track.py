@@ -147,3 +147,12 @@ def test_request_agreement_of_frames_and_timeout():
     assert 'no frame completed within 0.0 s' in book.timeout_reason(0.01)
     with pytest.raises(ValueError, match='frames'):
         book.open(frames=1000)
+
+
+def test_cancel_wakes_waiting_requests():
+    from tlessbot_ros.core.track import RequestBook
+    book = RequestBook()
+    request = book.open()
+    book.cancel_all()
+    assert request.wait(0.0) and request.cancelled and request.answer == []
+    assert book.pending() == 0

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from functools import partial
 from typing import Any
 
@@ -94,6 +95,7 @@ class ObjectsNode(Node):
             apply=partial(setattr, self.tracker, 'params'))
         self.requests = RequestBook()
         self.answered = self.timed_out = 0
+        self._serving = 0   # requests in their service threads
         self._lock = threading.Lock()   # the tracker: frames and parameter changes
         self._factory = RclpyFactory()
         self._tf = self.create_publisher(message_class(TF_MESSAGE), TF, TF_QOS)
@@ -186,6 +188,15 @@ class ObjectsNode(Node):
 
     # ---------------------------------------------------------------------------- requests
     def _on_request(self, request: Any, response: Any) -> Any:
+        with self._lock:
+            self._serving += 1
+        try:
+            return self._answer(request, response)
+        finally:
+            with self._lock:
+                self._serving -= 1
+
+    def _answer(self, request: Any, response: Any) -> Any:
         """Wait (in this service thread) for the next frame, then answer in the asked frame."""
         try:
             T_frame_world = invert_transform(self.T_world(request.frame_id))
@@ -200,6 +211,8 @@ class ObjectsNode(Node):
             self.requests.close(pending)
             self.timed_out += 1
             return _refuse(response, self.requests.timeout_reason(timeout_s))
+        if pending.cancelled:
+            return _refuse(response, 'the objects node is stopping')
         frame = request.frame_id or self.world_frame
         response.success = True
         response.stamp.sec, response.stamp.nanosec = divmod(pending.stamp_ns, 1_000_000_000)
@@ -215,6 +228,17 @@ class ObjectsNode(Node):
                   'requests_answered': self.answered, 'requests_timed_out': self.timed_out}
         self._diagnostics.publish(diagnostic_array(self.get_clock().now().to_msg(),
                                                    self.get_name(), OK, 'running', values))
+
+
+    def destroy_node(self) -> None:
+        """Answer the waiting requests first, so that no reply goes out on a destroyed
+        service."""
+        self.requests.cancel_all()
+        deadline = time.monotonic() + 2.0
+        while self._serving and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.05)   # the executor sends the replies just returned
+        super().destroy_node()
 
 
 def _refuse(response: Any, message: str) -> Any:

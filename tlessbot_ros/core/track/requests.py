@@ -25,6 +25,7 @@ class Request:
 
     parts: frozenset[str] = frozenset()
     frames: int = 1
+    cancelled: bool = False
     stamp_ns: int | None = None
     answer: list[Any] = field(default_factory=list)
     _seen: list[dict[str, Any]] = field(default_factory=list)
@@ -92,6 +93,14 @@ class RequestBook:
                     answered += request.done
             self._open = [r for r in self._open if not r.done]
         return answered
+
+    def cancel_all(self) -> None:
+        """Wake every waiting request unanswered (``cancelled``): the server is stopping."""
+        with self._lock:
+            for request in self._open:
+                request.cancelled = True
+                request._done.set()
+            self._open = []
 
     def pending(self) -> int:
         with self._lock:
