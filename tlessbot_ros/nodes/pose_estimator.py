@@ -67,7 +67,6 @@ from tlessbot_ros.conversions.topics import (
     RAW_DETECTIONS,
     classes_topic,
     node_relative,
-    part_name,
     pose_topic,
 )
 from tlessbot_ros.core.common import (
@@ -291,8 +290,8 @@ class PoseEstimatorNode(StageNode):
             T, frame = self._pose_in_output_frame(d, views[d.view]['depth'].header.frame_id)
             points = self.templates[d.obj_id].model_points
             low, high = points.min(axis=0), points.max(axis=0)
-            parts.append(PartPose(part_name(d.obj_id), T, frame, float(d.pose.fitness),
-                                  high - low, (high + low) / 2))
+            parts.append(PartPose(part_name(d.obj_id, self.part_names), T, frame,
+                                  float(d.pose.fitness), high - low, (high + low) / 2))
         frame = self.world_frame if self.output_frame == 'world' else \
             views[SIDE]['depth'].header.frame_id
         self._detections.publish(parts_to_detection_array(parts, frame_id=frame,
