@@ -98,6 +98,15 @@ def test_request_tf_names_and_timeout(graph):
     empty = [m for m in named if m.header.stamp.sec == 3]
     assert empty and list(empty[0].detections) == []
     assert any(d.id == 'obj_05_2' for m in named for d in m.detections)
+    # the agreement of two frames: obj_09 is in one of them only
+    result = {}
+    thread = threading.Thread(target=lambda: result.update(a=client.request(frames=2)))
+    thread.start()
+    time.sleep(0.3)
+    publish(3 * SECOND + SECOND // 10, moved)
+    publish(3 * SECOND + SECOND // 5, moved[:2])
+    thread.join(30)
+    assert sorted(p.part for p in result['a'].parts) == ['obj_05', 'obj_05']   # no obj_09
     # no frame: a clear error within the timeout
     late = client.request(timeout_s=0.5)
     assert not late.success and 'no frame completed within 0.5 s' in late.message
