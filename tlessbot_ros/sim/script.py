@@ -16,9 +16,8 @@ import numpy as np
 from tlessbot_ros.sim.scene import (
     PlacedObject,
     SceneParams,
-    _hull_info,
-    _in_views,
-    _penetrates,
+    hull_info,
+    placement_fits,
     sample_scene,
     work_area_centre,
 )
@@ -104,12 +103,11 @@ def script_frames(sim: Simulator, table: ScriptedTable, params: ScriptParams
 
 
 def _fits(sim: Simulator, obj_id: int, T: np.ndarray, others: list[PlacedObject]) -> bool:
-    hulls = sim.params.scene_params.hull_samples
-    info = _hull_info(sim.models[obj_id], hulls)
-    margin = sim.params.scene_params.margin_px
-    return _in_views(info, T, sim.rig, margin) and not any(
-        _penetrates(info, T, _hull_info(sim.models[o.obj_id], hulls), o.T_world_object, 0.002)
-        for o in others)
+    samples = sim.params.scene_params.hull_samples
+    return placement_fits(
+        hull_info(sim.models[obj_id], samples), T, sim.rig,
+        [(hull_info(sim.models[o.obj_id], samples), o.T_world_object) for o in others],
+        margin_px=sim.params.scene_params.margin_px, touch_tol_m=0.002)
 
 
 def _moved(sim: Simulator, part: PlacedObject, others: list[PlacedObject], move_m: float,
