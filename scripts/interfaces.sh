@@ -21,11 +21,13 @@ if [ -f "$stamp_file" ] && [ "$(cat "$stamp_file")" = "$stamp" ]; then
     exit 0
 fi
 
-# CMake and a C/C++ compiler: installed once, as root, when missing.
+# CMake, a C/C++ compiler and Python's headers: installed once, as root, when missing.
+py_include=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')
 missing=()
 command -v cmake >/dev/null || missing+=(cmake)
 command -v g++ >/dev/null || missing+=(g++)
 command -v make >/dev/null || command -v ninja >/dev/null || missing+=(make)
+[ -f "$py_include/Python.h" ] || missing+=(python3-dev)
 if [ ${#missing[@]} -gt 0 ]; then
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
         echo "setup: installing ${missing[*]} (to build the message packages, once)"
@@ -43,10 +45,9 @@ fi
 
 # 2. The message wheels' exported CMake files name the Python and numpy include folders of the
 # machine they were built on; point them at this venv's.
-py_include=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')
 np_include=$("$VENV/bin/python" -c 'import numpy, os; print(os.path.realpath(numpy.get_include()))')
 { grep -l '/opt/python/cp3' "$VENV"/share/*/cmake/*Export.cmake 2>/dev/null || true; } | while read -r f; do
-    sed -i -e "s#/opt/python/cp3[0-9]*-cp3[0-9]*/lib/python3\.[0-9]*/site-packages/numpy/_core/include#$np_include#g" \
+    sed -i -e "s#/opt/python/cp3[0-9]*-cp3[0-9]*/lib/python3\.[0-9]*/site-packages/numpy/_\{0,1\}core/include#$np_include#g" \
            -e "s#/opt/python/cp3[0-9]*-cp3[0-9]*/include/python3\.[0-9]*#$py_include#g" "$f"
 done
 

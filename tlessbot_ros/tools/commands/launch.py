@@ -69,7 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "default), SUBNET (two PCs); default: the config's discovery_range")
     parser.add_argument('--nodes', nargs='+', default=None,
                         help='only these nodes (camera_driver, localiser, classifier, '
-                             'pose_estimator)')
+                             'pose_estimator, objects, foxglove_view)')
     defaults = RespawnPolicy()
     parser.add_argument('--respawn', action=argparse.BooleanOptionalAction, default=True,
                         help='start a node that died again (default); --no-respawn: stop the '
