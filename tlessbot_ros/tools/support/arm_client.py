@@ -94,7 +94,7 @@ class ArmClient:
         return None
 
     def request(self, *, parts: list[str] | None = None, frame_id: str = '', frames: int = 1,
-                timeout_s: float = 5.0, tf_wait_s: float = 1.0) -> Answer:
+                timeout_s: float = 5.0, tf_wait_s: float = 3.0) -> Answer:
         """Call GetObjects and wait for the answer (and up to ``tf_wait_s`` for its TF)."""
         req = self._request_class(parts=list(parts or []), frame_id=frame_id, frames=frames,
                                   timeout_s=float(timeout_s))
