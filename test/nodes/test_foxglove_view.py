@@ -43,14 +43,19 @@ def test_client_lists_channels_and_decodes_a_pose():
     publisher = node.create_publisher(PoseStamped, TOPIC, 10)
     T = make_transform(np.eye(3), np.array([0.1, -0.2, 0.3]))
     try:
+        def publish():
+            publisher.publish(transform_to_pose_stamped(T, frame_id='world', stamp_ns=7,
+                                                        factory=RclpyFactory()))
         assert view.wait_for('Foxglove live view on ws://127.0.0.1:', 120), view.output
         port = int(re.search(r'ws://127\.0\.0\.1:(\d+)', view.output).group(1))
+        # the app connects to a running view: the pose's channel is there before the client
+        deadline = time.monotonic() + 60
+        while f'forwarding {TOPIC}' not in view.output and time.monotonic() < deadline:
+            publish()
+            view.wait_for(f'forwarding {TOPIC}', 0.2)
         with websockets_sync.connect(f'ws://127.0.0.1:{port}',
                                      subprotocols=['foxglove.sdk.v1',
                                                    'foxglove.websocket.v1']) as socket:
-            def publish():
-                publisher.publish(transform_to_pose_stamped(T, frame_id='world', stamp_ns=7,
-                                                            factory=RclpyFactory()))
             channels = {}
             for message in received(socket, publish, lambda: TOPIC in channels):
                 if isinstance(message, str) and json.loads(message)['op'] == 'advertise':
@@ -60,14 +65,17 @@ def test_client_lists_channels_and_decodes_a_pose():
             channel = channels[TOPIC]
             assert (channel['encoding'], channel['schemaName'], channel['schemaEncoding']) == \
                 ('cdr', 'geometry_msgs/msg/PoseStamped', 'ros2msg')
-            socket.send(json.dumps({'op': 'subscribe',
-                                    'subscriptions': [{'id': 1, 'channelId': channel['id']}]}))
-            payloads = []
+            subscribe = {'op': 'subscribe',
+                         'subscriptions': [{'id': 1, 'channelId': channel['id']}]}
+            socket.send(json.dumps(subscribe))
+            payloads, statuses = [], []
             for message in received(socket, publish, lambda: bool(payloads)):
-                if isinstance(message, bytes) and message[0] == 1:   # message data
+                if isinstance(message, str):
+                    statuses.append(message)
+                elif message[0] == 1:   # message data
                     assert struct.unpack_from('<I', message, 1)[0] == 1
                     payloads.append(message[13:])
-        assert payloads, view.output
+        assert payloads, (statuses, view.output)
         pose = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(
             payloads[0], 'geometry_msgs/msg/PoseStamped')
         assert pose.header.frame_id == 'world' and pose.header.stamp.nanosec == 7

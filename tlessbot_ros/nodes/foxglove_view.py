@@ -87,6 +87,7 @@ class FoxgloveViewNode(Node):
             qos = LATCHED if topic == TF_STATIC else qos_profile_sensor_data
             self.create_subscription(cls, topic, partial(self._forward, channel), qos,
                                      raw=True)
+            self.get_logger().info(f'forwarding {topic} ({msgtype})')
 
     def _forward(self, channel: Any, data: bytes) -> None:
         channel.log(data, log_time=time.time_ns())
