@@ -18,7 +18,8 @@ Serves:
     /objects/get_objects  tlessbot_interfaces/GetObjects: the parts of the next frame the graph
                           completes after the request (optionally the agreement of N frames)
                           in the requested frame, or success false and why
-Parameters: ``world_frame``, ``track.*`` (TrackParams: gates, time to live, time jump; live),
+Parameters: ``parts_path`` (as the stages: the part names and their symmetries),
+``world_frame``, ``track.*`` (TrackParams: gates, time to live, time jump; live),
 ``request_timeout_s`` (live), ``rig.*`` and ``rig_source`` as the stages.
 Frames: matching runs in ``world_frame`` through the rig; names reset on a time jump.
 """
@@ -54,14 +55,20 @@ from tlessbot_ros.conversions.topics import (
     RAW_DETECTIONS,
     TF,
     TF_STATIC,
-    part_name,
 )
-from tlessbot_ros.core.common import CAMERA_NAMES, invert_transform, symmetries_from_models_info
+from tlessbot_ros.core.common import (
+    CAMERA_NAMES,
+    invert_transform,
+    part_name,
+    symmetries_from_models_info,
+)
 from tlessbot_ros.core.track import InstanceTracker, Observation, RequestBook, TrackParams
 from tlessbot_ros.data import DEFAULT_MODELS_INFO
+from tlessbot_ros.io.parts import PartsFolder
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
 from tlessbot_ros.nodes.diagnostics import OK, diagnostic_array
 from tlessbot_ros.nodes.parameters import AT_ONCE, LiveParameters
+from tlessbot_ros.nodes.parts import declare_parts
 from tlessbot_ros.nodes.stage_config import RIG_QOS, declare_cameras, declare_extrinsics
 
 TF_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
@@ -89,7 +96,7 @@ class ObjectsNode(Node):
             {'request_timeout_s': (5.0, 'default wait of a GetObjects request, s (> 0)')},
             build=_positive('request_timeout_s'),
             apply=partial(setattr, self, 'request_timeout_s'), when=AT_ONCE)
-        self.tracker = InstanceTracker(symmetries=_part_symmetries())
+        self.tracker = InstanceTracker(symmetries=_part_symmetries(declare_parts(self)))
         self.tracker.params = self.parameters.dataclass(
             TrackParams(), prefix='track.', when=AT_ONCE,
             apply=partial(setattr, self.tracker, 'params'))
@@ -255,16 +262,19 @@ def _positive(name: str):
     return build
 
 
-def _part_symmetries() -> dict[str, np.ndarray]:
-    """{part name: (K, 4, 4) symmetry transforms} of the packaged models_info.json."""
-    if not DEFAULT_MODELS_INFO.is_file():
+def _part_symmetries(folder: PartsFolder | None) -> dict[str, np.ndarray]:
+    """{part name: (K, 4, 4) symmetry transforms} of the parts folder's models_info.json, or
+    the packaged one's."""
+    path = folder.models / 'models_info.json' if folder else DEFAULT_MODELS_INFO
+    names = folder.names if folder else None
+    if not path.is_file():
         return {}
-    info = json.loads(DEFAULT_MODELS_INFO.read_text(encoding='utf-8'))
+    info = json.loads(path.read_text(encoding='utf-8'))
     out = {}
     for key, entry in info.items():
         symmetries = symmetries_from_models_info(entry)
         if not symmetries.is_trivial:
-            out[part_name(int(key))] = symmetries.transforms(step_rad=np.radians(2.0))
+            out[part_name(int(key), names)] = symmetries.transforms(step_rad=np.radians(2.0))
     return out
 
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from tlessbot_ros.conversions.topics import part_name
+from tlessbot_ros.core.common import part_name
 from tlessbot_ros.core.track import nearest_equivalent
 
 STAGES = ('localiser', 'classifier', 'pose_estimator')

@@ -19,7 +19,7 @@ CAMERA_DRIVER = 'camera_driver'
 # The arm's side: instance names, TF, /objects/detections, GetObjects (nodes/objects.py).
 ARM_NODE = 'objects'
 NODE_EXECUTABLES = (CAMERA_DRIVER, *PERCEPTION_NODES, ARM_NODE)
-PARTS_NODES = ('classifier', 'pose_estimator')   # the nodes that read ``parts_path``
+PARTS_NODES = ('classifier', 'pose_estimator', ARM_NODE)   # the nodes that read ``parts_path``
 # Started only when asked (foxglove:=true, tlessbot launch --foxglove): the live view.
 FOXGLOVE_NODE = 'foxglove_view'
 TOOL_EXECUTABLE = 'tlessbot'
