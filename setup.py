@@ -12,7 +12,8 @@ from setuptools import find_packages, setup
 package_name = 'tlessbot_ros'
 
 # Node executables: `ros2 run tlessbot_ros <name>`. Each module is tlessbot_ros.nodes.<name>.
-NODE_NAMES = ['camera_driver', 'localiser', 'classifier', 'pose_estimator']
+NODE_NAMES = ['camera_driver', 'localiser', 'classifier', 'pose_estimator', 'objects',
+              'foxglove_view']
 
 
 def _node_entry_points():
@@ -51,15 +52,17 @@ setup(
     ],
     extras_require={
         'realsense': ['pyrealsense2>=2.54'],
+        'foxglove': ['foxglove-sdk>=0.30'],   # nodes/foxglove_view.py (off by default)
         'ros-pypi': [
             'ros-jazzy-rclpy',
             'ros-jazzy-common-interfaces',
             'ros-jazzy-rmw-fastrtps-cpp',
         ],
         # scikit-image and trimesh: reference implementations the tests compare against;
-        # junitparser: an independent reader of tlessbot check's JUnit XML.
+        # junitparser: an independent reader of tlessbot check's JUnit XML; websockets: a
+        # Foxglove client.
         'test': ['pytest>=8', 'pytest-timeout>=2.2', 'ruff>=0.5', 'scikit-image>=0.22',
-                 'trimesh>=4.0', 'junitparser>=3'],
+                 'trimesh>=4.0', 'junitparser>=3', 'websockets>=13'],
     },
     zip_safe=True,
     maintainer='tlessbot_ros team',

@@ -12,10 +12,16 @@ localiser, classifier and pose estimator. Every node reads ``config`` first; the
 are started again ``RESPAWN_DELAY_S`` after they die unless ``respawn:=false``.
 ``ros2 launch tlessbot_ros cell.launch.py --show-args`` lists the arguments.
 """
+import os
 from pathlib import Path
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, ExecuteProcess, OpaqueFunction
+from launch.actions import (
+    DeclareLaunchArgument,
+    ExecuteProcess,
+    OpaqueFunction,
+    SetEnvironmentVariable,
+)
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
@@ -23,8 +29,14 @@ from launch_ros.substitutions import ExecutableInPackage, FindPackageShare
 
 from tlessbot_ros.core.common.rig import CAMERA_NAMES
 from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.io.config import load_ros_params
 from tlessbot_ros.io.parts import open_parts_folder
-from tlessbot_ros.tools.support.cell_graph import RESPAWN_DELAY_S, graph_description
+from tlessbot_ros.tools.support.cell_graph import (
+    DISCOVERY_VARIABLE,
+    RESPAWN_DELAY_S,
+    discovery_range,
+    graph_description,
+)
 from tlessbot_ros.tools.support.rig import load_rig
 
 PACKAGE = 'tlessbot_ros'
@@ -54,6 +66,13 @@ def launch_arguments() -> list[DeclareLaunchArgument]:
                               description="frame of the poses (empty: the config file's)"),
         DeclareLaunchArgument('respawn', default_value='true', choices=['true', 'false'],
                               description='start a stage node again when it dies'),
+        DeclareLaunchArgument('foxglove', default_value='false', choices=['true', 'false'],
+                              description='also start the Foxglove live view '
+                                          '(foxglove_view, ws://127.0.0.1:8765)'),
+        DeclareLaunchArgument('discovery_range', default_value='',
+                              description="ROS_AUTOMATIC_DISCOVERY_RANGE of the graph: LOCALHOST "
+                                          "(private), SUBNET (two PCs); empty: the config's "
+                                          "discovery_range, else LOCALHOST"),
     ]
 
 
@@ -74,9 +93,14 @@ def graph_actions(context) -> list:
     description = graph_description(
         replay=argument('replay') or None, rate=rate, loop=BOOLEANS[argument('loop')],
         serials={camera: argument(f'{camera}_serial') for camera in CAMERA_NAMES},
-        output_frame=argument('output_frame') or None, parts=argument('parts') or None)
+        output_frame=argument('output_frame') or None, parts=argument('parts') or None,
+        foxglove=BOOLEANS[argument('foxglove')])
     respawn = BOOLEANS[argument('respawn')]
-    return [_action(process, config, respawn) for process in description]
+    scope = discovery_range(argument=argument('discovery_range'),
+                            config_value=load_ros_params(config).get('discovery_range'),
+                            environ=dict(os.environ))
+    return [SetEnvironmentVariable(DISCOVERY_VARIABLE, scope),
+            *[_action(process, config, respawn) for process in description]]
 
 
 def _action(process, config: str, respawn: bool):

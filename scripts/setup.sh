@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Idempotent stand-alone set-up: system library check, .venv, pinned Python dependencies, the
-# package itself (editable). A second run with unchanged requirements takes a second or two.
+# package itself (editable), the message packages PyPI lacks (scripts/interfaces.sh). A second
+# run with unchanged requirements takes a second or two.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -50,6 +51,7 @@ stamp=$(cat constraints.txt requirements/*.txt setup.py setup.cfg package.xml sc
 if [ -f "$stamp_file" ] && [ "$(cat "$stamp_file")" = "$stamp" ]; then
     install_ros2_cli
     link_cli
+    scripts/interfaces.sh "$VENV"
     echo "setup: $VENV is up to date"
     exit 0
 fi
@@ -62,9 +64,12 @@ quiet_pip() {
     return "${PIPESTATUS[0]}"
 }
 quiet_pip install -q -c constraints.txt \
-    -r requirements/ros-pypi.txt -r requirements/dev.txt -e '.[realsense]'
+    -r requirements/ros-pypi.txt -r requirements/dev.txt -e '.[realsense,foxglove]'
 install_ros2_cli
 link_cli
+# tf2_msgs, vision_msgs and our GetObjects service: not on PyPI, built from interfaces/ with
+# CMake into the venv (~10-60 s once; a second run checks a stamp).
+scripts/interfaces.sh "$VENV"
 # Compile the pose kernels and build the pose stage's start-up caches now, so that the first
 # start of a node after set-up is as fast as the next (tlessbot warm-up; safe to repeat).
 "$VENV/bin/python" -m tlessbot_ros.tools.cli warm-up \

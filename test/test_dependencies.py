@@ -30,9 +30,10 @@ THIRD_PARTY = {
     'zstandard': (None, 'zstandard'),
     # The rosdep key librealsense2 is the C++ SDK; the Python wheel bundles its own.
     'pyrealsense2': (None, 'pyrealsense2'),
+    'foxglove': (None, 'foxglove-sdk'),
 }
 # pip distributions setup.py keeps in an extra rather than install_requires.
-OPTIONAL_PIP = {'pyrealsense2': 'realsense'}
+OPTIONAL_PIP = {'pyrealsense2': 'realsense', 'foxglove-sdk': 'foxglove'}
 MESSAGE_TYPE = re.compile(r"""['"]([a-z][a-z0-9_]*_(?:msgs|interfaces))/msg/[A-Z]\w*['"]""")
 
 

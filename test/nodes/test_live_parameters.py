@@ -161,9 +161,9 @@ def test_the_entrance_keeps_the_single_threaded_executor_and_the_later_stages_us
         assert isinstance(make_executor(nodes[0].executor_kind, None), SingleThreadedExecutor)
         assert not isinstance(make_executor(nodes[1].executor_kind, None),
                               SingleThreadedExecutor)
-        with pytest.raises(ValueError, match="one of \\['events', 'single_threaded'\\], got "
-                                             "'multi_threaded'"):
-            make_executor('multi_threaded', None)
+        with pytest.raises(ValueError, match="one of \\['events', 'single_threaded', "
+                                             "'multi_threaded'\\], got 'static'"):
+            make_executor('static', None)
     finally:
         for node in nodes:
             node.destroy_node()

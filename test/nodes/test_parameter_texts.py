@@ -78,7 +78,9 @@ def test_every_parameter_description_is_an_operators_text(small_templates, monke
 
     from tlessbot_ros.nodes.camera_driver import CameraDriverNode
     from tlessbot_ros.nodes.classifier import ClassifierNode
+    from tlessbot_ros.nodes.foxglove_view import FoxgloveViewNode
     from tlessbot_ros.nodes.localiser import LocaliserNode
+    from tlessbot_ros.nodes.objects import ObjectsNode
     from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
     from tlessbot_ros.sensors import realsense
 
@@ -87,7 +89,8 @@ def test_every_parameter_description_is_an_operators_text(small_templates, monke
     bad, seen = [], 0
     rclpy.init()
     try:
-        for make in (LocaliserNode, ClassifierNode, CameraDriverNode,
+        for make in (LocaliserNode, ClassifierNode, CameraDriverNode, ObjectsNode,
+                     lambda: FoxgloveViewNode(parameter_overrides=[Parameter('port', value=0)]),
                      lambda: PoseEstimatorNode(parameter_overrides=[
                          Parameter('templates_path', value=str(small_templates))])):
             node = make()

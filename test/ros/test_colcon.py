@@ -18,7 +18,8 @@ REPO = Path(__file__).resolve().parents[2]
 COLCON = VENV_PREFIX / 'bin' / 'colcon'
 # obj_25 is in the demo bag's first two frames; the graph found it in both (tlessbot demo).
 POSE_TOPIC = '/objects/obj_25/pose'
-EXECUTABLES = ('camera_driver', 'classifier', 'localiser', 'pose_estimator', 'tlessbot')
+EXECUTABLES = ('camera_driver', 'classifier', 'foxglove_view', 'localiser', 'objects',
+               'pose_estimator', 'tlessbot')
 
 
 def user_environment() -> dict[str, str]:
@@ -165,7 +166,8 @@ def test_launch_replays_the_demo_bag_into_poses_and_respawns_a_dead_stage(in_wor
     assert not [pid for pid in pids if _alive(pid)], 'processes outlived ros2 launch'
     # Ctrl-C stops every process cleanly (no traceback from launch's second SIGINT).
     stopped = output[output.index('user interrupted with ctrl-c'):]
-    assert len(re.findall(r'process has finished cleanly', stopped)) == 4, stopped
+    # the replay, the three stages and objects
+    assert len(re.findall(r'process has finished cleanly', stopped)) == 5, stopped
     assert 'Traceback' not in output
 
 

@@ -31,7 +31,7 @@ def test_the_replay_waits_for_the_stage_nodes_it_is_started_with():
 
 def test_only_stage_nodes_respawn():
     respawning = {p.label for p in graph_description() if p.respawn}
-    assert respawning == {'localiser', 'classifier', 'pose_estimator'}
+    assert respawning == {'localiser', 'classifier', 'pose_estimator', 'objects'}
 
 
 @pytest.mark.parametrize(('kwargs', 'message'), [
@@ -41,3 +41,20 @@ def test_only_stage_nodes_respawn():
 def test_bad_descriptions_are_errors(kwargs, message):
     with pytest.raises(TlessbotError, match=message):
         graph_description(**kwargs)
+
+
+def test_discovery_range_is_private_unless_asked():
+    from tlessbot_ros.tools.support.cell_graph import discovery_range
+    assert discovery_range(argument=None) == 'LOCALHOST'
+    assert discovery_range(argument='', config_value='subnet') == 'SUBNET'
+    assert discovery_range(argument='localhost', config_value='SUBNET') == 'LOCALHOST'
+    assert discovery_range(argument=None, environ={'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'}) \
+        == 'SUBNET'
+    with pytest.raises(TlessbotError, match='discovery_range in the cell file'):
+        discovery_range(argument=None, config_value='everywhere')
+
+
+def test_foxglove_view_only_when_asked():
+    assert 'foxglove_view' not in {p.label for p in graph_description()}
+    view = [p for p in graph_description(foxglove=True) if p.label == 'foxglove_view']
+    assert len(view) == 1 and not view[0].respawn

@@ -55,6 +55,8 @@ def launched_commands(arguments: dict[str, str]) -> list[list[str]]:
     assert len(opaque) == 1
     commands = []
     for action in opaque[0].execute(context):
+        if not hasattr(action, 'cmd'):   # SetEnvironmentVariable (the discovery range)
+            continue
         if isinstance(action, Node):
             action._perform_substitutions(context)   # what Node.execute does first
             context.extend_locals({'ros_specific_arguments': {
@@ -110,7 +112,7 @@ def test_cameras_and_stages_match_tlessbot_launch(installed_prefix, tmp_path):
     # Serials stay strings (a number would not match the driver's string parameter).
     assert top == ('camera_driver', '/top', [str(config)],
                    {'camera_name': 'top', 'serial_no': '_123456789'})
-    assert from_launch(launched[-1])[3] == {'output_frame': 'world'}
+    assert from_launch(launched[-2])[3] == {'output_frame': 'world'}   # pose_estimator
 
 
 def test_replay_matches_tlessbot_launch_and_defaults_to_the_installed_config(installed_prefix):
@@ -120,7 +122,7 @@ def test_replay_matches_tlessbot_launch_and_defaults_to_the_installed_config(ins
     specs = graph_processes(installed_config, replay=bag, rate=0.5, loop=True)
     assert [from_launch(c) for c in launched] == [from_tlessbot_launch(s.argv) for s in specs]
     assert [from_launch(c)[0] for c in launched] == \
-        ['tool', 'localiser', 'classifier', 'pose_estimator']
+        ['tool', 'localiser', 'classifier', 'pose_estimator', 'objects']
     replay = from_launch(launched[0])[1]
     assert replay[:2] == ['replay', bag]
     assert replay[replay.index('--wait-for-ready') + 1:][:3] == \
@@ -138,3 +140,23 @@ def test_bad_arguments_are_one_line_errors(installed_prefix, arguments, message)
         launched_commands(arguments)
     assert str(error.value) == message
 
+
+
+def test_launch_keeps_the_graph_on_this_host_unless_asked(installed_prefix, monkeypatch):
+    from launch import LaunchContext
+    from launch.actions import SetEnvironmentVariable
+
+    monkeypatch.delenv('ROS_AUTOMATIC_DISCOVERY_RANGE', raising=False)
+    spec = importlib.util.spec_from_file_location('cell_launch_scope', LAUNCH_FILE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    for argument, expected in (('', 'LOCALHOST'), ('subnet', 'SUBNET')):
+        context = LaunchContext()
+        for action in module.launch_arguments():
+            action.execute(context)
+        context.launch_configurations['discovery_range'] = argument
+        actions = module.graph_actions(context)
+        scope = [a for a in actions if isinstance(a, SetEnvironmentVariable)]
+        assert len(scope) == 1
+        scope[0].visit(context)
+        assert context.environment['ROS_AUTOMATIC_DISCOVERY_RANGE'] == expected

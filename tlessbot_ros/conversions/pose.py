@@ -24,15 +24,24 @@ def pose_stamped_to_transform(msg: Any) -> tuple[np.ndarray, str, int]:
     Raises:
         ValueError: a zero-length or non-finite quaternion, or a non-finite position.
     """
-    p, q = msg.pose.position, msg.pose.orientation
+    T = pose_to_transform(msg.pose.position, msg.pose.orientation, what='PoseStamped')
+    return T, str(msg.header.frame_id), stamp_to_ns(msg.header.stamp)
+
+
+def pose_to_transform(position: Any, orientation: Any, *, what: str = 'pose') -> np.ndarray:
+    """(4, 4) float64 transform of a position (x, y, z fields: Point, Vector3) and a quaternion.
+
+    Raises:
+        ValueError: a zero-length or non-finite quaternion, or a non-finite position.
+    """
+    p, q = position, orientation
     quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
     position = np.array([p.x, p.y, p.z], dtype=np.float64)
     if not (np.isfinite(quat).all() and np.isfinite(position).all()):
-        raise ValueError('PoseStamped has non-finite values')
+        raise ValueError(f'{what} has non-finite values')
     if np.linalg.norm(quat) < 1e-9:
-        raise ValueError('PoseStamped orientation is a zero quaternion')
-    T = make_transform(matrix_from_quaternion(quat), position)
-    return T, str(msg.header.frame_id), stamp_to_ns(msg.header.stamp)
+        raise ValueError(f'{what} orientation is a zero quaternion')
+    return make_transform(matrix_from_quaternion(quat), position)
 
 
 def transform_to_pose_stamped(

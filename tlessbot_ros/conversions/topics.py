@@ -26,6 +26,13 @@ GROUND_TRUTH_POSE_PREFIX = '/ground_truth/obj_'
 # The camera poses the localiser fuses with once it refines the rig from the scene
 # (geometry_msgs/PoseArray in the world frame: top, then side); the later stages follow them.
 OBSERVED_RIG = '/localiser/rig'
+# The arm's side (nodes/objects.py): every part of a frame, named; the pose stage's unnamed
+# array it is made from; TF; the request service.
+DETECTIONS = '/objects/detections'
+RAW_DETECTIONS = '/pose_estimator/detections'
+GET_OBJECTS = '/objects/get_objects'
+TF = '/tf'
+TF_STATIC = '/tf_static'
 
 
 def node_relative(topic: str) -> str:

@@ -11,6 +11,9 @@ Publishes (RELIABLE, depth 10):
                             with the source images' stamp, in the optical frame of
                             the camera that saw it best (side, else top) or in ``world_frame``
                             when ``output_frame`` is 'world'
+    pose_estimator/detections  vision_msgs/Detection3DArray: every part of the frame (an empty
+                            array when none), unnamed, for the objects node (nodes/objects.py);
+                            not published where vision_msgs is missing
     objects/markers         visualization_msgs/MarkerArray: model surface points + text label,
                             built only while subscribed (RViz)
     objects/debug_image     sensor_msgs/Image rgb8: side depth in false colour, part outlines
@@ -57,12 +60,14 @@ from tlessbot_ros.conversions import (
     stamp_to_ns,
     transform_to_pose_stamped,
 )
+from tlessbot_ros.conversions.detections import DETECTION_ARRAY, PartPose, parts_to_detection_array
 from tlessbot_ros.conversions.image_cdr import image_from_cdr, image_to_cdr
 from tlessbot_ros.conversions.markers import PartMarker, parts_to_marker_array
 from tlessbot_ros.conversions.messages import RclpyFactory
 from tlessbot_ros.conversions.topics import (
     DEBUG_IMAGE,
     MARKERS,
+    RAW_DETECTIONS,
     classes_topic,
     node_relative,
     pose_topic,
@@ -154,6 +159,12 @@ class PoseEstimatorNode(StageNode):
             RESULT_QOS)
         self._overlay = self.create_publisher(message_class(IMAGE), node_relative(DEBUG_IMAGE),
                                               RESULT_QOS)
+        try:
+            self._detections = self.create_publisher(message_class(DETECTION_ARRAY),
+                                                     node_relative(RAW_DETECTIONS), RESULT_QOS)
+        except ValueError as error:   # a ROS install without vision_msgs
+            self._detections = None
+            self.get_logger().warning(f'{error}: {RAW_DETECTIONS} is not published')
 
     def _warm_up(self) -> None:
         """Every cache the first frame would build (from the start-up cache when it has them,
@@ -194,6 +205,7 @@ class PoseEstimatorNode(StageNode):
             self.pipeline.estimate_poses(inputs, labels, classes, on_detection=publish_pose,
                                          fitter=self.workers if split else None)
         self._log_worker_errors()
+        self._publish_detections(published, views, stamp_ns)
         self._publish_debug(published, views, inputs, labels, stamp_ns)
         self.record_stats(self._frame_stats(published))
 
@@ -277,6 +289,24 @@ class PoseEstimatorNode(StageNode):
         T, frame = self._pose_in_output_frame(detection, camera_frame)
         return transform_to_pose_stamped(T, frame_id=frame, stamp_ns=stamp_ns,
                                          factory=self._factory)
+
+    def _publish_detections(self, detections: list[Detection], views: dict,
+                            stamp_ns: int) -> None:
+        """The frame's parts in one array, also when there is none."""
+        if self._detections is None:
+            return
+        parts = []
+        for d in detections:
+            T, frame = self._pose_in_output_frame(d, views[d.view]['depth'].header.frame_id)
+            points = self.templates[d.obj_id].model_points
+            low, high = points.min(axis=0), points.max(axis=0)
+            parts.append(PartPose(part_name(d.obj_id, self.part_names), T, frame,
+                                  float(d.pose.fitness), high - low, (high + low) / 2))
+        frame = self.world_frame if self.output_frame == 'world' else \
+            views[SIDE]['depth'].header.frame_id
+        self._detections.publish(parts_to_detection_array(parts, frame_id=frame,
+                                                          stamp_ns=stamp_ns,
+                                                          factory=self._factory))
 
     def _publish_debug(self, detections: list[Detection], views: dict,
                        inputs: dict[str, ViewInput], labels: dict[str, np.ndarray],

@@ -38,7 +38,9 @@ def make_executor(kind: str, context: Any) -> Any:
     """An rclpy executor for ``context``, one of :data:`~tlessbot_ros.core.common.sync.EXECUTORS`:
     'events' (rclpy's EventsExecutor, which ignores callback groups: a node that pauses its
     inputs must also cope with messages delivered while paused, as
-    :class:`~tlessbot_ros.nodes.inputs.TwoViewInputs` does) or 'single_threaded'.
+    :class:`~tlessbot_ros.nodes.inputs.TwoViewInputs` does) or 'single_threaded'; or
+    'multi_threaded', for a node whose service calls wait (nodes/objects.py; not a stage's
+    ``sync.executor``).
 
     Spin it with ``spin_once`` (:func:`spin_until_interrupted`): the EventsExecutor's own
     ``spin()`` (rclpy 7.1) fires no timer and, when another thread creates a subscription or a
@@ -54,7 +56,11 @@ def make_executor(kind: str, context: Any) -> Any:
     if kind == 'single_threaded':
         from rclpy.executors import SingleThreadedExecutor
         return SingleThreadedExecutor(context=context)
-    raise ValueError(f'executor must be one of {list(EXECUTORS)}, got {kind!r}')
+    if kind == 'multi_threaded':   # nodes whose service calls wait (nodes/objects.py)
+        from rclpy.executors import MultiThreadedExecutor
+        return MultiThreadedExecutor(num_threads=4, context=context)
+    raise ValueError(f'executor must be one of {[*EXECUTORS, "multi_threaded"]}, got '
+                     f'{kind!r}')
 
 
 def run_node(node_class: type, args: list[str] | None = None) -> None:

@@ -127,6 +127,15 @@ def _lean(T_world_object: np.ndarray, info: HullInfo, rng: np.random.Generator,
     return T
 
 
+def placement_fits(info: HullInfo, T_world_object: np.ndarray, rig: Rig,
+                   others: list[tuple[HullInfo, np.ndarray]], *, margin_px: int,
+                   touch_tol_m: float) -> bool:
+    """Whether a part (its hull ``info`` at ``T_world_object``) is seen whole by every camera of
+    ``rig`` and penetrates none of ``others`` ((hull, T_world_object) each)."""
+    return _in_views(info, T_world_object, rig, margin_px) and not any(
+        _penetrates(info, T_world_object, hull, T, touch_tol_m) for hull, T in others)
+
+
 def work_area_centre(rig: Rig) -> np.ndarray:
     """(2,) table point at the middle of what all cameras see (mean of the optical axes' hits)."""
     hits = []

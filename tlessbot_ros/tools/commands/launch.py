@@ -29,7 +29,8 @@ from pathlib import Path
 
 from tlessbot_ros.core.common.rig import CAMERA_NAMES
 from tlessbot_ros.errors import TlessbotError
-from tlessbot_ros.io.config import default_config_path
+from tlessbot_ros.io.config import default_config_path, load_ros_params
+from tlessbot_ros.tools.support.cell_graph import DISCOVERY_VARIABLE, discovery_range
 from tlessbot_ros.tools.support.processes import (
     PERCEPTION_NODES,
     GraphProcesses,
@@ -61,9 +62,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             help=f'serial number of the {camera} camera (default: any device)')
     parser.add_argument('--output-frame', choices=('camera', 'world'), default=None,
                         help="frame of the published poses (default: the parameter file's)")
+    parser.add_argument('--foxglove', action='store_true',
+                        help='also start the Foxglove live view (ws://127.0.0.1:8765)')
+    parser.add_argument('--discovery-range', default=None, metavar='RANGE',
+                        help='ROS_AUTOMATIC_DISCOVERY_RANGE of the graph: LOCALHOST (private, '
+                             "default), SUBNET (two PCs); default: the config's discovery_range")
     parser.add_argument('--nodes', nargs='+', default=None,
                         help='only these nodes (camera_driver, localiser, classifier, '
-                             'pose_estimator)')
+                             'pose_estimator, objects, foxglove_view)')
     defaults = RespawnPolicy()
     parser.add_argument('--respawn', action=argparse.BooleanOptionalAction, default=True,
                         help='start a node that died again (default); --no-respawn: stop the '
@@ -100,9 +106,13 @@ def run(args: argparse.Namespace) -> int:
 
         open_parts_folder(args.parts, rig=load_rig(config))
     policy = _policy(args)
+    os.environ[DISCOVERY_VARIABLE] = discovery_range(
+        argument=args.discovery_range,
+        config_value=load_ros_params(config).get('discovery_range'), environ=dict(os.environ))
     specs = graph_processes(config, replay=args.replay, rate=args.rate, loop=args.loop,
                             parts=args.parts,
                             nodes=args.nodes, output_frame=args.output_frame,
+                            foxglove=args.foxglove,
                             serials={c: getattr(args, f'{c}_serial') for c in CAMERA_NAMES},
                             extra_ros_args=[a for o in args.param for a in ('-p', o)])
     # Stop the graph on Ctrl-C and on SIGTERM (systemd, docker stop, kill), never leaving the

@@ -59,6 +59,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'default the A3 board centred at the world origin), to test '
                              'tlessbot calibrate --board')
     add_board_arguments(parser)
+    parser.add_argument('--script', action='store_true',
+                        help='one table that changes: --parts-max parts (of --ids) rest for '
+                             '--rest-frames, then one moved, one removed, one added for '
+                             '--change-frames (tlessbot_ros/sim/script.py; --frames ignored)')
+    parser.add_argument('--rest-frames', type=int, default=6, help='--script: first layout')
+    parser.add_argument('--change-frames', type=int, default=6, help='--script: second layout')
     parser.add_argument('--no-progress', action='store_true')
 
 
@@ -74,14 +80,14 @@ def run(args: argparse.Namespace) -> int:
     sim = _simulator(args)
     writers, backgrounds = _dataset_writers(args, sim)
 
-    indices = range(args.first, args.first + args.frames)
+    rendered, indices = _frame_source(sim, args)
     bar = tqdm(indices, desc='simulate', unit='frame', disable=args.no_progress)
 
     short = []
 
     def frames() -> Iterator:
         for index in bar:
-            frame = sim.frame(index)
+            frame = rendered(index)
             if len(frame.objects) < args.parts_min:
                 short.append(index)
             for name, writer in writers.items():
@@ -109,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         print(f'note: {len(short)} frame(s) hold fewer than --parts-min parts (no free place '
               f'seen by every camera), e.g. frame {short[0]}')
     if args.out is not None:
-        print(f'wrote {args.frames} two-view frames to {args.out} '
+        print(f'wrote {len(indices)} two-view frames to {args.out} '
               f'(splits: {", ".join("test_" + n for n in writers)})')
     return 0
 
@@ -159,3 +165,26 @@ def _dataset_writers(args: argparse.Namespace, sim) -> tuple[dict, dict]:
     (args.out / 'models_info.json').write_text(json.dumps(
         {str(i): model_geometry_mm(m) for i, m in sim.models.items()}, indent=1))
     return writers, backgrounds
+
+
+def _frame_source(sim, args: argparse.Namespace):
+    """(index -> frame, indices): random scenes, or the --script table."""
+    if not args.script:
+        return sim.frame, range(args.first, args.first + args.frames)
+    from tlessbot_ros.sim.script import ScriptParams, scripted_table
+
+    try:
+        params = ScriptParams(rest_frames=args.rest_frames, change_frames=args.change_frames,
+                              parts=args.parts_max)
+        table = scripted_table(sim, params, seed=args.seed)
+    except ValueError as error:
+        raise TlessbotError(f'--script: {error}') from None
+    names = [[f'{k}=obj_{o.obj_id:02d}' for k, o in zip(keys, layout)]
+             for keys, layout in zip(table.keys, table.layouts)]
+    print(f'script: frames 0-{params.rest_frames - 1}: {" ".join(names[0])}; then moved '
+          f'{table.moved}, removed {table.removed}, added {table.added}: {" ".join(names[1])}')
+
+    def render(index: int):
+        layout = table.layouts[table.layout_of_frame(index, params)]
+        return sim.frame_of(index, layout, environment=0)
+    return render, range(params.rest_frames + params.change_frames)

@@ -16,11 +16,19 @@ from tlessbot_ros.errors import TlessbotError
 
 PERCEPTION_NODES = ('localiser', 'classifier', 'pose_estimator')
 CAMERA_DRIVER = 'camera_driver'
-NODE_EXECUTABLES = (CAMERA_DRIVER, *PERCEPTION_NODES)
-PARTS_NODES = ('classifier', 'pose_estimator')   # the nodes that read ``parts_path``
+# The arm's side: instance names, TF, /objects/detections, GetObjects (nodes/objects.py).
+ARM_NODE = 'objects'
+NODE_EXECUTABLES = (CAMERA_DRIVER, *PERCEPTION_NODES, ARM_NODE)
+PARTS_NODES = ('classifier', 'pose_estimator', ARM_NODE)   # the nodes that read ``parts_path``
+# Started only when asked (foxglove:=true, tlessbot launch --foxglove): the live view.
+FOXGLOVE_NODE = 'foxglove_view'
 TOOL_EXECUTABLE = 'tlessbot'
 # A stage node that died is started again after this long (ros2 launch's respawn_delay).
 RESPAWN_DELAY_S = 2.0
+# Who may discover the graph (ROS_AUTOMATIC_DISCOVERY_RANGE): this host only unless the launch
+# argument, the cell file's ``discovery_range`` or the environment asks for more.
+DISCOVERY_RANGES = ('LOCALHOST', 'SUBNET', 'SYSTEM_DEFAULT', 'OFF')
+DISCOVERY_VARIABLE = 'ROS_AUTOMATIC_DISCOVERY_RANGE'
 # How long the replay waits for the bag's subscribers after the graph is ready (s).
 REPLAY_SUBSCRIBER_WAIT_S = 10
 
@@ -58,7 +66,8 @@ def string_parameter(value: str) -> str:
 def graph_description(*, replay: str | None = None, rate: float = 1.0, loop: bool = False,
                       nodes: list[str] | None = None, serials: dict[str, str] | None = None,
                       output_frame: str | None = None,
-                      parts: str | None = None) -> list[GraphProcess]:
+                      parts: str | None = None,
+                      foxglove: bool = False) -> list[GraphProcess]:
     """The processes of the graph, in start order.
 
     Two camera drivers (namespaced per camera, ``serials[camera]`` selects the device; none =
@@ -66,12 +75,16 @@ def graph_description(*, replay: str | None = None, rate: float = 1.0, loop: boo
     until every stage node started here reports ready, then for the bag's subscribers.
     ``output_frame`` overrides the pose estimator's ('camera' or 'world'); None = the file's.
     ``parts`` (a parts folder) overrides the classifier's and pose estimator's ``parts_path``.
+    ``foxglove`` adds the Foxglove live view.
     """
     wanted = list(nodes or NODE_EXECUTABLES)
-    unknown = [name for name in wanted if name not in NODE_EXECUTABLES]
+    if foxglove and FOXGLOVE_NODE not in wanted:
+        wanted.append(FOXGLOVE_NODE)
+    known = (*NODE_EXECUTABLES, FOXGLOVE_NODE)
+    unknown = [name for name in wanted if name not in known]
     if unknown:
         raise TlessbotError(f'node {unknown[0]!r} is not part of this installation; the nodes '
-                            f'are {", ".join(NODE_EXECUTABLES)}')
+                            f'are {", ".join(known)}')
     if rate <= 0:
         raise TlessbotError(f'replay rate must be positive, got {rate}')
     unknown_cameras = sorted(set(serials or {}) - set(CAMERA_NAMES))
@@ -92,7 +105,8 @@ def graph_description(*, replay: str | None = None, rate: float = 1.0, loop: boo
                 if name == 'pose_estimator' and output_frame else ()
             if parts and name in PARTS_NODES:
                 overrides += (('parts_path', str(Path(parts).expanduser().resolve())),)
-            processes.append(GraphProcess(name, name, overrides=overrides, respawn=True))
+            processes.append(GraphProcess(name, name, overrides=overrides,
+                                          respawn=name != FOXGLOVE_NODE))
     return processes
 
 
@@ -112,3 +126,23 @@ def _replay_process(bag: str, rate: float, loop: bool, stages: list[str]) -> Gra
     if loop:
         arguments.append('--loop')
     return GraphProcess('replay', TOOL_EXECUTABLE, arguments=tuple(arguments))
+
+
+def discovery_range(*, argument: str | None, config_value: object = None,
+                    environ: dict[str, str] | None = None) -> str:
+    """The graph's ROS_AUTOMATIC_DISCOVERY_RANGE: the launch argument, else the cell file's
+    ``discovery_range``, else the environment's, else 'LOCALHOST' (private to this host).
+
+    Raises:
+        TlessbotError: a value outside :data:`DISCOVERY_RANGES`.
+    """
+    for source, value in (('the launch argument', argument),
+                          ('discovery_range in the cell file', config_value),
+                          (DISCOVERY_VARIABLE, (environ or {}).get(DISCOVERY_VARIABLE))):
+        if value:
+            chosen = str(value).upper()
+            if chosen not in DISCOVERY_RANGES:
+                raise TlessbotError(f'{source} must be one of {", ".join(DISCOVERY_RANGES)} '
+                                    f'(any case), got {value!r}')
+            return chosen
+    return 'LOCALHOST'

@@ -33,12 +33,14 @@ def graph_processes(config: Path, *, replay: str | None = None, rate: float = 1.
                     extra_ros_args: list[str] | None = None,
                     serials: dict[str, str] | None = None,
                     output_frame: str | None = None,
-                    parts: str | None = None) -> list[ProcessSpec]:
+                    parts: str | None = None,
+                    foxglove: bool = False) -> list[ProcessSpec]:
     """The processes of :func:`cell_graph.graph_description` as argvs of this Python (pure:
     nothing is started). Each node gets ``--ros-args --params-file config``, then
     ``extra_ros_args``, then the description's namespace and parameter overrides."""
     description = graph_description(replay=replay, rate=rate, loop=loop, nodes=nodes,
-                                     serials=serials, output_frame=output_frame, parts=parts)
+                                     serials=serials, output_frame=output_frame, parts=parts,
+                                     foxglove=foxglove)
     return [ProcessSpec(process.label, _argv(process, config, extra_ros_args or []))
             for process in description]
 
