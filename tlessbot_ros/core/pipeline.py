@@ -79,6 +79,7 @@ from tlessbot_ros.core.localise import (
     SegmentationParams,
     fuse_views,
     segment,
+    single_view,
 )
 from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
 from tlessbot_ros.core.part_fit import (
@@ -214,7 +215,8 @@ class PerceptionPipeline:
 
     # ---------------------------------------------------------------------------- stage 1
     def localise(self, views: dict[str, ViewInput]) -> FusionResult:
-        """Instance label images of a two-view frame ('top' and 'side').
+        """Instance label images of a two-view frame ('top' and 'side'), or of the one view
+        of a rig of one camera (any name: :func:`~tlessbot_ros.core.localise.single_view`).
 
         A view with aligned depth and a table frame (:meth:`table_frame`) is segmented with
         the depth cue (height above the table) fused with the colour cues; otherwise from
@@ -224,20 +226,17 @@ class PerceptionPipeline:
         above, at twice the distance and with sparse depth on dark parts, a deep groove of one
         part shows the table as a gap between two parts does.
         """
+        if len(views) == 1:   # a rig of one camera: its segmentation, nothing to fuse
+            (name,) = views
+            return single_view(self._segment(name, views[name], split_by_depth=name != TOP),
+                               name)
         missing = set(CAMERA_NAMES) - set(views)
         if missing:
-            raise ValueError(f'localise needs the top and side views; missing {sorted(missing)}')
+            raise ValueError(f'localise needs the top and side views (or one view alone); '
+                             f'missing {sorted(missing)}')
 
         def seg(name: str):
-            view = views[name]
-            T_world_camera = None if view.depth_m is None else \
-                self.table_frame(name, view).T_world_camera
-            with_depth = T_world_camera is not None
-            return segment(view.rgb, background=view.background,
-                           depth_m=view.depth_m if with_depth else None,
-                           intrinsics=view.intrinsics if with_depth else None,
-                           T_world_camera=T_world_camera, split_by_depth=name == SIDE,
-                           params=self.segmentation)
+            return self._segment(name, views[name], split_by_depth=name == SIDE)
 
         if self.localise_params.parallel_views:
             top_future = second_view_thread().submit(seg, TOP)
@@ -247,6 +246,18 @@ class PerceptionPipeline:
             top, side = seg(TOP), seg(SIDE)
         return fuse_views(top, side, rig=self.rig, side_rgb=views[SIDE].rgb,
                           depth_top_m=views[TOP].depth_m, params=self.fusion)
+
+    def _segment(self, name: str, view: ViewInput, *, split_by_depth: bool):
+        """One view's :class:`~tlessbot_ros.core.localise.Segmentation`, with its depth cue
+        when the view has depth and a table frame."""
+        T_world_camera = None if view.depth_m is None else \
+            self.table_frame(name, view).T_world_camera
+        with_depth = T_world_camera is not None
+        return segment(view.rgb, background=view.background,
+                       depth_m=view.depth_m if with_depth else None,
+                       intrinsics=view.intrinsics if with_depth else None,
+                       T_world_camera=T_world_camera, split_by_depth=split_by_depth,
+                       params=self.segmentation)
 
     # ---------------------------------------------------------------------------- stage 2
     def classify(self, rgb: dict[str, np.ndarray], labels: dict[str, np.ndarray], *,

@@ -27,7 +27,8 @@ both views at once, in two threads, while ``parallel.min_spare_cores`` are free 
 work or idle lately: SpareCpuParams),
 ``segmentation.*`` (SegmentationParams), ``fusion.*``
 (FusionParams: method calibrated | algorithm1 | side_only), ``sync.*`` (SyncParams),
-``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*`` (extrinsics),
+``rig.cameras`` (the names of the top and side cameras, or of the one camera: its
+segmentation alone then, no fusion or rig refinement), ``rig.CAMERA.*`` (extrinsics),
 ``rig_refinement.*`` (RigRefinementParams: mode none | report | use, thresholds; the rig
 estimated from the table planes and the parts both cameras see,
 :mod:`~tlessbot_ros.core.calibrate.refinement`, and used by the fusion once confident),
@@ -179,7 +180,8 @@ class LocaliserNode(StageNode):
         views, _ = self.warm_up_frame(self.backgrounds)
         pipeline = self._pipeline(views, self._configured_rig(views))
         pipeline.localise(views)
-        RigRefiner(pipeline.rig).observe({c: v.depth_m for c, v in views.items()})
+        if len(views) > 1:
+            RigRefiner(pipeline.rig).observe({c: v.depth_m for c, v in views.items()})
 
     def _configured_rig(self, views: dict[str, ViewInput]) -> Rig:
         return rig_with_intrinsics(self.extrinsics, {c: v.intrinsics for c, v in views.items()})
@@ -196,9 +198,9 @@ class LocaliserNode(StageNode):
     def _refined_pipeline(self, views: dict[str, ViewInput]) -> PerceptionPipeline:
         """The frame's pipeline, its rig checked against (and, with ``rig_refinement.mode``
         'use', refined from) the table planes and parts the cameras see, this frame
-        included."""
+        included. A rig of one camera has nothing to refine against: it keeps its own."""
         configured = self._configured_rig(views)
-        if self.rig_refinement.mode == 'none':
+        if self.rig_refinement.mode == 'none' or len(self.cameras) < 2:
             self.refiner, self._rig_status = None, ('', {'rig_refinement': 'none'})
             self._publish_rig(configured, configured)
             return self._pipeline(views, configured)

@@ -16,7 +16,8 @@ Publishes (RELIABLE, depth 10):
                             not published where vision_msgs is missing
     objects/markers         visualization_msgs/MarkerArray: model surface points + text label,
                             built only while subscribed (RViz)
-    objects/debug_image     sensor_msgs/Image rgb8: side depth in false colour, part outlines
+    objects/debug_image     sensor_msgs/Image rgb8: side depth (the one camera's in a rig of
+                            one camera) in false colour, part outlines
                             and the posed models' points, built only while subscribed
     /diagnostics            latency per stage, fitness, frames dropped, failures
 Parameters: ``parts_path`` (a parts folder of ``tlessbot parts build``: its templates and part
@@ -32,7 +33,7 @@ pose, checked in this process), ``flip_check`` (flat parts turned over, likewise
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
 fits others, on frames that find ``parallel.min_spare_cores`` free beside its work or idle:
 SpareCpuParams),
-``rig.cameras`` (the names of the top and side cameras), ``rig.CAMERA.*``
+``rig.cameras`` (the names of the top and side cameras, or of one camera), ``rig.CAMERA.*``
 (extrinsics; the table path needs them), ``rig_source`` ('localiser': the camera poses the
 localiser publishes on /localiser/rig once it refines the rig from the scene replace
 ``rig.CAMERA.*``, also for ``output_frame`` 'world'; 'config'), ``sync.*``. All are live
@@ -73,7 +74,6 @@ from tlessbot_ros.conversions.topics import (
     pose_topic,
 )
 from tlessbot_ros.core.common import (
-    SIDE,
     OverlayPart,
     decode_candidates,
     depth_overlay,
@@ -187,7 +187,7 @@ class PoseEstimatorNode(StageNode):
         for camera, msgs in views.items():
             inputs[camera], labels[camera], view_classes = self._view_input(camera, msgs)
             classes.update(view_classes)
-        stamp_ns = stamp_to_ns(views[SIDE]['depth'].header.stamp)
+        stamp_ns = stamp_to_ns(views[self.main_camera]['depth'].header.stamp)
         published = []
 
         def publish_pose(detection: Detection) -> None:
@@ -303,7 +303,7 @@ class PoseEstimatorNode(StageNode):
             parts.append(PartPose(part_name(d.obj_id, self.part_names), T, frame,
                                   float(d.pose.fitness), high - low, (high + low) / 2))
         frame = self.world_frame if self.output_frame == 'world' else \
-            views[SIDE]['depth'].header.frame_id
+            views[self.main_camera]['depth'].header.frame_id
         self._detections.publish(parts_to_detection_array(parts, frame_id=frame,
                                                           stamp_ns=stamp_ns,
                                                           factory=self._factory))
@@ -320,13 +320,13 @@ class PoseEstimatorNode(StageNode):
                 parts.append(PartMarker(label, T, frame, self.templates[d.obj_id].model_points))
             self._markers.publish(parts_to_marker_array(parts, stamp_ns, factory=self._factory))
         if self._overlay.get_subscription_count() > 0:
-            side = inputs[SIDE]
-            canvas = depth_overlay(side.depth_m, labels[SIDE], side.intrinsics.K, [
+            main = self.main_camera
+            canvas = depth_overlay(inputs[main].depth_m, labels[main], inputs[main].intrinsics.K, [
                 OverlayPart(part_name(d.obj_id, self.part_names), d.box, d.pose.T_camera_object,
                             self.templates[d.obj_id].model_points)
-                for d in detections if d.view == SIDE])
+                for d in detections if d.view == main])
             self._overlay.publish(array_to_image(
-                canvas, 'rgb8', frame_id=views[SIDE]['depth'].header.frame_id,
+                canvas, 'rgb8', frame_id=views[main]['depth'].header.frame_id,
                 stamp_ns=stamp_ns, factory=self._factory))
 
 

@@ -1,8 +1,8 @@
 """The shared skeleton of the perception stage nodes (localiser, classifier, pose_estimator).
 
 A stage node subscribes per-camera topics for the cameras of ``rig.cameras`` (the ``top`` and
-``side`` roles, :func:`~tlessbot_ros.core.common.check_camera_roles`), pairs them by
-stamp (:class:`~tlessbot_ros.nodes.inputs.TwoViewInputs`), runs one stage, and publishes results
+``side`` roles, or one camera: :func:`~tlessbot_ros.core.common.check_camera_roles`), pairs
+them by stamp (:class:`~tlessbot_ros.nodes.inputs.TwoViewInputs`), runs one stage, and publishes results
 stamped with the source images' stamps. It never dies on bad input: a callback failure is
 logged (throttled) and counted.
 
@@ -59,6 +59,7 @@ from tlessbot_ros.conversions.outcomes import DONE, DROPPED, FAILED, frame_outco
 from tlessbot_ros.conversions.pose import pose_array_to_camera_poses
 from tlessbot_ros.conversions.topics import DIAGNOSTICS, OBSERVED_RIG, node_relative, outcome_topic
 from tlessbot_ros.core.common import CAMERA_NAMES, SyncParams, d415_intrinsics, table_with_box
+from tlessbot_ros.core.label_views import view_order
 from tlessbot_ros.core.pipeline import ViewInput
 from tlessbot_ros.nodes.admission import Entrance, RateCap
 from tlessbot_ros.nodes.diagnostics import diagnostic_array
@@ -109,6 +110,7 @@ class StageNode(Node):
         self.ready = self.status.ready
         self.parameters = LiveParameters(self)
         self.cameras = declare_cameras(self.parameters)
+        self.main_camera = view_order(self.cameras)[0]   # side, or the rig's one camera
         self.extrinsics = declare_extrinsics(self.parameters, self.cameras,
                                              self._apply_extrinsics)
         self.input_source = declare_input_source(self) if after_localiser else 'cameras'

@@ -22,6 +22,7 @@ from tlessbot_ros.conversions.topics import (
 )
 from tlessbot_ros.core.common import (
     CAMERA_NAMES,
+    SIDE,
     TOP,
     CameraMount,
     Rig,
@@ -105,25 +106,28 @@ def declare_cameras(parameters: LiveParameters) -> tuple[str, ...]:
     and return it.
 
     Raises:
-        CalibrationError: names other than the two roles the pipeline fuses.
+        CalibrationError: neither the two roles the pipeline fuses nor one camera.
     """
     names = parameters.read_only('rig.cameras', list(CAMERA_NAMES), f'names of the cameras of '
-                                 f'the rig: the roles {list(CAMERA_NAMES)}, in any order')
+                                 f'the rig: the roles {list(CAMERA_NAMES)} in any order, or '
+                                 'one camera of any name')
     return check_camera_roles(names)
 
 
 def declare_extrinsics(parameters: LiveParameters, cameras: Sequence[str],
                        apply: Callable[[str, np.ndarray], None]) -> dict[str, np.ndarray]:
-    """Declare ``rig.<camera>.{position_m, look_at_m, up}`` (defaults: the paper's cell) and
-    return {camera: T_world_camera}. Intrinsics come from the live CameraInfo instead.
+    """Declare ``rig.<camera>.{position_m, look_at_m, up}`` (defaults: the paper's cell; a
+    camera named other than ``top`` gets the side camera's) and return {camera: T_world_camera}.
+    Intrinsics come from the live CameraInfo instead.
 
     They are live: a change reaches ``apply(camera, T_world_camera)`` between frames."""
     defaults = default_rig()
     extrinsics = {}
     for camera in cameras:
         names = {key: f'rig.{camera}.{key}' for key in ('position_m', 'look_at_m', 'up')}
+        default = defaults[camera if camera == TOP else SIDE].T_world_camera
         declarations = {
-            names['position_m']: ([float(v) for v in defaults[camera].T_world_camera[:3, 3]],
+            names['position_m']: ([float(v) for v in default[:3, 3]],
                                   f'{camera} camera position in the world (table) frame, metres'),
             names['look_at_m']: ([0.0, 0.0, 0.0],
                                  f'point the {camera} camera looks at, world frame, metres'),

@@ -24,19 +24,22 @@ CAMERA_NAMES = (TOP, SIDE)
 
 
 def check_camera_roles(names: Sequence[str]) -> tuple[str, ...]:
-    """The camera names of a rig (``rig.cameras``) if they are the two roles the pipeline
-    fuses, :data:`CAMERA_NAMES` in any order.
+    """The camera names of a rig (``rig.cameras``) if the pipeline can run on them: the two
+    roles it fuses, :data:`CAMERA_NAMES` in any order, or one camera of any name (a single
+    view: no fusion, every part read in that camera).
 
     Raises:
         CalibrationError: other names, a missing role or a repeated one; the message names
             what was found and what is supported.
     """
     names = tuple(str(name) for name in names)
+    if len(names) == 1 and names[0]:
+        return names
     if len(names) != len(CAMERA_NAMES) or set(names) != set(CAMERA_NAMES):
         raise CalibrationError(
             f'rig.cameras is {list(names)}, but the pipeline fuses exactly two cameras named '
-            f'{list(CAMERA_NAMES)} ({TOP!r} looks down on the table, {SIDE!r} from the side); '
-            'name the cameras of config/cell.yaml so')
+            f'{list(CAMERA_NAMES)} ({TOP!r} looks down on the table, {SIDE!r} from the side), '
+            'or runs on one camera of any name; name the cameras of config/cell.yaml so')
     return names
 
 

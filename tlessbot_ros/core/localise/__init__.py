@@ -36,6 +36,7 @@ _HOME = {
     'fuse_views': 'two_view',
     'lift_top_blobs': 'calibrated_fusion',
     'predict_side_regions': 'calibrated_fusion',
+    'single_view': 'two_view',
     'table_homography': 'two_view',
 }
 __all__ = sorted(_HOME)
@@ -85,5 +86,6 @@ if TYPE_CHECKING:
     )
     from tlessbot_ros.core.localise.two_view import (  # noqa: F401
         fuse_views,
+        single_view,
         table_homography,
     )

@@ -82,6 +82,20 @@ def fuse_views(top: Segmentation, side: Segmentation, *, rig: Rig | None = None,
 
 
 
+def single_view(segmentation: Segmentation, name: str) -> FusionResult:
+    """The instances of a rig of one camera: its segmentation's labels as they are, under the
+    camera's ``name`` (:attr:`FusionResult.labels` has that one view; the instances count as
+    seen from the top for a camera named ``top``, else from the side)."""
+    t0 = time.perf_counter()
+    labels = segmentation.labels.astype(np.uint16)
+    empty = np.zeros_like(labels)
+    instances = instances_from_labels(*((labels, empty) if name == 'top' else (empty, labels)),
+                                      set())
+    result = FusionResult(labels={name: labels}, instances=instances, method='single_view')
+    result.timings_ms['total'] = (time.perf_counter() - t0) * 1e3
+    return result
+
+
 def _side_only(top: Segmentation, side: Segmentation) -> FusionResult:
     labels = {'top': np.zeros_like(top.labels), 'side': side.labels.astype(np.uint16)}
     return FusionResult(labels=labels, method='side_only',
@@ -159,4 +173,4 @@ def _algorithm1(top: Segmentation, side: Segmentation, rig: Rig, params: FusionP
 
 
 __all__ = ['FUSION_METHODS', 'FusedInstance', 'FusionParams', 'FusionResult', 'fuse_views',
-           'lift_top_blobs', 'predict_side_regions', 'table_homography']
+           'lift_top_blobs', 'predict_side_regions', 'single_view', 'table_homography']
