@@ -2,9 +2,9 @@
 
 A stage node subscribes per-camera topics for the cameras of ``rig.cameras`` (the ``top`` and
 ``side`` roles, or one camera: :func:`~tlessbot_ros.core.common.check_camera_roles`), pairs
-them by stamp (:class:`~tlessbot_ros.nodes.inputs.TwoViewInputs`), runs one stage, and publishes results
-stamped with the source images' stamps. It never dies on bad input: a callback failure is
-logged (throttled) and counted.
+them by stamp (:class:`~tlessbot_ros.nodes.inputs.TwoViewInputs`), runs one stage, and
+publishes results stamped with the source images' stamps. It never dies on bad input: a
+callback failure is logged (throttled) and counted.
 
 :class:`StageNode` wires small parts it holds; a stage implements :meth:`StageNode.process`
 and calls :meth:`StageNode.start_when_ready`:

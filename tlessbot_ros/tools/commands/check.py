@@ -17,7 +17,12 @@ from pathlib import Path
 
 from tlessbot_ros.core.regression import MATCH, PartCheck, Tolerance, check_frames
 from tlessbot_ros.errors import TlessbotError
-from tlessbot_ros.tools.support.approval_run import add_replay_arguments, replay_bag
+from tlessbot_ros.tools.support.approval_run import (
+    add_replay_arguments,
+    bag_cameras,
+    replay_bag,
+)
+from tlessbot_ros.tools.support.bag_inputs import SetupError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,6 +66,19 @@ def _symmetries(path: Path) -> dict:
     return {f'obj_{obj_id:02d}': s for obj_id, s in load_symmetries(path).items()}
 
 
+def _same_cameras(approved: object, found: dict[str, str]) -> None:
+    """The bag gives the graph the cameras the approved run had (the set-up is broken when a
+    camera's topics went missing from a bag approved with two).
+
+    Raises:
+        SetupError: other cameras; one line.
+    """
+    if isinstance(approved, dict) and set(approved) != set(found):
+        given = ', '.join(f'{camera} ({prefix})' for camera, prefix in found.items())
+        raise SetupError(f'the poses were approved with the cameras {", ".join(approved)}, '
+                         f'but the bag has {given}')
+
+
 def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.tools.support.expected_poses import frames_from_parts, read_expected
     from tlessbot_ros.tools.support.junit import write_junit
@@ -69,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
         tolerance = Tolerance(1e-3 * args.position_tolerance_mm, args.angle_tolerance_deg)
         expected = read_expected(args.expected)
         symmetries = _symmetries(args.models_info)
+        _same_cameras(expected.info.get('cameras'), bag_cameras(args)[2])
         outcome = replay_bag(args)
     except (TlessbotError, ValueError) as error:
         print(f'tlessbot check: error: {error}', file=sys.stderr)

@@ -4,7 +4,8 @@ Writes ``<out>/test_top`` and ``<out>/test_side`` (same scene and image ids), ``
 ``camera_side.json`` and ``models_info.json`` (diameters, mm); with ``--backgrounds`` also
 ``background_top`` / ``background_side``: each frame's empty table (same ids, no ground truth).
 The rig comes from the YAML (``config/cell.yaml`` by default); ``--width/--height`` rescale its
-intrinsics.
+intrinsics. ``--cameras side`` writes that camera alone (a cell of one camera), the scenes
+unchanged.
 
 Example:
   tlessbot simulate --models ../shared/data/tless_models_cad_stl --out /tmp/sim --frames 20
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 from tlessbot_ros.errors import DatasetError, TlessbotError
@@ -65,6 +67,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              '--change-frames (tlessbot_ros/sim/script.py; --frames ignored)')
     parser.add_argument('--rest-frames', type=int, default=6, help='--script: first layout')
     parser.add_argument('--change-frames', type=int, default=6, help='--script: second layout')
+    parser.add_argument('--cameras', nargs='+', metavar='NAME',
+                        help='write only these cameras of the rig, e.g. --cameras side: a bag '
+                             'of one camera (the scenes stay those of the whole rig)')
     parser.add_argument('--no-progress', action='store_true')
 
 
@@ -78,7 +83,12 @@ def run(args: argparse.Namespace) -> int:
     if args.cloud_stride < 1:
         raise TlessbotError('--cloud-stride must be at least 1')
     sim = _simulator(args)
-    writers, backgrounds = _dataset_writers(args, sim)
+    cameras = list(args.cameras or sim.rig.cameras)
+    unknown = sorted(set(cameras) - set(sim.rig.cameras))
+    if unknown:
+        raise TlessbotError(f'--cameras {" ".join(unknown)}: the rig has the cameras '
+                            f'{", ".join(sim.rig.cameras)}')
+    writers, backgrounds = _dataset_writers(args, sim, cameras)
 
     rendered, indices = _frame_source(sim, args)
     bar = tqdm(indices, desc='simulate', unit='frame', disable=args.no_progress)
@@ -88,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     def frames() -> Iterator:
         for index in bar:
             frame = rendered(index)
+            frame = replace(frame, views={name: frame.views[name] for name in cameras})
             if len(frame.objects) < args.parts_min:
                 short.append(index)
             for name, writer in writers.items():
@@ -115,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         print(f'note: {len(short)} frame(s) hold fewer than --parts-min parts (no free place '
               f'seen by every camera), e.g. frame {short[0]}')
     if args.out is not None:
-        print(f'wrote {len(indices)} two-view frames to {args.out} '
+        print(f'wrote {len(indices)} frames of {len(cameras)} camera(s) to {args.out} '
               f'(splits: {", ".join("test_" + n for n in writers)})')
     return 0
 
@@ -146,9 +157,9 @@ def _simulator(args: argparse.Namespace):
     return sim
 
 
-def _dataset_writers(args: argparse.Namespace, sim) -> tuple[dict, dict]:
-    """The BOP writers of ``--out`` per camera: the frames' and the empty tables' (none
-    without ``--out``); the camera and model files are written here."""
+def _dataset_writers(args: argparse.Namespace, sim, cameras: list[str]) -> tuple[dict, dict]:
+    """The BOP writers of ``--out`` per camera of ``cameras``: the frames' and the empty
+    tables' (none without ``--out``); the camera and model files are written here."""
     from tlessbot_ros.io.bop import BopWriter, write_camera_json
 
     writers, backgrounds = {}, {}
@@ -157,7 +168,8 @@ def _dataset_writers(args: argparse.Namespace, sim) -> tuple[dict, dict]:
     if args.out.exists() and not args.out.is_dir():
         raise DatasetError(f'--out {args.out} exists and is not a folder')
     args.out.mkdir(parents=True, exist_ok=True)
-    for name, cam in sim.rig.cameras.items():
+    for name in cameras:
+        cam = sim.rig[name]
         writers[name] = BopWriter(args.out, f'test_{name}', write_masks=not args.no_masks)
         if args.backgrounds:
             backgrounds[name] = BopWriter(args.out, f'background_{name}')

@@ -161,15 +161,17 @@ def _part_name(pose) -> str:
     return getattr(pose, 'name', None) or f'obj_{pose.obj_id:02d}'
 
 
-def replay_bag(args: argparse.Namespace, *, overlays: bool = False) -> ReplayOutcome:
-    """Stage ``args.bag`` and replay it through the graph (see :func:`add_replay_arguments`).
+def bag_cameras(args: argparse.Namespace) -> tuple[Path, list[str], dict[str, str]]:
+    """The parameter file, its ``rig.cameras`` and {camera: prefix in the bag} of the cameras
+    the graph runs with (:func:`~.bag_inputs.find_cameras`: a bag of one camera gives a rig of
+    one camera).
 
     Raises:
-        SetupError: the bag, its topics, the model files or the graph are not usable; one line.
+        SetupError: the bag, the model files or the parameter file are missing, or the bag
+            lacks topics; one line.
     """
     from tlessbot_ros.io.bags import bag_topics
     from tlessbot_ros.io.config import default_config_path
-    from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
     from tlessbot_ros.tools.support.rig import load_rig
 
     if not args.bag.exists():
@@ -183,6 +185,19 @@ def replay_bag(args: argparse.Namespace, *, overlays: bool = False) -> ReplayOut
     cameras = list(load_rig(config).cameras)
     found = find_cameras(list(bag_topics(args.bag)), cameras, parse_camera_map(args.camera),
                          bag=str(args.bag))
+    return Path(config), cameras, found
+
+
+def replay_bag(args: argparse.Namespace, *, overlays: bool = False) -> ReplayOutcome:
+    """Stage ``args.bag`` and replay it through the graph (see :func:`add_replay_arguments`)
+    with the cameras the bag has (:func:`bag_cameras`).
+
+    Raises:
+        SetupError: the bag, its topics, the model files or the graph are not usable; one line.
+    """
+    from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
+
+    config, cameras, found = bag_cameras(args)
     started = time.monotonic()
     extras = _Extras(overlays)
     with tempfile.TemporaryDirectory(prefix='tlessbot_check_') as tmp:
@@ -192,10 +207,11 @@ def replay_bag(args: argparse.Namespace, *, overlays: bool = False) -> ReplayOut
                     *(a for value in args.param for a in ('-p', value))]
         argv, sys.argv = sys.argv, sys.argv[:1]   # rclpy.init reads sys.argv, where rcl
         try:                                      # would take '-p a:=b' for a remap rule
-            run = run_graph_on_bag(staged.path, config=Path(config), ros_args=ros_args,
+            run = run_graph_on_bag(staged.path, config=config, ros_args=ros_args,
                                    lockstep=not args.free_running,
                                    startup_timeout_s=args.startup_timeout,
-                                   alongside=extras.start)
+                                   alongside=extras.start,
+                                   cameras=None if set(found) == set(cameras) else list(found))
         except TlessbotError as error:
             raise SetupError(f'graph: {one_line(str(error))}') from None
         finally:

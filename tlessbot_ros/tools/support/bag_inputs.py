@@ -9,9 +9,9 @@ times, unlike the bags tlessbot writes.
 :func:`find_cameras` finds each graph camera's topic prefix; :func:`stage_bag` copies the
 messages the graph reads (colour, aligned depth, its camera_info, per camera) into a new bag
 under the graph's names, one frame per log time: the side colour image's stamp, the top
-camera's nearest frame within ``sync.max_age_s``. A lock-step replay then sends whole frames,
-one at a time, in the same order every run. A frame one of the cameras lacks a message of is
-left out and counted.
+camera's nearest frame within ``sync.max_age_s`` (a bag of one camera: its colour stamp). A
+lock-step replay then sends whole frames, one at a time, in the same order every run. A frame
+one of the cameras lacks a message of is left out and counted.
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from tlessbot_ros.conversions.topics import COLOR, COLOR_INFO, DEPTH, DEPTH_INFO, camera_topic
-from tlessbot_ros.core.common import SIDE
+from tlessbot_ros.core.label_views import view_order
 from tlessbot_ros.errors import BagError
 from tlessbot_ros.io.bags import BagMessage
 
@@ -58,23 +58,53 @@ def _prefixes(topics: Sequence[str]) -> list[str]:
 def find_cameras(topics: Sequence[str], cameras: Sequence[str],
                  given: Mapping[str, str] | None = None, *, bag: str = 'bag'
                  ) -> dict[str, str]:
-    """{graph camera: topic prefix in the bag}.
+    """{graph camera: topic prefix in the bag}: the cameras the graph runs with.
 
     A camera's prefix is ``given`` or found: ``/<camera>``, else the one prefix that ends in
-    ``/<camera>`` (``/top/top``, ``/cell/top``).
+    ``/<camera>`` (``/top/top``, ``/cell/top``). A bag of one camera is a rig of one camera:
+    the one of ``cameras`` it has topics of, else, when it has the topics of one camera only,
+    that camera under its prefix's last name (``/camera/camera``: ``camera``). One ``given``
+    name outside ``cameras`` (``--camera front=/cell/front``) is such a camera too.
 
     Raises:
-        SetupError: a camera not found, or its prefix lacks a topic a stage needs; the line
-            names the topics.
+        SetupError: no camera found, or a camera's prefix lacks a topic a stage needs; the
+            line names the topics.
     """
     given = dict(given or {})
     unknown = sorted(set(given) - set(cameras))
-    if unknown:
-        raise SetupError(f"--camera names {unknown}; the graph's cameras are {list(cameras)}")
+    if unknown and len(given) > 1:
+        raise SetupError(f"--camera names {unknown}; the graph's cameras are {list(cameras)} "
+                         '(or one --camera NAME=PREFIX alone: a rig of one camera)')
     if len(set(given.values())) < len(given):
         raise SetupError(f'--camera maps two cameras to one prefix ({given}); the graph fuses '
                          'two different views')
     prefixes = _prefixes(topics)
+    found: dict[str, str] = dict(given) if unknown else _by_name(prefixes, cameras, given)
+    others = [p for p in prefixes if p not in found.values()]
+    if not found and len(others) == 1:
+        found, others = {others[0].rsplit('/', 1)[-1]: others[0]}, []
+    missing_cameras = [c for c in cameras if c not in found]
+    # a camera missing while the bag has another one's topics: which is which is not clear
+    if not found or (missing_cameras and others and not unknown):
+        hint = (f'; it has camera topics under {", ".join(others)}: map them with --camera '
+                f'{missing_cameras[0]}={others[0]}' if others else '')
+        needed = ', '.join(camera_topic(c, t) for c in missing_cameras for t in NEEDED)
+        raise SetupError(f'{bag} lacks the topics of camera(s) {", ".join(missing_cameras)} '
+                         f'(the graph fuses {" and ".join(cameras)}, or runs on one camera): '
+                         f'{needed}{hint}')
+    absent = [(f'{prefix}/{t}', t) for prefix in found.values() for t in NEEDED
+              if f'{prefix}/{t}' not in topics]
+    if absent:
+        what = '; '.join(dict.fromkeys(WHY[t] for _, t in absent))
+        raise SetupError(f'{bag} lacks {", ".join(t for t, _ in absent)} (the stages need '
+                         f'the {what})')
+    return found
+
+
+def _by_name(prefixes: Sequence[str], cameras: Sequence[str], given: Mapping[str, str]
+             ) -> dict[str, str]:
+    """{camera: prefix} of the ``cameras`` found: ``given``, ``/<camera>`` or the one prefix
+    ending in ``/<camera>``."""
     found: dict[str, str] = {}
     for camera in cameras:
         if camera in given:
@@ -86,20 +116,6 @@ def find_cameras(topics: Sequence[str], cameras: Sequence[str],
             found[camera] = exact
         elif len(ending) == 1:
             found[camera] = ending[0]
-    missing_cameras = [c for c in cameras if c not in found]
-    if missing_cameras:
-        others = [p for p in prefixes if p not in found.values()]
-        hint = (f'; it has camera topics under {", ".join(others)}: map them with --camera '
-                f'{missing_cameras[0]}={others[0]}' if others else '')
-        needed = ', '.join(camera_topic(c, t) for c in missing_cameras for t in NEEDED)
-        raise SetupError(f'{bag} lacks the topics of camera(s) {", ".join(missing_cameras)} '
-                         f'(the graph fuses {" and ".join(cameras)}): {needed}{hint}')
-    absent = [(f'{found[c]}/{t}', t) for c in cameras for t in NEEDED
-              if f'{found[c]}/{t}' not in topics]
-    if absent:
-        what = '; '.join(dict.fromkeys(WHY[t] for _, t in absent))
-        raise SetupError(f'{bag} lacks {", ".join(t for t, _ in absent)} (the stages need '
-                         f'the {what})')
     return found
 
 
@@ -109,8 +125,8 @@ class StagedBag:
 
     path: Path
     cameras: dict[str, str]                 # graph camera -> prefix in the source bag
-    frames: list[int] = field(default_factory=list)   # side colour stamps, ns
-    skipped: int = 0                        # side frames left out: a message missing
+    frames: list[int] = field(default_factory=list)   # main camera's colour stamps, ns
+    skipped: int = 0                        # its frames left out: a message missing
 
 
 def _stamped(bag: str | Path, sources: Mapping[str, tuple[str, str]]
@@ -134,11 +150,12 @@ def _nearest(stamps: Sequence[int], stamp: int) -> int | None:
 def _frame(stamps: Mapping[tuple[str, str], set[int]], cameras: Sequence[str],
            relatives: Sequence[str], stamp: int, max_age_ns: int
            ) -> list[tuple[str, str, int]] | None:
-    """The messages (camera, relative topic, stamp) of the frame of side stamp ``stamp``; None
-    when a camera has no frame within ``max_age_ns`` or lacks a needed message of it."""
+    """The messages (camera, relative topic, stamp) of the frame of main camera stamp
+    ``stamp`` (``cameras[0]``); None when a camera has no frame within ``max_age_ns`` or lacks
+    a needed message of it."""
     frame = []
     for camera in cameras:
-        own = stamp if camera == SIDE else _nearest(sorted(stamps.get((camera, COLOR), ())),
+        own = stamp if camera == cameras[0] else _nearest(sorted(stamps.get((camera, COLOR), ())),
                                                     stamp)
         if own is None or abs(own - stamp) > max_age_ns:
             return None
@@ -153,7 +170,8 @@ def _frame(stamps: Mapping[tuple[str, str], set[int]], cameras: Sequence[str],
 def stage_bag(bag: str | Path, out: str | Path, cameras: Mapping[str, str], *,
               max_age_s: float = 0.050) -> StagedBag:
     """Copy the frames of ``bag`` the graph reads to a new mcap bag ``out``, under the graph's
-    topic names, one log time (the side colour stamp) per whole frame. Two passes over the bag
+    topic names, one log time (the colour stamp of the side camera, or of a rig's one camera)
+    per whole frame. Two passes over the bag
     (the stamps, then the messages), so a long bag is never held in memory.
 
     Args:
@@ -173,8 +191,9 @@ def stage_bag(bag: str | Path, out: str | Path, cameras: Mapping[str, str], *,
     staged = StagedBag(Path(out), dict(cameras))
     present = sorted({rel for _, rel in stamps})
     log_times: dict[tuple[str, str, int], list[int]] = {}   # a message -> its frames' stamps
-    for stamp in sorted(stamps.get((SIDE, COLOR), ())):
-        frame = _frame(stamps, list(cameras), present, stamp, int(max_age_s * 1e9))
+    order = view_order(cameras)   # the main camera first
+    for stamp in sorted(stamps.get((order[0], COLOR), ())):
+        frame = _frame(stamps, order, present, stamp, int(max_age_s * 1e9))
         if frame is None:
             staged.skipped += 1
             continue

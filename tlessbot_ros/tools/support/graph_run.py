@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,11 +47,22 @@ from tlessbot_ros.tools.support.processes import (
 )
 
 ALL_OBJECT_IDS = range(1, 31)
-STAGE_OUTPUTS = {'localiser': labels_topic(SIDE), 'classifier': classes_topic(SIDE)}
 MONITOR = 'replay and monitor'
-# Every perception node subscribes the side depth, from the camera or (input_source:
-# localiser) from the localiser's relay, once it is ready.
-READY_TOPICS = (camera_topic(SIDE, DEPTH), relay_topic(SIDE, DEPTH))
+
+
+def stage_outputs(camera: str = SIDE) -> dict[str, str]:
+    """The topics of each stage's output of ``camera`` (side, or a rig's one camera)."""
+    return {'localiser': labels_topic(camera), 'classifier': classes_topic(camera)}
+
+
+def ready_topics(camera: str = SIDE) -> tuple[str, str]:
+    """Every perception node subscribes ``camera``'s depth, from the camera or (input_source:
+    localiser) from the localiser's relay, once it is ready."""
+    return camera_topic(camera, DEPTH), relay_topic(camera, DEPTH)
+
+
+STAGE_OUTPUTS = stage_outputs()
+READY_TOPICS = ready_topics()
 FRAME_TOPIC = camera_topic(SIDE, COLOR)  # one message per replayed frame
 
 
@@ -102,6 +113,14 @@ class GraphRunOptions:
     drain_timeout_s: float = 60.0
     lockstep: bool = False
     quiet: bool = True
+    cameras: tuple[str, ...] | None = None   # rig.cameras of the run; None: the config's
+
+
+def main_camera(cameras: Sequence[str] | None) -> str:
+    """The camera whose frames the run counts and waits on: side, or a rig's one camera."""
+    from tlessbot_ros.core.label_views import view_order
+
+    return view_order(cameras)[0] if cameras else SIDE
 
 
 class GraphMonitor:
@@ -110,7 +129,7 @@ class GraphMonitor:
     run on the executor's thread)."""
 
     def __init__(self, node: Any, result: GraphRunResult,
-                 part_names: dict[int, str] | None = None) -> None:
+                 part_names: dict[int, str] | None = None, camera: str = SIDE) -> None:
         from tlessbot_ros.nodes.common import RESULT_QOS, message_class
 
         self.result = result
@@ -122,7 +141,7 @@ class GraphMonitor:
         node.create_subscription(message_class('diagnostic_msgs/msg/DiagnosticArray'),
                                  DIAGNOSTICS, self._on_diagnostics, RESULT_QOS)
         image_class = message_class('sensor_msgs/msg/Image')
-        for stage, topic in STAGE_OUTPUTS.items():   # raw: only the stamp is read
+        for stage, topic in stage_outputs(camera).items():   # raw: only the stamp is read
             node.create_subscription(image_class, topic, self._on_stage_output(stage),
                                      RESULT_QOS, raw=True)
         pose_class = message_class('geometry_msgs/msg/PoseStamped')
@@ -182,8 +201,9 @@ class ProcessSampler:
     """The nodes' CPU over the replay, and once a second their RSS, open files and threads
     (their worker processes included), taken on the replay's thread as frames go out."""
 
-    def __init__(self, pids: dict[str, int], result: GraphRunResult) -> None:
-        self.pids = pids
+    def __init__(self, pids: dict[str, int], result: GraphRunResult,
+                 frame_topic: str = FRAME_TOPIC) -> None:
+        self.pids, self.frame_topic = pids, frame_topic
         self.result = result
         self._cpu_pids = {**pids, MONITOR: os.getpid()}
         self._cpu_start = {label: self._cpu(label) for label in self._cpu_pids}
@@ -200,7 +220,7 @@ class ProcessSampler:
         """Called with every replayed message: notes the frames, samples when one is due."""
         from tlessbot_ros.conversions.cdr import header_stamp_ns
 
-        if message.topic == FRAME_TOPIC:
+        if message.topic == self.frame_topic:
             self.result.frames_replayed.append(header_stamp_ns(message.raw))
             self.result.frames_replayed_at_ns.append(time.time_ns())
         if time.monotonic() >= self._next_sample_s:
@@ -234,6 +254,9 @@ class GraphRun:
                  part_names: dict[int, str] | None = None) -> None:
         if options.lockstep:  # one frame at a time: no frame may be skipped by a rate cap
             ros_args = [*(ros_args or []), '-p', 'sync.max_rate_hz:=0.0']
+        if options.cameras:
+            ros_args = [*(ros_args or []), '-p', f'rig.cameras:=[{", ".join(options.cameras)}]']
+        self.camera = main_camera(options.cameras)
         self.bag, self.options, self.alongside = str(bag), options, alongside
         self.specs = [ProcessSpec(spec.label,
                                   [*(node_prefixes or {}).get(spec.label, []), *spec.argv])
@@ -256,7 +279,7 @@ class GraphRun:
         init_ros()
         monitor_node = rclpy.create_node('tlessbot_graph_monitor')
         self.player = rclpy.create_node('tlessbot_graph_replay')
-        self.monitor = GraphMonitor(monitor_node, self.result, self.part_names)
+        self.monitor = GraphMonitor(monitor_node, self.result, self.part_names, self.camera)
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(monitor_node)
         spinner = threading.Thread(target=self.executor.spin, daemon=True)
@@ -264,7 +287,7 @@ class GraphRun:
             self._start(spinner)
             pids = self._wait_until_ready()
             self.result.rss_mb_start = {label: rss_mb(pid) for label, pid in pids.items()}
-            sampler = ProcessSampler(pids, self.result)
+            sampler = ProcessSampler(pids, self.result, camera_topic(self.camera, COLOR))
             self._replay(sampler)
             self._drain()
             self.result.rss_mb_end = {label: rss_mb(pid) for label, pid in pids.items()}
@@ -287,9 +310,9 @@ class GraphRun:
         spinner.start()
 
     def _wait_until_ready(self) -> dict[str, int]:
-        """Until every perception node subscribes the side depth; the nodes' pids."""
+        """Until every perception node subscribes the main camera's depth; the nodes' pids."""
         deadline = time.monotonic() + self.options.startup_timeout_s
-        while sum(self.player.count_subscribers(t) for t in READY_TOPICS) < \
+        while sum(self.player.count_subscribers(t) for t in ready_topics(self.camera)) < \
                 len(PERCEPTION_NODES):
             self._raise_if_exited(' during start-up')
             if time.monotonic() > deadline:
@@ -345,7 +368,8 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
                      lockstep: bool = False, quiet: bool = True,
                      node_prefixes: dict[str, list[str]] | None = None,
                      alongside: Callable[[GraphRunResult], Callable[[], None]] | None = None,
-                     part_names: dict[int, str] | None = None) -> GraphRunResult:
+                     part_names: dict[int, str] | None = None,
+                     cameras: Sequence[str] | None = None) -> GraphRunResult:
     """Start the perception nodes, replay ``bag`` into them, collect the published poses.
 
     Args:
@@ -366,10 +390,14 @@ def run_graph_on_bag(bag: str | Path, *, config: Path, ros_args: list[str] | Non
             and stops its garbage publisher so).
         part_names: {id: name} of the parts whose ``/objects/<name>/pose`` to hear (a parts
             folder's, with ``-p parts_path:=...`` in ``ros_args``); None: obj_01 to obj_30.
+        cameras: the nodes' ``rig.cameras`` (e.g. ``['side']`` for a bag of one camera);
+            None: the config's. The run counts the frames of the main camera (side, or the
+            one camera).
     """
     options = GraphRunOptions(rate=rate, loop=loop, duration_s=duration_s, restamp=restamp,
                               startup_timeout_s=startup_timeout_s, settle_s=settle_s,
-                              drain_timeout_s=drain_timeout_s, lockstep=lockstep, quiet=quiet)
+                              drain_timeout_s=drain_timeout_s, lockstep=lockstep, quiet=quiet,
+                              cameras=tuple(cameras) if cameras else None)
     return GraphRun(bag, config=config, options=options, ros_args=ros_args,
                     node_prefixes=node_prefixes, alongside=alongside,
                     part_names=part_names).run()
