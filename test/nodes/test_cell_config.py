@@ -1,9 +1,11 @@
 """config/cell.yaml loads into every perception node; ``rig.cameras`` must name the two roles the
-pipeline fuses; a stage parameter out of range stops a node at start-up with one clear error."""
+pipeline fuses, or one camera; a stage parameter out of range stops a node at start-up with one
+clear error."""
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.ros
@@ -51,7 +53,7 @@ def test_cell_yaml_loads_into_every_perception_node(ros):
     pose.destroy_node()
 
 
-@pytest.mark.parametrize('cameras', [['top', 'left'], ['top'], ['side', 'side'],
+@pytest.mark.parametrize('cameras', [['top', 'left'], ['side', 'side'],
                                      ['top', 'side', 'left']])
 def test_a_rig_without_exactly_the_top_and_side_roles_is_rejected(ros, cameras):
     from rclpy.parameter import Parameter
@@ -72,6 +74,21 @@ def test_cameras_in_either_order_are_accepted(ros):
 
     node = LocaliserNode(parameter_overrides=[Parameter('rig.cameras', value=['side', 'top'])])
     assert node.cameras == ('side', 'top') and set(node.extrinsics) == {'top', 'side'}
+    node.destroy_node()
+
+
+@pytest.mark.parametrize('camera', ['side', 'top', 'front'])
+def test_a_rig_of_one_camera_of_any_name_is_accepted(ros, camera):
+    from rclpy.parameter import Parameter
+
+    from tlessbot_ros.core.common import default_rig
+    from tlessbot_ros.nodes.localiser import LocaliserNode
+
+    node = LocaliserNode(parameter_overrides=[Parameter('rig.cameras', value=[camera])])
+    assert node.cameras == (camera,) and node.main_camera == camera
+    role = 'top' if camera == 'top' else 'side'   # the default pose of a camera of any name
+    np.testing.assert_allclose(node.extrinsics[camera], default_rig()[role].T_world_camera,
+                               atol=1e-9)
     node.destroy_node()
 
 

@@ -30,16 +30,29 @@ def test_find_cameras_under_realsense_names():
     names = [f'{p}/{t}' for p in ('/top/top', '/camera/camera') for t in CAMERA_TOPICS]
     assert find_cameras(names, ['top', 'side'], {'side': '/camera/camera'}) == \
         {'top': '/top/top', 'side': '/camera/camera'}
-    # one camera, realsense-ros's default namespace: the line names what is missing and how
-    # to map the camera there is
+    # one camera, realsense-ros's default namespace: a rig of that one camera, named after it
     one = [f'/camera/camera/{t}' for t in CAMERA_TOPICS]
+    assert find_cameras(one, ['top', 'side'], bag='run1') == {'camera': '/camera/camera'}
+    assert find_cameras(one, ['top', 'side'], {'side': '/camera/camera'}) == \
+        {'side': '/camera/camera'}
+    assert find_cameras(one, ['top', 'side'], {'front': '/camera/camera'}) == \
+        {'front': '/camera/camera'}
+    # one of the rig's cameras alone: a rig of that camera
+    side = [f'/cell/side/{t}' for t in CAMERA_TOPICS]
+    assert find_cameras(side, ['top', 'side']) == {'side': '/cell/side'}
+    # a rig camera missing while the bag has another camera's topics: which is which is not
+    # clear; the line names what is missing and how to map the camera there is
     with pytest.raises(SetupError) as error:
-        find_cameras(one, ['top', 'side'], bag='run1')
+        find_cameras(side + one, ['top', 'side'], bag='run1')
     message = str(error.value)
     assert '\n' not in message
-    assert 'run1 lacks the topics of camera(s) top, side' in message
-    assert '/side/aligned_depth_to_color/image_raw' in message
+    assert 'run1 lacks the topics of camera(s) top' in message
+    assert '/top/aligned_depth_to_color/image_raw' in message
     assert '--camera top=/camera/camera' in message
+    with pytest.raises(SetupError, match='lacks the topics of camera'):
+        find_cameras(['/cell/a/color/image_raw', '/cell/b/color/image_raw'], ['top', 'side'])
+    with pytest.raises(SetupError, match='or one --camera NAME=PREFIX alone'):
+        find_cameras(one, ['top', 'side'], {'a': '/camera/camera', 'b': '/x'})
     with pytest.raises(SetupError, match='two cameras to one prefix'):
         find_cameras(one, ['top', 'side'], {'top': '/camera/camera', 'side': '/camera/camera'})
     with pytest.raises(SetupError, match='lacks /camera/camera/aligned_depth_to_color/image_raw'
@@ -65,6 +78,16 @@ def test_a_recorded_bag_is_staged_as_whole_frames(tmp_path, storage):
     source = {header_stamp_ns(m.raw): m.raw for m in read_bag(bag, ['/top/top/color/image_raw'])}
     staged_top = [m for m in messages if m.topic == '/top/color/image_raw']
     assert all(source[m.log_time_ns] == m.raw for m in staged_top)   # bytes kept as recorded
+
+
+def test_a_bag_of_one_camera_is_staged_under_its_own_stamps(tmp_path):
+    bag = cell_bag(tmp_path / 'rec', {'side': '/camera/camera'})
+    staged = stage_bag(bag, tmp_path / 'staged', {'front': '/camera/camera'})
+    assert len(staged.frames) == 3 and staged.skipped == 0
+    messages = list(read_bag(staged.path))
+    assert {m.topic for m in messages} == {f'/front/{t}' for t in CAMERA_TOPICS}
+    assert sorted({m.log_time_ns for m in messages}) == staged.frames
+    assert all(header_stamp_ns(m.raw) == m.log_time_ns for m in messages)
 
 
 def test_a_frame_missing_a_message_is_left_out(tmp_path):

@@ -223,7 +223,8 @@ def oracle_labels(by_view: dict) -> dict[str, np.ndarray]:
 def bag_frames(bag: Path, *, classifier: Path | None = None, templates: Path | None = None,
                limit: int | None = None) -> list[tuple[object, FrameOutput]]:
     """Replay a simulated bag through the graph (lock-step) and pair its poses with the bag's
-    ground truth, all in the side camera (top-view poses through the rig extrinsics).
+    ground truth, all in the side camera (top-view poses through the rig extrinsics). A bag of
+    one camera runs the graph with that camera alone and is scored in it.
 
     ``classifier`` and ``templates`` default to the packaged models; ``limit`` keeps the
     first frames."""
@@ -232,19 +233,23 @@ def bag_frames(bag: Path, *, classifier: Path | None = None, templates: Path | N
     from tlessbot_ros.conversions import camera_info_to_intrinsics, depth_image_to_metres
     from tlessbot_ros.conversions.topics import DEPTH, DEPTH_INFO, camera_topic
     from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_TEMPLATES
-    from tlessbot_ros.io.bags import deserialize, read_bag
+    from tlessbot_ros.io.bags import bag_topics, deserialize, read_bag
     from tlessbot_ros.io.config import default_config_path
     from tlessbot_ros.io.ground_truth import read_ground_truth
-    from tlessbot_ros.tools.support.graph_run import run_graph_on_bag
+    from tlessbot_ros.tools.support.bag_inputs import find_cameras
+    from tlessbot_ros.tools.support.graph_run import main_camera, run_graph_on_bag
     from tlessbot_ros.tools.support.rig import load_rig
 
     config = default_config_path()
     rig = load_rig(config)
-    T_side_top = rig.T_a_b(SIDE, TOP)
-    side_frame = rig[SIDE].optical_frame
+    cameras = find_cameras(list(bag_topics(bag)), list(rig.cameras), bag=str(bag))
+    one_camera = set(cameras) != set(rig.cameras)
+    scored = main_camera(list(cameras))   # side, or the bag's one camera
+    scored_frame = f'{scored}_color_optical_frame'
     truth = read_ground_truth(bag)
     depth, intrinsics = {}, {}
-    for message in read_bag(bag, [camera_topic(SIDE, DEPTH), camera_topic(SIDE, DEPTH_INFO)]):
+    for message in read_bag(bag, [camera_topic(scored, DEPTH),
+                                  camera_topic(scored, DEPTH_INFO)]):
         msg = deserialize(message)
         if message.msgtype == 'sensor_msgs/msg/Image':
             depth[message.log_time_ns] = depth_image_to_metres(msg)
@@ -256,17 +261,18 @@ def bag_frames(bag: Path, *, classifier: Path | None = None, templates: Path | N
         if not Path(path).is_file():
             raise ModelFileError(f'model file not found: {path}')
     run = run_graph_on_bag(bag, config=config, lockstep=True, ros_args=[
-        '-p', f'model_path:={classifier}', '-p', f'templates_path:={templates}'])
+        '-p', f'model_path:={classifier}', '-p', f'templates_path:={templates}'],
+        cameras=list(cameras) if one_camera else None)
     poses: dict[int, list[BopEstimate]] = {}
     for pose in run.poses:
-        T = pose.T if pose.frame_id.startswith(SIDE) else T_side_top @ pose.T
+        T = pose.T if pose.frame_id.startswith(scored) else rig.T_a_b(SIDE, TOP) @ pose.T
         poses.setdefault(pose.stamp_ns, []).append(BopEstimate(0, 0, pose.obj_id, 1.0, T))
     frames = []
     for index, stamp in enumerate(sorted(truth)[:limit]):
-        gt = [SimpleNamespace(obj_id=p.obj_id, visib_fract=p.visib_fract.get(SIDE, 0.0),
-                              bbox_visib=p.bbox_visib.get(SIDE),
-                              T_camera_object=p.T_camera_object[side_frame])
-              for p in truth[stamp] if side_frame in p.T_camera_object]
+        gt = [SimpleNamespace(obj_id=p.obj_id, visib_fract=p.visib_fract.get(scored, 0.0),
+                              bbox_visib=p.bbox_visib.get(scored),
+                              T_camera_object=p.T_camera_object[scored_frame])
+              for p in truth[stamp] if scored_frame in p.T_camera_object]
         image = SimpleNamespace(scene_id=0, im_id=index, gt=gt, depth_m=depth.get(stamp),
                                 intrinsics=intrinsics.get(stamp))
         for estimate in poses.get(stamp, []):
