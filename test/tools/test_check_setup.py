@@ -13,7 +13,12 @@ from tlessbot_ros.core.regression import PartPose, check_frames
 from tlessbot_ros.io.bags import read_bag
 from tlessbot_ros.tools.cli import main
 from tlessbot_ros.tools.commands.check import format_table
-from tlessbot_ros.tools.support.bag_inputs import SetupError, find_cameras, stage_bag
+from tlessbot_ros.tools.support.bag_inputs import (
+    SetupError,
+    find_cameras,
+    replay_cameras,
+    stage_bag,
+)
 from tlessbot_ros.tools.support.defaults import DEFAULT_BAG
 from tlessbot_ros.tools.support.expected_poses import (
     ApprovedRun,
@@ -88,6 +93,15 @@ def test_a_bag_of_one_camera_is_staged_under_its_own_stamps(tmp_path):
     assert {m.topic for m in messages} == {f'/front/{t}' for t in CAMERA_TOPICS}
     assert sorted({m.log_time_ns for m in messages}) == staged.frames
     assert all(header_stamp_ns(m.raw) == m.log_time_ns for m in messages)
+
+
+def test_a_plain_replay_of_one_camera_runs_the_graph_with_that_camera(tmp_path):
+    assert replay_cameras(cell_bag(tmp_path / 'side', {'side': '/side'}),
+                          ['top', 'side']) == ['side']
+    # the graph's own names only: a plain replay does not rename topics
+    assert replay_cameras(cell_bag(tmp_path / 'rs', {'side': '/camera/camera'}),
+                          ['top', 'side']) is None
+    assert replay_cameras(DEFAULT_BAG, ['top', 'side']) is None
 
 
 def test_a_frame_missing_a_message_is_left_out(tmp_path):

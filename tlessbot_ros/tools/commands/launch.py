@@ -93,6 +93,22 @@ def _policy(args: argparse.Namespace) -> RespawnPolicy:
         raise TlessbotError(str(error)) from None
 
 
+def _one_camera_params(replay: str | None, config: Path) -> list[str]:
+    """``rig.cameras:=[NAME]`` when the replayed bag has one camera under the graph's names
+    (:func:`~tlessbot_ros.tools.support.bag_inputs.replay_cameras`), else nothing."""
+    if not replay:
+        return []
+    from tlessbot_ros.tools.support.bag_inputs import replay_cameras
+    from tlessbot_ros.tools.support.rig import load_rig
+
+    cameras = replay_cameras(replay, list(load_rig(config).cameras))
+    if not cameras:
+        return []
+    print(f'[launch] {replay} has the {cameras[0]} camera alone: rig.cameras [{cameras[0]}]',
+          flush=True)
+    return [f'rig.cameras:=[{", ".join(cameras)}]']
+
+
 def run(args: argparse.Namespace) -> int:
     config = Path(args.config) if args.config else default_config_path()
     if not config.is_file():
@@ -109,12 +125,13 @@ def run(args: argparse.Namespace) -> int:
     os.environ[DISCOVERY_VARIABLE] = discovery_range(
         argument=args.discovery_range,
         config_value=load_ros_params(config).get('discovery_range'), environ=dict(os.environ))
+    params = [*args.param, *_one_camera_params(args.replay, config)]
     specs = graph_processes(config, replay=args.replay, rate=args.rate, loop=args.loop,
                             parts=args.parts,
                             nodes=args.nodes, output_frame=args.output_frame,
                             foxglove=args.foxglove,
                             serials={c: getattr(args, f'{c}_serial') for c in CAMERA_NAMES},
-                            extra_ros_args=[a for o in args.param for a in ('-p', o)])
+                            extra_ros_args=[a for o in params for a in ('-p', o)])
     # Stop the graph on Ctrl-C and on SIGTERM (systemd, docker stop, kill), never leaving the
     # nodes orphaned; SIGINT is handled even when a shell started launch in the background,
     # which makes it ignore SIGINT.

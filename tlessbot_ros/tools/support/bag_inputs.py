@@ -101,6 +101,21 @@ def find_cameras(topics: Sequence[str], cameras: Sequence[str],
     return found
 
 
+def replay_cameras(bag: str | Path, cameras: Sequence[str]) -> list[str] | None:
+    """The ``rig.cameras`` a graph fed by a plain replay of ``bag`` runs with: the one camera
+    of a bag of one camera under the graph's names (``/side/...``); None when the bag is
+    another (two cameras, other names, topics missing: the graph keeps ``cameras``)."""
+    from tlessbot_ros.io.bags import bag_topics
+
+    try:
+        found = find_cameras(list(bag_topics(bag)), cameras, bag=str(bag))
+    except BagError:
+        return None
+    if set(found) == set(cameras) or any(p != f'/{c}' for c, p in found.items()):
+        return None
+    return list(found)
+
+
 def _by_name(prefixes: Sequence[str], cameras: Sequence[str], given: Mapping[str, str]
              ) -> dict[str, str]:
     """{camera: prefix} of the ``cameras`` found: ``given``, ``/<camera>`` or the one prefix
