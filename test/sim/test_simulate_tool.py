@@ -52,3 +52,19 @@ def test_bench_sim_prints_breakdown(tless_models_dir, capsys):
     assert 'ms/frame' in out
     for stage in ('raycast', 'shading', 'noise'):
         assert f'| {stage} |' in out
+
+
+def test_simulate_writes_the_cameras_asked_for(tmp_path, tless_models_dir, capsys):
+    common = ['simulate', '--models', str(tless_models_dir), '--frames', '1', '--ids', '6',
+              '19', '--parts-max', '2', '--width', '320', '--height', '240', '--seed', '3',
+              '--no-progress']
+    rc = main([*common, '--out', str(tmp_path / 'both')])
+    assert rc == 0
+    rc = main([*common, '--out', str(tmp_path / 'side'), '--cameras', 'side'])
+    assert rc == 0 and 'of 1 camera(s)' in capsys.readouterr().out
+    assert list_splits(tmp_path / 'side') == ['test_side']
+    (one,) = list(read_split(tmp_path / 'side', 'test_side'))
+    (both,) = list(read_split(tmp_path / 'both', 'test_side'))
+    np.testing.assert_array_equal(one.rgb, both.rgb)   # the scene of the whole rig
+    assert main([*common, '--out', str(tmp_path / 'x'), '--cameras', 'front']) == 1
+    assert '--cameras front: the rig has the cameras top, side' in capsys.readouterr().err
