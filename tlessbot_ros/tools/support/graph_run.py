@@ -80,7 +80,7 @@ class ReceivedPose:
 @dataclass
 class GraphRunResult:
     poses: list[ReceivedPose] = field(default_factory=list)
-    frames_replayed: list[int] = field(default_factory=list)  # source stamps of side colour
+    frames_replayed: list[int] = field(default_factory=list)  # main camera's colour stamps
     frames_replayed_at_ns: list[int] = field(default_factory=list)  # their publication times
     rss_mb_start: dict[str, float] = field(default_factory=dict)
     rss_mb_end: dict[str, float] = field(default_factory=dict)
