@@ -215,29 +215,30 @@ class PerceptionPipeline:
 
     # ---------------------------------------------------------------------------- stage 1
     def localise(self, views: dict[str, ViewInput]) -> FusionResult:
-        """Instance label images of a two-view frame ('top' and 'side'), or of the one view
-        of a rig of one camera (any name: :func:`~tlessbot_ros.core.localise.single_view`).
+        """Instance label images of a two-view frame ('top' and 'side'), or of one view alone.
 
         A view with aligned depth and a table frame (:meth:`table_frame`) is segmented with
         the depth cue (height above the table) fused with the colour cues; otherwise from
-        colour alone (the paper). The side view's blobs are also divided where its depth
-        shows the seam of two parts (``SegmentationParams.depth_split_jump``; the fusion keeps
-        such pieces apart, ``FusionParams.keep_depth_splits``); the top view's are not: from
-        above, at twice the distance and with sparse depth on dark parts, a deep groove of one
-        part shows the table as a gap between two parts does.
+        colour alone (the paper). Blobs are also divided where the depth shows the seam of two
+        parts (``SegmentationParams.depth_split_jump``; kept apart by the fusion,
+        ``FusionParams.keep_depth_splits``), except in the top view: from above, at twice the
+        distance and with sparse depth on dark parts, a groove looks like a gap between parts.
         """
+        def seg(name: str):   # depth splits in every view but the top one
+            view = views[name]
+            T_world_camera = None if view.depth_m is None else \
+                self.table_frame(name, view).T_world_camera
+            with_depth = T_world_camera is not None
+            return segment(view.rgb, background=view.background,
+                           depth_m=view.depth_m if with_depth else None,
+                           intrinsics=view.intrinsics if with_depth else None,
+                           T_world_camera=T_world_camera, split_by_depth=name != TOP,
+                           params=self.segmentation)
+
         if len(views) == 1:   # a rig of one camera: its segmentation, nothing to fuse
-            (name,) = views
-            return single_view(self._segment(name, views[name], split_by_depth=name != TOP),
-                               name)
-        missing = set(CAMERA_NAMES) - set(views)
-        if missing:
-            raise ValueError(f'localise needs the top and side views (or one view alone); '
-                             f'missing {sorted(missing)}')
-
-        def seg(name: str):
-            return self._segment(name, views[name], split_by_depth=name == SIDE)
-
+            return single_view(seg(*views), *views)
+        if missing := set(CAMERA_NAMES) - set(views):
+            raise ValueError(f'localise needs top and side or one view; missing {sorted(missing)}')
         if self.localise_params.parallel_views:
             top_future = second_view_thread().submit(seg, TOP)
             side = seg(SIDE)
@@ -246,18 +247,6 @@ class PerceptionPipeline:
             top, side = seg(TOP), seg(SIDE)
         return fuse_views(top, side, rig=self.rig, side_rgb=views[SIDE].rgb,
                           depth_top_m=views[TOP].depth_m, params=self.fusion)
-
-    def _segment(self, name: str, view: ViewInput, *, split_by_depth: bool):
-        """One view's :class:`~tlessbot_ros.core.localise.Segmentation`, with its depth cue
-        when the view has depth and a table frame."""
-        T_world_camera = None if view.depth_m is None else \
-            self.table_frame(name, view).T_world_camera
-        with_depth = T_world_camera is not None
-        return segment(view.rgb, background=view.background,
-                       depth_m=view.depth_m if with_depth else None,
-                       intrinsics=view.intrinsics if with_depth else None,
-                       T_world_camera=T_world_camera, split_by_depth=split_by_depth,
-                       params=self.segmentation)
 
     # ---------------------------------------------------------------------------- stage 2
     def classify(self, rgb: dict[str, np.ndarray], labels: dict[str, np.ndarray], *,
