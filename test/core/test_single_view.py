@@ -66,7 +66,7 @@ def test_a_top_camera_alone_is_not_split_by_its_depth(frame):
 
 def test_two_views_still_need_both_roles(frame):
     views = {'side': _view(frame, 'side'), 'front': _view(frame, 'top')}
-    with pytest.raises(ValueError, match=r"top and side, or one view; missing \['top'\]"):
+    with pytest.raises(ValueError, match=r"top and side or one view; missing \['top'\]"):
         PerceptionPipeline(rig=default_rig()).localise(views)
 
 
