@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from tlessbot_ros.core.common import SIDE
+from tlessbot_ros.core.label_views import view_order
 from tlessbot_ros.io.parts import PartsFolder, open_parts_folder
 
 
@@ -25,7 +25,9 @@ def declare_parts(node: Any) -> PartsFolder | None:
         'sets model_path, templates_path and the part names'))
     if not path:
         return None
-    folder = open_parts_folder(Path(path).expanduser(), side_pose=node.extrinsics[SIDE])
+    # its templates were seen from the side camera (or the one camera of a one-camera rig)
+    side = view_order(node.cameras)[0]
+    folder = open_parts_folder(Path(path).expanduser(), side_pose=node.extrinsics[side])
     node.get_logger().info(f'parts folder {folder.path}: '
                            f'{", ".join(folder.names.values())}')
     return folder
