@@ -15,7 +15,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 GARBAGE_S = 15.0
 # A 100 Hz flood on a topic whose subscription keeps the last 2 messages (input_depth's default)
-# overwrites a good message before a busy node's executor takes it (docs/fuzz-at-rate.md: 5 %
+# overwrites a good message before a busy node's executor takes it (docs/bench/fuzz-at-rate.md: 5 %
 # of the good frames answered); with 30 the history covers the executor's stalls. Under garbage
 # fewer good frames are still answered (the garbage's callbacks take CPU from the stages, and a
 # frame that waits too long is dropped at the entrance, as any late frame), so what is asserted
@@ -24,7 +24,7 @@ GARBAGE_S = 15.0
 INPUT_DEPTH = 30
 # Garbage stamps years away from the good ones, one after the other on a topic, look like time
 # jumps; each emptied every queue, and no good frame was answered. With jump confirmations a
-# stray stamp is dropped instead (SyncParams.jump_confirmations; docs/fuzz-at-rate.md). The
+# stray stamp is dropped instead (SyncParams.jump_confirmations; docs/bench/fuzz-at-rate.md). The
 # localiser confirms with 4 by default; the later stages, behind its relay, do not (their
 # inputs come from our nodes), but the garbage here reaches the relay topics too.
 JUMP_CONFIRMATIONS = 4
