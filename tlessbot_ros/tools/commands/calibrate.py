@@ -15,7 +15,10 @@ points: those are kept from the --config file's top camera. The difference from 
 printed per camera and for the top -> side transform, with the estimate's confidence; an
 estimate that is not confident is not written unless --force.
 
-(``--board``: calibrate from a ChArUco board on the table instead; not wired yet.)
+    tlessbot calibrate --board --bag BAG --out NEW.yaml
+
+measures the rig from a ChArUco board lying on the table instead (``tlessbot board`` prints
+one; docs/calibrating.md).
 """
 from __future__ import annotations
 
