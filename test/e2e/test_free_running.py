@@ -95,8 +95,15 @@ def test_a_frame_missing_its_side_image_is_never_mixed_with_the_next(moved_rig_b
     hit = frames[victim]
     assert hit['false_positives'] <= reference[victim]['false_positives'], hit
     assert hit['duplicates'] == 0
-    after = frames[stamps[3]]
-    assert after['poses'] == reference[stamps[3]]['poses'], (after, reference[stamps[3]])
-    assert after['duplicates'] == 0 and after['false_positives'] <= \
-        reference[stamps[3]]['false_positives']
+    # The frames after it: each one answered is answered as in lock-step (nothing of the cut
+    # frame mixed in), and the graph answers again. Which of them it answers depends on the
+    # host's speed, free-running: a frame that comes while the graph is full is dropped whole
+    # at the entrance, by design (docs/bench/backpressure.md).
+    answered = [stamp for stamp in stamps[3:] if frames.get(stamp, {}).get('poses')]
+    assert answered, [frames.get(stamp) for stamp in stamps[3:]]
+    for stamp in answered:
+        after, expected = frames[stamp], reference[stamp]
+        assert after['poses'] == expected['poses'], (after, expected)
+        assert after['duplicates'] == 0 and \
+            after['false_positives'] <= expected['false_positives'], (after, expected)
     shutil.rmtree(cut, ignore_errors=True)
