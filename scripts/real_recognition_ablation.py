@@ -17,6 +17,8 @@ import sys
 import time
 from pathlib import Path
 
+from tlessbot_ros.tools.support.report import cell
+
 VARIANTS = (
     ('turntable, paper features (before)', ['--recipe', 'turntable', '--features', 'paper']),
     ('turntable, ours (before: the old default)', ['--recipe', 'turntable']),
@@ -91,7 +93,7 @@ def write_table(results: dict, out: Path) -> None:
         r = results[name]
         cells = [f'{r["per_part"][p]["top1_classifier"]:.2f}' for p in parts]
         lines.append(f'| {name} | `{" ".join(r["args"]) or "(defaults)"}` | '
-                     f'{r["top1_classifier"]:.3f} | {r["top1_after_pose"]:.3f} | '
+                     f'{cell(r["top1_classifier"])} | {cell(r["top1_after_pose"])} | '
                      + ' | '.join(cells) + f' | {r["train_s"]:.0f} |')
     (out / 'ablation.md').write_text('\n'.join(lines) + '\n', encoding='utf-8')
     print('\n'.join(lines))

@@ -213,3 +213,19 @@ def test_near_rotations_in_a_results_file_are_accepted(dataset, tmp_path):
                  str(tmp_path / 'near.csv'), '--out', str(tmp_path / 'o')]) == 0
     report = json.loads((tmp_path / 'o' / 'report.json').read_text())
     assert report['pose']['recall_5cm5deg'] == pytest.approx(expected['ok'] / expected['targets'])
+
+
+def test_recognition_after_the_pose_stage_counts_only_frames_with_depth():
+    from tlessbot_ros.tools.support.eval_recognition import CropAnswer, markdown, summary
+
+    answers = [CropAnswer(0, 0, truth=2, classifier=2, margin=1.0, final=3, posed=True),
+               CropAnswer(1, 0, truth=2, classifier=2, margin=1.0, final=2, posed=False),
+               CropAnswer(1, 1, truth=4, classifier=2, margin=0.5, final=2, posed=False)]
+    result = summary(answers)
+    assert result['top1_classifier'] == 2 / 3
+    assert (result['posed_crops'], result['top1_classifier_posed'],
+            result['top1_after_pose']) == (1, 1.0, 0.0)
+    assert result['per_part']['4']['top1_after_pose'] is None   # never posed: not a zero
+    assert '| obj_04 | 1 | 0.000 | 0 | n/a |' in markdown(result)
+    empty = summary([])
+    assert empty['top1_after_pose'] is None and 'n/a' in markdown(empty)

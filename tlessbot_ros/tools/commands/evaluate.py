@@ -26,6 +26,7 @@ from tlessbot_ros.tools.support.eval_frames import TWO_VIEW_SPLITS, bag_frames, 
 from tlessbot_ros.tools.support.eval_recognition import write_recognition_page
 from tlessbot_ros.tools.support.eval_scoring import FrameOutput, load_scoring_models, score_frames
 from tlessbot_ros.tools.support.parts_build import BuildOptions, cached_parts
+from tlessbot_ros.tools.support.report import cell
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -149,8 +150,10 @@ def run(args: argparse.Namespace) -> int:
         print(f'pose skipped on {skipped["pose_frames_without_depth"]} frames without depth '
               f'({skipped["parts_not_posed"]} parts): pose measures are over the rest')
     if recognition is not None:
-        print(f'recognition on ground-truth boxes: top-1 {recognition["top1_classifier"]:.3f} '
-              f'(classifier alone), {recognition["top1_after_pose"]:.3f} after the pose stage '
+        print(f'recognition on ground-truth boxes: top-1 {cell(recognition["top1_classifier"])} '
+              f'(classifier alone); on the {recognition["posed_crops"]} crops with depth '
+              f'{cell(recognition["top1_classifier_posed"])} alone, '
+              f'{cell(recognition["top1_after_pose"])} after the pose stage '
               f'-> {args.out / "recognition.md"}')
     print(f'{report["frames"]} frames, {report["objects_gt"]} parts: '
           f'5cm5deg {_fmt(pose["recall_5cm5deg"])}, VSD<0.3 {_fmt(pose["recall_vsd03"])}, '

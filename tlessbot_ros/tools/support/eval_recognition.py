@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tlessbot_ros.tools.support.report import cell as _cell
+
 MIN_VISIB_FRACT = 0.3  # the scored targets, as in eval_scoring
 _TILE_PX = 96
 _CAPTION_PX = 28
@@ -26,7 +28,8 @@ class CropAnswer:
     truth: int
     classifier: int
     margin: float
-    final: int
+    final: int     # the class after the pose stage's verification (= classifier without it)
+    posed: bool    # the pose stage ran on this frame (it has depth)
 
 
 def crop_answers(frames: list) -> list[CropAnswer]:
@@ -41,28 +44,38 @@ def crop_answers(frames: list) -> list[CropAnswer]:
             guess, margin = output.classifier_by_gt.get(k, (0, 0.0))
             final = (output.classes_by_gt or {}).get(k, guess)
             answers.append(CropAnswer(index, k, int(gt.obj_id), int(guess), float(margin),
-                                      int(final)))
+                                      int(final), bool(output.pose_ran)))
     return answers
 
 
+def _share(hits: np.ndarray) -> float | None:
+    return float(np.mean(hits)) if hits.size else None
+
+
 def summary(answers: list[CropAnswer]) -> dict:
-    """JSON-ready: top-1 (classifier alone, after pose) overall and per part, the confusion
-    matrix (rows truth, columns answer, id 0 = unknown) and its ids."""
-    truths = np.array([a.truth for a in answers])
-    alone = np.array([a.classifier for a in answers])
-    final = np.array([a.final for a in answers])
+    """JSON-ready: top-1 of the classifier alone over every crop, and on the crops of frames
+    the pose stage ran on (with depth) the classifier alone and after the pose stage, overall
+    and per part; the confusion matrix (rows truth, columns answer, id 0 = unknown) and its
+    ids."""
+    truths = np.array([a.truth for a in answers], np.int64)
+    alone = np.array([a.classifier for a in answers], np.int64)
+    final = np.array([a.final for a in answers], np.int64)
+    posed = np.array([a.posed for a in answers], bool)
     ids = sorted(set(truths.tolist()) | set(alone.tolist()) | {0})
     matrix = np.zeros((len(ids), len(ids)), np.int64)
     for t, c in zip(truths, alone):
         matrix[ids.index(t), ids.index(c)] += 1
     per_part = {str(i): {'crops': int((truths == i).sum()),
-                         'top1_classifier': float(np.mean(alone[truths == i] == i)),
-                         'top1_after_pose': float(np.mean(final[truths == i] == i))}
+                         'top1_classifier': _share(alone[truths == i] == i),
+                         'posed_crops': int((posed & (truths == i)).sum()),
+                         'top1_after_pose': _share(final[posed & (truths == i)] == i)}
                 for i in sorted(set(truths.tolist()))}
     return {'crops': len(answers),
-            'top1_classifier': float(np.mean(alone == truths)) if answers else None,
-            'top1_after_pose': float(np.mean(final == truths)) if answers else None,
-            'unknown_rate': float(np.mean(alone == 0)) if answers else None,
+            'top1_classifier': _share(alone == truths),
+            'posed_crops': int(posed.sum()),
+            'top1_classifier_posed': _share(alone[posed] == truths[posed]),
+            'top1_after_pose': _share(final[posed] == truths[posed]),
+            'unknown_rate': _share(alone == 0),
             'per_part': per_part, 'confusion_ids': ids, 'confusion': matrix.tolist()}
 
 
@@ -70,14 +83,16 @@ def markdown(result: dict) -> str:
     """``recognition.md``: per-part table and confusion table (classifier alone)."""
     lines = ['# Recognition on ground-truth boxes', '',
              f'- crops (visib_fract >= {MIN_VISIB_FRACT}): {result["crops"]}',
-             f'- top-1, classifier alone: {result["top1_classifier"]:.3f}',
-             f'- top-1 after the pose stage (frames with depth): '
-             f'{result["top1_after_pose"]:.3f}',
-             f'- called unknown: {result["unknown_rate"]:.3f}', '',
-             '| part | crops | classifier alone | after pose stage |', '|---|---|---|---|']
+             f'- top-1, classifier alone: {_cell(result["top1_classifier"])}',
+             f'- on the {result["posed_crops"]} crops of frames with depth: classifier alone '
+             f'{_cell(result["top1_classifier_posed"])}, after the pose stage '
+             f'{_cell(result["top1_after_pose"])}',
+             f'- called unknown: {_cell(result["unknown_rate"])}', '',
+             '| part | crops | classifier alone | crops with depth | after pose stage |',
+             '|---|---|---|---|---|']
     for key, row in result['per_part'].items():
-        lines.append(f'| {name(int(key))} | {row["crops"]} | {row["top1_classifier"]:.3f} | '
-                     f'{row["top1_after_pose"]:.3f} |')
+        lines.append(f'| {name(int(key))} | {row["crops"]} | {_cell(row["top1_classifier"])} '
+                     f'| {row["posed_crops"]} | {_cell(row["top1_after_pose"])} |')
     ids = result['confusion_ids']
     lines += ['', '## Confusion, classifier alone (rows: the part, columns: taken for)', '',
               '| part | ' + ' | '.join(name(i) for i in ids) + ' |',

@@ -12,7 +12,8 @@ _PER_PART_TIMES = (('pose_per_part', 'pose, per part fitted'),
                    ('table_plane', 'table plane, all views'))
 
 
-def _cell(value) -> str:
+def cell(value) -> str:
+    """A table cell: 3 decimals for a float, 'n/a' for None."""
     if value is None:
         return 'n/a'
     return f'{value:.3f}' if isinstance(value, float) else str(value)
@@ -25,10 +26,10 @@ def markdown(report: dict) -> str:
              f'- mode: {report.get("mode", "?")}',
              f'- frames: {report["frames"]}, parts with visib_fract >= 0.3: '
              f'{report["objects_gt"]}',
-             f'- detection: IoU >= 0.7 rate {_cell(report["detection"]["iou07_rate"])}, '
-             f'false positives per frame {_cell(report["detection"]["false_pos_per_frame"])}, '
-             f'duplicates per frame {_cell(report["detection"].get("duplicates_per_frame"))}',
-             f'- recognition top-1: {_cell(report["recognition"]["top1"])}']
+             f'- detection: IoU >= 0.7 rate {cell(report["detection"]["iou07_rate"])}, '
+             f'false positives per frame {cell(report["detection"]["false_pos_per_frame"])}, '
+             f'duplicates per frame {cell(report["detection"].get("duplicates_per_frame"))}',
+             f'- recognition top-1: {cell(report["recognition"]["top1"])}']
     if 'run_time_s' in report:
         lines.append(f'- run time: {report["run_time_s"]:.1f} s')
     lines += ['', '## Pose recall per object (Table 1 shape)', '',
@@ -40,16 +41,16 @@ def markdown(report: dict) -> str:
                              'iou07_rate': report['detection']['iou07_rate'],
                              'top1': report['recognition']['top1']}))
     for name, m in rows:
-        lines.append(f'| {name} | {m.get("objects_gt", 0)} | {_cell(m.get("iou07_rate"))} | '
-                     f'{_cell(m.get("top1"))} | '
-                     + ' | '.join(_cell(m.get(key)) for key, _ in _POSE_COLUMNS) + ' |')
+        lines.append(f'| {name} | {m.get("objects_gt", 0)} | {cell(m.get("iou07_rate"))} | '
+                     f'{cell(m.get("top1"))} | '
+                     + ' | '.join(cell(m.get(key)) for key, _ in _POSE_COLUMNS) + ' |')
     lines += ['', '## Time per stage, median ms per frame (Table 3 shape)', '',
               '| stage | ms |', '|---|---|']
     for stage in _STAGES:
-        lines.append(f'| {stage} | {_cell(report["timing_ms"].get(stage))} |')
+        lines.append(f'| {stage} | {cell(report["timing_ms"].get(stage))} |')
     for key, name in _PER_PART_TIMES:
         if report['timing_ms'].get(key) is not None:
-            lines.append(f'| {name} | {_cell(report["timing_ms"][key])} |')
+            lines.append(f'| {name} | {cell(report["timing_ms"][key])} |')
     return '\n'.join(lines) + '\n'
 
 
