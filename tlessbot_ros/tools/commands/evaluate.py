@@ -150,11 +150,7 @@ def run(args: argparse.Namespace) -> int:
         print(f'pose skipped on {skipped["pose_frames_without_depth"]} frames without depth '
               f'({skipped["parts_not_posed"]} parts): pose measures are over the rest')
     if recognition is not None:
-        print(f'recognition on ground-truth boxes: top-1 {cell(recognition["top1_classifier"])} '
-              f'(classifier alone); on the {recognition["posed_crops"]} crops with depth '
-              f'{cell(recognition["top1_classifier_posed"])} alone, '
-              f'{cell(recognition["top1_after_pose"])} after the pose stage '
-              f'-> {args.out / "recognition.md"}')
+        print(_recognition_line(recognition, args.out / 'recognition.md'))
     print(f'{report["frames"]} frames, {report["objects_gt"]} parts: '
           f'5cm5deg {_fmt(pose["recall_5cm5deg"])}, VSD<0.3 {_fmt(pose["recall_vsd03"])}, '
           f'ADD-S {_fmt(pose["recall_adds01d"])}, MSSD AR {_fmt(pose["mssd_recall"])} '
@@ -170,3 +166,13 @@ def run(args: argparse.Namespace) -> int:
 
 def _fmt(value: float | None) -> str:
     return 'n/a' if value is None else f'{value:.3f}'
+
+
+def _recognition_line(recognition: dict, page: Path) -> str:
+    """One line of top-1: every crop (classifier alone), the crops with depth (alone, after
+    the pose stage)."""
+    return (f'recognition on ground-truth boxes: top-1 {cell(recognition["top1_classifier"])} '
+            f'(classifier alone); on the {recognition["posed_crops"]} crops with depth '
+            f'{cell(recognition["top1_classifier_posed"])} alone, '
+            f'{cell(recognition["top1_after_pose"])} after the pose stage -> {page}')
+
