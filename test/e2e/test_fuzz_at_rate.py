@@ -8,7 +8,12 @@ import pytest
 from tlessbot_ros.data import DEFAULT_MODELS_INFO
 from tlessbot_ros.io.config import default_config_path
 from tlessbot_ros.tools.support.defaults import DEFAULT_BAG
-from tlessbot_ros.tools.support.fuzz_run import run_fuzz, sample_at, score_phases
+from tlessbot_ros.tools.support.fuzz_run import (
+    answered_timeline,
+    run_fuzz,
+    sample_at,
+    score_phases,
+)
 from tlessbot_ros.tools.support.models_info import load_symmetries
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -28,6 +33,13 @@ INPUT_DEPTH = 30
 # localiser confirms with 4 by default; the later stages, behind its relay, do not (their
 # inputs come from our nodes), but the garbage here reaches the relay topics too.
 JUMP_CONFIRMATIONS = 4
+# Good frames at 1 a second, half the demo's rate: the subject is garbage, not throughput. At 2
+# a second CI's host (2026-12-04) answered 18 of 22 clean frames and 15 of 35 after the garbage,
+# where a faster one answers all of them: frames that find the graph busy are dropped at the
+# entrance, by the host's speed. The first seconds after the garbage are not scored: frames
+# sent then still meet garbage queued in the DDS histories (INPUT_DEPTH deep).
+GOOD_FPS = 1.0
+RECOVERY_S = 3.0
 RIGHT_TOLERANCE = 0.15      # share of parts right in the answered frames, against clean
 ANSWERED_TOLERANCE = 0.35   # share of good frames answered after the garbage, against clean
 # RSS may grow while garbage flows (the allocator keeps freed buffers up to its trim threshold,
@@ -46,12 +58,13 @@ PROCESSES = {'pose_estimator': 2}
 
 @pytest.fixture(scope='module')
 def fuzz_run():
-    fuzz = run_fuzz(str(DEFAULT_BAG), config=default_config_path(), fps=2.0,
+    fuzz = run_fuzz(str(DEFAULT_BAG), config=default_config_path(), fps=GOOD_FPS,
                     ros_args=['-p', f'input_depth:={INPUT_DEPTH}',
                               '-p', f'sync.jump_confirmations:={JUMP_CONFIRMATIONS}'],
-                    clean_s=12.0, garbage_s=GARBAGE_S, after_s=12.0, rate_hz=100.0,
+                    clean_s=14.0, garbage_s=GARBAGE_S, after_s=14.0, rate_hz=100.0,
                     frame_rate_hz=1.0, huge_period_s=1.0)
-    return fuzz, score_phases(fuzz, str(DEFAULT_BAG), load_symmetries(DEFAULT_MODELS_INFO))
+    return fuzz, score_phases(fuzz, str(DEFAULT_BAG), load_symmetries(DEFAULT_MODELS_INFO),
+                              RECOVERY_S)
 
 
 def test_every_node_lives_and_counts_the_garbage(fuzz_run):
@@ -66,13 +79,17 @@ def test_every_node_lives_and_counts_the_garbage(fuzz_run):
 
 
 def test_good_frames_are_still_answered_right(fuzz_run):
-    _, scores = fuzz_run
+    fuzz, scores = fuzz_run
     clean, garbage, after = scores['clean'], scores['garbage'], scores['after']
-    assert clean.frames and garbage.frames and after.frames, scores
-    assert clean.answered_share > 0.5, scores   # the reference itself must be meaningful
-    assert garbage.answered > 0, scores
-    assert garbage.answered_recall >= clean.answered_recall - RIGHT_TOLERANCE, scores
-    assert after.answered_share >= clean.answered_share - ANSWERED_TOLERANCE, scores
+    # what a failure prints: the scores, which frames were answered, each node's counters
+    counters = {node: {key: values.get(key) for key in ('frames', 'dropped', 'malformed')}
+                for node, values in fuzz.result.diagnostics.items()}
+    evidence = (scores, answered_timeline(fuzz), counters)
+    assert clean.frames and garbage.frames and after.frames, evidence
+    assert clean.answered_share > 0.5, evidence   # the reference itself must be meaningful
+    assert garbage.answered > 0, evidence
+    assert garbage.answered_recall >= clean.answered_recall - RIGHT_TOLERANCE, evidence
+    assert after.answered_share >= clean.answered_share - ANSWERED_TOLERANCE, evidence
 
 
 def test_no_unbounded_growth(fuzz_run):

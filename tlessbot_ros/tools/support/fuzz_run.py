@@ -144,21 +144,24 @@ def _delayed_start(delay_s: float, command: list[str], process: list, read_outpu
     read_output(process[0].stdout)
 
 
-def phase_of(stamp_ns: int, fuzz: FuzzRun) -> str:
+def phase_of(stamp_ns: int, fuzz: FuzzRun, recovery_s: float = 0.0) -> str:
     """Which phase a good frame (restamped: its stamp is when it was sent) belongs to ('' for
-    the garbage process's start-up, which counts for neither)."""
-    if stamp_ns >= fuzz.garbage_ended_ns:
+    the garbage process's start-up and the first ``recovery_s`` after the garbage, which count
+    for neither)."""
+    if stamp_ns >= fuzz.garbage_ended_ns + int(recovery_s * 1e9):
         return 'after'
+    if stamp_ns >= fuzz.garbage_ended_ns:
+        return ''
     if stamp_ns >= fuzz.garbage_started_ns:
         return 'garbage'
     return 'clean' if stamp_ns < fuzz.clean_ended_ns else ''
 
 
-def score_phases(fuzz: FuzzRun, bag: str, symmetries: dict[int, Symmetries]
-                 ) -> dict[str, PhaseScore]:
+def score_phases(fuzz: FuzzRun, bag: str, symmetries: dict[int, Symmetries],
+                 recovery_s: float = 0.0) -> dict[str, PhaseScore]:
     """Score the good frames of each phase against the bag's ground truth. A looped, restamped
     bag replays its frames in order, so the i-th side colour frame sent is the bag's frame
-    i mod n."""
+    i mod n. Frames sent in the first ``recovery_s`` after the garbage are not scored."""
     from tlessbot_ros.tools.support.bag_scoring import Estimate, score_frame
 
     truth = read_ground_truth(bag)
@@ -169,7 +172,7 @@ def score_phases(fuzz: FuzzRun, bag: str, symmetries: dict[int, Symmetries]
             Estimate(pose.stamp_ns, pose.obj_id, pose.T, pose.frame_id))
     scores = {phase: PhaseScore() for phase in PHASES}
     for index, stamp in enumerate(fuzz.result.frames_replayed):
-        phase = phase_of(stamp, fuzz)
+        phase = phase_of(stamp, fuzz, recovery_s)
         if not phase:
             continue
         score = scores[phase]
@@ -183,6 +186,22 @@ def score_phases(fuzz: FuzzRun, bag: str, symmetries: dict[int, Symmetries]
             score.answered_parts += len(matches)
             score.answered_correct += sum(m.correct for m in matches)
     return scores
+
+
+def answered_timeline(fuzz: FuzzRun) -> str:
+    """One character per good frame sent, in order: 'A' answered, '-' not; '|' marks where the
+    garbage started and ended (what a failed assertion prints, to tell a slow host from a
+    graph that stopped answering)."""
+    answered = {pose.stamp_ns for pose in fuzz.result.poses}
+    marks: list[str] = []
+    previous = 0
+    for stamp in fuzz.result.frames_replayed:
+        for edge in (fuzz.garbage_started_ns, fuzz.garbage_ended_ns):
+            if previous < edge <= stamp:
+                marks.append('|')
+        marks.append('A' if stamp in answered else '-')
+        previous = stamp
+    return ''.join(marks)
 
 
 def sample_at(fuzz: FuzzRun, samples: list, wall_ns: int):
