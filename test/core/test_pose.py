@@ -139,7 +139,7 @@ def test_templates_fallback_is_bounded_and_can_be_switched_off(setup, monkeypatc
     monkeypatch.setattr(ransac_module, 'register_templates', spy)
     forced = PoseParams(fallback_fitness=1.01, fallback_method='templates', fallback_templates=2,
                         fallback_max_iteration=500,
-                        fallback_budget_ms=0.0)   # the table fit never suffices; no time left
+                        fallback_budget_ms=1e-6)   # the table fit never suffices; no time left
     result = PoseEstimator(db, params=forced).estimate(points, 21,
                                                        T_world_camera=SIDE.T_world_camera)
     (indices, iterations, registered), = calls

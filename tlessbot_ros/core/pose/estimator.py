@@ -207,7 +207,7 @@ class PoseEstimator:
             candidates = self._rank(candidates + fallback_candidates(
                 scene, obj, timings, params=p, refiner=self.refiner,
                 starts=np.array([c.T_camera_object for c in candidates[:2]]).reshape(-1, 4, 4),
-                deadline=start + 1e-3 * p.fallback_budget_ms))
+                deadline=self._deadline(start)))
             timings['fallback'] = 1e3 * (time.perf_counter() - t0)
         else:
             indices, max_iteration, deadline = None, p.ransac_max_iteration, None
@@ -216,12 +216,18 @@ class PoseEstimator:
                 # iterations, and no new template once the budget is spent.
                 indices = self._fallback_templates(obj, candidates)
                 max_iteration = p.fallback_max_iteration
-                deadline = start + 1e-3 * p.fallback_budget_ms
+                deadline = self._deadline(start)
             candidates = self._rank(candidates + ransac_candidates(
                 scene, obj, timings, params=p, refiner=self.refiner, indices=indices,
                 max_iteration=max_iteration, deadline=deadline))
             timings['ransac'] = 1e3 * (time.perf_counter() - t0)
         return candidates
+
+    def _deadline(self, start: float) -> float | None:
+        """The ``time.perf_counter()`` value at which the fallback stops early, or None when
+        ``fallback_budget_ms`` is 0 (the default: the work is bounded by its counts alone)."""
+        budget_ms = self.params.fallback_budget_ms
+        return start + 1e-3 * budget_ms if budget_ms > 0 else None
 
     def polish(self, points_c: np.ndarray, result: PoseResult, *,
                scenes: dict[float, np.ndarray] | None = None) -> PoseResult:

@@ -33,7 +33,8 @@ search does a fixed, small amount of work instead, coarse to fine:
 
 The work is bounded by construction: the numbers of views, points, refined starts and
 scored candidates are fixed settings, and no loop runs until a confidence is reached.
-``fallback_budget_ms`` stays as a safety net: once spent, the near-symmetry turns are skipped.
+``fallback_budget_ms`` is an opt-in wall-time cap (0, the default, is none, so that a result
+does not depend on the host's speed): once spent, the near-symmetry turns are skipped.
 
 Poses are ``T_camera_object`` (4, 4) float64, metres, in the ROI cloud's camera frame.
 

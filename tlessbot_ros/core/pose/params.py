@@ -54,8 +54,8 @@ class PoseParams:
         fallback_templates: 'templates' fallback: the templates whose view is closest in
             rotation to the table path's best hypotheses, at most this many.
         fallback_max_iteration: 'templates' fallback: RANSAC iterations per template.
-        fallback_budget_ms: time budget of the fallback from the start of the estimate, ms (> 0);
-            then it stops early.
+        fallback_budget_ms: wall-time cap on the fallback from the start of the estimate, ms
+            (0: none, so results do not depend on the host's speed; > 0: stops early).
         fallback_directions: 'views': viewing directions spread over the sphere (300: about
             12° apart).
         fallback_in_plane_steps: 'views': turns about the line of sight per direction (24:
@@ -133,7 +133,7 @@ class PoseParams:
     fallback: bool = True
     fallback_templates: int = 3
     fallback_max_iteration: int = 5000
-    fallback_budget_ms: float = 100.0
+    fallback_budget_ms: float = 0.0
     fallback_method: str = 'views'
     force_fallback: bool = False
     fallback_directions: int = 300
@@ -194,6 +194,9 @@ class PoseParams:
         if self.polish_overturn_fitness < 0:
             raise ValueError('polish_overturn_fitness must be >= 0 (a fitness difference; 1: '
                              f'rank by score), got {self.polish_overturn_fitness}')
+        if self.fallback_budget_ms < 0:
+            raise ValueError('fallback_budget_ms must be >= 0 (0: no wall-time cap), got '
+                             f'{self.fallback_budget_ms}')
         if self.fallback_icp_distance_voxels <= 0:
             raise ValueError('fallback_icp_distance_voxels must be > 0 (3: three voxels), got '
                              f'{self.fallback_icp_distance_voxels}')
