@@ -2,6 +2,8 @@
 (tlessbot simulate --cameras side, 3 frames) is approved and checked unchanged (exit 0), the
 graph running with ``rig.cameras: [side]`` (two graph runs); a check against poses approved
 with two cameras is a broken set-up (exit 2, no graph started)."""
+import json
+
 import pytest
 
 from tlessbot_ros.tools.cli import main
@@ -41,3 +43,13 @@ def test_poses_approved_with_two_cameras_do_not_check_a_bag_of_one(side_bag, tmp
     err = capsys.readouterr().err.strip()
     assert err == ('tlessbot check: error: the poses were approved with the cameras top, side, '
                    'but the bag has side (/side)')
+
+
+def test_evaluate_scores_a_bag_of_one_camera_in_that_camera(side_bag, tless_models_dir,
+                                                            tmp_path):
+    out = tmp_path / 'evaluate'
+    assert main(['evaluate', '--models', str(tless_models_dir), '--bag', str(side_bag),
+                 '--out', str(out)]) == 0
+    report = json.loads((out / 'report.json').read_text())
+    assert report['split'] == 'bag (side camera)' and report['frames'] == 3, report
+    assert report['objects_gt'] >= 9 and report['pose']['recall_5cm5deg'] > 0.5, report

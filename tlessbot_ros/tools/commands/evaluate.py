@@ -102,7 +102,9 @@ def run(args: argparse.Namespace) -> int:
     if args.bag is not None:
         frames = bag_frames(args.bag, classifier=args.classifier, templates=args.templates,
                             limit=args.limit)
-        split, two_view = 'bag (side camera)', True
+        from tlessbot_ros.tools.support.eval_frames import bag_cameras
+        from tlessbot_ros.tools.support.graph_run import main_camera
+        split, two_view = f'bag ({main_camera(list(bag_cameras(args.bag)))} camera)', False
         mode = f'ROS graph on {args.bag.name}'
     elif args.poses is not None:
         split, two_view = _scored_split(args.dataset, args.split)

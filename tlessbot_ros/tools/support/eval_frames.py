@@ -220,6 +220,18 @@ def oracle_labels(by_view: dict) -> dict[str, np.ndarray]:
     return labels
 
 
+def bag_cameras(bag: Path) -> dict[str, str]:
+    """The rig cameras whose topics ``bag`` holds (the cell YAML's rig), as ``find_cameras``
+    returns them."""
+    from tlessbot_ros.io.bags import bag_topics
+    from tlessbot_ros.io.config import default_config_path
+    from tlessbot_ros.tools.support.bag_inputs import find_cameras
+    from tlessbot_ros.tools.support.rig import load_rig
+
+    rig = load_rig(default_config_path())
+    return find_cameras(list(bag_topics(bag)), list(rig.cameras), bag=str(bag))
+
+
 def bag_frames(bag: Path, *, classifier: Path | None = None, templates: Path | None = None,
                limit: int | None = None) -> list[tuple[object, FrameOutput]]:
     """Replay a simulated bag through the graph (lock-step) and pair its poses with the bag's
@@ -233,16 +245,15 @@ def bag_frames(bag: Path, *, classifier: Path | None = None, templates: Path | N
     from tlessbot_ros.conversions import camera_info_to_intrinsics, depth_image_to_metres
     from tlessbot_ros.conversions.topics import DEPTH, DEPTH_INFO, camera_topic
     from tlessbot_ros.data import DEFAULT_CLASSIFIER, DEFAULT_TEMPLATES
-    from tlessbot_ros.io.bags import bag_topics, deserialize, read_bag
+    from tlessbot_ros.io.bags import deserialize, read_bag
     from tlessbot_ros.io.config import default_config_path
     from tlessbot_ros.io.ground_truth import read_ground_truth
-    from tlessbot_ros.tools.support.bag_inputs import find_cameras
     from tlessbot_ros.tools.support.graph_run import main_camera, run_graph_on_bag
     from tlessbot_ros.tools.support.rig import load_rig
 
     config = default_config_path()
     rig = load_rig(config)
-    cameras = find_cameras(list(bag_topics(bag)), list(rig.cameras), bag=str(bag))
+    cameras = bag_cameras(bag)
     one_camera = set(cameras) != set(rig.cameras)
     scored = main_camera(list(cameras))   # side, or the bag's one camera
     scored_frame = f'{scored}_color_optical_frame'
