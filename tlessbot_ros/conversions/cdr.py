@@ -10,6 +10,7 @@ nanosec: :func:`header_stamp_ns` and :func:`restamp_cdr` read and replace those 
 from __future__ import annotations
 
 import struct
+from typing import cast
 
 from tlessbot_ros.errors import BagError
 
@@ -44,10 +45,10 @@ class CdrReader:
         return start
 
     def u32(self) -> int:
-        return struct.unpack_from(self.order + 'I', self.raw, self.take(4, 4))[0]
+        return cast(int, struct.unpack_from(self.order + 'I', self.raw, self.take(4, 4))[0])
 
     def i32(self) -> int:
-        return struct.unpack_from(self.order + 'i', self.raw, self.take(4, 4))[0]
+        return cast(int, struct.unpack_from(self.order + 'i', self.raw, self.take(4, 4))[0])
 
     def u8(self) -> int:
         return self.raw[self.take(1, 1)]

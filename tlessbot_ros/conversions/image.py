@@ -6,7 +6,7 @@ NaN = invalid, REP-118). Row padding in ``step`` and ``is_bigendian`` are honour
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numba import njit
@@ -77,7 +77,7 @@ def image_to_array(msg: Any, *, copy: bool = False) -> np.ndarray:
         array = array.astype(dtype)
     if channels == 1:
         array = array[:, :, 0]
-    return array.copy() if copy else array
+    return cast(np.ndarray, array.copy() if copy else array)
 
 
 def array_to_image(

@@ -7,7 +7,7 @@ coordinate are skipped.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -67,7 +67,7 @@ def pointcloud2_to_xyz(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:
         offset = int(field.offset)
         if offset + dtype.itemsize > point_step:
             raise ValueError(f'field {name!r} at offset {offset} overruns point_step {point_step}')
-        return points[:, offset:offset + dtype.itemsize].copy().view(dtype)[:, 0]
+        return cast(np.ndarray, points[:, offset:offset + dtype.itemsize].copy().view(dtype)[:, 0])
 
     xyz = np.stack([column(n).astype(np.float32) for n in ('x', 'y', 'z')], axis=1)
     finite = np.isfinite(xyz).all(axis=1)

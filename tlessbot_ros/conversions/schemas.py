@@ -10,7 +10,7 @@ import importlib
 import re
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 
 @lru_cache(maxsize=1)
@@ -52,7 +52,7 @@ def message_definition(msgtype: str) -> str:
     store = _store()
     for attempt in range(4):   # each missing package is registered once
         try:
-            return store.generate_msgdef(msgtype, ros_version=2)[0]
+            return cast(str, store.generate_msgdef(msgtype, ros_version=2)[0])
         except (TypesysError, KeyError) as error:
             found = re.search(r'([a-z][a-z0-9_]*)/msg/', str(error))
             missing = found.group(1) if found else msgtype.split('/')[0]

@@ -16,6 +16,7 @@ Symmetries are :class:`~tlessbot_ros.core.common.Symmetries`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -276,15 +277,15 @@ def _distance_image(depth: np.ndarray, K: np.ndarray, x0: int, y0: int) -> np.nd
     h, w = depth.shape
     u, v = np.meshgrid(np.arange(x0, x0 + w), np.arange(y0, y0 + h))
     scale = np.sqrt(((u - K[0, 2]) / K[0, 0]) ** 2 + ((v - K[1, 2]) / K[1, 1]) ** 2 + 1.0)
-    return depth * scale
+    return cast(np.ndarray, depth * scale)
 
 
 def _visible(dist_test: np.ndarray, dist_model: np.ndarray, delta: float,
              mode: str) -> np.ndarray:
     diff = dist_model - dist_test
     if mode == 'bop18':
-        return (diff <= delta) & (dist_test > 0) & (dist_model > 0)
-    return ((diff <= delta) | (dist_test == 0)) & (dist_model > 0)
+        return cast(np.ndarray, (diff <= delta) & (dist_test > 0) & (dist_model > 0))
+    return cast(np.ndarray, ((diff <= delta) | (dist_test == 0)) & (dist_model > 0))
 
 
 def vsd_from_depth(depth_est: np.ndarray, depth_gt: np.ndarray, depth_test: np.ndarray,

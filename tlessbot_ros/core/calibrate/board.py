@@ -30,7 +30,7 @@ Images are (H, W, 3) uint8 RGB or (H, W) uint8 grey; pixels and intrinsics follo
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -123,7 +123,7 @@ class BoardSpec:
         if ids is not None:
             points = points[np.asarray(ids, np.int64).ravel()]
         T = self.T_board_opencv
-        return points @ T[:3, :3].T + T[:3, 3]
+        return cast(np.ndarray, points @ T[:3, :3].T + T[:3, 3])
 
     def image(self, px_per_m: float, *, margin_px: int = 0) -> np.ndarray:
         """(H, W) uint8 printable image of the board, 0 black, 255 white.
@@ -136,8 +136,9 @@ class BoardSpec:
             raise ValueError(f'need px_per_m > 0 and margin_px >= 0, got {px_per_m}, '
                              f'{margin_px}')
         width, height = (int(round(s * px_per_m)) for s in self.size_m)
-        return self.cv_board().generateImage((width + 2 * margin_px, height + 2 * margin_px),
-                                             marginSize=margin_px, borderBits=1)
+        image: np.ndarray = self.cv_board().generateImage(
+            (width + 2 * margin_px, height + 2 * margin_px), marginSize=margin_px, borderBits=1)
+        return image
 
 
 def _dictionary_size(name: str) -> int:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -64,7 +65,7 @@ def reprojection_px(points: np.ndarray, pixels: np.ndarray, rvec: np.ndarray, tv
     import cv2
 
     projected, _ = cv2.projectPoints(points, rvec, tvec, K, D)
-    return np.linalg.norm(projected.reshape(-1, 2) - pixels, axis=1)
+    return cast(np.ndarray, np.linalg.norm(projected.reshape(-1, 2) - pixels, axis=1))
 
 
 def fit_board_pose(points: np.ndarray, pixels: np.ndarray, intrinsics: CameraIntrinsics, *,
@@ -143,7 +144,7 @@ def _pose_uncertainty(points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray, K:
 
     def centre(params: np.ndarray) -> np.ndarray:
         R, _ = cv2.Rodrigues(params[:3])
-        return -R.T @ params[3:]
+        return cast(np.ndarray, -R.T @ params[3:])
 
     x0 = np.concatenate([np.ravel(rvec), np.ravel(tvec)])
     step = 1e-6

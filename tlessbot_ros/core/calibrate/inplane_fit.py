@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -24,7 +25,7 @@ def median_plane(planes: Sequence[np.ndarray]) -> np.ndarray:
     """(4,) the component-wise median of planes, its normal renormalised."""
     median = np.median(np.asarray(planes, np.float64), axis=0)
     scale = np.linalg.norm(median[:3])
-    return median / scale
+    return cast(np.ndarray, median / scale)
 
 
 @dataclass
@@ -120,8 +121,8 @@ def _hypotheses(world: list[dict[str, WorldView]], params: SceneCalibrationParam
             yaw, middle_t[:, 0] - (cos * middle_s[:, 0] - sin * middle_s[:, 1]),
             middle_t[:, 1] - (sin * middle_s[:, 0] + cos * middle_s[:, 1])]))
     kept = []
-    for found in (singles, doubles):
-        found = np.vstack(found) if found else np.zeros((0, 3))
+    for pieces in (singles, doubles):
+        found = np.vstack(pieces) if pieces else np.zeros((0, 3))
         gate = (np.abs(found[:, 0]) <= np.radians(params.prior_max_yaw_deg)) & \
             (np.hypot(found[:, 1], found[:, 2]) <= params.prior_max_shift_m)
         found = found[gate]

@@ -199,13 +199,10 @@ class RigRefiner:
         return estimate.in_plane_solved and estimate.overlap >= p.provisional_min_overlap and \
             estimate.overlap >= estimate.prior_overlap + p.provisional_overlap_gain
 
-    def _candidate(self) -> tuple[Rig, dict[str, RigDifference]] | None:
+    def _candidate(self, estimate: RigEstimate) -> tuple[Rig, dict[str, RigDifference]]:
         """The rig the scene vouches for and its differences from the configured one: the
         estimate once confident or provisional; before, the configured cameras levelled on
         their tables."""
-        estimate = self.estimate
-        if estimate is None:
-            return None
         if estimate.confident or self._provisional(estimate):
             return estimate.rig, estimate.differences
         return estimate.levelled, rig_differences(self.prior, estimate.levelled)
@@ -214,7 +211,7 @@ class RigRefiner:
         """Pick the rig for the fusion from the estimate and the mode; True if it changed."""
         old = self._rig
         self._rig, self.in_use = self.prior, 'config'
-        candidate = self._candidate()
+        candidate = None if self.estimate is None else self._candidate(self.estimate)
         if self.params.mode == 'use' and candidate is not None and any(
                 d.exceeds(self.params.use_min_angle_deg, self.params.use_min_offset_m)
                 for d in candidate[1].values()):
@@ -244,7 +241,7 @@ class RigRefiner:
             values.update(rig_residual_mm=f'{1e3 * estimate.residual_m:.2f}',
                           rig_overlap=f'{estimate.overlap:.2f}',
                           rig_config_overlap=f'{estimate.prior_overlap:.2f}')
-        _, differences = self._candidate()
+        _, differences = self._candidate(estimate)
         for name, difference in differences.items():
             values[f'rig_config_{name}_deg'] = f'{difference.angle_deg:.2f}'
             values[f'rig_config_{name}_mm'] = f'{1e3 * difference.offset_m:.1f}'

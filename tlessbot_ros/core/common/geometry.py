@@ -8,8 +8,10 @@ geometry_msgs.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
+import numpy.typing as npt
 
 
 @dataclass(frozen=True)
@@ -77,7 +79,7 @@ class CameraIntrinsics:
         return cls(width=width, height=height, K=K)
 
 
-def make_transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+def make_transform(R: npt.ArrayLike, t: npt.ArrayLike) -> np.ndarray:
     """(4, 4) homogeneous transform from a (3, 3) rotation and a (3,) translation."""
     T = np.eye(4)
     T[:3, :3] = np.asarray(R, dtype=np.float64).reshape(3, 3)
@@ -95,7 +97,7 @@ def invert_transform(T: np.ndarray) -> np.ndarray:
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a (4, 4) transform to (N, 3) points; returns (N, 3) float64."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    return points @ T[:3, :3].T + T[:3, 3]
+    return cast(np.ndarray, points @ T[:3, :3].T + T[:3, 3])
 
 
 def project_points(points_c: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -207,12 +209,13 @@ def rpy_from_matrix(R: np.ndarray) -> np.ndarray:
     return np.array([roll, pitch, yaw])
 
 
-def rotation_about_axis(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+def rotation_about_axis(axis: npt.ArrayLike, angle_rad: float) -> np.ndarray:
     """(3, 3) rotation of ``angle_rad`` about a (3,) axis (Rodrigues)."""
-    axis = np.asarray(axis, dtype=np.float64)
-    axis = axis / np.linalg.norm(axis)
-    Kx = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(angle_rad) * Kx + (1 - np.cos(angle_rad)) * (Kx @ Kx)
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    R: np.ndarray = np.eye(3) + np.sin(angle_rad) * Kx + (1 - np.cos(angle_rad)) * (Kx @ Kx)
+    return R
 
 
 def nearest_rotation(R: np.ndarray, *, tolerance: float = 0.05) -> np.ndarray | None:
@@ -230,7 +233,8 @@ def nearest_rotation(R: np.ndarray, *, tolerance: float = 0.05) -> np.ndarray | 
     if det <= 0 or abs(det - 1.0) > tolerance or np.abs(R @ R.T - np.eye(3)).max() > tolerance:
         return None
     U, _, Vt = np.linalg.svd(R)
-    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    nearest: np.ndarray = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return nearest
 
 
 def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
@@ -239,21 +243,21 @@ def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
+def look_at(eye: npt.ArrayLike, target: npt.ArrayLike, up: npt.ArrayLike) -> np.ndarray:
     """T_world_camera of an optical-frame camera at ``eye`` looking at ``target``.
 
     The camera's z axis points at the target and its y axis (image down) points away from
     ``up``, so ``up`` appears at the top of the image.
     """
-    eye = np.asarray(eye, dtype=np.float64)
-    z = np.asarray(target, dtype=np.float64) - eye
+    position = np.asarray(eye, dtype=np.float64)
+    z = np.asarray(target, dtype=np.float64) - position
     z /= np.linalg.norm(z)
     x = np.cross(z, np.asarray(up, dtype=np.float64))
     if np.linalg.norm(x) < 1e-9:
         raise ValueError('up is parallel to the viewing direction; choose another up vector')
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
-    return make_transform(np.stack([x, y, z], axis=1), eye)
+    return make_transform(np.stack([x, y, z], axis=1), position)
 
 
 def point_set_diameter(points: np.ndarray) -> float:

@@ -8,7 +8,8 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def count_inliers(points, normals, offsets, limits):
+def count_inliers(points: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
+                  limits: np.ndarray) -> np.ndarray:
     """(H,) number of the (N, 3) points within ``limits`` (N,) of each of the H planes
     (``normals`` (H, 3), ``offsets`` (H,)). One pass, no (N, H) temporaries and no BLAS (whose
     threads spin against the other stages' on a loaded machine: 10+ ms instead of 1)."""
@@ -27,7 +28,8 @@ def count_inliers(points, normals, offsets, limits):
 
 
 @njit(cache=True, nogil=True)
-def sampled_points(depth_m, stride, cx, cy, fx, fy, max_depth_m):
+def sampled_points(depth_m: np.ndarray, stride: int, cx: float, cy: float, fx: float, fy: float,
+                   max_depth_m: float) -> np.ndarray:
     """(N, 3) float64 optical-frame points of every ``stride``-th pixel (from ``stride // 2``)
     whose depth is finite, > 0 and <= ``max_depth_m``, in row-major order; the arithmetic of
     the numpy version it replaced (which scanned the grid five times)."""
@@ -50,7 +52,8 @@ def sampled_points(depth_m, stride, cx, cy, fx, fy, max_depth_m):
 
 
 @njit(cache=True, nogil=True)
-def near_plane(points, normal, offset, limits):
+def near_plane(points: np.ndarray, normal: np.ndarray, offset: float,
+               limits: np.ndarray) -> np.ndarray:
     """(N,) bool: the points within ``limits`` (N,) of the plane (``normal`` (3,), ``offset``)."""
     a, b, c = normal[0], normal[1], normal[2]
     out = np.empty(points.shape[0], np.bool_)
@@ -60,7 +63,7 @@ def near_plane(points, normal, offset, limits):
 
 
 @njit(cache=True, nogil=True)
-def centre_and_scatter(points, chosen):
+def centre_and_scatter(points: np.ndarray, chosen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Centroid (3,) of the chosen points and their (3, 3) scatter matrix about it, summed
     point by point in order: equal, bit for bit, to ``points[chosen].mean(axis=0)`` and
     ``np.einsum('ni,nj->ij', centred, centred)``."""
@@ -85,7 +88,8 @@ def centre_and_scatter(points, chosen):
 
 
 @njit(cache=True, nogil=True)
-def residuals(points, normal, offset, chosen):
+def residuals(points: np.ndarray, normal: np.ndarray, offset: float,
+              chosen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(N,) absolute distances of all the points to the plane, and (M,) those of the M chosen
     points over their squared depth (the noise measured on the plane, at 1 m)."""
     n = points.shape[0]
@@ -102,7 +106,8 @@ def residuals(points, normal, offset, chosen):
 
 
 @njit(cache=True, nogil=True)
-def within_noise(points, residual, noise_factor, low, high):
+def within_noise(points: np.ndarray, residual: np.ndarray, noise_factor: float, low: float,
+                 high: float) -> np.ndarray:
     """(N,) bool: residual below ``noise_factor`` × depth², clipped to [low, high]."""
     out = np.empty(points.shape[0], np.bool_)
     for i in range(points.shape[0]):
@@ -112,7 +117,7 @@ def within_noise(points, residual, noise_factor, low, high):
 
 
 @njit(cache=True, nogil=True)
-def triple_normals(triples):
+def triple_normals(triples: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Of (H, 3, 3) point triples, the non-degenerate ones' (H', 3) unit normals (the cross
     product of their edges from the first point), (H', 3) first points and (H',) distances of
     their centres from the origin: the arithmetic of ``np.cross``, ``np.linalg.norm(...,
@@ -141,21 +146,21 @@ def triple_normals(triples):
 
 
 @njit(cache=True, nogil=True)
-def median_in_place(values):
+def median_in_place(values: np.ndarray) -> float:
     """The median of (N,) values (N > 0, no NaN), as ``np.median`` gives it (the mean of the
     two middle values for even N); reorders ``values``."""
     n = values.shape[0]
     upper = _select_in_place(values, n // 2)
     if n % 2:
         return upper
-    lower = values[0]
+    lower: float = values[0]
     for i in range(1, n // 2):   # the largest of the lower half
         lower = max(lower, values[i])
     return (lower + upper) / 2.0
 
 
 @njit(cache=True, nogil=True)
-def _select_in_place(values, k):
+def _select_in_place(values: np.ndarray, k: int) -> float:
     """The k-th smallest (0-based) of ``values``, moved to index k with the smaller ones
     before it (Hoare's quickselect)."""
     lo, hi = 0, values.shape[0] - 1
@@ -177,4 +182,5 @@ def _select_in_place(values, k):
             lo = i
         else:
             break
-    return values[k]
+    kth: float = values[k]
+    return kth

@@ -15,12 +15,18 @@ from tlessbot_ros.core.common.geometry import CameraIntrinsics, transform_points
 NO_HIT = -1
 
 
+def o3d_tensor(array: np.ndarray) -> o3d.core.Tensor:
+    """An Open3D CPU tensor with a copy of ``array`` (same shape and dtype)."""
+    # Open3D's stubs leave out the defaults of dtype and device, which the binding has.
+    return o3d.core.Tensor(array)  # type: ignore[call-overload, no-any-return]
+
+
 def raycasting_scene(vertices: np.ndarray, faces: np.ndarray) -> o3d.t.geometry.RaycastingScene:
     """An Open3D ray-casting scene of one mesh ((V, 3) vertices, metres; (F, 3) int faces) in
     its own frame: for rays, exact point distances and closest points."""
     mesh = o3d.t.geometry.TriangleMesh()
-    mesh.vertex.positions = o3d.core.Tensor(np.asarray(vertices, np.float32))
-    mesh.triangle.indices = o3d.core.Tensor(np.asarray(faces, np.int32))
+    mesh.vertex.positions = o3d_tensor(np.asarray(vertices, np.float32))
+    mesh.triangle.indices = o3d_tensor(np.asarray(faces, np.int32))
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(mesh)
     return scene
@@ -51,7 +57,7 @@ class MeshRenderer:
         self._scene = o3d.t.geometry.RaycastingScene()
         self._geometry_to_instance: dict[int, int] = {}
         self._count = 0
-        self._ray_cache: dict[tuple, np.ndarray] = {}
+        self._ray_cache: dict[tuple[int | float, ...], np.ndarray] = {}
 
     def add_mesh(self, vertices: np.ndarray, faces: np.ndarray,
                  T_world_object: np.ndarray | None = None) -> int:
@@ -60,8 +66,8 @@ class MeshRenderer:
         if T_world_object is not None:
             vertices = transform_points(T_world_object, vertices)
         mesh = o3d.t.geometry.TriangleMesh()
-        mesh.vertex.positions = o3d.core.Tensor(vertices.astype(np.float32))
-        mesh.triangle.indices = o3d.core.Tensor(np.asarray(faces, dtype=np.int32))
+        mesh.vertex.positions = o3d_tensor(vertices.astype(np.float32))
+        mesh.triangle.indices = o3d_tensor(np.asarray(faces, dtype=np.int32))
         geometry_id = self._scene.add_triangles(mesh)
         self._geometry_to_instance[int(geometry_id)] = self._count
         self._count += 1
@@ -89,7 +95,7 @@ class MeshRenderer:
         rays = np.empty((height, width, 6), np.float32)
         rays[..., :3] = t
         rays[..., 3:] = rays_c @ R.T
-        hits = self._scene.cast_rays(o3d.core.Tensor(rays), nthreads=0)
+        hits = self._scene.cast_rays(o3d_tensor(rays), nthreads=0)
         t_hit = hits['t_hit'].numpy()
         hit = np.isfinite(t_hit)
         depth = np.where(hit, t_hit, 0.0).astype(np.float32)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -79,7 +79,7 @@ class Rig:
 
     def T_a_b(self, camera_a: str, camera_b: str) -> np.ndarray:
         """Transform from camera ``b``'s optical frame into camera ``a``'s."""
-        return self[camera_a].T_camera_world @ self[camera_b].T_world_camera
+        return cast(np.ndarray, self[camera_a].T_camera_world @ self[camera_b].T_world_camera)
 
 
 def d415_intrinsics(width: int = 640, height: int = 480) -> CameraIntrinsics:

@@ -13,7 +13,9 @@ nearest-neighbour distance against a tolerance relative to the model diameter.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 import open3d as o3d
@@ -23,6 +25,7 @@ from tlessbot_ros.core.common.geometry import (
     rotation_about_axis,
     rotation_angle_deg,
 )
+from tlessbot_ros.core.common.render import o3d_tensor
 from tlessbot_ros.core.common.sampling import sample_surface
 
 # The sampling scheme of the detector (see tlessbot_ros.core.common.sampling). 'reflect' finds
@@ -108,7 +111,7 @@ class Symmetries:
         return ' + '.join(parts) if parts else 'none'
 
 
-def symmetries_from_models_info(entry: dict) -> Symmetries:
+def symmetries_from_models_info(entry: Mapping[str, Any]) -> Symmetries:
     """Symmetries from one object's entry of BOP ``models_info.json``.
 
     Args:
@@ -136,9 +139,9 @@ def symmetries_from_models_info(entry: dict) -> Symmetries:
     return Symmetries(discrete=tuple(discrete), continuous=tuple(continuous))
 
 
-def symmetries_to_models_info(symmetries: Symmetries) -> dict:
+def symmetries_to_models_info(symmetries: Symmetries) -> dict[str, Any]:
     """Inverse of :func:`symmetries_from_models_info` (mm, flattened; identity omitted)."""
-    entry: dict = {}
+    entry: dict[str, Any] = {}
     discrete = []
     for T in symmetries.discrete[1:]:
         T_mm = T.copy()
@@ -210,15 +213,15 @@ class _SurfaceTest:
                  threshold: float, quantile: float, icp_iterations: int) -> None:
         self.query = query
         self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)),
-                                 o3d.core.Tensor(np.asarray(faces, np.uint32)))
+        self.scene.add_triangles(o3d_tensor(np.asarray(vertices, np.float32)),
+                                 o3d_tensor(np.asarray(faces, np.uint32)))
         self.threshold = threshold
         self.quantile = quantile
         self.icp_iterations = icp_iterations
 
     def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest surface points of (N, 3) points and the distances to them."""
-        result = self.scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
+        result = self.scene.compute_closest_points(o3d_tensor(points.astype(np.float32)))
         closest = result['points'].numpy().astype(np.float64)
         return closest, np.linalg.norm(closest - points, axis=1)
 
@@ -259,7 +262,7 @@ class _SurfaceTest:
 def _perpendicular(axis: np.ndarray) -> np.ndarray:
     helper = np.eye(3)[int(np.argmin(np.abs(axis)))]
     v = np.cross(axis, helper)
-    return v / np.linalg.norm(v)
+    return cast(np.ndarray, v / np.linalg.norm(v))
 
 
 def _close_group(rotations: list[np.ndarray], *, tolerance_deg: float = 3.0,
@@ -395,7 +398,7 @@ def _n_fold_generators(test: _SurfaceTest, candidates: list[np.ndarray], centre:
                 fold, found = n, T
         if fold and test.check(axis, np.pi / fold, centre, deviation) is not None:
             fold *= 2  # 4-fold or 6-fold
-        if fold:
+        if fold and found is not None:
             refined = _mean_axis([found[:3, :3]], axis)
             generators.append(rotation_about_axis(refined, 2 * np.pi / fold))
             if fold > fold_of_special and fold > 2:
@@ -441,7 +444,7 @@ def _mean_axis(rotations: list[np.ndarray], reference: np.ndarray) -> np.ndarray
         axis = np.real(V[:, np.argmin(np.abs(w - 1))])
         axes.append(axis if axis @ reference >= 0 else -axis)
     mean = np.mean(axes, axis=0)
-    return mean / np.linalg.norm(mean)
+    return cast(np.ndarray, mean / np.linalg.norm(mean))
 
 
 def _axis_point(T: np.ndarray) -> np.ndarray:
@@ -453,4 +456,4 @@ def _axis_point(T: np.ndarray) -> np.ndarray:
     of more than ~17 degrees, whose other two singular values exceed 0.3).
     """
     R, t = T[:3, :3], T[:3, 3]
-    return np.linalg.lstsq(np.eye(3) - R, t, rcond=0.05)[0]
+    return cast(np.ndarray, np.linalg.lstsq(np.eye(3) - R, t, rcond=0.05)[0])

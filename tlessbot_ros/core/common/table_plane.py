@@ -27,6 +27,7 @@ unit normal, oriented towards the camera (``d > 0``: the camera centre lies abov
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -186,8 +187,9 @@ def _hypotheses(points: np.ndarray, params: TablePlaneParams, rng: np.random.Gen
 
 def _distances(points: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
     """(N,) signed distances of the points to a plane (element-wise: no BLAS call)."""
-    return points[:, 0] * normal[0] + points[:, 1] * normal[1] + points[:, 2] * normal[2] \
-        + offset
+    distances: np.ndarray = points[:, 0] * normal[0] + points[:, 1] * normal[1] \
+        + points[:, 2] * normal[2] + offset
+    return distances
 
 
 def _near_prior(normals: np.ndarray, offsets: np.ndarray, prior: np.ndarray,
@@ -313,7 +315,7 @@ class TablePlaneTracker:
                 self.plane = None
             return self.plane
         self.missed = 0
-        if self.plane is None or self._jumped(observed):
+        if self.plane is None or self._jumped(self.plane, observed):
             self.resets += self.plane is not None
             self.plane = observed
             return observed
@@ -324,8 +326,8 @@ class TablePlaneTracker:
                                 observed.centroid)
         return self.plane
 
-    def _jumped(self, observed: TablePlane) -> bool:
-        old = self.plane.plane
+    def _jumped(self, tracked: TablePlane, observed: TablePlane) -> bool:
+        old = tracked.plane
         angle = np.degrees(np.arccos(np.clip(old[:3] @ observed.normal, -1.0, 1.0)))
         shift = abs(old[:3] @ observed.centroid + old[3])
         return bool(angle > self.params.reset_angle_deg or shift > self.params.reset_offset_m)
@@ -385,7 +387,7 @@ def align_frame_to_plane(T_world_camera: np.ndarray, plane: np.ndarray) -> np.nd
     if np.linalg.norm(axis) < 1e-12:   # parallel (no turn) or opposite (half turn about x)
         axis = np.array([1.0, 0.0, 0.0])
     R = rotation_about_axis(axis, angle)
-    return make_transform(R, [0.0, 0.0, offset]) @ T_world_camera
+    return cast(np.ndarray, make_transform(R, [0.0, 0.0, offset]) @ T_world_camera)
 
 
 def plane_difference(T_world_camera: np.ndarray, table: TablePlane) -> tuple[float, float]:
@@ -446,7 +448,7 @@ def choose_table_frame(T_rig: np.ndarray | None, observed: TablePlane | None, *,
     if T_rig is not None and observed is not None:
         angle, offset = plane_difference(T_rig, observed)
     if observed is None or mode == 'rig' or (
-            mode == 'auto' and T_rig is not None and angle <= max_angle_deg
+            mode == 'auto' and angle is not None and offset is not None and angle <= max_angle_deg
             and abs(offset) <= max_offset_m):
         source = 'none' if T_rig is None else 'rig'
         return TableFrame(T_rig, source, observed, angle, offset, find_ms)

@@ -6,7 +6,7 @@ timeline's stragglers that arrive after the jump. Pure: no clock is read."""
 from __future__ import annotations
 
 from collections.abc import Hashable, Mapping, Sequence
-from typing import TYPE_CHECKING, Generic, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Literal, TypeVar
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.common.sync import StampSynchroniser
@@ -75,9 +75,11 @@ class StampJumps:
         verdict = IN_ORDER
         if last is not None and self._epoch[stream] == self.count:
             if not self._in_line(last, stamp_ns):
-                first, newest, seen = self._candidate.get(stream, (None, None, 0))
-                if newest is None or not self._in_line(newest, stamp_ns):
+                candidate = self._candidate.get(stream)
+                if candidate is None or not self._in_line(candidate[1], stamp_ns):
                     first, seen = stamp_ns, 0   # a new candidate timeline
+                else:
+                    first, _, seen = candidate
                 seen += 1
                 forward = stamp_ns > last
                 if seen <= self.confirmations and not (
@@ -195,7 +197,7 @@ class TimelineGate(Generic[Item]):
     a candidate the old timeline outlives are dropped (counted in :attr:`stale`).
     """
 
-    def __init__(self, jumps: StampJumps, synchronisers: Sequence[StampSynchroniser]) -> None:
+    def __init__(self, jumps: StampJumps, synchronisers: Sequence[StampSynchroniser[Any]]) -> None:
         self.jumps = jumps
         self.synchronisers = tuple(synchronisers)
         self.stale = 0

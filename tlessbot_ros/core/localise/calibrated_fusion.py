@@ -5,6 +5,7 @@ divided by a watershed seeded with them."""
 from __future__ import annotations
 
 import time
+from typing import cast
 
 import cv2
 import numpy as np
@@ -258,6 +259,6 @@ def _divide_among_owners(blob: np.ndarray, pred: np.ndarray, owners: list[int],
     holes = blob & (ids == 0)
     if holes.any() and (ids > 0).any():
         fill_from_nearest(ids, holes)
-    return ids[blob].astype(np.uint16)
+    return cast(np.ndarray, ids[blob].astype(np.uint16))
 
 __all__ = ['calibrated_fusion', 'lift_top_blobs', 'predict_side_regions']

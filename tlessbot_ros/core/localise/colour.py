@@ -13,6 +13,8 @@ All images are (H, W, 3) uint8 RGB.
 """
 from __future__ import annotations
 
+from typing import cast
+
 import cv2
 import numpy as np
 
@@ -29,7 +31,7 @@ def _od_lut(dark_level: int) -> np.ndarray:
     intensities below ``dark_level`` clamped to it (the log amplifies noise near black)."""
     v = np.maximum(np.arange(256), dark_level) / 255.0
     od = (np.log(np.maximum(v, 1e-6)) / np.log(1e-6)).astype(np.float32)
-    return np.repeat(od.reshape(256, 1, 1), 3, axis=2).reshape(1, 256, 3).copy()
+    return cast(np.ndarray, np.repeat(od.reshape(256, 1, 1), 3, axis=2).reshape(1, 256, 3).copy())
 
 
 _OD_LUTS: dict[int, np.ndarray] = {}
@@ -166,5 +168,5 @@ def remove_trend(channel: np.ndarray, *, step: int = 8, iterations: int = 3) -> 
                + coef[5] * y * y).astype(np.float32)
     # The sample grid covers [step/2, ... ] pixel centres; resize spans the same range closely.
     surface = cv2.resize(surface, (w, h), interpolation=cv2.INTER_LINEAR)
-    return channel - surface
+    return cast(np.ndarray, channel - surface)
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import cast
 
 import cv2
 import numpy as np
@@ -322,7 +323,7 @@ def background_change(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationP
     delta_e_sq = np.einsum('ijk,ijk->ij', diff, diff)
     if shadow is None:
         shadow = shadow_mask(lab, bg_lab, params)
-    return (delta_e_sq > params.background_delta_e ** 2) & ~shadow
+    return cast(np.ndarray, (delta_e_sq > params.background_delta_e ** 2) & ~shadow)
 
 
 def shadow_mask(lab: np.ndarray, bg_lab: np.ndarray, params: SegmentationParams) -> np.ndarray:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from functools import lru_cache
+from typing import cast
 
 import cv2
 import numpy as np
@@ -451,6 +452,6 @@ def relabel_sequential(labels: np.ndarray) -> np.ndarray:
     ids = ids[ids > 0]
     lut = np.zeros(int(labels.max()) + 1 if labels.size else 1, np.uint16)
     lut[ids] = np.arange(1, ids.size + 1, dtype=np.uint16)
-    return lut[labels]
+    return cast(np.ndarray, lut[labels])
 
 

@@ -26,6 +26,7 @@ estimator uses the side view when an instance has side pixels, else the top view
 from __future__ import annotations
 
 import time
+from typing import cast
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -106,12 +107,12 @@ def table_homography(rig: Rig, camera: str) -> np.ndarray:
     """(3, 3) homography from table-plane (world x, y at z = 0, metres) to ``camera`` pixels."""
     mount = rig[camera]
     T = mount.T_camera_world
-    return mount.intrinsics.K @ np.column_stack([T[:3, 0], T[:3, 1], T[:3, 3]])
+    return cast(np.ndarray, mount.intrinsics.K @ np.column_stack([T[:3, 0], T[:3, 1], T[:3, 3]]))
 
 
 def _apply_h(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
     p = np.column_stack([xy, np.ones(len(xy))]) @ H.T
-    return p[:, :2] / p[:, 2:3]
+    return cast(np.ndarray, p[:, :2] / p[:, 2:3])
 
 
 # --------------------------------------------------------------------------- Algorithm 1

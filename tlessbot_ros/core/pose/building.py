@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
+from typing import cast
 
 import numpy as np
 import open3d as o3d
@@ -95,7 +96,7 @@ def _mesh_distance(vertices: np.ndarray, faces: np.ndarray) -> Callable[[np.ndar
 
     def distance(points: np.ndarray) -> np.ndarray:
         query = o3d.core.Tensor(np.asarray(points, np.float32))
-        return scene.compute_distance(query).numpy()
+        return cast(np.ndarray, scene.compute_distance(query).numpy())
     return distance
 
 
@@ -248,7 +249,7 @@ def _optical_axis_on_table(T_world_camera: np.ndarray) -> np.ndarray:
     origin, axis = T_world_camera[:3, 3], T_world_camera[:3, 2]
     if axis[2] >= -1e-6:
         raise ValueError('the camera does not look down at the table (z = 0)')
-    return origin + axis * (-origin[2] / axis[2])
+    return cast(np.ndarray, origin + axis * (-origin[2] / axis[2]))
 
 
 def build_database(models: Iterable[tuple[int, np.ndarray, np.ndarray,

@@ -19,6 +19,7 @@ References:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import open3d as o3d
@@ -147,7 +148,7 @@ def crop_box(points: np.ndarray, min_bound: np.ndarray, max_bound: np.ndarray, *
         raise ValueError(f'box bounds must be (3,) with max >= min, got {lo} and {hi}')
     if T_box_points is not None:
         points = transform_points(T_box_points, points)
-    return np.all((points >= lo) & (points <= hi), axis=1)
+    return cast(np.ndarray, np.all((points >= lo) & (points <= hi), axis=1))
 
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: float,
@@ -227,7 +228,7 @@ def estimate_normals(points: np.ndarray, *, radius_m: float, max_nn: int = 30,
     view = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, float)
     flip = np.sum(normals * (view - np.asarray(points, float)), axis=1) < 0
     normals[flip] *= -1.0
-    return normals
+    return cast(np.ndarray, normals)
 
 
 def fit_plane(points: np.ndarray, *, distance_m: float = 0.003, iterations: int = 200,
@@ -313,4 +314,4 @@ def compute_fpfh(points: np.ndarray, normals: np.ndarray, *, radius_m: float,
         to_o3d(points, normals),
         search_param=o3d.geometry.KDTreeSearchParamHybrid(radius=float(radius_m),
                                                           max_nn=int(max_nn)))
-    return np.asarray(feature.data, dtype=np.float32).T.copy()
+    return cast(np.ndarray, np.asarray(feature.data, dtype=np.float32).T.copy())

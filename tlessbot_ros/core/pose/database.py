@@ -26,7 +26,7 @@ import zipfile
 from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -334,7 +334,7 @@ def _quantise(points: np.ndarray, origin: np.ndarray) -> np.ndarray:
     q = np.round((np.asarray(points, np.float64) - origin) / POINT_QUANTUM_M)
     if len(q) and np.abs(q).max() > np.iinfo(np.int16).max:
         raise ValueError('points lie more than 1.6 m from their origin; cannot store them')
-    return q.astype(np.int16)
+    return cast(np.ndarray, q.astype(np.int16))
 
 
 def _unit(vectors: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ a gross error) is kept. A turn that maps the part onto itself (a symmetry) wins 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import cast
 
 import numpy as np
 import open3d as o3d
@@ -122,4 +123,4 @@ class FlipCheck:
             source, self._surfaces[obj_id], 0.003, np.eye(4),
             o3d.pipelines.registration.TransformationEstimationPointToPlane(),
             o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=20))
-        return T_camera_object @ np.linalg.inv(result.transformation)
+        return cast(np.ndarray, T_camera_object @ np.linalg.inv(result.transformation))

@@ -3,6 +3,7 @@ the table at every yaw step, and the rotations they are built from."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -19,7 +20,7 @@ def rodrigues(omega: np.ndarray) -> np.ndarray:
     K[..., 1, 0], K[..., 1, 2] = k[..., 2], -k[..., 0]
     K[..., 2, 0], K[..., 2, 1] = -k[..., 1], k[..., 0]
     eye = np.broadcast_to(np.eye(3), K.shape)
-    return eye + np.sin(theta) * K + (1 - np.cos(theta)) * (K @ K)
+    return cast(np.ndarray, eye + np.sin(theta) * K + (1 - np.cos(theta)) * (K @ K))
 
 
 def rotations_about_z(yaw: np.ndarray) -> np.ndarray:

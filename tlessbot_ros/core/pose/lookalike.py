@@ -18,6 +18,7 @@ serves both.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
+from typing import cast
 
 import numpy as np
 import open3d as o3d
@@ -79,7 +80,7 @@ def _depth_along(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndar
     rays = np.empty((len(rays_c), 6), np.float32)
     rays[:, :3] = -R.T @ t          # the camera centre in the model frame
     rays[:, 3:] = rays_c @ R        # z = 1 in the camera: the hit distance is the depth
-    return scene.cast_rays(o3d.core.Tensor(rays))['t_hit'].numpy()
+    return cast(np.ndarray, scene.cast_rays(o3d.core.Tensor(rays))['t_hit'].numpy())
 
 
 def visible_difference(scene_a: o3d.t.geometry.RaycastingScene,

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -127,7 +127,7 @@ def is_flat(obj: ObjectTemplates, ratio: float) -> bool:
     pose; cached on the object)."""
     height = obj.derived('resting_height', lambda: float(np.ptp(
         transform_points(obj.stable_poses[0], obj.model_points.astype(np.float64))[:, 2])))
-    return height <= ratio * obj.diameter_m
+    return cast(bool, height <= ratio * obj.diameter_m)
 
 
 def flipped_poses(T_world_object: np.ndarray, centre_o: np.ndarray, count: int, *,

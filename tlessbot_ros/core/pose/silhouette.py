@@ -15,6 +15,7 @@ Images are (H, W, 3) uint8 RGB; windows are (x, y, w, h) pixels; poses ``T_camer
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import cast
 
 import cv2
 import numpy as np
@@ -57,7 +58,7 @@ def edge_distance(rgb: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray
     x0, y0, w, h = box
     grey = cv2.cvtColor(np.ascontiguousarray(rgb[y0:y0 + h, x0:x0 + w]), cv2.COLOR_RGB2GRAY)
     edges = cv2.Canny(cv2.GaussianBlur(grey, (3, 3), 0), 20, 60)
-    return cv2.distanceTransform((edges == 0).astype(np.uint8), cv2.DIST_L2, 3)
+    return cast(np.ndarray, cv2.distanceTransform((edges == 0).astype(np.uint8), cv2.DIST_L2, 3))
 
 
 def agreement(mask: np.ndarray, distance: np.ndarray, label: np.ndarray, *,
@@ -157,4 +158,4 @@ def mesh_silhouette(scene, T_camera_object: np.ndarray, intrinsics: CameraIntrin
     rays[:, :3] = -R.T @ t
     rays[:, 3:] = rays_c @ R
     hit = scene.cast_rays(o3d.core.Tensor(rays))['t_hit'].numpy()
-    return np.isfinite(hit).reshape(h, w)
+    return cast(np.ndarray, np.isfinite(hit).reshape(h, w))

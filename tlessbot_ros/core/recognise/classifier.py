@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -182,7 +183,7 @@ class LinearClassifier:
                              '(and shape_params)?')
         if self.feature_map is not None:
             features = self.feature_map.transform(features)
-        return features @ self.weights + self.intercepts
+        return cast(np.ndarray, features @ self.weights + self.intercepts)
 
     def predict(self, features: np.ndarray, *, reject_margin: float | None = None) -> Prediction:
         """Best class of each descriptor; ``UNKNOWN_ID`` where the margin is below the threshold.
@@ -218,7 +219,7 @@ class LinearClassifier:
         parts = self.class_ids != BACKGROUND_ID
         k = max(1, min(int(k), int(parts.sum())))
         order = np.argsort(-scores[:, parts], axis=1, kind='stable')[:, :k]
-        return self.class_ids[parts][order].astype(np.int64)
+        return cast(np.ndarray, self.class_ids[parts][order].astype(np.int64))
 
     def save(self, path: str | Path) -> None:
         """Write the model as a compressed ``.npz`` (no pickled objects); the keys are listed

@@ -20,6 +20,7 @@ References:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -85,7 +86,7 @@ def _rbf(points: np.ndarray, landmarks_t: np.ndarray, landmark_sq: np.ndarray,
     sq += landmark_sq
     np.maximum(sq, 0.0, out=sq)
     sq *= -gamma
-    return np.exp(sq, out=sq).astype(np.float32, copy=False)
+    return cast(np.ndarray, np.exp(sq, out=sq).astype(np.float32, copy=False))
 
 
 def _half_precision(values: np.ndarray) -> np.ndarray:
