@@ -80,7 +80,7 @@ def image_to_cdr(array: np.ndarray, encoding: str, *, frame_id: str = '',
     pixels = little_endian_pixels(array, encoding)
     height, width, channels = pixels.shape
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    parts = [b'\x00\x01\x00\x00']
+    parts: list[bytes | memoryview] = [b'\x00\x01\x00\x00']
     offset = 0
 
     def put(data: bytes, align: int) -> None:
@@ -100,5 +100,5 @@ def image_to_cdr(array: np.ndarray, encoding: str, *, frame_id: str = '',
     put_string(encoding)
     put(b'\x00', 1)                                  # is_bigendian
     put(struct.pack('<II', width * channels * pixels.itemsize, pixels.nbytes), 4)
-    parts.append(memoryview(pixels).cast('B'))      # joined below: the pixels' only copy
+    parts.append(pixels.data.cast('B'))      # joined below: the pixels' only copy
     return b''.join(parts)

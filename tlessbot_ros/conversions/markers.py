@@ -65,7 +65,7 @@ def _marker(factory: MessageFactory, **fields: Any) -> Any:
     return factory.new('visualization_msgs/msg/Marker', **fields)
 
 
-def _point(factory: MessageFactory, xyz: Sequence[float]) -> Any:
+def _point(factory: MessageFactory, xyz: Sequence[float] | np.ndarray) -> Any:
     x, y, z = (float(v) for v in xyz)
     return factory.new('geometry_msgs/msg/Point', x=x, y=y, z=z)
 
@@ -74,7 +74,7 @@ def _vector(factory: MessageFactory, x: float, y: float, z: float) -> Any:
     return factory.new('geometry_msgs/msg/Vector3', x=x, y=y, z=z)
 
 
-def _pose(factory: MessageFactory, position: Sequence[float]) -> Any:
+def _pose(factory: MessageFactory, position: Sequence[float] | np.ndarray) -> Any:
     """A Pose at ``position`` with the identity orientation (w = 1: a rosbags zero-filled
     Quaternion would not be a rotation)."""
     return factory.new('geometry_msgs/msg/Pose', position=_point(factory, position),

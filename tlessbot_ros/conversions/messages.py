@@ -40,9 +40,9 @@ def message_class(type_name: str) -> type:
     Raises:
         ValueError: a malformed name, or a type this environment does not have.
     """
-    cls = _CLASSES.get(type_name)
-    if cls is not None:
-        return cls
+    cached = _CLASSES.get(type_name)
+    if cached is not None:
+        return cached
     parts = type_name.split('/')
     if len(parts) == 2:
         parts = [parts[0], 'msg', parts[1]]
@@ -50,7 +50,7 @@ def message_class(type_name: str) -> type:
         raise ValueError(f"message type must look like 'pkg/msg/Name', got {type_name!r}")
     package, kind, name = parts
     try:
-        cls = getattr(importlib.import_module(f'{package}.{kind}'), name)
+        cls: type = getattr(importlib.import_module(f'{package}.{kind}'), name)
     except (ImportError, AttributeError):
         raise ValueError(f'message type {type_name!r} is not available in this environment') \
             from None
@@ -127,7 +127,7 @@ class RosbagsFactory:
 def _as_bytes(data: bytes | np.ndarray) -> bytes | memoryview:
     if isinstance(data, bytes):
         return data
-    return memoryview(np.ascontiguousarray(data).reshape(-1).view(np.uint8))
+    return np.ascontiguousarray(data).reshape(-1).view(np.uint8).data
 
 
 def _np_dtype(base: str) -> Any:

@@ -7,7 +7,7 @@ coordinate are skipped.
 """
 from __future__ import annotations
 
-from typing import Any, cast
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -57,7 +57,7 @@ def pointcloud2_to_xyz(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:
         raise ValueError(f'point_step*width = {point_step * width} exceeds row_step {row_step}')
     rows = buffer.reshape(height, row_step)[:, :point_step * width]
     points = np.ascontiguousarray(rows).reshape(count, point_step)
-    byte_order = '>' if msg.is_bigendian else '<'
+    byte_order: Literal['>', '<'] = '>' if msg.is_bigendian else '<'
 
     def column(name: str) -> np.ndarray:
         field = fields[name]

@@ -37,6 +37,9 @@ def package_share(package: str) -> Path:
         module = importlib.import_module(package)
     except ImportError:
         raise ValueError(f'interface package {package!r} is not installed') from None
+    if module.__file__ is None:   # a namespace package: no module file to start from
+        raise ValueError(f'interface package {package!r} has no share folder (a namespace '
+                         'package without __init__.py)')
     return Path(module.__file__).resolve().parents[4] / 'share' / package
 
 

@@ -8,6 +8,7 @@ shows the other face up.
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -105,9 +106,9 @@ def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vie
             estimator.refiner, params).applies(obj):
         return None
     parts = [obj] + [t for t in twins if t.mesh_faces is not None]
-    scenes = [p.derived('raycasting', lambda p=p: raycasting_scene(p.mesh_vertices,
-                                                                  p.mesh_faces))
-              for p in parts]
+    scenes = [p.derived('raycasting', partial(raycasting_scene, vertices, faces))
+              for p in parts if (faces := p.mesh_faces) is not None
+              and (vertices := p.mesh_vertices) is not None]   # all of them
     votes = np.zeros((len(parts), 2))
     for view in mirror_views(views, labels, detection.instance_id, detection.view):
         T = view.T_view_fit @ detection.pose.T_camera_object

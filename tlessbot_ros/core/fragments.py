@@ -17,13 +17,22 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
 
+class _Numbered(Protocol):
+    @property
+    def instance_id(self) -> int: ...
+
+
+D = TypeVar('D', bound=_Numbered)
+
+
 @dataclass
-class _Piece:
-    detection: object
+class _Piece(Generic[D]):
+    detection: D
     frame: str            # the frame its positions are in: 'world', or one camera's name
     centroid: np.ndarray  # (3,) ROI centroid, metres
     points: int           # ROI points
@@ -36,7 +45,7 @@ class _Piece:
     decided: bool = False
 
 
-class FragmentFilter:
+class FragmentFilter(Generic[D]):
     """Hands each fitted detection to ``publish`` unless it is a fragment of a larger one.
 
     Args:
@@ -49,12 +58,12 @@ class FragmentFilter:
             (0: keep everything).
     """
 
-    def __init__(self, pieces: Sequence[tuple[object, np.ndarray, str, int, float]],
-                 publish: Callable[[object], None], *, overlap: float) -> None:
+    def __init__(self, pieces: Sequence[tuple[D, np.ndarray, str, int, float]],
+                 publish: Callable[[D], None], *, overlap: float) -> None:
         self._publish = publish
         self._overlap = float(overlap)
         self._lock = threading.Lock()
-        self.dropped: list[object] = []
+        self.dropped: list[D] = []
         self._pieces = [_Piece(d, frame, np.asarray(c, np.float64), int(n), float(diam))
                         for d, c, frame, n, diam in pieces]
         self._index = {id(p.detection): k for k, p in enumerate(self._pieces)}
@@ -64,7 +73,7 @@ class FragmentFilter:
                                 and np.linalg.norm(other.centroid - piece.centroid)
                                 < 0.5 * (other.diameter_m + piece.diameter_m)]
 
-    def fitted(self, detection, centre: np.ndarray | None, diameter_m: float,
+    def fitted(self, detection: D, centre: np.ndarray | None, diameter_m: float,
                score: float) -> None:
         """``detection``'s fit is done: its fitted centre (3,) in its piece's frame (None: no
         pose), its fitted class's diameter and its pose fitness (higher is better); publishes
@@ -78,7 +87,7 @@ class FragmentFilter:
         for kept in ready:
             self._publish(kept)
 
-    def _decide_ready(self) -> list[object]:
+    def _decide_ready(self) -> list[D]:
         """Decide every fitted piece whose neighbours are all fitted."""
         kept = []
         for piece in self._pieces:
@@ -92,7 +101,7 @@ class FragmentFilter:
                 kept.append(piece.detection)
         return kept
 
-    def _is_fragment(self, piece: _Piece) -> bool:
+    def _is_fragment(self, piece: _Piece[D]) -> bool:
         """Whether a neighbour that fits better sits on this piece's fitted centre."""
         if piece.centre is None:
             return False
@@ -106,7 +115,7 @@ class FragmentFilter:
         return False
 
 
-def _better(a: _Piece, b: _Piece) -> bool:
+def _better(a: _Piece[Any], b: _Piece[Any]) -> bool:
     """Whether ``a`` is the better of two overlapping fits: fitness, then ROI points, then
     the lower instance id (a total order, so exactly one of two is kept)."""
     return (a.score, a.points, -a.detection.instance_id) > \

@@ -45,7 +45,7 @@ class ClassGuess:
     obj_id: int
     score: float
     margin: float
-    view: str
+    view: str | None
     candidates: tuple[int, ...] = ()
 
 

@@ -4,6 +4,7 @@ work of a frame."""
 from __future__ import annotations
 
 import threading
+from collections.abc import Collection
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -27,7 +28,7 @@ def second_view_thread() -> ThreadPoolExecutor:
         return _SECOND_VIEW
 
 
-def view_order(views) -> list[str]:
+def view_order(views: Collection[str]) -> list[str]:
     """View names in preference order: side, top, then any other in name order."""
     return [v for v in (*PREFERRED_VIEWS, *sorted(set(views) - set(PREFERRED_VIEWS)))
             if v in views]

@@ -89,8 +89,9 @@ def check_flip(flip: FlipCheck | None, job: PartJob) -> None:
 def flip_check(database: TemplateDatabase, fit: FitParams) -> FlipCheck | None:
     """The flat parts' flip check (``flip_check``, with the look-alike check's vote settings;
     None when it is off or no part is flat)."""
-    meshes = {o.obj_id: (o.mesh_vertices, o.mesh_faces) for o in database.objects.values()
-              if o.mesh_faces is not None}
+    meshes = {o.obj_id: (vertices, faces) for o in database.objects.values()
+              if (faces := o.mesh_faces) is not None
+              and (vertices := o.mesh_vertices) is not None}
     if not fit.flip_check or not meshes:
         return None
     check = FlipCheck(meshes, tolerance_m=fit.lookalike_tolerance_m, min_z=fit.lookalike_min_z)

@@ -34,7 +34,7 @@ from __future__ import annotations
 import copy
 import time
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -76,6 +76,7 @@ from tlessbot_ros.core.label_views import (
 from tlessbot_ros.core.localise import (
     FusionParams,
     FusionResult,
+    Segmentation,
     SegmentationParams,
     fuse_views,
     segment,
@@ -224,7 +225,7 @@ class PerceptionPipeline:
         ``FusionParams.keep_depth_splits``), except in the top view: from above, at twice the
         distance and with sparse depth on dark parts, a groove looks like a gap between parts.
         """
-        def seg(name: str):   # depth splits in every view but the top one
+        def seg(name: str) -> Segmentation:   # depth splits in every view but the top one
             view = views[name]
             T_world_camera = None if view.depth_m is None else \
                 self.table_frame(name, view).T_world_camera
@@ -281,7 +282,8 @@ class PerceptionPipeline:
             masks = [mask_in_box(labels[view], i, label_box(boxes[view], i)) for i in instances]
             data = None if views is None else views.get(view)
             # the focal length is the unit of a model's box-size features
-            depth = {} if data is None else {'K': data.intrinsics.K}
+            depth: dict[str, np.ndarray | None] = {} if data is None else \
+                {'K': data.intrinsics.K}
             if self.classifier.uses_depth and data is not None and data.depth_m is not None:
                 depth = {'depth_m': data.depth_m, 'K': data.intrinsics.K,
                          'T_world_camera': self.table_frame(view, data).T_world_camera}
@@ -308,10 +310,10 @@ class PerceptionPipeline:
         for k, instance in enumerate(instances):
             obj_id = int(prediction.class_ids[k])
             margin = float(prediction.margins[k])
-            view = preferred_view(counts, instance, min_px=min_px)
+            pose_view = preferred_view(counts, instance, min_px=min_px)
             guesses[instance] = ClassGuess(
-                obj_id, float(prediction.scores[k]), margin, view,
-                self.verification_candidates(obj_id, margin, ranked[k], view))
+                obj_id, float(prediction.scores[k]), margin, pose_view,
+                self.verification_candidates(obj_id, margin, ranked[k], pose_view))
         return guesses
 
     def verification_candidates(self, obj_id: int, margin: float, ranked: Sequence[int],
@@ -363,16 +365,15 @@ class PerceptionPipeline:
         Returns:
             the detections in instance order, fragments left out.
         """
-        if self.pose_estimator is None:
-            raise ValueError('no template database loaded')
-        database = self.pose_estimator.database
+        database = self._estimator().database
         detections, jobs = [], []
         done = on_detection or (lambda detection: None)
         counts, boxes = label_stats(labels)
         for instance in instance_ids(counts):
-            candidates = classes.get(instance, UNKNOWN_ID)
-            candidates = (candidates,) if np.isscalar(candidates) else tuple(candidates)
-            candidates = tuple(int(c) for c in candidates if c != UNKNOWN_ID and c in database)
+            found = classes.get(instance, UNKNOWN_ID)
+            listed: Sequence[int] = (cast(int, found),) if np.isscalar(found) else \
+                tuple(cast(Sequence[int], found))
+            candidates = tuple(int(c) for c in listed if c != UNKNOWN_ID and c in database)
             view = preferred_view(counts, instance, min_px=self.classify_params.min_instance_px)
             if not candidates or view is None:
                 continue
@@ -436,10 +437,10 @@ class PerceptionPipeline:
         return tuple(more)
 
     def _fragment_filter(self, jobs: Sequence[PartJob],
-                         publish: Callable[[Detection], None]) -> FragmentFilter:
+                         publish: Callable[[Detection], None]) -> FragmentFilter[Detection]:
         """The :class:`~tlessbot_ros.core.fragments.FragmentFilter` of one frame's parts: ROI
         centroids in the world (camera frame without a table frame), first-class diameters."""
-        database = self.pose_estimator.database
+        database = self._estimator().database
         pieces = []
         for job in jobs:
             centroid = job.points.mean(axis=0)
@@ -460,12 +461,18 @@ class PerceptionPipeline:
         centre = detection.pose.T_camera_object[:3, 3]
         if job.T_world_camera is not None:
             centre = transform_points(job.T_world_camera, centre[None])[0]
-        return (centre, self.pose_estimator.database[detection.obj_id].diameter_m,
+        return (centre, self._estimator().database[detection.obj_id].diameter_m,
                 detection.pose.fitness)
 
     def fit_part(self, job: PartJob) -> None:
         """Fit one part's class candidates, keep the best (:func:`~.part_fit.fit_part`)."""
-        fit_part(self.pose_estimator, self.fit_params, job)
+        fit_part(self._estimator(), self.fit_params, job)
+
+    def _estimator(self) -> PoseEstimator:
+        """The pose stage; without templates there is none to fit with."""
+        if self.pose_estimator is None:
+            raise ValueError('no template database loaded')
+        return self.pose_estimator
 
     def check_lookalike(self, job: PartJob) -> None:
         """Turn a flat part over if need be, then compare it with its look-alike (part_fit)."""

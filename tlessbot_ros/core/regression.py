@@ -124,7 +124,7 @@ def match_frame(stamp_ns: int, expected: Sequence[PartPose], actual: Sequence[Pa
         One :class:`PartCheck` per approved part and per unpaired published part, in the order
         of ``expected``, then the added ones.
     """
-    candidates = []
+    candidates: list[tuple[int, float, int, int, PoseError | None]] = []
     for i, exp in enumerate(expected):
         for j, act in enumerate(actual):
             if exp.name != act.name:
@@ -132,8 +132,8 @@ def match_frame(stamp_ns: int, expected: Sequence[PartPose], actual: Sequence[Pa
             if exp.frame_id != act.frame_id:
                 candidates.append((1, 0.0, i, j, None))
                 continue
-            error = pose_error(act.T, exp.T, symmetries.get(exp.name))
-            candidates.append((0, _pair_cost(error, tolerance), i, j, error))
+            pair_error = pose_error(act.T, exp.T, symmetries.get(exp.name))
+            candidates.append((0, _pair_cost(pair_error, tolerance), i, j, pair_error))
     candidates.sort(key=lambda c: c[:2])
     by_expected: dict[int, PartCheck] = {}
     used: set[int] = set()
@@ -141,7 +141,8 @@ def match_frame(stamp_ns: int, expected: Sequence[PartPose], actual: Sequence[Pa
         if i in by_expected or j in used:
             continue
         used.add(j)
-        status = FRAME_CHANGED if changed else MATCH if tolerance.allows(error) else MOVED
+        status = FRAME_CHANGED if changed or error is None else \
+            MATCH if tolerance.allows(error) else MOVED
         by_expected[i] = PartCheck(stamp_ns, status, expected[i], actual[j], error)
     renames = sorted(
         (float(np.linalg.norm(exp.T[:3, 3] - act.T[:3, 3])), i, j)
