@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import cv2
 import numpy as np
@@ -83,7 +84,7 @@ def photometric(rgb: np.ndarray, rng: np.random.Generator, *,
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise ValueError(f'rgb must be (H, W, 3) uint8, got {rgb.shape} {rgb.dtype}')
     p = params
-    image = rgb.astype(np.float32) / 255.0
+    image: np.ndarray = rgb.astype(np.float32) / 255.0
     gains = rng.uniform(*p.exposure) * np.array(
         [1.0 + rng.uniform(-p.white_balance, p.white_balance), 1.0,
          1.0 + rng.uniform(-p.white_balance, p.white_balance)], np.float32)
@@ -140,15 +141,15 @@ def texture_background(shape: tuple[int, int], rng: np.random.Generator) -> np.n
     base = rng.uniform(0.05, 0.9) * (1.0 + rng.uniform(-0.15, 0.15, 3))
     kind = rng.integers(4)
     if kind == 0:
-        field = np.zeros((h, w), np.float32)
+        field: np.ndarray = np.zeros((h, w), np.float32)
     elif kind == 1:
-        field = cv2.GaussianBlur(rng.normal(0.0, 1.0, (h, w)).astype(np.float32), (0, 0),
-                                 rng.uniform(2.0, 12.0))
+        field = cast(np.ndarray, cv2.GaussianBlur(
+            rng.normal(0.0, 1.0, (h, w)).astype(np.float32), (0, 0), rng.uniform(2.0, 12.0)))
         field /= max(float(field.std()), 1e-6)
         field *= rng.uniform(0.03, 0.15)
     elif kind == 2:
         side = int(np.ceil(np.hypot(h, w))) + 2
-        grain = rng.normal(0.0, 1.0, (side, max(side // 12, 2))).astype(np.float32)
+        grain: np.ndarray = rng.normal(0.0, 1.0, (side, max(side // 12, 2))).astype(np.float32)
         grain = cv2.resize(grain, (side, side), interpolation=cv2.INTER_LINEAR)
         grain = cv2.GaussianBlur(grain, (0, 0), rng.uniform(0.5, 2.0))
         M = cv2.getRotationMatrix2D((side / 2.0, side / 2.0), rng.uniform(0.0, 180.0), 1.0)
@@ -163,4 +164,4 @@ def texture_background(shape: tuple[int, int], rng: np.random.Generator) -> np.n
         field = (ramp - ramp.mean()) / max(float(np.ptp(ramp)), 1.0) * rng.uniform(0.1, 0.5)
     image = base[None, None, :] + field[..., None]
     image = image + rng.normal(0.0, rng.uniform(0.005, 0.03), (h, w, 1))
-    return np.clip(image, 0.0, 1.0).astype(np.float32)
+    return cast(np.ndarray, np.clip(image, 0.0, 1.0).astype(np.float32))

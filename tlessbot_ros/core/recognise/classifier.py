@@ -29,9 +29,10 @@ References:
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -95,7 +96,7 @@ class LinearClassifier:
     hog_params: HogParams = HogParams()
     kind: str = 'sgd'
     reject_margin: float = 0.0
-    info: dict = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
     shape_params: ShapeParams | None = None
     shape_fill: np.ndarray | None = None
     feature_map: RbfFeatureMap | None = None
@@ -136,7 +137,8 @@ class LinearClassifier:
         return self.shape_params is not None
 
     def describe(self, image: np.ndarray, masks: list[np.ndarray] | None = None,
-                 boxes: list | None = None, *, depth_m: np.ndarray | None = None,
+                 boxes: Sequence[Sequence[float]] | None = None, *,
+                 depth_m: np.ndarray | None = None,
                  K: np.ndarray | None = None,
                  T_world_camera: np.ndarray | None = None) -> np.ndarray:
         """Descriptors of the regions of one frame, as this model expects them.
@@ -164,7 +166,8 @@ class LinearClassifier:
         if depth_m is not None and K is not None and T_world_camera is not None:
             depth_m = np.asarray(depth_m)
             points = [region_points_world(
-                depth_m, masks[i] if masks is not None else _box_mask(boxes[i], depth_m.shape),
+                depth_m, masks[i] if masks is not None else  # else boxes: describe_regions
+                _box_mask(boxes[i], depth_m.shape),  # type: ignore[index]
                 K, T_world_camera, box=None if boxes is None else boxes[i])
                 for i in range(len(hog))]
             values = shape_features_batch(points, params=self.shape_params)
@@ -251,7 +254,7 @@ def load_linear_classifier(path: str | Path) -> LinearClassifier:
 LOADERS[FILE_MAGIC] = load_linear_classifier
 
 
-def _box_mask(box, shape: tuple[int, int]) -> np.ndarray:
+def _box_mask(box: Sequence[float], shape: tuple[int, ...]) -> np.ndarray:
     x, y, w, h = (int(round(float(v))) for v in box)
     mask = np.zeros(shape, bool)
     mask[max(y, 0):max(y + h, 0), max(x, 0):max(x + w, 0)] = True

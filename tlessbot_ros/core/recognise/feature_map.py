@@ -19,7 +19,7 @@ References:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import cast
 
 import numpy as np
@@ -44,6 +44,9 @@ class RbfFeatureMap:
     projection: np.ndarray
     landmarks: np.ndarray
     gamma: float
+    # set by __post_init__: per-call constants
+    _landmarks_t: np.ndarray = field(init=False, repr=False, compare=False)
+    _landmark_sq: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         d, k = np.shape(self.projection)

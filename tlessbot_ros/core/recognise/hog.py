@@ -263,7 +263,7 @@ def hog_features(crops: np.ndarray | Sequence[np.ndarray], *,
     descriptor = _descriptor(params)
     out = np.empty((len(crops), params.hog_dim), np.float32)
     for i, crop in enumerate(crops):
-        out[i] = descriptor.compute(np.ascontiguousarray(crop)).ravel()
+        out[i] = np.ravel(descriptor.compute(np.ascontiguousarray(crop)))
     return out
 
 
@@ -310,5 +310,6 @@ def describe_regions(image: np.ndarray, boxes: Sequence[Sequence[float]] | None 
     hog = hog_features(crops, params=params)
     if not params.box_size:
         return hog
+    assert boxes is not None   # from the masks above when params.box_size
     size = box_size_features(boxes, params.focal_px if focal_px is None else focal_px)
     return np.hstack([hog, size])

@@ -22,13 +22,16 @@ changes.
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from tlessbot_ros.errors import ModelFileError
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.recognise.classifier import Prediction
 
 UNKNOWN_ID = 0  # T-LESS ids start at 1
 # A class learnt from crops of table and neighbours' fragments (no part of the set in the box);
@@ -47,14 +50,18 @@ class Classifier(Protocol):
             (0 = unknown), the unit in which the pipeline judges how sure a margin is.
     """
 
-    class_ids: np.ndarray
-    margin_scale: float
+    @property
+    def class_ids(self) -> np.ndarray: ...
+
+    @property
+    def margin_scale(self) -> float: ...
 
     @property
     def uses_depth(self) -> bool: ...
 
     def describe(self, image: np.ndarray, masks: list[np.ndarray] | None = None,
-                 boxes: list | None = None, *, depth_m: np.ndarray | None = None,
+                 boxes: Sequence[Sequence[float]] | None = None, *,
+                 depth_m: np.ndarray | None = None,
                  K: np.ndarray | None = None,
                  T_world_camera: np.ndarray | None = None) -> np.ndarray:
         """(N, D) float32 descriptors of N regions of an (H, W, 3) uint8 RGB image."""
@@ -62,7 +69,8 @@ class Classifier(Protocol):
     def decision_function(self, features: np.ndarray) -> np.ndarray:
         """(N, C) float32 class scores of (N, D) descriptors."""
 
-    def predict_scores(self, scores: np.ndarray, *, reject_margin: float | None = None):
+    def predict_scores(self, scores: np.ndarray, *,
+                       reject_margin: float | None = None) -> Prediction:
         """A :class:`~tlessbot_ros.core.recognise.classifier.Prediction` from (N, C) scores."""
 
     def ranked_classes(self, scores: np.ndarray, k: int) -> np.ndarray:

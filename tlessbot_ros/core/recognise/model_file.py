@@ -28,8 +28,9 @@ FILE_MAGIC = 'tlessbot_ros.linear_classifier'
 
 def write_linear_classifier(path: str | Path, *, weights: np.ndarray, intercepts: np.ndarray,
                             class_ids: np.ndarray, hog_params: HogParams, kind: str,
-                            reject_margin: float, info: dict, shape_params: ShapeParams | None,
-                            shape_fill: np.ndarray | None, feature_map: RbfFeatureMap | None,
+                            reject_margin: float, info: dict[str, Any],
+                            shape_params: ShapeParams | None, shape_fill: np.ndarray | None,
+                            feature_map: RbfFeatureMap | None,
                             margin_scale: float) -> None:
     """Write a linear model's fields as a compressed ``.npz`` (no pickled objects).
 

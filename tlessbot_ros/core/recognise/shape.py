@@ -24,9 +24,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from tlessbot_ros.core.common import mask_box
 
@@ -82,11 +84,11 @@ class ShapeParams:
         return (len(self.percentiles) + 2 + self.hist_bins + 4 + self.map_cells ** 2
                 + (self.map_cells // 2) ** 2 + 2 * self.rings)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, values: dict) -> ShapeParams:
+    def from_dict(cls, values: dict[str, Any]) -> ShapeParams:
         known = set(cls.__dataclass_fields__)
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()
                   if k in known}
@@ -166,7 +168,7 @@ def _as_u8(mask: np.ndarray) -> np.ndarray:
     return mask.view(np.uint8) if mask.dtype == bool else (mask != 0).astype(np.uint8)
 
 
-def _sorted_quantiles(values: np.ndarray, percentiles) -> np.ndarray:
+def _sorted_quantiles(values: np.ndarray, percentiles: npt.ArrayLike) -> np.ndarray:
     """np.percentile (linear) of values sorted along axis 0, without re-sorting."""
     position = np.asarray(percentiles, np.float64) / 100.0 * (len(values) - 1)
     low = np.floor(position).astype(np.int64)
@@ -179,7 +181,7 @@ _HALF = 1 << 20  # cell index offset of the area count (21 bits per axis)
 
 
 def _group_quantiles(values: np.ndarray, group: np.ndarray, start: np.ndarray,
-                     count: np.ndarray, percentiles) -> np.ndarray:
+                     count: np.ndarray, percentiles: npt.ArrayLike) -> np.ndarray:
     """(G, P) linear percentiles of ``values`` per group (np.percentile's default rule).
 
     ``group`` holds the (N,) group of each value; ``start`` and ``count`` (G,) the offset and
@@ -190,8 +192,9 @@ def _group_quantiles(values: np.ndarray, group: np.ndarray, start: np.ndarray,
     low = np.floor(position).astype(np.int64)
     frac = position - low
     high = np.minimum(low + 1, count[:, None] - 1)
-    return (ordered[start[:, None] + low] * (1.0 - frac)
-            + ordered[start[:, None] + high] * frac)
+    quantiles: np.ndarray = (ordered[start[:, None] + low] * (1.0 - frac)
+                             + ordered[start[:, None] + high] * frac)
+    return quantiles
 
 
 def shape_features_batch(points_list: Sequence[np.ndarray], *,
@@ -307,7 +310,7 @@ def _height_maps(coords: np.ndarray, z_cm: np.ndarray, group: np.ndarray, region
     n = params.map_cells
     index = np.floor((coords / params.map_size_m + 0.5) * n).astype(np.int64)
     inside = ((index >= 0) & (index < n)).all(axis=1)
-    height_map = np.zeros(regions * n * n)
+    height_map: np.ndarray = np.zeros(regions * n * n)
     np.maximum.at(height_map, group[inside] * n * n + index[inside, 1] * n + index[inside, 0],
                   z_cm[inside])
     height_map = height_map.reshape(-1, n, n)

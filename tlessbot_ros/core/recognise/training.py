@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -89,7 +90,7 @@ class ClassifierParams:
             raise ValueError(f'reject_margin must be >= 0, got {self.reject_margin}')
 
 
-def _make_learner(params: ClassifierParams, seed: int):
+def _make_learner(params: ClassifierParams, seed: int) -> Any:
     from sklearn.linear_model import Perceptron, SGDClassifier
 
     if params.kind == 'sgd':
@@ -165,7 +166,7 @@ class OnlineTrainer:
         self._learner.fit(self._standardise(np.asarray(features, np.float32)), labels)
         self.samples_seen += len(labels) * self.params.epochs
 
-    def model(self, hog_params: HogParams, *, info: dict | None = None,
+    def model(self, hog_params: HogParams, *, info: dict[str, Any] | None = None,
               shape_params: ShapeParams | None = None,
               shape_fill: np.ndarray | None = None,
               feature_map: RbfFeatureMap | None = None,
@@ -246,8 +247,8 @@ def train_classifier(features: np.ndarray, labels: np.ndarray, *,
                                             'epochs': params.epochs},
                           shape_params=shape_params, shape_fill=shape_fill,
                           feature_map=feature_map, whitening=whitening)
-    scale, accuracy = _training_fit(model, descriptors, labels)
-    return replace(model, margin_scale=scale,
+    margin_scale, accuracy = _training_fit(model, descriptors, labels)
+    return replace(model, margin_scale=margin_scale,
                    info=dict(model.info, train_accuracy=round(accuracy, 4)))
 
 
@@ -265,7 +266,9 @@ def _fill_shape_gaps(features: np.ndarray, hog_dim: int) -> tuple[np.ndarray, np
 
 
 def _learner_inputs(features: np.ndarray, *, hog_dim: int, with_shape: bool, samples: int,
-                    params: ClassifierParams, seed: int):
+                    params: ClassifierParams, seed: int
+                    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None,
+                               RbfFeatureMap | None, np.ndarray | None]:
     """What the learner sees: (features, mean, scale, feature_map, whitening).
 
     ``mean`` and ``scale`` (None without ``params.standardise``) standardise ``features`` in
