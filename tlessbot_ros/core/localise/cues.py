@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import cv2
 import numpy as np
@@ -32,6 +32,9 @@ from tlessbot_ros.core.localise.colour import (
     rgb_to_lab,
 )
 from tlessbot_ros.core.localise.params import SegmentationParams
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.common import CameraIntrinsics
 
 
 # --------------------------------------------------------------------------- empty table
@@ -143,7 +146,7 @@ COLOUR_CUES = (('watershed', _grey_cue), ('hed', _hed_cue), ('lab', _lab_cue))
 
 
 # --------------------------------------------------------------------------- depth
-_HEIGHT_COEF: dict[tuple, np.ndarray] = {}
+_HEIGHT_COEF: dict[tuple[bytes, bytes, int, int, int, int], np.ndarray] = {}
 
 
 def height_above_table(depth_m: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray, *,
@@ -222,7 +225,8 @@ class Surfaces:
     depth_m: np.ndarray  # (h, w) float32 depth, 0 = invalid
 
 
-def view_depth_cue(depth_m: np.ndarray, intrinsics, T_world_camera: np.ndarray,
+def view_depth_cue(depth_m: np.ndarray, intrinsics: CameraIntrinsics | np.ndarray,
+                   T_world_camera: np.ndarray,
                     shape: tuple[int, ...], cue_shape: tuple[int, ...],
                     params: SegmentationParams, *, with_surfaces: bool = True) -> DepthCue:
     """The depth cue at the cue scale of a view: ``shape`` is the colour image's, ``cue_shape``
@@ -233,7 +237,7 @@ def view_depth_cue(depth_m: np.ndarray, intrinsics, T_world_camera: np.ndarray,
     size = (cue_shape[1], cue_shape[0])
     if height.shape != cue_shape[:2]:
         height = cv2.resize(height, size, interpolation=cv2.INTER_NEAREST)
-    depth = None
+    depth: np.ndarray | None = None
     if with_surfaces and params.depth_split_jump > 0:
         # the same pixels as the height map (nearest neighbour), holes as 0
         depth = np.nan_to_num(np.asarray(depth_m, np.float32), nan=0.0, posinf=0.0)
@@ -300,8 +304,9 @@ def depth_cue(height: np.ndarray, params: SegmentationParams, *,
         votes = cv2.boxFilter(valid.view(np.uint8), cv2.CV_16U, (r, r), normalize=False)
 
         def majority(mask: np.ndarray) -> np.ndarray:
-            return 2 * cv2.boxFilter(mask.view(np.uint8), cv2.CV_16U, (r, r),
-                                     normalize=False) > votes
+            more: np.ndarray = 2 * cv2.boxFilter(mask.view(np.uint8), cv2.CV_16U, (r, r),
+                                                 normalize=False) > votes
+            return more
 
         candidate |= majority(high_raw) & (~valid | high_raw)
         high_sure = valid & (filled > high)

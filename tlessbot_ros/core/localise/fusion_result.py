@@ -135,10 +135,14 @@ def instances_from_labels(top_labels: np.ndarray, side_labels: np.ndarray,
             continue
         out.append(FusedInstance(
             instance_id=i, in_top=at > 0, in_side=as_ > 0,
-            box_top=tuple(int(v) for v in tb[i - 1]) if at else None,
-            box_side=tuple(int(v) for v in sb[i - 1]) if as_ else None,
+            box_top=_box(tb[i - 1]) if at else None, box_side=_box(sb[i - 1]) if as_ else None,
             area_top=at, area_side=as_, split=i in split_ids))
     return out
+
+
+def _box(values: np.ndarray) -> tuple[int, int, int, int]:
+    x, y, w, h = (int(v) for v in values)
+    return x, y, w, h
 
 
 __all__ = ['FUSION_METHODS', 'FusedInstance', 'FusionParams', 'FusionResult',

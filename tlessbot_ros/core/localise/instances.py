@@ -182,14 +182,15 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
     groups: list[int] = []
     placed: list[tuple[int, int, np.ndarray, int]] = []
     for i in big:
-        i = int(i)
-        if i not in pieces:
-            boxes.append(tuple(int(v) for v in stats[i, :4]))
-            areas.append(int(stats[i, cv2.CC_STAT_AREA]))
+        label = int(i)
+        if label not in pieces:
+            boxes.append(cast(tuple[int, int, int, int],
+                              tuple(int(v) for v in stats[label, :4])))
+            areas.append(int(stats[label, cv2.CC_STAT_AREA]))
             groups.append(0)
-            lut[i] = len(boxes)
+            lut[label] = len(boxes)
             continue
-        y0, x0, found = pieces[i]
+        y0, x0, found = pieces[label]
         for f, g in found:
             bx, by, bw, bh = cv2.boundingRect(f.view(np.uint8))
             boxes.append((bx + x0, by + y0, bw, bh))
@@ -289,7 +290,9 @@ def _colour_pieces(blob: np.ndarray, rgb: np.ndarray, params: SegmentationParams
         return [blob]
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
     cv2.setRNGSeed(0)
-    _, _, centres = cv2.kmeans(sample, 2, None, criteria, 1, cv2.KMEANS_PP_CENTERS)
+    # (OpenCV's stubs want arrays where None has it allocate the output)
+    _, _, centres = cv2.kmeans(sample, 2, None, criteria, 1,  # type: ignore[call-overload]
+                               cv2.KMEANS_PP_CENTERS)
     if float(np.linalg.norm(centres[0] - centres[1])) < params.colour_split_delta:
         return [blob]
     which = (np.sum((feats - centres[1]) ** 2, axis=1)
@@ -414,7 +417,8 @@ def _divide_by_seeds(blob: np.ndarray, seeds: np.ndarray, keep: list[int],
     if rgb is None:
         if dist is None:
             dist = cv2.distanceTransform(blob.astype(np.uint8), cv2.DIST_L2, 3)
-        relief = cv2.normalize(-dist, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+        relief = cv2.normalize(-dist, None, 0, 255,  # type: ignore[call-overload]
+                               cv2.NORM_MINMAX).astype(np.uint8)
         image = cv2.merge([relief, relief, relief])
     else:
         image = np.ascontiguousarray(cv2.GaussianBlur(rgb, (3, 3), 0))

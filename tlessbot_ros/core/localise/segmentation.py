@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -39,6 +40,9 @@ from tlessbot_ros.core.localise.cues import (
 from tlessbot_ros.core.localise.instances import instances_at_scale, watershed_refine
 from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.thin import thin_instances
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.common import CameraIntrinsics
 
 
 @dataclass
@@ -91,7 +95,8 @@ class _Stopwatch:
 
 
 def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None = None,
-            depth_m: np.ndarray | None = None, intrinsics=None,
+            depth_m: np.ndarray | None = None,
+            intrinsics: CameraIntrinsics | np.ndarray | None = None,
             T_world_camera: np.ndarray | None = None, split_by_depth: bool = True,
             params: SegmentationParams = SegmentationParams()) -> Segmentation:
     """Segment the parts on a table in one RGB view (paper §3.1), optionally helped by depth.
@@ -133,7 +138,8 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     lab = rgb_to_lab(small)
     watch.lap('lab')
     depth_cue = None
-    if depth_m is not None and 'depth' in params.methods:
+    if depth_m is not None and intrinsics is not None and T_world_camera is not None \
+            and 'depth' in params.methods:   # (depth without the other two: raised above)
         depth_cue = view_depth_cue(depth_m, intrinsics, T_world_camera, rgb.shape,
                                     small.shape, params, with_surfaces=split_by_depth)
         watch.lap('depth')
@@ -176,7 +182,8 @@ def _background_for(rgb: np.ndarray, background: np.ndarray | BackgroundModel | 
     return bgm
 
 
-def _check_depth(rgb: np.ndarray, depth_m: np.ndarray, intrinsics,
+def _check_depth(rgb: np.ndarray, depth_m: np.ndarray,
+                 intrinsics: CameraIntrinsics | np.ndarray | None,
                  T_world_camera: np.ndarray | None) -> None:
     if intrinsics is None or T_world_camera is None:
         raise ValueError('depth_m needs intrinsics= and T_world_camera= (the camera pose '

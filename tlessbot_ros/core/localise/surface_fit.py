@@ -35,7 +35,7 @@ def robust_quadratic_fit(sample: np.ndarray, iterations: int) -> np.ndarray:
             rows[k, 3], rows[k, 4], rows[k, 5] = x * x, x * y, y * y
             z[k] = sample[i, j]
     keep = np.ones(n, np.bool_)
-    coef = np.zeros(6)
+    coef: np.ndarray = np.zeros(6)
     residual = np.empty(n)
     for _ in range(iterations):
         kept = 0
