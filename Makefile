@@ -16,6 +16,7 @@ demo: setup
 
 lint: setup
 	$(PY) -m ruff check tlessbot_ros test launch
+	$(PY) -m mypy
 
 freeze: setup
 	@{ echo '# Exact versions CI was green with (pip freeze of a fresh set-up). Regenerate with: make freeze'; \

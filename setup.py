@@ -61,8 +61,8 @@ setup(
         # scikit-image and trimesh: reference implementations the tests compare against;
         # junitparser: an independent reader of tlessbot check's JUnit XML; websockets: a
         # Foxglove client.
-        'test': ['pytest>=8', 'pytest-timeout>=2.2', 'ruff>=0.5', 'scikit-image>=0.22',
-                 'trimesh>=4.0', 'junitparser>=3', 'websockets>=13'],
+        'test': ['pytest>=8', 'pytest-timeout>=2.2', 'ruff>=0.5', 'mypy>=1.10',
+                 'scikit-image>=0.22', 'trimesh>=4.0', 'junitparser>=3', 'websockets>=13'],
     },
     zip_safe=True,
     maintainer='tlessbot_ros team',

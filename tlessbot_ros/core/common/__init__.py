@@ -50,6 +50,7 @@ _HOME = {
     'MeshRenderer': 'render',
     'NO_HIT': 'render',
     'RenderResult': 'render',
+    'o3d_tensor': 'render',
     'raycasting_scene': 'render',
     'CAMERA_NAMES': 'rig',
     'SIDE': 'rig',
@@ -139,6 +140,7 @@ if TYPE_CHECKING:
         NO_HIT,
         MeshRenderer,
         RenderResult,
+        o3d_tensor,
         raycasting_scene,
     )
     from tlessbot_ros.core.common.rig import (  # noqa: F401

@@ -97,6 +97,7 @@ __all__ = sorted(_HOME)
 __getattr__, __dir__ = lazy_api(__name__, _HOME)
 
 if TYPE_CHECKING:
+    from tlessbot_ros.core.common.table_plane import table_frame_from_plane  # noqa: F401
     from tlessbot_ros.core.pose.buckets import (  # noqa: F401
         PointBuckets,
     )
@@ -147,10 +148,7 @@ if TYPE_CHECKING:
         derived_arrays,
         restore_derived,
     )
-    from tlessbot_ros.core.pose.estimator import (  # noqa: F401
-        PoseEstimator,
-        table_frame_from_plane,
-    )
+    from tlessbot_ros.core.pose.estimator import PoseEstimator  # noqa: F401
     from tlessbot_ros.core.pose.fallback import (  # noqa: F401
         NearSymmetries,
         ViewGrid,

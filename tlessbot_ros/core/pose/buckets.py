@@ -75,7 +75,9 @@ class PointBuckets:
 
 
 @njit(cache=True, nogil=True)
-def _nearest_within(queries, points, origin, edge, shape, start, order, radius):
+def _nearest_within(queries: np.ndarray, points: np.ndarray, origin: np.ndarray, edge: float,
+                    shape: np.ndarray, start: np.ndarray, order: np.ndarray,
+                    radius: float) -> tuple[np.ndarray, np.ndarray]:
     n_queries = queries.shape[0]
     dist = np.full(n_queries, np.inf)
     index = np.full(n_queries, points.shape[0], np.int64)
@@ -109,7 +111,9 @@ def _nearest_within(queries, points, origin, edge, shape, start, order, radius):
 
 
 @njit(cache=True, nogil=True)
-def _any_within(queries, points, origin, edge, shape, start, order, radius):
+def _any_within(queries: np.ndarray, points: np.ndarray, origin: np.ndarray, edge: float,
+                shape: np.ndarray, start: np.ndarray, order: np.ndarray,
+                radius: float) -> np.ndarray:
     """(Q,) bool: the test of :func:`_nearest_within` (a squared distance below radius²,
     computed alike) without looking for the nearest."""
     n_queries = queries.shape[0]

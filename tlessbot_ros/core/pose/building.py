@@ -13,16 +13,16 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
-import open3d as o3d
 
 from tlessbot_ros.core.common import (
     CameraIntrinsics,
     depth_to_points,
     invert_transform,
     make_transform,
+    o3d_tensor,
     point_set_diameter,
     raycasting_scene,
     rotation_about_axis,
@@ -95,7 +95,7 @@ def _mesh_distance(vertices: np.ndarray, faces: np.ndarray) -> Callable[[np.ndar
     scene = raycasting_scene(vertices, faces)
 
     def distance(points: np.ndarray) -> np.ndarray:
-        query = o3d.core.Tensor(np.asarray(points, np.float32))
+        query = o3d_tensor(np.asarray(points, np.float32))
         return cast(np.ndarray, scene.compute_distance(query).numpy())
     return distance
 
@@ -136,7 +136,7 @@ def merge_equivalent_poses(vertices: np.ndarray, faces: np.ndarray,
     points, _ = _samples(vertices, faces, samples, seed=seed)
     distance = _mesh_distance(vertices, faces)
     yaws = 2.0 * np.pi * np.arange(yaw_steps) / yaw_steps
-    kept: list[list] = []
+    kept: list[list[Any]] = []
     for T, prob in poses:
         for entry in kept:
             T_kept = entry[0]
@@ -256,7 +256,8 @@ def build_database(models: Iterable[tuple[int, np.ndarray, np.ndarray,
                                           list[tuple[np.ndarray, float]], float | None]], *,
                    intrinsics: CameraIntrinsics, T_world_camera: np.ndarray,
                    params: TemplateParams = TemplateParams(),
-                   progress: Callable[[Iterable], Iterable] | None = None) -> TemplateDatabase:
+                   progress: Callable[[Iterable[Any]], Iterable[Any]] | None = None
+                   ) -> TemplateDatabase:
     """Templates of several objects: ``models`` yields (obj_id, vertices m, faces,
     stable poses, diameter_m or None); ``progress`` wraps the iterable (e.g. ``tqdm``)."""
     items = list(models)

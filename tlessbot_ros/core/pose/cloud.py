@@ -310,7 +310,8 @@ def compute_fpfh(points: np.ndarray, normals: np.ndarray, *, radius_m: float,
     """(N, 33) float32 FPFH descriptors of a cloud with normals (Rusu et al. 2009)."""
     if radius_m <= 0:
         raise ValueError(f'radius_m must be > 0, got {radius_m}')
-    feature = o3d.pipelines.registration.compute_fpfh_feature(
+    # (Open3D's stub lists ``indices`` as required; the binding has it optional)
+    feature = o3d.pipelines.registration.compute_fpfh_feature(  # type: ignore[call-arg]
         to_o3d(points, normals),
         search_param=o3d.geometry.KDTreeSearchParamHybrid(radius=float(radius_m),
                                                           max_nn=int(max_nn)))

@@ -110,7 +110,7 @@ class ObjectTemplates:
     lookalikes: tuple[int, ...] = ()
     mesh_vertices: np.ndarray | None = None
     mesh_faces: np.ndarray | None = None
-    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+    _cache: dict[Hashable, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def features(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Normals (N, 3) and FPFH (N, 33) float32 of template ``index``, computed on the first
@@ -134,7 +134,7 @@ class ObjectTemplates:
         if key not in self._cache:
             self._cache[key] = (self.model_points[:count].astype(np.float64),
                                 self.model_normals[:count].astype(np.float64))
-        return self._cache[key]
+        return cast(tuple[np.ndarray, np.ndarray], self._cache[key])
 
     def derived(self, key: Hashable, build: Callable[[], Any]) -> Any:
         """A value computed from this object's fixed data alone (e.g. the table path's
@@ -150,7 +150,7 @@ class ObjectTemplates:
         if 'float64' not in self._cache:
             self._cache['float64'] = (self.model_normals.astype(np.float64),
                                       self.model_points.astype(np.float64))
-        return self._cache['float64']
+        return cast(tuple[np.ndarray, np.ndarray], self._cache['float64'])
 
     def model_tree(self) -> cKDTree:
         """KD-tree of ``model_points`` (built once)."""
@@ -164,7 +164,7 @@ class ObjectTemplates:
         key = ('buckets', round(float(edge_m), 9))
         if key not in self._cache:
             self._cache[key] = PointBuckets.build(self.model_points, edge_m)
-        return self._cache[key]
+        return cast(PointBuckets, self._cache[key])
 
     def nearest_grid(self, spacing_m: float | None = None) -> NearestGrid:
         """A voxel grid of the nearest model sample of every cell (built once per spacing)."""
@@ -174,7 +174,7 @@ class ObjectTemplates:
             self._cache[key] = NearestGrid.build(self.model_points, spacing,
                                                  margin_m=4.0 * self.voxel_size_m,
                                                  tree=self.model_tree())
-        return self._cache[key]
+        return cast(NearestGrid, self._cache[key])
 
     def adopt_nearest_grid(self, grid: NearestGrid) -> None:
         """Use ``grid`` (built earlier by :meth:`nearest_grid` for these samples, e.g. read
@@ -234,7 +234,7 @@ class TemplateDatabase:
     """Templates of several objects, keyed by T-LESS id; save/load as ``.npz``."""
 
     objects: dict[int, ObjectTemplates] = field(default_factory=dict)
-    params: dict = field(default_factory=dict)
+    params: dict[str, Any] = field(default_factory=dict)
 
     def __getitem__(self, obj_id: int) -> ObjectTemplates:
         try:
@@ -259,7 +259,9 @@ class TemplateDatabase:
         """A :class:`~tlessbot_ros.core.pose.LookalikeCheck` over the stored look-alikes
         (it checks nothing for a database without any); the options are its own."""
         objects = [o for o in self.objects.values() if o.lookalikes and o.mesh_faces is not None]
-        return LookalikeCheck({o.obj_id: (o.mesh_vertices, o.mesh_faces) for o in objects},
+        return LookalikeCheck({o.obj_id: (vertices, faces) for o in objects
+                               if (vertices := o.mesh_vertices) is not None
+                               and (faces := o.mesh_faces) is not None},
                               {o.obj_id: o.lookalikes for o in objects}, tolerance_m=tolerance_m,
                               min_z=min_z)
 
@@ -302,7 +304,8 @@ class TemplateDatabase:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(path, 'wb') as stream:
-            np.savez_compressed(stream, **arrays)
+            # (numpy's stub types **kwds so that they could be its allow_pickle: bool)
+            np.savez_compressed(stream, **arrays)  # type: ignore[arg-type]
 
     @classmethod
     def load(cls, path: str | Path) -> TemplateDatabase:
@@ -338,7 +341,8 @@ def _quantise(points: np.ndarray, origin: np.ndarray) -> np.ndarray:
 
 
 def _unit(vectors: np.ndarray) -> np.ndarray:
-    return vectors / np.maximum(np.linalg.norm(vectors, axis=1, keepdims=True), 1e-9)
+    unit: np.ndarray = vectors / np.maximum(np.linalg.norm(vectors, axis=1, keepdims=True), 1e-9)
+    return unit
 
 
 def _read_object(data: np.lib.npyio.NpzFile, obj_id: int) -> ObjectTemplates:

@@ -9,6 +9,8 @@ database, so a second start reads ~50 MB instead (where they are kept is
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from tlessbot_ros.core.pose.database import NearestGrid, TemplateDatabase
@@ -35,7 +37,8 @@ def derived_arrays(database: TemplateDatabase, *, fingerprint: str) -> dict[str,
     return arrays
 
 
-def restore_derived(database: TemplateDatabase, arrays, *, fingerprint: str) -> bool:
+def restore_derived(database: TemplateDatabase, arrays: Mapping[str, np.ndarray], *,
+                    fingerprint: str) -> bool:
     """Put arrays from :func:`derived_arrays` back into ``database``; False (and nothing
     changed) when they belong to another templates file, version or object set."""
     try:

@@ -394,7 +394,8 @@ class PoseEstimator:
         p = self.params
         order = np.argsort(-obj.stable_probabilities)
         view = camera_w - np.array([centroid[0], centroid[1], 0.0])
-        poses, stable_ids = [], []
+        poses: list[np.ndarray] = []
+        stable_ids: list[int] = []
         for s in order[:p.max_stable_poses]:
             if obj.stable_probabilities[s] < p.min_stable_probability and poses:
                 continue

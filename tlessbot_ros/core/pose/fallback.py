@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -147,7 +148,7 @@ def near_symmetries(obj: ObjectTemplates, *, exact_ratio: float = 1.35,
     """
     key = ('fallback_symmetries', float(exact_ratio), float(near_ratio))
     if key in obj._cache:
-        return obj._cache[key]
+        return cast(NearSymmetries, obj._cache[key])
     model = obj.model_points.astype(np.float64)
     tree = obj.model_tree()
     sub = model[::max(1, len(model) // 600)]
@@ -183,7 +184,7 @@ def view_grid(obj: ObjectTemplates, *, directions: int, in_plane_steps: int) -> 
     """
     key = ('fallback_views', int(directions), int(in_plane_steps))
     if key in obj._cache:
-        return obj._cache[key]
+        return cast(ViewGrid, obj._cache[key])
     # 1000 of the surface samples (random order) place a centroid well within a voxel; the
     # z-buffer's cells are a voxel wide so that they hold a front sample each.
     model, normals = obj.model_subset(1000)

@@ -24,7 +24,8 @@ from numba import njit
 
 
 @njit(cache=True, inline='always')
-def _cell(qx, qy, qz, origin, spacing, shape):
+def _cell(qx: float, qy: float, qz: float, origin: np.ndarray, spacing: float,
+          shape: tuple[int, ...]) -> tuple[int, int, int]:
     """Grid cell of an object-frame point, or (-1, 0, 0) outside."""
     cx = int(np.floor((qx - origin[0]) / spacing))
     cy = int(np.floor((qy - origin[1]) / spacing))
@@ -35,7 +36,8 @@ def _cell(qx, qy, qz, origin, spacing, shape):
 
 
 @njit(cache=True, inline='always')
-def _to_object(R, t, k, px, py, pz):
+def _to_object(R: np.ndarray, t: np.ndarray, k: int, px: float, py: float,
+               pz: float) -> tuple[float, float, float]:
     """R_k^T (p - t_k)."""
     dx, dy, dz = px - t[k, 0], py - t[k, 1], pz - t[k, 2]
     return (R[k, 0, 0] * dx + R[k, 1, 0] * dy + R[k, 2, 0] * dz,
@@ -44,7 +46,9 @@ def _to_object(R, t, k, px, py, pz):
 
 
 @njit(cache=True, inline='always')
-def _match(R, t, k, px, py, pz, origin, spacing, index_grid, model, limit):
+def _match(R: np.ndarray, t: np.ndarray, k: int, px: float, py: float, pz: float,
+           origin: np.ndarray, spacing: float, index_grid: np.ndarray, model: np.ndarray,
+           limit: float) -> tuple[int, float, float, float]:
     """The grid-nearest model sample of point p under pose k, if closer than sqrt(limit):
     (its index j, the object-frame point q - m) or (-1, 0, 0, 0)."""
     qx, qy, qz = _to_object(R, t, k, px, py, pz)
@@ -59,7 +63,8 @@ def _match(R, t, k, px, py, pz, origin, spacing, index_grid, model, limit):
 
 
 @njit(cache=True, nogil=True)
-def truncated_cost(R, t, points, origin, spacing, distance_grid, tau):
+def truncated_cost(R: np.ndarray, t: np.ndarray, points: np.ndarray, origin: np.ndarray,
+                   spacing: float, distance_grid: np.ndarray, tau: float) -> np.ndarray:
     """(K,) mean over the points of min(grid distance to the model, tau); tau outside."""
     K, N = R.shape[0], points.shape[0]
     shape = distance_grid.shape
@@ -76,7 +81,9 @@ def truncated_cost(R, t, points, origin, spacing, distance_grid, tau):
 
 
 @njit(cache=True, nogil=True)
-def inlier_fraction(R, t, points, origin, spacing, index_grid, model, inlier_m):
+def inlier_fraction(R: np.ndarray, t: np.ndarray, points: np.ndarray, origin: np.ndarray,
+                    spacing: float, index_grid: np.ndarray, model: np.ndarray,
+                    inlier_m: float) -> np.ndarray:
     """(K,) fraction of points closer than inlier_m to their grid-nearest model sample."""
     K, N = R.shape[0], points.shape[0]
     fraction = np.empty(K)
@@ -93,7 +100,10 @@ def inlier_fraction(R, t, points, origin, spacing, index_grid, model, inlier_m):
 
 
 @njit(cache=True, nogil=True)
-def normal_equations(R, t, points, origin, spacing, index_grid, model, normals, max_d, planar):
+def normal_equations(R: np.ndarray, t: np.ndarray, points: np.ndarray, origin: np.ndarray,
+                     spacing: float, index_grid: np.ndarray, model: np.ndarray,
+                     normals: np.ndarray, max_d: float,
+                     planar: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Point-to-plane Gauss-Newton normal equations of K poses.
 
     For every point whose grid-nearest model sample lies within ``max_d``: residual
@@ -114,8 +124,10 @@ def normal_equations(R, t, points, origin, spacing, index_grid, model, normals, 
 
 
 @njit(cache=True, nogil=True)
-def _planar_equations(R, t, points, origin, spacing, index_grid, model, normals, max_d,
-                      active):
+def _planar_equations(R: np.ndarray, t: np.ndarray, points: np.ndarray, origin: np.ndarray,
+                      spacing: float, index_grid: np.ndarray, model: np.ndarray,
+                      normals: np.ndarray, max_d: float,
+                      active: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`normal_equations` in the plane (D = 3), of the poses where ``active`` (K,) is
     True (zeros elsewhere)."""
     K, N = R.shape[0], points.shape[0]
@@ -159,8 +171,10 @@ def _planar_equations(R, t, points, origin, spacing, index_grid, model, normals,
 
 
 @njit(cache=True, nogil=True)
-def _full_equations(R, t, points, origin, spacing, index_grid, model, normals, max_d,
-                    active):
+def _full_equations(R: np.ndarray, t: np.ndarray, points: np.ndarray, origin: np.ndarray,
+                    spacing: float, index_grid: np.ndarray, model: np.ndarray,
+                    normals: np.ndarray, max_d: float,
+                    active: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`normal_equations` in 6-DOF (D = 6) of the poses where ``active`` (K,) is True
     (zeros elsewhere), summed in the object frame.
 
@@ -222,8 +236,10 @@ def _full_equations(R, t, points, origin, spacing, index_grid, model, normals, m
 
 
 @njit(cache=True, nogil=True)
-def gauss_newton(R, t, points, origin, spacing, index_grid, model, normals, max_d, planar,
-                 stop_below):
+def gauss_newton(R: np.ndarray, t: np.ndarray, points: np.ndarray, origin: np.ndarray,
+                 spacing: float, index_grid: np.ndarray, model: np.ndarray,
+                 normals: np.ndarray, max_d: np.ndarray, planar: bool,
+                 stop_below: float) -> tuple[np.ndarray, np.ndarray]:
     """Point-to-plane Gauss-Newton iterations of K poses (the loop around
     :func:`normal_equations`), without returning to Python between iterations.
 
@@ -289,7 +305,7 @@ def gauss_newton(R, t, points, origin, spacing, index_grid, model, normals, max_
 
 
 @njit(cache=True, inline='always')
-def _rz_matrix(yaw):
+def _rz_matrix(yaw: float) -> np.ndarray:
     c, s = np.cos(yaw), np.sin(yaw)
     out = np.zeros((3, 3))
     out[0, 0], out[0, 1], out[1, 0], out[1, 1], out[2, 2] = c, -s, s, c, 1.0
@@ -297,7 +313,7 @@ def _rz_matrix(yaw):
 
 
 @njit(cache=True, inline='always')
-def _rodrigues_matrix(wx, wy, wz):
+def _rodrigues_matrix(wx: float, wy: float, wz: float) -> np.ndarray:
     """Rotation of the rotation vector (wx, wy, wz): I + sin(theta) K + (1 - cos(theta)) K^2."""
     theta = np.sqrt(wx * wx + wy * wy + wz * wz)
     scale = theta if theta > 1e-12 else 1.0
@@ -306,11 +322,14 @@ def _rodrigues_matrix(wx, wy, wz):
     skew[0, 1], skew[0, 2] = -kz, ky
     skew[1, 0], skew[1, 2] = kz, -kx
     skew[2, 0], skew[2, 1] = -ky, kx
-    return np.eye(3) + np.sin(theta) * skew + (1.0 - np.cos(theta)) * (skew @ skew)
+    rotation: np.ndarray = np.eye(3) + np.sin(theta) * skew \
+        + (1.0 - np.cos(theta)) * (skew @ skew)
+    return rotation
 
 
 @njit(cache=True, nogil=True)
-def keep_near_tangent_plane(points, index, model, normals, limit, ok):
+def keep_near_tangent_plane(points: np.ndarray, index: np.ndarray, model: np.ndarray,
+                            normals: np.ndarray, limit: float, ok: np.ndarray) -> None:
     """In place: ``ok[i]`` (N,) stays True only where point i lies closer than ``limit`` to
     the tangent plane of its matched model sample ``index[i]`` (|n . (p - m)|, the products
     summed over x, y, z in that order, as numpy's row sums do)."""
@@ -325,7 +344,8 @@ def keep_near_tangent_plane(points, index, model, normals, limit, ok):
 
 
 @njit(cache=True, nogil=True)
-def self_visible(points, normals, cell_rad, depth_tolerance):
+def self_visible(points: np.ndarray, normals: np.ndarray, cell_rad: float,
+                 depth_tolerance: float) -> np.ndarray:
     """(N,) bool: model points (camera frame) that face the camera at the origin and are not
     hidden by the model itself, by a z-buffer over direction cells of ``cell_rad``
     (floor((x / z) / cell_rad), floor((y / z) / cell_rad)); a point is visible within

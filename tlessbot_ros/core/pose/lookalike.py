@@ -23,7 +23,12 @@ from typing import cast
 import numpy as np
 import open3d as o3d
 
-from tlessbot_ros.core.common import CameraIntrinsics, raycasting_scene, sample_surface
+from tlessbot_ros.core.common import (
+    CameraIntrinsics,
+    o3d_tensor,
+    raycasting_scene,
+    sample_surface,
+)
 
 Mesh = tuple[np.ndarray, np.ndarray]  # (V, 3) vertices in metres, (F, 3) int faces
 # A pixel the mesh does not cover counts as this far from the measured depth (m): as far as a
@@ -42,7 +47,7 @@ def shared_surface(mesh_a: Mesh, mesh_b: Mesh, *, tolerance_m: float = 0.002,
     shares = []
     for source, target in ((mesh_a, mesh_b), (mesh_b, mesh_a)):
         points = sample_surface(*source, samples, seed=seed, scheme='sqrt')[0].astype(np.float32)
-        distance = raycasting_scene(*target).compute_distance(o3d.core.Tensor(points)).numpy()
+        distance = raycasting_scene(*target).compute_distance(o3d_tensor(points)).numpy()
         shares.append(float(np.mean(distance <= tolerance_m)))
     return min(shares)
 
@@ -80,7 +85,7 @@ def _depth_along(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndar
     rays = np.empty((len(rays_c), 6), np.float32)
     rays[:, :3] = -R.T @ t          # the camera centre in the model frame
     rays[:, 3:] = rays_c @ R        # z = 1 in the camera: the hit distance is the depth
-    return cast(np.ndarray, scene.cast_rays(o3d.core.Tensor(rays))['t_hit'].numpy())
+    return cast(np.ndarray, scene.cast_rays(o3d_tensor(rays))['t_hit'].numpy())
 
 
 def visible_difference(scene_a: o3d.t.geometry.RaycastingScene,
@@ -183,7 +188,7 @@ class MeshScenes:
         """Build the scenes of ``ids`` now and cast a ray into each: Open3D builds a scene's
         BVH at its first query, 15 ms for a T-LESS part, which the first frame with that part
         paid (4 ms on later frames)."""
-        one_ray = o3d.core.Tensor(np.array([[0, 0, -1, 0, 0, 1]], np.float32))
+        one_ray = o3d_tensor(np.array([[0, 0, -1, 0, 0, 1]], np.float32))
         for obj_id in ids:
             self[obj_id].cast_rays(one_ray)
 

@@ -303,8 +303,8 @@ def refine_yaw(check: MirrorCheck, obj: ObjectTemplates, T_camera_object: np.nda
 
 def _centre(obj: ObjectTemplates) -> np.ndarray:
     """(3,) the centre of the object's bounding box, object frame (cached on the object)."""
-    return obj.derived('bbox_centre', lambda: (
-        obj.model_points.min(axis=0) + obj.model_points.max(axis=0)).astype(np.float64) / 2)
+    return cast(np.ndarray, obj.derived('bbox_centre', lambda: (
+        obj.model_points.min(axis=0) + obj.model_points.max(axis=0)).astype(np.float64) / 2))
 
 
 def _differ(T_a: np.ndarray, T_b: np.ndarray) -> bool:

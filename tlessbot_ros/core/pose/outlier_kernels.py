@@ -31,7 +31,7 @@ from numba import njit
 
 
 @njit(cache=True, inline='always')
-def _spread_bits(v):
+def _spread_bits(v: int) -> int:
     """The low 10 bits of ``v`` spread to every third bit (a Morton code's one axis)."""
     v &= 0x3FF
     v = (v | (v << 16)) & 0x030000FF
@@ -41,7 +41,7 @@ def _spread_bits(v):
 
 
 @njit(cache=True, nogil=True)
-def _morton_order(x, y, z):
+def _morton_order(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
     """Point indices in Morton (z-curve) order on a 1024³ grid over the bounding cube."""
     n = x.shape[0]
     lo_x, lo_y, lo_z = x.min(), y.min(), z.min()
@@ -56,7 +56,8 @@ def _morton_order(x, y, z):
 
 
 @njit(cache=True, inline='always')
-def _within(px, py, pz, xs, ys, zs, bound, out):
+def _within(px: float, py: float, pz: float, xs: np.ndarray, ys: np.ndarray, zs: np.ndarray,
+            bound: float, out: np.ndarray) -> int:
     """Squared distances <= ``bound`` from (px, py, pz) to the x-sorted points whose x lies
     within sqrt(bound) (widened) of px, packed into ``out``; returns their count."""
     first, stop = 0, xs.shape[0]
@@ -74,14 +75,15 @@ def _within(px, py, pz, xs, ys, zs, bound, out):
 
 
 @njit(cache=True, inline='always')
-def _bucket(d, scale, buckets):
+def _bucket(d: float, scale: float, buckets: int) -> int:
     """``floor(d * scale)`` as an index in 0..buckets (an infinite product: the last)."""
     v = d * scale
     return np.int64(v) if v < buckets else buckets
 
 
 @njit(cache=True, inline='always')
-def _smallest_sorted(found, count, m, bound, starts, out):
+def _smallest_sorted(found: np.ndarray, count: int, m: int, bound: float, starts: np.ndarray,
+                     out: np.ndarray) -> int:
     """The ``m`` smallest of the squared distances ``found[:count]`` (all in [0, ``bound``],
     ``count >= m``), ascending, into ``out[:m]``; returns how many of ``out`` it filled (>= m).
 
@@ -129,7 +131,7 @@ def _smallest_sorted(found, count, m, bound, starts, out):
 
 
 @njit(cache=True, nogil=True)
-def mean_neighbour_distances(points, k):
+def mean_neighbour_distances(points: np.ndarray, k: int) -> np.ndarray:
     """(N,) float64: for each of the (N, 3) finite float64 points, the mean Euclidean distance
     to its ``min(k, N)`` nearest points, itself included (Open3D's arithmetic, module
     docstring).
@@ -180,7 +182,7 @@ def mean_neighbour_distances(points, k):
 
 
 @njit(cache=True, nogil=True)
-def keep_below_threshold(mean_distances, std_ratio):
+def keep_below_threshold(mean_distances: np.ndarray, std_ratio: float) -> np.ndarray:
     """(N,) bool: the points Open3D keeps given their mean neighbour distances (N >= 2)."""
     n = mean_distances.shape[0]
     cloud_mean = 0.0

@@ -103,7 +103,7 @@ def register_templates(scene_c: np.ndarray, scene_normals: np.ndarray, scene_fpf
     target_feature.data = np.asarray(scene_fpfh, np.float64).T
     checkers = [reg.CorrespondenceCheckerBasedOnEdgeLength(params.ransac_edge_length),
                 reg.CorrespondenceCheckerBasedOnDistance(distance)]
-    out = []
+    out: list[PoseCandidate] = []
     indices = range(len(obj.templates)) if template_indices is None else template_indices
     iterations = int(max_iteration or params.ransac_max_iteration)
     for i in indices:

@@ -98,8 +98,9 @@ class Refiner:
     def icp(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
             *, iterations: int | None = None) -> np.ndarray:
         """6-DOF point-to-plane ICP of the scene onto the model surface samples."""
-        return self.icp_batch(scene_c, obj, np.asarray(T_camera_object)[None],
-                              iterations=iterations)[0]
+        refined: np.ndarray = self.icp_batch(scene_c, obj, np.asarray(T_camera_object)[None],
+                                             iterations=iterations)[0]
+        return refined
 
     def icp_batch(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
                   *, iterations: int | None = None, points: int | None = None,

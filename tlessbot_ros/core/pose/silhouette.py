@@ -15,12 +15,15 @@ Images are (H, W, 3) uint8 RGB; windows are (x, y, w, h) pixels; poses ``T_camer
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.common import CameraIntrinsics, transform_points
+from tlessbot_ros.core.common import CameraIntrinsics, o3d_tensor, transform_points
+
+if TYPE_CHECKING:
+    import open3d as o3d
 
 # colour samples per class (part, surroundings) for the disputed pixels' nearest neighbour
 _SAMPLES = 96
@@ -118,7 +121,9 @@ def disputed_votes(mine: np.ndarray, other: np.ndarray, rgb: np.ndarray, *,
 
     def samples(mask: np.ndarray) -> np.ndarray:
         pixels = colour[mask]
-        return pixels[rng.choice(len(pixels), _SAMPLES)] if len(pixels) > _SAMPLES else pixels
+        chosen: np.ndarray = pixels[rng.choice(len(pixels), _SAMPLES)] \
+            if len(pixels) > _SAMPLES else pixels
+        return chosen
 
     query, in_mine = colour[disputed], mine[disputed]
     count = len(query)
@@ -140,12 +145,12 @@ def _nearest(query: np.ndarray, samples: np.ndarray) -> np.ndarray:
     return np.partition(d, k - 1, axis=1)[:, k - 1]
 
 
-def mesh_silhouette(scene, T_camera_object: np.ndarray, intrinsics: CameraIntrinsics,
+def mesh_silhouette(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
+                    intrinsics: CameraIntrinsics,
                     box: tuple[int, int, int, int]) -> np.ndarray:
     """(h, w) bool exact silhouette of a mesh at a pose in the window ``box``: the pixel rays
     that hit it (``scene`` an Open3D ``RaycastingScene`` of the mesh in its model frame,
     :func:`~tlessbot_ros.core.common.raycasting_scene`)."""
-    import open3d as o3d
 
     x0, y0, w, h = box
     K = intrinsics.K
@@ -157,5 +162,5 @@ def mesh_silhouette(scene, T_camera_object: np.ndarray, intrinsics: CameraIntrin
     rays = np.empty((len(rays_c), 6), np.float32)
     rays[:, :3] = -R.T @ t
     rays[:, 3:] = rays_c @ R
-    hit = scene.cast_rays(o3d.core.Tensor(rays))['t_hit'].numpy()
+    hit = scene.cast_rays(o3d_tensor(rays))['t_hit'].numpy()
     return cast(np.ndarray, np.isfinite(hit).reshape(h, w))
