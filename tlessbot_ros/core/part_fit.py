@@ -124,5 +124,12 @@ def lookalike_options(fit: FitParams) -> tuple[bool, bool, float, float]:
     return fit.lookalike_check, fit.flip_check, fit.lookalike_tolerance_m, fit.lookalike_min_z
 
 
+def pose_stage(estimator: PoseEstimator | None) -> PoseEstimator:
+    """``estimator``; a pipeline without templates has none to fit with."""
+    if estimator is None:
+        raise ValueError('no template database loaded')
+    return estimator
+
+
 __all__ = ['check_flip', 'check_lookalike', 'depth_checks', 'fit_part', 'flip_check',
-           'lookalike_check', 'lookalike_options', 'warm_up_checks']
+           'lookalike_check', 'lookalike_options', 'pose_stage', 'warm_up_checks']

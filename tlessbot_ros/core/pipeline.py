@@ -34,7 +34,7 @@ from __future__ import annotations
 import copy
 import time
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -89,6 +89,7 @@ from tlessbot_ros.core.part_fit import (
     depth_checks,
     fit_part,
     lookalike_options,
+    pose_stage,
     warm_up_checks,
 )
 from tlessbot_ros.core.pose import (
@@ -282,8 +283,7 @@ class PerceptionPipeline:
             masks = [mask_in_box(labels[view], i, label_box(boxes[view], i)) for i in instances]
             data = None if views is None else views.get(view)
             # the focal length is the unit of a model's box-size features
-            depth: dict[str, np.ndarray | None] = {} if data is None else \
-                {'K': data.intrinsics.K}
+            depth: dict[str, np.ndarray | None] = {} if data is None else {'K': data.intrinsics.K}
             if self.classifier.uses_depth and data is not None and data.depth_m is not None:
                 depth = {'depth_m': data.depth_m, 'K': data.intrinsics.K,
                          'T_world_camera': self.table_frame(view, data).T_world_camera}
@@ -365,15 +365,13 @@ class PerceptionPipeline:
         Returns:
             the detections in instance order, fragments left out.
         """
-        database = self._estimator().database
+        database = pose_stage(self.pose_estimator).database
         detections, jobs = [], []
         done = on_detection or (lambda detection: None)
         counts, boxes = label_stats(labels)
         for instance in instance_ids(counts):
-            found = classes.get(instance, UNKNOWN_ID)
-            listed: Sequence[int] = (cast(int, found),) if np.isscalar(found) else \
-                tuple(cast(Sequence[int], found))
-            candidates = tuple(int(c) for c in listed if c != UNKNOWN_ID and c in database)
+            found = np.atleast_1d(classes.get(instance, UNKNOWN_ID))
+            candidates = tuple(int(c) for c in found if c != UNKNOWN_ID and c in database)
             view = preferred_view(counts, instance, min_px=self.classify_params.min_instance_px)
             if not candidates or view is None:
                 continue
@@ -440,7 +438,7 @@ class PerceptionPipeline:
                          publish: Callable[[Detection], None]) -> FragmentFilter[Detection]:
         """The :class:`~tlessbot_ros.core.fragments.FragmentFilter` of one frame's parts: ROI
         centroids in the world (camera frame without a table frame), first-class diameters."""
-        database = self._estimator().database
+        database = pose_stage(self.pose_estimator).database
         pieces = []
         for job in jobs:
             centroid = job.points.mean(axis=0)
@@ -461,18 +459,12 @@ class PerceptionPipeline:
         centre = detection.pose.T_camera_object[:3, 3]
         if job.T_world_camera is not None:
             centre = transform_points(job.T_world_camera, centre[None])[0]
-        return (centre, self._estimator().database[detection.obj_id].diameter_m,
+        return (centre, pose_stage(self.pose_estimator).database[detection.obj_id].diameter_m,
                 detection.pose.fitness)
 
     def fit_part(self, job: PartJob) -> None:
         """Fit one part's class candidates, keep the best (:func:`~.part_fit.fit_part`)."""
-        fit_part(self._estimator(), self.fit_params, job)
-
-    def _estimator(self) -> PoseEstimator:
-        """The pose stage; without templates there is none to fit with."""
-        if self.pose_estimator is None:
-            raise ValueError('no template database loaded')
-        return self.pose_estimator
+        fit_part(pose_stage(self.pose_estimator), self.fit_params, job)
 
     def check_lookalike(self, job: PartJob) -> None:
         """Turn a flat part over if need be, then compare it with its look-alike (part_fit)."""
