@@ -50,7 +50,7 @@ def depth_overlay(depth_m: np.ndarray, labels: np.ndarray, K: np.ndarray,
     canvas = cv2.applyColorMap((255 * (1 - scaled)).astype(np.uint8), cv2.COLORMAP_JET)
     canvas = np.ascontiguousarray(canvas[:, :, ::-1])
     canvas[~valid] = 0
-    regions = labels.astype(np.uint8 if labels.max() < 256 else np.uint16)
+    regions: np.ndarray = labels.astype(np.uint8 if labels.max() < 256 else np.uint16)
     edges = cv2.morphologyEx((regions > 0).astype(np.uint8), cv2.MORPH_GRADIENT,
                              np.ones((3, 3), np.uint8)) > 0
     canvas[edges] = OUTLINE_RGB

@@ -224,11 +224,11 @@ def estimate_normals(points: np.ndarray, *, radius_m: float, max_nn: int = 30,
     cloud = to_o3d(points)
     cloud.estimate_normals(search_param=o3d.geometry.KDTreeSearchParamHybrid(
         radius=float(radius_m), max_nn=int(max_nn)))
-    normals = np.asarray(cloud.normals).copy()
+    normals: np.ndarray = np.asarray(cloud.normals).copy()
     view = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, float)
     flip = np.sum(normals * (view - np.asarray(points, float)), axis=1) < 0
     normals[flip] *= -1.0
-    return cast(np.ndarray, normals)
+    return normals
 
 
 def fit_plane(points: np.ndarray, *, distance_m: float = 0.003, iterations: int = 200,

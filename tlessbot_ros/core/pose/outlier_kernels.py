@@ -31,13 +31,14 @@ from numba import njit
 
 
 @njit(cache=True, inline='always')
-def _spread_bits(v: int) -> int:
+def _spread_bits(v: np.int64) -> np.int64:
     """The low 10 bits of ``v`` spread to every third bit (a Morton code's one axis)."""
     v &= 0x3FF
     v = (v | (v << 16)) & 0x030000FF
     v = (v | (v << 8)) & 0x0300F00F
     v = (v | (v << 4)) & 0x030C30C3
-    return (v | (v << 2)) & 0x09249249
+    spread: np.int64 = (v | (v << 2)) & 0x09249249
+    return spread
 
 
 @njit(cache=True, nogil=True)
@@ -75,7 +76,7 @@ def _within(px: float, py: float, pz: float, xs: np.ndarray, ys: np.ndarray, zs:
 
 
 @njit(cache=True, inline='always')
-def _bucket(d: float, scale: float, buckets: int) -> int:
+def _bucket(d: float, scale: float, buckets: int) -> int | np.int64:
     """``floor(d * scale)`` as an index in 0..buckets (an infinite product: the last)."""
     v = d * scale
     return np.int64(v) if v < buckets else buckets
@@ -116,10 +117,10 @@ def _smallest_sorted(found: np.ndarray, count: int, m: int, bound: float, starts
             break
     for a in range(count):
         d = found[a]
-        b = _bucket(d, scale, buckets)
-        if b <= last:
-            out[starts[b]] = d
-            starts[b] += 1
+        bucket = _bucket(d, scale, buckets)
+        if bucket <= last:
+            out[starts[bucket]] = d
+            starts[bucket] += 1
     for a in range(1, total):
         d = out[a]
         j = a
