@@ -27,34 +27,18 @@ FRACTIONS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
 def real_boxes(dataset: Path, per_frame: int, seed: int = 0):
     """[(rgb, K, part boxes, part ids, background boxes)] of every frame of the test split."""
     from tlessbot_ros.io.bop import read_split
+    from tlessbot_ros.tools.support.eval_frames import background_boxes
 
     rng = np.random.default_rng(seed)
     frames = []
     for image in read_split(dataset, 'test', load_masks=False):
         parts = [(g.bbox_visib, g.obj_id) for g in image.gt
                  if g.bbox_visib is not None and (g.visib_fract or 0) >= 0.3]
-        sizes = np.array([b[2:] for b, _ in parts], float)
-        height, width = image.rgb.shape[:2]
-        background = []
-        for _ in range(50 * per_frame):
-            if len(background) == per_frame:
-                break
-            w, h = sizes[rng.integers(len(sizes))] * rng.uniform(0.7, 1.3)
-            w, h = int(min(max(w, 8), width - 1)), int(min(max(h, 8), height - 1))
-            x, y = int(rng.integers(0, width - w)), int(rng.integers(0, height - h))
-            if all(_covered((x, y, w, h), b) <= 0.3 for b, _ in parts):
-                background.append((x, y, w, h))
+        background = background_boxes(rng, [b for b, _ in parts], image.rgb.shape[:2],
+                                      per_frame)
         frames.append((image.rgb, image.intrinsics.K, [b for b, _ in parts],
                        np.array([i for _, i in parts]), background))
     return frames
-
-
-def _covered(box, part) -> float:
-    """Share of ``part``'s box area inside ``box``."""
-    x0, y0 = max(box[0], part[0]), max(box[1], part[1])
-    x1 = min(box[0] + box[2], part[0] + part[2])
-    y1 = min(box[1] + box[3], part[1] + part[3])
-    return max(0, x1 - x0) * max(0, y1 - y0) / max(part[2] * part[3], 1)
 
 
 def answers(model, frames, which: str) -> tuple[np.ndarray, np.ndarray]:
@@ -143,9 +127,17 @@ def _plot(curve, path: Path) -> None:
     if curve[0][3] is not None:
         ax.plot(fractions, [c[3] for c in curve], '^-', label='left-out part called unknown')
     ax.set_xlabel('reject threshold × margin_scale')
-    ax.set_ylim(0, 1)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    finish_plot(fig, [ax], path)
+
+
+def finish_plot(fig, axes, path: Path, *, top: float = 1.0, legend_size: int = 8) -> None:
+    """Y range 0..``top``, grid and legend on every axis, then the PNG at ``path``."""
+    import matplotlib.pyplot as plt
+
+    for ax in axes:
+        ax.set_ylim(0, top)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=legend_size)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -54,3 +54,19 @@ def test_any_within_is_the_nearest_test():
             if radius <= edge:
                 np.testing.assert_array_equal(buckets.any_within(queries, radius),
                                               np.isfinite(buckets.nearest(queries, radius)[0]))
+
+
+def test_a_cloud_metres_wide_gets_larger_buckets_and_the_same_answers():
+    from tlessbot_ros.core.pose.buckets import MAX_BUCKETS
+
+    # a real frame's wall taken for a part: 4 m wide in 1 mm buckets would need 10^10 of them
+    rng = np.random.default_rng(5)
+    points = np.concatenate([rng.uniform(0, 4, (3000, 3)), rng.uniform(0, 0.01, (300, 3))])
+    buckets = PointBuckets.build(points, 0.001)
+    assert np.prod(buckets.shape) <= MAX_BUCKETS and buckets.edge_m > 0.001
+    queries = rng.uniform(0, 0.012, (200, 3))
+    dist, index = buckets.nearest(queries, 0.001)
+    want_dist, want_index = cKDTree(points).query(queries, k=1, distance_upper_bound=0.001)
+    assert np.isfinite(dist).sum() > 20
+    np.testing.assert_array_equal(index, want_index)
+    np.testing.assert_array_equal(buckets.any_within(queries, 0.001), np.isfinite(want_dist))

@@ -133,11 +133,15 @@ def test_a_region_no_candidate_fits_gets_no_ransac_fallback(scene):
     depth[junk > 0] = 0.40      # a flat card floating 40 cm from the camera: no part
     views = {'side': ViewInput(rgb=None, depth_m=depth, intrinsics=SIDE.intrinsics,
                                T_world_camera=SIDE.T_world_camera)}
-    pipeline = PerceptionPipeline(templates=db)
+    pipeline = PerceptionPipeline(templates=db, fit_params=FitParams(unknown_below_fitness=0))
     calls = _counting(pipeline)
     [detection] = pipeline.estimate_poses(views, {'side': junk}, {1: (5, 21)})
     assert calls == [5, 21]      # both verified, no third (fallback) call
     assert detection.pose.fitness < FitParams().fallback_min_fitness
+    # by default such a region is reported unknown (#40 item 5)
+    [detection] = PerceptionPipeline(templates=db).estimate_poses(views, {'side': junk},
+                                                                  {1: (5, 21)})
+    assert detection.obj_id == 0 and detection.pose is None
 
 
 def test_both_views_segmented_at_once_give_the_labels_of_one_after_the_other(tless_models_dir):
@@ -318,6 +322,7 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'table_plane', 'table_plane_max_angle_deg', 'table_plane_max_offset_m',   # #23
         'fit_rank_below_margin', 'fit_rank_max_candidates', 'fit_rank_min_fitness',
         'fit_rank_coverage_weight',   # #40: recognition by fit
+        'unknown_below_fitness', 'unknown_without_fit',   # #40 item 5: unknown stays unknown
         'flip_check',   # #41: flat parts turned over (depth vote)
         'mirror'])   # #41: flat parts told by the colour image
 

@@ -229,3 +229,45 @@ def test_recognition_after_the_pose_stage_counts_only_frames_with_depth():
     assert '| obj_04 | 1 | 0.000 | 0 | n/a |' in markdown(result)
     empty = summary([])
     assert empty['top1_after_pose'] is None and 'n/a' in markdown(empty)
+
+
+def test_regions_that_are_no_part_named_as_one_are_false_positives():
+    from types import SimpleNamespace
+
+    from tlessbot_ros.tools.support.eval_scoring import FrameOutput, score_frames
+
+    empty = SimpleNamespace(gt=[], depth_m=None)   # a frame without any of the parts
+    localiser = FrameOutput(boxes=[(0, 0, 10, 10, 3), (20, 20, 10, 10, 0),
+                                   (40, 40, 10, 10, 7)], classified=True)
+    boxes = FrameOutput(classes_by_gt={}, background_named=[0, 4, 0, 0])
+    report = score_frames([(empty, localiser), (empty, boxes)], {})
+    recognition = report['recognition']
+    assert recognition['false_pos_per_frame'] == pytest.approx((2 + 1) / 2)
+    assert recognition['unknown_per_frame'] == pytest.approx((1 + 3) / 2)
+    assert recognition['unknown_rate'] is None   # no part to name
+    given = score_frames([(empty, FrameOutput())], {})['recognition']
+    assert given['false_pos_per_frame'] is None and given['unknown_per_frame'] is None
+
+
+def test_background_boxes_are_named_or_called_unknown(dataset, tmp_path, capsys):
+    models, data = dataset
+    classifier, templates = tmp_path / 'c.npz', tmp_path / 't.npz'
+    assert main(['train', '--models', str(models), '--steps-deg', '90', '--positions', '1',
+                 '--out', str(classifier)]) == 0
+    assert main(['templates', '--models', str(models), '--out', str(templates),
+                 '--views', '4']) == 0
+    common = ['evaluate', '--models', str(models), '--dataset', str(data), '--split',
+              'test_side', '--classifier', str(classifier), '--templates', str(templates)]
+    capsys.readouterr()
+    out = tmp_path / 'o'
+    assert main([*common, '--oracle', 'boxes', '--background-boxes', '3',
+                 '--out', str(out)]) == 0
+    assert 'regions that are no part named as one' in capsys.readouterr().out
+    recognition = json.loads((out / 'report.json').read_text())['recognition']
+    fp, unknown = recognition['false_pos_per_frame'], recognition['unknown_per_frame']
+    assert 0 <= fp <= 3 and fp + unknown >= 3   # every background box is one or the other
+    assert 0 <= recognition['unknown_rate'] <= 1
+    assert 'regions called unknown per frame' in (out / 'report.md').read_text()
+    assert main([*common, '--oracle', 'none', '--background-boxes', '3',
+                 '--out', str(tmp_path / 'p')]) == 1
+    assert '--background-boxes' in capsys.readouterr().err

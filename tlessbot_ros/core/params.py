@@ -114,6 +114,10 @@ class FitParams:
             while the observed plane is within this angle, deg, and height, m.
         fit_rank_min_fitness: a part whose candidates (more than one) all fit below this is
             reported unknown, without a pose (0..1; 0: off).
+        unknown_below_fitness: a part whose best template fit explains less than this share of
+            its depth points is reported unknown, without a pose (0..1; 0: off).
+        unknown_without_fit: a part with depth but no fit (fewer than ``min_roi_points``
+            points) is unknown too (off: it keeps the classifier's name).
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
             visible surface (>= 0; 0: off).
         mirror: flat parts: the face that is up, the yaw and a look-alike told by the colour
@@ -144,6 +148,8 @@ class FitParams:
     table_plane_max_angle_deg: float = 0.1
     table_plane_max_offset_m: float = 0.001
     fit_rank_min_fitness: float = 0.0
+    unknown_below_fitness: float = 0.6
+    unknown_without_fit: bool = False
     fit_rank_coverage_weight: float = 0.0
     mirror: MirrorParams = field(default_factory=MirrorParams)
 
@@ -162,6 +168,8 @@ class FitParams:
                f'(a fitness), got {self.fallback_min_fitness}')
         _check(0 <= self.fit_rank_min_fitness <= 1, 'fit_rank_min_fitness must be in 0..1 '
                f'(a fitness; 0: off), got {self.fit_rank_min_fitness}')
+        _check(0 <= self.unknown_below_fitness <= 1, 'unknown_below_fitness must be in 0..1 '
+               f'(a fitness; 0: off), got {self.unknown_below_fitness}')
         _check(self.fit_rank_coverage_weight >= 0, 'fit_rank_coverage_weight must be >= 0 '
                f'(0: off), got {self.fit_rank_coverage_weight}')
         _check(self.lookalike_tolerance_m > 0, 'lookalike_tolerance_m must be > 0 m (e.g. '

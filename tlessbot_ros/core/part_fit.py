@@ -3,11 +3,12 @@ candidates fitted in order, the best kept (verification by geometry), then the l
 on every view that sees it. A worker process runs :func:`fit_part` alone (it has no views)."""
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
 
-from tlessbot_ros.core.frame import PartJob
+from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.params import FitParams
 from tlessbot_ros.core.pose import FlipCheck, LookalikeCheck, PoseEstimator, TemplateDatabase
 from tlessbot_ros.core.recognise import UNKNOWN_ID
@@ -55,8 +56,31 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
             detection.pose, detection.second = result.best, result.second
     if detection.pose is not None and len(job.candidates) > 1 and \
             detection.pose.fitness < params.fit_rank_min_fitness:   # core/by_fit.py
-        detection.obj_id, detection.class_rank = UNKNOWN_ID, len(job.candidates)
-        detection.pose = detection.second = None
+        mark_unknown(detection, len(job.candidates))
+
+
+def unknown_last(params: FitParams, jobs: Sequence[PartJob],
+                 publish: Callable[[Detection], None]) -> Callable[[Detection], None]:
+    """``publish`` behind the last word on each of ``jobs``' parts, taken once the fragment
+    check has kept it (so that it changes nothing else): a part whose best fit explains less
+    than ``unknown_below_fitness`` of its depth points, or that got no pose with
+    ``unknown_without_fit``, is reported unknown."""
+    candidates = {id(job.detection): len(job.candidates) for job in jobs}
+
+    def judged(detection: Detection) -> None:
+        pose = detection.pose
+        if params.unknown_without_fit if pose is None else \
+                pose.fitness < params.unknown_below_fitness:
+            mark_unknown(detection, candidates[id(detection)])
+        publish(detection)
+    return judged
+
+
+def mark_unknown(detection: Detection, rank: int) -> None:
+    """Report ``detection`` as an unknown part (no class, no pose); ``rank``: past its
+    candidates."""
+    detection.obj_id, detection.class_rank = UNKNOWN_ID, rank
+    detection.pose = detection.second = None
 
 
 def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob) -> None:
@@ -132,4 +156,5 @@ def pose_stage(estimator: PoseEstimator | None) -> PoseEstimator:
 
 
 __all__ = ['check_flip', 'check_lookalike', 'depth_checks', 'fit_part', 'flip_check',
-           'lookalike_check', 'lookalike_options', 'pose_stage', 'warm_up_checks']
+           'lookalike_check', 'lookalike_options', 'mark_unknown', 'pose_stage',
+           'unknown_last', 'warm_up_checks']

@@ -89,7 +89,9 @@ from tlessbot_ros.core.part_fit import (
     depth_checks,
     fit_part,
     lookalike_options,
+    mark_unknown,
     pose_stage,
+    unknown_last,
     warm_up_checks,
 )
 from tlessbot_ros.core.pose import (
@@ -152,8 +154,7 @@ class PerceptionPipeline:
         Raises:
             TypeError: an argument the constructor does not take (or ``templates``).
         """
-        unknown = set(changes) - _REPLACEABLE
-        if unknown:
+        if unknown := set(changes) - _REPLACEABLE:
             raise TypeError(f'PerceptionPipeline.replace: cannot replace {sorted(unknown)}')
         new = copy.copy(self)
         for name, value in changes.items():
@@ -170,8 +171,7 @@ class PerceptionPipeline:
         return new
 
     def warm_up(self) -> None:
-        """Build the pose stage's caches now (templates, look-alike meshes) so that the first
-        frame is not slower than the others."""
+        """Build the pose stage's caches now (templates, look-alike meshes): no slow 1st frame."""
         if self.pose_estimator is not None:
             self.pose_estimator.warm_up()
         warm_up_checks(self.lookalike, self.flip)
@@ -211,8 +211,7 @@ class PerceptionPipeline:
 
     @property
     def table_frames(self) -> dict[str, TableFrame]:
-        """The latest table frame of each view (e.g. for diagnostics: ``source``,
-        ``rig_angle_deg``, ``rig_offset_m``, ``find_ms``)."""
+        """The latest table frame of each view (diagnostics: ``source``, ``find_ms``...)."""
         return {name: frame for name, (_, frame) in self._tables.items()}
 
     # ---------------------------------------------------------------------------- stage 1
@@ -392,8 +391,10 @@ class PerceptionPipeline:
                                         self._lookalike_views(views, labels, counts, boxes,
                                                               instance, view, candidates)))
                     continue
+                if self.fit_params.unknown_without_fit:   # no depth to fit: unknown
+                    mark_unknown(detection, len(candidates))
             done(detection)
-        arbiter = self._fragment_filter(jobs, done)
+        arbiter = self._fragment_filter(jobs, unknown_last(self.fit_params, jobs, done))
 
         def fitted(job: PartJob) -> None:
             check_fitted_part(self, job, views, labels)   # every view: not in a worker
@@ -493,7 +494,6 @@ class PerceptionPipeline:
             'pose': 1e3 * (t3 - t2), 'frame': 1e3 * (t3 - t0)}, self.table_frames)
 
 
-# the frame's types and label helpers are also importable from here, where they first lived
 __all__ = ['PREFERRED_VIEWS', 'ClassGuess', 'ClassifyParams', 'Detection', 'FitParams',
            'FrameResult', 'LocaliseParams', 'PartFitter', 'PartJob', 'PerceptionPipeline',
            'ViewInput', 'label_counts', 'preferred_view']

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+MAX_BUCKETS = 1 << 21   # the grid's size bound (its start array: 16 MB)
+
 
 @dataclass(frozen=True)
 class PointBuckets:
@@ -39,12 +41,18 @@ class PointBuckets:
 
     @classmethod
     def build(cls, points: np.ndarray, edge_m: float) -> PointBuckets:
-        """Buckets of ``edge_m`` (> 0) over the bounding box of (N, 3) points."""
+        """Buckets of ``edge_m`` (> 0) over the bounding box of (N, 3) points (larger where
+        that box would need more than :data:`MAX_BUCKETS`)."""
         if not edge_m > 0:
             raise ValueError(f'bucket edge must be > 0, got {edge_m}')
         points = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
         origin = points.min(axis=0) if len(points) else np.zeros(3)
         extent = points.max(axis=0) - origin if len(points) else np.zeros(3)
+        # a cloud metres wide (a real frame's wall or desk taken for a part) in millimetre
+        # buckets would need billions: larger buckets answer the same queries, more slowly
+        edge_m = float(edge_m)
+        while np.prod(np.floor(extent / edge_m) + 1) > MAX_BUCKETS:
+            edge_m *= 1.25
         shape = np.floor(extent / edge_m).astype(np.int64) + 1
         cell = np.floor((points - origin) / edge_m).astype(np.int64)
         flat = (cell[:, 0] * shape[1] + cell[:, 1]) * shape[2] + cell[:, 2]

@@ -44,6 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'templates; default: built from --models likewise)')
     parser.add_argument('--oracle', choices=('none', 'boxes', 'boxes+classes'), default='none',
                         help='feed ground-truth boxes (and classes) to the pipeline')
+    parser.add_argument('--background-boxes', type=int, default=0, metavar='N',
+                        help='with --oracle boxes: N random boxes a frame away from the parts; '
+                             'each named as a part counts as a false positive')
     parser.add_argument('--poses', type=Path, help='only score these poses (BOP results CSV)')
     parser.add_argument('--limit', type=int, help='score at most N frames')
     parser.add_argument('--out', type=Path, default=Path('eval_out'), help='output folder')
@@ -93,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.limit is not None and args.limit <= 0:
         raise TlessbotError('--limit must be positive')
+    if args.background_boxes < 0 or (args.background_boxes and args.oracle != 'boxes'):
+        raise TlessbotError('--background-boxes takes N >= 0 and needs --oracle boxes')
     if not args.models.is_dir():
         raise ModelFileError(f'models folder not found: {args.models}')
     if (args.dataset is None) == (args.bag is None):
@@ -125,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
         iterator = pipeline_frames(
             args.dataset, split, two_view, templates=templates, classifier=classifier,
             oracle=args.oracle, limit=args.limit, pose_overrides=args.pose_param,
-            pipeline_overrides=args.pipeline_param, pose_workers=args.pose_workers)
+            pipeline_overrides=args.pipeline_param, pose_workers=args.pose_workers,
+            background=args.background_boxes)
         for item in tqdm(iterator, desc='pipeline', unit='frame', total=args.limit):
             frames.append(item)
         mode = f'pipeline, oracle {args.oracle}'
@@ -146,24 +152,33 @@ def run(args: argparse.Namespace) -> int:
     write_results(args.out / 'estimates.csv', [p for _, o in frames for p in o.poses])
     (args.out / 'report.json').write_text(json.dumps(report, indent=2) + '\n')
     write_report(report, args.out)
+    _print_summary(report, recognition, args.out)
+    return 0
+
+
+def _print_summary(report: dict, recognition: dict | None, out: Path) -> None:
+    """What evaluate prints: skipped frames, recognition, unknowns, pose recall, times."""
     pose = report['pose']
     skipped = report['skipped']
     if skipped['pose_frames_without_depth']:
         print(f'pose skipped on {skipped["pose_frames_without_depth"]} frames without depth '
               f'({skipped["parts_not_posed"]} parts): pose measures are over the rest')
     if recognition is not None:
-        print(_recognition_line(recognition, args.out / 'recognition.md'))
+        print(_recognition_line(recognition, out / 'recognition.md'))
+    if (fp := report['recognition']['false_pos_per_frame']) is not None:
+        print(f'unknowns: parts called unknown {_fmt(report["recognition"]["unknown_rate"])}, '
+              f'regions that are no part named as one {fp:.2f} a frame (false positives), '
+              f'regions called unknown {report["recognition"]["unknown_per_frame"]:.2f} a frame')
     print(f'{report["frames"]} frames, {report["objects_gt"]} parts: '
           f'5cm5deg {_fmt(pose["recall_5cm5deg"])}, VSD<0.3 {_fmt(pose["recall_vsd03"])}, '
           f'ADD-S {_fmt(pose["recall_adds01d"])}, MSSD AR {_fmt(pose["mssd_recall"])} '
-          f'-> {args.out}')
+          f'-> {out}')
     timing = report['timing_ms']
     if timing.get('pose_per_part') is not None:
         plane = timing.get('table_plane')
         print(f'median ms: pose per part {timing["pose_per_part"]:.1f}, pose per frame '
               f'{timing["pose"]:.1f}' + ('' if plane is None else
                                         f', table plane per frame (all views) {plane:.1f}'))
-    return 0
 
 
 def _fmt(value: float | None) -> str:

@@ -23,7 +23,7 @@ def pipeline_frames(dataset: Path, split: str, two_view: bool, *, templates: Pat
                     classifier: Path | None, oracle: str = 'none', limit: int | None = None,
                     pose_overrides: list[str] | None = None,
                     pipeline_overrides: list[str] | None = None, pose_workers: int = 0,
-                    ) -> Iterator[tuple[object, FrameOutput]]:
+                    background: int = 0) -> Iterator[tuple[object, FrameOutput]]:
     """Run core.pipeline on every frame of ``split`` (both camera splits when ``two_view``).
 
     Args:
@@ -35,6 +35,9 @@ def pipeline_frames(dataset: Path, split: str, two_view: bool, *, templates: Pat
         pose_overrides, pipeline_overrides: ``NAME=VALUE`` overrides of PoseParams and of
             the stage dataclasses' fields (LocaliseParams, ClassifyParams, FitParams).
         pose_workers: fit parts in this many worker processes besides this one.
+        background: with ``oracle='boxes'``, this many random background boxes per frame in
+            the scored view (:func:`background_boxes`, seeded) go through the classifier and
+            the pose stage too: :attr:`FrameOutput.background_named` holds their names.
     """
     if oracle == 'none' and not two_view:
         raise TlessbotError('--oracle none needs a two-view dataset (test_top + test_side); '
@@ -61,6 +64,7 @@ def pipeline_frames(dataset: Path, split: str, two_view: bool, *, templates: Pat
         stage_params['fit_params'] = replace(stage_params['fit_params'], lookalike_check=False)
     workers = _pose_workers(templates_path, pose_params, stage_params['fit_params'],
                             pose_workers)
+    rng = np.random.default_rng(0)
     try:
         pipeline = None
         for images in zip(*readers.values()):
@@ -80,6 +84,9 @@ def pipeline_frames(dataset: Path, split: str, two_view: bool, *, templates: Pat
             else:
                 detections = _oracle_pipeline(pipeline, by_view, inputs, oracle, workers,
                                               output, t0)
+                if background and oracle == 'boxes':
+                    output.background_named = _background_names(
+                        pipeline, by_view[SIDE], inputs[SIDE], workers, rng, background)
             _add_poses(output, pipeline, detections, by_view, t0)
             yield by_view[SIDE], output
     finally:
@@ -177,6 +184,34 @@ def _oracle_pipeline(pipeline, by_view: dict, inputs: dict, oracle: str, workers
         output.timings_ms['pose'] = 1e3 * (time.perf_counter() - t2)
     output.timings_ms['frame'] = 1e3 * (time.perf_counter() - t0)
     return detections
+
+
+def _background_names(pipeline, image, view, workers, rng, count: int) -> list[int]:
+    """Cut ``count`` random boxes away from the parts of the scored view (``image``, its
+    ``view`` input) and name them as a part is named: classifier, then the pose stage where
+    the frame has depth (0 = unknown). They get a label image of their own, so that they
+    neither cut nor merge the parts' regions (nor take part in their fragment check)."""
+    parts = [gt.bbox_visib for gt in image.gt if gt.bbox_visib is not None]
+    boxes = background_boxes(rng, parts, image.rgb.shape[:2], count)
+    labels = {SIDE: box_labels(image.rgb.shape[:2], boxes)}
+    guesses = pipeline.classify({SIDE: image.rgb}, labels, views={SIDE: view})
+    names = {i: g.obj_id for i, g in guesses.items()}
+    if _has_depth(image):
+        detections = pipeline.estimate_poses({SIDE: view}, labels,
+                                             {i: g.candidates for i, g in guesses.items()},
+                                             box_mode=True, fitter=workers)
+        names.update({d.instance_id: d.obj_id for d in detections})
+    return [names.get(j + 1, 0) for j in range(len(boxes))]
+
+
+def box_labels(shape: tuple[int, int], boxes) -> np.ndarray:
+    """(H, W) uint16 label image of (x, y, w, h) ``boxes``: box k is instance k + 1, larger
+    boxes painted first (a small one stays visible inside a large one)."""
+    label = np.zeros(shape, np.uint16)
+    for k in sorted(range(len(boxes)), key=lambda k: -boxes[k][2] * boxes[k][3]):
+        x, y, w, h = boxes[k]
+        label[y:y + h, x:x + w] = k + 1
+    return label
 
 
 def _add_poses(output: FrameOutput, pipeline, detections: list, by_view: dict,
@@ -290,3 +325,28 @@ def bag_frames(bag: Path, *, classifier: Path | None = None, templates: Path | N
             estimate.im_id = index
         frames.append((image, FrameOutput(poses=poses.get(stamp, []))))
     return frames
+
+
+def background_boxes(rng, parts, shape, count: int) -> list[tuple[int, int, int, int]]:
+    """Up to ``count`` random (x, y, w, h) boxes of an image of ``shape`` (H, W), sizes drawn
+    from the ``parts`` boxes (x0.7-1.3), none holding more than 30 % of a part's box."""
+    sizes = np.array([b[2:] for b in parts] or [(64, 64)], float)
+    height, width = shape
+    background = []
+    for _ in range(50 * count):
+        if len(background) == count:
+            break
+        w, h = sizes[rng.integers(len(sizes))] * rng.uniform(0.7, 1.3)
+        w, h = int(min(max(w, 8), width - 1)), int(min(max(h, 8), height - 1))
+        x, y = int(rng.integers(0, width - w)), int(rng.integers(0, height - h))
+        if all(covered((x, y, w, h), b) <= 0.3 for b in parts):
+            background.append((x, y, w, h))
+    return background
+
+
+def covered(box, part) -> float:
+    """Share of ``part``'s box area inside ``box``."""
+    x0, y0 = max(box[0], part[0]), max(box[1], part[1])
+    x1 = min(box[0] + box[2], part[0] + part[2])
+    y1 = min(box[1] + box[3], part[1] + part[3])
+    return max(0, x1 - x0) * max(0, y1 - y0) / max(part[2] * part[3], 1)

@@ -114,6 +114,8 @@ class FrameOutput:
             (``--oracle boxes``), after the pose stage's verification where it ran; else None.
         classifier_by_gt: {GT index: (class, margin)} of the classifier alone (before the pose
             stage) with ``--oracle boxes``, else None.
+        background_named: with ``evaluate --background-boxes``, the class each background
+            box was given (0 = unknown; anything else is a false positive); else None.
         pose_ran: False where the pose stage was skipped (a frame without depth).
         timings_ms: per-stage wall times of this frame (ms); ``pose_per_part``: the pose
             stage over the parts it fitted, ``table_plane``: finding the table plane in the
@@ -125,6 +127,7 @@ class FrameOutput:
     classified: bool = False
     classes_by_gt: dict[int, int] | None = None
     classifier_by_gt: dict[int, tuple[int, float]] | None = None
+    background_named: list[int] | None = None
     pose_ran: bool = True
     timings_ms: dict[str, float] = field(default_factory=dict)
 
@@ -141,6 +144,7 @@ class _Target:
     mspd_scale: float = 1.0
     detected: bool | None = None
     recognised: bool | None = None
+    unknown: bool = False
     posed: bool = True
 
 
@@ -177,6 +181,21 @@ def _match_boxes(image, boxes) -> tuple[dict[int, int], int]:
             matched[k] = j
             used.add(j)
     return matched, len(boxes) - len(used)
+
+
+def _regions(output: FrameOutput, box_matches: dict[int, int]) -> tuple[int, int] | None:
+    """(regions named as a part that are none, regions reported unknown) of one frame: the
+    localiser's regions, or the ground-truth and ``background_named`` boxes; None when the
+    frame shows no region that is no part (ground-truth boxes alone, or given poses)."""
+    if output.boxes is not None:
+        matched = set(box_matches.values())
+        return (sum(j not in matched and box[4] != 0 for j, box in enumerate(output.boxes)),
+                sum(box[4] == 0 for box in output.boxes))
+    if output.background_named is None:
+        return None
+    named = output.background_named
+    unknown_parts = sum(c == 0 for c in (output.classes_by_gt or {}).values())
+    return sum(c != 0 for c in named), sum(c == 0 for c in named) + unknown_parts
 
 
 def _score_pose(target: _Target, T_est: np.ndarray, T_gt: np.ndarray, model: ScoringModel,
@@ -225,11 +244,25 @@ def _measures(everything: list[_Target], models: dict[int, ScoringModel], *, has
     return out
 
 
+def _unknowns(targets: list[_Target], regions: list[tuple[int, int]], ran: bool) -> dict:
+    """The parts called unknown (share of the recognised targets), and per frame of those
+    that show regions that are no part: such regions named as a part (false positives) and
+    all regions called unknown."""
+    named = [t for t in targets if t.recognised is not None]
+    return {'unknown_rate': sum(t.unknown for t in named) / len(named) if ran and named
+            else None,
+            'false_pos_per_frame': sum(r[0] for r in regions) / len(regions) if regions
+            else None,
+            'unknown_per_frame': sum(r[1] for r in regions) / len(regions) if regions
+            else None}
+
+
 def score_frames(frames: list[tuple[object, FrameOutput]],
                  models: dict[int, ScoringModel]) -> dict:
     """The report dictionary (see issue 8) from (BopImage, FrameOutput) pairs."""
     targets: list[_Target] = []
     false_pos = duplicates = 0
+    regions: list[tuple[int, int]] = []   # per frame: (named but no part, called unknown)
     detection_ran = recognition_ran = False
     for image, output in frames:
         matches = _match_poses(image, output.poses)
@@ -240,6 +273,8 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
             detection_ran = True
             box_matches, unmatched = _match_boxes(image, output.boxes)
             false_pos += unmatched
+        if (counts := _regions(output, box_matches)) is not None:
+            regions.append(counts)
         recognition_ran |= output.classified or output.classes_by_gt is not None
         for k, gt in enumerate(image.gt):
             if gt.visib_fract is None or gt.visib_fract < MIN_VISIB_FRACT:
@@ -253,9 +288,11 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
                 target.detected = k in box_matches
                 if output.classified and target.detected:
                     target.recognised = output.boxes[box_matches[k]][4] == gt.obj_id
+                    target.unknown = output.boxes[box_matches[k]][4] == 0
             elif output.classes_by_gt is not None:
                 target.detected = True  # the box is given
                 target.recognised = output.classes_by_gt.get(k) == gt.obj_id
+                target.unknown = output.classes_by_gt.get(k) == 0
             est = matches.get(k)
             if est is not None:
                 _score_pose(target, est.T_camera_object, gt.T_camera_object, model, image)
@@ -283,7 +320,8 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
             'false_pos_per_frame': (false_pos / len(frames)
                                     if detection_ran and frames else None),
             'duplicates_per_frame': duplicates / len(frames) if frames else None},
-        'recognition': {'top1': overall.get('top1')},
+        'recognition': {'top1': overall.get('top1'), **_unknowns(targets, regions,
+                                                                  recognition_ran)},
         'pose': {key: overall.get(key) for key in _POSE_KEYS},
         'skipped': {'pose_frames_without_depth': sum(not o.pose_ran for _, o in frames),
                     'parts_not_posed': len(targets) - overall.get('objects_posed', 0)},

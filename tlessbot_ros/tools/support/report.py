@@ -29,7 +29,11 @@ def markdown(report: dict) -> str:
              f'- detection: IoU >= 0.7 rate {cell(report["detection"]["iou07_rate"])}, '
              f'false positives per frame {cell(report["detection"]["false_pos_per_frame"])}, '
              f'duplicates per frame {cell(report["detection"].get("duplicates_per_frame"))}',
-             f'- recognition top-1: {cell(report["recognition"]["top1"])}']
+             f'- recognition top-1: {cell(report["recognition"]["top1"])}; parts called '
+             f'unknown {cell(report["recognition"].get("unknown_rate"))}; regions that are no '
+             f'part named as one (false positives) per frame '
+             f'{cell(report["recognition"].get("false_pos_per_frame"))}, regions called '
+             f'unknown per frame {cell(report["recognition"].get("unknown_per_frame"))}']
     if 'run_time_s' in report:
         lines.append(f'- run time: {report["run_time_s"]:.1f} s')
     lines += ['', '## Pose recall per object (Table 1 shape)', '',

@@ -1,0 +1,354 @@
+"""Unknown stays unknown by the depth fit: known-part top-1 against false positives per frame.
+
+  PYTHONPATH=. python scripts/unknown_by_fit.py --classifier M.npz --templates T.npz \\
+      --renders-known SIM_PARTS --renders-unknown SIM_OTHERS \\
+      --real ../shared/data/sygrid_real_d435i --visp ../shared/data --out reports/unknown_fit
+
+The rule is ``FitParams.unknown_below_fitness``: a part whose best template fit explains less
+of its depth than the threshold (or whose region has too few depth points above the table to
+fit) is reported unknown. Each region is fitted once with the rule off and its best fitness
+kept; the rule at threshold t is then exactly "named and fitness >= t" (it changes nothing
+else), so one run gives the whole curve.
+
+The threshold is chosen on renders only: ``--renders-known`` (``tlessbot simulate`` of the
+model's own parts; ground-truth boxes plus background boxes) and ``--renders-unknown``
+(``tlessbot simulate`` of other parts: every box is unknown). The chosen threshold is the
+largest of the grid that costs at most ``--max-render-cost`` of top-1 on the known renders.
+It is then applied to the real sets, which never choose anything:
+
+- ``--real``: a real BOP set of the model's parts; the frames with depth: ground-truth boxes
+  (known parts) and ``--boxes-per-frame`` background boxes (as ``evaluate --background-boxes``).
+- ``--visp``: the real RealSense RGB-D frames of other objects under ``../shared/data``
+  (ViSP's RBT sequence and its D435 tutorial frame): the whole pipeline (localiser on the
+  depth, classifier, pose stage) runs, and every region named as a part is a false positive.
+
+Writes unknown_fit.md and unknown_fit.png into --out.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from real_unknown import finish_plot  # this script's folder
+
+from tlessbot_ros.tools.support.eval_frames import background_boxes, box_labels
+
+GRID = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+NO_FIT = -1.0   # not fitted (too few depth points above the table): unknown_without_fit
+DROPPED = -2.0  # no detection: the fragment filter dropped it (its classifier name is scored,
+                # as evaluate --oracle boxes does), or the classifier had no candidate
+
+
+@dataclass
+class Record:
+    """One region's answer: its set, whether it is a known part (and which), the class the
+    pipeline named (0 = unknown) and the best fitness (NO_FIT: not fitted)."""
+
+    source: str
+    frame: int
+    truth: int          # the part's id; 0 for background or a part not in the set
+    named: int
+    fitness: float
+
+
+def make_pipeline(classifier, templates):
+    """A fresh pipeline (the table-plane tracker starts anew: a set is another camera), the
+    rule off: every region's best fitness is kept."""
+    from tlessbot_ros.core.params import FitParams
+    from tlessbot_ros.core.pipeline import PerceptionPipeline
+
+    pipeline = PerceptionPipeline(classifier=classifier, templates=templates,
+                                  fit_params=FitParams(unknown_below_fitness=0.0))
+    pipeline.warm_up()
+    return pipeline
+
+
+def fit_boxes(pipeline, image, boxes, truths, source: str, frame: int) -> list[Record]:
+    """Classifier, then the pose stage (box mode, as ``evaluate --oracle boxes``) on boxes."""
+    from tlessbot_ros.core.pipeline import ViewInput
+
+    if not boxes:
+        return []
+    view = ViewInput(image.rgb, image.depth_m, image.intrinsics, image.T_world_camera)
+    labels = {'side': box_labels(image.rgb.shape[:2], boxes)}
+    guesses = pipeline.classify({'side': image.rgb}, labels, views={'side': view})
+    detections = pipeline.estimate_poses({'side': view}, labels,
+                                         {i: g.candidates for i, g in guesses.items()},
+                                         box_mode=True)
+    by_instance = {d.instance_id: d for d in detections}
+    records = []
+    for k, truth in enumerate(truths):
+        guess, detection = guesses.get(k + 1), by_instance.get(k + 1)
+        named = 0 if guess is None else guess.obj_id
+        fitness = DROPPED
+        if detection is not None:
+            named = detection.obj_id
+            fitness = NO_FIT if detection.pose is None else float(detection.pose.fitness)
+        records.append(Record(source, frame, int(truth), int(named), fitness))
+    return records
+
+
+def bop_records(pipeline, dataset: Path, split: str, source: str, *, known: bool,
+                per_frame: int, depth_only: bool = False, seed: int = 0
+                ) -> tuple[list[Record], int]:
+    """Ground-truth boxes (known parts, or unknown ones with ``known`` False) and background
+    boxes of every frame of a BOP split (frames with depth only, if ``depth_only``)."""
+    from tqdm import tqdm
+
+    from tlessbot_ros.io.bop import read_split
+
+    rng = np.random.default_rng(seed)
+    records, frames = [], 0
+    images = list(read_split(dataset, split, load_masks=False))
+    for n, image in enumerate(tqdm(images, desc=source, unit='frame')):
+        if depth_only and (image.depth_m is None or not np.any(image.depth_m > 0)):
+            continue
+        frames += 1
+        parts = [g for g in image.gt if g.bbox_visib is not None and g.bbox_visib[2] > 0
+                 and (g.visib_fract or 0) >= 0.3]
+        boxes = [tuple(int(v) for v in g.bbox_visib) for g in parts]
+        truths = [g.obj_id if known else 0 for g in parts]
+        records += fit_boxes(pipeline, image, boxes, truths, source, n)
+        background = background_boxes(rng, boxes, image.rgb.shape[:2], per_frame)
+        records += fit_boxes(pipeline, image, background, [0] * len(background),
+                             source + ' background', n)
+    return records, frames
+
+
+def visp_frames(root: Path):
+    """(rgb, depth_m, K) of the real RealSense RGB-D frames of other objects: ViSP's RBT
+    sequence (20 frames) and its D435 tutorial frame (aligned depth)."""
+    import cv2
+
+    seq = root / 'visp_images_rbt_sequence' / 'sequence'
+    cam = json.loads((seq / 'cam.json').read_text())
+    K = np.array([[cam['px'], 0, cam['u0']], [0, cam['py'], cam['v0']], [0, 0, 1]])
+    for rgb_path in sorted(seq.glob('color_image_*.png')):
+        depth_path = seq / rgb_path.name.replace('color', 'depth').replace('.png', '.npz')
+        with np.load(depth_path, allow_pickle=False) as data:
+            depth = data['data'].astype(np.float32) * float(cam['depthScale'])
+        yield cv2.imread(str(rgb_path))[:, :, ::-1].copy(), depth, K
+    d435 = root / 'visp_realsense_tutorial_data' / 'computer-vision' / 'd435_align_depth'
+    if d435.is_dir():
+        raw = (d435 / 'depth_image_0000.bin').read_bytes()
+        height, width = np.frombuffer(raw[:8], '<u4')
+        depth = np.frombuffer(raw[8:], '<u2').reshape(height, width).astype(np.float32) * 1e-3
+        K = np.array([[605.1467, 0, 325.5325], [0, 604.7915, 244.9508], [0, 0, 1]])
+        yield cv2.imread(str(d435 / 'color_image_0000.jpg'))[:, :, ::-1].copy(), depth, K
+
+
+def visp_records(pipeline, root: Path) -> tuple[list[Record], int]:
+    """The whole pipeline (one camera, no extrinsics: the table plane from the depth) on real
+    frames without any of the model's parts: every region it keeps is unknown (truth 0)."""
+    from tqdm import tqdm
+
+    from tlessbot_ros.core.common import CameraIntrinsics
+    from tlessbot_ros.core.pipeline import ViewInput
+
+    records = []
+    frames = list(visp_frames(root))
+    for n, (rgb, depth, K) in enumerate(tqdm(frames, desc='visp', unit='frame')):
+        depth = np.where(depth > 0, depth, np.nan).astype(np.float32)
+        intrinsics = CameraIntrinsics(rgb.shape[1], rgb.shape[0], K)
+        result = pipeline.process({'side': ViewInput(rgb, depth, intrinsics, None)})
+        labelled = set(np.unique(result.labels['side']).tolist()) - {0}
+        fitted = {d.instance_id: d for d in result.detections}
+        for instance in sorted(labelled):
+            d = fitted.get(instance)
+            fitness = DROPPED if d is None else NO_FIT if d.pose is None else \
+                float(d.pose.fitness)
+            records.append(Record('visp', n, 0, 0 if d is None else int(d.obj_id), fitness))
+    return records, len(frames)
+
+
+def kept(records: list[Record], threshold: float, without_fit: bool) -> np.ndarray:
+    """Which regions stay named as a part with ``unknown_below_fitness`` at ``threshold``
+    (0: off) and ``unknown_without_fit``."""
+    named = np.array([r.named != 0 for r in records], bool)
+    fitness = np.array([r.fitness for r in records], float)
+    if threshold > 0:
+        named &= (fitness < 0) | (fitness >= threshold)
+    return named & (fitness != NO_FIT) if without_fit else named
+
+
+def top1(records: list[Record], *rule) -> float:
+    """Known parts named right and kept (an unknown answer counts wrong)."""
+    right = np.array([r.named == r.truth for r in records], bool)
+    return float(np.mean(right & kept(records, *rule))) if records else float('nan')
+
+
+def named_share(records: list[Record], *rule) -> float:
+    return float(np.mean(kept(records, *rule))) if records else float('nan')
+
+
+def fitted_named_share(records: list[Record], *rule) -> float:
+    """:func:`named_share` of the fitted regions alone (those the threshold acts on)."""
+    return named_share([r for r in records if r.fitness >= 0], *rule)
+
+
+def per_frame(records: list[Record], frames: int, *rule) -> float:
+    return float(np.sum(kept(records, *rule))) / frames if frames else float('nan')
+
+
+def curve(sets: dict, without_fit: bool) -> list[dict]:
+    """Every threshold's figures with (or without) ``unknown_without_fit``."""
+    rows = []
+    for t in GRID:
+        rule = (t, without_fit)
+        rows.append({
+            'threshold': t,
+            'render_top1': top1(sets['render known'][0], *rule),
+            'render_unknown_named': named_share(sets['render unknown'][0], *rule),
+            'render_unknown_fitted': fitted_named_share(sets['render unknown'][0], *rule),
+            'render_background_fp': per_frame(*sets['render background'], *rule),
+            'real_top1': top1(sets['real known'][0], *rule),
+            'real_background_fp': per_frame(*sets['real background'], *rule),
+            'visp_fp': per_frame(*sets['visp'], *rule)})
+    return rows
+
+
+def choose(rows: list[dict], max_cost: float, max_unknown: float) -> float:
+    """The threshold chosen on the renders alone: the lowest of the grid that names at most
+    ``max_unknown`` of the fitted unknown rendered parts (the others it cannot touch), among
+    those that cost at most ``max_cost`` of the known renders' top-1 (0 when none does)."""
+    base = rows[0]['render_top1']
+    fits = [r['threshold'] for r in rows if r['render_top1'] >= base - max_cost
+            and r['render_unknown_fitted'] <= max_unknown]
+    return min(fits) if fits else 0.0
+
+
+def collect(args) -> dict[str, tuple[list[Record], int]]:
+    """(records, frames) of every set, each with a fresh pipeline."""
+    from tlessbot_ros.core.pose import TemplateDatabase
+    from tlessbot_ros.core.recognise import LinearClassifier
+
+    classifier = LinearClassifier.load(args.classifier)
+    templates = TemplateDatabase.load(args.templates)
+
+    def split(records, frames, source):
+        return {source: ([r for r in records if r.source == source], frames),
+                f'{source.split()[0]} background':
+                    ([r for r in records if r.source.endswith('background')], frames)}
+
+    sets = {}
+    n = args.boxes_per_frame
+    sets.update(split(*bop_records(make_pipeline(classifier, templates), args.renders_known,
+                                   'test_side', 'render known', known=True, per_frame=n),
+                      'render known'))
+    records, frames = bop_records(make_pipeline(classifier, templates), args.renders_unknown,
+                                  'test_side', 'render unknown', known=False, per_frame=0)
+    sets['render unknown'] = (records, frames)
+    sets.update(split(*bop_records(make_pipeline(classifier, templates), args.real, 'test',
+                                   'real known', known=True, per_frame=n, depth_only=True),
+                      'real known'))
+    sets['visp'] = visp_records(make_pipeline(classifier, templates), args.visp)
+    return sets
+
+
+def table(rows: list[dict], chosen: float, title: str) -> list[str]:
+    lines = [
+        '', title, '',
+        '| unknown below fitness | renders: known top-1 | renders: unknown parts named (of '
+        'the fitted) | renders: background FP/frame | real sygrid (depth): known top-1 | '
+        'real sygrid: background FP/frame | real ViSP RGB-D: FP/frame |',
+        '|---|---|---|---|---|---|---|']
+    for r in rows:
+        mark = ' (chosen)' if r['threshold'] == chosen else (' (off)' if r['threshold'] == 0
+                                                             else '')
+        lines.append(f"| {r['threshold']:.1f}{mark} | {r['render_top1']:.3f} | "
+                     f"{r['render_unknown_named']:.3f} ({r['render_unknown_fitted']:.3f}) | "
+                     f"{r['render_background_fp']:.2f} | "
+                     f"{r['real_top1']:.3f} | {r['real_background_fp']:.2f} | "
+                     f"{r['visp_fp']:.2f} |")
+    return lines
+
+
+def plot(rows: list[dict], strict: list[dict], chosen: float, path: Path) -> None:
+    """Left: known-part top-1 by threshold; right: top-1 against false positives per frame,
+    ``rows`` (solid) and ``strict`` (``unknown_without_fit``, dashed); the chosen rule starred."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    t = [r['threshold'] for r in rows]
+    for key, label in (('render_top1', 'renders: known top-1'),
+                       ('real_top1', 'real sygrid: known top-1')):
+        left.plot(t, [r[key] for r in rows], 'o-', label=label)
+    left.plot(t, [r['render_unknown_fitted'] for r in rows], 's:',
+              label='renders: fitted unknown parts named')
+    left.axvline(chosen, color='grey', ls='--', label='chosen on renders')
+    left.set_xlabel('unknown_below_fitness')
+    curves = (('real_background_fp', 'real_top1', 'real sygrid, background boxes'),
+              ('visp_fp', 'real_top1', 'real ViSP RGB-D frames, whole pipeline'),
+              ('render_background_fp', 'render_top1', 'renders, background boxes'))
+    for (fp, top, label), colour in zip(curves, ('C0', 'C1', 'C2')):
+        for series, style, suffix in ((rows, 'o-', ''), (strict, 'o--',
+                                                         ' + unknown_without_fit')):
+            right.plot([r[fp] for r in series], [r[top] for r in series], style,
+                       color=colour, label=label + suffix, ms=4)
+        star = next(r for r in rows if r['threshold'] == chosen)
+        right.plot(star[fp], star[top], 'k*', ms=11)
+    right.set_xlabel('false positives per frame (regions that are no part, named)')
+    right.set_ylabel('known-part top-1 (real sygrid; renders for renders)')
+    finish_plot(fig, (left, right), path, top=1.02, legend_size=7)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--classifier', type=Path)
+    parser.add_argument('--templates', type=Path)
+    parser.add_argument('--renders-known', type=Path,
+                        help='tlessbot simulate --models <the parts> --cameras side')
+    parser.add_argument('--renders-unknown', type=Path,
+                        help='tlessbot simulate --models <other parts> --cameras side')
+    parser.add_argument('--real', type=Path, help='real BOP set of the parts')
+    parser.add_argument('--visp', type=Path,
+                        help='folder holding visp_images_rbt_sequence (../shared/data)')
+    parser.add_argument('--boxes-per-frame', type=int, default=20)
+    parser.add_argument('--max-render-cost', type=float, default=0.02,
+                        help='top-1 the chosen threshold may cost on the known renders')
+    parser.add_argument('--max-render-unknown', type=float, default=0.05,
+                        help='share of the unknown rendered parts it may still name')
+    parser.add_argument('--out', type=Path, default=Path('reports/unknown_fit'))
+    parser.add_argument('--records', type=Path,
+                        help='tabulate the records.json of an earlier run (no fitting)')
+    args = parser.parse_args(argv)
+    if args.records:
+        sets = {name: ([Record(**r) for r in v['regions']], v['frames'])
+                for name, v in json.loads(args.records.read_text()).items()}
+    elif None in (args.classifier, args.templates, args.renders_known, args.renders_unknown,
+                  args.real, args.visp):
+        parser.error('give --records, or every one of --classifier --templates '
+                     '--renders-known --renders-unknown --real --visp')
+    else:
+        sets = collect(args)
+    rows = curve(sets, without_fit=False)
+    chosen = choose(rows, args.max_render_cost, args.max_render_unknown)
+    lines = ['Counts (regions / frames): ' + '; '.join(
+                 f'{k} {len(r)} / {f}' for k, (r, f) in sets.items()), '',
+             f'Threshold chosen on the renders: **{chosen:.1f}** (the lowest that names at most '
+             f'{args.max_render_unknown:.0%} of the fitted unknown rendered parts and costs at '
+             f'most {args.max_render_cost:.2f} of their known top-1; the real columns chose '
+             'nothing).']
+    lines += table(rows, chosen, 'A part that is not fitted (too few depth points) keeps the '
+                   "classifier's name (`unknown_without_fit: false`):")
+    strict = curve(sets, without_fit=True)
+    lines += table(strict, -1.0, 'With `unknown_without_fit: true` (a region with too few '
+                   'depth points is unknown too):')
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / 'unknown_fit.md').write_text('\n'.join(lines) + '\n', encoding='utf-8')
+    (args.out / 'records.json').write_text(json.dumps(
+        {name: {'frames': f, 'regions': [vars(r) for r in recs]}
+         for name, (recs, f) in sets.items()}), encoding='utf-8')
+    plot(rows, strict, chosen, args.out / 'unknown_fit.png')
+    print('\n'.join(lines))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,91 @@
+"""Unknown stays unknown (issue 40, item 5): a part no template fits is reported unknown by the
+pose stage (FitParams.unknown_below_fitness, unknown_without_fit)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tlessbot_ros.core.common import default_rig
+from tlessbot_ros.core.pipeline import FitParams, PerceptionPipeline, ViewInput
+from tlessbot_ros.core.recognise import UNKNOWN_ID
+
+SIDE = default_rig()['side']
+
+
+@pytest.fixture(scope='module')
+def part21(part21_seen_from_the_side):
+    """Part 21 on the table seen by the side camera (light depth noise); templates of 5 and
+    21."""
+    db, depth, mask, _ = part21_seen_from_the_side
+    depth = depth + np.random.default_rng(2).normal(0, 0.0005, depth.shape).astype(
+        np.float32) * (depth > 0)
+    rgb = np.full((*depth.shape, 3), 90, np.uint8)
+    views = {'side': ViewInput(rgb, depth, SIDE.intrinsics, SIDE.T_world_camera)}
+    return db, views, {'side': mask.astype(np.uint16)}
+
+
+def _fit(pipeline: PerceptionPipeline, views, labels, obj_id: int):
+    """The pose stage on the part, its class given (as the classifier would hand it over)."""
+    [detection] = pipeline.estimate_poses(views, labels, {1: (obj_id,)})
+    return detection
+
+
+@pytest.fixture(scope='module')
+def carton():
+    """An object that is no part: a 15 x 10 x 6 cm box on the table (a carton, a cube of the
+    real frames), seen by the side camera, with its label image."""
+    from tlessbot_ros.core.common import table_with_box
+
+    rgb, depth, mask = table_with_box(SIDE.intrinsics, SIDE.T_world_camera,
+                                      box_size_m=(0.15, 0.10, 0.06))
+    views = {'side': ViewInput(rgb, depth.astype(np.float32), SIDE.intrinsics,
+                               SIDE.T_world_camera)}
+    return views, {'side': mask.astype(np.uint16)}
+
+
+def test_an_object_no_template_fits_is_unknown_and_a_known_part_is_kept(part21, carton):
+    db, views, labels = part21
+    off = PerceptionPipeline(templates=db, fit_params=FitParams(unknown_below_fitness=0.0))
+    default = FitParams().unknown_below_fitness
+    assert 0 < default <= 1
+    right = _fit(off, views, labels, 21)
+    assert right.obj_id == 21 and right.pose.fitness >= default
+    for obj_id in (5, 21):   # the carton, named either part by the classifier
+        wrong = _fit(off, *carton, obj_id)
+        assert wrong.obj_id == obj_id and wrong.pose.fitness < default   # the rule's premise
+
+    on = PerceptionPipeline(templates=db)   # the default
+    for obj_id in (5, 21):
+        detection = _fit(on, *carton, obj_id)
+        assert detection.obj_id == UNKNOWN_ID and detection.pose is None
+    kept = _fit(on, views, labels, 21)
+    assert kept.obj_id == 21 and kept.pose is not None
+    assert kept.pose.fitness == pytest.approx(right.pose.fitness)
+
+
+def test_a_region_with_depth_but_too_few_points_is_unknown_only_when_asked(part21):
+    db, views, labels = part21
+    depth = views['side'].depth_m.copy()
+    ys, xs = np.nonzero(labels['side'])
+    depth[ys[10:], xs[10:]] = 0.0   # ten valid depth pixels left: fewer than min_roi_points
+    sparse = {'side': ViewInput(views['side'].rgb, depth, SIDE.intrinsics,
+                                SIDE.T_world_camera)}
+    named = _fit(PerceptionPipeline(templates=db), sparse, labels, 21)
+    assert named.obj_id == 21 and named.pose is None and named.n_points < 30
+    asked = PerceptionPipeline(templates=db, fit_params=FitParams(unknown_without_fit=True))
+    assert _fit(asked, sparse, labels, 21).obj_id == UNKNOWN_ID
+
+
+def test_fit_ranking_floor_keeps_its_meaning(part21):
+    """fit_rank_min_fitness acts on several candidates only, as before."""
+    db, views, labels = part21
+    pipeline = PerceptionPipeline(templates=db, fit_params=FitParams(
+        unknown_below_fitness=0.0, fit_rank_min_fitness=1.0))
+    assert _fit(pipeline, views, labels, 21).obj_id == 21   # one candidate: untouched
+    [detection] = pipeline.estimate_poses(views, labels, {1: (5, 21)})
+    assert detection.obj_id == UNKNOWN_ID
+
+
+def test_the_threshold_is_checked():
+    with pytest.raises(ValueError, match='unknown_below_fitness'):
+        FitParams(unknown_below_fitness=1.5)
