@@ -169,6 +169,7 @@ def test_launch_replays_the_demo_bag_into_poses_and_respawns_a_dead_stage(in_wor
     # the replay, the three stages and objects
     assert len(re.findall(r'process has finished cleanly', stopped)) == 5, stopped
     assert 'Traceback' not in output
+    assert '[FATAL]' not in stopped, stopped   # no callback cut by the signal's interrupt
 
 
 def _alive(pid: int) -> bool:
