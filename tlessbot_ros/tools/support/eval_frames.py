@@ -148,6 +148,7 @@ def _whole_pipeline(pipeline, inputs: dict, workers, output: FrameOutput) -> lis
     output.classified = True
     output.boxes = []
     side_labels = result.labels.get(SIDE)
+    output.labels = side_labels
     by_instance = {d.instance_id: d.obj_id for d in result.detections}
     if side_labels is not None:
         for instance in np.unique(side_labels):

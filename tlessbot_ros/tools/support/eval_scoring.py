@@ -27,6 +27,7 @@ from tlessbot_ros.core.metrics import (
     vsd,
 )
 from tlessbot_ros.errors import ModelFileError
+from tlessbot_ros.tools.support.eval_breakdown import add_up, confusions, frame_breakdown
 from tlessbot_ros.io.bop_results import BopEstimate
 
 MIN_VISIB_FRACT = 0.3
@@ -117,6 +118,8 @@ class FrameOutput:
         background_named: with ``evaluate --background-boxes``, the class each background
             box was given (0 = unknown; anything else is a false positive); else None.
         pose_ran: False where the pose stage was skipped (a frame without depth).
+        labels: (H, W) instance labels of the scored view behind ``boxes`` (one box per
+            label, in label order), or None: then no breakdown of the detection losses.
         timings_ms: per-stage wall times of this frame (ms); ``pose_per_part``: the pose
             stage over the parts it fitted, ``table_plane``: finding the table plane in the
             views' depth (all views).
@@ -130,6 +133,7 @@ class FrameOutput:
     background_named: list[int] | None = None
     pose_ran: bool = True
     timings_ms: dict[str, float] = field(default_factory=dict)
+    labels: np.ndarray | None = None
 
 
 @dataclass
@@ -263,6 +267,7 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
     targets: list[_Target] = []
     false_pos = duplicates = 0
     regions: list[tuple[int, int]] = []   # per frame: (named but no part, called unknown)
+    losses, matched_boxes = [], []
     detection_ran = recognition_ran = False
     for image, output in frames:
         matches = _match_poses(image, output.poses)
@@ -273,6 +278,9 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
             detection_ran = True
             box_matches, unmatched = _match_boxes(image, output.boxes)
             false_pos += unmatched
+            matched_boxes.append((image, output.boxes, box_matches))
+            if output.labels is not None:
+                losses.append(frame_breakdown(image, output.labels, output.boxes, box_matches))
         if (counts := _regions(output, box_matches)) is not None:
             regions.append(counts)
         recognition_ran |= output.classified or output.classes_by_gt is not None
@@ -319,7 +327,9 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
             'iou07_rate': overall.get('iou07_rate'),
             'false_pos_per_frame': (false_pos / len(frames)
                                     if detection_ran and frames else None),
-            'duplicates_per_frame': duplicates / len(frames) if frames else None},
+            'duplicates_per_frame': duplicates / len(frames) if frames else None,
+            'breakdown': {**add_up(losses), 'confusions': confusions(matched_boxes)}
+            if losses else None},
         'recognition': {'top1': overall.get('top1'), **_unknowns(targets, regions,
                                                                   recognition_ran)},
         'pose': {key: overall.get(key) for key in _POSE_KEYS},

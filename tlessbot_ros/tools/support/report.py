@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from tlessbot_ros.tools.support.eval_breakdown import markdown as breakdown_lines
+
 _POSE_COLUMNS = (('recall_5cm5deg', '5 cm / 5°'), ('recall_1cm5deg', '1 cm / 5°'),
                  ('recall_vsd03', 'VSD < 0.3'), ('recall_adds01d', 'ADD-S < 0.1 d'),
                  ('mssd_recall', 'AR MSSD'), ('mspd_recall', 'AR MSPD'))
@@ -48,6 +50,8 @@ def markdown(report: dict) -> str:
         lines.append(f'| {name} | {m.get("objects_gt", 0)} | {cell(m.get("iou07_rate"))} | '
                      f'{cell(m.get("top1"))} | '
                      + ' | '.join(cell(m.get(key)) for key, _ in _POSE_COLUMNS) + ' |')
+    if report['detection'].get('breakdown'):
+        lines += breakdown_lines(report['detection']['breakdown'], report['frames'])
     lines += ['', '## Time per stage, median ms per frame (Table 3 shape)', '',
               '| stage | ms |', '|---|---|']
     for stage in _STAGES:

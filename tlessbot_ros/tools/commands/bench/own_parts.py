@@ -59,6 +59,10 @@ def _score(name: str, models: Path, out: Path, args, *, classifier=None, templat
             'false_pos': report['detection']['false_pos_per_frame'],
             'flat_parts_gt': n_flat, 'flat_pose': flat_pose,
             'per_object': {k: v.get('recall_5cm5deg') for k, v in per.items()},
+            'per_part': {k: {key: v.get(key) for key in ('objects_gt', 'iou07_rate', 'top1',
+                                                          'recall_5cm5deg')}
+                         for k, v in per.items()},
+            'breakdown': report['detection'].get('breakdown'),
             'eval_s': round(time.perf_counter() - started, 1)}
 
 
@@ -73,6 +77,31 @@ def _table(rows: list[dict]) -> str:
                      f"{cell(r['top1'])} | {cell(r['detected'])} | {cell(r['false_pos'])} | "
                      f"{cell(r['flat_pose'])} ({r['flat_parts_gt']}) |")
     return '\n'.join(lines)
+
+
+def _losses(row: dict) -> list[str]:
+    """One set's per-part table (with its misses by cause) and false positives by cause."""
+    from tlessbot_ros.tools.support.eval_breakdown import FP_CAUSES, MISS_CAUSES
+
+    def cell(value):
+        return '-' if value is None else f'{value:.2f}'
+
+    loss = row.get('breakdown')
+    names = row.get('names', {})
+    lines = ['', f"### {row['name']}", '', '| part | n | detected | top-1 | 5 cm / 5° | missed: '
+             + ', '.join(MISS_CAUSES) + ' |', '|---' * 6 + '|']
+    for key, v in sorted(row['per_part'].items(), key=lambda kv: int(kv[0])):
+        missed = (loss or {}).get('missed_by_obj', {}).get(key, {})
+        lines.append(f"| {names.get(key, 'obj_' + key)} | {v['objects_gt']} | "
+                     f"{cell(v['iou07_rate'])} | {cell(v['top1'])} | "
+                     f"{cell(v['recall_5cm5deg'])} | "
+                     + ', '.join(str(missed.get(c, 0)) for c in MISS_CAUSES) + ' |')
+    if loss:
+        lines += ['', 'False positives by cause (with a pose): ' + ', '.join(
+            f"{c} {loss['false_pos'][c]} ({loss['false_pos_posed'][c]})" for c in FP_CAUSES
+            if loss['false_pos'][c]) or 'none', '', 'Named as another part: ' + (', '.join(
+                f'{k} ({n})' for k, n in loss['confusions'].items()) or 'none') + '.']
+    return lines
 
 
 def run(args: argparse.Namespace) -> int:
@@ -96,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
         rows.append(_score(name, folder.models, args.out, args, classifier=folder.classifier,
                            templates=folder.templates))
         rows[-1]['names'] = {str(k): v for k, v in folder.names.items()}
-    table = _table(rows)
+    table = '\n'.join([_table(rows), '', '## Losses per set'] + sum((_losses(r) for r in rows),
+                                                                   []))
     (args.out / 'report.json').write_text(json.dumps(rows, indent=1) + '\n')
     (args.out / 'report.md').write_text(table + '\n')
     print(table)
