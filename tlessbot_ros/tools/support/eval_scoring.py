@@ -27,8 +27,8 @@ from tlessbot_ros.core.metrics import (
     vsd,
 )
 from tlessbot_ros.errors import ModelFileError
-from tlessbot_ros.tools.support.eval_breakdown import add_up, confusions, frame_breakdown
 from tlessbot_ros.io.bop_results import BopEstimate
+from tlessbot_ros.tools.support.eval_breakdown import add_up, confusions, frame_breakdown
 
 MIN_VISIB_FRACT = 0.3
 IOU_THRESHOLD = 0.7
