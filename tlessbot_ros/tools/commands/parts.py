@@ -7,8 +7,9 @@ build reads every STL / PLY / OBJ of --models (millimetres, or --units m; any fi
 stem a valid ROS name: it names the part's topic /objects/<stem>/pose) and writes into --out
 the classifier (train --recipe packaged by default), the templates for the rig's side camera,
 the models with their info (diameters, symmetries) and manifest.json (name, id, size, symmetry,
-look-alikes, the rig). It ends with a self-check: simulated scenes of the parts seen by the rig,
-evaluated, one row per part (self_check.md). Run the graph on it with
+look-alikes, the rig); a classifier trained before from the same CAD files and settings is
+reused (--retrain: train anew). It ends with a self-check: simulated scenes of the parts seen
+by the rig, evaluated, one row per part (self_check.md). Run the graph on it with
 ``tlessbot launch --parts my_parts`` (or ``parts_path:`` in the cell YAML).
 """
 from __future__ import annotations
@@ -36,6 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help=f'simulated frames of the self-check (default {CHECK_FRAMES}; 0: '
                             'none)')
     build.add_argument('--seed', type=int, default=0)
+    build.add_argument('--retrain', action='store_true',
+                       help='train the classifier even if one was trained before from the '
+                            'same CAD files and settings (kept in the start-up cache)')
     build.add_argument('--train-arg', action='append', default=[], metavar='ARG',
                        help='pass ARG on to tlessbot train (repeatable; --train-arg=--scenes='
                             '200)')
@@ -64,6 +68,6 @@ def run(args: argparse.Namespace) -> int:
     options = BuildOptions(units=args.units, config=args.config,
                            recipe=None if args.recipe == 'defaults' else args.recipe,
                            check_frames=args.check_frames, seed=args.seed,
-                           train_args=args.train_arg)
+                           train_args=args.train_arg, reuse_classifier=not args.retrain)
     build_parts(args.models, args.out, options, check=args.check_frames > 0)
     return 0

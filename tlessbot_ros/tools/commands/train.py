@@ -63,6 +63,7 @@ from tlessbot_ros.core.recognise import (
     train_classifier,
 )
 from tlessbot_ros.errors import DatasetError, TlessbotError
+from tlessbot_ros.tools.support.scene_crops import default_workers, scene_features
 from tlessbot_ros.tools.support.train_clutter import (
     ClutterRecipe,
     clutter_features,
@@ -128,6 +129,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='also train on the crops of this many simulated two-view scenes '
                              '(CAD mode, ours features; 0 = turntable only, the paper)')
     parser.add_argument('--seed', type=int, default=0, help='rendering and training seed')
+    parser.add_argument('--workers', type=int, default=default_workers(), metavar='N',
+                        help='render the --scenes in N processes (default: the CPUs, at most 4; '
+                             'the model is the same for any N)')
     parser.add_argument('--cell', type=int, default=HogParams.cell_px, help='HOG cell px (6)')
     parser.add_argument('--bins', type=int, default=HogParams.bins, help='HOG bins (4)')
     parser.add_argument('--epochs', type=int, default=ClassifierParams.epochs)
@@ -223,38 +227,6 @@ def turntable_features(models_dir: Path, hog: HogParams, *, ids: list[int] | Non
     return features[:count], labels[:count]
 
 
-def scene_features(models_dir: Path, hog: HogParams, shape: ShapeParams, *,
-                   ids: list[int] | None, scenes: int, seed: int, min_pixels: int = 100
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Describe every part (>= ``min_pixels`` visible) of ``scenes`` simulated two-view
-    frames, in both views: ((N, D) float32 HOG + shape, NaN where the depth is unusable;
-    (N,) int64 ids)."""
-    from tqdm import tqdm
-
-    from tlessbot_ros.core.recognise import describe_regions, shape_features_batch
-    from tlessbot_ros.io.models import load_models
-    from tlessbot_ros.sim.simulator import Simulator
-
-    simulator = Simulator(load_models(models_dir, ids), seed=seed + SCENE_SEED_OFFSET)
-    features, labels = [], []
-    for index in tqdm(range(scenes), desc='scenes', unit='frame'):
-        for view in simulator.frame(index).views.values():
-            parts = [g for g in view.gt if g.px_count_visib >= min_pixels]
-            if not parts:
-                continue
-            masks = [g.mask_visib for g in parts]
-            boxes = [g.bbox_visib for g in parts]
-            depth_m = view.depth_mm.astype(np.float32) / 1000.0
-            points = [region_points_world(depth_m, m, view.intrinsics.K, view.T_world_camera,
-                                          box=b) for m, b in zip(masks, boxes)]
-            features.append(np.hstack([describe_regions(view.rgb, boxes, masks, params=hog),
-                                       shape_features_batch(points, params=shape)]))
-            labels += [g.obj_id for g in parts]
-    if not labels:
-        raise TlessbotError('the simulated scenes held no visible parts')
-    return np.vstack(features).astype(np.float32), np.asarray(labels, np.int64)
-
-
 def read_image_crop(path: Path, hog: HogParams) -> np.ndarray:
     """Normalised crop of one image file; an alpha channel is used as the silhouette."""
     import cv2
@@ -313,6 +285,8 @@ def run(args: argparse.Namespace) -> int:
                         box_size=cad_clutter and args.box_size)
         if args.copies < 1:
             raise ValueError('--copies must be >= 1')
+        if args.workers < 1:
+            raise ValueError('--workers must be >= 1')
         learners = {kind: ClassifierParams(
             kind=kind, epochs=args.epochs, alpha=args.alpha, pa_c=args.pa_c,
             average=args.average,
@@ -397,7 +371,9 @@ def cad_features(args: argparse.Namespace, hog: HogParams, shape: ShapeParams | 
         if shape is None:
             raise TlessbotError('--scenes needs --features ours')
         more, more_labels = scene_features(args.models, hog, shape, ids=args.ids,
-                                           scenes=args.scenes, seed=args.seed)
+                                           scenes=args.scenes,
+                                           seed=args.seed + SCENE_SEED_OFFSET,
+                                           workers=args.workers)
         features = np.vstack([features, more])
         labels = np.concatenate([labels, more_labels])
         source.update(scenes=args.scenes, scene_crops=len(more_labels))

@@ -4,6 +4,13 @@ The classifier and the templates are made by ``tlessbot train`` and ``tlessbot t
 as they are run by hand (so a change of their defaults reaches every parts folder); the
 self-check by ``tlessbot simulate`` and ``tlessbot evaluate``. ``tlessbot evaluate`` without
 --classifier / --templates builds through :func:`build_parts` too (cached by the CAD content).
+
+Where the time goes (docs/bench/own-parts.md): the classifier's simulated scenes and its
+training take most of it. The templates are made in a second process while the classifier
+trains (they need each other's nothing), the classifier's scenes are rendered over the CPUs
+(``train --workers``), and a classifier is trained once per CAD content, recipe, seed and
+training options: it does not depend on the rig, so a build for another cell, or
+``tlessbot evaluate --models`` after ``parts build``, reuses it from the start-up cache.
 """
 from __future__ import annotations
 
@@ -21,6 +28,8 @@ from tlessbot_ros.io import parts as parts_io
 
 DEFAULT_RECIPE = 'packaged'
 CHECK_FRAMES = 12
+# part of a cached classifier's key: raise it when a change of the code makes other models
+CLASSIFIER_CACHE_VERSION = 1
 HARD_RECALL = 0.8        # a part below this 5 cm / 5 deg recall in the self-check is "hard"
 
 
@@ -34,6 +43,7 @@ class BuildOptions:
     check_frames: int = CHECK_FRAMES
     seed: int = 0
     train_args: list[str] = field(default_factory=list)
+    reuse_classifier: bool = True
 
 
 def run_tool(command: str, *args: str) -> None:
@@ -46,6 +56,61 @@ def run_tool(command: str, *args: str) -> None:
     if result.returncode != 0:
         raise TlessbotError(f'tlessbot {command} failed (exit {result.returncode}); its '
                             'message is above')
+
+
+def start_tool(command: str, *args: str, log: Path) -> subprocess.Popen:
+    """``tlessbot <command> ARGS`` started in a child process, its output to ``log``."""
+    with open(log, 'wb') as out:
+        return subprocess.Popen([sys.executable, '-m', 'tlessbot_ros.tools.cli', command,
+                                 *args], stdout=out, stderr=subprocess.STDOUT)
+
+
+def finish_tool(command: str, process: subprocess.Popen, log: Path) -> None:
+    """Wait for a :func:`start_tool` child; its log's end in the error when it failed.
+
+    Raises:
+        TlessbotError: it failed.
+    """
+    if process.wait() != 0:
+        tail = log.read_text(errors='replace').strip().splitlines()[-5:]
+        raise TlessbotError(f'tlessbot {command} failed (exit {process.returncode}): '
+                            + ' | '.join(line.strip() for line in tail))
+
+
+def classifier_cache_path(fingerprint: str, options: BuildOptions) -> Path:
+    """Where the classifier of a CAD content (``fingerprint``) and the training settings of
+    ``options`` is kept (the rig is not in it: the classifier does not depend on it)."""
+    import hashlib
+
+    from tlessbot_ros.io.cache import cache_dir
+
+    key = json.dumps([CLASSIFIER_CACHE_VERSION, fingerprint, options.recipe, options.seed,
+                      options.train_args])
+    return cache_dir() / 'classifiers' / f'{hashlib.sha256(key.encode()).hexdigest()[:24]}.npz'
+
+
+def _train_classifier(out: Path, options: BuildOptions, fingerprint: str) -> None:
+    """The parts folder's classifier: trained (``tlessbot train``), or the one trained before
+    from the same CAD content and settings; a new one is kept for later builds."""
+    cached = classifier_cache_path(fingerprint, options)
+    target = out / parts_io.CLASSIFIER
+    if options.reuse_classifier and cached.is_file():
+        print(f'classifier: the one trained before from the same CAD files and settings '
+              f'({cached})')
+        shutil.copyfile(cached, target)
+        return
+    recipe = ['--recipe', options.recipe] if options.recipe else []
+    run_tool('train', '--models', str(out / parts_io.MODELS), '--out', str(target), '--seed',
+             str(options.seed), *recipe, *options.train_args)
+    try:   # atomic: a build beside this one never reads half a file
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=cached.parent, suffix='.npz',
+                                         delete=False) as tmp:
+            pass
+        shutil.copyfile(target, tmp.name)
+        Path(tmp.name).replace(cached)
+    except OSError as error:   # a read-only cache costs the next build its time only
+        print(f'warning: classifier not cached ({error})')
 
 
 def read_meshes(parts: list[parts_io.CadPart], units: str) -> dict[str, tuple]:
@@ -178,10 +243,9 @@ def self_check_table(rows: list[dict], summary: dict) -> str:
 def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = True,
                 classifier: bool = True) -> parts_io.PartsFolder | None:
     """Build the parts folder ``out`` from the CAD folder ``cad`` (see the module docstring);
-    prints each step's time. A folder left by a failed build is removed. Without
-    ``classifier`` (only templates: ``evaluate --oracle boxes+classes``) it returns None."""
-    from tqdm import tqdm
-
+    prints each step's time (the templates' beside the classifier's: they run at once) and
+    the whole build's. A folder left by a failed build is removed. Without ``classifier``
+    (only templates: ``evaluate --oracle boxes+classes``) it returns None."""
     from tlessbot_ros.tools.support.rig import load_rig
 
     rig = load_rig(options.config)   # refused before minutes of work
@@ -194,44 +258,79 @@ def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = Tr
             raise TlessbotError(f'{out} exists and is not a parts folder: choose another --out')
         shutil.rmtree(out)
     out.mkdir(parents=True)
-    config = ['--config', str(options.config)] if options.config else []
-    recipe = ['--recipe', options.recipe] if options.recipe else []
     manifest = {'units': options.units, 'recipe': options.recipe or 'train defaults',
                 'fingerprint': parts_io.cad_fingerprint(cad_list, units=options.units),
                 'rig': parts_io.rig_summary(rig), 'source': str(cad)}
-    steps = [('meshes + symmetries', lambda: manifest.update(parts=_write_models(
-                 cad, out, meshes))),
-             ('templates', lambda: run_tool('templates', '--models', str(out / 'models'),
-                                            '--out', str(out / parts_io.TEMPLATES), *config)),
-             ('classifier', lambda: run_tool(
-                 'train', '--models', str(out / 'models'), '--out',
-                 str(out / parts_io.CLASSIFIER), '--seed', str(options.seed), *recipe,
-                 *options.train_args)) if classifier else None,
-             ('manifest', lambda: (_lookalikes(out, manifest['parts']),
-                                   parts_io.write_manifest(out, manifest)))]
-    if check and classifier:
-        steps.append(('self-check', lambda: print(self_check_table(
-            self_check(out, options), json.loads(
-                (out / parts_io.MANIFEST).read_text())['self_check']))))
-    steps = [step for step in steps if step is not None]
-    times = {}
+    started = time.perf_counter()
     try:
-        with tqdm(steps, desc='parts build', unit='step') as bar:
-            for name, step in bar:
-                bar.set_postfix_str(name)
-                started = time.perf_counter()
-                step()
-                times[name] = time.perf_counter() - started
-                tqdm.write(f'[parts build] {name}: {times[name]:.1f} s')
+        times = _run_steps(cad, out, options, manifest, meshes, check=check and classifier,
+                           classifier=classifier)
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
         raise
+    wall = time.perf_counter() - started
     manifest = json.loads((out / parts_io.MANIFEST).read_text())
     manifest['build_s'] = {k: round(v, 1) for k, v in times.items()}
+    manifest['build_wall_s'] = round(wall, 1)
     parts_io.write_manifest(out, manifest)
-    print(f'{len(cad_list)} parts -> {out} in {sum(times.values()):.0f} s ('
-          + ', '.join(f'{k} {v:.0f} s' for k, v in times.items()) + ')')
+    print(f'{len(cad_list)} parts -> {out} in {wall:.0f} s ('
+          + ', '.join(f'{k} {v:.0f} s' for k, v in times.items())
+          + '; the templates beside the classifier)')
     return parts_io.open_parts_folder(out, rig=rig) if classifier else None
+
+
+def _run_steps(cad: Path, out: Path, options: BuildOptions, manifest: dict, meshes: dict,
+               *, check: bool, classifier: bool) -> dict[str, float]:
+    """The build's steps, timed: {step: s}. The templates are made in a child process while
+    the classifier is trained."""
+    import threading
+
+    from tqdm import tqdm
+
+    config = ['--config', str(options.config)] if options.config else []
+    names = ['meshes + symmetries', 'templates', 'classifier' if classifier else None,
+             'manifest', 'self-check' if check else None]
+    times: dict[str, float] = {}
+    with tqdm(total=sum(n is not None for n in names), desc='parts build', unit='step') as bar, \
+            tempfile.TemporaryDirectory(prefix='tlessbot_build_') as tmp:
+        def timed(name: str, step) -> None:
+            bar.set_postfix_str(name)
+            t0 = time.perf_counter()
+            step()
+            times[name] = time.perf_counter() - t0
+            tqdm.write(f'[parts build] {name}: {times[name]:.1f} s')
+            bar.update()
+
+        timed('meshes + symmetries',
+              lambda: manifest.update(parts=_write_models(cad, out, meshes)))
+        log = Path(tmp) / 'templates.log'
+        t0 = time.perf_counter()
+        templates = start_tool('templates', '--models', str(out / parts_io.MODELS), '--out',
+                               str(out / parts_io.TEMPLATES), *config, log=log)
+        ended: list[float] = []
+        watcher = threading.Thread(target=lambda: ended.append(
+            (templates.wait(), time.perf_counter())[1]), daemon=True)
+        watcher.start()
+        try:
+            if classifier:
+                timed('classifier', lambda: _train_classifier(out, options,
+                                                              manifest['fingerprint']))
+        except BaseException:
+            templates.kill()
+            raise
+        finish_tool('templates', templates, log)
+        watcher.join()
+        times['templates'] = ended[0] - t0
+        tqdm.write(f'[parts build] templates: {times["templates"]:.1f} s (beside the '
+                   'classifier)')
+        bar.update()
+        timed('manifest', lambda: (_lookalikes(out, manifest['parts']),
+                                   parts_io.write_manifest(out, manifest)))
+        if check:
+            timed('self-check', lambda: print(self_check_table(
+                self_check(out, options), json.loads(
+                    (out / parts_io.MANIFEST).read_text())['self_check'])))
+    return times
 
 
 def cached_parts(cad: Path, options: BuildOptions, *, classifier: bool = True

@@ -1,0 +1,101 @@
+"""The crops of simulated two-view scenes that ``tlessbot train --scenes N`` learns from,
+rendered over worker processes.
+
+Every scene is drawn from its own random stream (the simulator's seed and the scene's index),
+so scene k is the same whichever process renders it; the crops are put back in scene order, so
+the features, and the classifier trained on them, do not depend on the number of workers.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from tlessbot_ros.errors import TlessbotError
+
+_CHUNK = 8          # scenes per task handed to a worker
+_MAX_WORKERS = 4
+_worker: dict = {}  # per worker process: the simulator and the descriptor settings
+
+
+def default_workers() -> int:
+    """The worker processes a build uses by default: the CPUs this process may run on (at
+    most 4)."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:   # not Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, _MAX_WORKERS))
+
+
+def _start(models_dir: str, ids, seed: int, hog, shape, min_pixels: int) -> None:
+    from tlessbot_ros.io.models import load_models
+    from tlessbot_ros.sim.simulator import Simulator
+
+    _worker.update(simulator=Simulator(load_models(Path(models_dir), ids), seed=seed),
+                   hog=hog, shape=shape, min_pixels=min_pixels)
+
+
+def _describe(indices: list[int]) -> list[tuple[np.ndarray, list[int]]]:
+    """Per scene of ``indices``: ((n, D) float32 HOG + shape of its parts in both views, their
+    ids)."""
+    from tlessbot_ros.core.recognise import (
+        describe_regions,
+        region_points_world,
+        shape_features_batch,
+    )
+
+    simulator, hog, shape = _worker['simulator'], _worker['hog'], _worker['shape']
+    out = []
+    for index in indices:
+        features, labels = [], []
+        for view in simulator.frame(index).views.values():
+            parts = [g for g in view.gt if g.px_count_visib >= _worker['min_pixels']]
+            if not parts:
+                continue
+            masks = [g.mask_visib for g in parts]
+            boxes = [g.bbox_visib for g in parts]
+            depth_m = view.depth_mm.astype(np.float32) / 1000.0
+            points = [region_points_world(depth_m, m, view.intrinsics.K, view.T_world_camera,
+                                          box=b) for m, b in zip(masks, boxes)]
+            features.append(np.hstack([describe_regions(view.rgb, boxes, masks, params=hog),
+                                       shape_features_batch(points, params=shape)]))
+            labels += [g.obj_id for g in parts]
+        out.append((np.vstack(features).astype(np.float32) if features else None, labels))
+    return out
+
+
+def scene_features(models_dir: Path, hog, shape, *, ids: list[int] | None, scenes: int,
+                   seed: int, min_pixels: int = 100, workers: int = 1
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Describe every part (>= ``min_pixels`` visible) of ``scenes`` simulated two-view
+    frames (simulator seed ``seed``), in both views: ((N, D) float32 HOG + shape, NaN where
+    the depth is unusable; (N,) int64 ids), the same for any number of ``workers``
+    (processes; 1: this one)."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    from tqdm import tqdm
+
+    chunks = [list(range(k, min(k + _CHUNK, scenes))) for k in range(0, scenes, _CHUNK)]
+    setup = (str(models_dir), ids, seed, hog, shape, min_pixels)
+    results: list = []
+    with tqdm(total=scenes, desc='scenes', unit='frame') as bar:
+        if workers <= 1 or len(chunks) < 2:
+            _start(*setup)
+            for chunk in chunks:
+                results += _describe(chunk)
+                bar.update(len(chunk))
+        else:
+            # spawn: a forked Open3D may hang in its thread pool
+            with ProcessPoolExecutor(min(workers, len(chunks)), mp_context=get_context('spawn'),
+                                     initializer=_start, initargs=setup) as pool:
+                for chunk, described in zip(chunks, pool.map(_describe, chunks)):
+                    results += described
+                    bar.update(len(chunk))
+    features = [f for f, _ in results if f is not None]
+    labels = [i for _, ids_ in results for i in ids_]
+    if not labels:
+        raise TlessbotError('the simulated scenes held no visible parts')
+    return np.vstack(features).astype(np.float32), np.asarray(labels, np.int64)
