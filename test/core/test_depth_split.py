@@ -109,10 +109,12 @@ def test_a_groove_of_one_part_is_not_a_seam() -> None:
     assert split_touching(mask, rgb, height_m=height, depth_m=depth).max() == 1
 
 
-def _segmentation(labels: np.ndarray, groups: list[int]) -> Segmentation:
+def _segmentation(labels: np.ndarray, groups: list[int],
+                  thin: list[bool] | None = None) -> Segmentation:
     boxes, areas = boxes_from_labels(labels)
     return Segmentation(labels=labels.astype(np.uint16), boxes=boxes, areas=areas,
-                        foreground=labels > 0, depth_groups=np.array(groups, np.int32))
+                        foreground=labels > 0, depth_groups=np.array(groups, np.int32),
+                        thin=np.array(thin or [False] * len(groups), bool))
 
 
 def test_fusion_keeps_the_side_views_depth_split_of_a_blob_the_top_saw_as_one() -> None:
@@ -141,3 +143,42 @@ def test_fusion_keeps_the_side_views_depth_split_of_a_blob_the_top_saw_as_one() 
     # and so are depth pieces when the option is off.
     assert len(fused([0, 0]).instances) == 1
     assert len(fused([1, 2], keep_depth_splits=False).instances) == 1
+
+
+def _one_top_blob_two_side_pieces(rig, top_ids, cut=70):
+    """A top blob (or two, ``top_ids``: left and right half) and the side view's region of
+    it cut in two instances at ``cut`` % of its width."""
+    top = np.zeros((H, W), np.int32)
+    top[100:130, 140:180] = 1
+    top[100:130, 160:180] = top_ids[1]
+    predicted = predict_side_regions(lift_top_blobs(top > 0, rig), rig) == 1
+    ys, xs = np.nonzero(predicted)
+    side = np.zeros((H, W), np.int32)
+    side[predicted] = 1
+    side[predicted & (np.arange(W)[None, :] >= int(np.percentile(xs, cut)))] = 2
+    return top, side
+
+
+def test_fusion_keeps_a_thin_part_apart_from_a_tall_one_the_top_saw_as_one() -> None:
+    # A plate lying against a taller part: the top view, farther away, sees one blob.
+    rig = default_rig(W, H)
+    top, side = _one_top_blob_two_side_pieces(rig, (1, 1))
+
+    def fused(thin, **params):
+        return fuse_views(_segmentation(top, [0]), _segmentation(side, [0, 0], thin),
+                          rig=rig, params=FusionParams(**params))
+
+    assert len(fused([True, False]).instances) == 2
+    assert len(fused([True, True]).instances) == 1      # two pieces of one thin part
+    assert len(fused([False, False]).instances) == 1    # cores of one part: the top's call
+    assert len(fused([True, False], keep_thin_beside_tall=False).instances) == 1
+
+
+def test_a_side_piece_the_top_gives_no_part_joins_the_part_it_overlaps_most() -> None:
+    # Two top blobs over one side blob that the side depth divided so that both predictions
+    # fall mostly on its larger piece: the smaller piece is a fragment, not a third part.
+    rig = default_rig(W, H)
+    top, side = _one_top_blob_two_side_pieces(rig, (1, 2), cut=90)
+    result = fuse_views(_segmentation(top, [0, 0]), _segmentation(side, [1, 2]), rig=rig)
+    side_ids = set(np.unique(result.labels['side'])) - {0}
+    assert side_ids <= {1, 2} and len(side_ids) == 2

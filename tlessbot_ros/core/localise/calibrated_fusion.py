@@ -169,28 +169,15 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
                 if j:
                     out[blob & (own == j)] = next_id
                     next_id += 1
-        elif len(owners) == 1:
-            pieces = _depth_pieces_of_blob(blob, side.labels[window], side.depth_groups,
-                                           params) if params.keep_depth_splits else []
-            if len(pieces) < 2:
-                out[blob] = owners[0]
-            else:
-                mine = pred[window] == owners[0]
-                first = int(np.argmax([np.count_nonzero(p & mine) for p in pieces]))
-                for j, piece in enumerate(pieces):
-                    if j == first:
-                        out[piece] = owners[0]
-                    else:
-                        out[piece] = next_id
-                        next_id += 1
-                split_ids.add(owners[0])
-        elif _join_thin_fragments(blob, side, window, owners, top_labels):
+        elif len(owners) > 1 and _join_thin_fragments(blob, side, window, owners, top_labels):
             out[blob] = owners[0]
         else:
-            out[blob] = _divide_among_owners(blob, pred[window], owners,
-                                             None if side_rgb is None else side_rgb[window],
-                                             kernel)
-            split_ids.update(owners)
+            pieces = _side_pieces_of_blob(blob, side.labels[window], side, params) or [blob]
+            ids, next_id, divided = _label_pieces(
+                pieces, owners, pred[window], None if side_rgb is None else side_rgb[window],
+                kernel, next_id)
+            out[blob] = ids[blob]
+            split_ids.update(divided)
     timings['split'] = (time.perf_counter() - t1) * 1e3
     labels = {'top': top_labels, 'side': side_labels}
     return FusionResult(labels=labels, method='calibrated', predicted_side=pred,
@@ -198,28 +185,84 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
                         timings_ms=timings)
 
 
-def _depth_pieces_of_blob(blob: np.ndarray, own: np.ndarray, depth_groups: np.ndarray,
-                          params: FusionParams) -> list[np.ndarray]:
-    """The pieces of one side blob that its segmentation's depth split made: one bool mask
-    per depth group (the blob's pixels of other labels join the nearest piece); none unless
-    there are two or more, each with ``min_visible_px`` pixels.
+def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
+                         params: FusionParams) -> list[np.ndarray]:
+    """The pieces of one side blob, seen as one part from the top, that the side view tells
+    apart: one bool mask per piece (the blob's pixels of no instance join the nearest piece);
+    none unless there are two or more, each of ``min_visible_px`` pixels.
 
-    ``blob`` and ``own`` (the side segmentation's labels) are cut to the blob's window."""
+    Two of the side segmentation's instances in the blob stay apart when the depth split
+    divided them (different depth groups, ``keep_depth_splits``), or when one is a thin part
+    and the other is not (``keep_thin_beside_tall``): a plate or a strip lying against a
+    taller part, which the top view, farther away, sees as one blob. Every other pair of
+    instances in the blob is one part. ``blob`` and ``own`` (the side segmentation's labels)
+    are cut to the blob's window."""
     ids = np.unique(own[blob])
-    ids = ids[(ids > 0) & (ids <= len(depth_groups))]
-    groups = depth_groups[ids - 1] if ids.size else ids
-    if np.count_nonzero(np.unique(groups)) < 2:
+    ids = ids[(ids > 0) & (ids <= len(side.depth_groups))]
+    if ids.size < 2:
         return []
-    group_of = np.zeros(int(own.max()) + 1, np.int32)
-    group_of[ids] = groups
-    grouped = np.where(blob, group_of[own], 0)
+    groups = side.depth_groups[ids - 1]
+    thin = side.thin[ids - 1] if len(side.thin) >= ids.max() else np.zeros(ids.size, bool)
+    root = list(range(ids.size))
+
+    def find(a: int) -> int:
+        while root[a] != a:
+            a = root[a]
+        return a
+
+    for a in range(ids.size):
+        for b in range(a + 1, ids.size):
+            by_depth = params.keep_depth_splits and groups[a] > 0 and groups[b] > 0 and \
+                groups[a] != groups[b]
+            by_height = params.keep_thin_beside_tall and thin[a] != thin[b]
+            if not (by_depth or by_height):
+                root[find(b)] = find(a)
+    roots = sorted({find(a) for a in range(ids.size)})
+    if len(roots) < 2:
+        return []
+    piece_of = np.zeros(int(own.max()) + 1, np.int32)
+    piece_of[ids] = [roots.index(find(a)) + 1 for a in range(ids.size)]
+    grouped = np.where(blob, piece_of[own], 0)
     holes = blob & (grouped == 0)
     if holes.any():
         fill_from_nearest(grouped, holes)
-    pieces = [grouped == g for g in np.unique(groups) if g]
+    pieces = [grouped == k for k in range(1, len(roots) + 1)]
     if any(np.count_nonzero(p) < params.min_visible_px for p in pieces):
         return []
     return pieces
+
+
+def _label_pieces(pieces: list[np.ndarray], owners: list[int], pred: np.ndarray,
+                  rgb: np.ndarray | None, kernel: np.ndarray, next_id: int
+                  ) -> tuple[np.ndarray, int, set[int]]:
+    """Ids for the pieces of one side blob (:func:`_side_pieces_of_blob`, or the blob whole)
+    held by the top view's predictions ``owners``: each owner goes to the piece it overlaps
+    most; a piece with one owner takes its id, a piece with several is divided among them
+    (:func:`_divide_among_owners`). A piece with none is a part of its own (a new id, from
+    ``next_id``) beside one owner, the fragment of the owner it overlaps most beside several.
+
+    Returns:
+        (the window's int32 ids, the next free id, the owners whose part was divided).
+    """
+    most = {k: int(np.argmax([np.count_nonzero(p & (pred == k)) for p in pieces]))
+            for k in owners}
+    ids = np.zeros(pieces[0].shape, np.int32)
+    divided: set[int] = set(owners) if len(pieces) > 1 else set()
+    for j, piece in enumerate(pieces):
+        mine = [k for k in owners if most[k] == j]
+        if not mine and len(owners) > 1:
+            # the top view has told the parts of this blob apart: a piece it gives none of
+            # them is a fragment of the one it overlaps most
+            mine = [max(owners, key=lambda k: np.count_nonzero(piece & (pred == k)))]
+        if not mine:
+            ids[piece] = next_id
+            next_id += 1
+        elif len(mine) == 1:
+            ids[piece] = mine[0]
+        else:
+            ids[piece] = _divide_among_owners(piece, pred, mine, rgb, kernel)
+            divided.update(mine)
+    return ids, next_id, divided
 
 
 def _join_thin_fragments(blob: np.ndarray, side: Segmentation, window: tuple[slice, slice],

@@ -34,6 +34,8 @@ class FusionParams:
             when the top view sees the whole work area; off by default).
         keep_depth_splits: a side blob that one top blob predicts but that the side depth divided
             keeps its pieces apart (new ids).
+        keep_thin_beside_tall: ... and so does one whose side segmentation holds a thin part
+            (:mod:`.thin`) beside a part that is not.
         box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
             in a side box.
     """
@@ -51,6 +53,7 @@ class FusionParams:
     fragment_fraction: float = 0.5
     drop_unpredicted: bool = False
     keep_depth_splits: bool = True
+    keep_thin_beside_tall: bool = True
 
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:
