@@ -157,21 +157,21 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
         # a thin part: its holes and lobes are no seams, its depth too noisy; colour still is
         thin = is_thin(blob, height_m, (y0, x0), params)
         crop = None if rgb is None else rgb[y0:y1, x0:x1]
-        by_depth = [blob] if surfaces is None or thin else \
+        by_depth, ties = ([blob], [0]) if surfaces is None or thin else \
             _depth_pieces(blob, Surfaces(*(a[y0:y1, x0:x1] for a in (
                 surfaces.solid, surfaces.table, surfaces.depth_m))), crop, params)
         found = []
-        for depth_piece in by_depth:
+        for depth_piece, tie in zip(by_depth, ties):
             group = 0
-            if len(by_depth) > 1:
-                n_groups += 1
-                group = n_groups
+            if len(set(ties)) > 1:   # pieces told apart by no seam share their group
+                group = n_groups + 1 + tie
             by_colour = [depth_piece] if crop is None or params.colour_split_delta <= 0 else \
                 _colour_pieces(depth_piece, crop, params)
             for piece_mask in by_colour:
                 parts = piece_mask.astype(np.int32) if thin else \
                     _split_at_distance_cores(piece_mask, crop, params)
                 found += [(parts == k, group) for k in range(1, int(parts.max()) + 1)]
+        n_groups += len(by_depth) if len(set(ties)) > 1 else 0
         if len(found) > 1:
             pieces[int(i)] = (y0, x0, [(f, g) for f, g in found
                                        if cv2.countNonZero(f.view(np.uint8))
@@ -336,9 +336,12 @@ def _split_at_distance_cores(blob: np.ndarray, rgb: np.ndarray | None,
 
 
 def _depth_pieces(blob: np.ndarray, surfaces: Surfaces, rgb: np.ndarray | None,
-                  params: SegmentationParams) -> list[np.ndarray]:
+                  params: SegmentationParams) -> tuple[list[np.ndarray], list[int]]:
     """Bool masks of the parts of one blob (a crop with a one-pixel border) that its depth
-    tells apart (``[blob]``: none).
+    tells apart (``[blob]``: none), and per mask a tie index: pieces that touch only where the
+    blob is too narrow to show a seam (a rod entering a handle, two parts meeting at a
+    corner) are kept apart but share their tie, which tells the fusion that no seam was
+    seen between them (the top view decides).
 
     The solid pixels' 4-connected pieces of at least ``depth_split_min_px`` seed a
     watershed; two neighbouring pieces stay apart only if the depth confirms a seam between
@@ -352,13 +355,14 @@ def _depth_pieces(blob: np.ndarray, surfaces: Surfaces, rgb: np.ndarray | None,
         (surfaces.solid & blob).view(np.uint8), connectivity=4)
     keep = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= params.depth_split_min_px]
     if len(keep) < 2:
-        return [blob]
+        return [blob], [0]
     out = _divide_by_seeds(blob, pieces, keep, rgb)
     group = list(range(len(keep) + 1))   # union-find over the pieces 1..len(keep)
+    tied = list(range(len(keep) + 1))    # ... and with the pieces that touch by a neck
 
-    def root(a: int) -> int:
-        while group[a] != a:
-            a = group[a]
+    def root(a: int, of: list[int] = group) -> int:
+        while of[a] != a:
+            a = of[a]
         return a
 
     near = [cv2.dilate((out == j).view(np.uint8), _SEAM_KERNEL).view(bool)
@@ -368,14 +372,20 @@ def _depth_pieces(blob: np.ndarray, surfaces: Surfaces, rgb: np.ndarray | None,
     for a in range(1, len(keep) + 1):
         for b in range(a + 1, len(keep) + 1):
             seam = near[a] & near[b] & inside
-            if not seam.any() or root(a) == root(b):
+            if not seam.any():
+                if (near[a] & (out == b)).any():   # they touch, by a neck only
+                    tied[root(b, tied)] = root(a, tied)
                 continue
-            if not _seam_is_real(seam, out == a, out == b, surfaces, params):
+            if root(a) != root(b) and \
+                    not _seam_is_real(seam, out == a, out == b, surfaces, params):
                 group[root(b)] = root(a)
+                tied[root(b, tied)] = root(a, tied)
     roots = sorted({root(j) for j in range(1, len(keep) + 1)})
     if len(roots) < 2:
-        return [blob]
-    return [np.isin(out, [j for j in range(1, len(keep) + 1) if root(j) == r]) for r in roots]
+        return [blob], [0]
+    ties = sorted({root(j, tied) for j in range(1, len(keep) + 1)})
+    return ([np.isin(out, [j for j in range(1, len(keep) + 1) if root(j) == r]) for r in roots],
+            [ties.index(root(r, tied)) for r in roots])
 
 
 # Two pieces' common border: the pixels within 2 (cue-scale) pixels of both.
