@@ -34,3 +34,33 @@ def test_one_part_is_not_a_set_and_names_are_checked(tmp_path, capsys):
     assert 'rename the file to part_2nd_block.stl' in capsys.readouterr().err
     assert main(['parts', 'generate', '--out', str(tmp_path / 'g'), '--names', 'gear']) == 1
     assert "no generated part ['gear']" in capsys.readouterr().err
+
+
+def test_the_cached_classifier_is_keyed_by_what_trains_it_not_the_rig(tmp_path, monkeypatch):
+    from pathlib import Path
+
+    from tlessbot_ros.tools.support.parts_build import BuildOptions, classifier_cache_path
+
+    monkeypatch.setenv('TLESSBOT_CACHE_DIR', str(tmp_path))
+    base = classifier_cache_path('abc', BuildOptions())
+    assert base.parent == tmp_path / 'classifiers'
+    assert classifier_cache_path('abc', BuildOptions(config=Path('other_cell.yaml'))) == base
+    for other in (classifier_cache_path('abd', BuildOptions()),
+                  classifier_cache_path('abc', BuildOptions(seed=1)),
+                  classifier_cache_path('abc', BuildOptions(recipe=None)),
+                  classifier_cache_path('abc', BuildOptions(train_args=['--scenes=200']))):
+        assert other != base
+
+
+def test_a_failed_second_process_says_why(tmp_path):
+    import pytest
+
+    from tlessbot_ros.errors import TlessbotError
+    from tlessbot_ros.tools.support.parts_build import finish_tool, start_tool
+
+    log = tmp_path / 'templates.log'
+    process = start_tool('templates', '--models', str(tmp_path / 'none'), '--out',
+                         str(tmp_path / 't.npz'), log=log)
+    with pytest.raises(TlessbotError, match='tlessbot templates failed') as error:
+        finish_tool('templates', process, log)
+    assert 'none' in str(error.value)   # its log's end is quoted: the folder it missed
