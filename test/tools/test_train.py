@@ -81,7 +81,8 @@ def test_empty_image_folder(tmp_path, capsys):
 
 
 def test_train_adds_simulated_scene_crops(tless_models_dir, tmp_path):
-    from tlessbot_ros.tools.commands.train import scene_features
+    from tlessbot_ros.tools.commands.train import SCENE_SEED_OFFSET
+    from tlessbot_ros.tools.support.scene_crops import scene_features
 
     out = tmp_path / 'scenes.npz'
     argv = ['train', '--models', str(tless_models_dir), '--ids', '5', '19', '21',
@@ -94,7 +95,7 @@ def test_train_adds_simulated_scene_crops(tless_models_dir, tmp_path):
     assert model.info['samples'] > model.info['scene_crops']   # turntable crops too
     from tlessbot_ros.core.recognise import ShapeParams
     features, labels = scene_features(tless_models_dir, model.hog_params, ShapeParams(),
-                                      ids=[5, 19, 21], scenes=3, seed=0)
+                                      ids=[5, 19, 21], scenes=3, seed=SCENE_SEED_OFFSET)
     assert len(labels) == model.info['scene_crops'] and set(labels) <= {5, 19, 21}
     assert features.shape[1] == model.feature_dim
     assert np.isfinite(features[:, :model.hog_params.feature_dim]).all()
