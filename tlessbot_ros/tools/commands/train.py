@@ -63,7 +63,7 @@ from tlessbot_ros.core.recognise import (
     train_classifier,
 )
 from tlessbot_ros.errors import DatasetError, TlessbotError
-from tlessbot_ros.tools.support.scene_crops import default_workers, scene_features
+from tlessbot_ros.tools.support.scene_crops import scene_features
 from tlessbot_ros.tools.support.train_clutter import (
     ClutterRecipe,
     clutter_features,
@@ -129,9 +129,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='also train on the crops of this many simulated two-view scenes '
                              '(CAD mode, ours features; 0 = turntable only, the paper)')
     parser.add_argument('--seed', type=int, default=0, help='rendering and training seed')
-    parser.add_argument('--workers', type=int, default=default_workers(), metavar='N',
-                        help='render the --scenes in N processes (default: the CPUs, at most 4; '
-                             'the model is the same for any N)')
+    parser.add_argument('--workers', type=int, default=0, metavar='N',
+                        help='render the --scenes in N processes (default 0: the idle cores, at '
+                             'most 4; the model is the same for any N)')
     parser.add_argument('--cell', type=int, default=HogParams.cell_px, help='HOG cell px (6)')
     parser.add_argument('--bins', type=int, default=HogParams.bins, help='HOG bins (4)')
     parser.add_argument('--epochs', type=int, default=ClassifierParams.epochs)
@@ -285,8 +285,8 @@ def run(args: argparse.Namespace) -> int:
                         box_size=cad_clutter and args.box_size)
         if args.copies < 1:
             raise ValueError('--copies must be >= 1')
-        if args.workers < 1:
-            raise ValueError('--workers must be >= 1')
+        if args.workers < 0:
+            raise ValueError('--workers must be >= 0 (0: the idle cores)')
         learners = {kind: ClassifierParams(
             kind=kind, epochs=args.epochs, alpha=args.alpha, pa_c=args.pa_c,
             average=args.average,

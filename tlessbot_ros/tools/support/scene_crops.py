@@ -19,13 +19,25 @@ _MAX_WORKERS = 4
 _worker: dict = {}  # per worker process: the simulator and the descriptor settings
 
 
-def default_workers() -> int:
-    """The worker processes a build uses by default: the CPUs this process may run on (at
-    most 4)."""
+def default_workers(window_s: float = 0.5) -> int:
+    """The worker processes a build uses by default: the cores left idle by the rest of the
+    host over ``window_s`` (``/proc/stat``; all the CPUs this process may use where it cannot
+    be read), at least 1 and at most 4. On a busy host more processes only add their start
+    and contention."""
+    import time
+
+    from tlessbot_ros.parallel.spare_cpu import read_cpu_ticks
+
     try:
         cpus = len(os.sched_getaffinity(0))
     except AttributeError:   # not Linux
         cpus = os.cpu_count() or 1
+    before = read_cpu_ticks()
+    time.sleep(window_s)
+    after = read_cpu_ticks()
+    if before is not None and after is not None and sum(after) > sum(before):
+        idle = (after[3] + after[4] - before[3] - before[4]) / (sum(after) - sum(before))
+        cpus = min(cpus, int(idle * (os.cpu_count() or 1) + 0.5))
     return max(1, min(cpus, _MAX_WORKERS))
 
 
@@ -72,13 +84,14 @@ def scene_features(models_dir: Path, hog, shape, *, ids: list[int] | None, scene
     """Describe every part (>= ``min_pixels`` visible) of ``scenes`` simulated two-view
     frames (simulator seed ``seed``), in both views: ((N, D) float32 HOG + shape, NaN where
     the depth is unusable; (N,) int64 ids), the same for any number of ``workers``
-    (processes; 1: this one)."""
+    (processes; 1: this one; 0: :func:`default_workers`)."""
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
     from tqdm import tqdm
 
     chunks = [list(range(k, min(k + _CHUNK, scenes))) for k in range(0, scenes, _CHUNK)]
+    workers = workers or default_workers()
     setup = (str(models_dir), ids, seed, hog, shape, min_pixels)
     results: list = []
     with tqdm(total=scenes, desc='scenes', unit='frame') as bar:
