@@ -7,7 +7,9 @@ Each --set NAME=PARTS (a parts folder of ``tlessbot parts build``) is simulated 
 settings and seed as the reference (T-LESS CAD models, eight of them, scored with the packaged
 classifier and templates), run through the pipeline (``tlessbot evaluate``) and scored: 5 cm /
 5°, top-1, detection (IoU > 0.7) and false positives per frame, for all parts and for the flat
-ones (thinnest side <= --flat-mm). Writes report.md and report.json to --out.
+ones (thinnest side <= --flat-mm), then per set a table per part with its misses by cause
+and the false positives by cause (``tlessbot evaluate``'s breakdown). Writes report.md and
+report.json to --out.
 """
 from __future__ import annotations
 
