@@ -94,6 +94,11 @@ class FitParams:
             fitness reaches this (0..1).
         verify_rmse_weight: classes are ranked by fitness - weight * inlier RMSE, 1/m (>= 0; 50: 1
             mm costs 0.05 fitness).
+        verify_inlier_m: classes are compared at this one tolerance from the surface, m (> 0;
+            0: each at its own voxel, the pose score).
+        verify_overrule_margin: another class replaces the classifier's first only when it
+            scores higher by more than this (>= 0).
+        verify_points: the ROI points the classes are compared on, at most (>= 1).
         fallback_min_fitness: no pose fallback for a region that no class fits better than this
             fitness (0..1): no known part.
         lookalike_check: compare a part with its look-alike twin at the fitted pose on the measured
@@ -137,6 +142,9 @@ class FitParams:
     table_clearance_m: float = 0.004
     verify_accept_fitness: float = 0.9
     verify_rmse_weight: float = 50.0
+    verify_inlier_m: float = 0.003
+    verify_overrule_margin: float = 0.05
+    verify_points: int = 1500
     fallback_min_fitness: float = 0.1
     lookalike_check: bool = True
     flip_check: bool = True
@@ -161,6 +169,11 @@ class FitParams:
         _check(self.verify_accept_fitness >= 0, 'verify_accept_fitness must be >= 0 (a '
                f'fitness; above 1: always fit every candidate), got '
                f'{self.verify_accept_fitness}')
+        _check(self.verify_inlier_m >= 0, f'verify_inlier_m must be >= 0 m (0: the classes\' '
+               f'own voxel), got {self.verify_inlier_m}')
+        _check(self.verify_overrule_margin >= 0, 'verify_overrule_margin must be >= 0, got '
+               f'{self.verify_overrule_margin}')
+        _check(self.verify_points >= 1, f'verify_points must be >= 1, got {self.verify_points}')
         _check(self.verify_rmse_weight >= 0 and math.isfinite(self.verify_rmse_weight),
                f'verify_rmse_weight must be a finite value >= 0 (1/m), got '
                f'{self.verify_rmse_weight}')
