@@ -169,7 +169,7 @@ class FitParams:
         _check(self.verify_accept_fitness >= 0, 'verify_accept_fitness must be >= 0 (a '
                f'fitness; above 1: always fit every candidate), got '
                f'{self.verify_accept_fitness}')
-        _check(self.verify_inlier_m >= 0, f'verify_inlier_m must be >= 0 m (0: the classes\' '
+        _check(self.verify_inlier_m >= 0, 'verify_inlier_m must be >= 0 m (0: each class at its '
                f'own voxel), got {self.verify_inlier_m}')
         _check(self.verify_overrule_margin >= 0, 'verify_overrule_margin must be >= 0, got '
                f'{self.verify_overrule_margin}')
