@@ -90,6 +90,8 @@ class FitParams:
         min_roi_points: fewer valid depth points than this: the pose is not estimated (>= 1).
         table_clearance_m: in box mode, ROI points closer than this to the table plane are dropped,
             m (>= 0).
+        steep_angle_deg: ROI pixels whose depth slope turns more than this from the camera are
+            dropped (depth ramps at edges, grazing views), deg (0..90; 0: off).
         verify_accept_fitness: the first class is kept without fitting the others when its pose
             fitness reaches this (0..1).
         verify_rmse_weight: classes are ranked by fitness - weight * inlier RMSE, 1/m (>= 0; 50: 1
@@ -140,6 +142,7 @@ class FitParams:
 
     min_roi_points: int = 30
     table_clearance_m: float = 0.004
+    steep_angle_deg: float = 0.0
     verify_accept_fitness: float = 0.9
     verify_rmse_weight: float = 50.0
     verify_inlier_m: float = 0.003
@@ -169,6 +172,8 @@ class FitParams:
         _check(self.verify_accept_fitness >= 0, 'verify_accept_fitness must be >= 0 (a '
                f'fitness; above 1: always fit every candidate), got '
                f'{self.verify_accept_fitness}')
+        _check(0 <= self.steep_angle_deg <= 90, 'steep_angle_deg must be in 0..90 (0: off), '
+               f'got {self.steep_angle_deg}')
         _check(self.verify_inlier_m >= 0, 'verify_inlier_m must be >= 0 m (0: each class at its '
                f'own voxel), got {self.verify_inlier_m}')
         _check(self.verify_overrule_margin >= 0, 'verify_overrule_margin must be >= 0, got '

@@ -99,6 +99,7 @@ from tlessbot_ros.core.pose import (
     PoseParams,
     TemplateDatabase,
     roi_cloud,
+    steep_pixels,
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
 
@@ -380,7 +381,8 @@ class PerceptionPipeline:
             detection = Detection(instance, candidates[0], view, box)
             detections.append(detection)
             if data.depth_m is not None:
-                points = roi_cloud(data.depth_m, mask, data.intrinsics, box=detection.box)
+                points = roi_cloud(data.depth_m, self._drop_steep(data, mask, detection.box),
+                                   data.intrinsics, box=detection.box)
                 T_world_camera = self.table_frame(view, data).T_world_camera
                 if box_mode and T_world_camera is not None:
                     height = transform_points(T_world_camera, points)[:, 2]
@@ -408,6 +410,22 @@ class PerceptionPipeline:
             fitter.fit_all(jobs, self.fit_part, fitted)
         dropped = {id(d) for d in arbiter.dropped}
         return [d for d in detections if id(d) not in dropped]
+
+    def _drop_steep(self, view: ViewInput, mask: np.ndarray, box: tuple[int, int, int, int]
+                    ) -> np.ndarray:
+        """``mask`` without the pixels of depth ramps and grazing surfaces
+        (``FitParams.steep_angle_deg``; :func:`~tlessbot_ros.core.pose.cloud.steep_pixels`),
+        looked at in ``box`` alone."""
+        angle = self.fit_params.steep_angle_deg
+        if angle <= 0:
+            return mask
+        x, y, w, h = box
+        y0, x0 = max(y - 1, 0), max(x - 1, 0)
+        steep = steep_pixels(view.depth_m[y0:y + h + 1, x0:x + w + 1],
+                             float(view.intrinsics.fx), angle)
+        mask = mask.copy()
+        mask[y:y + h, x:x + w] &= ~steep[y - y0:y - y0 + h, x - x0:x - x0 + w]
+        return mask
 
     def _lookalike_views(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
                          counts: dict[str, np.ndarray], boxes: dict[str, np.ndarray],
