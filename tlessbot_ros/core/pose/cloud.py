@@ -157,6 +157,20 @@ def steep_pixels(depth_m: np.ndarray, focal_px: float, max_angle_deg: float) -> 
         return ~(slope <= np.tan(np.radians(min(max_angle_deg, 89.999))))
 
 
+def drop_steep(mask: np.ndarray, depth_m: np.ndarray, box: tuple[int, int, int, int],
+               focal_px: float, max_angle_deg: float) -> np.ndarray:
+    """``mask`` (H, W) without its :func:`steep_pixels` (a copy; ``mask`` itself when
+    ``max_angle_deg`` is 0: off), looked for in ``box`` (x, y, w, h), which holds the mask."""
+    if max_angle_deg <= 0:
+        return mask
+    x, y, w, h = box
+    y0, x0 = max(y - 1, 0), max(x - 1, 0)
+    steep = steep_pixels(depth_m[y0:y + h + 1, x0:x + w + 1], focal_px, max_angle_deg)
+    mask = np.array(mask, bool)
+    mask[y:y + h, x:x + w] &= ~steep[y - y0:y - y0 + h, x - x0:x - x0 + w]
+    return mask
+
+
 def crop_box(points: np.ndarray, min_bound: np.ndarray, max_bound: np.ndarray, *,
              T_box_points: np.ndarray | None = None) -> np.ndarray:
     """Boolean (N,) mask of the points inside an axis-aligned box.
