@@ -10,7 +10,13 @@ import numpy as np
 
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.params import FitParams
-from tlessbot_ros.core.pose import FlipCheck, LookalikeCheck, PoseEstimator, TemplateDatabase
+from tlessbot_ros.core.pose import (
+    FlipCheck,
+    LookalikeCheck,
+    PoseCandidate,
+    PoseEstimator,
+    TemplateDatabase,
+)
 from tlessbot_ros.core.recognise import UNKNOWN_ID
 
 
@@ -96,7 +102,7 @@ def _verify_sample(points: np.ndarray, params: FitParams) -> np.ndarray:
 
 
 def _verify_value(estimator: PoseEstimator, params: FitParams, sample: np.ndarray, obj_id: int,
-                  best) -> float:
+                  best: PoseCandidate) -> float:
     """How well class ``obj_id`` at its fitted pose ``best`` explains the ROI: fitness -
     ``verify_rmse_weight`` * RMSE + ``fit_rank_coverage_weight`` * coverage; with
     ``verify_inlier_m`` > 0 the fitness and RMSE are taken on ``sample`` at that one tolerance
@@ -108,8 +114,8 @@ def _verify_value(estimator: PoseEstimator, params: FitParams, sample: np.ndarra
             sample, estimator.database[obj_id], best.T_camera_object,
             inlier_m=params.verify_inlier_m)
     rmse = rmse if np.isfinite(rmse) else 0.0
-    return fitness - params.verify_rmse_weight * rmse + \
-        params.fit_rank_coverage_weight * best.coverage
+    return float(fitness - params.verify_rmse_weight * rmse
+                 + params.fit_rank_coverage_weight * best.coverage)
 
 
 def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob) -> None:

@@ -154,7 +154,8 @@ def steep_pixels(depth_m: np.ndarray, focal_px: float, max_angle_deg: float) -> 
     # slope = |grad z| per pixel / (z / f) = tan of the angle between surface and image plane
     slope = np.hypot(gx, gy) * np.float32(focal_px) / z
     with np.errstate(invalid='ignore'):
-        return ~(slope <= np.tan(np.radians(min(max_angle_deg, 89.999))))
+        gentle: np.ndarray = slope <= np.tan(np.radians(min(max_angle_deg, 89.999)))
+    return ~gentle
 
 
 def drop_steep(mask: np.ndarray, depth_m: np.ndarray, box: tuple[int, int, int, int],
