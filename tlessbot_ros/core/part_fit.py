@@ -69,18 +69,26 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
 
 
 def unknown_last(params: FitParams, jobs: Sequence[PartJob],
-                 publish: Callable[[Detection], None]) -> Callable[[Detection], None]:
+                 publish: Callable[[Detection], None],
+                 estimator: PoseEstimator | None = None) -> Callable[[Detection], None]:
     """``publish`` behind the last word on each of ``jobs``' parts, taken once the fragment
     check has kept it (so that it changes nothing else): a part whose best fit explains less
     than ``unknown_below_fitness`` of its depth points, or that got no pose with
-    ``unknown_without_fit``, is reported unknown."""
-    candidates = {id(job.detection): len(job.candidates) for job in jobs}
+    ``unknown_without_fit``, is reported unknown. With ``estimator`` and ``verify_inlier_m``
+    the share is taken at that one tolerance, as the verification compares classes
+    (:func:`_verify_fitness`), else at the class's own voxel (the pose's fitness)."""
+    by_detection = {id(job.detection): job for job in jobs}
 
     def judged(detection: Detection) -> None:
-        pose = detection.pose
-        if params.unknown_without_fit if pose is None else \
-                pose.fitness < params.unknown_below_fitness:
-            mark_unknown(detection, candidates[id(detection)])
+        job, pose = by_detection[id(detection)], detection.pose
+        if pose is None:
+            unknown = params.unknown_without_fit
+        else:
+            explained = pose.fitness if estimator is None else _verify_fitness(
+                estimator, params, _verify_sample(job.points, params), detection.obj_id, pose)
+            unknown = explained < params.unknown_below_fitness
+        if unknown:
+            mark_unknown(detection, len(job.candidates))
         publish(detection)
     return judged
 
@@ -99,6 +107,18 @@ def _verify_sample(points: np.ndarray, params: FitParams) -> np.ndarray:
     if len(points) > params.verify_points:
         points = points[::int(np.ceil(len(points) / params.verify_points))]
     return points
+
+
+def _verify_fitness(estimator: PoseEstimator, params: FitParams, sample: np.ndarray,
+                    obj_id: int, best: PoseCandidate) -> float:
+    """The share of ``sample`` that class ``obj_id`` at ``best`` explains, at
+    ``verify_inlier_m`` (:meth:`~tlessbot_ros.core.pose.Refiner.surface_fit`; the pose's own
+    fitness when that is 0)."""
+    if params.verify_inlier_m <= 0:
+        return best.fitness
+    return estimator.refiner.surface_fit(sample, estimator.database[obj_id],
+                                         best.T_camera_object,
+                                         inlier_m=params.verify_inlier_m)[0]
 
 
 def _verify_value(estimator: PoseEstimator, params: FitParams, sample: np.ndarray, obj_id: int,

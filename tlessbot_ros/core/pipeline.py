@@ -400,7 +400,8 @@ class PerceptionPipeline:
             done(detection)
         # ground-truth boxes are one part each, never a fragment: in a pile the boxes of
         # long parts (keys, screws) overlap and their fits sit closer than the filter allows
-        arbiter = fragment_filter(jobs, unknown_last(self.fit_params, jobs, done), database,
+        last = unknown_last(self.fit_params, jobs, done, self.pose_estimator)
+        arbiter = fragment_filter(jobs, last, database,
                                   0.0 if box_mode else self.fit_params.fragment_overlap)
 
         def fitted(job: PartJob) -> None:
