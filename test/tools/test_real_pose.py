@@ -1,8 +1,8 @@
 """The pose stage's verification on real RealSense depth (../shared/data/sygrid_real_d435i,
 frames 0 and 1, 29 parts; skipped without the shared data): given the right class first and
-the four other parts after it, it keeps the right class. Measured: 21 of 26 fitted parts; 7 of
-16 before the classes were compared at one tolerance and ground-truth boxes stopped being
-taken for fragments (docs/bench/real-pose.md)."""
+the four other parts after it, it keeps the right class. Measured: 18 of the 23 parts that keep
+a pose (the others are judged unknown); 7 of 16 before the classes were compared at one
+tolerance and ground-truth boxes stopped being taken for fragments (docs/bench/real-pose.md)."""
 from __future__ import annotations
 
 from tlessbot_ros.core.common import SIDE
@@ -31,5 +31,5 @@ def test_verification_keeps_the_right_class_on_real_depth(shared_data, tmp_path)
             if detection.pose is not None:
                 fitted += 1
                 kept += detection.obj_id == image.gt[detection.instance_id - 1].obj_id
-    assert fitted >= 22, f'{fitted} of 29 parts fitted'
+    assert fitted >= 20, f'{fitted} of 29 parts fitted'
     assert kept >= 0.7 * fitted, f'the right class kept on {kept} of {fitted}'
