@@ -121,8 +121,8 @@ class FitParams:
             while the observed plane is within this angle, deg, and height, m.
         fit_rank_min_fitness: a part whose candidates (more than one) all fit below this is
             reported unknown, without a pose (0..1; 0: off).
-        unknown_below_fitness: a part whose best template fit explains less than this share of
-            its depth points is reported unknown, without a pose (0..1; 0: off).
+        unknown_below_fitness: a part whose fit explains less than this share of its depth
+            points (within ``verify_inlier_m``) is reported unknown, no pose (0..1; 0: off).
         unknown_without_fit: a part with depth but no fit (fewer than ``min_roi_points``
             points) is unknown too (off: it keeps the classifier's name).
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
