@@ -59,3 +59,23 @@ def test_pieces_in_different_camera_frames_are_never_compared():
     arbiter.fitted(b, np.zeros(3), 0.08, 0.9)
     arbiter.fitted(a, np.zeros(3), 0.08, 0.99)
     assert published == [b, a] and arbiter.dropped == []
+
+
+def test_ground_truth_boxes_are_never_fragments():
+    """Two long parts whose boxes overlap in a pile, fitted 3 cm apart: with the filter on the
+    worse is taken for a fragment; in box mode (overlap 0) both go out."""
+    from types import SimpleNamespace
+
+    from tlessbot_ros.core.fragments import fragment_filter
+
+    database = {5: SimpleNamespace(diameter_m=0.17)}
+    for overlap, kept in ((0.5, [1]), (0.0, [1, 2])):
+        jobs = [SimpleNamespace(detection=_Detection(i), points=np.full((50, 3), 0.03 * i),
+                                T_world_camera=None, candidates=(5,)) for i in (1, 2)]
+        for job in jobs:
+            job.detection.view = 'side'
+        published = []
+        arbiter = fragment_filter(jobs, published.append, database, overlap)
+        for job, fitness in zip(jobs, (0.9, 0.8)):
+            arbiter.fitted(job.detection, job.points[0].copy(), 0.17, fitness)
+        assert sorted(d.instance_id for d in published) == kept

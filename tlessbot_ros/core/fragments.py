@@ -17,9 +17,15 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 import numpy as np
+
+from tlessbot_ros.core.common import transform_points
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.frame import Detection, PartJob
+    from tlessbot_ros.core.pose import TemplateDatabase
 
 
 class _Numbered(Protocol):
@@ -120,3 +126,18 @@ def _better(a: _Piece[Any], b: _Piece[Any]) -> bool:
     the lower instance id (a total order, so exactly one of two is kept)."""
     return (a.score, a.points, -a.detection.instance_id) > \
         (b.score, b.points, -b.detection.instance_id)
+
+
+def fragment_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None],
+                    database: TemplateDatabase, overlap: float) -> FragmentFilter[Detection]:
+    """The :class:`FragmentFilter` of one frame's parts (``PartJob`` items): ROI centroids in
+    the world (camera frame without a table frame), first-class diameters from ``database``."""
+    pieces = []
+    for job in jobs:
+        centroid = job.points.mean(axis=0)
+        frame = 'world' if job.T_world_camera is not None else job.detection.view
+        if job.T_world_camera is not None:
+            centroid = transform_points(job.T_world_camera, centroid[None])[0]
+        pieces.append((job.detection, centroid, frame, len(job.points),
+                       database[job.candidates[0]].diameter_m))
+    return FragmentFilter(pieces, publish, overlap=overlap)

@@ -90,10 +90,17 @@ class FitParams:
         min_roi_points: fewer valid depth points than this: the pose is not estimated (>= 1).
         table_clearance_m: in box mode, ROI points closer than this to the table plane are dropped,
             m (>= 0).
+        steep_angle_deg: ROI pixels whose depth slope turns more than this from the camera are
+            dropped (depth ramps at edges, grazing views), deg (0..90; 0: off).
         verify_accept_fitness: the first class is kept without fitting the others when its pose
             fitness reaches this (0..1).
         verify_rmse_weight: classes are ranked by fitness - weight * inlier RMSE, 1/m (>= 0; 50: 1
             mm costs 0.05 fitness).
+        verify_inlier_m: classes are compared at this one tolerance from the surface, m (> 0;
+            0: each at its own voxel, the pose score).
+        verify_overrule_margin: another class replaces the classifier's first only when it
+            scores higher by more than this (>= 0).
+        verify_points: the ROI points the classes are compared on, at most (>= 1).
         fallback_min_fitness: no pose fallback for a region that no class fits better than this
             fitness (0..1): no known part.
         lookalike_check: compare a part with its look-alike twin at the fitted pose on the measured
@@ -114,8 +121,8 @@ class FitParams:
             while the observed plane is within this angle, deg, and height, m.
         fit_rank_min_fitness: a part whose candidates (more than one) all fit below this is
             reported unknown, without a pose (0..1; 0: off).
-        unknown_below_fitness: a part whose best template fit explains less than this share of
-            its depth points is reported unknown, without a pose (0..1; 0: off).
+        unknown_below_fitness: a part whose fit explains less than this share of its depth
+            points (within ``verify_inlier_m``) is reported unknown, no pose (0..1; 0: off).
         unknown_without_fit: a part with depth but no fit (fewer than ``min_roi_points``
             points) is unknown too (off: it keeps the classifier's name).
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
@@ -135,8 +142,12 @@ class FitParams:
 
     min_roi_points: int = 30
     table_clearance_m: float = 0.004
+    steep_angle_deg: float = 0.0
     verify_accept_fitness: float = 0.9
     verify_rmse_weight: float = 50.0
+    verify_inlier_m: float = 0.003
+    verify_overrule_margin: float = 0.05
+    verify_points: int = 1500
     fallback_min_fitness: float = 0.1
     lookalike_check: bool = True
     flip_check: bool = True
@@ -161,6 +172,13 @@ class FitParams:
         _check(self.verify_accept_fitness >= 0, 'verify_accept_fitness must be >= 0 (a '
                f'fitness; above 1: always fit every candidate), got '
                f'{self.verify_accept_fitness}')
+        _check(0 <= self.steep_angle_deg <= 90, 'steep_angle_deg must be in 0..90 (0: off), '
+               f'got {self.steep_angle_deg}')
+        _check(self.verify_inlier_m >= 0, 'verify_inlier_m must be >= 0 m (0: each class at its '
+               f'own voxel), got {self.verify_inlier_m}')
+        _check(self.verify_overrule_margin >= 0, 'verify_overrule_margin must be >= 0, got '
+               f'{self.verify_overrule_margin}')
+        _check(self.verify_points >= 1, f'verify_points must be >= 1, got {self.verify_points}')
         _check(self.verify_rmse_weight >= 0 and math.isfinite(self.verify_rmse_weight),
                f'verify_rmse_weight must be a finite value >= 0 (1/m), got '
                f'{self.verify_rmse_weight}')

@@ -10,7 +10,13 @@ import numpy as np
 
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.params import FitParams
-from tlessbot_ros.core.pose import FlipCheck, LookalikeCheck, PoseEstimator, TemplateDatabase
+from tlessbot_ros.core.pose import (
+    FlipCheck,
+    LookalikeCheck,
+    PoseCandidate,
+    PoseEstimator,
+    TemplateDatabase,
+)
 from tlessbot_ros.core.recognise import UNKNOWN_ID
 
 
@@ -30,15 +36,18 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
     quick = len(job.candidates) > 1 and T_world_camera is not None
     best_value, winner = None, None
     scenes: dict[float, np.ndarray] = {}   # the ROI prepared once per voxel edge
+    sample = _verify_sample(points, params) if len(job.candidates) > 1 else points
     for rank, obj_id in enumerate(job.candidates):
         result = estimator.estimate(points, obj_id, T_world_camera=T_world_camera,
                                     fallback=False if quick else None,
                                     polish=False if quick else None, scenes=scenes)
         if result.best is None:
             continue
-        value = result.best.fitness - params.verify_rmse_weight * result.best.inlier_rmse_m + \
-            params.fit_rank_coverage_weight * result.best.coverage
-        if best_value is None or value > best_value:
+        value = _verify_value(estimator, params, sample, obj_id, result.best)
+        # another class overrules the classifier's first only by a clear margin
+        margin = params.verify_overrule_margin if winner is not None and \
+            detection.class_rank == 0 else 0.0
+        if best_value is None or value > best_value + margin:
             best_value, winner = value, result
             detection.obj_id, detection.class_rank = obj_id, rank
         if rank == 0 and result.best.fitness >= params.verify_accept_fitness:
@@ -60,18 +69,26 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
 
 
 def unknown_last(params: FitParams, jobs: Sequence[PartJob],
-                 publish: Callable[[Detection], None]) -> Callable[[Detection], None]:
+                 publish: Callable[[Detection], None],
+                 estimator: PoseEstimator | None = None) -> Callable[[Detection], None]:
     """``publish`` behind the last word on each of ``jobs``' parts, taken once the fragment
     check has kept it (so that it changes nothing else): a part whose best fit explains less
     than ``unknown_below_fitness`` of its depth points, or that got no pose with
-    ``unknown_without_fit``, is reported unknown."""
-    candidates = {id(job.detection): len(job.candidates) for job in jobs}
+    ``unknown_without_fit``, is reported unknown. With ``estimator`` and ``verify_inlier_m``
+    the share is taken at that one tolerance, as the verification compares classes
+    (:func:`_verify_fitness`), else at the class's own voxel (the pose's fitness)."""
+    by_detection = {id(job.detection): job for job in jobs}
 
     def judged(detection: Detection) -> None:
-        pose = detection.pose
-        if params.unknown_without_fit if pose is None else \
-                pose.fitness < params.unknown_below_fitness:
-            mark_unknown(detection, candidates[id(detection)])
+        job, pose = by_detection[id(detection)], detection.pose
+        if pose is None:
+            unknown = params.unknown_without_fit
+        else:
+            explained = pose.fitness if estimator is None else _verify_fitness(
+                estimator, params, _verify_sample(job.points, params), detection.obj_id, pose)
+            unknown = explained < params.unknown_below_fitness
+        if unknown:
+            mark_unknown(detection, len(job.candidates))
         publish(detection)
     return judged
 
@@ -81,6 +98,44 @@ def mark_unknown(detection: Detection, rank: int) -> None:
     candidates."""
     detection.obj_id, detection.class_rank = UNKNOWN_ID, rank
     detection.pose = detection.second = None
+
+
+def _verify_sample(points: np.ndarray, params: FitParams) -> np.ndarray:
+    """The ROI points every class candidate is scored on, evenly strided to at most
+    ``verify_points``."""
+    points = np.asarray(points, np.float64)
+    if len(points) > params.verify_points:
+        points = points[::int(np.ceil(len(points) / params.verify_points))]
+    return points
+
+
+def _verify_fitness(estimator: PoseEstimator, params: FitParams, sample: np.ndarray,
+                    obj_id: int, best: PoseCandidate) -> float:
+    """The share of ``sample`` that class ``obj_id`` at ``best`` explains, at
+    ``verify_inlier_m`` (:meth:`~tlessbot_ros.core.pose.Refiner.surface_fit`; the pose's own
+    fitness when that is 0)."""
+    if params.verify_inlier_m <= 0:
+        return best.fitness
+    return estimator.refiner.surface_fit(sample, estimator.database[obj_id],
+                                         best.T_camera_object,
+                                         inlier_m=params.verify_inlier_m)[0]
+
+
+def _verify_value(estimator: PoseEstimator, params: FitParams, sample: np.ndarray, obj_id: int,
+                  best: PoseCandidate) -> float:
+    """How well class ``obj_id`` at its fitted pose ``best`` explains the ROI: fitness -
+    ``verify_rmse_weight`` * RMSE + ``fit_rank_coverage_weight`` * coverage; with
+    ``verify_inlier_m`` > 0 the fitness and RMSE are taken on ``sample`` at that one tolerance
+    for every class (:meth:`~tlessbot_ros.core.pose.Refiner.surface_fit`), else at the class's
+    own voxel (its pose score)."""
+    fitness, rmse = best.fitness, best.inlier_rmse_m
+    if params.verify_inlier_m > 0:
+        fitness, rmse = estimator.refiner.surface_fit(
+            sample, estimator.database[obj_id], best.T_camera_object,
+            inlier_m=params.verify_inlier_m)
+    rmse = rmse if np.isfinite(rmse) else 0.0
+    return float(fitness - params.verify_rmse_weight * rmse
+                 + params.fit_rank_coverage_weight * best.coverage)
 
 
 def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob) -> None:

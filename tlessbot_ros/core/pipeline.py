@@ -53,7 +53,7 @@ from tlessbot_ros.core.common import (
     transform_points,
 )
 from tlessbot_ros.core.flat_parts import check_fitted_part
-from tlessbot_ros.core.fragments import FragmentFilter
+from tlessbot_ros.core.fragments import fragment_filter
 from tlessbot_ros.core.frame import (
     ClassGuess,
     Detection,
@@ -98,6 +98,7 @@ from tlessbot_ros.core.pose import (
     PoseEstimator,
     PoseParams,
     TemplateDatabase,
+    drop_steep,
     roi_cloud,
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
@@ -352,7 +353,8 @@ class PerceptionPipeline:
                 (see :class:`ClassGuess`); 0 and ids without templates are skipped, an
                 instance without any is skipped. Several candidates are verified by their
                 pose fit (``verify_accept_fitness``, ``verify_rmse_weight``).
-            box_mode: regions are boxes, not masks (the paper's "GT box" setting).
+            box_mode: regions are boxes, not masks (the paper's "GT box" setting): one part each,
+                so none is dropped as a fragment of another.
             on_detection: called with each detection as soon as it is complete, so a node
                 can publish a part's pose without waiting for the rest of the frame (parts
                 fitted in parallel complete in any order). A fragment of a larger part
@@ -380,6 +382,8 @@ class PerceptionPipeline:
             detection = Detection(instance, candidates[0], view, box)
             detections.append(detection)
             if data.depth_m is not None:
+                mask = drop_steep(mask, data.depth_m, detection.box, float(data.intrinsics.fx),
+                                  self.fit_params.steep_angle_deg)
                 points = roi_cloud(data.depth_m, mask, data.intrinsics, box=detection.box)
                 T_world_camera = self.table_frame(view, data).T_world_camera
                 if box_mode and T_world_camera is not None:
@@ -394,7 +398,11 @@ class PerceptionPipeline:
                 if self.fit_params.unknown_without_fit:   # no depth to fit: unknown
                     mark_unknown(detection, len(candidates))
             done(detection)
-        arbiter = self._fragment_filter(jobs, unknown_last(self.fit_params, jobs, done))
+        # ground-truth boxes are one part each, never a fragment: in a pile the boxes of
+        # long parts (keys, screws) overlap and their fits sit closer than the filter allows
+        last = unknown_last(self.fit_params, jobs, done, self.pose_estimator)
+        arbiter = fragment_filter(jobs, last, database,
+                                  0.0 if box_mode else self.fit_params.fragment_overlap)
 
         def fitted(job: PartJob) -> None:
             check_fitted_part(self, job, views, labels)   # every view: not in a worker
@@ -434,21 +442,6 @@ class PerceptionPipeline:
             more.append((points, np.linalg.inv(data.T_world_camera) @
                          views[view].T_world_camera))
         return tuple(more)
-
-    def _fragment_filter(self, jobs: Sequence[PartJob],
-                         publish: Callable[[Detection], None]) -> FragmentFilter[Detection]:
-        """The :class:`~tlessbot_ros.core.fragments.FragmentFilter` of one frame's parts: ROI
-        centroids in the world (camera frame without a table frame), first-class diameters."""
-        database = pose_stage(self.pose_estimator).database
-        pieces = []
-        for job in jobs:
-            centroid = job.points.mean(axis=0)
-            frame = 'world' if job.T_world_camera is not None else job.detection.view
-            if job.T_world_camera is not None:
-                centroid = transform_points(job.T_world_camera, centroid[None])[0]
-            pieces.append((job.detection, centroid, frame, len(job.points),
-                           database[job.candidates[0]].diameter_m))
-        return FragmentFilter(pieces, publish, overlap=self.fit_params.fragment_overlap)
 
     def _fitted_centre(self, job: PartJob) -> tuple[np.ndarray | None, float, float]:
         """A fitted part's centre in its fragment-filter frame, its class's diameter and its

@@ -24,11 +24,12 @@ Parameters: ``parts_path`` (a parts folder of ``tlessbot parts build``: its temp
 names; default '': the packaged T-LESS parts), ``templates_path`` (.npz from ``tlessbot
 templates``; default: the parts folder's, else the packaged one),
 ``output_frame`` ('camera' or 'world'), ``world_frame``, ``min_fitness``,
-``verify_accept_fitness``, ``verify_rmse_weight`` and ``fallback_min_fitness`` (how candidates
+``verify_accept_fitness``, ``verify_rmse_weight``, ``verify_inlier_m``, ``verify_overrule_margin``,
+``verify_points`` and ``fallback_min_fitness`` (how candidates
 are verified), ``lookalike_check``, ``lookalike_tolerance_m``, ``lookalike_min_z`` and
 ``lookalike_all_views`` (look-alike parts told apart by their depth in both views at the fitted
 pose, checked in this process), ``flip_check`` (flat parts turned over, likewise; these and
-``min_roi_points``, ``table_clearance_m``: FitParams),
+``min_roi_points``, ``table_clearance_m``, ``steep_angle_deg``: FitParams),
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
 fits others, on frames that find ``parallel.min_spare_cores`` free beside its work or idle:

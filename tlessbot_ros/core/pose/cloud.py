@@ -132,6 +132,46 @@ def roi_cloud(depth_m: np.ndarray, mask: np.ndarray, intrinsics: CameraIntrinsic
     return rgbd_to_cloud(depth_m, intrinsics, mask=mask.astype(bool), box=box)[0]
 
 
+def steep_pixels(depth_m: np.ndarray, focal_px: float, max_angle_deg: float) -> np.ndarray:
+    """(H, W) bool: pixels whose surface turns more than ``max_angle_deg`` from facing the
+    camera, by the depth slope between their neighbours (central differences; a pixel next to
+    an invalid one counts as steep).
+
+    A stereo depth camera smooths a depth step into a ramp of a few pixels (the RealSense
+    D4xx after its spatial filter), and those pixels lie between the part and the table: on no
+    surface. Surfaces seen that obliquely are measured worst too.
+
+    Args:
+        depth_m: (H, W) depth in metres, 0 / NaN invalid.
+        focal_px: the focal length, pixels (one pixel spans depth / focal_px metres).
+        max_angle_deg: 0..90; at 90 nothing is steep but the pixels next to invalid ones.
+    """
+    z = np.where(np.isfinite(depth_m) & (depth_m > 0), depth_m, np.nan).astype(np.float32)
+    gx = np.zeros_like(z)
+    gy = np.zeros_like(z)
+    gx[:, 1:-1] = 0.5 * (z[:, 2:] - z[:, :-2])
+    gy[1:-1] = 0.5 * (z[2:] - z[:-2])
+    # slope = |grad z| per pixel / (z / f) = tan of the angle between surface and image plane
+    slope = np.hypot(gx, gy) * np.float32(focal_px) / z
+    with np.errstate(invalid='ignore'):
+        gentle: np.ndarray = slope <= np.tan(np.radians(min(max_angle_deg, 89.999)))
+    return ~gentle
+
+
+def drop_steep(mask: np.ndarray, depth_m: np.ndarray, box: tuple[int, int, int, int],
+               focal_px: float, max_angle_deg: float) -> np.ndarray:
+    """``mask`` (H, W) without its :func:`steep_pixels` (a copy; ``mask`` itself when
+    ``max_angle_deg`` is 0: off), looked for in ``box`` (x, y, w, h), which holds the mask."""
+    if max_angle_deg <= 0:
+        return mask
+    x, y, w, h = box
+    y0, x0 = max(y - 1, 0), max(x - 1, 0)
+    steep = steep_pixels(depth_m[y0:y + h + 1, x0:x + w + 1], focal_px, max_angle_deg)
+    mask = np.array(mask, bool)
+    mask[y:y + h, x:x + w] &= ~steep[y - y0:y - y0 + h, x - x0:x - x0 + w]
+    return mask
+
+
 def crop_box(points: np.ndarray, min_bound: np.ndarray, max_bound: np.ndarray, *,
              T_box_points: np.ndarray | None = None) -> np.ndarray:
     """Boolean (N,) mask of the points inside an axis-aligned box.

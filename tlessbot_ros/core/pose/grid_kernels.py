@@ -22,6 +22,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+MAX_STEP_RAD = 0.2   # the largest rotation of one Gauss-Newton step (rad), see _limit_step
+
 
 @njit(cache=True, inline='always')
 def _cell(qx: float, qy: float, qz: float, origin: np.ndarray, spacing: float,
@@ -286,6 +288,7 @@ def gauss_newton(R: np.ndarray, t: np.ndarray, points: np.ndarray, origin: np.nd
                 active[k] = stop_below <= 0.0
                 continue
             delta = np.linalg.solve(A[k] + 1e-9 * eye, b[k])
+            _limit_step(delta, planar, max_d[it])
             largest = 0.0
             for a in range(D):
                 largest = max(largest, abs(delta[a]))
@@ -302,6 +305,32 @@ def gauss_newton(R: np.ndarray, t: np.ndarray, points: np.ndarray, origin: np.nd
             if largest < stop_below:
                 active[k] = False
     return R, t
+
+
+@njit(cache=True, inline='always')
+def _limit_step(delta: np.ndarray, planar: bool, max_d: float) -> None:
+    """Scale a Gauss-Newton step in place so that its translation stays within ``max_d`` (m)
+    and its rotation within :data:`MAX_STEP_RAD`.
+
+    Every correspondence lies within ``max_d``, so a converging step is shorter; a longer
+    one comes from a direction the points do not constrain (a thin rod or a tube seen as a
+    strip of its top on real depth, the ends cut off by the table clearance: free along and
+    about its axis), where the undamped solve runs off and leaves no point in range."""
+    r0 = 1 if planar else 3
+    rot = 0.0
+    for a in range(r0):
+        rot += delta[a] * delta[a]
+    move = 0.0
+    for a in range(r0, delta.shape[0]):
+        move += delta[a] * delta[a]
+    scale = 1.0
+    if rot > MAX_STEP_RAD * MAX_STEP_RAD:
+        scale = MAX_STEP_RAD / np.sqrt(rot)
+    if move > max_d * max_d:
+        scale = min(scale, max_d / np.sqrt(move))
+    if scale < 1.0:
+        for a in range(delta.shape[0]):
+            delta[a] *= scale
 
 
 @njit(cache=True, inline='always')

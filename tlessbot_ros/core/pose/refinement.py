@@ -166,6 +166,32 @@ class Refiner:
         return PoseCandidate(np.asarray(T_camera_object, np.float64), fitness, rmse, coverage,
                              method, template, stable)
 
+    def surface_fit(self, scene_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
+                    *, inlier_m: float) -> tuple[float, float]:
+        """Fitness and RMSE of ``scene_c`` (N, 3) against the model at one absolute tolerance
+        ``inlier_m`` (m), the same for every object: a point is an inlier when it lies within
+        ``inlier_m`` of the tangent plane of its nearest model sample, searched within
+        ``max(inlier_m, voxel)``. Returns (fitness, RMSE of the inliers' plane distances, m;
+        inf without inliers).
+
+        :meth:`evaluate` measures at the object's own voxel, so a large part (a coarse voxel)
+        explains a small part's points better than the small part itself does: classes are
+        compared here instead (:func:`~tlessbot_ros.core.part_fit.fit_part`). The plane
+        distance does not depend on how densely the model is sampled."""
+        if len(scene_c) == 0:
+            return 0.0, np.inf
+        reach = max(float(inlier_m), obj.voxel_size_m)
+        q = transform_points(invert_transform(T_camera_object), scene_c)
+        dist, index = obj.model_buckets(reach).nearest(q, reach)
+        found = np.isfinite(dist)
+        normals, model = obj.model_arrays_float64()
+        plane = np.full(len(q), np.inf)
+        j = index[found]
+        plane[found] = np.abs(np.einsum('ij,ij->i', q[found] - model[j], normals[j]))
+        ok = plane <= inlier_m
+        rmse = float(np.sqrt(np.mean(plane[ok] ** 2))) if ok.any() else np.inf
+        return float(ok.mean()), rmse
+
     @staticmethod
     def coverage_radius(obj: ObjectTemplates) -> float:
         """A visible model sample is covered by a scene point within this distance (m)."""
