@@ -6,9 +6,10 @@
 
 The rule is ``FitParams.unknown_below_fitness``: a part whose best template fit explains less
 of its depth than the threshold (or whose region has too few depth points above the table to
-fit) is reported unknown. Each region is fitted once with the rule off and its best fitness
-kept; the rule at threshold t is then exactly "named and fitness >= t" (it changes nothing
-else), so one run gives the whole curve.
+fit) is reported unknown. Each region is fitted once with the rule off and the share the rule
+reads kept (``core.part_fit.explained_share``: its final pose's fit at ``verify_inlier_m``);
+the rule at threshold t is then exactly "named and share >= t" (it changes nothing else), so
+one run gives the whole curve.
 
 The threshold is chosen on renders only: ``--renders-known`` (``tlessbot simulate`` of the
 model's own parts; ground-truth boxes plus background boxes) and ``--renders-unknown``
@@ -64,7 +65,25 @@ def make_pipeline(classifier, templates):
     pipeline = PerceptionPipeline(classifier=classifier, templates=templates,
                                   fit_params=FitParams(unknown_below_fitness=0.0))
     pipeline.warm_up()
+    pipeline.roi_points = {}
+    fit_here = pipeline.fit_part
+
+    def fit_part(job):   # keep each part's ROI cloud: the rule reads its share of it
+        pipeline.roi_points[job.detection.instance_id] = job.points
+        fit_here(job)
+    pipeline.fit_part = fit_part
     return pipeline
+
+
+def explained(pipeline, detection) -> float:
+    """What the rule reads of ``detection`` (its final class and pose):
+    :func:`~tlessbot_ros.core.part_fit.explained_share` of its ROI cloud; NO_FIT: no pose."""
+    from tlessbot_ros.core.part_fit import explained_share
+
+    if detection.pose is None:
+        return NO_FIT
+    return explained_share(pipeline.fit_params, pipeline.roi_points[detection.instance_id],
+                           detection.obj_id, detection.pose, pipeline.pose_estimator)
 
 
 def fit_boxes(pipeline, image, boxes, truths, source: str, frame: int) -> list[Record]:
@@ -76,6 +95,7 @@ def fit_boxes(pipeline, image, boxes, truths, source: str, frame: int) -> list[R
     view = ViewInput(image.rgb, image.depth_m, image.intrinsics, image.T_world_camera)
     labels = {'side': box_labels(image.rgb.shape[:2], boxes)}
     guesses = pipeline.classify({'side': image.rgb}, labels, views={'side': view})
+    pipeline.roi_points.clear()
     detections = pipeline.estimate_poses({'side': view}, labels,
                                          {i: g.candidates for i, g in guesses.items()},
                                          box_mode=True)
@@ -87,7 +107,7 @@ def fit_boxes(pipeline, image, boxes, truths, source: str, frame: int) -> list[R
         fitness = DROPPED
         if detection is not None:
             named = detection.obj_id
-            fitness = NO_FIT if detection.pose is None else float(detection.pose.fitness)
+            fitness = explained(pipeline, detection)
         records.append(Record(source, frame, int(truth), int(named), fitness))
     return records
 
@@ -153,14 +173,14 @@ def visp_records(pipeline, root: Path) -> tuple[list[Record], int]:
     frames = list(visp_frames(root))
     for n, (rgb, depth, K) in enumerate(tqdm(frames, desc='visp', unit='frame')):
         depth = np.where(depth > 0, depth, np.nan).astype(np.float32)
+        pipeline.roi_points.clear()
         intrinsics = CameraIntrinsics(rgb.shape[1], rgb.shape[0], K)
         result = pipeline.process({'side': ViewInput(rgb, depth, intrinsics, None)})
         labelled = set(np.unique(result.labels['side']).tolist()) - {0}
         fitted = {d.instance_id: d for d in result.detections}
         for instance in sorted(labelled):
             d = fitted.get(instance)
-            fitness = DROPPED if d is None else NO_FIT if d.pose is None else \
-                float(d.pose.fitness)
+            fitness = DROPPED if d is None else explained(pipeline, d)
             records.append(Record('visp', n, 0, 0 if d is None else int(d.obj_id), fitness))
     return records, len(frames)
 

@@ -89,3 +89,27 @@ def test_fit_ranking_floor_keeps_its_meaning(part21):
 def test_the_threshold_is_checked():
     with pytest.raises(ValueError, match='unknown_below_fitness'):
         FitParams(unknown_below_fitness=1.5)
+
+
+def test_the_share_the_rule_reads_is_explained_share(part21, carton):
+    """scripts/unknown_by_fit.py calibrates the threshold on ``explained_share``: the rule
+    names a part exactly when that share reaches the threshold (here at verify_inlier_m, not
+    the pose's own fitness)."""
+    from tlessbot_ros.core.part_fit import explained_share
+
+    db, _, _ = part21
+    off = PerceptionPipeline(templates=db, fit_params=FitParams(unknown_below_fitness=0.0))
+    points = {}
+    fit_here = off.fit_part
+
+    def fit_part(job):
+        points[job.detection.instance_id] = job.points
+        fit_here(job)
+    off.fit_part = fit_part
+    detection = _fit(off, *carton, 5)
+    share = explained_share(off.fit_params, points[1], 5, detection.pose, off.pose_estimator)
+    assert 0 < share < 1 and share != pytest.approx(detection.pose.fitness, abs=1e-6)
+    for threshold, named in ((share - 1e-4, 5), (share + 1e-4, UNKNOWN_ID)):
+        rule = PerceptionPipeline(templates=db, fit_params=FitParams(
+            unknown_below_fitness=threshold))
+        assert _fit(rule, *carton, 5).obj_id == named

@@ -84,13 +84,23 @@ def unknown_last(params: FitParams, jobs: Sequence[PartJob],
         if pose is None:
             unknown = params.unknown_without_fit
         else:
-            explained = pose.fitness if estimator is None else _verify_fitness(
-                estimator, params, _verify_sample(job.points, params), detection.obj_id, pose)
-            unknown = explained < params.unknown_below_fitness
+            unknown = explained_share(params, job.points, detection.obj_id, pose,
+                                      estimator) < params.unknown_below_fitness
         if unknown:
             mark_unknown(detection, len(job.candidates))
         publish(detection)
     return judged
+
+
+def explained_share(params: FitParams, points: np.ndarray, obj_id: int, pose: PoseCandidate,
+                    estimator: PoseEstimator | None = None) -> float:
+    """The share of a part's ROI ``points`` that class ``obj_id`` at ``pose`` explains, as
+    the unknown rule (:func:`unknown_last`) reads it: with ``estimator``, on the verification
+    sample at ``verify_inlier_m`` (:func:`_verify_fitness`), else the pose's own fitness."""
+    if estimator is None:
+        return float(pose.fitness)
+    return float(_verify_fitness(estimator, params, _verify_sample(points, params), obj_id,
+                                 pose))
 
 
 def mark_unknown(detection: Detection, rank: int) -> None:
@@ -210,6 +220,6 @@ def pose_stage(estimator: PoseEstimator | None) -> PoseEstimator:
     return estimator
 
 
-__all__ = ['check_flip', 'check_lookalike', 'depth_checks', 'fit_part', 'flip_check',
-           'lookalike_check', 'lookalike_options', 'mark_unknown', 'pose_stage',
+__all__ = ['check_flip', 'check_lookalike', 'depth_checks', 'explained_share', 'fit_part',
+           'flip_check', 'lookalike_check', 'lookalike_options', 'mark_unknown', 'pose_stage',
            'unknown_last', 'warm_up_checks']
