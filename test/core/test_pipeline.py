@@ -138,9 +138,9 @@ def test_a_region_no_candidate_fits_gets_no_ransac_fallback(scene):
     [detection] = pipeline.estimate_poses(views, {'side': junk}, {1: (5, 21)})
     assert calls == [5, 21]      # both verified, no third (fallback) call
     assert detection.pose.fitness < FitParams().fallback_min_fitness
-    # by default such a region is reported unknown (#40 item 5)
-    [detection] = PerceptionPipeline(templates=db).estimate_poses(views, {'side': junk},
-                                                                  {1: (5, 21)})
+    # with the unknown rule on, such a region is reported unknown (#40 item 5)
+    rule_on = PerceptionPipeline(templates=db, fit_params=FitParams(unknown_below_fitness=0.7))
+    [detection] = rule_on.estimate_poses(views, {'side': junk}, {1: (5, 21)})
     assert detection.obj_id == 0 and detection.pose is None
 
 

@@ -11,6 +11,10 @@ from tlessbot_ros.core.recognise import UNKNOWN_ID
 
 SIDE = default_rig()['side']
 
+# The threshold chosen on renders (scripts/unknown_by_fit.py); the rule is off by default
+# (docs/unknown-parts.md: on real depth it also turns right names unknown).
+RENDER_THRESHOLD = 0.7
+
 
 @pytest.fixture(scope='module')
 def part21(part21_seen_from_the_side):
@@ -46,15 +50,15 @@ def carton():
 def test_an_object_no_template_fits_is_unknown_and_a_known_part_is_kept(part21, carton):
     db, views, labels = part21
     off = PerceptionPipeline(templates=db, fit_params=FitParams(unknown_below_fitness=0.0))
-    default = FitParams().unknown_below_fitness
-    assert 0 < default <= 1
+    default = RENDER_THRESHOLD
     right = _fit(off, views, labels, 21)
     assert right.obj_id == 21 and right.pose.fitness >= default
     for obj_id in (5, 21):   # the carton, named either part by the classifier
         wrong = _fit(off, *carton, obj_id)
         assert wrong.obj_id == obj_id and wrong.pose.fitness < default   # the rule's premise
 
-    on = PerceptionPipeline(templates=db)   # the default
+    on = PerceptionPipeline(templates=db, fit_params=FitParams(
+        unknown_below_fitness=RENDER_THRESHOLD))
     for obj_id in (5, 21):
         detection = _fit(on, *carton, obj_id)
         assert detection.obj_id == UNKNOWN_ID and detection.pose is None

@@ -159,7 +159,7 @@ class FitParams:
     table_plane_max_angle_deg: float = 0.1
     table_plane_max_offset_m: float = 0.001
     fit_rank_min_fitness: float = 0.0
-    unknown_below_fitness: float = 0.7
+    unknown_below_fitness: float = 0.0
     unknown_without_fit: bool = False
     fit_rank_coverage_weight: float = 0.0
     mirror: MirrorParams = field(default_factory=MirrorParams)
