@@ -1,5 +1,6 @@
-"""Flat and thin parts: the mirror check picks the face that is up; the localiser keeps a part
-4 mm thin whole on a noisy table."""
+"""Flat and thin parts: the flat parts' orientation check picks the face that is up, on the
+colour image and on the depth alone; the localiser keeps a part 4 mm thin whole on a noisy
+table."""
 from __future__ import annotations
 
 import numpy as np
@@ -16,7 +17,7 @@ from tlessbot_ros.core.common import (
 from tlessbot_ros.core.localise import SegmentationParams, segment
 from tlessbot_ros.core.localise.thin import is_thin
 from tlessbot_ros.core.pose import PoseParams, Refiner, build_database
-from tlessbot_ros.core.pose.mirror import MirrorCheck, ViewEvidence, flipped_poses, is_flat
+from tlessbot_ros.core.pose.flat import FlatCheck, ViewEvidence, flipped_poses, is_flat, is_flat_mesh
 
 SIDE = default_rig()['side']
 TABLE = (np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64),
@@ -49,7 +50,7 @@ def _scene(vertices, faces, T_world_object, *, noise_m, seed=0):
     return rgb.astype(np.uint8), np.where(view.depth_m > 0, depth, 0).astype(np.float32), part
 
 
-# ------------------------------------------------------------------------------ mirror check
+# ------------------------------------------------------------------------ the orientation check
 @pytest.fixture(scope='module')
 def notched_plate():
     """A plate 80 x 50 x 4 mm with a 15 mm notch at one corner (no symmetry in the plane: its
@@ -76,7 +77,7 @@ def test_flipped_poses_keep_the_heights_and_turn_the_face_over():
         assert T_flip[2, 2] == pytest.approx(-1.0)
 
 
-def test_mirror_check_picks_the_face_that_is_up(notched_plate):
+def test_flat_check_picks_the_face_that_is_up_on_the_image(notched_plate):
     v, f, obj = notched_plate
     assert is_flat(obj, 0.12)
     T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(35)),
@@ -85,7 +86,7 @@ def test_mirror_check_picks_the_face_that_is_up(notched_plate):
     points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
     T_camera_world = np.linalg.inv(SIDE.T_world_camera)
     T_true = T_camera_world @ T_world_object
-    check = MirrorCheck(Refiner(PoseParams()))
+    check = FlatCheck(Refiner(PoseParams()))
     # the depth alone cannot tell: the best flipped fit explains it about as well
     own, flipped, _ = check.flipped_fits(obj, T_true, points, SIDE.T_world_camera)
     assert flipped and flipped[0][1] > own - 0.1
@@ -101,17 +102,47 @@ def test_mirror_check_picks_the_face_that_is_up(notched_plate):
     assert np.linalg.norm(turned[:3, 3] - T_true[:3, 3]) < 0.005
 
 
-def test_mirror_check_leaves_thick_parts_alone(notched_plate):
+def test_flat_check_turns_a_plate_back_on_the_depth_alone(notched_plate):
+    # no colour (the pose node without colour_input): the depth of the part's pixels decides;
+    # turned over, the plate's notch lies where the table is seen, and the mesh misses pixels
+    # the part covers
+    v, f, obj = notched_plate
+    assert obj.mesh_faces is not None   # a flat part keeps its mesh for the depth round
+    T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(-20)),
+                                    [-0.01, 0.01, 0.0])
+    _, depth, mask = _scene(v, f, T_world_object, noise_m=0.0005, seed=3)
+    points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
+    T_true = np.linalg.inv(SIDE.T_world_camera) @ T_world_object
+    check = FlatCheck(Refiner(PoseParams()))
+    kept, info = check.resolve(obj, T_true, points, SIDE.T_world_camera)
+    assert kept is None and 'agreement' not in info       # no image round without colour
+    _, flipped, _ = check.flipped_fits(obj, T_true, points, SIDE.T_world_camera)
+    wrong = [T for T, _ in flipped if rotation_angle_deg(T[:3, :3], T_true[:3, :3]) > 90]
+    assert wrong
+    for T_wrong in wrong:
+        turned, info = check.resolve(obj, T_wrong, points, SIDE.T_world_camera)
+        assert turned is not None and info['depth_vote'] > 0, sorted(info.items())
+        assert rotation_angle_deg(turned[:3, :3], T_true[:3, :3]) < 5.0
+        assert np.linalg.norm(turned[:3, 3] - T_true[:3, 3]) < 0.005
+    # switched off, nothing is turned
+    from dataclasses import replace
+    off = FlatCheck(Refiner(PoseParams()), replace(check_params(), enabled=False))
+    assert not off.applies(obj)
+
+
+def test_flat_check_leaves_thick_parts_alone(notched_plate):
     from dataclasses import replace
     _, _, obj = notched_plate
-    assert MirrorCheck(Refiner(PoseParams())).applies(obj)
-    assert not MirrorCheck(Refiner(PoseParams()), replace(
+    assert FlatCheck(Refiner(PoseParams())).applies(obj)
+    assert not FlatCheck(Refiner(PoseParams()), replace(
         check_params(), flat_ratio=0.01)).applies(obj)
+    block, _ = _boxes(((0, 0, 0), (0.04, 0.03, 0.02)))
+    assert is_flat_mesh(notched_plate[0]) and not is_flat_mesh(block)
 
 
 def check_params():
-    from tlessbot_ros.core.pose.mirror import MirrorParams
-    return MirrorParams()
+    from tlessbot_ros.core.pose.flat import FlatParams
+    return FlatParams()
 
 
 # ------------------------------------------------------------------------------- thin parts
@@ -155,14 +186,14 @@ def test_a_part_taller_than_the_thin_limit_is_not_thin():
 
 def test_views_without_colour_give_no_evidence():
     # the pose node gets depth and classes only: the image checks then have nothing to read
-    from tlessbot_ros.core.flat_parts import mirror_views
+    from tlessbot_ros.core.flat_parts import colour_views
     from tlessbot_ros.core.frame import ViewInput
 
     labels = {'side': np.ones((4, 4), np.uint16)}
     blind = {'side': ViewInput(None, np.zeros((4, 4), np.float32), SIDE.intrinsics,
                                SIDE.T_world_camera)}
-    assert mirror_views(blind, labels, 1, 'side') == []
+    assert colour_views(blind, labels, 1, 'side') == []
     seeing = {'side': ViewInput(np.zeros((4, 4, 3), np.uint8), None, SIDE.intrinsics,
                                 SIDE.T_world_camera)}
-    (evidence,) = mirror_views(seeing, labels, 1, 'side')
+    (evidence,) = colour_views(seeing, labels, 1, 'side')
     assert evidence.mask.all() and np.allclose(evidence.T_view_fit, np.eye(4))

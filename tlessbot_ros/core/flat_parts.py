@@ -1,8 +1,8 @@
-"""Flat parts in the composed pipeline: the mirror check of a fitted part over every view.
+"""Flat parts in the composed pipeline: the orientation check of a fitted part over every view.
 
-:func:`check_mirror` gathers what each camera shows of a fitted part (colour, the localiser's
-label, the rig's transform from the fitted view) and lets
-:class:`~tlessbot_ros.core.pose.mirror.MirrorCheck` turn a flat part over when the image
+:func:`check_flat` gathers what each camera shows of a fitted part (colour, the localiser's
+label, the rig's transform from the fitted view; the part's depth in the other views) and lets
+:class:`~tlessbot_ros.core.pose.FlatCheck` turn a flat part over when the image or the depth
 shows the other face up.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tlessbot_ros.core.pose.mirror import MirrorCheck, ViewEvidence, refine_yaw
+from tlessbot_ros.core.pose.flat import FlatCheck, ViewEvidence, refine_yaw
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.frame import PartJob, ViewInput
@@ -23,15 +23,15 @@ if TYPE_CHECKING:
 def check_fitted_part(pipeline: PerceptionPipeline, job: PartJob,
                       views: dict[str, ViewInput], labels: dict[str, np.ndarray]) -> None:
     """The checks of a fitted part that read every view (so the pipeline runs them, not a
-    worker): the mirror check (:func:`check_mirror`), the depth's look-alike check
-    (:meth:`PerceptionPipeline.check_lookalike`), then the twins on the image
+    worker): the flat parts' orientation check (:func:`check_flat`), the depth's look-alike
+    check (:meth:`PerceptionPipeline.check_lookalike`), then the twins on the image
     (:func:`check_twins`)."""
-    check_mirror(pipeline, job, views, labels)
+    check_flat(pipeline, job, views, labels)
     pipeline.check_lookalike(job)
     check_twins(pipeline, job, views, labels)
 
 
-def mirror_views(views: dict[str, ViewInput], labels: dict[str, np.ndarray], instance: int,
+def colour_views(views: dict[str, ViewInput], labels: dict[str, np.ndarray], instance: int,
                  fit_view: str) -> list[ViewEvidence]:
     """The :class:`ViewEvidence` of part ``instance`` fitted in ``fit_view``: that view, and
     every other view with colour, the part's label and rig extrinsics for both (views without
@@ -52,31 +52,32 @@ def mirror_views(views: dict[str, ViewInput], labels: dict[str, np.ndarray], ins
     return out
 
 
-def check_mirror(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
-                 labels: dict[str, np.ndarray]) -> dict[str, float] | None:
-    """Turn ``job``'s fitted flat part over when the image shows the other face up
-    (``FitParams.mirror``); the former pose becomes the detection's ``second``. Returns what
-    decided (None when the part is not checked)."""
+def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+               labels: dict[str, np.ndarray]) -> dict[str, float] | None:
+    """Turn ``job``'s fitted flat part over when the image or the depth of its views shows
+    the other face up (:class:`~tlessbot_ros.core.pose.FlatCheck`), then check its yaw on the
+    image (``FitParams.flat``); the former pose becomes the detection's ``second``. Returns
+    what decided (None when the part is not checked)."""
     detection = job.detection
     estimator = pipeline.pose_estimator
     if estimator is None or detection.pose is None or job.T_world_camera is None:
         return None
     obj = estimator.database[detection.obj_id]
     cloud = estimator.params.cloud
-    check = MirrorCheck(estimator.refiner, pipeline.fit_params.mirror,
-                        voxel_scale=estimator.params.table_voxel_scale,
-                        sor_neighbors=cloud.sor_neighbors, sor_std_ratio=cloud.sor_std_ratio)
+    check = FlatCheck(estimator.refiner, pipeline.fit_params.flat,
+                      voxel_scale=estimator.params.table_voxel_scale,
+                      sor_neighbors=cloud.sor_neighbors, sor_std_ratio=cloud.sor_std_ratio)
     if not check.applies(obj):
         return None
-    evidence = mirror_views(views, labels, detection.instance_id, detection.view)
-    if not evidence:
-        return None
+    evidence = colour_views(views, labels, detection.instance_id, detection.view)
     T, info = check.resolve(obj, detection.pose.T_camera_object, job.points, job.T_world_camera,
-                            evidence)
+                            evidence, more_views=job.more_views)
     if T is not None:
         detection.second = detection.pose
         detection.pose = replace(detection.pose, T_camera_object=T,
                                  fitness=info['flip_fitness'])
+    if not evidence:
+        return info
     T, info['yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
                                     job.T_world_camera, evidence)
     detection.pose = replace(detection.pose, T_camera_object=T)
@@ -88,21 +89,21 @@ def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vie
     """A fitted flat part with a look-alike (one hole more, say) is named by the colour image:
     both meshes' silhouettes at the fitted pose (look-alikes share their model frame) are
     compared where they differ (:func:`~tlessbot_ros.core.pose.silhouette.disputed_votes`),
-    and the twin names the part when more than ``mirror.min_share`` of at least
-    ``mirror.min_disputed_px`` such pixels vote for it. Returns what decided (None: not
+    and the twin names the part when more than ``flat.min_share`` of at least
+    ``flat.min_disputed_px`` such pixels vote for it. Returns what decided (None: not
     checked)."""
     from tlessbot_ros.core.common import raycasting_scene
     from tlessbot_ros.core.pose.silhouette import disputed_votes, mesh_silhouette, window
 
     detection = job.detection
     estimator = pipeline.pose_estimator
-    params = pipeline.fit_params.mirror
+    params = pipeline.fit_params.flat
     if estimator is None or detection.pose is None or not params.enabled:
         return None
     database = estimator.database
     obj = database[detection.obj_id]
     twins = [database[i] for i in obj.lookalikes if i in database]
-    if not twins or obj.mesh_faces is None or not MirrorCheck(
+    if not twins or obj.mesh_faces is None or not FlatCheck(
             estimator.refiner, params).applies(obj):
         return None
     parts = [obj] + [t for t in twins if t.mesh_faces is not None]
@@ -110,7 +111,7 @@ def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vie
               for p in parts if (faces := p.mesh_faces) is not None
               and (vertices := p.mesh_vertices) is not None]   # all of them
     votes = np.zeros((len(parts), 2))
-    for view in mirror_views(views, labels, detection.instance_id, detection.view):
+    for view in colour_views(views, labels, detection.instance_id, detection.view):
         T = view.T_view_fit @ detection.pose.T_camera_object
         box = window(obj.model_points.astype(np.float64), [T], view.intrinsics, margin_px=8)
         if box is None:

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field
 
 from tlessbot_ros.core.common.table_plane import TABLE_PLANE_MODES
-from tlessbot_ros.core.pose.mirror import MirrorParams
+from tlessbot_ros.core.pose.flat import FlatParams
 
 
 def _check(ok: bool, message: str) -> None:
@@ -105,8 +105,6 @@ class FitParams:
             fitness (0..1): no known part.
         lookalike_check: compare a part with its look-alike twin at the fitted pose on the measured
             depth; the better one names it.
-        flip_check: compare a flat part with itself turned over (half turns, each refitted) on
-            the measured depth; the better pose is kept.
         lookalike_tolerance_m: a pixel votes for one look-alike when it explains the depth better
             by more than this, m (>= 0).
         lookalike_min_z: the twin overturns the class only with a vote surplus above this many
@@ -127,8 +125,8 @@ class FitParams:
             points) is unknown too (off: it keeps the classifier's name).
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
             visible surface (>= 0; 0: off).
-        mirror: flat parts: the face that is up, the yaw and a look-alike told by the colour
-            image (:class:`~tlessbot_ros.core.pose.mirror.MirrorParams`).
+        flat: flat parts: the face that is up (depth and colour image), the yaw and a look-alike
+            (image) (:class:`~tlessbot_ros.core.pose.FlatParams`).
 
     ``table_plane``: 'rig' reads heights in the extrinsics alone (no table frame without them:
     every part goes to RANSAC); 'observed' uses the plane found in each view's depth
@@ -150,7 +148,6 @@ class FitParams:
     verify_points: int = 1500
     fallback_min_fitness: float = 0.1
     lookalike_check: bool = True
-    flip_check: bool = True
     lookalike_tolerance_m: float = 0.002
     lookalike_min_z: float = 2.0
     lookalike_all_views: bool = True
@@ -162,7 +159,7 @@ class FitParams:
     unknown_below_fitness: float = 0.0
     unknown_without_fit: bool = False
     fit_rank_coverage_weight: float = 0.0
-    mirror: MirrorParams = field(default_factory=MirrorParams)
+    flat: FlatParams = field(default_factory=FlatParams)
 
     def __post_init__(self) -> None:
         _check(self.min_roi_points >= 3, f'min_roi_points must be at least 3 (a pose needs '

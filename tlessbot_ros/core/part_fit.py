@@ -4,14 +4,12 @@ on every view that sees it. A worker process runs :func:`fit_part` alone (it has
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 
 import numpy as np
 
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.params import FitParams
 from tlessbot_ros.core.pose import (
-    FlipCheck,
     LookalikeCheck,
     PoseCandidate,
     PoseEstimator,
@@ -164,27 +162,28 @@ def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob) -> None:
             if winner in job.candidates else len(job.candidates)
 
 
-def check_flip(flip: FlipCheck | None, job: PartJob) -> None:
-    """A fitted flat part is turned over when the depth of its views shows it lies the other
-    way up (:class:`~tlessbot_ros.core.pose.FlipCheck`)."""
-    detection = job.detection
-    if flip is None or detection.pose is None or detection.obj_id not in flip:
-        return
-    T, _ = flip.resolve(detection.obj_id, detection.pose.T_camera_object, job.points,
-                        more_views=job.more_views)
-    detection.pose = replace(detection.pose, T_camera_object=T)
+def flat_parts(database: TemplateDatabase, fit: FitParams) -> frozenset[int]:
+    """The ids of the parts the flat parts' orientation check turns over (``flat``: on, the
+    part flat and its mesh kept); their depth in the other views is gathered for it."""
+    from tlessbot_ros.core.pose.flat import is_flat
+
+    if not fit.flat.enabled:
+        return frozenset()
+    return frozenset(i for i, o in database.objects.items()
+                     if o.mesh_faces is not None and is_flat(o, fit.flat.flat_ratio))
 
 
-def flip_check(database: TemplateDatabase, fit: FitParams) -> FlipCheck | None:
-    """The flat parts' flip check (``flip_check``, with the look-alike check's vote settings;
-    None when it is off or no part is flat)."""
-    meshes = {o.obj_id: (vertices, faces) for o in database.objects.values()
-              if (faces := o.mesh_faces) is not None
-              and (vertices := o.mesh_vertices) is not None}
-    if not fit.flip_check or not meshes:
-        return None
-    check = FlipCheck(meshes, tolerance_m=fit.lookalike_tolerance_m, min_z=fit.lookalike_min_z)
-    return check if check.turns else None
+def warm_up_flat(database: TemplateDatabase, ids: frozenset[int]) -> None:
+    """Build the ray-casting scene of each flat part now, and cast a ray into it (Open3D
+    builds the BVH at the first query)."""
+    from tlessbot_ros.core.common import raycasting_scene
+    from tlessbot_ros.core.pose.lookalike import depth_errors
+
+    for obj_id in ids:
+        obj = database[obj_id]
+        scene = obj.derived('raycasting', lambda o=obj: raycasting_scene(o.mesh_vertices,
+                                                                        o.mesh_faces))
+        depth_errors(scene, np.eye(4), np.array([[0.0, 0.0, 1.0]]))
 
 
 def lookalike_check(database: TemplateDatabase, fit: FitParams) -> LookalikeCheck | None:
@@ -195,22 +194,16 @@ def lookalike_check(database: TemplateDatabase, fit: FitParams) -> LookalikeChec
                                     min_z=fit.lookalike_min_z)
 
 
-def depth_checks(database: TemplateDatabase, fit: FitParams
-                 ) -> tuple[LookalikeCheck | None, FlipCheck | None]:
-    """The look-alike and flip checks ``fit`` asks for (each None when off or idle)."""
-    return lookalike_check(database, fit), flip_check(database, fit)
-
-
-def warm_up_checks(*checks: LookalikeCheck | FlipCheck | None) -> None:
+def warm_up_checks(*checks: LookalikeCheck | None) -> None:
     """Build the ray-casting scenes of each check that is on."""
     for check in checks:
         if check is not None:
             check.warm_up()
 
 
-def lookalike_options(fit: FitParams) -> tuple[bool, bool, float, float]:
-    """The fields of ``fit`` the look-alike and flip checks are built with."""
-    return fit.lookalike_check, fit.flip_check, fit.lookalike_tolerance_m, fit.lookalike_min_z
+def lookalike_options(fit: FitParams) -> tuple[bool, float, float]:
+    """The fields of ``fit`` the look-alike check is built with."""
+    return fit.lookalike_check, fit.lookalike_tolerance_m, fit.lookalike_min_z
 
 
 def pose_stage(estimator: PoseEstimator | None) -> PoseEstimator:
@@ -220,6 +213,6 @@ def pose_stage(estimator: PoseEstimator | None) -> PoseEstimator:
     return estimator
 
 
-__all__ = ['check_flip', 'check_lookalike', 'depth_checks', 'explained_share', 'fit_part',
-           'flip_check', 'lookalike_check', 'lookalike_options', 'mark_unknown', 'pose_stage',
-           'unknown_last', 'warm_up_checks']
+__all__ = ['check_lookalike', 'explained_share', 'fit_part', 'flat_parts', 'lookalike_check',
+           'lookalike_options', 'mark_unknown', 'pose_stage', 'unknown_last', 'warm_up_checks',
+           'warm_up_flat']

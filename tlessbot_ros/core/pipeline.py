@@ -84,15 +84,16 @@ from tlessbot_ros.core.localise import (
 )
 from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
 from tlessbot_ros.core.part_fit import (
-    check_flip,
     check_lookalike,
-    depth_checks,
     fit_part,
+    flat_parts,
+    lookalike_check,
     lookalike_options,
     mark_unknown,
     pose_stage,
     unknown_last,
     warm_up_checks,
+    warm_up_flat,
 )
 from tlessbot_ros.core.pose import (
     PoseEstimator,
@@ -142,8 +143,8 @@ class PerceptionPipeline:
         # per view: (the depth and extrinsics it was found for, its frame)
         self._tables: dict[str, tuple[tuple[object, object], TableFrame]] = {}
         self.pose_estimator = PoseEstimator(templates, params=pose) if templates else None
-        self.lookalike, self.flip = depth_checks(templates, fit_params) if templates else \
-            (None, None)
+        self.lookalike = lookalike_check(templates, fit_params) if templates else None
+        self.flat_ids = flat_parts(templates, fit_params) if templates else frozenset()
 
     def replace(self, **changes: Any) -> PerceptionPipeline:
         """A pipeline like this one with some of the constructor's arguments changed
@@ -167,15 +168,20 @@ class PerceptionPipeline:
         old, fit = self.fit_params, new.fit_params
         if self.pose_estimator is not None and lookalike_options(old) != \
                 lookalike_options(fit):
-            new.lookalike, new.flip = depth_checks(self.pose_estimator.database, fit)
-            warm_up_checks(new.lookalike, new.flip)
+            new.lookalike = lookalike_check(self.pose_estimator.database, fit)
+            warm_up_checks(new.lookalike)
+        if self.pose_estimator is not None and old.flat != fit.flat:
+            new.flat_ids = flat_parts(self.pose_estimator.database, fit)
+            warm_up_flat(self.pose_estimator.database, new.flat_ids)
         return new
 
     def warm_up(self) -> None:
         """Build the pose stage's caches now (templates, look-alike meshes): no slow 1st frame."""
         if self.pose_estimator is not None:
             self.pose_estimator.warm_up()
-        warm_up_checks(self.lookalike, self.flip)
+        warm_up_checks(self.lookalike)
+        if self.pose_estimator is not None:
+            warm_up_flat(self.pose_estimator.database, self.flat_ids)
         if self.fit_params.table_plane != 'rig':   # compiles the plane search's loop
             flat = np.full((48, 64), 0.5, np.float32)
             find_table_plane(flat, np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]),
@@ -425,7 +431,7 @@ class PerceptionPipeline:
         other views where it has at least ``min_instance_px`` pixels, with the rig's
         transforms into them (none without extrinsics or depth, or when no candidate has a
         look-alike or is flat, or with ``lookalike_all_views`` off)."""
-        checks = [c for c in (self.lookalike, self.flip) if c is not None]
+        checks = [c for c in (self.lookalike, self.flat_ids) if c is not None]
         if not self.fit_params.lookalike_all_views or views[view].T_world_camera is None or \
                 not any(c in check for c in candidates for check in checks):
             return ()
@@ -461,8 +467,7 @@ class PerceptionPipeline:
         fit_part(pose_stage(self.pose_estimator), self.fit_params, job)
 
     def check_lookalike(self, job: PartJob) -> None:
-        """Turn a flat part over if need be, then compare it with its look-alike (part_fit)."""
-        check_flip(self.flip, job)
+        """Compare a fitted part with its look-alike on the depth (part_fit)."""
         check_lookalike(self.lookalike, job)
 
     # ---------------------------------------------------------------------------- all stages

@@ -28,8 +28,9 @@ templates``; default: the parts folder's, else the packaged one),
 ``verify_points`` and ``fallback_min_fitness`` (how candidates
 are verified), ``lookalike_check``, ``lookalike_tolerance_m``, ``lookalike_min_z`` and
 ``lookalike_all_views`` (look-alike parts told apart by their depth in both views at the fitted
-pose, checked in this process), ``flip_check`` (flat parts turned over, likewise; these and
-``min_roi_points``, ``table_clearance_m``, ``steep_angle_deg``: FitParams),
+pose, checked in this process), ``flat.*`` (flat parts: the face that is up, told by the depth
+of both views and, with ``colour_input``, the colour image; these and ``min_roi_points``,
+``table_clearance_m``, ``steep_angle_deg``: FitParams),
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
 fits others, on frames that find ``parallel.min_spare_cores`` free beside its work or idle:
@@ -42,8 +43,8 @@ localiser publishes on /localiser/rig once it refines the rig from the scene rep
 ``pose.*`` and FitParams; ``workers.count`` starts or stops workers) but ``templates_path``
 and ``parts_path`` (their objects name the pose topics), ``rig.cameras``, ``rig_source``,
 ``input_qos``, ``input_depth``, ``sync.worker_thread``, ``sync.executor``, ``colour_input``
-(with it also /CAMERA/color/image_raw: flat parts checked on the colour image, FitParams
-``mirror.*``): read-only.
+(with it also /CAMERA/color/image_raw: flat parts checked on the colour image too, FitParams
+``flat.*``): read-only.
 """
 from __future__ import annotations
 
@@ -109,7 +110,7 @@ class PoseEstimatorNode(StageNode):
         parameters = self.parameters
         self.colour_input = parameters.read_only('colour_input', False, (
             'Also subscribe to the colour images: flat parts are then checked on them '
-            '(face up, yaw, look-alike; mirror.*)'))
+            '(face up, yaw, look-alike; flat.*)'))
         parts = declare_parts(self)   # PartsFolderError: one line, exit 1
         path = parameters.read_only(
             'templates_path', str(parts.templates if parts else DEFAULT_TEMPLATES), (

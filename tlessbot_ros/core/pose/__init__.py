@@ -8,7 +8,8 @@ search and the orchestration), ``hypotheses`` (the table path's resting hypothes
 ``refinement`` (ICP, planar Gauss-Newton, scoring: swap it with ``PoseEstimator(refiner=...)``),
 ``ransac`` (the paper's FPFH + RANSAC path), ``grid_kernels``
 and ``buckets`` (the fast lookups), ``fallback`` (the bounded 6-DOF search for parts off the
-table path), ``lookalike``, ``derived`` (start-up arrays to cache).
+table path), ``lookalike``, ``flat`` (which face of a flat part is up), ``derived``
+(start-up arrays to cache).
 Surface sampling is :func:`tlessbot_ros.core.common.sample_surface`.
 
 This package's public API; names load on first use, so importing one light module
@@ -75,8 +76,10 @@ _HOME = {
     'normal_equations': 'grid_kernels',
     'self_visible': 'grid_kernels',
     'truncated_cost': 'grid_kernels',
-    'FlipCheck': 'flip',
-    'half_turns': 'flip',
+    'FlatCheck': 'flat',
+    'FlatParams': 'flat',
+    'ViewEvidence': 'flat',
+    'is_flat_mesh': 'flat',
     'LookalikeCheck': 'lookalike',
     'MISS_ERROR_M': 'lookalike',
     'Mesh': 'lookalike',
@@ -162,7 +165,12 @@ if TYPE_CHECKING:
         rotation_between,
         view_grid,
     )
-    from tlessbot_ros.core.pose.flip import FlipCheck, half_turns  # noqa: F401
+    from tlessbot_ros.core.pose.flat import (  # noqa: F401
+        FlatCheck,
+        FlatParams,
+        ViewEvidence,
+        is_flat_mesh,
+    )
     from tlessbot_ros.core.pose.grid_kernels import (  # noqa: F401
         gauss_newton,
         inlier_fraction,

@@ -36,7 +36,7 @@ from tlessbot_ros.core.pose.database import (
     Template,
     TemplateDatabase,
 )
-from tlessbot_ros.core.pose.flip import half_turns
+from tlessbot_ros.core.pose.flat import is_flat_mesh
 from tlessbot_ros.core.pose.lookalike import lookalike_pairs
 
 MIN_VIEWS, MAX_VIEWS = 2, 18
@@ -276,9 +276,9 @@ def build_database(models: Iterable[tuple[int, np.ndarray, np.ndarray,
         obj.lookalikes = others
         obj.mesh_vertices = np.asarray(meshes[obj_id][0], np.float32)
         obj.mesh_faces = np.asarray(meshes[obj_id][1], np.int32)
-    for obj_id, (vertices, faces) in meshes.items():   # flat parts: for the flip check
+    for obj_id, (vertices, faces) in meshes.items():   # flat parts: for the flat check
         obj = db.objects[obj_id]
-        if obj.mesh_faces is None and half_turns(vertices):
+        if obj.mesh_faces is None and is_flat_mesh(vertices):
             obj.mesh_vertices = np.asarray(vertices, np.float32)
             obj.mesh_faces = np.asarray(faces, np.int32)
     return db

@@ -1,4 +1,4 @@
-"""Flat parts and their mirror image: which face is up, told by what the depth cannot see.
+"""Flat parts: which face is up, told by the depth and by what the depth cannot see.
 
 A part a few millimetres thick shows the depth camera one flat face. Turned upside down
 (a half turn about an axis in the table plane) it shows the same flat face at the same height,
@@ -8,21 +8,27 @@ ADD-S, blind to the turn, accepts all 13). The outline itself is not blind to it
 asymmetric plate, a bracket or a spanner turned over shows its corner cut, its holes and its
 jaw on the other side.
 
-:class:`MirrorCheck` runs after the depth fit of a flat part (resting height at most
-``flat_ratio`` of its diameter): the fitted pose turned over about ``flips`` horizontal axes
-through the part's centre, and turned end for end about the vertical, is fitted to the depth
-again (a short ICP from each start, bounded: a fixed count of starts, not a time budget); the
-turned fits that explain the depth about as well as the winner (within ``fitness_margin``)
-compete with it on the image. Each pose's silhouette is projected into every view that sees
-the part, and (:mod:`~tlessbot_ros.core.pose.silhouette`)
+:class:`FlatCheck` is the one orientation check of a flat part (resting height at most
+``flat_ratio`` of its diameter), run after its depth fit. The fitted pose turned over about
+``flips`` horizontal axes through the part's centre, and turned end for end about the
+vertical, is fitted to the depth again (a short ICP from each start, bounded: a fixed count of
+starts, not a time budget); the turned fits that explain the depth about as well as the winner
+(within ``fitness_margin``) compete with it, in two rounds:
 
-* the pixels where two silhouettes differ vote by their colour: like the part (the pixels both
-  cover) or like its surroundings (a ring just outside both), for the silhouette that calls
-  them so; a turned pose wins with more than ``min_share`` of at least ``min_disputed_px``;
-* with fewer disputed pixels, the silhouettes' agreement with the colour image's edges (the
-  share of the outline, holes included, within a few pixels of a Canny edge: Canny, PAMI
-  1986; a one-sided chamfer match as in Barrow et al., IJCAI 1977) and with the localiser's
-  label mask decides, by ``min_gain``.
+1. on the image, where the views have colour. Each pose's silhouette is projected into every
+   view that sees the part (:mod:`~tlessbot_ros.core.pose.silhouette`): the pixels where two
+   silhouettes differ vote by their colour, like the part (the pixels both cover) or like its
+   surroundings (a ring just outside both), for the silhouette that calls them so; a turned
+   pose wins with more than ``min_share`` of at least ``min_disputed_px``. With fewer
+   disputed pixels, the silhouettes' agreement with the colour image's edges (the share of
+   the outline, holes included, within a few pixels of a Canny edge: Canny, PAMI 1986; a
+   one-sided chamfer match as in Barrow et al., IJCAI 1977) and with the localiser's label
+   mask decides, by ``min_gain``;
+2. on the depth of every view with the part's pixels (the only round without colour): each
+   pose's mesh is ray-cast along those pixels, and a pose that explains more of them than
+   the first round's winner by a clear margin (:func:`~.lookalike.pooled_vote`, within
+   ``depth_tolerance_m``, ``depth_min_z``; a pixel the mesh misses, where a hole is, counts as
+   a gross error) replaces it.
 
 The winner gets the fitted pose's polish. :func:`refine_yaw` then checks the yaw on the image
 (the depth of a part 3 mm thin holds it only by its few edge points).
@@ -51,18 +57,18 @@ from tlessbot_ros.core.pose.silhouette import (
     window,
 )
 
-if TYPE_CHECKING:   # this module is light: core.params imports MirrorParams
+if TYPE_CHECKING:   # this module is light: core.params imports FlatParams
     from tlessbot_ros.core.pose.database import ObjectTemplates
     from tlessbot_ros.core.pose.refinement import Refiner
 
 
 @dataclass(frozen=True)
-class MirrorParams:
-    """Settings of :class:`MirrorCheck` (the generated plates rest 0.03-0.06 of their
+class FlatParams:
+    """Settings of :class:`FlatCheck` (the generated plates rest 0.03-0.06 of their
     diameter high, a 20 mm block 0.34; no T-LESS part under 0.26, so none is checked).
 
     Attributes:
-        enabled: check flat parts' face, yaw and look-alike on the colour image.
+        enabled: check flat parts' face (depth and colour image), yaw and look-alike (image).
         flat_ratio: a part is flat when it rests at most this share of its diameter high (0..1).
         flips: horizontal half-turn axes tried, spread over 180° (>= 1).
         upright: also try the pose turned end for end about the vertical.
@@ -79,6 +85,10 @@ class MirrorParams:
         yaw_steps, yaw_step_deg: the yaw checked on the image this many steps of this many deg
             either way (0 steps: off).
         yaw_min_gain: a new yaw is kept when its agreement gains more than this (0..1).
+        depth_tolerance_m: a pixel votes for a pose whose depth error is lower by more than
+            this, m (>= 0).
+        depth_min_z: the depth vote overturns the pose only with a surplus above this many
+            coin-toss deviations (>= 0).
     """
 
     enabled: bool = True
@@ -96,6 +106,8 @@ class MirrorParams:
     yaw_steps: int = 4
     yaw_step_deg: float = 1.5
     yaw_min_gain: float = 0.02
+    depth_tolerance_m: float = 0.002
+    depth_min_z: float = 2.0
 
     def __post_init__(self) -> None:
         if self.flips < 1 or self.candidates < 1 or self.icp_iterations < 1 or \
@@ -107,6 +119,9 @@ class MirrorParams:
                              f'got {self.min_share}, {self.iou_weight}, {self.yaw_step_deg}')
         if not 0.0 <= self.flat_ratio <= 1.0 or self.edge_px <= 0:
             raise ValueError('flat_ratio must be in [0, 1] and edge_px positive')
+        if self.depth_tolerance_m < 0 or self.depth_min_z < 0:
+            raise ValueError(f'depth_tolerance_m and depth_min_z must be >= 0; got '
+                             f'{self.depth_tolerance_m}, {self.depth_min_z}')
 
 
 @dataclass(frozen=True)
@@ -130,6 +145,21 @@ def is_flat(obj: ObjectTemplates, ratio: float) -> bool:
     return cast(bool, height <= ratio * obj.diameter_m)
 
 
+# The template build keeps the mesh of a part whose thinnest principal extent is at most this
+# share of its middle one (the depth round ray-casts it): looser than ``flat_ratio``, so that
+# the mesh is there whatever ``flat_ratio`` a cell sets.
+MESH_FLAT_RATIO = 0.3
+
+
+def is_flat_mesh(vertices: np.ndarray, ratio: float = MESH_FLAT_RATIO) -> bool:
+    """Whether a mesh ((V, 3) vertices) is flat: its thinnest principal extent at most
+    ``ratio`` of its middle one."""
+    v = np.asarray(vertices, np.float64)
+    axes = np.linalg.svd(v - v.mean(axis=0), full_matrices=False)[2]
+    extent = np.sort(np.ptp((v - v.mean(axis=0)) @ axes.T, axis=0))
+    return bool(extent[0] <= ratio * extent[1])
+
+
 def flipped_poses(T_world_object: np.ndarray, centre_o: np.ndarray, count: int, *,
                   upright: bool = False) -> np.ndarray:
     """(count, 4, 4) ``T_world_object`` turned by half a turn about ``count`` horizontal axes
@@ -149,16 +179,16 @@ def flipped_poses(T_world_object: np.ndarray, centre_o: np.ndarray, count: int, 
     return out
 
 
-class MirrorCheck:
+class FlatCheck:
     """Turns a flat part's fitted pose over when the image says the other face is up.
 
     Args:
         refiner: the pose stage's :class:`~tlessbot_ros.core.pose.Refiner` (ICP and fitness).
-        params: :class:`MirrorParams`.
+        params: :class:`FlatParams`.
         voxel_scale: the ROI's voxel edge in object voxels (``PoseParams.table_voxel_scale``).
     """
 
-    def __init__(self, refiner: Refiner, params: MirrorParams = MirrorParams(), *,
+    def __init__(self, refiner: Refiner, params: FlatParams = FlatParams(), *,
                  voxel_scale: float = 1.0, sor_neighbors: int = 20,
                  sor_std_ratio: float = 2.0) -> None:
         self.refiner = refiner
@@ -234,42 +264,86 @@ class MirrorCheck:
         return scores / max(used, 1), share, total
 
     def resolve(self, obj: ObjectTemplates, T_camera_object: np.ndarray, points_c: np.ndarray,
-                T_world_camera: np.ndarray, views: Sequence[ViewEvidence]
+                T_world_camera: np.ndarray, views: Sequence[ViewEvidence] = (), *,
+                more_views: Sequence[tuple[np.ndarray, np.ndarray]] = ()
                 ) -> tuple[np.ndarray | None, dict[str, float]]:
         """The turned pose that replaces the fitted one (None: keep it) and what decided:
         ``{'fitness', 'flip_fitness', 'agreement', 'flip_agreement', 'flip_share',
-        'disputed_px'}`` (only the fitness when no turned fit competes).
+        'disputed_px', 'depth_vote'}`` (only the fitness when no turned fit competes).
 
-        With at least ``min_disputed_px`` pixels disputed between the two silhouettes, the
-        turned pose wins when more than ``min_share`` of them vote for it (and its agreement
-        is not lower by more than ``min_gain``); with fewer, when its agreement is higher by
-        more than ``min_gain``."""
+        Round 1, the image (``views``; none without colour): with at least
+        ``min_disputed_px`` pixels disputed between two silhouettes, a turned pose wins when
+        more than ``min_share`` of them vote for it (and its agreement is not lower by more
+        than ``min_gain``); with fewer, when its agreement is higher by more than
+        ``min_gain``. Round 2, the depth of ``points_c`` and ``more_views`` (``(points,
+        T_view_fit)`` per other view, as :attr:`~tlessbot_ros.core.frame.PartJob.more_views`):
+        the pose that beats round 1's winner by a clear margin replaces it."""
         p = self.params
-        own, flipped, scene = self.flipped_fits(obj, np.asarray(T_camera_object, np.float64),
-                                                points_c, np.asarray(T_world_camera, np.float64))
+        T0 = np.asarray(T_camera_object, np.float64)
+        own, flipped, scene = self.flipped_fits(obj, T0, points_c,
+                                                np.asarray(T_world_camera, np.float64))
         info = {'fitness': own}
         if not flipped:
             return None, info
-        scores, share, disputed = self.image_evidence(
-            obj, [T_camera_object] + [T for T, _ in flipped], views)
-        decided = disputed >= p.min_disputed_px
-        gain = np.where(decided, share - p.min_share, scores - scores[0] - p.min_gain)
-        k = 1 + int(np.argmax(gain[1:]))
-        info.update(flip_fitness=flipped[k - 1][1], agreement=float(scores[0]),
-                    flip_agreement=float(scores[k]), flip_share=float(share[k]),
-                    disputed_px=float(disputed[k]))
-        if gain[k] > 0 and (not decided[k] or scores[k] >= scores[0] - p.min_gain):
-            # the winner gets the polish the fitted pose had (every ROI point, more steps)
-            pose = self.refiner.params
-            T = self.refiner.icp_batch(scene, obj, flipped[k - 1][0][None],
-                                       iterations=max(pose.polish_iterations, p.icp_iterations),
-                                       points=len(scene),
-                                       distance_m=pose.polish_distance_voxels * obj.voxel_size_m)
-            return T[0], info
-        return None, info
+        poses = [T0] + [T for T, _ in flipped]
+        k, contest = 0, np.ones(len(poses), bool)
+        if views:
+            scores, share, disputed = self.image_evidence(obj, poses, views)
+            decided = disputed >= p.min_disputed_px
+            gain = np.where(decided, share - p.min_share, scores - scores[0] - p.min_gain)
+            best = 1 + int(np.argmax(gain[1:]))
+            info.update(agreement=float(scores[0]), flip_agreement=float(scores[best]),
+                        flip_share=float(share[best]), disputed_px=float(disputed[best]))
+            if gain[best] > 0 and (not decided[best] or scores[best] >= scores[0] - p.min_gain):
+                k = best
+            # what the colour image decided stands: the depth judges the poses it left open
+            contest = ~decided if k == 0 else np.zeros(len(poses), bool)
+        k, info['depth_vote'] = self.depth_round(obj, poses, k, points_c, more_views,
+                                                 contest=contest)
+        if k == 0:
+            return None, info
+        info['flip_fitness'] = flipped[k - 1][1]
+        # the winner gets the polish the fitted pose had (every ROI point, more steps)
+        pose = self.refiner.params
+        T = self.refiner.icp_batch(scene, obj, poses[k][None],
+                                   iterations=max(pose.polish_iterations, p.icp_iterations),
+                                   points=len(scene),
+                                   distance_m=pose.polish_distance_voxels * obj.voxel_size_m)
+        return T[0], info
+
+    def depth_round(self, obj: ObjectTemplates, poses: Sequence[np.ndarray], k: int,
+                    points_c: np.ndarray,
+                    more_views: Sequence[tuple[np.ndarray, np.ndarray]] = (), *,
+                    contest: np.ndarray | None = None) -> tuple[int, float]:
+        """(index of the pose kept, its vote): ``k`` (vote 0) unless another of ``poses``
+        (those ``contest`` marks, (K,) bool; default all) explains the depth of the part's
+        pixels in every view better than ``poses[k]`` by a clear margin
+        (:func:`~.lookalike.pooled_vote`); the depth is not read for a part without a mesh."""
+        from tlessbot_ros.core.common import raycasting_scene
+        from tlessbot_ros.core.pose.lookalike import depth_errors, pooled_vote
+
+        if obj.mesh_faces is None or obj.mesh_vertices is None:
+            return k, 0.0
+        mesh = obj.derived('raycasting', lambda: raycasting_scene(obj.mesh_vertices,
+                                                                  obj.mesh_faces))
+        clouds = [(np.eye(4), np.asarray(points_c, np.float64))] + \
+            [(np.asarray(T, np.float64), points) for points, T in more_views]
+        clouds = [(T, points) for T, points in clouds if len(points)]
+        contest = np.ones(len(poses), bool) if contest is None else np.asarray(contest, bool)
+        contest[k] = False
+        if not clouds or not contest.any():
+            return k, 0.0
+        own = [depth_errors(mesh, T @ poses[k], points) for T, points in clouds]
+        best, best_vote = k, 0.0
+        for j in np.flatnonzero(contest):
+            vote = pooled_vote([depth_errors(mesh, T @ poses[j], points) for T, points in clouds],
+                               own, self.params.depth_tolerance_m, self.params.depth_min_z)
+            if vote > best_vote:
+                best, best_vote = int(j), vote
+        return best, best_vote
 
 
-def refine_yaw(check: MirrorCheck, obj: ObjectTemplates, T_camera_object: np.ndarray,
+def refine_yaw(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np.ndarray,
                T_world_camera: np.ndarray, views: Sequence[ViewEvidence]
                ) -> tuple[np.ndarray, float]:
     """A flat part's pose turned about the vertical through its centre by the yaw among
