@@ -17,7 +17,13 @@ from tlessbot_ros.core.common import (
 from tlessbot_ros.core.localise import SegmentationParams, segment
 from tlessbot_ros.core.localise.thin import is_thin
 from tlessbot_ros.core.pose import PoseParams, Refiner, build_database
-from tlessbot_ros.core.pose.flat import FlatCheck, ViewEvidence, flipped_poses, is_flat, is_flat_mesh
+from tlessbot_ros.core.pose.flat import (
+    FlatCheck,
+    ViewEvidence,
+    flipped_poses,
+    is_flat,
+    is_flat_mesh,
+)
 
 SIDE = default_rig()['side']
 TABLE = (np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64),

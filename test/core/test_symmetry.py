@@ -167,3 +167,43 @@ def test_lying_tube_yaw_period_is_half_a_turn_with_the_origin_at_an_end():
     v, f = _tube(0.03)
     T = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi / 2), [0.0, 0.0, 0.012])
     assert yaw_period(v, f, T, tolerance_m=0.001) == pytest.approx(np.pi)
+
+
+def _plate(holes_mm):
+    """A plate 60 x 40 x 4 mm with through holes 5.2 mm wide at ``holes_mm`` ((x, y) mm):
+    (vertices m, faces)."""
+    from tlessbot_ros.tools.support.part_generator import mesh_part
+
+    def sdf(x, y, z):
+        d = np.maximum(np.maximum(np.abs(x) - 30.0, np.abs(y) - 20.0), np.abs(z - 2.0) - 2.0)
+        for hx, hy in holes_mm:
+            d = np.maximum(d, 2.6 - np.hypot(x - hx, y - hy))
+        return d
+    vertices, faces = mesh_part(sdf, np.array([-31.0, -21.0, -1.0]),
+                                np.array([31.0, 21.0, 5.0]), spacing_mm=0.5)
+    return vertices / 1000.0, faces
+
+
+def test_a_plate_with_one_off_centre_hole_has_no_symmetry():
+    from tlessbot_ros.core.common import SymmetryParams
+
+    # the plate alone, and with a hole in its centre: the three half turns of a box
+    assert detect_symmetries(*_plate([])).describe() == '4-fold'
+    assert detect_symmetries(*_plate([(0.0, 0.0)])).describe() == '4-fold'
+    # one hole off the centre: every half turn moves it, nothing maps the plate onto itself
+    holed = _plate([(15.0, -10.0)])
+    assert detect_symmetries(*holed).is_trivial, detect_symmetries(*holed).describe()
+    # the surface test alone (the outline test off) is blind to it: the hole is about 1 % of
+    # the surface, well inside the quantile the test forgives
+    assert not detect_symmetries(*holed, params=SymmetryParams(flat_ratio=0.0)).is_trivial
+
+
+def test_a_flange_with_four_bolt_holes_is_four_fold_not_continuous():
+    # a disc whose bolt holes break its continuous symmetry: the 4-fold turn about its axis
+    # and four half turns, a group of 8 (the scan's flip a degree off used to make it 48)
+    from tlessbot_ros.tools.support.part_generator import mesh_part, part_shapes
+
+    sdf, (low, high) = part_shapes()['disc_flange']
+    vertices, faces = mesh_part(sdf, low, high, spacing_mm=0.5)
+    s = detect_symmetries(vertices / 1000.0, faces)
+    assert not s.continuous and s.describe() == '8-fold'
