@@ -173,19 +173,6 @@ def flat_parts(database: TemplateDatabase, fit: FitParams) -> frozenset[int]:
                      if o.mesh_faces is not None and is_flat(o, fit.flat.flat_ratio))
 
 
-def warm_up_flat(database: TemplateDatabase, ids: frozenset[int]) -> None:
-    """Build the ray-casting scene of each flat part now, and cast a ray into it (Open3D
-    builds the BVH at the first query)."""
-    from tlessbot_ros.core.common import raycasting_scene
-    from tlessbot_ros.core.pose.lookalike import depth_errors
-
-    for obj_id in ids:
-        obj = database[obj_id]
-        scene = obj.derived('raycasting', lambda o=obj: raycasting_scene(o.mesh_vertices,
-                                                                        o.mesh_faces))
-        depth_errors(scene, np.eye(4), np.array([[0.0, 0.0, 1.0]]))
-
-
 def lookalike_check(database: TemplateDatabase, fit: FitParams) -> LookalikeCheck | None:
     """The look-alike check ``fit``'s ``lookalike_*`` ask for (None when it is off)."""
     if not fit.lookalike_check:
@@ -194,16 +181,32 @@ def lookalike_check(database: TemplateDatabase, fit: FitParams) -> LookalikeChec
                                     min_z=fit.lookalike_min_z)
 
 
-def warm_up_checks(*checks: LookalikeCheck | None) -> None:
-    """Build the ray-casting scenes of each check that is on."""
-    for check in checks:
-        if check is not None:
-            check.warm_up()
+def depth_checks(database: TemplateDatabase, fit: FitParams
+                 ) -> tuple[LookalikeCheck | None, frozenset[int]]:
+    """The look-alike check ``fit`` asks for (None when off) and the ids of the flat parts
+    (:func:`flat_parts`)."""
+    return lookalike_check(database, fit), flat_parts(database, fit)
 
 
-def lookalike_options(fit: FitParams) -> tuple[bool, float, float]:
-    """The fields of ``fit`` the look-alike check is built with."""
-    return fit.lookalike_check, fit.lookalike_tolerance_m, fit.lookalike_min_z
+def warm_up_checks(database: TemplateDatabase, lookalike: LookalikeCheck | None,
+                   flat_ids: frozenset[int] = frozenset()) -> None:
+    """Build the ray-casting scenes of the look-alike check (when on) and of the flat parts
+    now, and cast a ray into each (Open3D builds the BVH at the first query)."""
+    from tlessbot_ros.core.common import raycasting_scene
+    from tlessbot_ros.core.pose.lookalike import depth_errors
+
+    if lookalike is not None:
+        lookalike.warm_up()
+    for obj_id in flat_ids:
+        obj = database[obj_id]
+        scene = obj.derived('raycasting', lambda o=obj: raycasting_scene(o.mesh_vertices,
+                                                                        o.mesh_faces))
+        depth_errors(scene, np.eye(4), np.array([[0.0, 0.0, 1.0]]))
+
+
+def lookalike_options(fit: FitParams) -> tuple[object, ...]:
+    """The fields of ``fit`` the look-alike check and the flat parts' ids are built with."""
+    return fit.lookalike_check, fit.lookalike_tolerance_m, fit.lookalike_min_z, fit.flat
 
 
 def pose_stage(estimator: PoseEstimator | None) -> PoseEstimator:
@@ -213,6 +216,6 @@ def pose_stage(estimator: PoseEstimator | None) -> PoseEstimator:
     return estimator
 
 
-__all__ = ['check_lookalike', 'explained_share', 'fit_part', 'flat_parts', 'lookalike_check',
-           'lookalike_options', 'mark_unknown', 'pose_stage', 'unknown_last', 'warm_up_checks',
-           'warm_up_flat']
+__all__ = ['check_lookalike', 'depth_checks', 'explained_share', 'fit_part', 'flat_parts',
+           'lookalike_check', 'lookalike_options', 'mark_unknown', 'pose_stage', 'unknown_last',
+           'warm_up_checks']

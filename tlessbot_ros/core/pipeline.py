@@ -85,15 +85,13 @@ from tlessbot_ros.core.localise import (
 from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
 from tlessbot_ros.core.part_fit import (
     check_lookalike,
+    depth_checks,
     fit_part,
-    flat_parts,
-    lookalike_check,
     lookalike_options,
     mark_unknown,
     pose_stage,
     unknown_last,
     warm_up_checks,
-    warm_up_flat,
 )
 from tlessbot_ros.core.pose import (
     PoseEstimator,
@@ -143,15 +141,16 @@ class PerceptionPipeline:
         # per view: (the depth and extrinsics it was found for, its frame)
         self._tables: dict[str, tuple[tuple[object, object], TableFrame]] = {}
         self.pose_estimator = PoseEstimator(templates, params=pose) if templates else None
-        self.lookalike = lookalike_check(templates, fit_params) if templates else None
-        self.flat_ids = flat_parts(templates, fit_params) if templates else frozenset()
+        self.lookalike, self.flat_ids = depth_checks(templates, fit_params) if templates else \
+            (None, frozenset())
 
     def replace(self, **changes: Any) -> PerceptionPipeline:
         """A pipeline like this one with some of the constructor's arguments changed
         (``rig``, ``classifier``, and the ``*_params`` / ``segmentation`` / ``fusion`` /
         ``pose`` settings), like ``dataclasses.replace``. What the changes do not touch is
         shared, not rebuilt: the template database and its caches, the classifier, the
-        look-alike check unless ``lookalike_*`` changed (a new one is warmed up here).
+        look-alike and flat checks unless ``lookalike_*`` or ``flat`` changed (new ones are
+        warmed up here).
 
         Raises:
             TypeError: an argument the constructor does not take (or ``templates``).
@@ -168,20 +167,15 @@ class PerceptionPipeline:
         old, fit = self.fit_params, new.fit_params
         if self.pose_estimator is not None and lookalike_options(old) != \
                 lookalike_options(fit):
-            new.lookalike = lookalike_check(self.pose_estimator.database, fit)
-            warm_up_checks(new.lookalike)
-        if self.pose_estimator is not None and old.flat != fit.flat:
-            new.flat_ids = flat_parts(self.pose_estimator.database, fit)
-            warm_up_flat(self.pose_estimator.database, new.flat_ids)
+            new.lookalike, new.flat_ids = depth_checks(self.pose_estimator.database, fit)
+            warm_up_checks(self.pose_estimator.database, new.lookalike, new.flat_ids)
         return new
 
     def warm_up(self) -> None:
         """Build the pose stage's caches now (templates, look-alike meshes): no slow 1st frame."""
         if self.pose_estimator is not None:
             self.pose_estimator.warm_up()
-        warm_up_checks(self.lookalike)
-        if self.pose_estimator is not None:
-            warm_up_flat(self.pose_estimator.database, self.flat_ids)
+            warm_up_checks(self.pose_estimator.database, self.lookalike, self.flat_ids)
         if self.fit_params.table_plane != 'rig':   # compiles the plane search's loop
             flat = np.full((48, 64), 0.5, np.float32)
             find_table_plane(flat, np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]),

@@ -9,9 +9,9 @@ and bop_toolkit ``misc.get_symmetry_transformations``.
 Detection (:func:`detect_symmetries`) tests candidate rotations about the principal axes of the
 surface: the surface is sampled uniformly
 (:func:`~tlessbot_ros.core.common.sampling.sample_surface`), rotated, and compared with itself by
-nearest-neighbour distance against a tolerance relative to the model diameter. A flat part is
-also compared with itself where it is seen: its outline along its thin axis, holes included
-(:class:`_OutlineTest`), since the area-weighted test lets its two large faces outvote a hole.
+nearest-neighbour distance against a tolerance relative to the model diameter. A flat part's
+outline along its thin axis, holes included, must also stay (:mod:`.outline`): the area-weighted
+test lets its two large faces outvote a hole.
 """
 from __future__ import annotations
 
@@ -27,6 +27,7 @@ from tlessbot_ros.core.common.geometry import (
     rotation_about_axis,
     rotation_angle_deg,
 )
+from tlessbot_ros.core.common.outline import OutlineTest, outline_test
 from tlessbot_ros.core.common.render import o3d_tensor
 from tlessbot_ros.core.common.sampling import sample_surface
 
@@ -183,10 +184,9 @@ class SymmetryParams:
         flat_ratio: a part whose thinnest principal extent is at most this share of its middle
             one is flat: a symmetry must also keep its outline seen along the thin axis.
         outline_px: pixel of that outline image, share of the diameter (the ``tolerance``).
-        outline_samples: surface points projected into the outline image.
         outline_share: a rotation moves the outline when the pixels the two outlines dispute,
             after an opening of one pixel (features narrower than three pixels are ignored),
-            exceed this share of the outline's area.
+            exceed this share of the outline's area (``outline_samples`` points projected).
     """
 
     samples: int = 1500
@@ -224,7 +224,7 @@ class _SurfaceTest:
 
     def __init__(self, query: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
                  threshold: float, quantile: float, icp_iterations: int,
-                 outline: _OutlineTest | None = None) -> None:
+                 outline: OutlineTest | None = None) -> None:
         self.query = query
         self.outline = outline
         self.scene = o3d.t.geometry.RaycastingScene()
@@ -284,74 +284,13 @@ class _SurfaceTest:
         return T
 
 
-class _OutlineTest:
-    """A flat part seen along its thin axis: the image of its outline, holes included.
-
-    The surface test weighs the surface by area, and a plate's two large faces outvote its
-    holes, notches and cut corners (a hole 6 mm wide in a plate 60 x 40 mm is 1 % of its
-    surface): a half turn that moves one hole passes it. Seen from above, where the camera
-    sees a flat part, such a feature is as large as it is. The surface samples are projected
-    along the thin axis into an image of ``pixel_m`` pixels; a transform moves the outline when
-    the pixels where the two images differ, opened by one pixel (edges that differ by less
-    than the tolerance, the samples' speckle), exceed ``share`` of the outline's area.
-    """
-
-    def __init__(self, points: np.ndarray, axes: np.ndarray, pixel_m: float,
-                 share: float) -> None:
-        self.points = points
-        self.centre = points.mean(axis=0)
-        self.basis = axes[:2]   # the two long principal axes (rows)
-        self.pixel_m, self.share = pixel_m, share
-        uv = (points - self.centre) @ self.basis.T
-        reach = float(np.abs(uv).max()) + 3 * pixel_m
-        self.size = int(np.ceil(2 * reach / pixel_m)) + 1
-        self.origin = -reach
-        self.image = self._image(uv)
-
-    def _image(self, uv: np.ndarray) -> np.ndarray:
-        import cv2
-
-        ij = np.floor((uv - self.origin) / self.pixel_m).astype(int)
-        inside = ((ij >= 0) & (ij < self.size)).all(axis=1)
-        image = np.zeros((self.size, self.size), np.uint8)
-        image[ij[inside, 0], ij[inside, 1]] = 1
-        return cv2.morphologyEx(image, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
-
-    def disputed(self, T: np.ndarray) -> float:
-        """Share of the outline's area the outline moved by ``T`` (4, 4) disputes."""
-        import cv2
-
-        moved = self.points @ T[:3, :3].T + T[:3, 3]
-        other = self._image((moved - self.centre) @ self.basis.T)
-        differ = cv2.morphologyEx(self.image ^ other, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-        return float(np.count_nonzero(differ)) / max(1, int(np.count_nonzero(self.image)))
-
-    def moves(self, T: np.ndarray) -> bool:
-        return self.disputed(T) > self.share
-
-
-def _outline_test(vertices: np.ndarray, faces: np.ndarray, reference: np.ndarray,
-                  diameter: float, params: SymmetryParams) -> _OutlineTest | None:
-    """The :class:`_OutlineTest` of a flat part (None: the part is not flat)."""
-    centred = reference - reference.mean(axis=0)
-    axes = np.linalg.svd(centred, full_matrices=False)[2]   # rows, longest extent first
-    extent = np.ptp(centred @ axes.T, axis=0)
-    if extent[2] > params.flat_ratio * extent[1]:
-        return None
-    points, _ = sample_surface(vertices, faces, params.outline_samples, seed=params.seed + 2,
-                               scheme=_SCHEME)
-    return _OutlineTest(points, axes, params.outline_px * diameter, params.outline_share)
-
-
 def _perpendicular(axis: np.ndarray) -> np.ndarray:
     helper = np.eye(3)[int(np.argmin(np.abs(axis)))]
     v = np.cross(axis, helper)
     return cast(np.ndarray, v / np.linalg.norm(v))
 
 
-# the most rotations a closed group may hold (the octahedral group has 24, its mirror-free
-# product with a half turn 48): more means inconsistent generators
-_GROUP_LIMIT = 48
+_GROUP_LIMIT = 48   # rotations in a closed group at most: more means inconsistent generators
 
 
 def _close_group(rotations: list[np.ndarray], *, tolerance_deg: float = 3.0,
@@ -416,7 +355,10 @@ def detect_symmetries(vertices: np.ndarray, faces: np.ndarray, *,
     _, principal = np.linalg.eigh(np.cov((reference - centre).T))
     test = _SurfaceTest(query, vertices, faces, params.tolerance * diameter, params.quantile,
                         params.icp_iterations,
-                        _outline_test(vertices, faces, reference, diameter, params))
+                        outline_test(vertices, faces, reference, flat_ratio=params.flat_ratio,
+                                     pixel_m=params.outline_px * diameter,
+                                     samples=params.outline_samples, scheme=_SCHEME,
+                                     share=params.outline_share, seed=params.seed + 2))
     deviation = np.radians(params.max_axis_deviation_deg)
     candidates: list[np.ndarray] = []
     # the model frame's axes first (CAD frames are usually aligned with the symmetry axes),
@@ -434,11 +376,7 @@ def detect_symmetries(vertices: np.ndarray, faces: np.ndarray, *,
     if continuous_axis is None:
         generators, special, fold_of_special = _n_fold_generators(test, candidates, centre,
                                                                   deviation)
-    # a half turn perpendicular to the special axis found among the candidates already is the
-    # flip the scan looks for (the scan's, a degree off it, would generate rotations without end)
-    if special is not None and not any(
-            _angle(make_transform(R, np.zeros(3))) > np.pi - deviation and
-            abs(_mean_axis([R], special) @ special) < np.sin(deviation) for R in generators):
+    if special is not None and not _half_turn_across(generators, special, deviation):
         flip = _perpendicular_flip(test, special, centre, deviation,
                                    continuous=continuous_axis is not None,
                                    fold=fold_of_special, step_deg=params.plane_scan_step_deg)
@@ -446,8 +384,7 @@ def detect_symmetries(vertices: np.ndarray, faces: np.ndarray, *,
             generators.append(flip)
     group = _close_group(generators, limit=_GROUP_LIMIT)
     if len(group) >= _GROUP_LIMIT:
-        # generators a little inconsistent (a refined axis a few degrees off the true one)
-        # generate rotations without end: only those that map the surface onto itself stay
+        # inconsistent generators (an axis a degree off): keep the rotations that hold
         group = [R for R in group if test.holds(R, centre)]
     discrete = tuple(make_transform(R, centre - R @ centre) for R in group)
     if continuous_axis is not None:
@@ -528,6 +465,14 @@ def _perpendicular_flip(test: _SurfaceTest, special: np.ndarray, centre: np.ndar
     flip = _mean_axis([T[:3, :3]], best_flip[1])
     flip = flip - (flip @ special) * special  # exactly perpendicular
     return rotation_about_axis(flip / np.linalg.norm(flip), np.pi)
+
+
+def _half_turn_across(rotations: list[np.ndarray], axis: np.ndarray, deviation: float) -> bool:
+    """Whether ``rotations`` hold a half turn about an axis perpendicular to ``axis``: the flip
+    the plane scan looks for, found among the candidates already (the scan's, a degree off it,
+    would generate rotations without end)."""
+    return any(_angle(make_transform(R, np.zeros(3))) > np.pi - deviation and
+               abs(_mean_axis([R], axis) @ axis) < np.sin(deviation) for R in rotations)
 
 
 def _angle(T: np.ndarray) -> float:
