@@ -15,10 +15,11 @@ vertical, is fitted to the depth again (a short ICP from each start, bounded: a 
 starts, not a time budget); the turned fits that explain the depth about as well as the winner
 (within ``fitness_margin``) compete with it, in two rounds:
 
-1. on the image, where the views have colour. Each pose's silhouette is projected into every
-   view that sees the part (:mod:`~tlessbot_ros.core.pose.silhouette`): the pixels where two
-   silhouettes differ vote by their colour, like the part (the pixels both cover) or like its
-   surroundings (a ring just outside both), for the silhouette that calls them so; a turned
+1. on the image, where the views have colour. Each pose's silhouette (the mesh ray-cast, so
+   that a hole a few pixels wide stays open) is projected into every view that sees the part
+   (:mod:`~tlessbot_ros.core.pose.silhouette`): the pixels where two silhouettes differ
+   vote by their colour, like the part (the pixels both cover) or like its surroundings (a
+   ring just outside both), for the silhouette that calls them so; a turned
    pose wins with more than ``min_share`` of at least ``min_disputed_px``. With fewer
    disputed pixels, the silhouettes' agreement with the colour image's edges (the share of
    the outline, holes included, within a few pixels of a Canny edge: Canny, PAMI 1986; a
@@ -53,6 +54,7 @@ from tlessbot_ros.core.pose.silhouette import (
     agreement,
     disputed_votes,
     edge_distance,
+    mesh_silhouette,
     silhouette,
     window,
 )
@@ -236,10 +238,12 @@ class FlatCheck:
         (K,) share of the pixels disputed between pose k and pose 0 that vote for pose k
         (:func:`disputed_votes`, summed over the views; 0.5 for pose 0 and without any) and
         (K,) the count of those pixels. Each view is read in the window around all the
-        poses' silhouettes."""
+        poses' silhouettes: the mesh's exact ones where the part has its mesh (a hole a few
+        pixels wide stays open in them; the model samples' splats close it)."""
         p = self.params
         points = obj.model_points.astype(np.float64)
         spacing = obj.derived('sample_spacing', lambda: _sample_spacing(points))
+        scene = _mesh_scene(obj)
         scores = np.zeros(len(poses))
         votes = np.zeros((len(poses), 2))
         used = 0
@@ -252,7 +256,8 @@ class FlatCheck:
             distance = edge_distance(view.rgb, box)
             label = np.asarray(view.mask[y0:y0 + h, x0:x0 + w], bool)
             rgb = view.rgb[y0:y0 + h, x0:x0 + w]
-            masks = [silhouette(points, T_k, view.intrinsics, box, spacing) for T_k in T]
+            masks = [silhouette(points, T_k, view.intrinsics, box, spacing) if scene is None
+                     else mesh_silhouette(scene, T_k, view.intrinsics, box) for T_k in T]
             for k, mask in enumerate(masks):
                 scores[k] += agreement(mask, distance, label, edge_px=p.edge_px,
                                        iou_weight=p.iou_weight)
@@ -319,13 +324,11 @@ class FlatCheck:
         (those ``contest`` marks, (K,) bool; default all) explains the depth of the part's
         pixels in every view better than ``poses[k]`` by a clear margin
         (:func:`~.lookalike.pooled_vote`); the depth is not read for a part without a mesh."""
-        from tlessbot_ros.core.common import raycasting_scene
         from tlessbot_ros.core.pose.lookalike import depth_errors, pooled_vote
 
-        if obj.mesh_faces is None or obj.mesh_vertices is None:
+        mesh = _mesh_scene(obj)
+        if mesh is None:
             return k, 0.0
-        mesh = obj.derived('raycasting', lambda: raycasting_scene(obj.mesh_vertices,
-                                                                  obj.mesh_faces))
         clouds = [(np.eye(4), np.asarray(points_c, np.float64))] + \
             [(np.asarray(T, np.float64), points) for points, T in more_views]
         clouds = [(T, points) for T, points in clouds if len(points)]
@@ -373,6 +376,16 @@ def refine_yaw(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np.ndarr
     if scores[k] > scores[p.yaw_steps] + p.yaw_min_gain:
         return poses[k], float(yaws[k])
     return T_camera_object, 0.0
+
+
+def _mesh_scene(obj: ObjectTemplates):
+    """The ray-casting scene of the object's mesh in its model frame (cached on the object;
+    None without a mesh)."""
+    from tlessbot_ros.core.common import raycasting_scene
+
+    if obj.mesh_faces is None or obj.mesh_vertices is None:
+        return None
+    return obj.derived('raycasting', lambda: raycasting_scene(obj.mesh_vertices, obj.mesh_faces))
 
 
 def _centre(obj: ObjectTemplates) -> np.ndarray:
