@@ -192,16 +192,15 @@ def warm_up_checks(database: TemplateDatabase, lookalike: LookalikeCheck | None,
                    flat_ids: frozenset[int] = frozenset()) -> None:
     """Build the ray-casting scenes of the look-alike check (when on) and of the flat parts
     now, and cast a ray into each (Open3D builds the BVH at the first query)."""
-    from tlessbot_ros.core.common import raycasting_scene
+    from tlessbot_ros.core.pose.flat import mesh_scene
     from tlessbot_ros.core.pose.lookalike import depth_errors
 
     if lookalike is not None:
         lookalike.warm_up()
     for obj_id in flat_ids:
-        obj = database[obj_id]
-        scene = obj.derived('raycasting', lambda o=obj: raycasting_scene(o.mesh_vertices,
-                                                                        o.mesh_faces))
-        depth_errors(scene, np.eye(4), np.array([[0.0, 0.0, 1.0]]))
+        scene = mesh_scene(database[obj_id])
+        if scene is not None:
+            depth_errors(scene, np.eye(4), np.array([[0.0, 0.0, 1.0]]))
 
 
 def lookalike_options(fit: FitParams) -> tuple[object, ...]:

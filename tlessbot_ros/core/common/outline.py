@@ -56,7 +56,10 @@ def outline_test(vertices: np.ndarray, faces: np.ndarray, reference: np.ndarray,
                  share: float, seed: int, scheme: str) -> OutlineTest | None:
     """The :class:`OutlineTest` of a part (None: the part is not flat: its thinnest principal
     extent, ``reference`` (N, 3) surface samples, above ``flat_ratio`` of its middle one);
-    ``samples`` surface points (``seed``, ``scheme``: :func:`~.sampling.sample_surface`)."""
+    ``samples`` surface points (``seed``, ``scheme``: :func:`~.sampling.sample_surface`)
+    projected into pixels of ``pixel_m``; a transform moves the outline when the disputed
+    pixels, after an opening of one pixel (features narrower than three pixels are ignored),
+    exceed ``share`` of the outline's area."""
     centred = reference - reference.mean(axis=0)
     axes = np.linalg.svd(centred, full_matrices=False)[2]   # rows, longest extent first
     extent = np.ptp(centred @ axes.T, axis=0)

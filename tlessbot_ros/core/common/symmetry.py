@@ -181,12 +181,9 @@ class SymmetryParams:
             refined symmetry may deviate this much from the candidate rotation.
         icp_iterations: trimmed ICP iterations refining each candidate rotation.
         seed: seed of the surface sampling.
-        flat_ratio: a part whose thinnest principal extent is at most this share of its middle
-            one is flat: a symmetry must also keep its outline seen along the thin axis.
-        outline_px: pixel of that outline image, share of the diameter (the ``tolerance``).
-        outline_share: a rotation moves the outline when the pixels the two outlines dispute,
-            after an opening of one pixel (features narrower than three pixels are ignored),
-            exceed this share of the outline's area (``outline_samples`` points projected).
+        flat_ratio, outline_px, outline_samples, outline_share: a part whose thinnest
+            extent is at most ``flat_ratio`` of its middle one must also keep its outline:
+            :func:`~tlessbot_ros.core.common.outline.outline_test` (pixel: share of diameter).
     """
 
     samples: int = 1500

@@ -60,6 +60,8 @@ from tlessbot_ros.core.pose.silhouette import (
 )
 
 if TYPE_CHECKING:   # this module is light: core.params imports FlatParams
+    import open3d as o3d
+
     from tlessbot_ros.core.pose.database import ObjectTemplates
     from tlessbot_ros.core.pose.refinement import Refiner
 
@@ -243,7 +245,7 @@ class FlatCheck:
         p = self.params
         points = obj.model_points.astype(np.float64)
         spacing = obj.derived('sample_spacing', lambda: _sample_spacing(points))
-        scene = _mesh_scene(obj)
+        scene = mesh_scene(obj)
         scores = np.zeros(len(poses))
         votes = np.zeros((len(poses), 2))
         used = 0
@@ -326,7 +328,7 @@ class FlatCheck:
         (:func:`~.lookalike.pooled_vote`); the depth is not read for a part without a mesh."""
         from tlessbot_ros.core.pose.lookalike import depth_errors, pooled_vote
 
-        mesh = _mesh_scene(obj)
+        mesh = mesh_scene(obj)
         if mesh is None:
             return k, 0.0
         clouds = [(np.eye(4), np.asarray(points_c, np.float64))] + \
@@ -339,7 +341,8 @@ class FlatCheck:
         own = [depth_errors(mesh, T @ poses[k], points) for T, points in clouds]
         best, best_vote = k, 0.0
         for j in np.flatnonzero(contest):
-            vote = pooled_vote([depth_errors(mesh, T @ poses[j], points) for T, points in clouds],
+            vote = pooled_vote([depth_errors(mesh, T @ poses[int(j)], points)
+                                for T, points in clouds],
                                own, self.params.depth_tolerance_m, self.params.depth_min_z)
             if vote > best_vote:
                 best, best_vote = int(j), vote
@@ -378,14 +381,17 @@ def refine_yaw(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np.ndarr
     return T_camera_object, 0.0
 
 
-def _mesh_scene(obj: ObjectTemplates):
+def mesh_scene(obj: ObjectTemplates) -> o3d.t.geometry.RaycastingScene | None:
     """The ray-casting scene of the object's mesh in its model frame (cached on the object;
     None without a mesh)."""
     from tlessbot_ros.core.common import raycasting_scene
 
-    if obj.mesh_faces is None or obj.mesh_vertices is None:
+    vertices, faces = obj.mesh_vertices, obj.mesh_faces
+    if faces is None or vertices is None:
         return None
-    return obj.derived('raycasting', lambda: raycasting_scene(obj.mesh_vertices, obj.mesh_faces))
+    scene: o3d.t.geometry.RaycastingScene = obj.derived(
+        'raycasting', lambda: raycasting_scene(vertices, faces))
+    return scene
 
 
 def _centre(obj: ObjectTemplates) -> np.ndarray:
