@@ -190,6 +190,35 @@ def test_a_part_taller_than_the_thin_limit_is_not_thin():
     assert not is_thin(blob, height, (0, 0), SegmentationParams())
 
 
+def test_the_pipeline_marks_a_part_it_turned_over(notched_plate):
+    # check_flat on a fitted part lying the wrong way up: the pose is turned back, the former
+    # pose kept as second, and the detection marked (the pose node counts it as flat_turned)
+    from types import SimpleNamespace
+
+    from tlessbot_ros.core.flat_parts import check_flat
+    from tlessbot_ros.core.frame import Detection, PartJob, ViewInput
+    from tlessbot_ros.core.params import FitParams
+    from tlessbot_ros.core.pose import PoseCandidate, PoseEstimator, TemplateDatabase
+
+    v, f, obj = notched_plate
+    T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(35)),
+                                    [0.01, -0.02, 0.0])
+    rgb, depth, mask = _scene(v, f, T_world_object, noise_m=0.0005)
+    points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
+    T_true = np.linalg.inv(SIDE.T_world_camera) @ T_world_object
+    estimator = PoseEstimator(TemplateDatabase(objects={1: obj}))
+    pipeline = SimpleNamespace(pose_estimator=estimator, fit_params=FitParams())
+    _, flipped, _ = FlatCheck(estimator.refiner).flipped_fits(obj, T_true, points,
+                                                            SIDE.T_world_camera)
+    wrong = PoseCandidate(T_camera_object=flipped[0][0], fitness=1.0, inlier_rmse_m=0.001)
+    detection = Detection(1, 1, 'side', (0, 0, 1, 1), pose=wrong)
+    job = PartJob(detection, points, (1,), SIDE.T_world_camera, ())
+    views = {'side': ViewInput(rgb, depth, SIDE.intrinsics, SIDE.T_world_camera)}
+    check_flat(pipeline, job, views, {'side': mask.astype(np.uint16)})
+    assert detection.turned_over and detection.second is wrong
+    assert rotation_angle_deg(detection.pose.T_camera_object[:3, :3], T_true[:3, :3]) < 5.0
+
+
 def test_views_without_colour_give_no_evidence():
     # the pose node gets depth and classes only: the image checks then have nothing to read
     from tlessbot_ros.core.flat_parts import colour_views

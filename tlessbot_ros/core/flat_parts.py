@@ -73,6 +73,7 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
     T, info = check.resolve(obj, detection.pose.T_camera_object, job.points, job.T_world_camera,
                             evidence, more_views=job.more_views)
     if T is not None:
+        detection.turned_over = True
         detection.second = detection.pose
         detection.pose = replace(detection.pose, T_camera_object=T,
                                  fitness=info['flip_fitness'])

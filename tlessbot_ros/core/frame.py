@@ -63,6 +63,8 @@ class Detection:
             choice; more when the pose fit overruled it).
         pose, second: best and second-best pose candidates (None when not estimated).
         n_points: ROI points used.
+        turned_over: the flat parts' orientation check turned the fitted pose over (its
+            former pose is ``second``).
     """
 
     instance_id: int
@@ -75,6 +77,7 @@ class Detection:
     pose: PoseCandidate | None = None
     second: PoseCandidate | None = None
     n_points: int = 0
+    turned_over: bool = False
 
 
 @dataclass

@@ -234,7 +234,8 @@ class PoseEstimatorNode(StageNode):
     def _frame_stats(self, published: list[Detection]) -> dict[str, float]:
         fitness = [d.pose.fitness for d in published]
         stats = {'pose_objects': len(published),
-                 'fitness_mean': float(np.mean(fitness)) if fitness else 0.0}
+                 'fitness_mean': float(np.mean(fitness)) if fitness else 0.0,
+                 'flat_turned': sum(d.turned_over for d in published)}
         if self.workers is not None:
             stats.update(workers_ready=self.workers.ready_count,
                          workers_replaced=self.workers.replaced,
