@@ -113,21 +113,22 @@ def test_flat_check_turns_a_plate_back_on_the_depth_alone(notched_plate):
     # turned over, the plate's notch lies where the table is seen, and the mesh misses pixels
     # the part covers
     v, f, obj = notched_plate
-    assert obj.mesh_faces is not None   # a flat part keeps its mesh for the depth round
+    assert obj.mesh_faces is not None   # a flat part keeps its mesh for the depth's vote
     T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(-20)),
                                     [-0.01, 0.01, 0.0])
     _, depth, mask = _scene(v, f, T_world_object, noise_m=0.0005, seed=3)
     points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
     T_true = np.linalg.inv(SIDE.T_world_camera) @ T_world_object
     check = FlatCheck(Refiner(PoseParams()))
-    kept, info = check.resolve(obj, T_true, points, SIDE.T_world_camera)
-    assert kept is None and 'agreement' not in info       # no image round without colour
+    kept, vote = check.depth_turn(obj, T_true, points)
+    assert kept is None and vote == 0.0
+    assert check.resolve(obj, T_true, points, SIDE.T_world_camera, [])[0] is None  # no image
     _, flipped, _ = check.flipped_fits(obj, T_true, points, SIDE.T_world_camera)
     wrong = [T for T, _ in flipped if rotation_angle_deg(T[:3, :3], T_true[:3, :3]) > 90]
     assert wrong
     for T_wrong in wrong:
-        turned, info = check.resolve(obj, T_wrong, points, SIDE.T_world_camera)
-        assert turned is not None and info['depth_vote'] > 0, sorted(info.items())
+        turned, vote = check.depth_turn(obj, T_wrong, points)
+        assert turned is not None and vote > 0
         assert rotation_angle_deg(turned[:3, :3], T_true[:3, :3]) < 5.0
         assert np.linalg.norm(turned[:3, 3] - T_true[:3, 3]) < 0.005
     # switched off, nothing is turned

@@ -54,10 +54,10 @@ def colour_views(views: dict[str, ViewInput], labels: dict[str, np.ndarray], ins
 
 def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
                labels: dict[str, np.ndarray]) -> dict[str, float] | None:
-    """Turn ``job``'s fitted flat part over when the image or the depth of its views shows
-    the other face up (:class:`~tlessbot_ros.core.pose.FlatCheck`), then check its yaw on the
-    image (``FitParams.flat``); the former pose becomes the detection's ``second``. Returns
-    what decided (None when the part is not checked)."""
+    """Turn ``job``'s fitted flat part over when the image shows the other face up, check its
+    yaw on the image, then let the depth of its views turn it over
+    (:class:`~tlessbot_ros.core.pose.FlatCheck`, ``FitParams.flat``); the former pose becomes
+    the detection's ``second``. Returns what decided (None when the part is not checked)."""
     detection = job.detection
     estimator = pipeline.pose_estimator
     if estimator is None or detection.pose is None or job.T_world_camera is None:
@@ -70,18 +70,24 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
     if not check.applies(obj):
         return None
     evidence = colour_views(views, labels, detection.instance_id, detection.view)
-    T, info = check.resolve(obj, detection.pose.T_camera_object, job.points, job.T_world_camera,
-                            evidence, more_views=job.more_views)
+    info: dict[str, float] = {}
+    if evidence:
+        T, info = check.resolve(obj, detection.pose.T_camera_object, job.points,
+                                job.T_world_camera, evidence)
+        if T is not None:
+            detection.turned_over = True
+            detection.second = detection.pose
+            detection.pose = replace(detection.pose, T_camera_object=T,
+                                     fitness=info['flip_fitness'])
+        T, info['yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
+                                        job.T_world_camera, evidence)
+        detection.pose = replace(detection.pose, T_camera_object=T)
+    T, info['depth_turn_vote'] = check.depth_turn(obj, detection.pose.T_camera_object,
+                                                  job.points, job.more_views)
     if T is not None:
-        detection.turned_over = True
+        detection.turned_over = not detection.turned_over
         detection.second = detection.pose
-        detection.pose = replace(detection.pose, T_camera_object=T,
-                                 fitness=info['flip_fitness'])
-    if not evidence:
-        return info
-    T, info['yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
-                                    job.T_world_camera, evidence)
-    detection.pose = replace(detection.pose, T_camera_object=T)
+        detection.pose = replace(detection.pose, T_camera_object=T)
     return info
 
 

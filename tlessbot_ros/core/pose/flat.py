@@ -13,26 +13,24 @@ jaw on the other side.
 ``flips`` horizontal axes through the part's centre, and turned end for end about the
 vertical, is fitted to the depth again (a short ICP from each start, bounded: a fixed count of
 starts, not a time budget); the turned fits that explain the depth about as well as the winner
-(within ``fitness_margin``) compete with it, in two rounds:
+(within ``fitness_margin``) compete with it on the image, where the views have colour.
+Each pose's silhouette (the mesh ray-cast, so that a hole a few pixels wide stays open) is
+projected into every view that sees the part (:mod:`~tlessbot_ros.core.pose.silhouette`): the
+pixels where two silhouettes differ vote by their colour, like the part (the pixels both cover)
+or like its surroundings (a ring just outside both), for the silhouette that calls them so; a
+turned pose wins with more than ``min_share`` of at least ``min_disputed_px``. With fewer
+disputed pixels, the silhouettes' agreement with the colour image's edges (the share of the
+outline, holes included, within a few pixels of a Canny edge: Canny, PAMI 1986; a one-sided
+chamfer match as in Barrow et al., IJCAI 1977) and with the localiser's label mask decides, by
+``min_gain``. The winner gets the fitted pose's polish, and :func:`refine_yaw` checks the yaw
+on the image (the depth of a part 3 mm thin holds it only by its few edge points).
 
-1. on the image, where the views have colour. Each pose's silhouette (the mesh ray-cast, so
-   that a hole a few pixels wide stays open) is projected into every view that sees the part
-   (:mod:`~tlessbot_ros.core.pose.silhouette`): the pixels where two silhouettes differ
-   vote by their colour, like the part (the pixels both cover) or like its surroundings (a
-   ring just outside both), for the silhouette that calls them so; a turned
-   pose wins with more than ``min_share`` of at least ``min_disputed_px``. With fewer
-   disputed pixels, the silhouettes' agreement with the colour image's edges (the share of
-   the outline, holes included, within a few pixels of a Canny edge: Canny, PAMI 1986; a
-   one-sided chamfer match as in Barrow et al., IJCAI 1977) and with the localiser's label
-   mask decides, by ``min_gain``;
-2. on the depth of every view with the part's pixels (the only round without colour): each
-   pose's mesh is ray-cast along those pixels, and a pose that explains more of them than
-   the first round's winner by a clear margin (:func:`~.lookalike.pooled_vote`, within
-   ``depth_tolerance_m``, ``depth_min_z``; a pixel the mesh misses, where a hole is, counts as
-   a gross error) replaces it.
-
-The winner gets the fitted pose's polish. :func:`refine_yaw` then checks the yaw on the image
-(the depth of a part 3 mm thin holds it only by its few edge points).
+The depth has the last word (:meth:`FlatCheck.depth_turn`; the only one without colour): the
+final pose turned by half a turn about each principal axis of the mesh, each refitted to the
+ROI cloud, is ray-cast along the part's depth pixels in every view, and a turn that explains
+more of them by a clear margin (:func:`~.lookalike.pooled_vote`, within
+``depth_tolerance_m``, ``depth_min_z``; a pixel the mesh misses, where a hole is, counts as a
+gross error) replaces it.
 
 Poses are ``T_camera_object`` (4, 4) float64, metres, optical frame.
 """
@@ -271,20 +269,16 @@ class FlatCheck:
         return scores / max(used, 1), share, total
 
     def resolve(self, obj: ObjectTemplates, T_camera_object: np.ndarray, points_c: np.ndarray,
-                T_world_camera: np.ndarray, views: Sequence[ViewEvidence] = (), *,
-                more_views: Sequence[tuple[np.ndarray, np.ndarray]] = ()
+                T_world_camera: np.ndarray, views: Sequence[ViewEvidence]
                 ) -> tuple[np.ndarray | None, dict[str, float]]:
-        """The turned pose that replaces the fitted one (None: keep it) and what decided:
-        ``{'fitness', 'flip_fitness', 'agreement', 'flip_agreement', 'flip_share',
-        'disputed_px', 'depth_vote'}`` (only the fitness when no turned fit competes).
+        """The turned pose that replaces the fitted one on the image (None: keep it) and what
+        decided: ``{'fitness', 'flip_fitness', 'agreement', 'flip_agreement', 'flip_share',
+        'disputed_px'}`` (only the fitness when no turned fit competes or no view has colour).
 
-        Round 1, the image (``views``; none without colour): with at least
-        ``min_disputed_px`` pixels disputed between two silhouettes, a turned pose wins when
-        more than ``min_share`` of them vote for it (and its agreement is not lower by more
-        than ``min_gain``); with fewer, when its agreement is higher by more than
-        ``min_gain``. Round 2, the depth of ``points_c`` and ``more_views`` (``(points,
-        T_view_fit)`` per other view, as :attr:`~tlessbot_ros.core.frame.PartJob.more_views`):
-        the pose that beats round 1's winner by a clear margin replaces it."""
+        With at least ``min_disputed_px`` pixels disputed between two silhouettes, a turned
+        pose wins when more than ``min_share`` of them vote for it (and its agreement is not
+        lower by more than ``min_gain``); with fewer, when its agreement is higher by more
+        than ``min_gain``."""
         p = self.params
         T0 = np.asarray(T_camera_object, np.float64)
         own, flipped, scene = self.flipped_fits(obj, T0, points_c,
@@ -293,21 +287,15 @@ class FlatCheck:
         if not flipped:
             return None, info
         poses = [T0] + [T for T, _ in flipped]
-        k, contest = 0, np.ones(len(poses), bool)
-        if views:
-            scores, share, disputed = self.image_evidence(obj, poses, views)
-            decided = disputed >= p.min_disputed_px
-            gain = np.where(decided, share - p.min_share, scores - scores[0] - p.min_gain)
-            best = 1 + int(np.argmax(gain[1:]))
-            info.update(agreement=float(scores[0]), flip_agreement=float(scores[best]),
-                        flip_share=float(share[best]), disputed_px=float(disputed[best]))
-            if gain[best] > 0 and (not decided[best] or scores[best] >= scores[0] - p.min_gain):
-                k = best
-            # what the colour image decided stands: the depth judges the poses it left open
-            contest = ~decided if k == 0 else np.zeros(len(poses), bool)
-        k, info['depth_vote'] = self.depth_round(obj, poses, k, points_c, more_views,
-                                                 contest=contest)
-        if k == 0:
+        if not views:
+            return None, info
+        scores, share, disputed = self.image_evidence(obj, poses, views)
+        decided = disputed >= p.min_disputed_px
+        gain = np.where(decided, share - p.min_share, scores - scores[0] - p.min_gain)
+        k = 1 + int(np.argmax(gain[1:]))
+        info.update(agreement=float(scores[0]), flip_agreement=float(scores[k]),
+                    flip_share=float(share[k]), disputed_px=float(disputed[k]))
+        if gain[k] <= 0 or (decided[k] and scores[k] < scores[0] - p.min_gain):
             return None, info
         info['flip_fitness'] = flipped[k - 1][1]
         # the winner gets the polish the fitted pose had (every ROI point, more steps)
@@ -318,34 +306,37 @@ class FlatCheck:
                                    distance_m=pose.polish_distance_voxels * obj.voxel_size_m)
         return T[0], info
 
-    def depth_round(self, obj: ObjectTemplates, poses: Sequence[np.ndarray], k: int,
-                    points_c: np.ndarray,
-                    more_views: Sequence[tuple[np.ndarray, np.ndarray]] = (), *,
-                    contest: np.ndarray | None = None) -> tuple[int, float]:
-        """(index of the pose kept, its vote): ``k`` (vote 0) unless another of ``poses``
-        (those ``contest`` marks, (K,) bool; default all) explains the depth of the part's
-        pixels in every view better than ``poses[k]`` by a clear margin
-        (:func:`~.lookalike.pooled_vote`); the depth is not read for a part without a mesh."""
+    def depth_turn(self, obj: ObjectTemplates, T_camera_object: np.ndarray,
+                   points_c: np.ndarray,
+                   more_views: Sequence[tuple[np.ndarray, np.ndarray]] = ()
+                   ) -> tuple[np.ndarray | None, float]:
+        """The last word of the depth on the final pose (after the image and the yaw): the pose
+        turned by half a turn about each principal axis of the mesh (through the centre of its
+        principal box), each refitted to the ROI cloud point-to-plane (:func:`_refit`), replaces
+        it when it explains the depth of every view better by a clear margin. Returns (the
+        turned pose or None, its vote)."""
         from tlessbot_ros.core.pose.lookalike import depth_errors, pooled_vote
 
         mesh = mesh_scene(obj)
-        if mesh is None:
-            return k, 0.0
+        if mesh is None or obj.mesh_vertices is None:
+            return None, 0.0
+        vertices = obj.mesh_vertices
+        turns = obj.derived('half_turns', lambda: _half_turns(vertices))
+        T0 = np.asarray(T_camera_object, np.float64)
         clouds = [(np.eye(4), np.asarray(points_c, np.float64))] + \
             [(np.asarray(T, np.float64), points) for points, T in more_views]
         clouds = [(T, points) for T, points in clouds if len(points)]
-        contest = np.ones(len(poses), bool) if contest is None else np.asarray(contest, bool)
-        contest[k] = False
-        if not clouds or not contest.any():
-            return k, 0.0
-        own = [depth_errors(mesh, T @ poses[k], points) for T, points in clouds]
-        best, best_vote = k, 0.0
-        for j in np.flatnonzero(contest):
-            vote = pooled_vote([depth_errors(mesh, T @ poses[int(j)], points)
-                                for T, points in clouds],
+        if not clouds:
+            return None, 0.0
+        own = [depth_errors(mesh, T @ T0, points) for T, points in clouds]
+        best: np.ndarray | None = None
+        best_vote = 0.0
+        for turn in turns:
+            turned = _refit(obj, T0 @ turn, points_c)
+            vote = pooled_vote([depth_errors(mesh, T @ turned, points) for T, points in clouds],
                                own, self.params.depth_tolerance_m, self.params.depth_min_z)
             if vote > best_vote:
-                best, best_vote = int(j), vote
+                best, best_vote = turned, vote
         return best, best_vote
 
 
@@ -392,6 +383,51 @@ def mesh_scene(obj: ObjectTemplates) -> o3d.t.geometry.RaycastingScene | None:
     scene: o3d.t.geometry.RaycastingScene = obj.derived(
         'raycasting', lambda: raycasting_scene(vertices, faces))
     return scene
+
+
+def _half_turns(vertices: np.ndarray) -> list[np.ndarray]:
+    """The (4, 4) half turns (model frame) about the three principal axes of a mesh's
+    vertices, through the centre of its principal-axis box."""
+    v = np.asarray(vertices, np.float64)
+    mean = v.mean(axis=0)
+    axes = np.linalg.svd(v - mean, full_matrices=False)[2]
+    coords = (v - mean) @ axes.T
+    centre = mean + ((coords.max(axis=0) + coords.min(axis=0)) / 2.0) @ axes
+    turns = []
+    for axis in axes:
+        T = np.eye(4)
+        T[:3, :3] = rotation_about_axis(axis, np.pi)
+        T[:3, 3] = centre - T[:3, :3] @ centre
+        turns.append(T)
+    return turns
+
+
+def _refit(obj: ObjectTemplates, T_camera_object: np.ndarray, points_c: np.ndarray
+           ) -> np.ndarray:
+    """``T_camera_object`` refined by point-to-plane ICP of the ROI cloud onto the mesh's
+    surface (Chen & Medioni 1992; Open3D), within 3 mm, at most 20 iterations."""
+    import open3d as o3d
+
+    from tlessbot_ros.core.common import sample_surface
+
+    vertices, faces = obj.mesh_vertices, obj.mesh_faces
+    assert vertices is not None and faces is not None
+
+    def surface() -> o3d.geometry.PointCloud:
+        points, normals = sample_surface(vertices, faces, 3000, seed=0)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        cloud.normals = o3d.utility.Vector3dVector(normals)
+        return cloud
+
+    target = obj.derived('surface_cloud', surface)
+    T_inv = np.linalg.inv(T_camera_object)
+    source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(
+        np.asarray(points_c, np.float64) @ T_inv[:3, :3].T + T_inv[:3, 3]))
+    result = o3d.pipelines.registration.registration_icp(
+        source, target, 0.003, np.eye(4),
+        o3d.pipelines.registration.TransformationEstimationPointToPlane(),
+        o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=20))
+    return np.asarray(T_camera_object @ np.linalg.inv(result.transformation))
 
 
 def _centre(obj: ObjectTemplates) -> np.ndarray:
