@@ -14,8 +14,8 @@ jaw on the other side.
 vertical, is fitted to the depth again (a short ICP from each start, bounded: a fixed count of
 starts, not a time budget); the turned fits that explain the depth about as well as the winner
 (within ``fitness_margin``) compete with it on the image, where the views have colour.
-Each pose's silhouette (the mesh ray-cast, so that a hole a few pixels wide stays open) is
-projected into every view that sees the part (:mod:`~tlessbot_ros.core.pose.silhouette`): the
+Each pose's silhouette (the model's surface samples, splatted) is projected into every view
+that sees the part (:mod:`~tlessbot_ros.core.pose.silhouette`): the
 pixels where two silhouettes differ vote by their colour, like the part (the pixels both cover)
 or like its surroundings (a ring just outside both), for the silhouette that calls them so; a
 turned pose wins with more than ``min_share`` of at least ``min_disputed_px``. With fewer
@@ -52,7 +52,6 @@ from tlessbot_ros.core.pose.silhouette import (
     agreement,
     disputed_votes,
     edge_distance,
-    mesh_silhouette,
     silhouette,
     window,
 )
@@ -238,12 +237,10 @@ class FlatCheck:
         (K,) share of the pixels disputed between pose k and pose 0 that vote for pose k
         (:func:`disputed_votes`, summed over the views; 0.5 for pose 0 and without any) and
         (K,) the count of those pixels. Each view is read in the window around all the
-        poses' silhouettes: the mesh's exact ones where the part has its mesh (a hole a few
-        pixels wide stays open in them; the model samples' splats close it)."""
+        poses' silhouettes."""
         p = self.params
         points = obj.model_points.astype(np.float64)
         spacing = obj.derived('sample_spacing', lambda: _sample_spacing(points))
-        scene = mesh_scene(obj)
         scores = np.zeros(len(poses))
         votes = np.zeros((len(poses), 2))
         used = 0
@@ -256,8 +253,7 @@ class FlatCheck:
             distance = edge_distance(view.rgb, box)
             label = np.asarray(view.mask[y0:y0 + h, x0:x0 + w], bool)
             rgb = view.rgb[y0:y0 + h, x0:x0 + w]
-            masks = [silhouette(points, T_k, view.intrinsics, box, spacing) if scene is None
-                     else mesh_silhouette(scene, T_k, view.intrinsics, box) for T_k in T]
+            masks = [silhouette(points, T_k, view.intrinsics, box, spacing) for T_k in T]
             for k, mask in enumerate(masks):
                 scores[k] += agreement(mask, distance, label, edge_px=p.edge_px,
                                        iou_weight=p.iou_weight)
