@@ -35,8 +35,10 @@ def _rate_this_host_keeps_up_with(lockstep: dict) -> float:
     previous one is answered, so the slowest interval between publications is the longest
     trip through the graph; free-running with two frames in flight then keeps up. (A busy CI
     machine took over 0.5 s a frame and lost frames at 2 frames/s by design: dropped at the
-    entrance. At the recorded rate on a quiet machine: docs/bench/free-running.md.)"""
-    return min(1.0, (1.0 / FPS) / max(lockstep['frame_intervals_s']))
+    entrance. At the recorded rate on a quiet machine: docs/bench/free-running.md.) Half that
+    rate, since the host's load can change between the two runs (once, with other work
+    starting beside the test, one frame of six was dropped at the full one)."""
+    return min(1.0, 0.5 * (1.0 / FPS) / max(lockstep['frame_intervals_s']))
 
 
 def test_at_the_recorded_rate_every_frame_is_answered_as_in_lock_step(moved_rig_bag, lockstep):

@@ -22,6 +22,10 @@ FPS = 2.0
 FRAMES = 4
 SPAN_S = (FRAMES - 1) / FPS   # each new pass starts this far back
 PASSES = 4
+# The bag is replayed at half its rate: free-running, a frame that finds the graph busy is
+# dropped whole at the entrance (by design), and at the bag's 2 frames/s a loaded CI host
+# answered 3 frames of the later passes where 4 are asked for. The subject is the jumps.
+REPLAY_RATE = 0.5
 
 
 @pytest.fixture(scope='module')
@@ -68,8 +72,8 @@ def _score(run, truth, symmetries, rig) -> list[dict[int, dict]]:
 
 def test_a_looped_bag_without_restamp_keeps_its_poses_right(bag):
     config = default_config_path()
-    run = run_graph_on_bag(bag, config=config, loop=True, restamp=False,
-                           duration_s=PASSES * (SPAN_S + 1 / FPS) - 0.25,
+    run = run_graph_on_bag(bag, config=config, loop=True, restamp=False, rate=REPLAY_RATE,
+                           duration_s=(PASSES * (SPAN_S + 1 / FPS) - 0.25) / REPLAY_RATE,
                            startup_timeout_s=600.0)
     # every node is alive (run_graph_on_bag raises when one exits) and saw the jumps
     for node in PERCEPTION_NODES:
