@@ -61,7 +61,7 @@ def launch_arguments() -> list[DeclareLaunchArgument]:
                               description='replay this bag instead of starting the cameras'),
         DeclareLaunchArgument('rate', default_value='1.0', description='replay rate'),
         DeclareLaunchArgument('loop', default_value='false', choices=['true', 'false'],
-                              description='replay the bag in a loop'),
+                              description='replay the bag in a loop, stamped now'),
         DeclareLaunchArgument('output_frame', default_value='', choices=['', 'camera', 'world'],
                               description="frame of the poses (empty: the config file's)"),
         DeclareLaunchArgument('respawn', default_value='true', choices=['true', 'false'],

@@ -24,7 +24,8 @@ def test_replay_replaces_the_drivers():
     specs = graph_processes(Path('cell.yaml'), replay='bag.mcap', rate=0.5, loop=True,
                             nodes=['camera_driver'])
     assert [s.label for s in specs] == ['replay']
-    assert specs[0].argv[-5:] == ['--rate', '0.5', '--wait-for-subscribers', '10', '--loop']
+    assert specs[0].argv[-6:] == ['--rate', '0.5', '--wait-for-subscribers', '10', '--loop',
+                                  '--restamp']
 
 
 def test_unknown_node_is_an_error():

@@ -53,7 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--replay', default=None, metavar='BAG',
                         help='replay this bag instead of starting the camera drivers')
     parser.add_argument('--rate', type=float, default=1.0, help='replay rate')
-    parser.add_argument('--loop', action='store_true', help='replay in a loop')
+    parser.add_argument('--loop', action='store_true',
+                        help='replay in a loop, each frame stamped when it is sent')
     parser.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE',
                         help='parameter override for every node (repeatable), e.g. '
                              '-p templates_path:=my_templates.npz')

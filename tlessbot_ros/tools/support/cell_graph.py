@@ -124,7 +124,9 @@ def _replay_process(bag: str, rate: float, loop: bool, stages: list[str]) -> Gra
         arguments += ['--wait-for-ready', *stages]
     arguments += ['--wait-for-subscribers', str(REPLAY_SUBSCRIBER_WAIT_S)]
     if loop:
-        arguments.append('--loop')
+        # Stamped now, as a camera stamps: unrestamped, every pass would send the bag's stamps
+        # again, a jump back in time that each node takes for a clock step (and warns of).
+        arguments += ['--loop', '--restamp']
     return GraphProcess('replay', TOOL_EXECUTABLE, arguments=tuple(arguments))
 
 
