@@ -40,6 +40,9 @@ JUMP_CONFIRMATIONS = 4
 # sent then still meet garbage queued in the DDS histories (INPUT_DEPTH deep).
 GOOD_FPS = 1.0
 RECOVERY_S = 3.0
+# Nor are the replay's first seconds: in one fresh-clone CI run on a quiet host only 6 of the 13
+# clean frames were answered (15 of 17 after the garbage), where other runs answer all of them.
+WARM_S = 8.0
 RIGHT_TOLERANCE = 0.15      # share of parts right in the answered frames, against clean
 ANSWERED_TOLERANCE = 0.35   # share of good frames answered after the garbage, against clean
 # RSS may grow while garbage flows (the allocator keeps freed buffers up to its trim threshold,
@@ -61,10 +64,10 @@ def fuzz_run():
     fuzz = run_fuzz(str(DEFAULT_BAG), config=default_config_path(), fps=GOOD_FPS,
                     ros_args=['-p', f'input_depth:={INPUT_DEPTH}',
                               '-p', f'sync.jump_confirmations:={JUMP_CONFIRMATIONS}'],
-                    clean_s=14.0, garbage_s=GARBAGE_S, after_s=14.0, rate_hz=100.0,
+                    clean_s=14.0 + WARM_S, garbage_s=GARBAGE_S, after_s=14.0, rate_hz=100.0,
                     frame_rate_hz=1.0, huge_period_s=1.0)
     return fuzz, score_phases(fuzz, str(DEFAULT_BAG), load_symmetries(DEFAULT_MODELS_INFO),
-                              RECOVERY_S)
+                              RECOVERY_S, WARM_S)
 
 
 def test_every_node_lives_and_counts_the_garbage(fuzz_run):
@@ -84,7 +87,7 @@ def test_good_frames_are_still_answered_right(fuzz_run):
     # what a failure prints: the scores, which frames were answered, each node's counters
     counters = {node: {key: values.get(key) for key in ('frames', 'dropped', 'malformed')}
                 for node, values in fuzz.result.diagnostics.items()}
-    evidence = (scores, answered_timeline(fuzz), counters)
+    evidence = (answered_timeline(fuzz), counters, scores)   # the short ones first
     assert clean.frames and garbage.frames and after.frames, evidence
     assert clean.answered_share > 0.5, evidence   # the reference itself must be meaningful
     assert garbage.answered > 0, evidence

@@ -144,10 +144,13 @@ def _delayed_start(delay_s: float, command: list[str], process: list, read_outpu
     read_output(process[0].stdout)
 
 
-def phase_of(stamp_ns: int, fuzz: FuzzRun, recovery_s: float = 0.0) -> str:
+def phase_of(stamp_ns: int, fuzz: FuzzRun, recovery_s: float = 0.0,
+             warm_s: float = 0.0) -> str:
     """Which phase a good frame (restamped: its stamp is when it was sent) belongs to ('' for
-    the garbage process's start-up and the first ``recovery_s`` after the garbage, which count
-    for neither)."""
+    the first ``warm_s`` of the replay, the garbage process's start-up and the first
+    ``recovery_s`` after the garbage, which count for none)."""
+    if stamp_ns < fuzz.result.replay_start_ns + int(warm_s * 1e9):
+        return ''
     if stamp_ns >= fuzz.garbage_ended_ns + int(recovery_s * 1e9):
         return 'after'
     if stamp_ns >= fuzz.garbage_ended_ns:
@@ -158,10 +161,11 @@ def phase_of(stamp_ns: int, fuzz: FuzzRun, recovery_s: float = 0.0) -> str:
 
 
 def score_phases(fuzz: FuzzRun, bag: str, symmetries: dict[int, Symmetries],
-                 recovery_s: float = 0.0) -> dict[str, PhaseScore]:
+                 recovery_s: float = 0.0, warm_s: float = 0.0) -> dict[str, PhaseScore]:
     """Score the good frames of each phase against the bag's ground truth. A looped, restamped
     bag replays its frames in order, so the i-th side colour frame sent is the bag's frame
-    i mod n. Frames sent in the first ``recovery_s`` after the garbage are not scored."""
+    i mod n. Frames sent in the replay's first ``warm_s`` or in the first ``recovery_s`` after
+    the garbage are not scored."""
     from tlessbot_ros.tools.support.bag_scoring import Estimate, score_frame
 
     truth = read_ground_truth(bag)
@@ -172,7 +176,7 @@ def score_phases(fuzz: FuzzRun, bag: str, symmetries: dict[int, Symmetries],
             Estimate(pose.stamp_ns, pose.obj_id, pose.T, pose.frame_id))
     scores = {phase: PhaseScore() for phase in PHASES}
     for index, stamp in enumerate(fuzz.result.frames_replayed):
-        phase = phase_of(stamp, fuzz, recovery_s)
+        phase = phase_of(stamp, fuzz, recovery_s, warm_s)
         if not phase:
             continue
         score = scores[phase]
