@@ -28,9 +28,6 @@ GOLDEN = Path(__file__).resolve().parent / 'data'
 REGENERATE = os.environ.get('TLESSBOT_REGENERATE_GOLDEN', '') == '1'
 DEMO_BAG = Path(__file__).resolve().parents[2] / 'bags' / 'demo'
 CAMERAS = ('top', 'side')
-# The RANSAC fallback stops starting templates after a time budget; an unbounded budget makes
-# the fallback's result independent of the host's speed.
-UNBOUNDED_FALLBACK = {'fallback_budget_ms': 1e9}
 
 
 def _golden_npz(name: str, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -76,7 +73,7 @@ def pipeline() -> PerceptionPipeline:
 
     return PerceptionPipeline(rig=default_rig(), classifier=LinearClassifier.load(
         DEFAULT_CLASSIFIER), templates=TemplateDatabase.load(DEFAULT_TEMPLATES),
-        pose=PoseParams(**UNBOUNDED_FALLBACK))
+        pose=PoseParams())
 
 
 @pytest.fixture(scope='module')
@@ -170,7 +167,7 @@ def test_one_fitted_pose_per_path(demo_frames, fused_labels, pipeline, path):
     instance = int(np.unique(labels['side'])[1])
     points = roi_cloud(side.depth_m, labels['side'] == instance, side.intrinsics)
     estimator = PoseEstimator(pipeline.pose_estimator.database, params=PoseParams(
-        method='table' if path == 'table' else 'ransac', **UNBOUNDED_FALLBACK))
+        method='table' if path == 'table' else 'ransac'))
     classes = pipeline.classify({c: v.rgb for c, v in views.items()}, labels, views=views)
     obj_id = classes[instance].obj_id
     result = estimator.estimate(points, obj_id, T_world_camera=side.T_world_camera
@@ -198,7 +195,7 @@ def test_evaluate_estimates_on_a_small_simulated_set(tless_models_dir, tmp_path)
     out = tmp_path / 'eval'
     assert main(['evaluate', '--dataset', str(data), '--models', str(models),
                  '--classifier', str(DEFAULT_CLASSIFIER), '--templates', str(DEFAULT_TEMPLATES),
-                 '--out', str(out), '--pose-param', 'fallback_budget_ms=1e9']) == 0
+                 '--out', str(out)]) == 0
     computed = (out / 'estimates.csv').read_text()
     path = GOLDEN / 'evaluate_estimates.csv'
     if REGENERATE:
