@@ -81,6 +81,7 @@ from tlessbot_ros.core.localise import (
     fuse_views,
     segment,
     single_view,
+    view_segmentation,
 )
 from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
 from tlessbot_ros.core.part_fit import (
@@ -103,7 +104,7 @@ from tlessbot_ros.core.pose import (
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
 
 _REPLACEABLE = frozenset({'rig', 'classifier', 'localise_params', 'classify_params',
-                          'fit_params', 'segmentation', 'fusion', 'pose'})
+                          'fit_params', 'segmentation', 'fusion', 'pose', 'part_extents_m'})
 
 
 class PerceptionPipeline:
@@ -118,6 +119,9 @@ class PerceptionPipeline:
             (:mod:`tlessbot_ros.core.params`).
         table_plane: how the table plane is found in each view's depth and tracked
             (``fit_params.table_plane`` says whether it is used).
+        part_extents_m: (N, 3) the parts' box extents, metres, that size each view's
+            segmentation (:mod:`~tlessbot_ros.core.localise.part_scale`); None: the
+            templates' parts, or without templates the fixed sizes.
     """
 
     def __init__(self, *, rig: Rig | None = None, classifier: Classifier | None = None,
@@ -128,8 +132,13 @@ class PerceptionPipeline:
                  segmentation: SegmentationParams = SegmentationParams(),
                  fusion: FusionParams = FusionParams(),
                  pose: PoseParams = PoseParams(),
-                 table_plane: TablePlaneParams = TablePlaneParams()) -> None:
+                 table_plane: TablePlaneParams = TablePlaneParams(),
+                 part_extents_m: np.ndarray | None = None) -> None:
         self.rig = rig
+        if part_extents_m is None and templates is not None and templates.objects:
+            part_extents_m = np.array([np.ptp(o.model_points, axis=0)
+                                       for o in templates.objects.values()])
+        self.part_extents_m = part_extents_m
         self.classifier = classifier
         self.localise_params = localise_params
         self.classify_params = classify_params
@@ -231,11 +240,14 @@ class PerceptionPipeline:
             T_world_camera = None if view.depth_m is None else \
                 self.table_frame(name, view).T_world_camera
             with_depth = T_world_camera is not None
+            params = view_segmentation(
+                self.segmentation, self.part_extents_m, view.intrinsics.K,
+                view.T_world_camera if T_world_camera is None else T_world_camera)
             return segment(view.rgb, background=view.background,
                            depth_m=view.depth_m if with_depth else None,
                            intrinsics=view.intrinsics if with_depth else None,
                            T_world_camera=T_world_camera, split_by_depth=name != TOP,
-                           params=self.segmentation)
+                           params=params)
 
         if len(views) == 1:   # a rig of one camera: its segmentation, nothing to fuse
             return single_view(seg(*views), *views)

@@ -28,6 +28,8 @@ _HOME = {
     'SegmentationParams': 'params',
     'Segmentation': 'segmentation',
     'segment': 'segmentation',
+    'part_view_size': 'part_scale',
+    'view_segmentation': 'part_scale',
     'robust_quadratic_fit': 'surface_fit',
     'FUSION_METHODS': 'fusion_result',
     'FusedInstance': 'fusion_result',
@@ -76,6 +78,10 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.localise.params import (  # noqa: F401
         METHODS,
         SegmentationParams,
+    )
+    from tlessbot_ros.core.localise.part_scale import (  # noqa: F401
+        part_view_size,
+        view_segmentation,
     )
     from tlessbot_ros.core.localise.segmentation import (  # noqa: F401
         Segmentation,

@@ -59,6 +59,10 @@ class SegmentationParams:
             thin part, kept whole, m (>= 0; 0: off).
         thin_quantile: the quantile of a blob's valid heights compared (0..1).
         thin_min_valid: share of a blob's pixels with depth needed to call it thin (0..1).
+        part_area_fraction: with the parts' sizes, a view keeps blobs down to this fraction
+            of the smallest part's expected area there, if below ``min_area_px`` (0..1; 0: off).
+        part_width_fraction: ... and opens by at most this fraction of the narrowest part's
+            expected width, if below ``open_px`` (0..1; 0: off; :mod:`.part_scale`).
 
     ``methods``: 'watershed' adds the grey-level histogram extremes as markers *and* refines the
     union by flooding (without it the union is used as is); 'background' is used only when an
@@ -104,6 +108,8 @@ class SegmentationParams:
     thin_max_height_m: float = 0.008
     thin_quantile: float = 0.75
     thin_min_valid: float = 0.3
+    part_area_fraction: float = 0.5
+    part_width_fraction: float = 0.5
 
     def __post_init__(self) -> None:
         if self.thin_max_height_m < 0 or not 0.0 <= self.thin_quantile <= 1.0 or \
@@ -118,6 +124,9 @@ class SegmentationParams:
         if not 0.0 < self.cutoff_sigma <= self.sure_sigma:
             raise ValueError('need 0 < cutoff_sigma <= sure_sigma, got '
                              f'{self.cutoff_sigma} and {self.sure_sigma}')
+        if not (0.0 <= self.part_area_fraction <= 1.0 and 0.0 <= self.part_width_fraction <= 1.0):
+            raise ValueError('need part_area_fraction and part_width_fraction in 0..1, got '
+                             f'{self.part_area_fraction} and {self.part_width_fraction}')
         if self.min_area_px < 1:
             raise ValueError(f'min_area_px must be >= 1, got {self.min_area_px}')
         if not 0.0 < self.split_core_fraction < 1.0:

@@ -1,0 +1,101 @@
+"""The smallest part of a parts set as a camera sees it, and the segmentation's sizes that
+follow from it in that view.
+
+Two sizes of :class:`~tlessbot_ros.core.localise.SegmentationParams` are in pixels and were
+chosen for parts of 3 to 20 cm (T-LESS): the smallest blob kept (``min_area_px``, 80 px) and
+the opening that clears thin noise from the candidates (``open_px``, a 3 x 3 cross at the cue
+scale: anything narrower than 6 image pixels goes). A part of 8 mm (a nut: about 50 px in
+the side camera at 0.64 m, 15 px from the top at 1.1 m) falls under the first; a rod 10 mm
+across (10 px wide from the side, 6 px from the top) loses its middle to the second, since
+its candidates cover only its middle (its rim reads low in depth and shaded in colour): the
+rod comes out in pieces, each a false positive, and the part is missed.
+
+Both follow from the parts and the rig instead: each part's box (its extents, largest
+first: a x b x c) rests on its largest face (a x b down, c up) where the camera's optical
+axis meets the table; its convex outline projected into the camera is its expected area,
+``fx * b / distance`` its expected width. A view keeps blobs down to
+``part_area_fraction`` of the smallest part's area (a box's outline is larger than the part,
+a part's rim is lost to the cues, and a part may be partly hidden), and opens with at most
+the radius whose width is ``part_width_fraction`` of the narrowest part's. Neither is ever
+raised above ``min_area_px`` / ``open_px``: a set of parts as large as T-LESS's keeps them.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from tlessbot_ros.core.localise.params import SegmentationParams
+
+
+def part_view_size(extents_m: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray
+                   ) -> tuple[float, float] | None:
+    """(area, width) in image pixels of the smallest and of the narrowest part of a set
+    seen by one camera (see the module), or None when the camera's optical axis does not
+    meet the table (z = 0) in front of it.
+
+    Args:
+        extents_m: (N, 3) the parts' box extents, metres (any order per row).
+        K: (3, 3) the camera's intrinsics.
+        T_world_camera: (4, 4) its pose in the table frame (z up, table at z = 0).
+    """
+    extents = -np.sort(-np.abs(np.asarray(extents_m, np.float64).reshape(-1, 3)), axis=1)
+    K = np.asarray(K, np.float64)
+    T = np.asarray(T_world_camera, np.float64)
+    centre, axis = T[:3, 3], T[:3, 2]
+    if extents.size == 0 or axis[2] > -1e-6 or centre[2] <= 0:
+        return None
+    spot = centre - axis * centre[2] / axis[2]   # the optical axis on the table
+    distance = float(np.linalg.norm(spot - centre))
+    T_camera_world = np.linalg.inv(T)
+    areas = []
+    for a, b, c in extents:
+        for half in ((a / 2, b / 2), (b / 2, a / 2)):   # either way round on the table
+            corners = np.array([[sx * half[0], sy * half[1], z] for sx in (-1, 1)
+                                for sy in (-1, 1) for z in (0.0, c)]) + [spot[0], spot[1], 0]
+            cam = corners @ T_camera_world[:3, :3].T + T_camera_world[:3, 3]
+            uv = (cam[:, :2] / cam[:, 2:3]) * [K[0, 0], K[1, 1]]
+            areas.append(cv2.contourArea(cv2.convexHull(uv.astype(np.float32))))
+    width = 0.5 * (K[0, 0] + K[1, 1]) * float(extents[:, 1].min()) / distance
+    return float(min(areas)), width
+
+
+def view_segmentation(params: SegmentationParams, extents_m: np.ndarray | None,
+                      K: np.ndarray, T_world_camera: np.ndarray | None) -> SegmentationParams:
+    """``params`` with ``min_area_px`` and ``open_px`` for one view of a parts set (see the
+    module): never larger than ``params``' own, ``params`` itself without the parts'
+    ``extents_m`` ((N, 3) metres) or the camera's pose."""
+    if extents_m is None or T_world_camera is None or \
+            (params.part_area_fraction <= 0 and params.part_width_fraction <= 0):
+        return params
+    return _sized(params, _key(extents_m), _key(K), _key(T_world_camera))
+
+
+def _key(array: np.ndarray) -> tuple[float, ...]:
+    """A hashable copy of an array (its shape is implied by its use), rounded to 1e-6."""
+    return tuple(np.round(np.asarray(array, np.float64).ravel(), 6).tolist())
+
+
+@lru_cache(maxsize=32)
+def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[float, ...],
+           T: tuple[float, ...]) -> SegmentationParams:
+    seen = part_view_size(np.array(extents).reshape(-1, 3), np.array(K).reshape(3, 3),
+                          np.array(T).reshape(4, 4))
+    if seen is None:
+        return params
+    area_px, width_px = seen
+    min_area, open_px = params.min_area_px, params.open_px
+    if params.part_area_fraction > 0:
+        min_area = min(min_area, max(1, int(params.part_area_fraction * area_px)))
+    if params.part_width_fraction > 0:
+        # the opening clears what is narrower than 2 r + 1 cue pixels
+        widest = params.part_width_fraction * width_px * params.cue_scale
+        open_px = min(open_px, max(0, int((widest - 1) // 2)))
+    if (min_area, open_px) == (params.min_area_px, params.open_px):
+        return params
+    return replace(params, min_area_px=min_area, open_px=open_px)
+
+
+__all__ = ['part_view_size', 'view_segmentation']
