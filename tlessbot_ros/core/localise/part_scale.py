@@ -18,6 +18,10 @@ axis meets the table; its convex outline projected into the camera is its expect
 a part's rim is lost to the cues, and a part may be partly hidden), and opens with at most
 the radius whose width is ``part_width_fraction`` of the narrowest part's. Neither is ever
 raised above ``min_area_px`` / ``open_px``: a set of parts as large as T-LESS's keeps them.
+And a view where the smallest part is no larger than the specks of noise the opening clears
+(``(2 open_px + 1)^2`` cue pixels: 36 image pixels) keeps them too: there a part that small
+cannot be told from noise by its size (the nut from the top camera: 15 to 25 px), and the
+other view finds it.
 """
 from __future__ import annotations
 
@@ -86,6 +90,8 @@ def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[floa
     if seen is None:
         return params
     area_px, width_px = seen
+    if area_px < ((2 * params.open_px + 1) / params.cue_scale) ** 2:
+        return params   # no larger than the specks the opening clears: not told from noise
     min_area, open_px = params.min_area_px, params.open_px
     if params.part_area_fraction > 0:
         min_area = min(min_area, max(1, int(params.part_area_fraction * area_px)))
