@@ -127,3 +127,11 @@ def test_the_pipeline_finds_a_nut_and_keeps_a_rod_whole_with_the_parts_sizes(nut
         # the fixed sizes (80 px, a 3 x 3 opening at half scale) lose the nut: the reason
         # for the rule
         assert not _held(fixed.localise(views).labels['side'], nut)
+
+
+def test_a_parts_folder_gives_its_parts_extents_in_metres(tmp_path):
+    from tlessbot_ros.io.parts import PartsFolder
+
+    folder = PartsFolder(tmp_path, {'parts': [{'id': 3, 'name': 'nut', 'size_mm': [8, 9.2, 6.3]},
+                                              {'id': 4, 'name': 'rod', 'size_mm': [71, 10, 10]}]})
+    np.testing.assert_allclose(folder.extents_m, [NUT, ROD])

@@ -162,9 +162,10 @@ def test_a_broken_parts_folder_stops_the_stage_nodes_at_start(ros, tmp_path):
 
     from tlessbot_ros.io.parts import PartsFolderError
     from tlessbot_ros.nodes.classifier import ClassifierNode
+    from tlessbot_ros.nodes.localiser import LocaliserNode
     from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
 
     (tmp_path / 'manifest.json').write_text('{}')
-    for node_class in (ClassifierNode, PoseEstimatorNode):
+    for node_class in (LocaliserNode, ClassifierNode, PoseEstimatorNode):
         with pytest.raises(PartsFolderError, match='has no classifier.npz: rebuild it'):
             node_class(parameter_overrides=[Parameter('parts_path', value=str(tmp_path))])

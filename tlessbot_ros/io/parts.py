@@ -218,6 +218,12 @@ class PartsFolder:
         """{id: name} of its parts."""
         return {int(p['id']): str(p['name']) for p in self.manifest['parts']}
 
+    @property
+    def extents_m(self) -> np.ndarray:
+        """(N, 3) its parts' box extents in metres (the manifest's ``size_mm``)."""
+        return np.array([p['size_mm'] for p in self.manifest['parts']], float).reshape(-1, 3) \
+            * 1e-3
+
 
 def write_manifest(folder: Path, manifest: dict[str, Any]) -> Path:
     path = folder / MANIFEST

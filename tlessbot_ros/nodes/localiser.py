@@ -22,7 +22,9 @@ Admission: the localiser is the graph's entrance; it holds the
 frame is taken only while fewer than ``admission.max_in_flight`` frames it has taken are still
 unfinished downstream, and the camera subscriptions are not read while it is full
 (:mod:`~tlessbot_ros.nodes.admission` says how).
-Parameters: ``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParams: segment
+Parameters: ``parts_path`` (a parts folder of ``tlessbot parts build``, read-only: its parts'
+sizes set each view's smallest blob and opening, core/localise/part_scale.py),
+``admission.*`` (AdmissionParams), ``parallel_views`` (LocaliseParams: segment
 both views at once, in two threads, while ``parallel.min_spare_cores`` are free beside its
 work or idle lately: SpareCpuParams),
 ``segmentation.*`` (SegmentationParams), ``fusion.*``
@@ -80,6 +82,7 @@ from tlessbot_ros.core.pipeline import LocaliseParams, PerceptionPipeline, ViewI
 from tlessbot_ros.errors import TlessbotError
 from tlessbot_ros.nodes.admission import Entrance
 from tlessbot_ros.nodes.inputs import Views
+from tlessbot_ros.nodes.parts import declare_parts
 from tlessbot_ros.nodes.qos import RESULT_QOS
 from tlessbot_ros.nodes.spin import run_node
 from tlessbot_ros.nodes.stage import (
@@ -101,6 +104,9 @@ class LocaliserNode(StageNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('localiser', pauses_inputs=True, **kwargs)
+        parts = declare_parts(self)   # PartsFolderError: one line, exit 1
+        # the parts' sizes set each view's smallest blob and opening (core/localise/part_scale)
+        self.part_extents_m = None if parts is None else parts.extents_m
         self.segmentation = self.parameters.dataclass(
             SegmentationParams(), prefix='segmentation.', apply=self._apply_segmentation)
         self.fusion = self.parameters.dataclass(FusionParams(), prefix='fusion.',
@@ -191,6 +197,7 @@ class LocaliserNode(StageNode):
         for camera, view in views.items():
             view.T_world_camera = rig[camera].T_world_camera
         return PerceptionPipeline(rig=rig, segmentation=self.segmentation, fusion=self.fusion,
+                                  part_extents_m=self.part_extents_m,
                                   localise_params=replace(
                                       self.localise_params,
                                       parallel_views=self._views_in_parallel))

@@ -19,7 +19,7 @@ CAMERA_DRIVER = 'camera_driver'
 # The arm's side: instance names, TF, /objects/detections, GetObjects (nodes/objects.py).
 ARM_NODE = 'objects'
 NODE_EXECUTABLES = (CAMERA_DRIVER, *PERCEPTION_NODES, ARM_NODE)
-PARTS_NODES = ('classifier', 'pose_estimator', ARM_NODE)   # the nodes that read ``parts_path``
+PARTS_NODES = ('localiser', 'classifier', 'pose_estimator', ARM_NODE)   # read ``parts_path``
 # Started only when asked (foxglove:=true, tlessbot launch --foxglove): the live view.
 FOXGLOVE_NODE = 'foxglove_view'
 TOOL_EXECUTABLE = 'tlessbot'
@@ -74,7 +74,7 @@ def graph_description(*, replay: str | None = None, rate: float = 1.0, loop: boo
     the first found) or, with ``replay`` (a bag), the replay tool instead. The replay waits
     until every stage node started here reports ready, then for the bag's subscribers.
     ``output_frame`` overrides the pose estimator's ('camera' or 'world'); None = the file's.
-    ``parts`` (a parts folder) overrides the classifier's and pose estimator's ``parts_path``.
+    ``parts`` (a parts folder) overrides the ``parts_path`` of the nodes that read it.
     ``foxglove`` adds the Foxglove live view.
     """
     wanted = list(nodes or NODE_EXECUTABLES)
