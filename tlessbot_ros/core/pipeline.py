@@ -119,9 +119,8 @@ class PerceptionPipeline:
             (:mod:`tlessbot_ros.core.params`).
         table_plane: how the table plane is found in each view's depth and tracked
             (``fit_params.table_plane`` says whether it is used).
-        part_extents_m: (N, 3) the parts' box extents, metres, that size each view's
-            segmentation (:mod:`~tlessbot_ros.core.localise.part_scale`); None: the
-            templates' parts, or without templates the fixed sizes.
+        part_extents_m: (N, 3) the parts' box extents (m) that size each view's segmentation
+            (:mod:`~tlessbot_ros.core.localise.part_scale`); None: the templates' parts.
     """
 
     def __init__(self, *, rig: Rig | None = None, classifier: Classifier | None = None,
@@ -135,10 +134,8 @@ class PerceptionPipeline:
                  table_plane: TablePlaneParams = TablePlaneParams(),
                  part_extents_m: np.ndarray | None = None) -> None:
         self.rig = rig
-        if part_extents_m is None and templates is not None and templates.objects:
-            part_extents_m = np.array([np.ptp(o.model_points, axis=0)
-                                       for o in templates.objects.values()])
-        self.part_extents_m = part_extents_m
+        self.part_extents_m = part_extents_m if part_extents_m is not None or templates is None \
+            else templates.extents_m()
         self.classifier = classifier
         self.localise_params = localise_params
         self.classify_params = classify_params
@@ -240,9 +237,9 @@ class PerceptionPipeline:
             T_world_camera = None if view.depth_m is None else \
                 self.table_frame(name, view).T_world_camera
             with_depth = T_world_camera is not None
-            params = view_segmentation(
-                self.segmentation, self.part_extents_m, view.intrinsics.K,
-                view.T_world_camera if T_world_camera is None else T_world_camera)
+            pose = view.T_world_camera if T_world_camera is None else T_world_camera
+            params = view_segmentation(self.segmentation, self.part_extents_m,
+                                       view.intrinsics.K, pose)
             return segment(view.rgb, background=view.background,
                            depth_m=view.depth_m if with_depth else None,
                            intrinsics=view.intrinsics if with_depth else None,

@@ -254,6 +254,12 @@ class TemplateDatabase:
     def __contains__(self, obj_id: object) -> bool:
         return obj_id in self.objects
 
+    def extents_m(self) -> np.ndarray | None:
+        """(N, 3) the box extents of its objects' model points, metres (None: no objects)."""
+        if not self.objects:
+            return None
+        return np.array([np.ptp(o.model_points, axis=0) for o in self.objects.values()])
+
     def lookalike_check(self, *, tolerance_m: float = 0.002, min_z: float = 0.0
                         ) -> LookalikeCheck:
         """A :class:`~tlessbot_ros.core.pose.LookalikeCheck` over the stored look-alikes
