@@ -59,6 +59,9 @@ class SegmentationParams:
             thin part, kept whole, m (>= 0; 0: off).
         thin_quantile: the quantile of a blob's valid heights compared (0..1).
         thin_min_valid: share of a blob's pixels with depth needed to call it thin (0..1).
+        small_blob_candidates_px: a foreground blob smaller than this keeps the extent of its
+            candidates (the watershed cuts a part a few pixels across; 0: off; set by
+            :mod:`.part_scale` where the parts' sizes lower ``min_area_px``).
         part_area_fraction: with the parts' sizes, a view keeps blobs down to this fraction
             of the smallest part's expected area there, if below ``min_area_px`` (0..1; 0: off).
         part_width_fraction: ... and opens by at most this fraction of the narrowest part's
@@ -108,6 +111,7 @@ class SegmentationParams:
     thin_max_height_m: float = 0.008
     thin_quantile: float = 0.75
     thin_min_valid: float = 0.3
+    small_blob_candidates_px: int = 0
     part_area_fraction: float = 0.5
     part_width_fraction: float = 0.5
 
@@ -127,8 +131,9 @@ class SegmentationParams:
         if not (0.0 <= self.part_area_fraction <= 1.0 and 0.0 <= self.part_width_fraction <= 1.0):
             raise ValueError('need part_area_fraction and part_width_fraction in 0..1, got '
                              f'{self.part_area_fraction} and {self.part_width_fraction}')
-        if self.min_area_px < 1:
-            raise ValueError(f'min_area_px must be >= 1, got {self.min_area_px}')
+        if self.min_area_px < 1 or self.small_blob_candidates_px < 0:
+            raise ValueError('need min_area_px >= 1 and small_blob_candidates_px >= 0, got '
+                             f'{self.min_area_px} and {self.small_blob_candidates_px}')
         if not 0.0 < self.split_core_fraction < 1.0:
             raise ValueError('split_core_fraction must be in (0, 1), got '
                              f'{self.split_core_fraction}')

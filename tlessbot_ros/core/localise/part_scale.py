@@ -101,7 +101,11 @@ def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[floa
         open_px = min(open_px, max(0, int((widest - 1) // 2)))
     if (min_area, open_px) == (params.min_area_px, params.open_px):
         return params
-    return replace(params, min_area_px=min_area, open_px=open_px)
+    # the blobs only the parts' sizes admit keep their candidates' extent
+    small = params.small_blob_candidates_px or \
+        (params.min_area_px if min_area < params.min_area_px else 0)
+    return replace(params, min_area_px=min_area, open_px=open_px,
+                   small_blob_candidates_px=small)
 
 
 __all__ = ['part_view_size', 'view_segmentation']
