@@ -59,9 +59,8 @@ class SegmentationParams:
             thin part, kept whole, m (>= 0; 0: off).
         thin_quantile: the quantile of a blob's valid heights compared (0..1).
         thin_min_valid: share of a blob's pixels with depth needed to call it thin (0..1).
-        small_blob_candidates_px: a foreground blob smaller than this keeps the extent of its
-            candidates (the watershed cuts a part a few pixels across; 0: off; set by
-            :mod:`.part_scale` where the parts' sizes lower ``min_area_px``).
+        small_blob_candidates_px: a blob smaller than this (px) keeps its candidates' extent,
+            not the watershed's contour (0: off; set where :mod:`.part_scale` lowers sizes).
         part_area_fraction: with the parts' sizes, a view keeps blobs down to this fraction
             of the smallest part's expected area there, if below ``min_area_px`` (0..1; 0: off).
         part_width_fraction: ... and opens by at most this fraction of the narrowest part's
