@@ -121,6 +121,8 @@ class FitParams:
             reported unknown, without a pose (0..1; 0: off).
         unknown_below_fitness: a part whose fit explains less than this share of its depth
             points (within ``verify_inlier_m``) is reported unknown, no pose (0..1; 0: off).
+        unknown_in_outline: that share is read on the points inside the fitted model's outline
+            (neighbours in the region do not count against it); off: on all the region's points.
         unknown_without_fit: a part with depth but no fit (fewer than ``min_roi_points``
             points) is unknown too (off: it keeps the classifier's name).
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
@@ -156,7 +158,8 @@ class FitParams:
     table_plane_max_angle_deg: float = 0.1
     table_plane_max_offset_m: float = 0.001
     fit_rank_min_fitness: float = 0.0
-    unknown_below_fitness: float = 0.0
+    unknown_below_fitness: float = 0.5
+    unknown_in_outline: bool = True
     unknown_without_fit: bool = False
     fit_rank_coverage_weight: float = 0.0
     flat: FlatParams = field(default_factory=FlatParams)

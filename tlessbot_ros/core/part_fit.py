@@ -7,6 +7,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from tlessbot_ros.core.common import transform_points
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.params import FitParams
 from tlessbot_ros.core.pose import (
@@ -14,6 +15,7 @@ from tlessbot_ros.core.pose import (
     PoseCandidate,
     PoseEstimator,
     TemplateDatabase,
+    inside_outline,
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID
 
@@ -94,11 +96,21 @@ def explained_share(params: FitParams, points: np.ndarray, obj_id: int, pose: Po
                     estimator: PoseEstimator | None = None) -> float:
     """The share of a part's ROI ``points`` that class ``obj_id`` at ``pose`` explains, as
     the unknown rule (:func:`unknown_last`) reads it: with ``estimator``, on the verification
-    sample at ``verify_inlier_m`` (:func:`_verify_fitness`), else the pose's own fitness."""
+    sample at ``verify_inlier_m`` (:func:`_verify_fitness`), else the pose's own fitness.
+    With ``unknown_in_outline`` only the sample's points inside the posed model's outline
+    count (:func:`~tlessbot_ros.core.pose.inside_outline`): a neighbour in the region's box
+    is no evidence against the part, and a model that covers none of its points explains
+    nothing (0)."""
     if estimator is None:
         return float(pose.fitness)
-    return float(_verify_fitness(estimator, params, _verify_sample(points, params), obj_id,
-                                 pose))
+    sample = _verify_sample(points, params)
+    if params.unknown_in_outline and params.verify_inlier_m > 0:
+        obj = estimator.database[obj_id]
+        model_c = transform_points(pose.T_camera_object, obj.model_points)
+        sample = sample[inside_outline(sample, model_c, obj.sample_spacing_m())]
+        if len(sample) == 0:
+            return 0.0
+    return float(_verify_fitness(estimator, params, sample, obj_id, pose))
 
 
 def mark_unknown(detection: Detection, rank: int) -> None:

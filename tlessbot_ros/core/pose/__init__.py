@@ -96,6 +96,7 @@ _HOME = {
     'ransac_candidates': 'ransac',
     'register_templates': 'ransac',
     'Refiner': 'refinement',
+    'inside_outline': 'silhouette',
 }
 __all__ = sorted(_HOME)
 

@@ -152,6 +152,13 @@ class ObjectTemplates:
                                       self.model_points.astype(np.float64))
         return cast(tuple[np.ndarray, np.ndarray], self._cache['float64'])
 
+    def sample_spacing_m(self) -> float:
+        """Median distance (m) from a model sample to its nearest neighbour (computed once)."""
+        def build() -> float:
+            distance, _ = self.model_tree().query(self.model_points.astype(np.float64), k=2)
+            return float(np.median(distance[:, 1]))
+        return cast(float, self.derived('sample_spacing', build))
+
     def model_tree(self) -> cKDTree:
         """KD-tree of ``model_points`` (built once)."""
         if 'tree' not in self._cache:

@@ -240,7 +240,7 @@ class FlatCheck:
         poses' silhouettes."""
         p = self.params
         points = obj.model_points.astype(np.float64)
-        spacing = obj.derived('sample_spacing', lambda: _sample_spacing(points))
+        spacing = obj.sample_spacing_m()
         scores = np.zeros(len(poses))
         votes = np.zeros((len(poses), 2))
         used = 0
@@ -435,11 +435,3 @@ def _centre(obj: ObjectTemplates) -> np.ndarray:
 def _differ(T_a: np.ndarray, T_b: np.ndarray) -> bool:
     from tlessbot_ros.core.pose.candidates import poses_differ
     return poses_differ(T_a, T_b)
-
-
-def _sample_spacing(points: np.ndarray) -> float:
-    """Median distance (m) from a model sample to its nearest neighbour."""
-    from scipy.spatial import cKDTree
-
-    distance, _ = cKDTree(points).query(points, k=2)
-    return float(np.median(distance[:, 1]))

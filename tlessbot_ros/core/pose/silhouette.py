@@ -56,6 +56,35 @@ def silhouette(points_o: np.ndarray, T_camera_object: np.ndarray,
     return closed[pad:-pad, pad:-pad].astype(bool)
 
 
+def inside_outline(points_c: np.ndarray, model_c: np.ndarray, spacing_m: float) -> np.ndarray:
+    """(N,) bool: which of ``points_c`` (N, 3, camera frame, m) the camera sees through the
+    outline of the posed model samples ``model_c`` (M, 3, camera frame), whose neighbours lie
+    ``spacing_m`` apart. Both are projected onto cells of viewing directions as wide as a
+    sample spacing at the model's median depth (no camera matrix needed: the points came
+    through the same pinhole); the model's cells are closed by one cell to fill the gaps
+    between its samples, without growing the outline."""
+    points_c = np.asarray(points_c, np.float64)
+    model_c = np.asarray(model_c, np.float64)
+    model_c = model_c[model_c[:, 2] > 1e-6]
+    inside = np.zeros(len(points_c), bool)
+    if len(model_c) == 0 or spacing_m <= 0:
+        return inside
+    cell = spacing_m / float(np.median(model_c[:, 2]))
+    uv = np.floor(model_c[:, :2] / model_c[:, 2:3] / cell).astype(np.int64)
+    low = uv.min(axis=0) - 2
+    size = uv.max(axis=0) - low + 3
+    grid = np.zeros((int(size[1]), int(size[0])), np.uint8)
+    grid[uv[:, 1] - low[1], uv[:, 0] - low[0]] = 1
+    grid = cv2.morphologyEx(grid, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)) > 0
+    front = points_c[:, 2] > 1e-6
+    q = np.floor(points_c[front, :2] / points_c[front, 2:3] / cell).astype(np.int64) - low
+    ok = (q[:, 0] >= 0) & (q[:, 0] < size[0]) & (q[:, 1] >= 0) & (q[:, 1] < size[1])
+    hit = np.zeros(len(q), bool)
+    hit[ok] = grid[q[ok, 1], q[ok, 0]]
+    inside[front] = hit
+    return inside
+
+
 def edge_distance(rgb: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
     """(h, w) float32 distance (px) to the nearest Canny edge of the colour image in ``box``."""
     x0, y0, w, h = box

@@ -53,6 +53,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='chance that a part leans, tilted 15-40 degrees out of its stable '
                              'pose as if propped on a neighbour (tests the pose fallback; '
                              'default 0)')
+    parser.add_argument('--pile', action='store_true',
+                        help='piles: a class may repeat and every part after the first lies '
+                             'next to one already placed (touching, occluding), as parts tipped '
+                             'out of a bin (with --parts-min/--parts-max of 10-15)')
     parser.add_argument('--backgrounds', action='store_true',
                         help='also write background_<camera> splits: the same table and light '
                              'without parts (for background subtraction), same ids')
@@ -147,7 +151,8 @@ def _simulator(args: argparse.Namespace):
                            noise_scale=args.noise_scale,
                            materials=tuple(args.materials or MATERIALS),
                            tables=tuple(args.tables or TABLE_KINDS), board=board,
-                           lean_prob=args.lean_prob)
+                           lean_prob=args.lean_prob,
+                           **({'unique_classes': False, 'cluster_prob': 1.0} if args.pile else {}))
     except ValueError as error:
         raise TlessbotError(str(error)) from None
     models = load_models(args.models, args.ids, progress=not args.no_progress)
