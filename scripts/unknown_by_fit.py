@@ -5,17 +5,17 @@
       --real ../shared/data/sygrid_real_d435i --visp ../shared/data --out reports/unknown_fit
 
 The rule is ``FitParams.unknown_below_fitness``: a part whose best template fit explains less
-of its depth than the threshold (or whose region has too few depth points above the table to
-fit) is reported unknown. Each region is fitted once with the rule off and the share the rule
-reads kept (``core.part_fit.explained_share``: its final pose's fit at ``verify_inlier_m``);
-the rule at threshold t is then exactly "named and share >= t" (it changes nothing else), so
-one run gives the whole curve.
+of its depth than the threshold is reported unknown. Each region is fitted once with the rule
+off and the shares the rule reads kept (``core.part_fit.explained_share`` of its final pose at
+``verify_inlier_m``): on the points inside the fitted model's outline (``unknown_in_outline``,
+the default) and on all the region's points (the rule before it); the rule at threshold t is
+then exactly "named and share >= t" (it changes nothing else), so one run gives every curve.
 
-The threshold is chosen on renders only: ``--renders-known`` (``tlessbot simulate`` of the
-model's own parts; ground-truth boxes plus background boxes) and ``--renders-unknown``
-(``tlessbot simulate`` of other parts: every box is unknown). The chosen threshold is the
-largest of the grid that costs at most ``--max-render-cost`` of top-1 on the known renders.
-It is then applied to the real sets, which never choose anything:
+The renders (``--renders-known``: ``tlessbot simulate`` of the model's own parts, ground-truth
+boxes plus background boxes; ``--renders-unknown``: ``tlessbot simulate`` of other parts, every
+box unknown) say which threshold they would choose: the lowest of the grid that names at most
+``--max-render-unknown`` of the fitted unknown parts at a cost of at most ``--max-render-cost``
+of the known parts' top-1 (or none). The real sets choose nothing; they are measured:
 
 - ``--real``: a real BOP set of the model's parts; the frames with depth: ground-truth boxes
   (known parts) and ``--boxes-per-frame`` background boxes (as ``evaluate --background-boxes``).
@@ -23,7 +23,7 @@ It is then applied to the real sets, which never choose anything:
   (ViSP's RBT sequence and its D435 tutorial frame): the whole pipeline (localiser on the
   depth, classifier, pose stage) runs, and every region named as a part is a false positive.
 
-Writes unknown_fit.md and unknown_fit.png into --out.
+Writes unknown_fit.md (the tables and the spread of the shares) and unknown_fit.png into --out.
 """
 from __future__ import annotations
 
@@ -47,13 +47,16 @@ DROPPED = -2.0  # no detection: the fragment filter dropped it (its classifier n
 @dataclass
 class Record:
     """One region's answer: its set, whether it is a known part (and which), the class the
-    pipeline named (0 = unknown) and the best fitness (NO_FIT: not fitted)."""
+    pipeline named (0 = unknown), the share the rule reads (inside the fitted outline, as by
+    default; NO_FIT: not fitted) and the share of all the region's points
+    (``unknown_in_outline`` off)."""
 
     source: str
     frame: int
     truth: int          # the part's id; 0 for background or a part not in the set
     named: int
     fitness: float
+    share_all: float = NO_FIT
 
 
 def make_pipeline(classifier, templates):
@@ -75,15 +78,20 @@ def make_pipeline(classifier, templates):
     return pipeline
 
 
-def explained(pipeline, detection) -> float:
+def explained(pipeline, detection) -> tuple[float, float]:
     """What the rule reads of ``detection`` (its final class and pose):
-    :func:`~tlessbot_ros.core.part_fit.explained_share` of its ROI cloud; NO_FIT: no pose."""
+    :func:`~tlessbot_ros.core.part_fit.explained_share` of its ROI cloud inside the fitted
+    outline (the default) and of all of it; NO_FIT: no pose."""
+    from dataclasses import replace
+
     from tlessbot_ros.core.part_fit import explained_share
 
     if detection.pose is None:
-        return NO_FIT
-    return explained_share(pipeline.fit_params, pipeline.roi_points[detection.instance_id],
-                           detection.obj_id, detection.pose, pipeline.pose_estimator)
+        return NO_FIT, NO_FIT
+    points = pipeline.roi_points[detection.instance_id]
+    return tuple(explained_share(replace(pipeline.fit_params, unknown_in_outline=inside), points,
+                                 detection.obj_id, detection.pose, pipeline.pose_estimator)
+                 for inside in (True, False))
 
 
 def fit_boxes(pipeline, image, boxes, truths, source: str, frame: int) -> list[Record]:
@@ -104,11 +112,11 @@ def fit_boxes(pipeline, image, boxes, truths, source: str, frame: int) -> list[R
     for k, truth in enumerate(truths):
         guess, detection = guesses.get(k + 1), by_instance.get(k + 1)
         named = 0 if guess is None else guess.obj_id
-        fitness = DROPPED
+        shares = (DROPPED, DROPPED)
         if detection is not None:
             named = detection.obj_id
-            fitness = explained(pipeline, detection)
-        records.append(Record(source, frame, int(truth), int(named), fitness))
+            shares = explained(pipeline, detection)
+        records.append(Record(source, frame, int(truth), int(named), *shares))
     return records
 
 
@@ -180,8 +188,8 @@ def visp_records(pipeline, root: Path) -> tuple[list[Record], int]:
         fitted = {d.instance_id: d for d in result.detections}
         for instance in sorted(labelled):
             d = fitted.get(instance)
-            fitness = DROPPED if d is None else explained(pipeline, d)
-            records.append(Record('visp', n, 0, 0 if d is None else int(d.obj_id), fitness))
+            shares = (DROPPED, DROPPED) if d is None else explained(pipeline, d)
+            records.append(Record('visp', n, 0, 0 if d is None else int(d.obj_id), *shares))
     return records, len(frames)
 
 
@@ -231,14 +239,46 @@ def curve(sets: dict, without_fit: bool) -> list[dict]:
     return rows
 
 
-def choose(rows: list[dict], max_cost: float, max_unknown: float) -> float:
-    """The threshold chosen on the renders alone: the lowest of the grid that names at most
+def choose(rows: list[dict], max_cost: float, max_unknown: float) -> float | None:
+    """The threshold the renders alone would choose: the lowest of the grid that names at most
     ``max_unknown`` of the fitted unknown rendered parts (the others it cannot touch), among
-    those that cost at most ``max_cost`` of the known renders' top-1 (0 when none does)."""
+    those that cost at most ``max_cost`` of the known renders' top-1 (None when none does)."""
     base = rows[0]['render_top1']
     fits = [r['threshold'] for r in rows if r['render_top1'] >= base - max_cost
             and r['render_unknown_fitted'] <= max_unknown]
-    return min(fits) if fits else 0.0
+    return min(fits) if fits else None
+
+
+def on_all_points(sets: dict) -> dict:
+    """``sets`` with each region's share of all its points as the one the rule reads
+    (``unknown_in_outline`` off)."""
+    from dataclasses import replace
+
+    return {name: ([replace(r, fitness=r.share_all) for r in records], frames)
+            for name, (records, frames) in sets.items()}
+
+
+def spread(sets: dict) -> list[str]:
+    """The shares of the right known fits and of the fitted regions that are no part, on all
+    the region's points and inside the fitted outline: min, 10 %, median."""
+    groups = (('renders: known parts, right fits', 'render known', True),
+              ('real sygrid: known parts, right fits', 'real known', True),
+              ('renders: parts of another set', 'render unknown', False),
+              ('real ViSP: regions named', 'visp', False))
+    lines = ['', 'Shares of the fitted regions (min / 10 % / median):', '',
+             '| regions | count | share of all points | share inside the outline |',
+             '|---|---|---|---|']
+    for label, name, right in groups:
+        chosen = [r for r in sets[name][0]
+                  if r.fitness >= 0 and (not right or r.named == r.truth)]
+        if not chosen:
+            continue
+        cells = []
+        for key in ('share_all', 'fitness'):
+            x = np.array([getattr(r, key) for r in chosen])
+            cells.append(f'{x.min():.2f} / {np.quantile(x, 0.1):.2f} / {np.median(x):.2f}')
+        lines.append(f'| {label} | {len(chosen)} | {cells[0]} | {cells[1]} |')
+    return lines
 
 
 def collect(args) -> dict[str, tuple[list[Record], int]]:
@@ -269,7 +309,8 @@ def collect(args) -> dict[str, tuple[list[Record], int]]:
     return sets
 
 
-def table(rows: list[dict], chosen: float, title: str) -> list[str]:
+def table(rows: list[dict], marks: dict[float, str], title: str) -> list[str]:
+    """One Markdown table of every threshold's figures; ``marks``: {threshold: note}."""
     lines = [
         '', title, '',
         '| unknown below fitness | renders: known top-1 | renders: unknown parts named (of '
@@ -277,8 +318,7 @@ def table(rows: list[dict], chosen: float, title: str) -> list[str]:
         'real sygrid: background FP/frame | real ViSP RGB-D: FP/frame |',
         '|---|---|---|---|---|---|---|']
     for r in rows:
-        mark = ' (chosen)' if r['threshold'] == chosen else (' (off)' if r['threshold'] == 0
-                                                             else '')
+        mark = marks.get(r['threshold'], ' (off)' if r['threshold'] == 0 else '')
         lines.append(f"| {r['threshold']:.1f}{mark} | {r['render_top1']:.3f} | "
                      f"{r['render_unknown_named']:.3f} ({r['render_unknown_fitted']:.3f}) | "
                      f"{r['render_background_fp']:.2f} | "
@@ -287,35 +327,65 @@ def table(rows: list[dict], chosen: float, title: str) -> list[str]:
     return lines
 
 
-def plot(rows: list[dict], strict: list[dict], chosen: float, path: Path) -> None:
-    """Left: known-part top-1 by threshold; right: top-1 against false positives per frame,
-    ``rows`` (solid) and ``strict`` (``unknown_without_fit``, dashed); the chosen rule starred."""
+def plot(rows: list[dict], every: list[dict], default: float, path: Path) -> None:
+    """Left: known-part top-1 by threshold; right: top-1 against false positives per frame;
+    the share inside the fitted outline (solid, the rule's) and of all the region's points
+    (dashed, ``every``); the default starred."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     t = [r['threshold'] for r in rows]
-    for key, label in (('render_top1', 'renders: known top-1'),
-                       ('real_top1', 'real sygrid: known top-1')):
-        left.plot(t, [r[key] for r in rows], 'o-', label=label)
-    left.plot(t, [r['render_unknown_fitted'] for r in rows], 's:',
-              label='renders: fitted unknown parts named')
-    left.axvline(chosen, color='grey', ls='--', label='chosen on renders')
+    styles = ((rows, '-', 'inside the outline'), (every, '--', 'all points'))
+    for series, style, suffix in styles:
+        for (key, label), colour in zip((('render_top1', 'renders: known top-1'),
+                                         ('real_top1', 'real sygrid: known top-1'),
+                                         ('render_unknown_fitted',
+                                          'renders: fitted unknown parts named')),
+                                        ('C0', 'C1', 'C2')):
+            left.plot(t, [r[key] for r in series], 'o' + style, color=colour, ms=4,
+                      label=f'{label} ({suffix})')
+    left.axvline(default, color='grey', ls=':', label='default')
     left.set_xlabel('unknown_below_fitness')
     curves = (('real_background_fp', 'real_top1', 'real sygrid, background boxes'),
               ('visp_fp', 'real_top1', 'real ViSP RGB-D frames, whole pipeline'),
               ('render_background_fp', 'render_top1', 'renders, background boxes'))
     for (fp, top, label), colour in zip(curves, ('C0', 'C1', 'C2')):
-        for series, style, suffix in ((rows, 'o-', ''), (strict, 'o--',
-                                                         ' + unknown_without_fit')):
-            right.plot([r[fp] for r in series], [r[top] for r in series], style,
-                       color=colour, label=label + suffix, ms=4)
-        star = next(r for r in rows if r['threshold'] == chosen)
+        for series, style, suffix in styles:
+            right.plot([r[fp] for r in series], [r[top] for r in series], 'o' + style,
+                       color=colour, label=f'{label} ({suffix})', ms=4)
+        star = next(r for r in rows if r['threshold'] == default)
         right.plot(star[fp], star[top], 'k*', ms=11)
     right.set_xlabel('false positives per frame (regions that are no part, named)')
     right.set_ylabel('known-part top-1 (real sygrid; renders for renders)')
-    finish_plot(fig, (left, right), path, top=1.02, legend_size=7)
+    finish_plot(fig, (left, right), path, top=1.02, legend_size=6)
+
+
+def report(sets: dict, args) -> tuple[list[str], list[dict], list[dict]]:
+    """The Markdown lines, and the curves inside the outline and on all points."""
+    from tlessbot_ros.core.params import FitParams
+
+    default = FitParams().unknown_below_fitness
+    rows, every = curve(sets, without_fit=False), curve(on_all_points(sets), without_fit=False)
+    lines = ['Counts (regions / frames): ' + '; '.join(
+        f'{k} {len(r)} / {f}' for k, (r, f) in sets.items())]
+    for name, series in (('the share inside the fitted outline (the default)', rows),
+                         ("the share of all the region's points", every)):
+        chosen = choose(series, args.max_render_cost, args.max_render_unknown)
+        lines += ['', f'Renders alone, on {name}: ' + (
+            'no threshold of the grid' if chosen is None else f'**{chosen:.1f}**') +
+            f' names at most {args.max_render_unknown:.0%} of the fitted unknown rendered '
+            f'parts at a cost of at most {args.max_render_cost:.2f} of their known top-1.']
+    marks = {default: ' (default)'}
+    lines += table(rows, marks, 'The share inside the fitted outline (`unknown_in_outline: '
+                   'true`, the default); a part that is not fitted keeps its name:')
+    lines += table(every, {}, "The share of all the region's points (`unknown_in_outline: "
+                   'false`):')
+    lines += table(curve(sets, without_fit=True), marks, 'Inside the outline, with '
+                   '`unknown_without_fit: true` (a region with too few depth points is unknown '
+                   'too):')
+    return lines + spread(sets), rows, every
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -331,7 +401,7 @@ def main(argv: list[str] | None = None) -> int:
                         help='folder holding visp_images_rbt_sequence (../shared/data)')
     parser.add_argument('--boxes-per-frame', type=int, default=20)
     parser.add_argument('--max-render-cost', type=float, default=0.02,
-                        help='top-1 the chosen threshold may cost on the known renders')
+                        help='top-1 a threshold may cost on the known renders')
     parser.add_argument('--max-render-unknown', type=float, default=0.05,
                         help='share of the unknown rendered parts it may still name')
     parser.add_argument('--out', type=Path, default=Path('reports/unknown_fit'))
@@ -347,25 +417,14 @@ def main(argv: list[str] | None = None) -> int:
                      '--renders-known --renders-unknown --real --visp')
     else:
         sets = collect(args)
-    rows = curve(sets, without_fit=False)
-    chosen = choose(rows, args.max_render_cost, args.max_render_unknown)
-    lines = ['Counts (regions / frames): ' + '; '.join(
-                 f'{k} {len(r)} / {f}' for k, (r, f) in sets.items()), '',
-             f'Threshold chosen on the renders: **{chosen:.1f}** (the lowest that names at most '
-             f'{args.max_render_unknown:.0%} of the fitted unknown rendered parts and costs at '
-             f'most {args.max_render_cost:.2f} of their known top-1; the real columns chose '
-             'nothing).']
-    lines += table(rows, chosen, 'A part that is not fitted (too few depth points) keeps the '
-                   "classifier's name (`unknown_without_fit: false`):")
-    strict = curve(sets, without_fit=True)
-    lines += table(strict, -1.0, 'With `unknown_without_fit: true` (a region with too few '
-                   'depth points is unknown too):')
+    lines, rows, every = report(sets, args)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / 'unknown_fit.md').write_text('\n'.join(lines) + '\n', encoding='utf-8')
     (args.out / 'records.json').write_text(json.dumps(
         {name: {'frames': f, 'regions': [vars(r) for r in recs]}
          for name, (recs, f) in sets.items()}), encoding='utf-8')
-    plot(rows, strict, chosen, args.out / 'unknown_fit.png')
+    from tlessbot_ros.core.params import FitParams
+    plot(rows, every, FitParams().unknown_below_fitness, args.out / 'unknown_fit.png')
     print('\n'.join(lines))
     return 0
 

@@ -323,6 +323,7 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'fit_rank_below_margin', 'fit_rank_max_candidates', 'fit_rank_min_fitness',
         'fit_rank_coverage_weight',   # #40: recognition by fit
         'unknown_below_fitness', 'unknown_without_fit',   # #40 item 5: unknown stays unknown
+        'unknown_in_outline',   # #40 item 5: the share inside the fitted outline
         'flat',   # #41: flat parts: the face that is up (depth and colour image)
         'verify_inlier_m', 'verify_overrule_margin', 'verify_points',   # #40: real depth
         'steep_angle_deg'])
