@@ -49,7 +49,7 @@ class Record:
     """One region's answer: its set, whether it is a known part (and which), the class the
     pipeline named (0 = unknown), the share the rule reads (inside the fitted outline, as by
     default; NO_FIT: not fitted) and the share of all the region's points
-    (``unknown_in_outline`` off)."""
+    (``unknown_in_outline`` off), and the share of its points inside the fitted outline."""
 
     source: str
     frame: int
@@ -57,6 +57,7 @@ class Record:
     named: int
     fitness: float
     share_all: float = NO_FIT
+    covered: float = 1.0
 
 
 def make_pipeline(classifier, templates):
@@ -66,7 +67,8 @@ def make_pipeline(classifier, templates):
     from tlessbot_ros.core.pipeline import PerceptionPipeline
 
     pipeline = PerceptionPipeline(classifier=classifier, templates=templates,
-                                  fit_params=FitParams(unknown_below_fitness=0.0))
+                                  fit_params=FitParams(unknown_below_fitness=0.0,
+                                                       unknown_below_cover=0.0))
     pipeline.warm_up()
     pipeline.roi_points = {}
     fit_here = pipeline.fit_part
@@ -78,20 +80,23 @@ def make_pipeline(classifier, templates):
     return pipeline
 
 
-def explained(pipeline, detection) -> tuple[float, float]:
-    """What the rule reads of ``detection`` (its final class and pose):
-    :func:`~tlessbot_ros.core.part_fit.explained_share` of its ROI cloud inside the fitted
-    outline (the default) and of all of it; NO_FIT: no pose."""
+def explained(pipeline, detection) -> tuple[float, float, float]:
+    """What the rule reads of ``detection`` (its final class and pose): the share of its ROI
+    cloud explained inside the fitted outline (the default) and of all of it, and the share
+    inside the outline (:func:`~tlessbot_ros.core.part_fit.outline_shares`); NO_FIT: no
+    pose."""
     from dataclasses import replace
 
-    from tlessbot_ros.core.part_fit import explained_share
+    from tlessbot_ros.core.part_fit import outline_shares
 
     if detection.pose is None:
-        return NO_FIT, NO_FIT
+        return NO_FIT, NO_FIT, 1.0
     points = pipeline.roi_points[detection.instance_id]
-    return tuple(explained_share(replace(pipeline.fit_params, unknown_in_outline=inside), points,
-                                 detection.obj_id, detection.pose, pipeline.pose_estimator)
-                 for inside in (True, False))
+    inside, covered = outline_shares(pipeline.fit_params, points, detection.obj_id,
+                                     detection.pose, pipeline.pose_estimator)
+    every, _ = outline_shares(replace(pipeline.fit_params, unknown_in_outline=False), points,
+                              detection.obj_id, detection.pose, pipeline.pose_estimator)
+    return inside, every, covered
 
 
 def fit_boxes(pipeline, image, boxes, truths, source: str, frame: int) -> list[Record]:
@@ -112,7 +117,7 @@ def fit_boxes(pipeline, image, boxes, truths, source: str, frame: int) -> list[R
     for k, truth in enumerate(truths):
         guess, detection = guesses.get(k + 1), by_instance.get(k + 1)
         named = 0 if guess is None else guess.obj_id
-        shares = (DROPPED, DROPPED)
+        shares = (DROPPED, DROPPED, 1.0)
         if detection is not None:
             named = detection.obj_id
             shares = explained(pipeline, detection)
@@ -188,7 +193,7 @@ def visp_records(pipeline, root: Path) -> tuple[list[Record], int]:
         fitted = {d.instance_id: d for d in result.detections}
         for instance in sorted(labelled):
             d = fitted.get(instance)
-            shares = (DROPPED, DROPPED) if d is None else explained(pipeline, d)
+            shares = (DROPPED, DROPPED, 1.0) if d is None else explained(pipeline, d)
             records.append(Record('visp', n, 0, 0 if d is None else int(d.obj_id), *shares))
     return records, len(frames)
 
@@ -309,6 +314,22 @@ def collect(args) -> dict[str, tuple[list[Record], int]]:
     return sets
 
 
+def cover_table(sets: dict, default: float) -> list[str]:
+    """ViSP's false positives per frame (the whole pipeline: the regions are the localiser's
+    masks) at the default threshold and each ``unknown_below_cover``; the box sets do not
+    read the cover."""
+    records, frames = sets['visp']
+    lines = ['', f'Masks only (ViSP, whole pipeline), at the default {default:.1f} inside the '
+             'outline and `unknown_below_cover` (a fit whose outline covers less than that '
+             "share of its mask's points is unknown):", '',
+             '| unknown below cover | real ViSP RGB-D: FP/frame |', '|---|---|']
+    for cover in (0.0, 0.3, 0.5, 0.7):
+        kept_now = kept(records, default, False) & np.array(
+            [r.fitness < 0 or r.covered >= cover for r in records], bool)
+        lines.append(f'| {cover:.1f} | {np.sum(kept_now) / frames:.2f} |')
+    return lines
+
+
 def table(rows: list[dict], marks: dict[float, str], title: str) -> list[str]:
     """One Markdown table of every threshold's figures; ``marks``: {threshold: note}."""
     lines = [
@@ -385,7 +406,7 @@ def report(sets: dict, args) -> tuple[list[str], list[dict], list[dict]]:
     lines += table(curve(sets, without_fit=True), marks, 'Inside the outline, with '
                    '`unknown_without_fit: true` (a region with too few depth points is unknown '
                    'too):')
-    return lines + spread(sets), rows, every
+    return lines + spread(sets) + cover_table(sets, default), rows, every
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -133,7 +133,8 @@ def test_a_region_no_candidate_fits_gets_no_ransac_fallback(scene):
     depth[junk > 0] = 0.40      # a flat card floating 40 cm from the camera: no part
     views = {'side': ViewInput(rgb=None, depth_m=depth, intrinsics=SIDE.intrinsics,
                                T_world_camera=SIDE.T_world_camera)}
-    pipeline = PerceptionPipeline(templates=db, fit_params=FitParams(unknown_below_fitness=0))
+    pipeline = PerceptionPipeline(templates=db, fit_params=FitParams(unknown_below_fitness=0,
+                                                                 unknown_below_cover=0))
     calls = _counting(pipeline)
     [detection] = pipeline.estimate_poses(views, {'side': junk}, {1: (5, 21)})
     assert calls == [5, 21]      # both verified, no third (fallback) call
@@ -323,7 +324,7 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'fit_rank_below_margin', 'fit_rank_max_candidates', 'fit_rank_min_fitness',
         'fit_rank_coverage_weight',   # #40: recognition by fit
         'unknown_below_fitness', 'unknown_without_fit',   # #40 item 5: unknown stays unknown
-        'unknown_in_outline',   # #40 item 5: the share inside the fitted outline
+        'unknown_in_outline', 'unknown_below_cover',   # #40 item 5: the fitted outline
         'flat',   # #41: flat parts: the face that is up (depth and colour image)
         'verify_inlier_m', 'verify_overrule_margin', 'verify_points',   # #40: real depth
         'steep_angle_deg'])

@@ -17,6 +17,7 @@ SIDE = default_rig()['side']
 # (scripts/unknown_by_fit.py, unknown_in_outline off); the default reads the share inside the
 # fitted model's outline at 0.5 (docs/unknown-parts.md).
 RENDER_THRESHOLD = 0.7
+OFF = {'unknown_below_fitness': 0.0, 'unknown_below_cover': 0.0}   # the rule off
 
 
 @pytest.fixture(scope='module')
@@ -52,7 +53,7 @@ def carton():
 
 def test_an_object_no_template_fits_is_unknown_and_a_known_part_is_kept(part21, carton):
     db, views, labels = part21
-    off = PerceptionPipeline(templates=db, fit_params=FitParams(unknown_below_fitness=0.0))
+    off = PerceptionPipeline(templates=db, fit_params=FitParams(**OFF))
     default = RENDER_THRESHOLD
     right = _fit(off, views, labels, 21)
     assert right.obj_id == 21 and right.pose.fitness >= default
@@ -87,7 +88,7 @@ def test_fit_ranking_floor_keeps_its_meaning(part21):
     """fit_rank_min_fitness acts on several candidates only, as before."""
     db, views, labels = part21
     pipeline = PerceptionPipeline(templates=db, fit_params=FitParams(
-        unknown_below_fitness=0.0, fit_rank_min_fitness=1.0))
+        **OFF, fit_rank_min_fitness=1.0))
     assert _fit(pipeline, views, labels, 21).obj_id == 21   # one candidate: untouched
     [detection] = pipeline.estimate_poses(views, labels, {1: (5, 21)})
     assert detection.obj_id == UNKNOWN_ID
@@ -105,18 +106,17 @@ def test_the_rule_is_on_by_default_and_reads_the_share_inside_the_outline(part21
     assert kept.obj_id == 21 and kept.pose is not None
 
 
-def _beside(carton, dx_m: float):
-    """The carton's depth points (camera frame) as if it stood ``dx_m`` along the table's x."""
+def _beside(dx_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """A 12 x 10 x 8 cm carton standing ``dx_m`` along the table's x: (depth_m, its mask)."""
     from tlessbot_ros.core.common import table_with_box
-    from tlessbot_ros.core.pose.cloud import roi_cloud
 
     shifted = SIDE.T_world_camera.copy()
     shifted[0, 3] -= dx_m
     _, depth, mask = table_with_box(SIDE.intrinsics, shifted, box_size_m=(0.12, 0.10, 0.08))
-    return roi_cloud(depth.astype(np.float32), mask, SIDE.intrinsics)
+    return depth.astype(np.float32), mask
 
 
-def test_a_neighbour_in_the_region_is_no_evidence_against_the_part(part21, carton):
+def test_a_neighbour_in_the_region_is_no_evidence_against_the_part(part21):
     """A box around a part in a pile holds its neighbours too: the share of all its points the
     part explains falls with their number, the share inside the part's outline does not."""
     from tlessbot_ros.core.part_fit import explained_share
@@ -126,7 +126,7 @@ def test_a_neighbour_in_the_region_is_no_evidence_against_the_part(part21, carto
     pipeline = PerceptionPipeline(templates=db)
     part = roi_cloud(views['side'].depth_m, labels['side'] > 0, SIDE.intrinsics)
     pose = _fit(pipeline, views, labels, 21).pose
-    neighbour = _beside(carton, 0.16)
+    neighbour = roi_cloud(*_beside(0.16), SIDE.intrinsics)
     assert len(neighbour) > len(part)   # the neighbour is most of the box
     both = np.concatenate([part, neighbour])
     params = pipeline.fit_params
@@ -167,7 +167,7 @@ def test_the_share_the_rule_reads_is_explained_share(part21, carton):
     from tlessbot_ros.core.part_fit import explained_share
 
     db, _, _ = part21
-    off = PerceptionPipeline(templates=db, fit_params=FitParams(unknown_below_fitness=0.0))
+    off = PerceptionPipeline(templates=db, fit_params=FitParams(**OFF))
     points = {}
     fit_here = off.fit_part
 
@@ -180,5 +180,28 @@ def test_the_share_the_rule_reads_is_explained_share(part21, carton):
     assert 0 < share < 1 and share != pytest.approx(detection.pose.fitness, abs=1e-6)
     for threshold, named in ((share - 1e-4, 5), (share + 1e-4, UNKNOWN_ID)):
         rule = PerceptionPipeline(templates=db, fit_params=FitParams(
-            unknown_below_fitness=threshold))
+            unknown_below_fitness=threshold, unknown_below_cover=0.0))
         assert _fit(rule, *carton, 5).obj_id == named
+
+
+def test_a_mask_the_fitted_outline_covers_little_of_is_unknown_a_box_is_not(part21):
+    """The localiser's mask is one object: a fit that covers a small patch of it is not that
+    object (``unknown_below_cover``). A box holds neighbours by construction: not read there."""
+    from tlessbot_ros.core.pose.cloud import roi_cloud
+
+    db, views, labels = part21
+    part = labels['side'] > 0
+    depth, box = _beside(0.16)
+    both = views['side'].depth_m.copy()
+    both[box & ~part] = depth[box & ~part]
+    merged = {'side': (part | box).astype(np.uint16)}
+    seen = {'side': ViewInput(views['side'].rgb, both, SIDE.intrinsics, SIDE.T_world_camera)}
+    assert len(roi_cloud(both, box & ~part, SIDE.intrinsics)) > 2 * part.sum()
+    pipeline = PerceptionPipeline(templates=db)
+    assert pipeline.fit_params.unknown_below_cover > 0
+    [detection] = pipeline.estimate_poses(seen, merged, {1: (21,)})
+    assert detection.obj_id == UNKNOWN_ID
+    [boxed] = pipeline.estimate_poses(seen, merged, {1: (21,)}, box_mode=True)
+    assert boxed.obj_id == 21 and boxed.pose is not None
+    off = PerceptionPipeline(templates=db, fit_params=FitParams(unknown_below_cover=0.0))
+    assert off.estimate_poses(seen, merged, {1: (21,)})[0].obj_id == 21

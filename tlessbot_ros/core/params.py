@@ -123,6 +123,8 @@ class FitParams:
             points (within ``verify_inlier_m``) is reported unknown, no pose (0..1; 0: off).
         unknown_in_outline: that share is read on the points inside the fitted model's outline
             (neighbours in the region do not count against it); off: on all the region's points.
+        unknown_below_cover: a part whose fitted outline covers less than this share of its
+            mask's depth points is unknown (0..1; 0: off; never in box mode: a box holds others).
         unknown_without_fit: a part with depth but no fit (fewer than ``min_roi_points``
             points) is unknown too (off: it keeps the classifier's name).
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
@@ -160,6 +162,7 @@ class FitParams:
     fit_rank_min_fitness: float = 0.0
     unknown_below_fitness: float = 0.5
     unknown_in_outline: bool = True
+    unknown_below_cover: float = 0.5
     unknown_without_fit: bool = False
     fit_rank_coverage_weight: float = 0.0
     flat: FlatParams = field(default_factory=FlatParams)
@@ -188,6 +191,8 @@ class FitParams:
                f'(a fitness; 0: off), got {self.fit_rank_min_fitness}')
         _check(0 <= self.unknown_below_fitness <= 1, 'unknown_below_fitness must be in 0..1 '
                f'(a fitness; 0: off), got {self.unknown_below_fitness}')
+        _check(0 <= self.unknown_below_cover <= 1, 'unknown_below_cover must be in 0..1 '
+               f'(a share; 0: off), got {self.unknown_below_cover}')
         _check(self.fit_rank_coverage_weight >= 0, 'fit_rank_coverage_weight must be >= 0 '
                f'(0: off), got {self.fit_rank_coverage_weight}')
         _check(self.lookalike_tolerance_m > 0, 'lookalike_tolerance_m must be > 0 m (e.g. '

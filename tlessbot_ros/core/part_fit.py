@@ -70,22 +70,25 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
 
 def unknown_last(params: FitParams, jobs: Sequence[PartJob],
                  publish: Callable[[Detection], None],
-                 estimator: PoseEstimator | None = None) -> Callable[[Detection], None]:
+                 estimator: PoseEstimator | None = None, *,
+                 box_mode: bool = False) -> Callable[[Detection], None]:
     """``publish`` behind the last word on each of ``jobs``' parts, taken once the fragment
     check has kept it (so that it changes nothing else): a part whose best fit explains less
-    than ``unknown_below_fitness`` of its depth points, or that got no pose with
-    ``unknown_without_fit``, is reported unknown. With ``estimator`` and ``verify_inlier_m``
-    the share is taken at that one tolerance, as the verification compares classes
-    (:func:`_verify_fitness`), else at the class's own voxel (the pose's fitness)."""
+    than ``unknown_below_fitness`` of its depth points (:func:`explained_share`), whose
+    fitted outline covers less than ``unknown_below_cover`` of its region's points (masks
+    only: a box holds neighbours), or that got no pose with ``unknown_without_fit``, is
+    reported unknown."""
     by_detection = {id(job.detection): job for job in jobs}
+    cover = 0.0 if box_mode else params.unknown_below_cover
 
     def judged(detection: Detection) -> None:
         job, pose = by_detection[id(detection)], detection.pose
         if pose is None:
             unknown = params.unknown_without_fit
         else:
-            unknown = explained_share(params, job.points, detection.obj_id, pose,
-                                      estimator) < params.unknown_below_fitness
+            share, covered = outline_shares(params, job.points, detection.obj_id, pose,
+                                            estimator)
+            unknown = share < params.unknown_below_fitness or covered < cover
         if unknown:
             mark_unknown(detection, len(job.candidates))
         publish(detection)
@@ -101,16 +104,25 @@ def explained_share(params: FitParams, points: np.ndarray, obj_id: int, pose: Po
     count (:func:`~tlessbot_ros.core.pose.inside_outline`): a neighbour in the region's box
     is no evidence against the part, and a model that covers none of its points explains
     nothing (0)."""
+    return outline_shares(params, points, obj_id, pose, estimator)[0]
+
+
+def outline_shares(params: FitParams, points: np.ndarray, obj_id: int, pose: PoseCandidate,
+                   estimator: PoseEstimator | None = None) -> tuple[float, float]:
+    """(:func:`explained_share`, the share of the verification sample of ``points`` inside
+    the posed model's outline; 1 where the outline is not read)."""
     if estimator is None:
-        return float(pose.fitness)
+        return float(pose.fitness), 1.0
     sample = _verify_sample(points, params)
-    if params.unknown_in_outline and params.verify_inlier_m > 0:
+    covered = 1.0
+    if params.unknown_in_outline and params.verify_inlier_m > 0 and len(sample):
         obj = estimator.database[obj_id]
         model_c = transform_points(pose.T_camera_object, obj.model_points)
-        sample = sample[inside_outline(sample, model_c, obj.sample_spacing_m())]
+        inside = inside_outline(sample, model_c, obj.sample_spacing_m())
+        sample, covered = sample[inside], float(inside.mean())
         if len(sample) == 0:
-            return 0.0
-    return float(_verify_fitness(estimator, params, sample, obj_id, pose))
+            return 0.0, covered
+    return float(_verify_fitness(estimator, params, sample, obj_id, pose)), covered
 
 
 def mark_unknown(detection: Detection, rank: int) -> None:
@@ -228,5 +240,5 @@ def pose_stage(estimator: PoseEstimator | None) -> PoseEstimator:
 
 
 __all__ = ['check_lookalike', 'depth_checks', 'explained_share', 'fit_part', 'flat_parts',
-           'lookalike_check', 'lookalike_options', 'mark_unknown', 'pose_stage', 'unknown_last',
-           'warm_up_checks']
+           'lookalike_check', 'lookalike_options', 'mark_unknown', 'outline_shares', 'pose_stage',
+           'unknown_last', 'warm_up_checks']

@@ -409,7 +409,7 @@ class PerceptionPipeline:
             done(detection)
         # ground-truth boxes are one part each, never a fragment: in a pile the boxes of
         # long parts (keys, screws) overlap and their fits sit closer than the filter allows
-        last = unknown_last(self.fit_params, jobs, done, self.pose_estimator)
+        last = unknown_last(self.fit_params, jobs, done, self.pose_estimator, box_mode=box_mode)
         arbiter = fragment_filter(jobs, last, database,
                                   0.0 if box_mode else self.fit_params.fragment_overlap)
 
