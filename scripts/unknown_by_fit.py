@@ -58,6 +58,8 @@ class Record:
     fitness: float
     share_all: float = NO_FIT
     covered: float = 1.0
+    p50_mm: float = -1.0   # the points inside the outline: median / 90 % distance from the
+    p90_mm: float = -1.0   # fitted surface, mm (at most 10; -1: not fitted)
 
 
 def make_pipeline(classifier, templates):
@@ -80,23 +82,34 @@ def make_pipeline(classifier, templates):
     return pipeline
 
 
-def explained(pipeline, detection) -> tuple[float, float, float]:
+def explained(pipeline, detection) -> tuple[float, ...]:
     """What the rule reads of ``detection`` (its final class and pose): the share of its ROI
-    cloud explained inside the fitted outline (the default) and of all of it, and the share
-    inside the outline (:func:`~tlessbot_ros.core.part_fit.outline_shares`); NO_FIT: no
-    pose."""
+    cloud explained inside the fitted outline (the default) and of all of it, the share
+    inside the outline (:func:`~tlessbot_ros.core.part_fit.outline_shares`) and the median
+    and 90 % distance of those points from the fitted surface, mm; NO_FIT: no pose."""
     from dataclasses import replace
 
+    from tlessbot_ros.core.common import transform_points
     from tlessbot_ros.core.part_fit import outline_shares
+    from tlessbot_ros.core.pose import inside_outline
 
     if detection.pose is None:
-        return NO_FIT, NO_FIT, 1.0
-    points = pipeline.roi_points[detection.instance_id]
-    inside, covered = outline_shares(pipeline.fit_params, points, detection.obj_id,
-                                     detection.pose, pipeline.pose_estimator)
+        return NO_FIT, NO_FIT, 1.0, -1.0, -1.0
+    points, estimator = pipeline.roi_points[detection.instance_id], pipeline.pose_estimator
+    pose, obj = detection.pose, estimator.database[detection.obj_id]
+    inside, covered = outline_shares(pipeline.fit_params, points, detection.obj_id, pose,
+                                     estimator)
     every, _ = outline_shares(replace(pipeline.fit_params, unknown_in_outline=False), points,
-                              detection.obj_id, detection.pose, pipeline.pose_estimator)
-    return inside, every, covered
+                              detection.obj_id, pose, estimator)
+    model_c = transform_points(pose.T_camera_object, obj.model_points)
+    seen = np.asarray(points, np.float64)[inside_outline(points, model_c,
+                                                         obj.sample_spacing_m())]
+    quantiles = (-1.0, -1.0)
+    if len(seen):
+        mm = np.minimum(1e3 * estimator.refiner.surface_distances(
+            seen, obj, pose.T_camera_object, reach_m=0.01), 10.0)
+        quantiles = tuple(float(q) for q in np.quantile(mm, (0.5, 0.9)))
+    return inside, every, covered, *quantiles
 
 
 def fit_boxes(pipeline, image, boxes, truths, source: str, frame: int) -> list[Record]:
@@ -117,7 +130,7 @@ def fit_boxes(pipeline, image, boxes, truths, source: str, frame: int) -> list[R
     for k, truth in enumerate(truths):
         guess, detection = guesses.get(k + 1), by_instance.get(k + 1)
         named = 0 if guess is None else guess.obj_id
-        shares = (DROPPED, DROPPED, 1.0)
+        shares = (DROPPED, DROPPED)
         if detection is not None:
             named = detection.obj_id
             shares = explained(pipeline, detection)
@@ -193,7 +206,7 @@ def visp_records(pipeline, root: Path) -> tuple[list[Record], int]:
         fitted = {d.instance_id: d for d in result.detections}
         for instance in sorted(labelled):
             d = fitted.get(instance)
-            shares = (DROPPED, DROPPED, 1.0) if d is None else explained(pipeline, d)
+            shares = (DROPPED, DROPPED) if d is None else explained(pipeline, d)
             records.append(Record('visp', n, 0, 0 if d is None else int(d.obj_id), *shares))
     return records, len(frames)
 
@@ -314,6 +327,30 @@ def collect(args) -> dict[str, tuple[list[Record], int]]:
     return sets
 
 
+def residuals(sets: dict) -> list[str]:
+    """Per part, the right fits on the real set and on the renders: how much of the region
+    lies inside the outline, and how far those points lie from the fitted surface."""
+    lines = ['', 'Right fits per part (real sygrid | renders): share of the region inside the '
+             'outline (min-max), median over the fits of their median and 90 % distance from '
+             'the fitted surface inside the outline, mm (capped at 10):', '',
+             '| part | fits real / renders | inside the outline | median distance | '
+             '90 % distance |', '|---|---|---|---|---|']
+    right = {name: [r for r in sets[name][0] if r.fitness >= 0 and r.named == r.truth]
+             for name in ('real known', 'render known')}
+    for part in sorted({r.truth for r in right['real known']}):
+        cells = [[r for r in right[name] if r.truth == part] for name in right]
+        line = f'| {part} | {len(cells[0])} / {len(cells[1])} |'
+        for key in ('covered', 'p50_mm', 'p90_mm'):
+            texts = []
+            for fits in cells:
+                x = np.array([getattr(r, key) for r in fits])
+                texts.append('-' if not len(x) else f'{x.min():.2f}-{x.max():.2f}'
+                             if key == 'covered' else f'{np.median(x):.1f}')
+            line += f' {texts[0]} \\| {texts[1]} |'
+        lines.append(line)
+    return lines
+
+
 def cover_table(sets: dict, default: float) -> list[str]:
     """ViSP's false positives per frame (the whole pipeline: the regions are the localiser's
     masks) at the default threshold and each ``unknown_below_cover``; the box sets do not
@@ -406,7 +443,7 @@ def report(sets: dict, args) -> tuple[list[str], list[dict], list[dict]]:
     lines += table(curve(sets, without_fit=True), marks, 'Inside the outline, with '
                    '`unknown_without_fit: true` (a region with too few depth points is unknown '
                    'too):')
-    return lines + spread(sets) + cover_table(sets, default), rows, every
+    return lines + spread(sets) + residuals(sets) + cover_table(sets, default), rows, every
 
 
 def main(argv: list[str] | None = None) -> int:

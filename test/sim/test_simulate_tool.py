@@ -68,3 +68,24 @@ def test_simulate_writes_the_cameras_asked_for(tmp_path, tless_models_dir, capsy
     np.testing.assert_array_equal(one.rgb, both.rgb)   # the scene of the whole rig
     assert main([*common, '--out', str(tmp_path / 'x'), '--cameras', 'front']) == 1
     assert '--cameras front: the rig has the cameras top, side' in capsys.readouterr().err
+
+
+def test_simulate_pile_repeats_classes_and_packs_the_parts(tmp_path, tless_models_dir):
+    """--pile: two classes give more than two parts, each touching the ones before it."""
+    from tlessbot_ros.core.common import transform_points
+
+    common = ['simulate', '--models', str(tless_models_dir), '--frames', '2', '--ids', '6',
+              '19', '--parts-min', '5', '--parts-max', '5', '--width', '320', '--height',
+              '240', '--seed', '3', '--cameras', 'side', '--no-progress', '--no-masks']
+    assert main([*common, '--out', str(tmp_path / 'plain')]) == 0
+    assert main([*common, '--pile', '--out', str(tmp_path / 'pile')]) == 0
+    plain = list(read_split(tmp_path / 'plain', 'test_side'))
+    pile = list(read_split(tmp_path / 'pile', 'test_side'))
+    assert all(len(i.gt) <= 2 for i in plain)   # one part per class
+    assert all(len(i.gt) == 5 for i in pile)
+    for image in pile:
+        centres = np.array([transform_points(image.T_world_camera, g.T_camera_object[:3, 3][None])
+                            [0, :2] for g in image.gt])
+        gaps = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+        np.fill_diagonal(gaps, np.inf)
+        assert gaps.min(axis=1).max() < 0.15   # every part next to another (T-LESS: < 15 cm)

@@ -180,7 +180,17 @@ class Refiner:
         distance does not depend on how densely the model is sampled."""
         if len(scene_c) == 0:
             return 0.0, np.inf
-        reach = max(float(inlier_m), obj.voxel_size_m)
+        plane = self.surface_distances(scene_c, obj, T_camera_object, reach_m=inlier_m)
+        ok = plane <= inlier_m
+        rmse = float(np.sqrt(np.mean(plane[ok] ** 2))) if ok.any() else np.inf
+        return float(ok.mean()), rmse
+
+    @staticmethod
+    def surface_distances(scene_c: np.ndarray, obj: ObjectTemplates,
+                          T_camera_object: np.ndarray, *, reach_m: float) -> np.ndarray:
+        """(N,) distance (m) of each of ``scene_c`` (N, 3) from the tangent plane of its
+        nearest model sample, searched within ``max(reach_m, voxel)`` (inf beyond)."""
+        reach = max(float(reach_m), obj.voxel_size_m)
         q = transform_points(invert_transform(T_camera_object), scene_c)
         dist, index = obj.model_buckets(reach).nearest(q, reach)
         found = np.isfinite(dist)
@@ -188,9 +198,7 @@ class Refiner:
         plane = np.full(len(q), np.inf)
         j = index[found]
         plane[found] = np.abs(np.einsum('ij,ij->i', q[found] - model[j], normals[j]))
-        ok = plane <= inlier_m
-        rmse = float(np.sqrt(np.mean(plane[ok] ** 2))) if ok.any() else np.inf
-        return float(ok.mean()), rmse
+        return plane
 
     @staticmethod
     def coverage_radius(obj: ObjectTemplates) -> float:
