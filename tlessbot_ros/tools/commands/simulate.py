@@ -54,9 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'pose as if propped on a neighbour (tests the pose fallback; '
                              'default 0)')
     parser.add_argument('--pile', action='store_true',
-                        help='piles: a class may repeat and every part after the first lies '
-                             'next to one already placed (touching, occluding), as parts tipped '
-                             'out of a bin (with --parts-min/--parts-max of 10-15)')
+                        help='crowded scenes: every part after the first lies next to one '
+                             'already placed, classes drawn with repeats (e.g. with '
+                             '--parts-min 12 --parts-max 15; parts are never stacked)')
     parser.add_argument('--backgrounds', action='store_true',
                         help='also write background_<camera> splits: the same table and light '
                              'without parts (for background subtraction), same ids')
