@@ -73,9 +73,9 @@ def inside_outline(points_c: np.ndarray, model_c: np.ndarray, spacing_m: float) 
     uv = np.floor(model_c[:, :2] / model_c[:, 2:3] / cell).astype(np.int64)
     low = uv.min(axis=0) - 2
     size = uv.max(axis=0) - low + 3
-    grid = np.zeros((int(size[1]), int(size[0])), np.uint8)
-    grid[uv[:, 1] - low[1], uv[:, 0] - low[0]] = 1
-    grid = cv2.morphologyEx(grid, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)) > 0
+    marks = np.zeros((int(size[1]), int(size[0])), np.uint8)
+    marks[uv[:, 1] - low[1], uv[:, 0] - low[0]] = 1
+    grid = cv2.morphologyEx(marks, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)) > 0
     front = points_c[:, 2] > 1e-6
     q = np.floor(points_c[front, :2] / points_c[front, 2:3] / cell).astype(np.int64) - low
     ok = (q[:, 0] >= 0) & (q[:, 0] < size[0]) & (q[:, 1] >= 0) & (q[:, 1] < size[1])
