@@ -60,6 +60,7 @@ class Record:
     covered: float = 1.0
     p50_mm: float = -1.0   # the points inside the outline: median / 90 % distance from the
     p90_mm: float = -1.0   # fitted surface, mm (at most 10; -1: not fitted)
+    margin: float = 0.0    # the classifier's margin for the class it named
 
 
 def make_pipeline(classifier, templates):
@@ -134,7 +135,8 @@ def fit_boxes(pipeline, image, boxes, truths, source: str, frame: int) -> list[R
         if detection is not None:
             named = detection.obj_id
             shares = explained(pipeline, detection)
-        records.append(Record(source, frame, int(truth), int(named), *shares))
+        margin = 0.0 if guess is None else float(guess.margin)
+        records.append(Record(source, frame, int(truth), int(named), *shares, margin=margin))
     return records
 
 
@@ -207,7 +209,8 @@ def visp_records(pipeline, root: Path) -> tuple[list[Record], int]:
         for instance in sorted(labelled):
             d = fitted.get(instance)
             shares = (DROPPED, DROPPED) if d is None else explained(pipeline, d)
-            records.append(Record('visp', n, 0, 0 if d is None else int(d.obj_id), *shares))
+            records.append(Record('visp', n, 0, 0 if d is None else int(d.obj_id), *shares,
+                                  margin=0.0 if d is None else float(d.class_margin)))
     return records, len(frames)
 
 
@@ -351,6 +354,31 @@ def residuals(sets: dict) -> list[str]:
     return lines
 
 
+def margins(sets: dict, default: float, cover: float = 0.5) -> list[str]:
+    """Would the classifier's margin, as a second test chosen on the renders (a low quantile
+    of the right rendered fits' margins), separate what the default rule still names?"""
+    def right(name):
+        return np.array([r.margin for r in sets[name][0] if r.fitness >= 0
+                         and r.named == r.truth])
+    rendered, real = right('render known'), right('real known')
+    visp = [r for r in sets['visp'][0] if r.fitness >= 0 and r.named != 0
+            and r.fitness >= default and r.covered >= cover]
+    named = np.array([r.margin for r in visp])
+    if not len(rendered) or not len(real) or not len(named):
+        return []
+    lines = ['', "The classifier's margin of the right fits (renders, real sygrid) and of the "
+             f'fitted ViSP regions the default rule still names ({len(named)}): min / median '
+             f'{rendered.min():.0f} / {np.median(rendered):.0f}, {real.min():.0f} / '
+             f'{np.median(real):.0f}, {named.min():.0f} / {np.median(named):.0f}.', '',
+             '| unknown below margin (quantile of the right rendered fits) | real sygrid: right '
+             'fits kept | ViSP: fitted regions still named |', '|---|---|---|']
+    for q in (0.01, 0.02, 0.05):
+        t = float(np.quantile(rendered, q))
+        lines.append(f'| {t:.0f} ({q:.0%}) | {np.sum(real >= t)} / {len(real)} | '
+                     f'{np.sum(named >= t)} / {len(named)} |')
+    return lines
+
+
 def cover_table(sets: dict, default: float) -> list[str]:
     """ViSP's false positives per frame (the whole pipeline: the regions are the localiser's
     masks) at the default threshold and each ``unknown_below_cover``; the box sets do not
@@ -443,7 +471,8 @@ def report(sets: dict, args) -> tuple[list[str], list[dict], list[dict]]:
     lines += table(curve(sets, without_fit=True), marks, 'Inside the outline, with '
                    '`unknown_without_fit: true` (a region with too few depth points is unknown '
                    'too):')
-    return lines + spread(sets) + residuals(sets) + cover_table(sets, default), rows, every
+    return (lines + spread(sets) + residuals(sets) + cover_table(sets, default)
+            + margins(sets, default), rows, every)
 
 
 def main(argv: list[str] | None = None) -> int:
