@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 from tlessbot_ros.core.common.table_plane import TABLE_PLANE_MODES
 from tlessbot_ros.core.pose.flat import FlatParams
+from tlessbot_ros.core.pose.turns import TurnParams
 
 
 def _check(ok: bool, message: str) -> None:
@@ -131,6 +132,8 @@ class FitParams:
             visible surface (>= 0; 0: off).
         flat: flat parts: the face that is up (depth and colour image), the yaw and a look-alike
             (image) (:class:`~tlessbot_ros.core.pose.FlatParams`).
+        turns: parts that are not flat: a near-symmetric turn of the fit that the colour image
+            shows better (:class:`~tlessbot_ros.core.pose.TurnParams`).
 
     ``table_plane``: 'rig' reads heights in the extrinsics alone (no table frame without them:
     every part goes to RANSAC); 'observed' uses the plane found in each view's depth
@@ -166,6 +169,7 @@ class FitParams:
     unknown_without_fit: bool = False
     fit_rank_coverage_weight: float = 0.0
     flat: FlatParams = field(default_factory=FlatParams)
+    turns: TurnParams = field(default_factory=TurnParams)
 
     def __post_init__(self) -> None:
         _check(self.min_roi_points >= 3, f'min_roi_points must be at least 3 (a pose needs '

@@ -102,6 +102,7 @@ from tlessbot_ros.core.pose import (
     roi_cloud,
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
+from tlessbot_ros.core.turn_check import check_turns
 
 _REPLACEABLE = frozenset({'rig', 'classifier', 'localise_params', 'classify_params',
                           'fit_params', 'segmentation', 'fusion', 'pose', 'part_extents_m'})
@@ -415,6 +416,7 @@ class PerceptionPipeline:
 
         def fitted(job: PartJob) -> None:
             check_fitted_part(self, job, views, labels)   # every view: not in a worker
+            check_turns(self, job, views, labels)
             arbiter.fitted(job.detection, *self._fitted_centre(job))
 
         if fitter is None:

@@ -8,7 +8,8 @@ search and the orchestration), ``hypotheses`` (the table path's resting hypothes
 ``refinement`` (ICP, planar Gauss-Newton, scoring: swap it with ``PoseEstimator(refiner=...)``),
 ``ransac`` (the paper's FPFH + RANSAC path), ``grid_kernels``
 and ``buckets`` (the fast lookups), ``fallback`` (the bounded 6-DOF search for parts off the
-table path), ``lookalike``, ``flat`` (which face of a flat part is up), ``derived``
+table path), ``lookalike``, ``flat`` (which face of a flat part is up), ``turns`` (near-symmetric
+turns told apart by the colour image), ``derived``
 (start-up arrays to cache).
 Surface sampling is :func:`tlessbot_ros.core.common.sample_surface`.
 
@@ -97,6 +98,10 @@ _HOME = {
     'register_templates': 'ransac',
     'Refiner': 'refinement',
     'inside_outline': 'silhouette',
+    'TurnParams': 'turns',
+    'choose_turn': 'turns',
+    'near_turns': 'turns',
+    'rendered_edges': 'turns',
 }
 __all__ = sorted(_HOME)
 
@@ -202,4 +207,10 @@ if TYPE_CHECKING:
     )
     from tlessbot_ros.core.pose.refinement import (  # noqa: F401
         Refiner,
+    )
+    from tlessbot_ros.core.pose.turns import (  # noqa: F401
+        TurnParams,
+        choose_turn,
+        near_turns,
+        rendered_edges,
     )

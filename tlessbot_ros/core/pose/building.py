@@ -256,10 +256,11 @@ def build_database(models: Iterable[tuple[int, np.ndarray, np.ndarray,
                                           list[tuple[np.ndarray, float]], float | None]], *,
                    intrinsics: CameraIntrinsics, T_world_camera: np.ndarray,
                    params: TemplateParams = TemplateParams(),
-                   progress: Callable[[Iterable[Any]], Iterable[Any]] | None = None
-                   ) -> TemplateDatabase:
+                   progress: Callable[[Iterable[Any]], Iterable[Any]] | None = None,
+                   keep_meshes: bool = True) -> TemplateDatabase:
     """Templates of several objects: ``models`` yields (obj_id, vertices m, faces,
-    stable poses, diameter_m or None); ``progress`` wraps the iterable (e.g. ``tqdm``)."""
+    stable poses, diameter_m or None); ``progress`` wraps the iterable (e.g. ``tqdm``).
+    ``keep_meshes``: store every part's mesh (off: only look-alikes' and flat parts')."""
     items = list(models)
     db = TemplateDatabase(params={**{k: v for k, v in asdict(params).items() if k != 'cloud'},
                                   'T_world_camera': np.asarray(T_world_camera).tolist(),
@@ -276,9 +277,11 @@ def build_database(models: Iterable[tuple[int, np.ndarray, np.ndarray,
         obj.lookalikes = others
         obj.mesh_vertices = np.asarray(meshes[obj_id][0], np.float32)
         obj.mesh_faces = np.asarray(meshes[obj_id][1], np.int32)
-    for obj_id, (vertices, faces) in meshes.items():   # flat parts: for the flat check
+    for obj_id, (vertices, faces) in meshes.items():
+        # every part's mesh: the flat check (flat parts) and the turn check (near-symmetric
+        # parts, :mod:`tlessbot_ros.core.pose.turns`) render it
         obj = db.objects[obj_id]
-        if obj.mesh_faces is None and is_flat_mesh(vertices):
+        if obj.mesh_faces is None and (keep_meshes or is_flat_mesh(vertices)):
             obj.mesh_vertices = np.asarray(vertices, np.float32)
             obj.mesh_faces = np.asarray(faces, np.int32)
     return db

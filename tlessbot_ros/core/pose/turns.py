@@ -1,0 +1,274 @@
+"""Near-symmetric turns of a fitted part, told apart by the edges of the colour image.
+
+A part whose surface nearly maps onto itself under a turn (a disc with four small holes turned
+by any angle about its axis, a drilled block turned over) fits its depth almost as well in
+either pose: the features that break the symmetry are a few millimetres wide, and a stereo
+depth camera smooths them away (the holes of a 6 mm disc read as solid in simulated D435
+depth). The colour image keeps them: a hole's rim, a chamfer's crease and the outline are
+edges. :func:`near_turns` lists, once per part, the turns about its axes by multiples of
+``step_deg`` that map most of its surface onto itself without being exact symmetries;
+:func:`choose_turn` renders the fitted pose and each of its turns that the depth does not
+reject, and keeps the pose whose rendered edges (outline, depth steps, creases) lie on more
+image edges (Canny, PAMI 1986; a one-sided chamfer test as in Barrow et al., IJCAI 1977).
+
+Poses are ``T_camera_object`` (4, 4) metres, optical frame; turns are (4, 4) transforms in
+the model frame, about an axis through the surface centroid.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, cast
+
+import numpy as np
+
+from tlessbot_ros.core.common import (
+    CameraIntrinsics,
+    o3d_tensor,
+    rotation_about_axis,
+    rotation_angle_deg,
+)
+from tlessbot_ros.core.pose.database import ObjectTemplates
+
+if TYPE_CHECKING:
+    import open3d as o3d
+
+    from tlessbot_ros.core.pose.flat import ViewEvidence
+
+
+@dataclass(frozen=True)
+class TurnParams:
+    """Settings of the near-symmetric turn check (:func:`choose_turn`).
+
+    Attributes:
+        enabled: run the check on parts whose templates hold their mesh.
+        step_deg: turns about each axis are tried at multiples of this (0 < step <= 90).
+        min_turn_deg: turns by less are not tried (the fit's own refinement settles them).
+        near_ratio: a turn is near-symmetric when the median distance of the turned surface
+            samples to the nearest sample is at most this many sample spacings (>= 1).
+        exact_ratio: ... and an exact symmetry (not tried: it looks the same) when the
+            ``exact_quantile`` of those distances is at most this many spacings too.
+        exact_quantile: that quantile (0..1): high, so that small features count.
+        max_fitness_drop: a turn competes only when its depth fitness is at most this below
+            the fitted pose's (0..1).
+        min_gain: a turn replaces the fitted pose when this larger a share of its rendered
+            edges lies on image edges (0..1).
+        min_edge_px: ... and it renders at least this many edge pixels (>= 1).
+        edge_px: a rendered edge pixel within this distance of a Canny edge is supported, px.
+        jump_m: neighbouring rendered pixels whose depths differ by more are an edge, m.
+        crease_deg: neighbouring rendered pixels whose normals differ by more are an edge.
+        points: the ROI points the turns' depth fitness is measured on, at most (>= 10).
+    """
+
+    enabled: bool = True
+    step_deg: float = 5.0
+    min_turn_deg: float = 10.0
+    near_ratio: float = 1.6
+    exact_ratio: float = 3.0
+    exact_quantile: float = 0.98
+    max_fitness_drop: float = 0.05
+    min_gain: float = 0.04
+    min_edge_px: int = 30
+    edge_px: float = 1.5
+    jump_m: float = 0.002
+    crease_deg: float = 30.0
+    points: int = 500
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.step_deg <= 90.0:
+            raise ValueError(f'step_deg must be in (0, 90] degrees, got {self.step_deg}')
+        if not 0.0 <= self.min_turn_deg < 180.0:
+            raise ValueError(f'min_turn_deg must be in [0, 180), got {self.min_turn_deg}')
+        if self.near_ratio < 1.0 or self.exact_ratio < 1.0:
+            raise ValueError('near_ratio and exact_ratio are >= 1 (sample spacings), got '
+                             f'{self.near_ratio}, {self.exact_ratio}')
+        if not 0.0 < self.exact_quantile <= 1.0:
+            raise ValueError(f'exact_quantile must be in (0, 1], got {self.exact_quantile}')
+        if not 0.0 <= self.max_fitness_drop <= 1.0 or not 0.0 <= self.min_gain <= 1.0:
+            raise ValueError('max_fitness_drop and min_gain are shares in 0..1, got '
+                             f'{self.max_fitness_drop}, {self.min_gain}')
+        if self.min_edge_px < 1 or self.points < 10 or self.edge_px <= 0 or self.jump_m <= 0:
+            raise ValueError('min_edge_px must be >= 1, points >= 10, edge_px and jump_m > 0')
+
+
+def _axes(points: np.ndarray) -> list[np.ndarray]:
+    """The model frame's axes, then the surface's principal axes not within 5° of them."""
+    centre = points.mean(axis=0)
+    _, principal = np.linalg.eigh(np.cov((points - centre).T))
+    axes: list[np.ndarray] = []
+    for axis in [*np.eye(3), *principal.T]:
+        if all(abs(axis @ a) < np.cos(np.radians(5.0)) for a in axes):
+            axes.append(axis / np.linalg.norm(axis))
+    return axes
+
+
+def _surface_centre(obj: ObjectTemplates) -> np.ndarray:
+    """The area-weighted centroid of the part's mesh surface (of its surface samples without a
+    mesh): the samples' own mean is a few tenths of a millimetre off (3000 random samples),
+    enough to make a turn about it miss an exact symmetry's small features."""
+    if obj.mesh_vertices is None or obj.mesh_faces is None:
+        return cast(np.ndarray, obj.model_points.astype(np.float64).mean(axis=0))
+    triangles = np.asarray(obj.mesh_vertices, np.float64)[obj.mesh_faces]      # (F, 3, 3)
+    area = 0.5 * np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0],
+                                         triangles[:, 2] - triangles[:, 0]), axis=1)
+    return cast(np.ndarray, (area @ triangles.mean(axis=1)) / max(float(area.sum()), 1e-12))
+
+
+def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: float = 10.0,
+               near_ratio: float = 1.6, exact_ratio: float = 3.0,
+               exact_quantile: float = 0.98) -> np.ndarray:
+    """(K, 4, 4) the part's near-symmetric turns that are not exact symmetries (cached).
+
+    Candidates: turns by multiples of ``step_deg`` about the model frame's axes and the surface's principal axes, through the surface
+    centroid. Each is judged by the distances of the turned surface samples to the nearest
+    sample, in units of the median spacing of neighbouring samples: near-symmetric when their
+    median is at most ``near_ratio`` (most of the surface maps onto itself: a generic turn by
+    20° scores 1.8-3, a half-turn of a drilled block 1.2-1.5), exact when their
+    ``exact_quantile`` is at most ``exact_ratio`` too (the small features map as well: 2.2-2.7
+    for the listed symmetries of the generated parts, 3.5-6 for the turns of a disc with four
+    holes and the half-turns of a drilled block). A part with a continuous axis has no turn
+    about it here (all exact). Turns within ``min_turn_deg`` of an exact symmetry are left out: they are that symmetry and a small turn, which the fit's own
+    refinement settles.
+    """
+    key = ('near_turns', float(step_deg), float(min_turn_deg), float(near_ratio),
+           float(exact_ratio), float(exact_quantile))
+
+    def build() -> np.ndarray:
+        model = obj.model_points.astype(np.float64)
+        tree = obj.model_tree()
+        sub = model[::max(1, len(model) // 1500)]
+        spacing = float(np.median(tree.query(sub, k=2)[0][:, 1]))  # [:, 0]: the sample itself
+        centre = _surface_centre(obj)
+        turns = []
+        count = int(round(360.0 / step_deg))
+        exact = [np.eye(3)]
+        angles = 360.0 * np.arange(1, count) / count
+        for axis in _axes(model):
+            for angle in angles[np.minimum(angles, 360.0 - angles) >= min_turn_deg - 1e-6]:
+                S = np.eye(4)
+                S[:3, :3] = rotation_about_axis(axis, np.radians(angle))
+                S[:3, 3] = centre - S[:3, :3] @ centre
+                d = tree.query(sub @ S[:3, :3].T + S[:3, 3])[0] / spacing
+                if np.quantile(d, exact_quantile) <= exact_ratio:
+                    exact.append(S[:3, :3])
+                elif np.median(d) <= near_ratio:
+                    turns.append(S)
+        # a turn within min_turn_deg of an exact symmetry (the identity too) is that symmetry
+        # and a small turn, which the fit's refinement settles
+        far = [S for S in turns
+               if min(rotation_angle_deg(S[:3, :3], R) for R in exact) >= min_turn_deg - 1e-6]
+        return np.array(far).reshape(-1, 4, 4)
+    return cast(np.ndarray, obj.derived(key, build))
+
+
+def rendered_edges(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
+                   intrinsics: CameraIntrinsics, box: tuple[int, int, int, int], *,
+                   jump_m: float, crease_deg: float) -> np.ndarray:
+    """(h, w) bool edges of a mesh at a pose in the image window ``box`` (x, y, w, h): pixels
+    next to a neighbour that the mesh covers and they do not (its outline, a through hole), or
+    whose depth lies more than ``jump_m`` off the plane of the other's surface (a step, a
+    hole's rim: a surface seen at a grazing angle is no edge), or whose surface normal turns
+    by more than ``crease_deg`` (a crease, a chamfer)."""
+    x0, y0, w, h = box
+    K = intrinsics.K
+    v, u = np.mgrid[y0:y0 + h, x0:x0 + w].astype(np.float64)
+    rays_c = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)],
+                      axis=-1).reshape(-1, 3)
+    T = np.asarray(T_camera_object, np.float64)
+    rays = np.empty((len(rays_c), 6), np.float32)
+    rays[:, :3] = -T[:3, :3].T @ T[:3, 3]     # the camera centre in the model frame
+    rays[:, 3:] = rays_c @ T[:3, :3]          # z = 1 in the camera: the hit distance is depth
+    cast_out = scene.cast_rays(o3d_tensor(rays))
+    depth = cast_out['t_hit'].numpy().astype(np.float64).reshape(h, w)
+    normals = (cast_out['primitive_normals'].numpy().astype(np.float64)
+               @ T[:3, :3].T).reshape(h, w, 3)               # in the camera frame
+    rays_c = rays_c.reshape(h, w, 3)
+    hit = np.isfinite(depth)
+    depth = np.where(hit, depth, 0.0)
+    offset = np.einsum('ijk,ijk->ij', normals, rays_c) * depth    # n . P, P = depth * ray
+    cos_crease = np.cos(np.radians(crease_deg))
+    edges = np.zeros((h, w), bool)
+    for a, b in (((slice(None, -1), slice(None)), (slice(1, None), slice(None))),
+                 ((slice(None), slice(None, -1)), (slice(None), slice(1, None)))):
+        both = hit[a] & hit[b]
+        off_plane = np.zeros(both.shape, bool)
+        for p, q in ((a, b), (b, a)):   # q's depth against the plane of p's surface
+            along = np.einsum('ijk,ijk->ij', normals[p], rays_c[q])
+            with np.errstate(divide='ignore', invalid='ignore'):
+                predicted = offset[p] / along
+            off_plane |= ~(np.abs(depth[q] - predicted) <= jump_m)   # nan: off
+        edge = (hit[a] != hit[b]) | (both & off_plane) | \
+            (both & (np.einsum('ijk,ijk->ij', normals[a], normals[b]) < cos_crease))
+        edges[a] |= edge
+        edges[b] |= edge
+    return edges
+
+
+def edge_support(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray],
+                 views: Sequence[ViewEvidence], model_points: np.ndarray,
+                 params: TurnParams) -> tuple[np.ndarray, np.ndarray]:
+    """For K poses of the fitted view (``T_camera_object``): (K,) rendered edge pixels over
+    every view and (K,) of them within ``edge_px`` of a Canny edge of the image
+    (:func:`~tlessbot_ros.core.pose.silhouette.edge_distance`)."""
+    from tlessbot_ros.core.pose.silhouette import edge_distance, window
+
+    total = np.zeros(len(poses))
+    supported = np.zeros(len(poses))
+    for view in views:
+        in_view = [view.T_view_fit @ T for T in poses]
+        box = window(model_points, in_view, view.intrinsics, margin_px=4)
+        if box is None:
+            continue
+        distance = edge_distance(view.rgb, box)
+        for k, T in enumerate(in_view):
+            edges = rendered_edges(scene, T, view.intrinsics, box, jump_m=params.jump_m,
+                                   crease_deg=params.crease_deg)
+            total[k] += np.count_nonzero(edges)
+            supported[k] += np.count_nonzero(distance[edges] <= params.edge_px)
+    return total, supported
+
+
+def choose_turn(obj: ObjectTemplates, scene: o3d.t.geometry.RaycastingScene,
+                T_camera_object: np.ndarray, views: Sequence[ViewEvidence],
+                fitness: Callable[[np.ndarray], np.ndarray], params: TurnParams
+                ) -> tuple[np.ndarray, dict[str, float]]:
+    """The fitted pose or the near-symmetric turn of it (:func:`near_turns`) whose rendered
+    edges the colour images support best.
+
+    Args:
+        obj: the part's templates.
+        scene: its mesh, an Open3D ``RaycastingScene`` in the model frame.
+        T_camera_object: (4, 4) the fitted pose in the fitted view.
+        views: the colour views (:class:`~tlessbot_ros.core.pose.ViewEvidence`: each one's
+            image, intrinsics and ``T_view_fit``; the label mask is not used).
+        fitness: (K, 4, 4) poses -> (K,) depth fitness on the part's ROI (0..1).
+        params: the settings.
+
+    Returns:
+        the pose and what decided: ``turns`` tried, ``support`` of the fitted pose and
+        ``best_support`` of the best turn (shares of rendered edge pixels on image edges),
+        ``turned_deg`` (0 when the fitted pose stays).
+    """
+    T0 = np.asarray(T_camera_object, np.float64)
+    info = {'turns': 0.0, 'support': 0.0, 'best_support': 0.0, 'turned_deg': 0.0}
+    turns = near_turns(obj, step_deg=params.step_deg, min_turn_deg=params.min_turn_deg,
+                       near_ratio=params.near_ratio, exact_ratio=params.exact_ratio,
+                       exact_quantile=params.exact_quantile)
+    if not len(turns) or not views:
+        return T0, info
+    poses = np.concatenate([T0[None], T0 @ turns])
+    fit = fitness(poses)
+    keep = np.flatnonzero(fit >= fit[0] - params.max_fitness_drop)   # 0 is always kept
+    info['turns'] = float(len(keep) - 1)
+    if len(keep) < 2:
+        return T0, info
+    total, supported = edge_support(scene, [poses[k] for k in keep], views,
+                                    obj.model_points.astype(np.float64), params)
+    share = np.where(total > 0, supported / np.maximum(total, 1), 0.0)
+    best = 1 + int(np.argmax(share[1:]))
+    info.update(support=float(share[0]), best_support=float(share[best]))
+    if total[best] >= params.min_edge_px and share[best] >= share[0] + params.min_gain:
+        R = turns[keep[best] - 1][:3, :3]
+        info['turned_deg'] = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+        return poses[keep[best]], info
+    return T0, info
