@@ -77,9 +77,12 @@ def test_near_turns_are_the_turns_the_small_holes_break(holed_disc):
     _, _, obj = holed_disc
     angles = [_angle_about(S, [0, 0, 1]) for S in near_turns(obj)]
     about_axis = sorted(a for a in angles if np.isfinite(a))
-    # every 5° from 10° on, but the exact symmetries (90°, 180°) and their neighbours
-    assert 45.0 in np.round(about_axis) and 30.0 in np.round(about_axis)
-    assert all(min(abs(a - 90.0), abs(a - 180.0), a) >= 10.0 - 1e-6 for a in about_axis)
+    # every 5°, but the exact symmetries (90°, 180°) and their neighbours within
+    # min_turn_deg; the small turns too: the disc nearly turns on its axis at every angle
+    rounded = set(np.round(about_axis))
+    assert {5.0, 10.0, 30.0, 45.0, 60.0} <= rounded
+    assert all(min(abs(a - 90.0), abs(a - 180.0)) >= TurnParams().min_turn_deg - 1e-6
+               for a in about_axis)
     # without the small holes every turn about the axis is exact: none is listed
     _, _, plain = _disc(False)
     assert not any(np.isfinite(_angle_about(S, [0, 0, 1])) for S in near_turns(plain))
@@ -101,7 +104,7 @@ def _scene(vertices, faces, T_world_object, *, noise_m=0.0005, seed=0):
     return rgb.astype(np.uint8), np.where(view.depth_m > 0, depth, 0).astype(np.float32), part
 
 
-@pytest.mark.parametrize('wrong_deg', [30.0, -20.0, 45.0])
+@pytest.mark.parametrize('wrong_deg', [30.0, -20.0, 45.0, 8.0])
 def test_choose_turn_finds_the_holes_on_the_image(holed_disc, wrong_deg):
     v, f, obj = holed_disc
     T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(17)),
@@ -124,7 +127,7 @@ def test_choose_turn_finds_the_holes_on_the_image(holed_disc, wrong_deg):
     assert fitness(T_wrong[None])[0] > fitness(T_true[None])[0] - 0.05
     turned, info = choose_turn(obj, mesh_scene(obj), T_wrong, views, fitness, TurnParams())
     assert info['turned_deg'] > 0 and error_deg(turned) < 5.0, sorted(info.items())
-    assert info['best_support'] > info['support'] + TurnParams().min_gain
+    assert info['best_support'] > info['support']
     kept, info = choose_turn(obj, mesh_scene(obj), T_true, views, fitness, TurnParams())
     assert info['turned_deg'] == 0.0 and np.array_equal(kept, T_true)
 

@@ -62,7 +62,7 @@ class TurnParams:
 
     enabled: bool = True
     step_deg: float = 5.0
-    min_turn_deg: float = 10.0
+    min_turn_deg: float = 15.0
     near_ratio: float = 1.6
     exact_ratio: float = 3.0
     exact_quantile: float = 0.98
@@ -114,7 +114,7 @@ def _surface_centre(obj: ObjectTemplates) -> np.ndarray:
     return cast(np.ndarray, (area @ triangles.mean(axis=1)) / max(float(area.sum()), 1e-12))
 
 
-def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: float = 10.0,
+def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: float = 15.0,
                near_ratio: float = 1.6, exact_ratio: float = 3.0,
                exact_quantile: float = 0.98) -> np.ndarray:
     """(K, 4, 4) the part's near-symmetric turns that are not exact symmetries (cached).
@@ -128,7 +128,9 @@ def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: flo
     for the listed symmetries of the generated parts, 3.5-6 for the turns of a disc with four
     holes and the half-turns of a drilled block). A part with a continuous axis has no turn
     about it here (all exact). Turns within ``min_turn_deg`` of an exact symmetry are left out: they are that symmetry and a small turn, which the fit's own
-    refinement settles.
+    refinement settles. About an axis the surface nearly turns on at every angle (every turn
+    from ``min_turn_deg`` on near or exact, one near at least) the smaller turns are listed
+    too: there the depth settles no turn at all.
     """
     key = ('near_turns', float(step_deg), float(min_turn_deg), float(near_ratio),
            float(exact_ratio), float(exact_quantile))
@@ -139,25 +141,34 @@ def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: flo
         sub = model[::max(1, len(model) // 1500)]
         spacing = float(np.median(tree.query(sub, k=2)[0][:, 1]))  # [:, 0]: the sample itself
         centre = _surface_centre(obj)
-        turns = []
         count = int(round(360.0 / step_deg))
-        exact = [np.eye(3)]
         angles = 360.0 * np.arange(1, count) / count
+        large = np.minimum(angles, 360.0 - angles) >= min_turn_deg - 1e-6
+        exact, turns, fine = [np.eye(3)], [], []
         for axis in _axes(model):
-            for angle in angles[np.minimum(angles, 360.0 - angles) >= min_turn_deg - 1e-6]:
+            kinds = []
+            for angle in angles:
                 S = np.eye(4)
                 S[:3, :3] = rotation_about_axis(axis, np.radians(angle))
                 S[:3, 3] = centre - S[:3, :3] @ centre
                 d = tree.query(sub @ S[:3, :3].T + S[:3, 3])[0] / spacing
-                if np.quantile(d, exact_quantile) <= exact_ratio:
-                    exact.append(S[:3, :3])
-                elif np.median(d) <= near_ratio:
-                    turns.append(S)
+                kinds.append((S, 'exact' if np.quantile(d, exact_quantile) <= exact_ratio
+                              else 'near' if np.median(d) <= near_ratio else 'far'))
+            big = [kind for (_, kind), is_large in zip(kinds, large) if is_large]
+            exact += [S[:3, :3] for (S, kind), is_large in zip(kinds, large)
+                      if is_large and kind == 'exact']
+            turns += [S for (S, kind), is_large in zip(kinds, large)
+                      if is_large and kind == 'near']
+            if 'far' not in big and 'near' in big:
+                # nearly continuous about this axis (a disc with small holes): its small
+                # turns too, which the depth cannot settle either
+                fine += [S for (S, _), is_large in zip(kinds, large) if not is_large]
         # a turn within min_turn_deg of an exact symmetry (the identity too) is that symmetry
-        # and a small turn, which the fit's refinement settles
+        # and a small turn, which the fit's refinement settles (but about a nearly continuous
+        # axis: those are the fine turns)
         far = [S for S in turns
                if min(rotation_angle_deg(S[:3, :3], R) for R in exact) >= min_turn_deg - 1e-6]
-        return np.array(far).reshape(-1, 4, 4)
+        return np.array(far + fine).reshape(-1, 4, 4)
     return cast(np.ndarray, obj.derived(key, build))
 
 
@@ -232,8 +243,14 @@ def choose_turn(obj: ObjectTemplates, scene: o3d.t.geometry.RaycastingScene,
                 T_camera_object: np.ndarray, views: Sequence[ViewEvidence],
                 fitness: Callable[[np.ndarray], np.ndarray], params: TurnParams
                 ) -> tuple[np.ndarray, dict[str, float]]:
-    """The fitted pose or the near-symmetric turn of it (:func:`near_turns`) whose rendered
+    """The fitted pose or a near-symmetric turn of it (:func:`near_turns`) whose rendered
     edges the colour images support best.
+
+    A turn replaces the pose when its share of rendered edge pixels on image edges exceeds
+    the pose's by ``min_gain``, scaled by its angle over ``min_turn_deg`` when smaller (a
+    small turn moves the edges by a pixel or two, so fewer of them can newly land on image
+    edges), and it renders at least ``min_edge_px`` edge pixels. A turned pose is checked
+    once more against its own turns (a coarse turn lands within a step of the best one).
 
     Args:
         obj: the part's templates.
@@ -246,8 +263,8 @@ def choose_turn(obj: ObjectTemplates, scene: o3d.t.geometry.RaycastingScene,
 
     Returns:
         the pose and what decided: ``turns`` tried, ``support`` of the fitted pose and
-        ``best_support`` of the best turn (shares of rendered edge pixels on image edges),
-        ``turned_deg`` (0 when the fitted pose stays).
+        ``best_support`` of the chosen pose (shares of rendered edge pixels on image edges),
+        ``turned_deg`` (the angle between the fitted and the chosen pose; 0 when it stays).
     """
     T0 = np.asarray(T_camera_object, np.float64)
     info = {'turns': 0.0, 'support': 0.0, 'best_support': 0.0, 'turned_deg': 0.0}
@@ -256,19 +273,27 @@ def choose_turn(obj: ObjectTemplates, scene: o3d.t.geometry.RaycastingScene,
                        exact_quantile=params.exact_quantile)
     if not len(turns) or not views:
         return T0, info
-    poses = np.concatenate([T0[None], T0 @ turns])
-    fit = fitness(poses)
-    keep = np.flatnonzero(fit >= fit[0] - params.max_fitness_drop)   # 0 is always kept
-    info['turns'] = float(len(keep) - 1)
-    if len(keep) < 2:
-        return T0, info
-    total, supported = edge_support(scene, [poses[k] for k in keep], views,
-                                    obj.model_points.astype(np.float64), params)
-    share = np.where(total > 0, supported / np.maximum(total, 1), 0.0)
-    best = 1 + int(np.argmax(share[1:]))
-    info.update(support=float(share[0]), best_support=float(share[best]))
-    if total[best] >= params.min_edge_px and share[best] >= share[0] + params.min_gain:
-        R = turns[keep[best] - 1][:3, :3]
-        info['turned_deg'] = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
-        return poses[keep[best]], info
-    return T0, info
+    angles = np.array([rotation_angle_deg(S[:3, :3], np.eye(3)) for S in turns])
+    required = params.min_gain * np.minimum(1.0, angles / max(params.min_turn_deg, 1e-9))
+    T = T0
+    for round_ in range(2):
+        poses = np.concatenate([T[None], T @ turns])
+        fit = fitness(poses)
+        keep = np.flatnonzero(fit >= fit[0] - params.max_fitness_drop)   # 0 is always kept
+        info['turns'] += float(len(keep) - 1)
+        if len(keep) < 2:
+            break
+        total, supported = edge_support(scene, [poses[k] for k in keep], views,
+                                        obj.model_points.astype(np.float64), params)
+        share = np.where(total > 0, supported / np.maximum(total, 1), 0.0)
+        margin = share[1:] - share[0] - required[keep[1:] - 1]
+        margin[total[1:] < params.min_edge_px] = -np.inf
+        best = int(np.argmax(margin))
+        if round_ == 0:
+            info['support'] = info['best_support'] = float(share[0])
+        if margin[best] <= 0:
+            break
+        T = poses[keep[best + 1]]
+        info['best_support'] = float(share[best + 1])
+    info['turned_deg'] = rotation_angle_deg(T[:3, :3], T0[:3, :3])
+    return T, info
