@@ -119,18 +119,20 @@ def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: flo
                exact_quantile: float = 0.98) -> np.ndarray:
     """(K, 4, 4) the part's near-symmetric turns that are not exact symmetries (cached).
 
-    Candidates: turns by multiples of ``step_deg`` about the model frame's axes and the surface's principal axes, through the surface
-    centroid. Each is judged by the distances of the turned surface samples to the nearest
-    sample, in units of the median spacing of neighbouring samples: near-symmetric when their
-    median is at most ``near_ratio`` (most of the surface maps onto itself: a generic turn by
-    20° scores 1.8-3, a half-turn of a drilled block 1.2-1.5), exact when their
-    ``exact_quantile`` is at most ``exact_ratio`` too (the small features map as well: 2.2-2.7
-    for the listed symmetries of the generated parts, 3.5-6 for the turns of a disc with four
-    holes and the half-turns of a drilled block). A part with a continuous axis has no turn
-    about it here (all exact). Turns within ``min_turn_deg`` of an exact symmetry are left out: they are that symmetry and a small turn, which the fit's own
-    refinement settles. About an axis the surface nearly turns on at every angle (every turn
-    from ``min_turn_deg`` on near or exact, one near at least) the smaller turns are listed
-    too: there the depth settles no turn at all.
+    Candidates: turns by multiples of ``step_deg`` (``min_turn_deg`` or more) about the model
+    frame's axes and the surface's principal axes, through the surface centroid
+    (:func:`_surface_centre`). Each is judged by the distances of the turned surface samples
+    to the nearest sample, in units of the median spacing of neighbouring samples:
+    near-symmetric when their median is at most ``near_ratio`` (most of the surface maps onto
+    itself: a generic turn by 20° scores 1.8-3, a half-turn of a drilled block 1.2-1.5), exact
+    when their ``exact_quantile`` is at most ``exact_ratio`` too (the small features map as
+    well: 2.2-2.7 for the listed symmetries of the generated parts, 3.5-6 for the turns of a
+    disc with four holes and the half-turns of a drilled block). A part with a continuous axis
+    has no turn about it here (all exact). Turns within ``min_turn_deg`` of an exact symmetry
+    (the identity too) are left out: they are that symmetry and a small turn, which the fit's
+    own refinement settles. About an axis the surface nearly turns on at every angle (every
+    turn from ``min_turn_deg`` on near or exact, one near at least) the smaller turns are
+    listed too: there the depth settles no turn at all.
     """
     key = ('near_turns', float(step_deg), float(min_turn_deg), float(near_ratio),
            float(exact_ratio), float(exact_quantile))
@@ -184,16 +186,15 @@ def rendered_edges(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.nd
     K = intrinsics.K
     v, u = np.mgrid[y0:y0 + h, x0:x0 + w].astype(np.float64)
     rays_c = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)],
-                      axis=-1).reshape(-1, 3)
+                      axis=-1)                                # (h, w, 3)
     T = np.asarray(T_camera_object, np.float64)
-    rays = np.empty((len(rays_c), 6), np.float32)
+    rays = np.empty((h * w, 6), np.float32)
     rays[:, :3] = -T[:3, :3].T @ T[:3, 3]     # the camera centre in the model frame
-    rays[:, 3:] = rays_c @ T[:3, :3]          # z = 1 in the camera: the hit distance is depth
+    rays[:, 3:] = rays_c.reshape(-1, 3) @ T[:3, :3]   # z = 1 in the camera: the hit is depth
     cast_out = scene.cast_rays(o3d_tensor(rays))
     depth = cast_out['t_hit'].numpy().astype(np.float64).reshape(h, w)
     normals = (cast_out['primitive_normals'].numpy().astype(np.float64)
                @ T[:3, :3].T).reshape(h, w, 3)               # in the camera frame
-    rays_c = rays_c.reshape(h, w, 3)
     hit = np.isfinite(depth)
     depth = np.where(hit, depth, 0.0)
     offset = np.einsum('ijk,ijk->ij', normals, rays_c) * depth    # n . P, P = depth * ray
