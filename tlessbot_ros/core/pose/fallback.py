@@ -130,6 +130,19 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return R[0] if single else R
 
 
+def turn_axes(points: np.ndarray) -> list[np.ndarray]:
+    """The axes a part's (near-)symmetries are looked for about: the model frame's axes, then
+    the principal axes of its (N, 3) surface samples that are not within 5° of one of them
+    (unit vectors)."""
+    centre = points.mean(axis=0)
+    _, principal = np.linalg.eigh(np.cov((points - centre).T))
+    axes: list[np.ndarray] = []
+    for axis in [*np.eye(3), *principal.T]:
+        if all(abs(axis @ a) < np.cos(np.radians(5.0)) for a in axes):
+            axes.append(axis / np.linalg.norm(axis))
+    return axes
+
+
 def near_symmetries(obj: ObjectTemplates, *, exact_ratio: float = 1.35,
                     near_ratio: float = 2.5) -> NearSymmetries:
     """The object's near and exact symmetries among turns about its axes (built once per
@@ -154,11 +167,7 @@ def near_symmetries(obj: ObjectTemplates, *, exact_ratio: float = 1.35,
     sub = model[::max(1, len(model) // 600)]
     spacing = float(np.median(tree.query(sub, k=2)[0][:, 1]))   # [:, 0] is the sample itself
     centre = model.mean(axis=0)
-    _, principal = np.linalg.eigh(np.cov((model - centre).T))
-    axes: list[np.ndarray] = []
-    for axis in [*np.eye(3), *principal.T]:
-        if all(abs(axis @ a) < np.cos(np.radians(5.0)) for a in axes):
-            axes.append(axis / np.linalg.norm(axis))
+    axes = turn_axes(model)
     exact, near = [np.eye(4)], []
     for i, axis in enumerate(axes):
         for eighth in range(1, 8):

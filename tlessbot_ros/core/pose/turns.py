@@ -29,6 +29,7 @@ from tlessbot_ros.core.common import (
     rotation_angle_deg,
 )
 from tlessbot_ros.core.pose.database import ObjectTemplates
+from tlessbot_ros.core.pose.fallback import turn_axes
 
 if TYPE_CHECKING:
     import open3d as o3d
@@ -91,17 +92,6 @@ class TurnParams:
             raise ValueError('min_edge_px must be >= 1, points >= 10, edge_px and jump_m > 0')
 
 
-def _axes(points: np.ndarray) -> list[np.ndarray]:
-    """The model frame's axes, then the surface's principal axes not within 5° of them."""
-    centre = points.mean(axis=0)
-    _, principal = np.linalg.eigh(np.cov((points - centre).T))
-    axes: list[np.ndarray] = []
-    for axis in [*np.eye(3), *principal.T]:
-        if all(abs(axis @ a) < np.cos(np.radians(5.0)) for a in axes):
-            axes.append(axis / np.linalg.norm(axis))
-    return axes
-
-
 def _surface_centre(obj: ObjectTemplates) -> np.ndarray:
     """The area-weighted centroid of the part's mesh surface (of its surface samples without a
     mesh): the samples' own mean is a few tenths of a millimetre off (3000 random samples),
@@ -147,7 +137,7 @@ def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: flo
         angles = 360.0 * np.arange(1, count) / count
         large = np.minimum(angles, 360.0 - angles) >= min_turn_deg - 1e-6
         exact, turns, fine = [np.eye(3)], [], []
-        for axis in _axes(model):
+        for axis in turn_axes(model):
             kinds = []
             for angle in angles:
                 S = np.eye(4)
