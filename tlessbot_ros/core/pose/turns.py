@@ -241,7 +241,7 @@ def choose_turn(obj: ObjectTemplates, scene: o3d.t.geometry.RaycastingScene,
     the pose's by ``min_gain``, scaled by its angle over ``min_turn_deg`` when smaller (a
     small turn moves the edges by a pixel or two, so fewer of them can newly land on image
     edges), and it renders at least ``min_edge_px`` edge pixels. A turned pose is checked
-    once more against its own turns (a coarse turn lands within a step of the best one).
+    once more against its small turns (under ``min_turn_deg``, where the part has any).
 
     Args:
         obj: the part's templates.
@@ -268,7 +268,12 @@ def choose_turn(obj: ObjectTemplates, scene: o3d.t.geometry.RaycastingScene,
     required = params.min_gain * np.minimum(1.0, angles / max(params.min_turn_deg, 1e-9))
     T = T0
     for round_ in range(2):
-        poses = np.concatenate([T[None], T @ turns])
+        # the second round, after a turn: the small turns alone (a turn lands within a step
+        # of the best one)
+        tried = np.flatnonzero(angles < params.min_turn_deg if round_ else angles >= 0)
+        if not len(tried):
+            break
+        poses = np.concatenate([T[None], T @ turns[tried]])
         fit = fitness(poses)
         keep = np.flatnonzero(fit >= fit[0] - params.max_fitness_drop)   # 0 is always kept
         info['turns'] += float(len(keep) - 1)
@@ -277,7 +282,7 @@ def choose_turn(obj: ObjectTemplates, scene: o3d.t.geometry.RaycastingScene,
         total, supported = edge_support(scene, [poses[k] for k in keep], views,
                                         obj.model_points.astype(np.float64), params)
         share = np.where(total > 0, supported / np.maximum(total, 1), 0.0)
-        margin = share[1:] - share[0] - required[keep[1:] - 1]
+        margin = share[1:] - share[0] - required[tried[keep[1:] - 1]]
         margin[total[1:] < params.min_edge_px] = -np.inf
         best = int(np.argmax(margin))
         if round_ == 0:
