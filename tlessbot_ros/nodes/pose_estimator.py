@@ -29,7 +29,9 @@ templates``; default: the parts folder's, else the packaged one),
 are verified), ``lookalike_check``, ``lookalike_tolerance_m``, ``lookalike_min_z`` and
 ``lookalike_all_views`` (look-alike parts told apart by their depth in both views at the fitted
 pose, checked in this process), ``flat.*`` (flat parts: the face that is up, told by the depth
-of both views and, with ``colour_input``, the colour image; these and ``min_roi_points``,
+of both views and, with ``colour_input``, the colour image), ``turns.*`` (parts that are not
+flat: a near-symmetric turn of the fit that the colour image's edges support better, with
+``colour_input``; these and ``min_roi_points``,
 ``table_clearance_m``, ``steep_angle_deg``: FitParams),
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
