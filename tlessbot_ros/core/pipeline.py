@@ -102,7 +102,7 @@ from tlessbot_ros.core.pose import (
     roi_cloud,
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
-from tlessbot_ros.core.turn_check import check_turns
+from tlessbot_ros.core.turn_check import check_turns, warm_up_turns
 
 _REPLACEABLE = frozenset({'rig', 'classifier', 'localise_params', 'classify_params',
                           'fit_params', 'segmentation', 'fusion', 'pose', 'part_extents_m'})
@@ -183,6 +183,7 @@ class PerceptionPipeline:
         if self.pose_estimator is not None:
             self.pose_estimator.warm_up()
             warm_up_checks(self.pose_estimator.database, self.lookalike, self.flat_ids)
+            warm_up_turns(self.pose_estimator.database, self.fit_params)
         if self.fit_params.table_plane != 'rig':   # compiles the plane search's loop
             flat = np.full((48, 64), 0.5, np.float32)
             find_table_plane(flat, np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]),

@@ -10,11 +10,30 @@ import numpy as np
 
 from tlessbot_ros.core.flat_parts import colour_views
 from tlessbot_ros.core.pose.flat import is_flat, mesh_scene
-from tlessbot_ros.core.pose.turns import choose_turn
+from tlessbot_ros.core.pose.turns import TurnParams, choose_turn, near_turns
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.frame import PartJob, ViewInput
+    from tlessbot_ros.core.params import FitParams
     from tlessbot_ros.core.pipeline import PerceptionPipeline
+    from tlessbot_ros.core.pose import ObjectTemplates, TemplateDatabase
+
+
+def _checked(obj: ObjectTemplates, fit: FitParams) -> bool:
+    """Whether the turn check runs on ``obj``: on, a mesh, not a flat part."""
+    return fit.turns.enabled and mesh_scene(obj) is not None and not (
+        fit.flat.enabled and is_flat(obj, fit.flat.flat_ratio))
+
+
+def warm_up_turns(database: TemplateDatabase, fit: FitParams) -> None:
+    """List every checked part's near-symmetric turns now (0.1-0.6 s a part, once), so the
+    first frame that shows it is not slower than the next."""
+    p: TurnParams = fit.turns
+    for obj in database.objects.values():
+        if _checked(obj, fit):
+            near_turns(obj, step_deg=p.step_deg, min_turn_deg=p.min_turn_deg,
+                       near_ratio=p.near_ratio, exact_ratio=p.exact_ratio,
+                       exact_quantile=p.exact_quantile)
 
 
 def check_turns(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
@@ -26,12 +45,11 @@ def check_turns(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vie
     detection = job.detection
     estimator = pipeline.pose_estimator
     params = pipeline.fit_params.turns
-    if not params.enabled or estimator is None or detection.pose is None:
+    if estimator is None or detection.pose is None:
         return None
     obj = estimator.database[detection.obj_id]
     scene = mesh_scene(obj)
-    if scene is None or (pipeline.fit_params.flat.enabled and
-                         is_flat(obj, pipeline.fit_params.flat.flat_ratio)):
+    if scene is None or not _checked(obj, pipeline.fit_params):
         return None
     evidence = colour_views(views, labels, detection.instance_id, detection.view)
     if not evidence:

@@ -240,8 +240,10 @@ def choose_turn(obj: ObjectTemplates, scene: o3d.t.geometry.RaycastingScene,
     A turn replaces the pose when its share of rendered edge pixels on image edges exceeds
     the pose's by ``min_gain``, scaled by its angle over ``min_turn_deg`` when smaller (a
     small turn moves the edges by a pixel or two, so fewer of them can newly land on image
-    edges), and it renders at least ``min_edge_px`` edge pixels. A turned pose is checked
-    once more against its small turns (under ``min_turn_deg``, where the part has any).
+    edges), and it renders at least ``min_edge_px`` edge pixels. The small turns (under
+    ``min_turn_deg``, where the part has any) and the larger ones by an even number of steps
+    are tried first; a turned pose is then checked against the small turns again (they reach
+    the steps skipped).
 
     Args:
         obj: the part's templates.
@@ -265,12 +267,15 @@ def choose_turn(obj: ObjectTemplates, scene: o3d.t.geometry.RaycastingScene,
     if not len(turns) or not views:
         return T0, info
     angles = np.array([rotation_angle_deg(S[:3, :3], np.eye(3)) for S in turns])
+    steps = np.round(angles / params.step_deg).astype(int)
+    coarse = (steps % 2 == 0) & (angles >= params.min_turn_deg)
     required = params.min_gain * np.minimum(1.0, angles / max(params.min_turn_deg, 1e-9))
     T = T0
     for round_ in range(2):
-        # the second round, after a turn: the small turns alone (a turn lands within a step
-        # of the best one)
-        tried = np.flatnonzero(angles < params.min_turn_deg if round_ else angles >= 0)
+        # the first round on the small turns and every other step of the larger ones (and
+        # the half-turns), the second, after a turn, on the small turns alone
+        small = angles < params.min_turn_deg
+        tried = np.flatnonzero(small if round_ else small | coarse | (angles >= 180.0 - 1e-6))
         if not len(tried):
             break
         poses = np.concatenate([T[None], T @ turns[tried]])
