@@ -327,7 +327,8 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'unknown_in_outline', 'unknown_below_cover',   # #40 item 5: the fitted outline
         'flat',   # #41: flat parts: the face that is up (depth and colour image)
         'verify_inlier_m', 'verify_overrule_margin', 'verify_points',   # #40: real depth
-        'steep_angle_deg'])
+        'steep_angle_deg',
+        'turns'])   # #41: near-symmetric turns told apart by the colour image
 
 
 # ------------------------------------------------------------------ the table plane seen in depth
