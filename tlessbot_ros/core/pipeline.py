@@ -9,13 +9,10 @@ Stages (each a method, each usable alone, so the ROS nodes and the evaluator run
    best ``class_candidates`` classes.
 3. :meth:`PerceptionPipeline.estimate_poses`: ROI cloud of each classified instance on the
    aligned depth of its preferred view (side when visible there, else top) -> pose in that
-   camera's optical frame. With several candidate classes, the first is accepted when its
-   template fit is good (fitness >= ``verify_accept_fitness``); otherwise every candidate is
-   fitted and the best fit names the part (verification by geometry, our addition: the
-   near-identical T-LESS parts differ by millimetres that a 60 px crop cannot show). A part
-   named as one of a look-alike pair (obj_21/22, obj_25/26) is then compared with its twin at
-   the fitted pose, pixel by pixel on the measured depth of every view that sees it
-   (:mod:`tlessbot_ros.core.pose.lookalike`).
+   camera's optical frame. Several candidate classes are verified by their fit (the first kept
+   at fitness >= ``verify_accept_fitness``: near-identical T-LESS parts differ by millimetres a
+   60 px crop cannot show); a look-alike is compared with its twin on the depth of every view
+   (:mod:`.pose.lookalike`), a near-symmetric part with its turns on the colour image.
 
 Inputs per view are :class:`ViewInput`; a two-view frame is ``{'top': ..., 'side': ...}``.
 
