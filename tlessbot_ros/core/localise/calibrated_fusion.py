@@ -142,6 +142,7 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
     side_labels = np.zeros(side.labels.shape, np.uint16)
     split_ids: set[int] = set()
     next_id = n_top + 1
+    fragments: list[int] = []
     kernel = cv2.getStructuringElement(
         cv2.MORPH_ELLIPSE, (2 * params.seed_erode_px + 1, 2 * params.seed_erode_px + 1))
     for b in range(1, n_blobs):
@@ -160,7 +161,12 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
             best = int(np.argmax(overlap[b, 1:])) + 1
             if overlap[b, best] >= params.fragment_fraction * stats[b, cv2.CC_STAT_AREA]:
                 owners = [best]
+        if len(owners) > 1:
+            owners = _join_top_fragments(owners, overlap[b], top, top_labels)
         if not owners and params.drop_unpredicted:
+            continue
+        if not owners and n_top > 0 and stats[b, cv2.CC_STAT_AREA] < side.whole_part_px:
+            fragments.append(b)   # no part fits it, the top does not see it: placed last
             continue
         if not owners:
             # Not predicted from the top: keep the side segmentation's own instances.
@@ -175,9 +181,11 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
             pieces = _side_pieces_of_blob(blob, side.labels[window], side, params) or [blob]
             ids, next_id, divided = _label_pieces(
                 pieces, owners, pred[window], None if side_rgb is None else side_rgb[window],
-                kernel, next_id)
+                kernel, next_id, side.whole_part_px)
             out[blob] = ids[blob]
             split_ids.update(divided)
+    next_id = _place_fragments(side_labels, blobs, stats, fragments, side.whole_part_px,
+                               next_id)
     timings['split'] = (time.perf_counter() - t1) * 1e3
     labels = {'top': top_labels, 'side': side_labels}
     return FusionResult(labels=labels, method='calibrated', predicted_side=pred,
@@ -233,13 +241,14 @@ def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
 
 
 def _label_pieces(pieces: list[np.ndarray], owners: list[int], pred: np.ndarray,
-                  rgb: np.ndarray | None, kernel: np.ndarray, next_id: int
-                  ) -> tuple[np.ndarray, int, set[int]]:
+                  rgb: np.ndarray | None, kernel: np.ndarray, next_id: int,
+                  whole_px: float = 0.0) -> tuple[np.ndarray, int, set[int]]:
     """Ids for the pieces of one side blob (:func:`_side_pieces_of_blob`, or the blob whole)
     held by the top view's predictions ``owners``: each owner goes to the piece it overlaps
     most; a piece with one owner takes its id, a piece with several is divided among them
     (:func:`_divide_among_owners`). A piece with none is a part of its own (a new id, from
-    ``next_id``) beside one owner, the fragment of the owner it overlaps most beside several.
+    ``next_id``) beside one owner, the fragment of the owner it overlaps most beside several
+    or when it is smaller than the smallest whole part, ``whole_px`` (no part fits it).
 
     Returns:
         (the window's int32 ids, the next free id, the owners whose part was divided).
@@ -250,7 +259,7 @@ def _label_pieces(pieces: list[np.ndarray], owners: list[int], pred: np.ndarray,
     divided: set[int] = set(owners) if len(pieces) > 1 else set()
     for j, piece in enumerate(pieces):
         mine = [k for k in owners if most[k] == j]
-        if not mine and len(owners) > 1:
+        if not mine and (len(owners) > 1 or np.count_nonzero(piece) < whole_px):
             # the top view has told the parts of this blob apart: a piece it gives none of
             # them is a fragment of the one it overlaps most
             mine = [max(owners, key=lambda k: np.count_nonzero(piece & (pred == k)))]
@@ -263,6 +272,49 @@ def _label_pieces(pieces: list[np.ndarray], owners: list[int], pred: np.ndarray,
             ids[piece] = _divide_among_owners(piece, pred, mine, rgb, kernel)
             divided.update(mine)
     return ids, next_id, divided
+
+
+def _join_top_fragments(owners: list[int], overlap: np.ndarray, top: Segmentation,
+                        top_labels: np.ndarray) -> list[int]:
+    """The owners of one side blob less the top blobs no part fits: one smaller than the
+    smallest whole part from the top (``top.whole_part_px``) beside one that is not is a
+    fragment (of a part the top view broke up, e.g. at a shaded face) and takes, in the top
+    labels, the id of the larger owner that overlaps the side blob most."""
+    if top.whole_part_px <= 0 or len(top.areas) < max(owners):
+        return owners
+    whole = [k for k in owners if top.areas[k - 1] >= top.whole_part_px]
+    if len(whole) == len(owners):
+        return owners
+    # none whole: all of them are pieces of one part
+    into = max(whole or owners, key=lambda k: int(overlap[k]))
+    whole = whole or [into]
+    top_labels[np.isin(top_labels, [k for k in owners if k not in whole])] = into
+    return whole
+
+
+def _place_fragments(side_labels: np.ndarray, blobs: np.ndarray, stats: np.ndarray,
+                     fragments: list[int], whole_px: float, next_id: int) -> int:
+    """Side blobs that the top does not see and that are smaller than the smallest whole
+    part (``whole_px``): each joins the labelled side blob nearest to it within the side of a
+    square of that area (a thin part whose middle the cues lost comes out in pieces), else is
+    a part of its own (a new id from ``next_id``). Returns the next free id."""
+    reach = max(1, int(np.sqrt(whole_px)))
+    H, W = side_labels.shape
+    for b in fragments:
+        x, y, w, h = (int(v) for v in stats[b, :4])
+        window = (slice(max(y - reach, 0), min(y + h + reach, H)),
+                  slice(max(x - reach, 0), min(x + w + reach, W)))
+        blob = blobs[window] == b
+        near = side_labels[window]
+        if near.any():
+            dist_to_blob = cv2.distanceTransform((~blob).astype(np.uint8), cv2.DIST_L2,
+                                                 3)[near > 0]
+            if dist_to_blob.min() <= reach:
+                near[blob] = near[near > 0][int(np.argmin(dist_to_blob))]
+                continue
+        near[blob] = next_id
+        next_id += 1
+    return next_id
 
 
 def _join_thin_fragments(blob: np.ndarray, side: Segmentation, window: tuple[slice, slice],

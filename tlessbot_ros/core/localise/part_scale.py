@@ -90,8 +90,10 @@ def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[floa
     if seen is None:
         return params
     area_px, width_px = seen
+    whole = params.part_area_fraction * area_px if params.part_area_fraction > 0 else None
     if area_px < ((2 * params.open_px + 1) / params.cue_scale) ** 2:
-        return params   # no larger than the specks the opening clears: not told from noise
+        # no larger than the specks the opening clears: not told from noise
+        return replace(params, whole_part_px=whole)
     min_area, open_px = params.min_area_px, params.open_px
     if params.part_area_fraction > 0:
         min_area = min(min_area, max(1, int(params.part_area_fraction * area_px)))
@@ -100,12 +102,12 @@ def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[floa
         widest = params.part_width_fraction * width_px * params.cue_scale
         open_px = min(open_px, max(0, int((widest - 1) // 2)))
     if (min_area, open_px) == (params.min_area_px, params.open_px):
-        return params
+        return replace(params, whole_part_px=whole)
     # the blobs only the parts' sizes admit keep their candidates' extent
     small = params.small_blob_candidates_px or \
         (params.min_area_px if min_area < params.min_area_px else 0)
     return replace(params, min_area_px=min_area, open_px=open_px,
-                   small_blob_candidates_px=small)
+                   small_blob_candidates_px=small, whole_part_px=whole)
 
 
 __all__ = ['part_view_size', 'view_segmentation']

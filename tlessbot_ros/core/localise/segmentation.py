@@ -55,6 +55,8 @@ class Segmentation:
         areas: (N,) int64 pixel counts.
         foreground: (H, W) bool union mask before instance separation.
         thin: (N,) bool; thin parts (:mod:`~tlessbot_ros.core.localise.thin`), kept whole.
+        whole_part_px: the smallest blob that can be a whole part in this view
+            (``SegmentationParams.whole_part_px``; 0: unknown).
         depth_groups: (N,) int32; instances cut from one piece of a depth split share an id
             > 0 (two parts whose seam the depth shows), 0 = not divided by depth.
         cues: per-method bool candidate masks at ``params.cue_scale`` (for inspection).
@@ -69,6 +71,7 @@ class Segmentation:
     foreground: np.ndarray
     depth_groups: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     thin: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    whole_part_px: float = 0.0
     cues: dict[str, np.ndarray] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
 
@@ -166,7 +169,8 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     thin = thin_instances(labels, None if depth_cue is None else depth_cue.height_m, params)
     watch.lap('instances')
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
-                        depth_groups=groups, thin=thin, cues=cues, timings_ms=watch.total())
+                        depth_groups=groups, thin=thin, cues=cues, timings_ms=watch.total(),
+                        whole_part_px=params.whole_part_px or 0.0)
 
 
 def _background_for(rgb: np.ndarray, background: np.ndarray | BackgroundModel | None,
