@@ -3,6 +3,8 @@
 whole, and parts as large as T-LESS's keep the fixed sizes."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -40,9 +42,14 @@ def test_large_parts_keep_the_fixed_sizes_small_ones_lower_them_where_they_can_b
     rig = default_rig()
     params = SegmentationParams()
     for camera in ('top', 'side'):
-        # as large as T-LESS's smallest part: the same settings object, unchanged
-        assert view_segmentation(params, np.array([TLESS_SMALLEST, ROD[:1] * 3]),
-                                 *_camera(rig, camera)) is params
+        # as large as T-LESS's smallest part: the same settings, only the smallest whole
+        # part in that view known (for the fusion)
+        large = view_segmentation(params, np.array([TLESS_SMALLEST, ROD[:1] * 3]),
+                                  *_camera(rig, camera))
+        area, _ = part_view_size(np.array([TLESS_SMALLEST]), *_camera(rig, camera))
+        assert large.whole_part_px == pytest.approx(params.part_area_fraction * area)
+        assert large.whole_part_px > params.min_area_px
+        assert replace(large, whole_part_px=None) == params
         assert view_segmentation(params, None, *_camera(rig, camera)) is params
     side = view_segmentation(params, np.array([TLESS_SMALLEST, NUT, ROD]), *_camera(rig, 'side'))
     area, width = part_view_size(np.array([NUT]), *_camera(rig, 'side'))
@@ -53,7 +60,8 @@ def test_large_parts_keep_the_fixed_sizes_small_ones_lower_them_where_they_can_b
     assert side.small_blob_candidates_px == params.min_area_px
     # from the top (1.1 m) the nut is about 20 px: no larger than the noise the opening
     # clears, so that view keeps its sizes (the side view finds the nut)
-    assert view_segmentation(params, np.array([NUT]), *_camera(rig, 'top')) is params
+    top = view_segmentation(params, np.array([NUT]), *_camera(rig, 'top'))
+    assert replace(top, whole_part_px=None) == params and 0 < top.whole_part_px < 20
     off = SegmentationParams(part_area_fraction=0.0, part_width_fraction=0.0)
     assert view_segmentation(off, np.array([NUT]), *_camera(rig, 'side')) is off
     with pytest.raises(ValueError, match='part_area_fraction'):

@@ -1,12 +1,21 @@
 """Two-view fusion on a synthetic calibrated pair rendered from boxes on the table."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from tlessbot_ros.core.common import MeshRenderer, default_rig, make_transform, rotation_about_axis
+from tlessbot_ros.core.common import (
+    MeshRenderer,
+    default_rig,
+    make_transform,
+    mask_box,
+    rotation_about_axis,
+)
 from tlessbot_ros.core.localise import (
     FusionParams,
+    Segmentation,
     SegmentationParams,
     fuse_views,
     segment,
@@ -151,3 +160,54 @@ def test_errors() -> None:
         FusionParams(method='magic')
     with pytest.raises(ValueError, match='align depth'):
         fuse_views(segs['top'], segs['side'], rig=rig, depth_top_m=np.zeros((3, 3)))
+
+
+# --------------------------------------------------------------------- pieces no part fits
+def _one_bar():
+    """A bar 80 x 30 x 30 mm alone: rig, views, and each view's segmentation."""
+    rig, views = _render([(0.0, 0.0, 0, 0.08, 0.03, 0.03)], BLUE[:1])
+    segs = {n: segment(v[0], background=v[1]) for n, v in views.items()}
+    assert segs['top'].count == 1 and segs['side'].count == 1
+    return rig, views, segs
+
+
+def _relabelled(seg: Segmentation, labels: np.ndarray, whole_part_px: float) -> Segmentation:
+    n = int(labels.max())
+    boxes = np.array([mask_box(labels == k) for k in range(1, n + 1)], np.int32)
+    areas = np.array([np.count_nonzero(labels == k) for k in range(1, n + 1)], np.int64)
+    return replace(seg, labels=labels.astype(np.uint16), boxes=boxes, areas=areas,
+                   depth_groups=np.zeros(n, np.int32), thin=np.zeros(n, bool),
+                   whole_part_px=whole_part_px)
+
+
+def test_a_top_piece_no_part_fits_does_not_divide_the_side_blob() -> None:
+    rig, views, segs = _one_bar()
+    top = segs['top'].labels.copy()
+    x0, _, w, _ = segs['top'].boxes[0]
+    top[(top == 1) & (np.arange(top.shape[1]) >= x0 + 0.8 * w)] = 2   # its end: a piece
+    small = int(np.count_nonzero(top == 2))
+    outcome = {}
+    for whole in (0.0, 2.0 * small):   # sizes unknown (as before) / the piece fits no part
+        result = fuse_views(_relabelled(segs['top'], top, whole), segs['side'], rig=rig,
+                            depth_top_m=views['top'][3], side_rgb=views['side'][0])
+        ids = np.unique(result.labels['side'][views['side'][2] == 0])
+        outcome[whole] = ids[ids > 0]
+    assert len(outcome[0.0]) == 2   # the side blob divided between the two top blobs
+    assert len(outcome[2.0 * small]) == 1   # one part
+
+
+def test_a_side_piece_the_top_misses_joins_the_part_beside_it() -> None:
+    rig, views, segs = _one_bar()
+    side = segs['side'].labels.copy()
+    x0, y0, w, h = segs['side'].boxes[0]
+    side[y0 + h // 3:y0 + 2 * h // 3, x0 + w + 3:x0 + w + 9] = 2   # 3 px off its end
+    outcome = {}
+    for whole in (0.0, 4.0 * np.count_nonzero(side == 2)):
+        result = fuse_views(segs['top'], _relabelled(segs['side'], side, whole), rig=rig,
+                            depth_top_m=views['top'][3], side_rgb=views['side'][0])
+        outcome[whole] = (int(result.labels['side'][side == 1].max()),
+                          int(result.labels['side'][side == 2].max()))
+    part, piece = outcome[0.0]
+    assert 0 < part != piece > 0   # before: a part of its own (a false positive)
+    part, piece = outcome[max(outcome)]
+    assert part == piece > 0
