@@ -105,8 +105,9 @@ def predict_side_regions(points: dict[int, np.ndarray], rig: Rig, *,
 
 def _side_prediction(top_labels: np.ndarray, side_shape: tuple[int, ...], rig: Rig,
                      depth_top_m: np.ndarray | None, params: FusionParams, top_name: str,
-                     side_name: str) -> np.ndarray:
-    """The (H, W) side view's predicted ids of the top blobs (:func:`predict_side_regions`)."""
+                     side_name: str) -> tuple[np.ndarray, dict[int, float]]:
+    """The (H, W) side view's predicted ids of the top blobs (:func:`predict_side_regions`),
+    and the median height (m) of each top blob that the top depth lifts."""
     if depth_top_m is not None and depth_top_m.shape != top_labels.shape:
         raise ValueError(f'depth_top_m shape {depth_top_m.shape} differs from the top labels '
                          f'{top_labels.shape}; align depth to colour first')
@@ -116,7 +117,10 @@ def _side_prediction(top_labels: np.ndarray, side_shape: tuple[int, ...], rig: R
     if pred.shape != side_shape:
         raise ValueError(f'side image {side_shape} differs from the rig side camera '
                          f'{pred.shape}')
-    return pred
+    # (the lifted points, then the same dropped onto the table; none lifted: no height)
+    heights = {k: float(np.median(pts[:len(pts) // 2, 2])) for k, pts in points.items()
+               if depth_top_m is not None}
+    return pred, heights
 
 
 def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
@@ -126,8 +130,8 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     top_labels = top.labels.astype(np.uint16)
-    pred = _side_prediction(top_labels, side.labels.shape, rig, depth_top_m, params, top_name,
-                            side_name)
+    pred, heights = _side_prediction(top_labels, side.labels.shape, rig, depth_top_m, params,
+                                     top_name, side_name)
     t1 = time.perf_counter()
     timings['predict'] = (t1 - t0) * 1e3
     n_top = int(top_labels.max(initial=0))
@@ -161,11 +165,11 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
             best = int(np.argmax(overlap[b, 1:])) + 1
             if overlap[b, best] >= params.fragment_fraction * stats[b, cv2.CC_STAT_AREA]:
                 owners = [best]
-        if len(owners) > 1:
-            owners = _join_top_fragments(owners, overlap[b], top, top_labels)
+        if len(owners) > 1 and _one_side_instance(blob, side.labels[window]):
+            owners = _join_top_fragments(owners, overlap[b], top, top_labels, heights)
         if not owners and params.drop_unpredicted:
             continue
-        if not owners and n_top > 0 and stats[b, cv2.CC_STAT_AREA] < side.whole_part_px:
+        if not owners and n_top > 0 and stats[b, cv2.CC_STAT_AREA] < side.whole_part_px():
             fragments.append(b)   # no part fits it, the top does not see it: placed last
             continue
         if not owners:
@@ -181,11 +185,10 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
             pieces = _side_pieces_of_blob(blob, side.labels[window], side, params) or [blob]
             ids, next_id, divided = _label_pieces(
                 pieces, owners, pred[window], None if side_rgb is None else side_rgb[window],
-                kernel, next_id, side.whole_part_px)
+                kernel, next_id, side.whole_part_px())
             out[blob] = ids[blob]
             split_ids.update(divided)
-    next_id = _place_fragments(side_labels, blobs, stats, fragments, side.whole_part_px,
-                               next_id)
+    next_id = _place_fragments(side_labels, blobs, stats, fragments, side, next_id)
     timings['split'] = (time.perf_counter() - t1) * 1e3
     labels = {'top': top_labels, 'side': side_labels}
     return FusionResult(labels=labels, method='calibrated', predicted_side=pred,
@@ -274,15 +277,34 @@ def _label_pieces(pieces: list[np.ndarray], owners: list[int], pred: np.ndarray,
     return ids, next_id, divided
 
 
+def _length_px(mask: np.ndarray) -> float:
+    """The long side (px) of a mask's smallest rotated rectangle."""
+    points = cv2.findNonZero(mask.astype(np.uint8))
+    return 0.0 if points is None else float(max(cv2.minAreaRect(points)[1]))
+
+
+def _one_side_instance(blob: np.ndarray, own: np.ndarray) -> bool:
+    """Whether the side segmentation holds a side blob as one instance (``own``: its labels
+    in the blob's window)."""
+    ids = np.unique(own[blob])
+    return int(np.count_nonzero(ids)) == 1
+
+
 def _join_top_fragments(owners: list[int], overlap: np.ndarray, top: Segmentation,
-                        top_labels: np.ndarray) -> list[int]:
-    """The owners of one side blob less the top blobs no part fits: one smaller than the
-    smallest whole part from the top (``top.whole_part_px``) beside one that is not is a
-    fragment (of a part the top view broke up, e.g. at a shaded face) and takes, in the top
-    labels, the id of the larger owner that overlaps the side blob most."""
-    if top.whole_part_px <= 0 or len(top.areas) < max(owners):
+                        top_labels: np.ndarray, heights: dict[int, float]) -> list[int]:
+    """The owners of a side blob that the side segmentation holds as one instance, less the
+    top blobs no part fits: one smaller than the smallest whole part of the parts as long as
+    it stands high (``top.whole_part_px(height)``, its median height from the top depth)
+    beside one that is not is a fragment (of a part the top view, farther away, broke up,
+    e.g. at a shaded face) and takes, in the top labels, the id of the other owner that
+    overlaps the side blob most; owners none of which is whole are pieces of one part. A thin
+    top blob, or one without a height, is never a fragment (a thin part reads small from the
+    top), nor is one where the side view, nearer, divides the blob too."""
+    if not len(top.whole_parts) or len(top.areas) < max(owners) or \
+            len(top.thin) < max(owners):
         return owners
-    whole = [k for k in owners if top.areas[k - 1] >= top.whole_part_px]
+    whole = [k for k in owners if k not in heights or top.thin[k - 1]
+             or top.areas[k - 1] >= top.whole_part_px(heights[k])]
     if len(whole) == len(owners):
         return owners
     # none whole: all of them are pieces of one part
@@ -293,12 +315,13 @@ def _join_top_fragments(owners: list[int], overlap: np.ndarray, top: Segmentatio
 
 
 def _place_fragments(side_labels: np.ndarray, blobs: np.ndarray, stats: np.ndarray,
-                     fragments: list[int], whole_px: float, next_id: int) -> int:
+                     fragments: list[int], side: Segmentation, next_id: int) -> int:
     """Side blobs that the top does not see and that are smaller than the smallest whole
-    part (``whole_px``): each joins the labelled side blob nearest to it within the side of a
-    square of that area (a thin part whose middle the cues lost comes out in pieces), else is
-    a part of its own (a new id from ``next_id``). Returns the next free id."""
-    reach = max(1, int(np.sqrt(whole_px)))
+    part (``side.whole_part_px()``): each joins the labelled side blob nearest to it within the
+    side of a square of that area when the two together are no longer than a part can look
+    (``side.longest_part_px``: a thin part whose middle the cues lost comes out in pieces),
+    else is a part of its own (a new id from ``next_id``). Returns the next free id."""
+    reach = max(1, int(np.sqrt(side.whole_part_px())))
     H, W = side_labels.shape
     for b in fragments:
         x, y, w, h = (int(v) for v in stats[b, :4])
@@ -309,8 +332,10 @@ def _place_fragments(side_labels: np.ndarray, blobs: np.ndarray, stats: np.ndarr
         if near.any():
             dist_to_blob = cv2.distanceTransform((~blob).astype(np.uint8), cv2.DIST_L2,
                                                  3)[near > 0]
-            if dist_to_blob.min() <= reach:
-                near[blob] = near[near > 0][int(np.argmin(dist_to_blob))]
+            nearest = int(near[near > 0][int(np.argmin(dist_to_blob))])
+            if dist_to_blob.min() <= reach and _length_px(
+                    (side_labels == nearest) | (blobs == b)) <= side.longest_part_px:
+                near[blob] = nearest
                 continue
         near[blob] = next_id
         next_id += 1

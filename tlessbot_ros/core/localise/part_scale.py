@@ -38,7 +38,15 @@ def part_view_size(extents_m: np.ndarray, K: np.ndarray, T_world_camera: np.ndar
                    ) -> tuple[float, float] | None:
     """(area, width) in image pixels of the smallest and of the narrowest part of a set
     seen by one camera (see the module), or None when the camera's optical axis does not
-    meet the table (z = 0) in front of it.
+    meet the table (z = 0) in front of it (:func:`part_view_areas`)."""
+    seen = part_view_areas(extents_m, K, T_world_camera)
+    return None if seen is None else (float(seen[0].min()), seen[1])
+
+
+def part_view_areas(extents_m: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray
+                    ) -> tuple[np.ndarray, float] | None:
+    """((N,) each part's expected area, the narrowest part's width) in image pixels seen by
+    one camera (see the module), or None when its optical axis does not meet the table.
 
     Args:
         extents_m: (N, 3) the parts' box extents, metres (any order per row).
@@ -54,16 +62,37 @@ def part_view_size(extents_m: np.ndarray, K: np.ndarray, T_world_camera: np.ndar
     spot = centre - axis * centre[2] / axis[2]   # the optical axis on the table
     distance = float(np.linalg.norm(spot - centre))
     T_camera_world = np.linalg.inv(T)
-    areas = []
-    for a, b, c in extents:
-        for half in ((a / 2, b / 2), (b / 2, a / 2)):   # either way round on the table
+    areas = np.zeros((len(extents), 2))
+    for i, (a, b, c) in enumerate(extents):
+        # either way round on the table
+        for j, half in enumerate(((a / 2, b / 2), (b / 2, a / 2))):
             corners = np.array([[sx * half[0], sy * half[1], z] for sx in (-1, 1)
                                 for sy in (-1, 1) for z in (0.0, c)]) + [spot[0], spot[1], 0]
             cam = corners @ T_camera_world[:3, :3].T + T_camera_world[:3, 3]
             uv = (cam[:, :2] / cam[:, 2:3]) * [K[0, 0], K[1, 1]]
-            areas.append(cv2.contourArea(cv2.convexHull(uv.astype(np.float32))))
+            areas[i, j] = cv2.contourArea(cv2.convexHull(uv.astype(np.float32)))
     width = 0.5 * (K[0, 0] + K[1, 1]) * float(extents[:, 1].min()) / distance
-    return float(min(areas)), width
+    return areas.min(axis=1), width
+
+
+def longest_part_px(extents_m: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray
+                    ) -> float | None:
+    """The longest (image pixels) any part of a set can look in one camera: its largest
+    extent ``a`` at the nearest table point the image's corners and centre see, less ``a``
+    (its far end may stand that much nearer), or None when no such ray meets the table."""
+    extents = np.abs(np.asarray(extents_m, np.float64).reshape(-1, 3)).max(axis=1)
+    K = np.asarray(K, np.float64)
+    T = np.asarray(T_world_camera, np.float64)
+    cx, cy = K[0, 2], K[1, 2]
+    pixels = np.array([[0, 0], [2 * cx, 0], [0, 2 * cy], [2 * cx, 2 * cy], [cx, cy]])
+    rays = np.column_stack([(pixels[:, 0] - cx) / K[0, 0], (pixels[:, 1] - cy) / K[1, 1],
+                            np.ones(len(pixels))]) @ T[:3, :3].T
+    down = rays[:, 2] < -1e-9
+    if extents.size == 0 or T[2, 3] <= 0 or not down.any():
+        return None
+    near = float(np.min(np.linalg.norm(rays[down], axis=1) * T[2, 3] / -rays[down, 2]))
+    focal = 0.5 * (K[0, 0] + K[1, 1])
+    return float(np.max(focal * extents / np.maximum(near - extents, 0.1 * near)))
 
 
 def view_segmentation(params: SegmentationParams, extents_m: np.ndarray | None,
@@ -85,15 +114,20 @@ def _key(array: np.ndarray) -> tuple[float, ...]:
 @lru_cache(maxsize=32)
 def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[float, ...],
            T: tuple[float, ...]) -> SegmentationParams:
-    seen = part_view_size(np.array(extents).reshape(-1, 3), np.array(K).reshape(3, 3),
-                          np.array(T).reshape(4, 4))
+    parts, camera, pose = (np.array(extents).reshape(-1, 3), np.array(K).reshape(3, 3),
+                           np.array(T).reshape(4, 4))
+    seen = part_view_areas(parts, camera, pose)
     if seen is None:
         return params
-    area_px, width_px = seen
-    whole = params.part_area_fraction * area_px if params.part_area_fraction > 0 else None
+    areas, width_px = seen
+    area_px = float(areas.min())
+    whole = None if params.part_area_fraction <= 0 else tuple(
+        (float(np.abs(e).max()), params.part_area_fraction * float(a))
+        for e, a in zip(parts, areas))
+    params = replace(params, longest_part_px=longest_part_px(parts, camera, pose))
     if area_px < ((2 * params.open_px + 1) / params.cue_scale) ** 2:
         # no larger than the specks the opening clears: not told from noise
-        return replace(params, whole_part_px=whole)
+        return replace(params, whole_parts=whole)
     min_area, open_px = params.min_area_px, params.open_px
     if params.part_area_fraction > 0:
         min_area = min(min_area, max(1, int(params.part_area_fraction * area_px)))
@@ -102,12 +136,12 @@ def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[floa
         widest = params.part_width_fraction * width_px * params.cue_scale
         open_px = min(open_px, max(0, int((widest - 1) // 2)))
     if (min_area, open_px) == (params.min_area_px, params.open_px):
-        return replace(params, whole_part_px=whole)
+        return replace(params, whole_parts=whole)
     # the blobs only the parts' sizes admit keep their candidates' extent
     small = params.small_blob_candidates_px or \
         (params.min_area_px if min_area < params.min_area_px else 0)
     return replace(params, min_area_px=min_area, open_px=open_px,
-                   small_blob_candidates_px=small, whole_part_px=whole)
+                   small_blob_candidates_px=small, whole_parts=whole)
 
 
-__all__ = ['part_view_size', 'view_segmentation']
+__all__ = ['longest_part_px', 'part_view_areas', 'part_view_size', 'view_segmentation']

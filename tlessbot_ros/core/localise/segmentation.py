@@ -55,8 +55,10 @@ class Segmentation:
         areas: (N,) int64 pixel counts.
         foreground: (H, W) bool union mask before instance separation.
         thin: (N,) bool; thin parts (:mod:`~tlessbot_ros.core.localise.thin`), kept whole.
-        whole_part_px: the smallest blob that can be a whole part in this view
-            (``SegmentationParams.whole_part_px``; 0: unknown).
+        whole_parts: (K, 2) per part its largest extent (m) and the smallest blob that can
+            be it whole in this view (px) (``SegmentationParams.whole_parts``; none: unknown;
+            :meth:`whole_part_px`).
+        longest_part_px: the longest a part can look in this view (px; 0: unknown).
         depth_groups: (N,) int32; instances cut from one piece of a depth split share an id
             > 0 (two parts whose seam the depth shows), 0 = not divided by depth.
         cues: per-method bool candidate masks at ``params.cue_scale`` (for inspection).
@@ -71,13 +73,23 @@ class Segmentation:
     foreground: np.ndarray
     depth_groups: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     thin: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    whole_part_px: float = 0.0
+    whole_parts: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    longest_part_px: float = 0.0
     cues: dict[str, np.ndarray] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
 
     @property
     def count(self) -> int:
         return int(self.boxes.shape[0])
+
+    def whole_part_px(self, height_m: float = 0.0) -> float:
+        """The smallest blob (px) that can be a whole part standing ``height_m`` above the
+        table: of the parts at least that long (a part stands no taller than its largest
+        extent; all of them when none is), 0 when the parts are unknown."""
+        if not len(self.whole_parts):
+            return 0.0
+        tall = self.whole_parts[self.whole_parts[:, 0] >= height_m]
+        return float((tall if len(tall) else self.whole_parts)[:, 1].min())
 
 
 class _Stopwatch:
@@ -170,7 +182,8 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     watch.lap('instances')
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
                         depth_groups=groups, thin=thin, cues=cues, timings_ms=watch.total(),
-                        whole_part_px=params.whole_part_px or 0.0)
+                        whole_parts=np.array(params.whole_parts or (), float).reshape(-1, 2),
+                        longest_part_px=params.longest_part_px or 0.0)
 
 
 def _background_for(rgb: np.ndarray, background: np.ndarray | BackgroundModel | None,
