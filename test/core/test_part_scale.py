@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from tlessbot_ros.core.common import default_rig, mask_box
-from tlessbot_ros.core.localise import SegmentationParams, part_view_size, view_segmentation
+from tlessbot_ros.core.localise import (
+    SegmentationParams,
+    longest_part_px,
+    part_view_areas,
+    part_view_size,
+    view_segmentation,
+)
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 
 NUT = (0.008, 0.0092, 0.0063)       # a hex nut M5, metres
@@ -46,10 +52,13 @@ def test_large_parts_keep_the_fixed_sizes_small_ones_lower_them_where_they_can_b
         # part in that view known (for the fusion)
         large = view_segmentation(params, np.array([TLESS_SMALLEST, ROD[:1] * 3]),
                                   *_camera(rig, camera))
-        area, _ = part_view_size(np.array([TLESS_SMALLEST]), *_camera(rig, camera))
-        assert large.whole_part_px == pytest.approx(params.part_area_fraction * area)
-        assert large.whole_part_px > params.min_area_px
-        assert replace(large, whole_part_px=None) == params
+        areas, _ = part_view_areas(np.array([TLESS_SMALLEST, ROD[:1] * 3]),
+                                   *_camera(rig, camera))
+        assert np.asarray(large.whole_parts) == pytest.approx(np.array(
+            [(0.048, params.part_area_fraction * areas[0]),
+             (ROD[0], params.part_area_fraction * areas[1])]))
+        assert min(px for _, px in large.whole_parts) > params.min_area_px
+        assert replace(large, whole_parts=None, longest_part_px=None) == params
         assert view_segmentation(params, None, *_camera(rig, camera)) is params
     side = view_segmentation(params, np.array([TLESS_SMALLEST, NUT, ROD]), *_camera(rig, 'side'))
     area, width = part_view_size(np.array([NUT]), *_camera(rig, 'side'))
@@ -61,11 +70,29 @@ def test_large_parts_keep_the_fixed_sizes_small_ones_lower_them_where_they_can_b
     # from the top (1.1 m) the nut is about 20 px: no larger than the noise the opening
     # clears, so that view keeps its sizes (the side view finds the nut)
     top = view_segmentation(params, np.array([NUT]), *_camera(rig, 'top'))
-    assert replace(top, whole_part_px=None) == params and 0 < top.whole_part_px < 20
+    assert replace(top, whole_parts=None, longest_part_px=None) == params
+    assert 0 < top.whole_parts[0][1] < 20
     off = SegmentationParams(part_area_fraction=0.0, part_width_fraction=0.0)
     assert view_segmentation(off, np.array([NUT]), *_camera(rig, 'side')) is off
     with pytest.raises(ValueError, match='part_area_fraction'):
         SegmentationParams(part_area_fraction=1.5)
+
+
+def test_the_longest_a_part_looks_is_at_the_nearest_table_point():
+    K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
+    T = np.diag([1.0, -1.0, -1.0, 1.0])   # 1 m above the table, looking straight down
+    T[2, 3] = 1.0
+    # the image's centre is nearest: 0.1 m at 1 m, its far end up to 0.1 m nearer
+    assert longest_part_px(np.array([NUT, (0.1, 0.02, 0.01)]), K, T) == \
+        pytest.approx(600 * 0.1 / 0.9)
+    looking_up = T.copy()
+    looking_up[:3, :3] = np.eye(3)
+    assert longest_part_px(np.array([NUT]), K, looking_up) is None
+    # a tilted camera sees the table nearer at its image's edge: longer there
+    side = default_rig()['side']
+    rod = longest_part_px(np.array([ROD]), side.intrinsics.K, side.T_world_camera)
+    area_rod = part_view_areas(np.array([ROD]), side.intrinsics.K, side.T_world_camera)
+    assert rod is not None and area_rod is not None and rod > 600 * ROD[0] / 0.7
 
 
 def _box_model(obj_id, extents):

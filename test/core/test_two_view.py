@@ -171,13 +171,17 @@ def _one_bar():
     return rig, views, segs
 
 
-def _relabelled(seg: Segmentation, labels: np.ndarray, whole_part_px: float) -> Segmentation:
+def _relabelled(seg: Segmentation, labels: np.ndarray, whole_px: float,
+                longest_px: float = 0.0) -> Segmentation:
+    """``seg`` with other labels, and one part known: 0.1 m long, ``whole_px`` its smallest
+    whole blob (0: the parts unknown)."""
     n = int(labels.max())
     boxes = np.array([mask_box(labels == k) for k in range(1, n + 1)], np.int32)
     areas = np.array([np.count_nonzero(labels == k) for k in range(1, n + 1)], np.int64)
     return replace(seg, labels=labels.astype(np.uint16), boxes=boxes, areas=areas,
                    depth_groups=np.zeros(n, np.int32), thin=np.zeros(n, bool),
-                   whole_part_px=whole_part_px)
+                   whole_parts=np.array([[0.1, whole_px]] if whole_px else np.zeros((0, 2))),
+                   longest_part_px=longest_px)
 
 
 def test_a_top_piece_no_part_fits_does_not_divide_the_side_blob() -> None:
@@ -194,6 +198,12 @@ def test_a_top_piece_no_part_fits_does_not_divide_the_side_blob() -> None:
         outcome[whole] = ids[ids > 0]
     assert len(outcome[0.0]) == 2   # the side blob divided between the two top blobs
     assert len(outcome[2.0 * small]) == 1   # one part
+    # a thin blob from the top is a part whatever its size (thin parts read small there)
+    thin = replace(_relabelled(segs['top'], top, 2.0 * small), thin=np.array([False, True]))
+    result = fuse_views(thin, segs['side'], rig=rig, depth_top_m=views['top'][3],
+                        side_rgb=views['side'][0])
+    ids = np.unique(result.labels['side'][views['side'][2] == 0])
+    assert np.count_nonzero(ids) == 2
 
 
 def test_a_side_piece_the_top_misses_joins_the_part_beside_it() -> None:
@@ -201,13 +211,18 @@ def test_a_side_piece_the_top_misses_joins_the_part_beside_it() -> None:
     side = segs['side'].labels.copy()
     x0, y0, w, h = segs['side'].boxes[0]
     side[y0 + h // 3:y0 + 2 * h // 3, x0 + w + 3:x0 + w + 9] = 2   # 3 px off its end
+    whole = 4.0 * np.count_nonzero(side == 2)
     outcome = {}
-    for whole in (0.0, 4.0 * np.count_nonzero(side == 2)):
-        result = fuse_views(segs['top'], _relabelled(segs['side'], side, whole), rig=rig,
+    # parts unknown (as before); the two together as long as a part can look; longer
+    for case, sizes in (('unknown', (0.0,)), ('fits', (whole, w + 20.0)),
+                        ('too long', (whole, w - 5.0))):
+        result = fuse_views(segs['top'], _relabelled(segs['side'], side, *sizes), rig=rig,
                             depth_top_m=views['top'][3], side_rgb=views['side'][0])
-        outcome[whole] = (int(result.labels['side'][side == 1].max()),
-                          int(result.labels['side'][side == 2].max()))
-    part, piece = outcome[0.0]
+        outcome[case] = (int(result.labels['side'][side == 1].max()),
+                         int(result.labels['side'][side == 2].max()))
+    part, piece = outcome['unknown']
     assert 0 < part != piece > 0   # before: a part of its own (a false positive)
-    part, piece = outcome[max(outcome)]
+    part, piece = outcome['fits']
     assert part == piece > 0
+    part, piece = outcome['too long']
+    assert 0 < part != piece > 0   # no part is that long: the piece stays apart

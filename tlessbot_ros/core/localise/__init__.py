@@ -28,6 +28,8 @@ _HOME = {
     'SegmentationParams': 'params',
     'Segmentation': 'segmentation',
     'segment': 'segmentation',
+    'longest_part_px': 'part_scale',
+    'part_view_areas': 'part_scale',
     'part_view_size': 'part_scale',
     'view_segmentation': 'part_scale',
     'robust_quadratic_fit': 'surface_fit',
@@ -80,6 +82,8 @@ if TYPE_CHECKING:
         SegmentationParams,
     )
     from tlessbot_ros.core.localise.part_scale import (  # noqa: F401
+        longest_part_px,
+        part_view_areas,
         part_view_size,
         view_segmentation,
     )
