@@ -180,8 +180,8 @@ def _relabelled(seg: Segmentation, labels: np.ndarray, whole_px: float,
     areas = np.array([np.count_nonzero(labels == k) for k in range(1, n + 1)], np.int64)
     return replace(seg, labels=labels.astype(np.uint16), boxes=boxes, areas=areas,
                    depth_groups=np.zeros(n, np.int32), thin=np.zeros(n, bool),
-                   whole_parts=np.array([[0.1, whole_px]] if whole_px else np.zeros((0, 2))),
-                   longest_part_px=longest_px)
+                   whole_parts=np.array([[0.1, whole_px, longest_px]] if whole_px
+                                        else np.zeros((0, 3))))
 
 
 def test_a_top_piece_no_part_fits_does_not_divide_the_side_blob() -> None:

@@ -16,7 +16,7 @@ from tlessbot_ros.core.localise.fusion_result import (
     FusionResult,
     instances_from_labels,
 )
-from tlessbot_ros.core.localise.instances import fill_from_nearest
+from tlessbot_ros.core.localise.instances import fill_from_nearest, mask_length_px
 from tlessbot_ros.core.localise.segmentation import Segmentation
 
 
@@ -277,12 +277,6 @@ def _label_pieces(pieces: list[np.ndarray], owners: list[int], pred: np.ndarray,
     return ids, next_id, divided
 
 
-def _length_px(mask: np.ndarray) -> float:
-    """The long side (px) of a mask's smallest rotated rectangle."""
-    points = cv2.findNonZero(mask.astype(np.uint8))
-    return 0.0 if points is None else float(max(cv2.minAreaRect(points)[1]))
-
-
 def _one_side_instance(blob: np.ndarray, own: np.ndarray) -> bool:
     """Whether the side segmentation holds a side blob as one instance (``own``: its labels
     in the blob's window)."""
@@ -333,7 +327,7 @@ def _place_fragments(side_labels: np.ndarray, blobs: np.ndarray, stats: np.ndarr
             dist_to_blob = cv2.distanceTransform((~blob).astype(np.uint8), cv2.DIST_L2,
                                                  3)[near > 0]
             nearest = int(near[near > 0][int(np.argmin(dist_to_blob))])
-            if dist_to_blob.min() <= reach and _length_px(
+            if dist_to_blob.min() <= reach and mask_length_px(
                     (side_labels == nearest) | (blobs == b)) <= side.longest_part_px:
                 near[blob] = nearest
                 continue

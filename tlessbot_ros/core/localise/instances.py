@@ -27,6 +27,7 @@ import numpy as np
 from tlessbot_ros.core.common import label_boxes
 from tlessbot_ros.core.localise.cues import Surfaces, depth_cue, opened
 from tlessbot_ros.core.localise.params import SegmentationParams
+from tlessbot_ros.core.localise.part_scale import whole_part_px
 from tlessbot_ros.core.localise.thin import is_thin
 
 
@@ -167,6 +168,8 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
                 group = n_groups + 1 + tie
             by_colour = [depth_piece] if crop is None or params.colour_split_delta <= 0 else \
                 _colour_pieces(depth_piece, crop, params)
+            if surfaces is not None:   # (the side view: the top one sees thin parts small)
+                by_colour = join_pieces_no_part_fits(by_colour, params)
             for piece_mask in by_colour:
                 parts = piece_mask.astype(np.int32) if thin else \
                     _split_at_distance_cores(piece_mask, crop, params)
@@ -202,6 +205,41 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
         labels[y0:y0 + f.shape[0], x0:x0 + f.shape[1]][f] = k
     return (labels, np.array(boxes, np.int32).reshape(-1, 4),
             np.array(areas, np.int64), np.array(groups, np.int32))
+
+
+def mask_length_px(mask: np.ndarray) -> float:
+    """The long side (px) of a mask's smallest rotated rectangle (0 when empty)."""
+    points = cv2.findNonZero(np.ascontiguousarray(mask, np.uint8))
+    return 0.0 if points is None else float(max(cv2.minAreaRect(points)[1]))
+
+
+def could_be_whole(piece: np.ndarray, params: SegmentationParams) -> bool:
+    """Whether a piece (bool mask) is as large as a whole part as long as it is can be
+    (:func:`~tlessbot_ros.core.localise.part_scale.whole_part_px`); True without the parts."""
+    return cv2.countNonZero(np.ascontiguousarray(piece, np.uint8)) >= \
+        whole_part_px(params.whole_parts, 0.0, mask_length_px(piece))
+
+
+def join_pieces_no_part_fits(pieces: list[np.ndarray], params: SegmentationParams
+                             ) -> list[np.ndarray]:
+    """The pieces of one blob (bool masks of one crop), each piece that no part fits whole
+    (:func:`could_be_whole`; a part of two colours, a rod with a shaded band) joined to the
+    piece it borders most, smallest first. Used in the view split by depth (the side one,
+    nearer): from the top a thin part reads small (its rim lost to the cues), and a strip 3 mm
+    thick beside a plate would join it."""
+    pieces = list(pieces)
+    ring = np.ones((3, 3), np.uint8)
+    while len(pieces) > 1:
+        small = [j for j, p in enumerate(pieces) if not could_be_whole(p, params)]
+        if not small:
+            break
+        j = min(small, key=lambda i: int(np.count_nonzero(pieces[i])))
+        border = cv2.dilate(pieces[j].view(np.uint8), ring).astype(bool)
+        others = [i for i in range(len(pieces)) if i != j]
+        k = max(others, key=lambda i: int(np.count_nonzero(border & pieces[i])))
+        pieces[k] = pieces[k] | pieces[j]
+        del pieces[j]
+    return pieces
 
 
 def instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarray,
@@ -266,7 +304,10 @@ def instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarra
 def _scaled_params(params: SegmentationParams, s: float) -> SegmentationParams:
     """``params`` with its sizes for an image scaled by ``s`` (made once per settings: the
     dataclass's checks cost ~0.1 ms a frame)."""
+    whole = None if params.whole_parts is None else \
+        tuple((a, px * s * s, look * s) for a, px, look in params.whole_parts)
     return replace(params, min_area_px=max(1, int(round(params.min_area_px * s * s))),
+                   whole_parts=whole,
                    split_min_depth_px=params.split_min_depth_px * s,
                    split_min_core_px=max(1, int(round(params.split_min_core_px * s * s))),
                    depth_split_min_px=max(1, int(round(params.depth_split_min_px * s * s))))

@@ -65,11 +65,10 @@ class SegmentationParams:
             of the smallest part's expected area there, if below ``min_area_px`` (0..1; 0: off).
         part_width_fraction: ... and opens by at most this fraction of the narrowest part's
             expected width, if below ``open_px`` (0..1; 0: off; :mod:`.part_scale`).
-        whole_parts: per part, (its largest extent in m, the smallest blob that can be
-            it whole in this view in px: ``part_area_fraction`` of its expected area), set
-            by :mod:`.part_scale` for the fusion; None: unknown (no ROS parameter).
-        longest_part_px: the longest a part can look in this view (px; at the nearest table
-            point the view sees), set with ``whole_parts``; None: unknown (no ROS parameter).
+        whole_parts: per part (its largest extent in m; the smallest blob that can be it
+            whole in this view, ``part_area_fraction`` of its expected area, and the longest
+            it can look there, in px), set by :mod:`.part_scale`; None: unknown (no ROS
+            parameter).
 
     ``methods``: 'watershed' adds the grey-level histogram extremes as markers *and* refines the
     union by flooding (without it the union is used as is); 'background' is used only when an
@@ -118,8 +117,7 @@ class SegmentationParams:
     small_blob_candidates_px: int = 0
     part_area_fraction: float = 0.5
     part_width_fraction: float = 0.5
-    whole_parts: tuple[tuple[float, float], ...] | None = None
-    longest_part_px: float | None = None
+    whole_parts: tuple[tuple[float, float, float], ...] | None = None
 
     def __post_init__(self) -> None:
         if self.thin_max_height_m < 0 or not 0.0 <= self.thin_quantile <= 1.0 or \

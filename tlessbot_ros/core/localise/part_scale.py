@@ -95,6 +95,20 @@ def longest_part_px(extents_m: np.ndarray, K: np.ndarray, T_world_camera: np.nda
     return float(np.max(focal * extents / np.maximum(near - extents, 0.1 * near)))
 
 
+def whole_part_px(whole_parts: np.ndarray | tuple[tuple[float, float, float], ...] | None,
+                  height_m: float = 0.0, length_px: float = 0.0) -> float:
+    """The smallest blob (px) that can be a whole part standing ``height_m`` above the table
+    and ``length_px`` long in the image: of the parts that tall and that long (a part stands
+    no taller than its largest extent, looks no longer than its longest look; all of them
+    when none is), 0 without the parts (``whole_parts``: per part its largest extent in m, its
+    smallest whole blob and its longest look in px, ``SegmentationParams.whole_parts``)."""
+    table = np.asarray(whole_parts if whole_parts is not None else (), float).reshape(-1, 3)
+    if not len(table):
+        return 0.0
+    fit = table[(table[:, 0] >= height_m) & (table[:, 2] >= length_px)]
+    return float((fit if len(fit) else table)[:, 1].min())
+
+
 def view_segmentation(params: SegmentationParams, extents_m: np.ndarray | None,
                       K: np.ndarray, T_world_camera: np.ndarray | None) -> SegmentationParams:
     """``params`` with ``min_area_px`` and ``open_px`` for one view of a parts set (see the
@@ -122,9 +136,8 @@ def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[floa
     areas, width_px = seen
     area_px = float(areas.min())
     whole = None if params.part_area_fraction <= 0 else tuple(
-        (float(np.abs(e).max()), params.part_area_fraction * float(a))
-        for e, a in zip(parts, areas))
-    params = replace(params, longest_part_px=longest_part_px(parts, camera, pose))
+        (float(np.abs(e).max()), params.part_area_fraction * float(a),
+         longest_part_px(e, camera, pose) or 0.0) for e, a in zip(parts, areas))
     if area_px < ((2 * params.open_px + 1) / params.cue_scale) ** 2:
         # no larger than the specks the opening clears: not told from noise
         return replace(params, whole_parts=whole)
@@ -144,4 +157,5 @@ def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[floa
                    small_blob_candidates_px=small, whole_parts=whole)
 
 
-__all__ = ['longest_part_px', 'part_view_areas', 'part_view_size', 'view_segmentation']
+__all__ = ['longest_part_px', 'part_view_areas', 'part_view_size', 'view_segmentation',
+           'whole_part_px']

@@ -39,6 +39,7 @@ from tlessbot_ros.core.localise.cues import (
 )
 from tlessbot_ros.core.localise.instances import instances_at_scale, watershed_refine
 from tlessbot_ros.core.localise.params import SegmentationParams
+from tlessbot_ros.core.localise.part_scale import whole_part_px
 from tlessbot_ros.core.localise.thin import thin_instances
 
 if TYPE_CHECKING:
@@ -55,10 +56,9 @@ class Segmentation:
         areas: (N,) int64 pixel counts.
         foreground: (H, W) bool union mask before instance separation.
         thin: (N,) bool; thin parts (:mod:`~tlessbot_ros.core.localise.thin`), kept whole.
-        whole_parts: (K, 2) per part its largest extent (m) and the smallest blob that can
-            be it whole in this view (px) (``SegmentationParams.whole_parts``; none: unknown;
-            :meth:`whole_part_px`).
-        longest_part_px: the longest a part can look in this view (px; 0: unknown).
+        whole_parts: (K, 3) per part its largest extent (m), the smallest blob that can be
+            it whole and the longest it can look in this view (px)
+            (``SegmentationParams.whole_parts``; none: unknown; :meth:`whole_part_px`).
         depth_groups: (N,) int32; instances cut from one piece of a depth split share an id
             > 0 (two parts whose seam the depth shows), 0 = not divided by depth.
         cues: per-method bool candidate masks at ``params.cue_scale`` (for inspection).
@@ -73,8 +73,7 @@ class Segmentation:
     foreground: np.ndarray
     depth_groups: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     thin: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    whole_parts: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    longest_part_px: float = 0.0
+    whole_parts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     cues: dict[str, np.ndarray] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
 
@@ -82,14 +81,16 @@ class Segmentation:
     def count(self) -> int:
         return int(self.boxes.shape[0])
 
-    def whole_part_px(self, height_m: float = 0.0) -> float:
-        """The smallest blob (px) that can be a whole part standing ``height_m`` above the
-        table: of the parts at least that long (a part stands no taller than its largest
-        extent; all of them when none is), 0 when the parts are unknown."""
-        if not len(self.whole_parts):
-            return 0.0
-        tall = self.whole_parts[self.whole_parts[:, 0] >= height_m]
-        return float((tall if len(tall) else self.whole_parts)[:, 1].min())
+    def whole_part_px(self, height_m: float = 0.0, length_px: float = 0.0) -> float:
+        """The smallest blob (px) that can be a whole part ``height_m`` high and
+        ``length_px`` long in this view, 0 when the parts are unknown
+        (:func:`~tlessbot_ros.core.localise.part_scale.whole_part_px`)."""
+        return whole_part_px(self.whole_parts, height_m, length_px)
+
+    @property
+    def longest_part_px(self) -> float:
+        """The longest a part can look in this view (px; 0: unknown)."""
+        return float(self.whole_parts[:, 2].max()) if len(self.whole_parts) else 0.0
 
 
 class _Stopwatch:
@@ -182,8 +183,7 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     watch.lap('instances')
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
                         depth_groups=groups, thin=thin, cues=cues, timings_ms=watch.total(),
-                        whole_parts=np.array(params.whole_parts or (), float).reshape(-1, 2),
-                        longest_part_px=params.longest_part_px or 0.0)
+                        whole_parts=np.array(params.whole_parts or (), float).reshape(-1, 3))
 
 
 def _background_for(rgb: np.ndarray, background: np.ndarray | BackgroundModel | None,
