@@ -201,3 +201,24 @@ def test_a_small_blob_keeps_its_candidates_extent_a_large_one_its_watershed_cont
     expected[10:20, 10:20] = True   # the small one grown; the large one and the rest as they were
     np.testing.assert_array_equal(_small_blobs_whole(foreground, candidate, 80), expected)
     assert _small_blobs_whole(foreground, candidate, 35) is foreground   # none that small
+
+
+def test_colour_pieces_no_part_fits_join_the_piece_they_border():
+    from tlessbot_ros.core.localise.instances import join_pieces_no_part_fits
+
+    # a rod 60 x 8 px in two colours: its ball end (14 px) and its shaft
+    rod = np.zeros((12, 64), bool)
+    rod[2:10, 2:62] = True
+    end, shaft = rod.copy(), rod.copy()
+    end[:, 16:] = False
+    shaft[:, :16] = False
+    # parts: the rod itself (smallest whole blob 300 px, up to 70 px long) and a nut
+    # (smallest whole blob 40 px, up to 10 px long): the end is too long for a nut, too
+    # small for a rod
+    sizes = SegmentationParams(whole_parts=((0.071, 300.0, 70.0), (0.009, 40.0, 10.0)))
+    joined = join_pieces_no_part_fits([end, shaft], sizes)
+    assert len(joined) == 1 and np.array_equal(joined[0], rod)
+    # parts unknown, or a part the end can be (a block 14 px long): two parts
+    for params in (SegmentationParams(),
+                   replace(sizes, whole_parts=sizes.whole_parts + ((0.02, 60.0, 20.0),))):
+        assert len(join_pieces_no_part_fits([end, shaft], params)) == 2
