@@ -117,9 +117,13 @@ def _side_prediction(top_labels: np.ndarray, side_shape: tuple[int, ...], rig: R
     if pred.shape != side_shape:
         raise ValueError(f'side image {side_shape} differs from the rig side camera '
                          f'{pred.shape}')
-    # (the lifted points, then the same dropped onto the table; none lifted: no height)
-    heights = {k: float(np.median(pts[:len(pts) // 2, 2])) for k, pts in points.items()
-               if depth_top_m is not None}
+    # (the lifted points, then the same dropped onto the table; a blob the depth did not
+    # lift is a prism of prism_height_m: no height)
+    heights = {}
+    for k, pts in points.items():
+        z = pts[:len(pts) // 2, 2]
+        if depth_top_m is not None and not np.all((z == 0) | (z == params.prism_height_m)):
+            heights[k] = float(np.median(z))
     return pred, heights
 
 
