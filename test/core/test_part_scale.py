@@ -204,7 +204,7 @@ def test_a_small_blob_keeps_its_candidates_extent_a_large_one_its_watershed_cont
 
 
 def test_colour_pieces_no_part_fits_join_the_piece_they_border():
-    from tlessbot_ros.core.localise.instances import join_pieces_no_part_fits
+    from tlessbot_ros.core.localise.part_scale import join_pieces_no_part_fits
 
     # a rod 60 x 8 px in two colours: its ball end (14 px) and its shaft
     rod = np.zeros((12, 64), bool)

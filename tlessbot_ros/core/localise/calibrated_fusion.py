@@ -16,7 +16,8 @@ from tlessbot_ros.core.localise.fusion_result import (
     FusionResult,
     instances_from_labels,
 )
-from tlessbot_ros.core.localise.instances import fill_from_nearest, mask_length_px
+from tlessbot_ros.core.localise.instances import fill_from_nearest
+from tlessbot_ros.core.localise.part_scale import mask_length_px
 from tlessbot_ros.core.localise.segmentation import Segmentation
 
 

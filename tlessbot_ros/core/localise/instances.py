@@ -27,7 +27,7 @@ import numpy as np
 from tlessbot_ros.core.common import label_boxes
 from tlessbot_ros.core.localise.cues import Surfaces, depth_cue, opened
 from tlessbot_ros.core.localise.params import SegmentationParams
-from tlessbot_ros.core.localise.part_scale import whole_part_px
+from tlessbot_ros.core.localise.part_scale import join_pieces_no_part_fits
 from tlessbot_ros.core.localise.thin import is_thin
 
 
@@ -205,41 +205,6 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
         labels[y0:y0 + f.shape[0], x0:x0 + f.shape[1]][f] = k
     return (labels, np.array(boxes, np.int32).reshape(-1, 4),
             np.array(areas, np.int64), np.array(groups, np.int32))
-
-
-def mask_length_px(mask: np.ndarray) -> float:
-    """The long side (px) of a mask's smallest rotated rectangle (0 when empty)."""
-    points = cv2.findNonZero(np.ascontiguousarray(mask, np.uint8))
-    return 0.0 if points is None else float(max(cv2.minAreaRect(points)[1]))
-
-
-def could_be_whole(piece: np.ndarray, params: SegmentationParams) -> bool:
-    """Whether a piece (bool mask) is as large as a whole part as long as it is can be
-    (:func:`~tlessbot_ros.core.localise.part_scale.whole_part_px`); True without the parts."""
-    return cv2.countNonZero(np.ascontiguousarray(piece, np.uint8)) >= \
-        whole_part_px(params.whole_parts, 0.0, mask_length_px(piece))
-
-
-def join_pieces_no_part_fits(pieces: list[np.ndarray], params: SegmentationParams
-                             ) -> list[np.ndarray]:
-    """The pieces of one blob (bool masks of one crop), each piece that no part fits whole
-    (:func:`could_be_whole`; a part of two colours, a rod with a shaded band) joined to the
-    piece it borders most, smallest first. Used in the view split by depth (the side one,
-    nearer): from the top a thin part reads small (its rim lost to the cues), and a strip 3 mm
-    thick beside a plate would join it."""
-    pieces = list(pieces)
-    ring = np.ones((3, 3), np.uint8)
-    while len(pieces) > 1:
-        small = [j for j, p in enumerate(pieces) if not could_be_whole(p, params)]
-        if not small:
-            break
-        j = min(small, key=lambda i: int(np.count_nonzero(pieces[i])))
-        border = cv2.dilate(pieces[j].view(np.uint8), ring).astype(bool)
-        others = [i for i in range(len(pieces)) if i != j]
-        k = max(others, key=lambda i: int(np.count_nonzero(border & pieces[i])))
-        pieces[k] = pieces[k] | pieces[j]
-        del pieces[j]
-    return pieces
 
 
 def instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarray,

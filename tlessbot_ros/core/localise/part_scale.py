@@ -22,6 +22,13 @@ And a view where the smallest part is no larger than the specks of noise the ope
 (``(2 open_px + 1)^2`` cue pixels: 36 image pixels) keeps them too: there a part that small
 cannot be told from noise by its size (the nut from the top camera: 15 to 25 px), and the
 other view finds it.
+
+The same sizes tell a piece from a part (``SegmentationParams.whole_parts``): a blob smaller
+than ``part_area_fraction`` of every part at least as long as it looks (and, where its
+height is known, as tall as it stands) cannot be a whole part (:func:`whole_part_px`). The
+side view's colour split joins such pieces to their neighbours
+(:func:`join_pieces_no_part_fits`: a rod with a shaded band), and so does the fusion
+(:mod:`.calibrated_fusion`).
 """
 from __future__ import annotations
 
@@ -109,6 +116,41 @@ def whole_part_px(whole_parts: np.ndarray | tuple[tuple[float, float, float], ..
     return float((fit if len(fit) else table)[:, 1].min())
 
 
+def mask_length_px(mask: np.ndarray) -> float:
+    """The long side (px) of a mask's smallest rotated rectangle (0 when empty)."""
+    points = cv2.findNonZero(np.ascontiguousarray(mask, np.uint8))
+    return 0.0 if points is None else float(max(cv2.minAreaRect(points)[1]))
+
+
+def could_be_whole(piece: np.ndarray, params: SegmentationParams) -> bool:
+    """Whether a piece (bool mask) is as large as a whole part as long as it is can be
+    (:func:`~tlessbot_ros.core.localise.part_scale.whole_part_px`); True without the parts."""
+    return cv2.countNonZero(np.ascontiguousarray(piece, np.uint8)) >= \
+        whole_part_px(params.whole_parts, 0.0, mask_length_px(piece))
+
+
+def join_pieces_no_part_fits(pieces: list[np.ndarray], params: SegmentationParams
+                             ) -> list[np.ndarray]:
+    """The pieces of one blob (bool masks of one crop), each piece that no part fits whole
+    (:func:`could_be_whole`; a part of two colours, a rod with a shaded band) joined to the
+    piece it borders most, smallest first. Used in the view split by depth (the side one,
+    nearer): from the top a thin part reads small (its rim lost to the cues), and a strip 3 mm
+    thick beside a plate would join it."""
+    pieces = list(pieces)
+    ring = np.ones((3, 3), np.uint8)
+    while len(pieces) > 1:
+        small = [j for j, p in enumerate(pieces) if not could_be_whole(p, params)]
+        if not small:
+            break
+        j = min(small, key=lambda i: int(np.count_nonzero(pieces[i])))
+        border = cv2.dilate(pieces[j].view(np.uint8), ring).astype(bool)
+        others = [i for i in range(len(pieces)) if i != j]
+        k = max(others, key=lambda i: int(np.count_nonzero(border & pieces[i])))
+        pieces[k] = pieces[k] | pieces[j]
+        del pieces[j]
+    return pieces
+
+
 def view_segmentation(params: SegmentationParams, extents_m: np.ndarray | None,
                       K: np.ndarray, T_world_camera: np.ndarray | None) -> SegmentationParams:
     """``params`` with ``min_area_px`` and ``open_px`` for one view of a parts set (see the
@@ -157,5 +199,5 @@ def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[floa
                    small_blob_candidates_px=small, whole_parts=whole)
 
 
-__all__ = ['longest_part_px', 'part_view_areas', 'part_view_size', 'view_segmentation',
-           'whole_part_px']
+__all__ = ['could_be_whole', 'join_pieces_no_part_fits', 'longest_part_px', 'mask_length_px',
+           'part_view_areas', 'part_view_size', 'view_segmentation', 'whole_part_px']
