@@ -45,8 +45,8 @@ localiser publishes on /localiser/rig once it refines the rig from the scene rep
 ``pose.*`` and FitParams; ``workers.count`` starts or stops workers) but ``templates_path``
 and ``parts_path`` (their objects name the pose topics), ``rig.cameras``, ``rig_source``,
 ``input_qos``, ``input_depth``, ``sync.worker_thread``, ``sync.executor``, ``colour_input``
-(with it also /CAMERA/color/image_raw: flat parts checked on the colour image too, FitParams
-``flat.*``): read-only.
+(with it also /CAMERA/color/image_raw: flat and near-symmetric parts checked on the colour
+image too, FitParams ``flat.*`` and ``turns.*``; on by default with ``parts_path``): read-only.
 """
 from __future__ import annotations
 
@@ -110,10 +110,13 @@ class PoseEstimatorNode(StageNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('pose_estimator', after_localiser=True, **kwargs)
         parameters = self.parameters
-        self.colour_input = parameters.read_only('colour_input', False, (
-            'Also subscribe to the colour images: flat parts are then checked on them '
-            '(face up, yaw, look-alike; flat.*)'))
         parts = declare_parts(self)   # PartsFolderError: one line, exit 1
+        # A parts folder's flat and near-symmetric parts are told apart on the colour image
+        # (flat.*, turns.*), as `tlessbot evaluate` scores them; the packaged T-LESS graph
+        # keeps its two depth inputs.
+        self.colour_input = parameters.read_only('colour_input', parts is not None, (
+            'Also subscribe to the colour images: flat and near-symmetric parts are checked '
+            'on them (flat.*, turns.*); default: on with parts_path, off without'))
         path = parameters.read_only(
             'templates_path', str(parts.templates if parts else DEFAULT_TEMPLATES), (
                 "Template database .npz written by tlessbot templates (default: the parts "
