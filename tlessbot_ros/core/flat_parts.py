@@ -83,7 +83,8 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
                                         job.T_world_camera, evidence)
         detection.pose = replace(detection.pose, T_camera_object=T)
     T, info['depth_turn_vote'] = check.depth_turn(obj, detection.pose.T_camera_object,
-                                                  job.points, job.more_views)
+                                                  job.points, job.more_views,
+                                                  job.T_world_camera)
     if T is not None:
         detection.turned_over = not detection.turned_over
         detection.second = detection.pose

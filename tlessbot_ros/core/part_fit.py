@@ -178,7 +178,8 @@ def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob) -> None:
     if lookalike is None or detection.pose is None or detection.obj_id not in lookalike:
         return
     winner, _ = lookalike.resolve(detection.obj_id, detection.pose.T_camera_object,
-                                  job.points, more_views=job.more_views)
+                                  job.points, more_views=job.more_views,
+                                  T_world_camera=job.T_world_camera)
     if winner != detection.obj_id:
         # the twins share their model frame, so the fitted pose is the twin's too
         detection.obj_id = winner

@@ -304,14 +304,16 @@ class FlatCheck:
 
     def depth_turn(self, obj: ObjectTemplates, T_camera_object: np.ndarray,
                    points_c: np.ndarray,
-                   more_views: Sequence[tuple[np.ndarray, np.ndarray]] = ()
+                   more_views: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+                   T_world_camera: np.ndarray | None = None
                    ) -> tuple[np.ndarray | None, float]:
         """The last word of the depth on the final pose (after the image and the yaw): the pose
         turned by half a turn about each principal axis of the mesh (through the centre of its
         principal box), each refitted to the ROI cloud point-to-plane (:func:`_refit`), replaces
-        it when it explains the depth of every view better by a clear margin. Returns (the
-        turned pose or None, its vote)."""
-        from tlessbot_ros.core.pose.lookalike import depth_errors, pooled_vote
+        it when it explains the depth of every view better by a clear margin (with the table
+        frame ``T_world_camera``, a pixel the mesh misses expects the table,
+        :func:`~.lookalike.depth_errors`). Returns (the turned pose or None, its vote)."""
+        from tlessbot_ros.core.pose.lookalike import depth_errors, pooled_vote, view_planes
 
         mesh = mesh_scene(obj)
         if mesh is None or obj.mesh_vertices is None:
@@ -321,15 +323,18 @@ class FlatCheck:
         T0 = np.asarray(T_camera_object, np.float64)
         clouds = [(np.eye(4), np.asarray(points_c, np.float64))] + \
             [(np.asarray(T, np.float64), points) for points, T in more_views]
-        clouds = [(T, points) for T, points in clouds if len(points)]
-        if not clouds:
+        planes = view_planes(T_world_camera, [T for T, _ in clouds[1:]])
+        clouds3 = [(T, points, plane) for (T, points), plane in zip(clouds, planes)
+                   if len(points)]
+        if not clouds3:
             return None, 0.0
-        own = [depth_errors(mesh, T @ T0, points) for T, points in clouds]
+        own = [depth_errors(mesh, T @ T0, points, plane) for T, points, plane in clouds3]
         best: np.ndarray | None = None
         best_vote = 0.0
         for turn in turns:
             turned = _refit(obj, T0 @ turn, points_c)
-            vote = pooled_vote([depth_errors(mesh, T @ turned, points) for T, points in clouds],
+            vote = pooled_vote([depth_errors(mesh, T @ turned, points, plane)
+                                for T, points, plane in clouds3],
                                own, self.params.depth_tolerance_m, self.params.depth_min_z)
             if vote > best_vote:
                 best, best_vote = turned, vote

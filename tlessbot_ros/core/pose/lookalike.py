@@ -120,14 +120,35 @@ def visible_difference(scene_a: o3d.t.geometry.RaycastingScene,
 
 
 def depth_errors(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
-                 points_c: np.ndarray) -> np.ndarray:
+                 points_c: np.ndarray, plane: np.ndarray | None = None) -> np.ndarray:
     """(N,) |rendered - measured| depth (m) of a mesh at a pose along the pixel rays of an ROI
-    cloud ((N, 3) points, optical frame), at most ``MISS_ERROR_M`` (also where it misses)."""
+    cloud ((N, 3) points, optical frame), at most ``MISS_ERROR_M``.
+
+    Where the ray misses the mesh (a through-hole, beside the outline) it meets what lies
+    behind the part: with the table ``plane`` (4,) (n·x + d = 0, camera frame;
+    :func:`~tlessbot_ros.core.common.plane_of_frame`) the rendered depth there is the table's,
+    else the pixel counts as ``MISS_ERROR_M``. Without the table a hole that the depth shows
+    (the table 4 mm below a plate's top) is explained better by a twin without that hole (4 mm
+    off) than by the part that has it (a miss), which turns every such vote the wrong way."""
     points_c = np.asarray(points_c, np.float64)
     z = points_c[:, 2]
-    depth = _depth_along(scene, T_camera_object, points_c / z[:, None])
+    rays = points_c / z[:, None]
+    depth = _depth_along(scene, T_camera_object, rays)
+    if plane is not None:
+        depth = np.where(np.isfinite(depth), depth, table_depth(plane, rays))
     return np.where(np.isfinite(depth), np.minimum(np.abs(depth - z), MISS_ERROR_M),
                     MISS_ERROR_M)
+
+
+def table_depth(plane: np.ndarray, rays_c: np.ndarray) -> np.ndarray:
+    """(N,) depth (m) at which (N, 3) camera rays scaled to z = 1 meet the ``plane`` (4,)
+    (n·x + d = 0, camera frame); inf where a ray runs parallel to it or meets it behind the
+    camera."""
+    plane = np.asarray(plane, np.float64)
+    along = rays_c @ plane[:3]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        depth = -plane[3] / along
+    return np.where(np.isfinite(depth) & (depth > 0), depth, np.inf)
 
 
 def depth_vote(errors_a: np.ndarray, errors_b: np.ndarray, tolerance_m: float) -> float:
@@ -175,6 +196,20 @@ def pooled_vote(challenger: Sequence[np.ndarray], incumbent: Sequence[np.ndarray
     if not total or not clear_margin(favour, against, min_z):
         return 0.0
     return (favour - against) / total
+
+
+def view_planes(T_world_camera: np.ndarray | None, T_others_camera: Sequence[np.ndarray]
+                ) -> list[np.ndarray | None]:
+    """The table plane (4,) in a camera (its table frame ``T_world_camera``) and in each other
+    camera (``T_other_camera``: that camera into the other one), all None without a table
+    frame (:func:`~tlessbot_ros.core.common.plane_of_frame`)."""
+    from tlessbot_ros.core.common import plane_of_frame
+
+    if T_world_camera is None:
+        return [None] * (1 + len(T_others_camera))
+    T_world = np.asarray(T_world_camera, np.float64)
+    return [plane_of_frame(T_world)] + [plane_of_frame(T_world @ np.linalg.inv(T))
+                                        for T in T_others_camera]
 
 
 class MeshScenes:
@@ -235,8 +270,8 @@ class LookalikeCheck:
         return self._scenes[obj_id]
 
     def resolve(self, obj_id: int, T_camera_object: np.ndarray, points_c: np.ndarray, *,
-                more_views: Sequence[tuple[np.ndarray, np.ndarray]] = ()
-                ) -> tuple[int, float]:
+                more_views: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+                T_world_camera: np.ndarray | None = None) -> tuple[int, float]:
         """(winner, its vote against ``obj_id``): ``obj_id`` itself (vote 0) unless a
         look-alike at the same pose explains the depth better by a clear margin
         (``min_z``, :func:`clear_margin`) of the pixels of every view given.
@@ -248,6 +283,9 @@ class LookalikeCheck:
             more_views: the part's ROI clouds in other cameras, each as ((M, 3) points in
                 that camera's optical frame, (4, 4) ``T_other_camera``: the cloud's camera
                 in that one); their pixels vote with those of ``points_c``.
+            T_world_camera: (4, 4) the table frame of the cloud's camera (z = 0 on the
+                table), or None: a pixel the mesh misses then expects the table behind
+                (:func:`depth_errors`).
 
         Returns:
             the winner and its vote: the share of all the pixels that it explains better
@@ -257,14 +295,17 @@ class LookalikeCheck:
         views = [(np.asarray(T_camera_object, np.float64), points_c)]
         views += [(np.asarray(T_other, np.float64) @ views[0][0], points)
                   for points, T_other in more_views]
-        views = [(T, points) for T, points in views if len(points)]
+        planes = view_planes(T_world_camera, [T for _, T in more_views])
+        views = [(T, points, plane) for (T, points), plane in zip(views, planes) if len(points)]
         if obj_id not in self.lookalikes or not views:
             return obj_id, 0.0
-        own = [depth_errors(self._scene(obj_id), T, points) for T, points in views]
+        own = [depth_errors(self._scene(obj_id), T, points, plane)
+               for T, points, plane in views]
         best, best_vote = obj_id, 0.0
         for other in self.lookalikes[obj_id]:
-            vote = pooled_vote([depth_errors(self._scene(other), T, points)
-                                for T, points in views], own, self.tolerance_m, self.min_z)
+            vote = pooled_vote([depth_errors(self._scene(other), T, points, plane)
+                                for T, points, plane in views], own, self.tolerance_m,
+                               self.min_z)
             if vote > best_vote:
                 best, best_vote = other, vote
         return best, best_vote
