@@ -32,14 +32,19 @@ def check_fitted_part(pipeline: PerceptionPipeline, job: PartJob,
 
 
 def colour_views(views: dict[str, ViewInput], labels: dict[str, np.ndarray], instance: int,
-                 fit_view: str) -> list[ViewEvidence]:
+                 fit_view: str, tables: dict[str, np.ndarray | None] | None = None
+                 ) -> list[ViewEvidence]:
     """The :class:`ViewEvidence` of part ``instance`` fitted in ``fit_view``: that view, and
-    every other view with colour, the part's label and rig extrinsics for both (views without
-    colour give none)."""
+    every other view with colour (or, with ``tables``, depth), the part's label and rig
+    extrinsics for both. ``tables``: per view its table frame ``T_world_camera`` (or None),
+    for the aligned votes (the view's depth, table plane and the other parts' labels)."""
+    from tlessbot_ros.core.common import plane_of_frame
+
     out = []
     T_fit = views[fit_view].T_world_camera
     for name, view in views.items():
-        if name not in labels or view.rgb is None:   # no colour (the pose node): no evidence
+        T_table = (tables or {}).get(name)
+        if name not in labels or (view.rgb is None and T_table is None):
             continue
         if name == fit_view:
             T_view_fit = np.eye(4)
@@ -47,8 +52,13 @@ def colour_views(views: dict[str, ViewInput], labels: dict[str, np.ndarray], ins
             continue
         else:
             T_view_fit = np.linalg.inv(view.T_world_camera) @ T_fit
-        out.append(ViewEvidence(view.rgb, labels[name] == instance, view.intrinsics,
-                                T_view_fit))
+        label = labels[name]
+        if T_table is None:
+            out.append(ViewEvidence(view.rgb, label == instance, view.intrinsics, T_view_fit))
+            continue
+        out.append(ViewEvidence(view.rgb, label == instance, view.intrinsics, T_view_fit,
+                                view.depth_m, plane_of_frame(T_table),
+                                (label != 0) & (label != instance)))
     return out
 
 
@@ -69,7 +79,9 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
                       sor_neighbors=cloud.sor_neighbors, sor_std_ratio=cloud.sor_std_ratio)
     if not check.applies(obj):
         return None
-    evidence = colour_views(views, labels, detection.instance_id, detection.view)
+    tables = {name: pipeline.table_frame(name, view).T_world_camera
+              for name, view in views.items() if view.depth_m is not None}
+    evidence = colour_views(views, labels, detection.instance_id, detection.view, tables)
     info: dict[str, float] = {}
     if evidence:
         T, info = check.resolve(obj, detection.pose.T_camera_object, job.points,
@@ -82,6 +94,8 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
         T, info['yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
                                         job.T_world_camera, evidence)
         detection.pose = replace(detection.pose, T_camera_object=T)
+    if info.get('align_decided'):   # the aligned votes of every view decided the face
+        return info
     T, info['depth_turn_vote'] = check.depth_turn(obj, detection.pose.T_camera_object,
                                                   job.points, job.more_views,
                                                   job.T_world_camera)

@@ -90,6 +90,10 @@ class FlatParams:
             this, m (>= 0).
         depth_min_z: the depth vote overturns the pose only with a surplus above this many
             coin-toss deviations (>= 0).
+        align_px: each pose's rendering is aligned to the view by shifts of at most this many
+            pixels before the height and colour vote (>= 0).
+        align_min_z: a turned pose wins the aligned vote only with a surplus above this many
+            coin-toss deviations (>= 0).
     """
 
     enabled: bool = True
@@ -109,6 +113,8 @@ class FlatParams:
     yaw_min_gain: float = 0.02
     depth_tolerance_m: float = 0.002
     depth_min_z: float = 2.0
+    align_px: int = 3
+    align_min_z: float = 3.0
 
     def __post_init__(self) -> None:
         if self.flips < 1 or self.candidates < 1 or self.icp_iterations < 1 or \
@@ -120,22 +126,29 @@ class FlatParams:
                              f'got {self.min_share}, {self.iou_weight}, {self.yaw_step_deg}')
         if not 0.0 <= self.flat_ratio <= 1.0 or self.edge_px <= 0:
             raise ValueError('flat_ratio must be in [0, 1] and edge_px positive')
-        if self.depth_tolerance_m < 0 or self.depth_min_z < 0:
-            raise ValueError(f'depth_tolerance_m and depth_min_z must be >= 0; got '
-                             f'{self.depth_tolerance_m}, {self.depth_min_z}')
+        if self.depth_tolerance_m < 0 or self.depth_min_z < 0 or self.align_px < 0 or \
+                self.align_min_z < 0:
+            raise ValueError(f'depth_tolerance_m, depth_min_z, align_px and align_min_z must '
+                             f'be >= 0; got {self.depth_tolerance_m}, {self.depth_min_z}, '
+                             f'{self.align_px}, {self.align_min_z}')
 
 
 @dataclass(frozen=True)
 class ViewEvidence:
-    """What one camera shows of a part: ``rgb`` (H, W, 3) uint8, ``mask`` (H, W) bool (the
-    localiser's label of the part; may be empty), its ``intrinsics`` and ``T_view_fit``
-    (4, 4): the transform from the fitted view's optical frame into this one's (identity for
-    the fitted view itself)."""
+    """What one camera shows of a part: ``rgb`` (H, W, 3) uint8 (None: no colour), ``mask``
+    (H, W) bool (the localiser's label of the part; may be empty), its ``intrinsics`` and
+    ``T_view_fit`` (4, 4): the transform from the fitted view's optical frame into this one's
+    (identity for the fitted view itself); for the aligned votes (:mod:`.flat_align`) its
+    ``depth_m`` (H, W) metres, the table ``plane`` (4,) in this camera and ``others`` (H, W)
+    bool, the pixels the localiser gave other parts (each None when unknown)."""
 
-    rgb: np.ndarray
+    rgb: np.ndarray | None
     mask: np.ndarray
     intrinsics: CameraIntrinsics
     T_view_fit: np.ndarray
+    depth_m: np.ndarray | None = None
+    plane: np.ndarray | None = None
+    others: np.ndarray | None = None
 
 
 def is_flat(obj: ObjectTemplates, ratio: float) -> bool:
@@ -247,7 +260,7 @@ class FlatCheck:
         for view in views:
             T = [view.T_view_fit @ np.asarray(T_k, np.float64) for T_k in poses]
             box = window(points, T, view.intrinsics, margin_px=8)
-            if box is None:
+            if box is None or view.rgb is None:
                 continue
             x0, y0, w, h = box
             distance = edge_distance(view.rgb, box)
@@ -277,21 +290,18 @@ class FlatCheck:
         than ``min_gain``."""
         p = self.params
         T0 = np.asarray(T_camera_object, np.float64)
+        mesh = mesh_scene(obj)
+        if mesh is not None and obj.mesh_vertices is not None and \
+                any(v.plane is not None for v in views):
+            return self.aligned_turn(obj, mesh, T0, points_c, views)
         own, flipped, scene = self.flipped_fits(obj, T0, points_c,
                                                 np.asarray(T_world_camera, np.float64))
         info = {'fitness': own}
-        if not flipped:
+        if not flipped or not views:
             return None, info
         poses = [T0] + [T for T, _ in flipped]
-        if not views:
-            return None, info
-        scores, share, disputed = self.image_evidence(obj, poses, views)
-        decided = disputed >= p.min_disputed_px
-        gain = np.where(decided, share - p.min_share, scores - scores[0] - p.min_gain)
-        k = 1 + int(np.argmax(gain[1:]))
-        info.update(agreement=float(scores[0]), flip_agreement=float(scores[k]),
-                    flip_share=float(share[k]), disputed_px=float(disputed[k]))
-        if gain[k] <= 0 or (decided[k] and scores[k] < scores[0] - p.min_gain):
+        k = self.image_winner(obj, poses, views, info)
+        if k == 0:
             return None, info
         info['flip_fitness'] = flipped[k - 1][1]
         # the winner gets the polish the fitted pose had (every ROI point, more steps)
@@ -301,6 +311,73 @@ class FlatCheck:
                                    points=len(scene),
                                    distance_m=pose.polish_distance_voxels * obj.voxel_size_m)
         return T[0], info
+
+    def aligned_turn(self, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
+                     T_camera_object: np.ndarray, points_c: np.ndarray,
+                     views: Sequence[ViewEvidence]) -> tuple[np.ndarray | None, dict[str, float]]:
+        """The fitted pose turned by half a turn about one of the mesh's principal axes
+        (through the centre of its principal box) when the aligned votes choose that turn
+        (:meth:`aligned_winner`), polished on the ROI cloud; None to keep the fitted pose.
+
+        The turns are exact, not refitted: a fit a few millimetres or degrees off in the
+        table plane passes its error on to every turn alike (the turn is about the part's own
+        centre), so where the outline looks the same turned, the poses differ only where the
+        holes, slots and cut corners do."""
+        from tlessbot_ros.core.pose.cloud import voxel_downsample
+
+        assert obj.mesh_vertices is not None
+        vertices = obj.mesh_vertices
+        turns = obj.derived('half_turns', lambda: _half_turns(vertices))
+        poses = [T_camera_object] + [T_camera_object @ turn for turn in turns]
+        info: dict[str, float] = {}
+        k = self.aligned_winner(obj, mesh, poses, views, info)
+        if k == 0:
+            return None, info
+        scene, _ = voxel_downsample(np.asarray(points_c, np.float64),
+                                    obj.voxel_size_m * self.voxel_scale)
+        pose = self.refiner.params
+        T = self.refiner.icp_batch(scene, obj, poses[k][None],
+                                   iterations=max(pose.polish_iterations,
+                                                  self.params.icp_iterations),
+                                   points=len(scene),
+                                   distance_m=pose.polish_distance_voxels * obj.voxel_size_m)
+        info['flip_fitness'] = float(self.refiner.grid_fitness(T, scene, obj)[0])
+        return T[0], info
+
+    def aligned_winner(self, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
+                       poses: Sequence[np.ndarray], views: Sequence[ViewEvidence],
+                       info: dict[str, float]) -> int:
+        """The pose among ``poses`` (the fitted one first) that the aligned height and colour
+        votes of every view choose (:func:`~.flat_align.view_votes`): the winner of the
+        duels between all of them (:func:`~.flat_align.round_robin`) when its surplus over
+        every other pose is clear (``align_min_z``; ``info['align_decided']`` 1, the fitted
+        pose kept as clearly as a turn is taken); else 0 (undecided)."""
+        from tlessbot_ros.core.pose.flat_align import round_robin, view_votes
+        from tlessbot_ros.core.pose.lookalike import clear_margin
+
+        p = self.params
+        votes = view_votes([mesh] * len(poses), poses, obj.model_points.astype(np.float64),
+                           views, pad=p.align_px, tolerance_m=p.depth_tolerance_m)
+        k = round_robin(votes)
+        decided = all(clear_margin(int(votes[k, j]), int(votes[j, k]), p.align_min_z)
+                      for j in range(len(poses)) if j != k)
+        info.update(align_winner=float(k), align_decided=float(decided))
+        return k if decided else 0
+
+    def image_winner(self, obj: ObjectTemplates, poses: Sequence[np.ndarray],
+                     views: Sequence[ViewEvidence], info: dict[str, float]) -> int:
+        """The pose among ``poses`` (the fitted one first) that the colour image chooses
+        without depth or a mesh (:meth:`image_evidence`), 0 for the fitted one."""
+        p = self.params
+        scores, share, disputed = self.image_evidence(obj, poses, views)
+        decided = disputed >= p.min_disputed_px
+        gain = np.where(decided, share - p.min_share, scores - scores[0] - p.min_gain)
+        k = 1 + int(np.argmax(gain[1:]))
+        info.update(agreement=float(scores[0]), flip_agreement=float(scores[k]),
+                    flip_share=float(share[k]), disputed_px=float(disputed[k]))
+        if gain[k] <= 0 or (decided[k] and scores[k] < scores[0] - p.min_gain):
+            return 0
+        return k
 
     def depth_turn(self, obj: ObjectTemplates, T_camera_object: np.ndarray,
                    points_c: np.ndarray,

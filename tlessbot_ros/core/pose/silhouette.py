@@ -164,6 +164,33 @@ def disputed_votes(mine: np.ndarray, other: np.ndarray, rgb: np.ndarray, *,
     return for_mine, count - for_mine
 
 
+def part_likeness(rgb: np.ndarray, part: np.ndarray, surroundings: np.ndarray,
+                  where: np.ndarray, *, margin: float = 0.25, seed: int = 0) -> np.ndarray:
+    """(h, w) int8 over the (h, w, 3) uint8 window ``rgb``: +1 where a pixel of ``where``
+    looks like the part (its colour nearer the samples of the ``part`` pixels than those of
+    the ``surroundings``, :func:`_nearest`), -1 where it looks like the surroundings, 0 where
+    neither is nearer by ``margin`` of the two distances' sum, outside ``where``, or without
+    samples of both."""
+    out = np.zeros(rgb.shape[:2], np.int8)
+    if not part.any() or not surroundings.any() or not where.any():
+        return out
+    rng = np.random.default_rng(seed)
+    colour = rgb.astype(np.float32)
+
+    def samples(mask: np.ndarray) -> np.ndarray:
+        pixels = colour[mask]
+        chosen: np.ndarray = pixels[rng.choice(len(pixels), _SAMPLES)] \
+            if len(pixels) > _SAMPLES else pixels
+        return chosen
+
+    query = colour[where]
+    d_part = np.sqrt(np.maximum(_nearest(query, samples(part)), 0.0))
+    d_around = np.sqrt(np.maximum(_nearest(query, samples(surroundings)), 0.0))
+    clear = np.abs(d_around - d_part) > margin * (d_around + d_part)
+    out[where] = np.where(clear, np.sign(d_around - d_part), 0).astype(np.int8)
+    return out
+
+
 def _nearest(query: np.ndarray, samples: np.ndarray) -> np.ndarray:
     """(N,) squared distance from each (N, 3) query colour to its k-th nearest sample, k a
     tenth of the samples: robust to the few pixels of the other class that each sample set

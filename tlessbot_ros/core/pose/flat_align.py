@@ -1,0 +1,251 @@
+"""Flat parts' poses compared on the image and the depth, each aligned to them first.
+
+Two poses of a plate a few millimetres thick (the fitted one and its turn, or the part and its
+look-alike twin) differ where their holes, slots and cut corners lie: a few pixels each. The
+depth fit leaves a thin part a few millimetres off in the table plane (its flat face does not
+hold it there), which moves its outline by as many pixels: compared where they stand, the
+two poses' outlines dispute more pixels than their holes do, and the vote follows the fit's
+error. So each pose is first aligned: its rendering is shifted by whole pixels (at most
+``align_px`` either way) to where it agrees best with the view (a small in-plane search, in
+the spirit of chamfer matching, Barrow et al., IJCAI 1977), and the poses are compared
+aligned, pixel by pixel, on two cues:
+
+* **height above the table**: the mesh's top surface where a pixel's ray meets the mesh,
+  the table (0) where it does not (a hole, beside the outline), against the height the
+  measured depth gives (shift-invariant along the table, so a shifted rendering stays
+  exact); a pixel votes for the pose whose height is nearer by more than ``tolerance_m``.
+* **colour**: a pixel that looks like the part (its colour nearer the part's than the
+  surroundings'; :func:`~.silhouette.part_likeness`) votes for the pose that covers it, one
+  that looks like the surroundings for the pose that leaves it free.
+
+The votes of every view are pooled and a pose replaces another only by a clear margin
+(:func:`~.lookalike.clear_margin`).
+
+Poses are ``T_camera_object`` (4, 4) metres in the view's optical frame; windows (x, y, w, h)
+pixels; planes (4,) (n·x + d = 0, camera frame, n towards the camera side: the height).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from tlessbot_ros.core.common import CameraIntrinsics, o3d_tensor
+
+if TYPE_CHECKING:
+    import open3d as o3d
+
+    from tlessbot_ros.core.pose.flat import ViewEvidence
+
+# a rendered or measured height this far from the other counts as this far (m): a neighbour
+# standing in the window, or a pixel of the table where the mesh stands, weighs no more
+_HEIGHT_CAP_M = 0.01
+
+
+@dataclass(frozen=True)
+class AlignedView:
+    """What one view shows in the window around a part's poses: ``box`` (x, y, w, h),
+    ``height`` (h, w) the measured height above the table (m, NaN without depth),
+    ``part_like`` (h, w) int8 colour likeness (+1 part, -1 surroundings, 0 no colour) and
+    ``region`` (h, w) bool, the pixels that vote; ``renders`` per pose (hit (H, W) bool,
+    height (H, W) m) over the window grown by ``pad`` pixels on every side."""
+
+    box: tuple[int, int, int, int]
+    height: np.ndarray
+    part_like: np.ndarray
+    region: np.ndarray
+    renders: list[tuple[np.ndarray, np.ndarray]]
+    pad: int
+
+
+def render_heights(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
+                   intrinsics: CameraIntrinsics, box: tuple[int, int, int, int],
+                   plane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(hit (h, w) bool, height (h, w) m): where a mesh at a pose covers the window ``box``
+    and the height above the table ``plane`` of what each pixel's ray meets first (the mesh,
+    else the table: 0)."""
+    x0, y0, w, h = box
+    K = intrinsics.K
+    v, u = np.mgrid[y0:y0 + h, x0:x0 + w].astype(np.float64)
+    rays_c = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)],
+                      axis=-1).reshape(-1, 3)
+    T = np.asarray(T_camera_object, np.float64)
+    R, t = T[:3, :3], T[:3, 3]
+    rays = np.empty((len(rays_c), 6), np.float32)
+    rays[:, :3] = -R.T @ t
+    rays[:, 3:] = rays_c @ R
+    depth = scene.cast_rays(o3d_tensor(rays))['t_hit'].numpy().astype(np.float64)
+    hit = np.isfinite(depth)
+    height = np.zeros(len(rays_c))
+    height[hit] = (rays_c[hit] * depth[hit, None]) @ plane[:3] + plane[3]
+    return hit.reshape(h, w), height.reshape(h, w)
+
+
+def measured_heights(depth_m: np.ndarray, intrinsics: CameraIntrinsics,
+                     box: tuple[int, int, int, int], plane: np.ndarray) -> np.ndarray:
+    """(h, w) height (m) above the table ``plane`` of each pixel's measured depth in ``box``
+    (NaN where the depth is missing)."""
+    x0, y0, w, h = box
+    K = intrinsics.K
+    z = np.asarray(depth_m[y0:y0 + h, x0:x0 + w], np.float64)
+    v, u = np.mgrid[y0:y0 + h, x0:x0 + w].astype(np.float64)
+    points = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=-1)
+    height = points @ plane[:3] + plane[3]
+    return np.where(np.isfinite(z) & (z > 0), height, np.nan)
+
+
+def shifted(array: np.ndarray, pad: int, dx: int, dy: int) -> np.ndarray:
+    """The (h, w) window of a map rendered over the window grown by ``pad`` pixels on every
+    side, with its content moved by (dx, dy) pixels (|dx|, |dy| <= pad)."""
+    h, w = array.shape[0] - 2 * pad, array.shape[1] - 2 * pad
+    return array[pad - dy:pad - dy + h, pad - dx:pad - dx + w]
+
+
+def pixel_votes(view: AlignedView, a: tuple[np.ndarray, np.ndarray],
+                b: tuple[np.ndarray, np.ndarray], tolerance_m: float) -> tuple[int, int]:
+    """(pixels that pose a explains better, pixels that pose b explains better) of one view,
+    both renderings ((hit, height) over the window) already aligned: on the height, by more
+    than ``tolerance_m``, and on the colour where one covers a pixel and the other not."""
+    region = view.region
+    measured = view.height
+    has_depth = region & np.isfinite(measured)
+    error_a = np.minimum(np.abs(a[1] - measured), _HEIGHT_CAP_M)
+    error_b = np.minimum(np.abs(b[1] - measured), _HEIGHT_CAP_M)
+    gain = np.where(has_depth, error_b - error_a, 0.0)
+    favour = int(np.count_nonzero(gain > tolerance_m))
+    against = int(np.count_nonzero(gain < -tolerance_m))
+    differ = region & (a[0] != b[0]) & (view.part_like != 0)
+    says_a = (view.part_like > 0) == a[0]
+    favour += int(np.count_nonzero(differ & says_a))
+    against += int(np.count_nonzero(differ & ~says_a))
+    return favour, against
+
+
+def alignment_score(view: AlignedView, hit: np.ndarray, height: np.ndarray,
+                    tolerance_m: float) -> float:
+    """How well one aligned rendering agrees with a view: the pixels whose height it explains
+    within ``tolerance_m`` plus the pixels whose colour likeness it agrees with, minus those
+    it contradicts."""
+    region = view.region
+    with np.errstate(invalid='ignore'):
+        explained = np.abs(height - view.height) <= tolerance_m
+    colour = np.where(hit, view.part_like, -view.part_like)
+    return float(np.count_nonzero(region & explained) + np.sum(colour[region]))
+
+
+def best_shift(view: AlignedView, k: int, tolerance_m: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Pose ``k``'s rendering shifted to where it agrees best with the view
+    (:func:`alignment_score`, every whole-pixel shift of at most ``pad``; no shift on a
+    tie)."""
+    hit, height = view.renders[k]
+    pad = view.pad
+    best = (shifted(hit, pad, 0, 0), shifted(height, pad, 0, 0))
+    best_score = alignment_score(view, *best, tolerance_m)
+    for dy in range(-pad, pad + 1):
+        for dx in range(-pad, pad + 1):
+            if dx == dy == 0:
+                continue
+            moved = (shifted(hit, pad, dx, dy), shifted(height, pad, dx, dy))
+            score = alignment_score(view, *moved, tolerance_m)
+            if score > best_score:
+                best, best_score = moved, score
+    return best
+
+
+def pooled_votes(views: Sequence[AlignedView], count: int, tolerance_m: float
+                 ) -> np.ndarray:
+    """(count, count) int: [i, j] the pixels of every view that pose i explains better than
+    pose j (:func:`pixel_votes`), each pose aligned on its own (:func:`best_shift`)."""
+    votes = np.zeros((count, count), np.int64)
+    for view in views:
+        aligned = [best_shift(view, k, tolerance_m) for k in range(count)]
+        for i in range(count):
+            for j in range(i + 1, count):
+                votes[i, j], votes[j, i] = np.add(
+                    (votes[i, j], votes[j, i]),
+                    pixel_votes(view, aligned[i], aligned[j], tolerance_m))
+    return votes
+
+
+def round_robin(votes: np.ndarray) -> int:
+    """The pose that wins most of its duels (``votes`` [i, j]: pixels for i against j; ties
+    by the total surplus, then the lowest index)."""
+    net = votes - votes.T
+    wins = np.count_nonzero(net > 0, axis=1)
+    order = np.lexsort((np.arange(len(wins)), -net.sum(axis=1), -wins))
+    return int(order[0])
+
+
+def aligned_view(renderers: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.ndarray]],
+                 box: tuple[int, int, int, int], pad: int, intrinsics: CameraIntrinsics,
+                 plane: np.ndarray, *, rgb: np.ndarray | None, depth_m: np.ndarray | None,
+                 others: np.ndarray | None, tolerance_m: float) -> AlignedView:
+    """The :class:`AlignedView` of poses ((mesh scene, ``T_camera_object``) each) in the
+    window ``box`` of one view: its colour (or None), depth (or None), the table ``plane``
+    and the pixels the localiser gave other parts (``others`` (H, W) bool, or None)."""
+    x0, y0, w, h = box
+    grown = (x0 - pad, y0 - pad, w + 2 * pad, h + 2 * pad)
+    renders = [render_heights(scene, T, intrinsics, grown, plane) for scene, T in renderers]
+    height = measured_heights(depth_m, intrinsics, box, plane) if depth_m is not None \
+        else np.full((h, w), np.nan)
+    cut = None if others is None else np.asarray(others[y0:y0 + h, x0:x0 + w], bool)
+    region = voting_region(renders, pad, cut)
+    part_like = np.zeros((h, w), np.int8)
+    if rgb is not None:
+        from tlessbot_ros.core.pose.silhouette import part_likeness
+
+        hits = [shifted(hit, pad, 0, 0) for hit, _ in renders]
+        inside = cv2.erode(np.logical_and.reduce(hits).astype(np.uint8),
+                           np.ones((5, 5), np.uint8)).astype(bool)
+        outer = cv2.dilate(np.logical_or.reduce(hits).astype(np.uint8),
+                           np.ones((2 * pad + 13, 2 * pad + 13), np.uint8)).astype(bool)
+        with np.errstate(invalid='ignore'):
+            table = ~(height > tolerance_m)   # NaN (no depth) counts as table here
+            raised = ~(height < tolerance_m)
+        ring = outer & ~region & table & (cut is None or ~cut)
+        window_rgb = np.asarray(rgb[y0:y0 + h, x0:x0 + w])
+        part_like = part_likeness(window_rgb, inside & raised, ring, region)
+    return AlignedView(box, height, part_like, region, renders, pad)
+
+
+def view_votes(scenes: Sequence[o3d.t.geometry.RaycastingScene], poses: Sequence[np.ndarray],
+               points_o: np.ndarray, views: Sequence[ViewEvidence], *, pad: int,
+               tolerance_m: float) -> np.ndarray:
+    """(K, K) :func:`pooled_votes` of K poses (pose k of the mesh ``scenes[k]``, in the fitted
+    view's frame; ``points_o`` the model samples that bound them) over every view with a
+    table plane and colour or depth."""
+    from tlessbot_ros.core.pose.silhouette import window
+
+    aligned = []
+    for view in views:
+        if view.plane is None or (view.rgb is None and view.depth_m is None):
+            continue
+        T = [view.T_view_fit @ np.asarray(T_k, np.float64) for T_k in poses]
+        box = window(points_o, T, view.intrinsics, margin_px=pad + 4)
+        if box is None:
+            continue
+        aligned.append(aligned_view(list(zip(scenes, T)), box, pad, view.intrinsics,
+                                    view.plane, rgb=view.rgb, depth_m=view.depth_m,
+                                    others=view.others, tolerance_m=tolerance_m))
+    return pooled_votes(aligned, len(poses), tolerance_m)
+
+
+def voting_region(renders: Sequence[tuple[np.ndarray, np.ndarray]], pad: int,
+                  others: np.ndarray | None) -> np.ndarray:
+    """(h, w) bool: the pixels within ``pad`` + 2 pixels of any pose's rendering (each over
+    the window grown by ``pad``), less those the localiser gave another part (``others``)."""
+    union = np.zeros_like(renders[0][0], np.uint8)
+    for hit, _ in renders:
+        union |= hit.astype(np.uint8)
+    size = 2 * (pad + 2) + 1
+    grown = cv2.dilate(union, np.ones((size, size), np.uint8)).astype(bool)
+    region = shifted(grown, pad, 0, 0)
+    return region & ~others if others is not None else region
+
+
+__all__ = ['AlignedView', 'aligned_view', 'alignment_score', 'best_shift', 'measured_heights', 'pixel_votes',
+           'pooled_votes', 'render_heights', 'round_robin', 'shifted', 'view_votes', 'voting_region']
