@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tlessbot_ros.core.pose.flat import FlatCheck, ViewEvidence, refine_yaw
+from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams, ViewEvidence, refine_yaw
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.frame import PartJob, ViewInput
@@ -79,9 +79,8 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
                       sor_neighbors=cloud.sor_neighbors, sor_std_ratio=cloud.sor_std_ratio)
     if not check.applies(obj):
         return None
-    tables = {name: pipeline.table_frame(name, view).T_world_camera
-              for name, view in views.items() if view.depth_m is not None}
-    evidence = colour_views(views, labels, detection.instance_id, detection.view, tables)
+    evidence = colour_views(views, labels, detection.instance_id, detection.view,
+                            table_frames(pipeline, views))
     info: dict[str, float] = {}
     if evidence:
         T, info = check.resolve(obj, detection.pose.T_camera_object, job.points,
@@ -108,14 +107,16 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
 
 def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
                 labels: dict[str, np.ndarray]) -> dict[str, float] | None:
-    """A fitted flat part with a look-alike (one hole more, say) is named by the colour image:
-    both meshes' silhouettes at the fitted pose (look-alikes share their model frame) are
-    compared where they differ (:func:`~tlessbot_ros.core.pose.silhouette.disputed_votes`),
-    and the twin names the part when more than ``flat.min_share`` of at least
-    ``flat.min_disputed_px`` such pixels vote for it. Returns what decided (None: not
+    """A fitted flat part with a look-alike (one hole more, say) is named by what its views
+    show at the fitted pose (look-alikes share their model frame): with a table frame, both
+    meshes are compared on the aligned height and colour votes of every view
+    (:func:`~tlessbot_ros.core.pose.flat_align.view_votes`) and the winner of their duels
+    names the part when it beats every other by a clear margin (``flat.align_min_z``); without
+    one, on the colour image alone (:func:`_twins_on_colour`). Returns what decided (None: not
     checked)."""
     from tlessbot_ros.core.common import raycasting_scene
-    from tlessbot_ros.core.pose.silhouette import disputed_votes, mesh_silhouette, window
+    from tlessbot_ros.core.pose.flat_align import round_robin, view_votes
+    from tlessbot_ros.core.pose.lookalike import clear_margin
 
     detection = job.detection
     estimator = pipeline.pose_estimator
@@ -132,10 +133,43 @@ def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vie
     scenes = [p.derived('raycasting', partial(raycasting_scene, vertices, faces))
               for p in parts if (faces := p.mesh_faces) is not None
               and (vertices := p.mesh_vertices) is not None]   # all of them
+    evidence = colour_views(views, labels, detection.instance_id, detection.view,
+                            table_frames(pipeline, views))
+    if any(view.plane is not None for view in evidence):
+        T = detection.pose.T_camera_object
+        votes = view_votes(scenes, [T] * len(parts), obj.model_points.astype(np.float64),
+                           evidence, pad=params.align_px, tolerance_m=params.depth_tolerance_m)
+        k = round_robin(votes)
+        decided = all(clear_margin(int(votes[k, j]), int(votes[j, k]), params.align_min_z)
+                      for j in range(len(parts)) if j != k)
+        info = {'twin': float(parts[k].obj_id), 'twin_decided': float(decided)}
+        k = k if decided else 0
+    else:
+        k, info = _twins_on_colour(parts, scenes, detection.pose.T_camera_object, evidence,
+                                   params)
+    if k > 0:
+        detection.obj_id = parts[k].obj_id
+        detection.class_rank = job.candidates.index(detection.obj_id) \
+            if detection.obj_id in job.candidates else len(job.candidates)
+    return info
+
+
+def _twins_on_colour(parts: list, scenes: list, T_camera_object: np.ndarray,
+                     evidence: list[ViewEvidence], params: FlatParams
+                     ) -> tuple[int, dict[str, float]]:
+    """The twin (index in ``parts``, 0: the part itself) that the colour image names, with
+    what decided: the silhouettes of both meshes compared where they differ
+    (:func:`~tlessbot_ros.core.pose.silhouette.disputed_votes`); a twin wins when more than
+    ``min_share`` of at least ``min_disputed_px`` such pixels vote for it."""
+    from tlessbot_ros.core.pose.silhouette import disputed_votes, mesh_silhouette, window
+
     votes = np.zeros((len(parts), 2))
-    for view in colour_views(views, labels, detection.instance_id, detection.view):
-        T = view.T_view_fit @ detection.pose.T_camera_object
-        box = window(obj.model_points.astype(np.float64), [T], view.intrinsics, margin_px=8)
+    for view in evidence:
+        if view.rgb is None:
+            continue
+        T = view.T_view_fit @ T_camera_object
+        box = window(parts[0].model_points.astype(np.float64), [T], view.intrinsics,
+                     margin_px=8)
         if box is None:
             continue
         x0, y0, w, h = box
@@ -147,8 +181,12 @@ def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vie
     k = int(np.argmax(share))
     info = {'twin': float(parts[k].obj_id), 'twin_share': float(share[k]),
             'disputed_px': float(total[k])}
-    if k > 0 and total[k] >= params.min_disputed_px and share[k] > params.min_share:
-        detection.obj_id = parts[k].obj_id
-        detection.class_rank = job.candidates.index(detection.obj_id) \
-            if detection.obj_id in job.candidates else len(job.candidates)
-    return info
+    decided = k > 0 and total[k] >= params.min_disputed_px and share[k] > params.min_share
+    return (k if decided else 0), info
+
+
+def table_frames(pipeline: PerceptionPipeline, views: dict[str, ViewInput]
+                 ) -> dict[str, np.ndarray | None]:
+    """Each view with depth: its table frame ``T_world_camera`` (None where it has none)."""
+    return {name: pipeline.table_frame(name, view).T_world_camera
+            for name, view in views.items() if view.depth_m is not None}
