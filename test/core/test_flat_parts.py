@@ -208,7 +208,8 @@ def test_the_pipeline_marks_a_part_it_turned_over(notched_plate):
     points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
     T_true = np.linalg.inv(SIDE.T_world_camera) @ T_world_object
     estimator = PoseEstimator(TemplateDatabase(objects={1: obj}))
-    pipeline = SimpleNamespace(pose_estimator=estimator, fit_params=FitParams())
+    pipeline = SimpleNamespace(pose_estimator=estimator, fit_params=FitParams(),
+                               table_frame=lambda name, view: view)   # the rig's table
     _, flipped, _ = FlatCheck(estimator.refiner).flipped_fits(obj, T_true, points,
                                                             SIDE.T_world_camera)
     wrong = PoseCandidate(T_camera_object=flipped[0][0], fitness=1.0, inlier_rmse_m=0.001)

@@ -16,7 +16,7 @@ import numpy as np
 from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams, ViewEvidence, refine_yaw
 
 if TYPE_CHECKING:
-    from tlessbot_ros.core.frame import PartJob, ViewInput
+    from tlessbot_ros.core.frame import Detection, PartJob, ViewInput
     from tlessbot_ros.core.pipeline import PerceptionPipeline
 
 
@@ -26,7 +26,9 @@ def check_fitted_part(pipeline: PerceptionPipeline, job: PartJob,
     worker): the flat parts' orientation check (:func:`check_flat`), the depth's look-alike
     check (:meth:`PerceptionPipeline.check_lookalike`), then the twins on the image
     (:func:`check_twins`)."""
-    check_flat(pipeline, job, views, labels)
+    info = check_flat(pipeline, job, views, labels)
+    if info is not None and info.get('align_decided'):
+        return   # the aligned votes of every view named the part among its twins too
     pipeline.check_lookalike(job)
     check_twins(pipeline, job, views, labels)
 
@@ -72,7 +74,8 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
     estimator = pipeline.pose_estimator
     if estimator is None or detection.pose is None or job.T_world_camera is None:
         return None
-    obj = estimator.database[detection.obj_id]
+    database = estimator.database
+    obj = database[detection.obj_id]
     cloud = estimator.params.cloud
     check = FlatCheck(estimator.refiner, pipeline.fit_params.flat,
                       voxel_scale=estimator.params.table_voxel_scale,
@@ -83,8 +86,12 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
                             table_frames(pipeline, views))
     info: dict[str, float] = {}
     if evidence:
+        twins = [database[i] for i in obj.lookalikes if i in database]
         T, info = check.resolve(obj, detection.pose.T_camera_object, job.points,
-                                job.T_world_camera, evidence)
+                                job.T_world_camera, evidence, twins)
+        if info.get('align_decided') and int(info['twin']) != detection.obj_id:
+            rename(detection, job, int(info['twin']))
+            obj = database[detection.obj_id]
         if T is not None:
             detection.turned_over = True
             detection.second = detection.pose
@@ -148,10 +155,16 @@ def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vie
         k, info = _twins_on_colour(parts, scenes, detection.pose.T_camera_object, evidence,
                                    params)
     if k > 0:
-        detection.obj_id = parts[k].obj_id
-        detection.class_rank = job.candidates.index(detection.obj_id) \
-            if detection.obj_id in job.candidates else len(job.candidates)
+        rename(detection, job, parts[k].obj_id)
     return info
+
+
+def rename(detection: Detection, job: PartJob, obj_id: int) -> None:
+    """Name ``detection`` ``obj_id`` (a look-alike of its class: same model frame, so its
+    pose stays), its class rank that id's among the job's candidates."""
+    detection.obj_id = obj_id
+    detection.class_rank = job.candidates.index(obj_id) if obj_id in job.candidates \
+        else len(job.candidates)
 
 
 def _twins_on_colour(parts: list, scenes: list, T_camera_object: np.ndarray,

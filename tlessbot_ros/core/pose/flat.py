@@ -40,6 +40,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, cast
 
+import cv2
 import numpy as np
 
 from tlessbot_ros.core.common import (
@@ -278,7 +279,8 @@ class FlatCheck:
         return scores / max(used, 1), share, total
 
     def resolve(self, obj: ObjectTemplates, T_camera_object: np.ndarray, points_c: np.ndarray,
-                T_world_camera: np.ndarray, views: Sequence[ViewEvidence]
+                T_world_camera: np.ndarray, views: Sequence[ViewEvidence],
+                twins: Sequence[ObjectTemplates] = ()
                 ) -> tuple[np.ndarray | None, dict[str, float]]:
         """The turned pose that replaces the fitted one on the image (None: keep it) and what
         decided: ``{'fitness', 'flip_fitness', 'agreement', 'flip_agreement', 'flip_share',
@@ -287,13 +289,15 @@ class FlatCheck:
         With at least ``min_disputed_px`` pixels disputed between two silhouettes, a turned
         pose wins when more than ``min_share`` of them vote for it (and its agreement is not
         lower by more than ``min_gain``); with fewer, when its agreement is higher by more
-        than ``min_gain``."""
+        than ``min_gain``.
+
+        With a mesh and views with a table frame, the aligned votes decide instead
+        (:meth:`aligned_turn`), among the part and its look-alike ``twins`` at once."""
         p = self.params
         T0 = np.asarray(T_camera_object, np.float64)
         mesh = mesh_scene(obj)
-        if mesh is not None and obj.mesh_vertices is not None and \
-                any(v.plane is not None for v in views):
-            return self.aligned_turn(obj, mesh, T0, points_c, views)
+        if mesh is not None and any(v.plane is not None for v in views):
+            return self.aligned_turn(obj, mesh, T0, points_c, views, twins)
         own, flipped, scene = self.flipped_fits(obj, T0, points_c,
                                                 np.asarray(T_world_camera, np.float64))
         info = {'fitness': own}
@@ -314,10 +318,13 @@ class FlatCheck:
 
     def aligned_turn(self, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
                      T_camera_object: np.ndarray, points_c: np.ndarray,
-                     views: Sequence[ViewEvidence]) -> tuple[np.ndarray | None, dict[str, float]]:
-        """The fitted pose turned by half a turn about one of the mesh's principal axes
-        (through the centre of its principal box) when the aligned votes choose that turn
+                     views: Sequence[ViewEvidence], twins: Sequence[ObjectTemplates] = ()
+                     ) -> tuple[np.ndarray | None, dict[str, float]]:
+        """The fitted pose turned by half a turn about one of the axes of the part's outline
+        (:func:`outline_half_turns`) when the aligned votes choose that turn
         (:meth:`aligned_winner`), polished on the ROI cloud; None to keep the fitted pose.
+        The part's look-alike ``twins`` (they share its model frame) compete at each of these
+        poses too: ``info['twin']`` is the id of the part that won (its own when undecided).
 
         The turns are exact, not refitted: a fit a few millimetres or degrees off in the
         table plane passes its error on to every turn alike (the turn is about the part's own
@@ -325,38 +332,43 @@ class FlatCheck:
         holes, slots and cut corners do."""
         from tlessbot_ros.core.pose.cloud import voxel_downsample
 
-        assert obj.mesh_vertices is not None
-        vertices = obj.mesh_vertices
-        turns = obj.derived('half_turns', lambda: _half_turns(vertices))
-        poses = [T_camera_object] + [T_camera_object @ turn for turn in turns]
+        samples = obj.model_points.astype(np.float64)
+        turns = obj.derived('outline_half_turns', lambda: outline_half_turns(samples))
+        base = [T_camera_object] + [T_camera_object @ turn for turn in turns]
+        parts = [(obj, mesh)] + [(t, m) for t in twins if (m := mesh_scene(t)) is not None]
         info: dict[str, float] = {}
-        k = self.aligned_winner(obj, mesh, poses, views, info)
+        k = self.aligned_winner(obj, [m for _, m in parts for _ in base],
+                                [T for _ in parts for T in base], views, info)
+        winner, k = parts[k // len(base)][0], k % len(base)
+        info['twin'] = float(winner.obj_id)
         if k == 0:
             return None, info
         scene, _ = voxel_downsample(np.asarray(points_c, np.float64),
-                                    obj.voxel_size_m * self.voxel_scale)
+                                    winner.voxel_size_m * self.voxel_scale)
         pose = self.refiner.params
-        T = self.refiner.icp_batch(scene, obj, poses[k][None],
+        T = self.refiner.icp_batch(scene, winner, base[k][None],
                                    iterations=max(pose.polish_iterations,
                                                   self.params.icp_iterations),
                                    points=len(scene),
-                                   distance_m=pose.polish_distance_voxels * obj.voxel_size_m)
-        info['flip_fitness'] = float(self.refiner.grid_fitness(T, scene, obj)[0])
+                                   distance_m=pose.polish_distance_voxels * winner.voxel_size_m)
+        info['flip_fitness'] = float(self.refiner.grid_fitness(T, scene, winner)[0])
         return T[0], info
 
-    def aligned_winner(self, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
+    def aligned_winner(self, obj: ObjectTemplates,
+                       meshes: Sequence[o3d.t.geometry.RaycastingScene],
                        poses: Sequence[np.ndarray], views: Sequence[ViewEvidence],
                        info: dict[str, float]) -> int:
-        """The pose among ``poses`` (the fitted one first) that the aligned height and colour
-        votes of every view choose (:func:`~.flat_align.view_votes`): the winner of the
-        duels between all of them (:func:`~.flat_align.round_robin`) when its surplus over
-        every other pose is clear (``align_min_z``; ``info['align_decided']`` 1, the fitted
-        pose kept as clearly as a turn is taken); else 0 (undecided)."""
+        """The pose among ``poses`` (of ``meshes``, the fitted pose of ``obj`` first) that the
+        aligned height and colour votes of every view choose
+        (:func:`~.flat_align.view_votes`): the winner of the duels between all of them
+        (:func:`~.flat_align.round_robin`) when its surplus over every other pose is clear
+        (``align_min_z``; ``info['align_decided']`` 1, the fitted pose kept as clearly as a
+        turn is taken); else 0 (undecided)."""
         from tlessbot_ros.core.pose.flat_align import round_robin, view_votes
         from tlessbot_ros.core.pose.lookalike import clear_margin
 
         p = self.params
-        votes = view_votes([mesh] * len(poses), poses, obj.model_points.astype(np.float64),
+        votes = view_votes(meshes, poses, obj.model_points.astype(np.float64),
                            views, pad=p.align_px, tolerance_m=p.depth_tolerance_m)
         k = round_robin(votes)
         decided = all(clear_margin(int(votes[k, j]), int(votes[j, k]), p.align_min_z)
@@ -465,7 +477,7 @@ def mesh_scene(obj: ObjectTemplates) -> o3d.t.geometry.RaycastingScene | None:
 
 def _half_turns(vertices: np.ndarray) -> list[np.ndarray]:
     """The (4, 4) half turns (model frame) about the three principal axes of a mesh's
-    vertices, through the centre of its principal-axis box."""
+    vertices (or surface samples), through the centre of their principal-axis box."""
     v = np.asarray(vertices, np.float64)
     mean = v.mean(axis=0)
     axes = np.linalg.svd(v - mean, full_matrices=False)[2]
@@ -473,6 +485,34 @@ def _half_turns(vertices: np.ndarray) -> list[np.ndarray]:
     centre = mean + ((coords.max(axis=0) + coords.min(axis=0)) / 2.0) @ axes
     turns = []
     for axis in axes:
+        T = np.eye(4)
+        T[:3, :3] = rotation_about_axis(axis, np.pi)
+        T[:3, 3] = centre - T[:3, :3] @ centre
+        turns.append(T)
+    return turns
+
+
+def outline_half_turns(points_o: np.ndarray) -> list[np.ndarray]:
+    """The (4, 4) half turns (model frame) of a flat part about the axes of its outline's
+    smallest enclosing rectangle (seen along its thinnest principal axis; OpenCV's
+    ``minAreaRect``, Freeman & Shapira 1975) and about that thin axis, all through the centre
+    of that rectangle at mid-thickness. Unlike the principal axes of its surface, which holes
+    placed off the middle tilt by a degree or two, these are the axes a rectangular, round or
+    otherwise symmetric outline is symmetric about: turned about them, such an outline covers
+    the same pixels and the turned poses differ only where the holes and cut corners do."""
+    points = np.asarray(points_o, np.float64)
+    mean = points.mean(axis=0)
+    axes = np.linalg.svd(points - mean, full_matrices=False)[2]
+    thin = axes[2]
+    u, v = axes[0], np.cross(thin, axes[0])
+    plane = np.stack([(points - mean) @ u, (points - mean) @ v], axis=1)
+    (cx, cy), _, angle = cv2.minAreaRect((1e3 * plane).astype(np.float32))
+    a = np.radians(angle)
+    first = np.cos(a) * u + np.sin(a) * v
+    depth = (points - mean) @ thin
+    centre = mean + 1e-3 * (cx * u + cy * v) + (depth.max() + depth.min()) / 2.0 * thin
+    turns = []
+    for axis in (first, np.cross(thin, first), thin):
         T = np.eye(4)
         T[:3, :3] = rotation_about_axis(axis, np.pi)
         T[:3, 3] = centre - T[:3, :3] @ centre
