@@ -247,5 +247,6 @@ def voting_region(renders: Sequence[tuple[np.ndarray, np.ndarray]], pad: int,
     return region & ~others if others is not None else region
 
 
-__all__ = ['AlignedView', 'aligned_view', 'alignment_score', 'best_shift', 'measured_heights', 'pixel_votes',
-           'pooled_votes', 'render_heights', 'round_robin', 'shifted', 'view_votes', 'voting_region']
+__all__ = ['AlignedView', 'aligned_view', 'alignment_score', 'best_shift', 'measured_heights',
+           'pixel_votes', 'pooled_votes', 'render_heights', 'round_robin', 'shifted',
+           'view_votes', 'voting_region']
