@@ -16,8 +16,13 @@ import numpy as np
 from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams, ViewEvidence, refine_yaw
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    import open3d as o3d
+
     from tlessbot_ros.core.frame import Detection, PartJob, ViewInput
     from tlessbot_ros.core.pipeline import PerceptionPipeline
+    from tlessbot_ros.core.pose.database import ObjectTemplates
 
 
 def check_fitted_part(pipeline: PerceptionPipeline, job: PartJob,
@@ -167,7 +172,8 @@ def rename(detection: Detection, job: PartJob, obj_id: int) -> None:
         else len(job.candidates)
 
 
-def _twins_on_colour(parts: list, scenes: list, T_camera_object: np.ndarray,
+def _twins_on_colour(parts: Sequence[ObjectTemplates],
+                     scenes: Sequence[o3d.t.geometry.RaycastingScene], T_camera_object: np.ndarray,
                      evidence: list[ViewEvidence], params: FlatParams
                      ) -> tuple[int, dict[str, float]]:
     """The twin (index in ``parts``, 0: the part itself) that the colour image names, with

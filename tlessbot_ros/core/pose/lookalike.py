@@ -208,8 +208,8 @@ def view_planes(T_world_camera: np.ndarray | None, T_others_camera: Sequence[np.
     if T_world_camera is None:
         return [None] * (1 + len(T_others_camera))
     T_world = np.asarray(T_world_camera, np.float64)
-    return [plane_of_frame(T_world)] + [plane_of_frame(T_world @ np.linalg.inv(T))
-                                        for T in T_others_camera]
+    planes: list[np.ndarray | None] = [plane_of_frame(T_world)]
+    return planes + [plane_of_frame(T_world @ np.linalg.inv(T)) for T in T_others_camera]
 
 
 class MeshScenes:
@@ -292,11 +292,11 @@ class LookalikeCheck:
             minus the share that ``obj_id`` explains better (0 when ``obj_id`` stays).
         """
         obj_id = int(obj_id)
-        views = [(np.asarray(T_camera_object, np.float64), points_c)]
-        views += [(np.asarray(T_other, np.float64) @ views[0][0], points)
-                  for points, T_other in more_views]
+        T0 = np.asarray(T_camera_object, np.float64)
+        clouds = [(T0, points_c)] + [(np.asarray(T_other, np.float64) @ T0, points)
+                                     for points, T_other in more_views]
         planes = view_planes(T_world_camera, [T for _, T in more_views])
-        views = [(T, points, plane) for (T, points), plane in zip(views, planes) if len(points)]
+        views = [(T, points, plane) for (T, points), plane in zip(clouds, planes) if len(points)]
         if obj_id not in self.lookalikes or not views:
             return obj_id, 0.0
         own = [depth_errors(self._scene(obj_id), T, points, plane)
