@@ -291,7 +291,7 @@ def test_aligned_votes_turn_a_plate_back_though_its_fit_is_off(holed_plates):
     # the fit 2 mm and 1.5 degrees off: the turned poses inherit the error, the outlines
     # agree, and the hole alone decides which face is up
     from tlessbot_ros.core.common import plane_of_frame
-    from tlessbot_ros.core.pose.flat import outline_half_turns
+    from tlessbot_ros.core.pose.flat_turns import outline_half_turns
 
     _, _, db = holed_plates
     obj = db[2]
@@ -313,7 +313,7 @@ def test_the_twin_with_the_hole_names_the_part_at_its_turned_pose(holed_plates):
     # named the plain plate and fitted turned over: the part and its twin compete at every
     # turned pose at once, and the hole names the twin with the face up
     from tlessbot_ros.core.common import plane_of_frame
-    from tlessbot_ros.core.pose.flat import outline_half_turns
+    from tlessbot_ros.core.pose.flat_turns import outline_half_turns
 
     _, _, db = holed_plates
     rgb, depth, outline, T_true = _holed_view(holed_plates, yaw_deg=-40.0, seed=6)

@@ -40,7 +40,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, cast
 
-import cv2
 import numpy as np
 
 from tlessbot_ros.core.common import (
@@ -48,6 +47,11 @@ from tlessbot_ros.core.common import (
     invert_transform,
     rotation_about_axis,
     transform_points,
+)
+from tlessbot_ros.core.pose.flat_turns import (
+    outline_half_turns,
+    principal_half_turns,
+    refit_to_surface,
 )
 from tlessbot_ros.core.pose.silhouette import (
     agreement,
@@ -398,17 +402,18 @@ class FlatCheck:
                    ) -> tuple[np.ndarray | None, float]:
         """The last word of the depth on the final pose (after the image and the yaw): the pose
         turned by half a turn about each principal axis of the mesh (through the centre of its
-        principal box), each refitted to the ROI cloud point-to-plane (:func:`_refit`), replaces
-        it when it explains the depth of every view better by a clear margin (with the table
-        frame ``T_world_camera``, a pixel the mesh misses expects the table,
-        :func:`~.lookalike.depth_errors`). Returns (the turned pose or None, its vote)."""
+        principal box), each refitted to the ROI cloud point-to-plane
+        (:func:`~.flat_turns.refit_to_surface`), replaces it when it explains the depth of
+        every view better by a clear margin (with the table frame ``T_world_camera``, a pixel
+        the mesh misses expects the table, :func:`~.lookalike.depth_errors`). Returns (the
+        turned pose or None, its vote)."""
         from tlessbot_ros.core.pose.lookalike import depth_errors, pooled_vote, view_planes
 
         mesh = mesh_scene(obj)
         if mesh is None or obj.mesh_vertices is None:
             return None, 0.0
         vertices = obj.mesh_vertices
-        turns = obj.derived('half_turns', lambda: _half_turns(vertices))
+        turns = obj.derived('half_turns', lambda: principal_half_turns(vertices))
         T0 = np.asarray(T_camera_object, np.float64)
         clouds = [(np.eye(4), np.asarray(points_c, np.float64))] + \
             [(np.asarray(T, np.float64), points) for points, T in more_views]
@@ -421,7 +426,7 @@ class FlatCheck:
         best: np.ndarray | None = None
         best_vote = 0.0
         for turn in turns:
-            turned = _refit(obj, T0 @ turn, points_c)
+            turned = refit_to_surface(obj, T0 @ turn, points_c)
             vote = pooled_vote([depth_errors(mesh, T @ turned, points, plane)
                                 for T, points, plane in clouds3],
                                own, self.params.depth_tolerance_m, self.params.depth_min_z)
@@ -473,79 +478,6 @@ def mesh_scene(obj: ObjectTemplates) -> o3d.t.geometry.RaycastingScene | None:
     scene: o3d.t.geometry.RaycastingScene = obj.derived(
         'raycasting', lambda: raycasting_scene(vertices, faces))
     return scene
-
-
-def _half_turns(vertices: np.ndarray) -> list[np.ndarray]:
-    """The (4, 4) half turns (model frame) about the three principal axes of a mesh's
-    vertices (or surface samples), through the centre of their principal-axis box."""
-    v = np.asarray(vertices, np.float64)
-    mean = v.mean(axis=0)
-    axes = np.linalg.svd(v - mean, full_matrices=False)[2]
-    coords = (v - mean) @ axes.T
-    centre = mean + ((coords.max(axis=0) + coords.min(axis=0)) / 2.0) @ axes
-    turns = []
-    for axis in axes:
-        T = np.eye(4)
-        T[:3, :3] = rotation_about_axis(axis, np.pi)
-        T[:3, 3] = centre - T[:3, :3] @ centre
-        turns.append(T)
-    return turns
-
-
-def outline_half_turns(points_o: np.ndarray) -> list[np.ndarray]:
-    """The (4, 4) half turns (model frame) of a flat part about the axes of its outline's
-    smallest enclosing rectangle (seen along its thinnest principal axis; OpenCV's
-    ``minAreaRect``, Freeman & Shapira 1975) and about that thin axis, all through the centre
-    of that rectangle at mid-thickness. Unlike the principal axes of its surface, which holes
-    placed off the middle tilt by a degree or two, these are the axes a rectangular, round or
-    otherwise symmetric outline is symmetric about: turned about them, such an outline covers
-    the same pixels and the turned poses differ only where the holes and cut corners do."""
-    points = np.asarray(points_o, np.float64)
-    mean = points.mean(axis=0)
-    axes = np.linalg.svd(points - mean, full_matrices=False)[2]
-    thin = axes[2]
-    u, v = axes[0], np.cross(thin, axes[0])
-    plane = np.stack([(points - mean) @ u, (points - mean) @ v], axis=1)
-    (cx, cy), _, angle = cv2.minAreaRect((1e3 * plane).astype(np.float32))
-    a = np.radians(angle)
-    first = np.cos(a) * u + np.sin(a) * v
-    depth = (points - mean) @ thin
-    centre = mean + 1e-3 * (cx * u + cy * v) + (depth.max() + depth.min()) / 2.0 * thin
-    turns = []
-    for axis in (first, np.cross(thin, first), thin):
-        T = np.eye(4)
-        T[:3, :3] = rotation_about_axis(axis, np.pi)
-        T[:3, 3] = centre - T[:3, :3] @ centre
-        turns.append(T)
-    return turns
-
-
-def _refit(obj: ObjectTemplates, T_camera_object: np.ndarray, points_c: np.ndarray
-           ) -> np.ndarray:
-    """``T_camera_object`` refined by point-to-plane ICP of the ROI cloud onto the mesh's
-    surface (Chen & Medioni 1992; Open3D), within 3 mm, at most 20 iterations."""
-    import open3d as o3d
-
-    from tlessbot_ros.core.common import sample_surface
-
-    vertices, faces = obj.mesh_vertices, obj.mesh_faces
-    assert vertices is not None and faces is not None
-
-    def surface() -> o3d.geometry.PointCloud:
-        points, normals = sample_surface(vertices, faces, 3000, seed=0)
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-        cloud.normals = o3d.utility.Vector3dVector(normals)
-        return cloud
-
-    target = obj.derived('surface_cloud', surface)
-    T_inv = np.linalg.inv(T_camera_object)
-    source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(
-        np.asarray(points_c, np.float64) @ T_inv[:3, :3].T + T_inv[:3, 3]))
-    result = o3d.pipelines.registration.registration_icp(
-        source, target, 0.003, np.eye(4),
-        o3d.pipelines.registration.TransformationEstimationPointToPlane(),
-        o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=20))
-    return np.asarray(T_camera_object @ np.linalg.inv(result.transformation))
 
 
 def _centre(obj: ObjectTemplates) -> np.ndarray:

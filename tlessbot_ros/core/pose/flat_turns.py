@@ -1,0 +1,93 @@
+"""Half turns of a flat part, and a turned pose refitted to the depth (for
+:class:`~tlessbot_ros.core.pose.flat.FlatCheck`).
+
+Poses are ``T_camera_object`` (4, 4) float64, metres, optical frame; turns (4, 4) in the
+model frame (applied on the right of a pose).
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from tlessbot_ros.core.common import rotation_about_axis
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.pose.database import ObjectTemplates
+
+
+def principal_half_turns(vertices: np.ndarray) -> list[np.ndarray]:
+    """The (4, 4) half turns (model frame) about the three principal axes of a mesh's
+    vertices (or surface samples), through the centre of their principal-axis box."""
+    v = np.asarray(vertices, np.float64)
+    mean = v.mean(axis=0)
+    axes = np.linalg.svd(v - mean, full_matrices=False)[2]
+    coords = (v - mean) @ axes.T
+    centre = mean + ((coords.max(axis=0) + coords.min(axis=0)) / 2.0) @ axes
+    turns = []
+    for axis in axes:
+        T = np.eye(4)
+        T[:3, :3] = rotation_about_axis(axis, np.pi)
+        T[:3, 3] = centre - T[:3, :3] @ centre
+        turns.append(T)
+    return turns
+
+
+def outline_half_turns(points_o: np.ndarray) -> list[np.ndarray]:
+    """The (4, 4) half turns (model frame) of a flat part about the axes of its outline's
+    smallest enclosing rectangle (seen along its thinnest principal axis; OpenCV's
+    ``minAreaRect``, Freeman & Shapira 1975) and about that thin axis, all through the centre
+    of that rectangle at mid-thickness. Unlike the principal axes of its surface, which holes
+    placed off the middle tilt by a degree or two, these are the axes a rectangular, round or
+    otherwise symmetric outline is symmetric about: turned about them, such an outline covers
+    the same pixels and the turned poses differ only where the holes and cut corners do."""
+    points = np.asarray(points_o, np.float64)
+    mean = points.mean(axis=0)
+    axes = np.linalg.svd(points - mean, full_matrices=False)[2]
+    thin = axes[2]
+    u, v = axes[0], np.cross(thin, axes[0])
+    plane = np.stack([(points - mean) @ u, (points - mean) @ v], axis=1)
+    (cx, cy), _, angle = cv2.minAreaRect((1e3 * plane).astype(np.float32))
+    a = np.radians(angle)
+    first = np.cos(a) * u + np.sin(a) * v
+    depth = (points - mean) @ thin
+    centre = mean + 1e-3 * (cx * u + cy * v) + (depth.max() + depth.min()) / 2.0 * thin
+    turns = []
+    for axis in (first, np.cross(thin, first), thin):
+        T = np.eye(4)
+        T[:3, :3] = rotation_about_axis(axis, np.pi)
+        T[:3, 3] = centre - T[:3, :3] @ centre
+        turns.append(T)
+    return turns
+
+
+def refit_to_surface(obj: ObjectTemplates, T_camera_object: np.ndarray, points_c: np.ndarray
+           ) -> np.ndarray:
+    """``T_camera_object`` refined by point-to-plane ICP of the ROI cloud onto the mesh's
+    surface (Chen & Medioni 1992; Open3D), within 3 mm, at most 20 iterations."""
+    import open3d as o3d
+
+    from tlessbot_ros.core.common import sample_surface
+
+    vertices, faces = obj.mesh_vertices, obj.mesh_faces
+    assert vertices is not None and faces is not None
+
+    def surface() -> o3d.geometry.PointCloud:
+        points, normals = sample_surface(vertices, faces, 3000, seed=0)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        cloud.normals = o3d.utility.Vector3dVector(normals)
+        return cloud
+
+    target = obj.derived('surface_cloud', surface)
+    T_inv = np.linalg.inv(T_camera_object)
+    source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(
+        np.asarray(points_c, np.float64) @ T_inv[:3, :3].T + T_inv[:3, 3]))
+    result = o3d.pipelines.registration.registration_icp(
+        source, target, 0.003, np.eye(4),
+        o3d.pipelines.registration.TransformationEstimationPointToPlane(),
+        o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=20))
+    return np.asarray(T_camera_object @ np.linalg.inv(result.transformation))
+
+
+__all__ = ['outline_half_turns', 'principal_half_turns', 'refit_to_surface']
