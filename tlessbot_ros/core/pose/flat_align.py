@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.common import CameraIntrinsics, o3d_tensor
+from tlessbot_ros.core.common import CameraIntrinsics
 
 if TYPE_CHECKING:
     import open3d as o3d
@@ -67,17 +67,10 @@ def render_heights(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.nd
     """(hit (h, w) bool, height (h, w) m): where a mesh at a pose covers the window ``box``
     and the height above the table ``plane`` of what each pixel's ray meets first (the mesh,
     else the table: 0)."""
-    x0, y0, w, h = box
-    K = intrinsics.K
-    v, u = np.mgrid[y0:y0 + h, x0:x0 + w].astype(np.float64)
-    rays_c = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)],
-                      axis=-1).reshape(-1, 3)
-    T = np.asarray(T_camera_object, np.float64)
-    R, t = T[:3, :3], T[:3, 3]
-    rays = np.empty((len(rays_c), 6), np.float32)
-    rays[:, :3] = -R.T @ t
-    rays[:, 3:] = rays_c @ R
-    depth = scene.cast_rays(o3d_tensor(rays))['t_hit'].numpy().astype(np.float64)
+    from tlessbot_ros.core.pose.silhouette import window_depth
+
+    _, _, w, h = box
+    rays_c, depth = window_depth(scene, T_camera_object, intrinsics, box)
     hit = np.isfinite(depth)
     height = np.zeros(len(rays_c))
     height[hit] = (rays_c[hit] * depth[hit, None]) @ plane[:3] + plane[3]

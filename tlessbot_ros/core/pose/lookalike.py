@@ -76,7 +76,7 @@ def lookalike_pairs(meshes: Mapping[int, Mesh], *, tolerance_m: float = 0.002,
     return {i: tuple(others) for i, others in pairs.items()}
 
 
-def _depth_along(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
+def depth_along(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
                  rays_c: np.ndarray) -> np.ndarray:
     """Depth (m, inf where no hit) of a mesh at ``T_camera_object`` along (N, 3) camera rays
     scaled to z = 1."""
@@ -110,7 +110,7 @@ def visible_difference(scene_a: o3d.t.geometry.RaycastingScene,
         return 0.0
     rays_c = np.stack([(cols - intrinsics.cx) / intrinsics.fx,
                        (rows - intrinsics.cy) / intrinsics.fy, np.ones(len(rows))], axis=1)
-    depth_a, depth_b = (_depth_along(scene, T_camera_object, rays_c)
+    depth_a, depth_b = (depth_along(scene, T_camera_object, rays_c)
                         for scene in (scene_a, scene_b))
     hit_a, hit_b = np.isfinite(depth_a), np.isfinite(depth_b)
     differs = hit_a != hit_b
@@ -133,7 +133,7 @@ def depth_errors(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndar
     points_c = np.asarray(points_c, np.float64)
     z = points_c[:, 2]
     rays = points_c / z[:, None]
-    depth = _depth_along(scene, T_camera_object, rays)
+    depth = depth_along(scene, T_camera_object, rays)
     if plane is not None:
         depth = np.where(np.isfinite(depth), depth, table_depth(plane, rays))
     return np.where(np.isfinite(depth), np.minimum(np.abs(depth - z), MISS_ERROR_M),

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, cast
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.common import CameraIntrinsics, o3d_tensor, transform_points
+from tlessbot_ros.core.common import CameraIntrinsics, transform_points
 
 if TYPE_CHECKING:
     import open3d as o3d
@@ -147,19 +147,13 @@ def disputed_votes(mine: np.ndarray, other: np.ndarray, rgb: np.ndarray, *,
         return 0, 0
     rng = np.random.default_rng(seed)
     colour = rgb.astype(np.float32)
-
-    def samples(mask: np.ndarray) -> np.ndarray:
-        pixels = colour[mask]
-        chosen: np.ndarray = pixels[rng.choice(len(pixels), _SAMPLES)] \
-            if len(pixels) > _SAMPLES else pixels
-        return chosen
-
     query, in_mine = colour[disputed], mine[disputed]
     count = len(query)
     if count > _QUERIES:   # an even subset, the votes scaled back to every disputed pixel
         pick = rng.choice(count, _QUERIES, replace=False)
         query, in_mine = query[pick], in_mine[pick]
-    looks_part = _nearest(query, samples(both)) < _nearest(query, samples(ring))
+    looks_part = _nearest(query, _samples(colour, both, rng)) < \
+        _nearest(query, _samples(colour, ring, rng))
     for_mine = int(round(count * np.mean(looks_part == in_mine)))
     return for_mine, count - for_mine
 
@@ -176,19 +170,21 @@ def part_likeness(rgb: np.ndarray, part: np.ndarray, surroundings: np.ndarray,
         return out
     rng = np.random.default_rng(seed)
     colour = rgb.astype(np.float32)
-
-    def samples(mask: np.ndarray) -> np.ndarray:
-        pixels = colour[mask]
-        chosen: np.ndarray = pixels[rng.choice(len(pixels), _SAMPLES)] \
-            if len(pixels) > _SAMPLES else pixels
-        return chosen
-
     query = colour[where]
-    d_part = np.sqrt(np.maximum(_nearest(query, samples(part)), 0.0))
-    d_around = np.sqrt(np.maximum(_nearest(query, samples(surroundings)), 0.0))
+    d_part = np.sqrt(np.maximum(_nearest(query, _samples(colour, part, rng)), 0.0))
+    d_around = np.sqrt(np.maximum(_nearest(query, _samples(colour, surroundings, rng)), 0.0))
     clear = np.abs(d_around - d_part) > margin * (d_around + d_part)
     out[where] = np.where(clear, np.sign(d_around - d_part), 0).astype(np.int8)
     return out
+
+
+def _samples(colour: np.ndarray, mask: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """At most ``_SAMPLES`` of the (h, w, 3) float ``colour`` window's pixels under ``mask``,
+    drawn at random."""
+    pixels = colour[mask]
+    chosen: np.ndarray = pixels[rng.choice(len(pixels), _SAMPLES)] \
+        if len(pixels) > _SAMPLES else pixels
+    return chosen
 
 
 def _nearest(query: np.ndarray, samples: np.ndarray) -> np.ndarray:
@@ -207,16 +203,20 @@ def mesh_silhouette(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.n
     """(h, w) bool exact silhouette of a mesh at a pose in the window ``box``: the pixel rays
     that hit it (``scene`` an Open3D ``RaycastingScene`` of the mesh in its model frame,
     :func:`~tlessbot_ros.core.common.raycasting_scene`)."""
+    _, depth = window_depth(scene, T_camera_object, intrinsics, box)
+    return cast(np.ndarray, np.isfinite(depth).reshape(box[3], box[2]))
+
+
+def window_depth(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
+                 intrinsics: CameraIntrinsics, box: tuple[int, int, int, int]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The window ``box``'s pixel rays ((h * w, 3), camera frame, z = 1, row by row) and the
+    depth (m, inf where it misses) at which each meets a mesh at a pose."""
+    from tlessbot_ros.core.pose.lookalike import depth_along
 
     x0, y0, w, h = box
     K = intrinsics.K
     v, u = np.mgrid[y0:y0 + h, x0:x0 + w].astype(np.float64)
     rays_c = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)],
                       axis=-1).reshape(-1, 3)
-    T = np.asarray(T_camera_object, np.float64)
-    R, t = T[:3, :3], T[:3, 3]
-    rays = np.empty((len(rays_c), 6), np.float32)
-    rays[:, :3] = -R.T @ t
-    rays[:, 3:] = rays_c @ R
-    hit = scene.cast_rays(o3d_tensor(rays))['t_hit'].numpy()
-    return cast(np.ndarray, np.isfinite(hit).reshape(h, w))
+    return rays_c, depth_along(scene, T_camera_object, rays_c).astype(np.float64)
