@@ -326,3 +326,23 @@ def test_the_twin_with_the_hole_names_the_part_at_its_turned_pose(holed_plates):
         db[1], T_fit, points, SIDE.T_world_camera, evidence, [db[2]])
     assert info['twin'] == 2.0 and info['align_decided'] == 1.0, sorted(info.items())
     assert turned is not None and rotation_angle_deg(turned[:3, :3], T_true[:3, :3]) < 5.0
+
+
+def test_a_round_outline_competes_turned_about_its_thin_axis():
+    # a disc holds no yaw in its outline: it competes at each sixth of its yaw period; a
+    # rectangle's outline holds its yaw, and a part symmetric about its axis needs no turn
+    from tlessbot_ros.core.pose.flat_turns import outline_yaws
+
+    angles = np.linspace(0, 2 * np.pi, 720, endpoint=False)
+    disc = np.concatenate([np.stack([r * np.cos(angles), r * np.sin(angles),
+                                     np.full_like(angles, z)], axis=1)
+                           for r in (0.022, 0.015) for z in (0.0, 0.006)])
+    yaws = outline_yaws(disc, np.pi / 2, 6)
+    assert len(yaws) == 5
+    turned = [np.degrees(np.arctan2(T[1, 0], T[0, 0])) for T in yaws]
+    assert np.allclose(np.abs(turned), [15, 30, 45, 60, 75], atol=0.5)
+    assert all(np.allclose(T[:3, 3], 0.0, atol=1e-4) for T in yaws)   # about the centre
+    assert outline_yaws(disc, 0.0, 6) == [] and outline_yaws(disc, np.pi / 2, 1) == []
+    plate = np.array([[x, y, z] for x in np.linspace(0, 0.06, 31)
+                      for y in np.linspace(0, 0.04, 21) for z in (0.0, 0.004)])
+    assert outline_yaws(plate, 2 * np.pi, 6) == []

@@ -50,6 +50,7 @@ from tlessbot_ros.core.common import (
 )
 from tlessbot_ros.core.pose.flat_turns import (
     outline_half_turns,
+    outline_yaws,
     principal_half_turns,
     refit_to_surface,
 )
@@ -71,7 +72,8 @@ if TYPE_CHECKING:   # this module is light: core.params imports FlatParams
 @dataclass(frozen=True)
 class FlatParams:
     """Settings of :class:`FlatCheck` (the generated plates rest 0.03-0.06 of their
-    diameter high, a 20 mm block 0.34; no T-LESS part under 0.26, so none is checked).
+    diameter high, the 6 mm flange 0.135, a 20 mm block 0.34; no T-LESS part under 0.26, so
+    none is checked).
 
     Attributes:
         enabled: check flat parts' face (depth and colour image), yaw and look-alike (image).
@@ -99,10 +101,12 @@ class FlatParams:
             pixels before the height and colour vote (>= 0).
         align_min_z: a turned pose wins the aligned vote only with a surplus above this many
             coin-toss deviations (>= 0).
+        yaw_turns: a part with a round outline also competes turned about its thin axis by
+            each 1/yaw_turns of its yaw period (>= 1; 1: not).
     """
 
     enabled: bool = True
-    flat_ratio: float = 0.12
+    flat_ratio: float = 0.2
     flips: int = 8
     upright: bool = True
     fitness_margin: float = 0.1
@@ -120,12 +124,13 @@ class FlatParams:
     depth_min_z: float = 2.0
     align_px: int = 3
     align_min_z: float = 3.0
+    yaw_turns: int = 6
 
     def __post_init__(self) -> None:
         if self.flips < 1 or self.candidates < 1 or self.icp_iterations < 1 or \
-                self.min_disputed_px < 1 or self.yaw_steps < 0:
-            raise ValueError('flips, candidates, icp_iterations and min_disputed_px must be '
-                             '>= 1 and yaw_steps >= 0')
+                self.min_disputed_px < 1 or self.yaw_steps < 0 or self.yaw_turns < 1:
+            raise ValueError('flips, candidates, icp_iterations, min_disputed_px and yaw_turns '
+                             'must be >= 1 and yaw_steps >= 0')
         if not 0.5 <= self.min_share <= 1.0 or self.iou_weight < 0 or self.yaw_step_deg <= 0:
             raise ValueError(f'min_share must be in 0.5..1, iou_weight >= 0, yaw_step_deg > 0; '
                              f'got {self.min_share}, {self.iou_weight}, {self.yaw_step_deg}')
@@ -337,7 +342,9 @@ class FlatCheck:
         from tlessbot_ros.core.pose.cloud import voxel_downsample
 
         samples = obj.model_points.astype(np.float64)
-        turns = obj.derived('outline_half_turns', lambda: outline_half_turns(samples))
+        turns = obj.derived('outline_turns', lambda: outline_half_turns(samples) + outline_yaws(
+            samples, float(obj.yaw_periods[0]) if len(obj.yaw_periods) else 2 * np.pi,
+            self.params.yaw_turns))
         base = [T_camera_object] + [T_camera_object @ turn for turn in turns]
         parts = [(obj, mesh)] + [(t, m) for t in twins if (m := mesh_scene(t)) is not None]
         info: dict[str, float] = {}

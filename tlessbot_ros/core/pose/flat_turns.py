@@ -42,28 +42,58 @@ def outline_half_turns(points_o: np.ndarray) -> list[np.ndarray]:
     placed off the middle tilt by a degree or two, these are the axes a rectangular, round or
     otherwise symmetric outline is symmetric about: turned about them, such an outline covers
     the same pixels and the turned poses differ only where the holes and cut corners do."""
+    centre, first, second, thin, _ = outline_frame(points_o)
+    return [_turn(axis, np.pi, centre) for axis in (first, second, thin)]
+
+
+def outline_yaws(points_o: np.ndarray, period_rad: float, steps: int, *,
+                 roundness: float = 0.95) -> list[np.ndarray]:
+    """For a flat part with a round outline (its convex hull covers at least ``roundness`` of
+    the circle about the outline's centre through its farthest point): the (4, 4) turns about
+    its thin axis through the outline's centre by k / ``steps`` of ``period_rad`` (its yaw
+    period on the table, 2π for none), k = 1 .. steps - 1; none for another outline or a
+    continuous symmetry (period 0).
+    A round outline holds no yaw, for the depth or the outline alike: only the holes do."""
+    centre, _, _, thin, round_share = outline_frame(points_o)
+    if period_rad <= 0 or steps < 2 or round_share < roundness:
+        return []
+    return [_turn(thin, k * period_rad / steps, centre) for k in range(1, steps)]
+
+
+def outline_frame(points_o: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """A flat part's outline seen along its thinnest principal axis: (the centre of its
+    smallest enclosing rectangle at mid-thickness (3,), the rectangle's two axes (3,) each, the
+    thin axis (3,), the share of the circle about that centre through the outline's farthest
+    point that its convex hull covers: 1 for a disc, 2/π at most for a rectangle)."""
     points = np.asarray(points_o, np.float64)
     mean = points.mean(axis=0)
     axes = np.linalg.svd(points - mean, full_matrices=False)[2]
     thin = axes[2]
     u, v = axes[0], np.cross(thin, axes[0])
-    plane = np.stack([(points - mean) @ u, (points - mean) @ v], axis=1)
-    (cx, cy), _, angle = cv2.minAreaRect((1e3 * plane).astype(np.float32))
+    plane = (1e3 * np.stack([(points - mean) @ u, (points - mean) @ v], axis=1)).astype(
+        np.float32)
+    (cx, cy), _, angle = cv2.minAreaRect(plane)
     a = np.radians(angle)
     first = np.cos(a) * u + np.sin(a) * v
     depth = (points - mean) @ thin
     centre = mean + 1e-3 * (cx * u + cy * v) + (depth.max() + depth.min()) / 2.0 * thin
-    turns = []
-    for axis in (first, np.cross(thin, first), thin):
-        T = np.eye(4)
-        T[:3, :3] = rotation_about_axis(axis, np.pi)
-        T[:3, 3] = centre - T[:3, :3] @ centre
-        turns.append(T)
-    return turns
+    hull = cv2.convexHull(plane).reshape(-1, 2)
+    radius = float(np.hypot(hull[:, 0] - cx, hull[:, 1] - cy).max())
+    round_share = float(cv2.contourArea(hull)) / (np.pi * radius ** 2) if radius > 0 else 0.0
+    return centre, first, np.cross(thin, first), thin, round_share
 
 
-def refit_to_surface(obj: ObjectTemplates, T_camera_object: np.ndarray, points_c: np.ndarray
-           ) -> np.ndarray:
+def _turn(axis: np.ndarray, angle: float, centre: np.ndarray) -> np.ndarray:
+    """(4, 4) rotation by ``angle`` about ``axis`` through the point ``centre``."""
+    T = np.eye(4)
+    T[:3, :3] = rotation_about_axis(axis, angle)
+    T[:3, 3] = centre - T[:3, :3] @ centre
+    return T
+
+
+def refit_to_surface(obj: ObjectTemplates, T_camera_object: np.ndarray,
+                     points_c: np.ndarray) -> np.ndarray:
     """``T_camera_object`` refined by point-to-plane ICP of the ROI cloud onto the mesh's
     surface (Chen & Medioni 1992; Open3D), within 3 mm, at most 20 iterations."""
     import open3d as o3d
@@ -90,4 +120,5 @@ def refit_to_surface(obj: ObjectTemplates, T_camera_object: np.ndarray, points_c
     return np.asarray(T_camera_object @ np.linalg.inv(result.transformation))
 
 
-__all__ = ['outline_half_turns', 'principal_half_turns', 'refit_to_surface']
+__all__ = ['outline_frame', 'outline_half_turns', 'outline_yaws', 'principal_half_turns',
+           'refit_to_surface']
