@@ -243,9 +243,9 @@ def test_the_lookalike_check_reads_the_part_in_the_other_view_too(lookalikes):
                                       fit_params=FitParams(lookalike_all_views=all_views))
         resolve = pipeline.lookalike.resolve
 
-        def spy(obj_id, T, points, *, more_views=(), resolve=resolve):
+        def spy(obj_id, T, points, *, more_views=(), resolve=resolve, **options):
             seen.append(more_views)
-            return resolve(obj_id, T, points, more_views=more_views)
+            return resolve(obj_id, T, points, more_views=more_views, **options)
 
         pipeline.lookalike.resolve = spy
         [found] = pipeline.estimate_poses(both, both_labels, {1: (22,)})
