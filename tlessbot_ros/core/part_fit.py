@@ -217,7 +217,7 @@ def warm_up_checks(database: TemplateDatabase, lookalike: LookalikeCheck | None,
                    flat_ids: frozenset[int] = frozenset()) -> None:
     """Build the ray-casting scenes of the look-alike check (when on) and of the flat parts
     now, and cast a ray into each (Open3D builds the BVH at the first query)."""
-    from tlessbot_ros.core.pose.flat import mesh_scene
+    from tlessbot_ros.core.pose.flat_turns import mesh_scene
     from tlessbot_ros.core.pose.lookalike import depth_errors
 
     if lookalike is not None:

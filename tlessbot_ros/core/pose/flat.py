@@ -9,28 +9,28 @@ asymmetric plate, a bracket or a spanner turned over shows its corner cut, its h
 jaw on the other side.
 
 :class:`FlatCheck` is the one orientation check of a flat part (resting height at most
-``flat_ratio`` of its diameter), run after its depth fit. The fitted pose turned over about
-``flips`` horizontal axes through the part's centre, and turned end for end about the
-vertical, is fitted to the depth again (a short ICP from each start, bounded: a fixed count of
-starts, not a time budget); the turned fits that explain the depth about as well as the winner
-(within ``fitness_margin``) compete with it on the image, where the views have colour.
-Each pose's silhouette (the model's surface samples, splatted) is projected into every view
-that sees the part (:mod:`~tlessbot_ros.core.pose.silhouette`): the
-pixels where two silhouettes differ vote by their colour, like the part (the pixels both cover)
-or like its surroundings (a ring just outside both), for the silhouette that calls them so; a
-turned pose wins with more than ``min_share`` of at least ``min_disputed_px``. With fewer
-disputed pixels, the silhouettes' agreement with the colour image's edges (the share of the
-outline, holes included, within a few pixels of a Canny edge: Canny, PAMI 1986; a one-sided
-chamfer match as in Barrow et al., IJCAI 1977) and with the localiser's label mask decides, by
-``min_gain``. The winner gets the fitted pose's polish, and :func:`refine_yaw` checks the yaw
-on the image (the depth of a part 3 mm thin holds it only by its few edge points).
+``flat_ratio`` of its diameter), run after its depth fit. Where the views have a table frame
+and the part its mesh, :meth:`FlatCheck.aligned_turn` compares the fitted pose with its exact
+half turns about the axes of its outline (and, for a round outline, its turns about the thin
+axis; :mod:`~tlessbot_ros.core.pose.flat_turns`), the part's look-alike twins at each of them:
+every candidate is ray-cast into every view as heights above the table, aligned to the view by
+a few pixels, and every two are compared pixel by pixel on the measured height and the colour
+(:mod:`~tlessbot_ros.core.pose.flat_align`); the winner of their duels replaces the fitted
+pose (and names the part) when it beats every other by a clear margin. Otherwise (no table
+frame, no mesh) the former image round: the fitted pose turned over about ``flips`` horizontal
+axes, and end for end, refitted by a short ICP each; the turned fits within
+``fitness_margin`` compete on the colour of the pixels their silhouettes dispute
+(:mod:`~tlessbot_ros.core.pose.silhouette`; ``min_share`` of at least ``min_disputed_px``),
+with fewer such pixels on their agreement with the Canny edges (Canny, PAMI 1986; a one-sided
+chamfer match as in Barrow et al., IJCAI 1977) and the label (``min_gain``). The winner gets
+the fitted pose's polish, and :func:`refine_yaw` checks the yaw on the image.
 
-The depth has the last word (:meth:`FlatCheck.depth_turn`; the only one without colour): the
-final pose turned by half a turn about each principal axis of the mesh, each refitted to the
-ROI cloud, is ray-cast along the part's depth pixels in every view, and a turn that explains
-more of them by a clear margin (:func:`~.lookalike.pooled_vote`, within
-``depth_tolerance_m``, ``depth_min_z``; a pixel the mesh misses, where a hole is, counts as a
-gross error) replaces it.
+Unless the aligned votes decided, the depth has the last word (:meth:`FlatCheck.depth_turn`):
+the final pose turned by half a turn about each principal axis of the mesh, each refitted to
+the ROI cloud, is ray-cast along the part's depth pixels in every view, and a turn that
+explains more of them by a clear margin (:func:`~.lookalike.pooled_vote`, within
+``depth_tolerance_m``, ``depth_min_z``; a pixel the mesh misses, where a hole is, expects the
+table behind it) replaces it.
 
 Poses are ``T_camera_object`` (4, 4) float64, metres, optical frame.
 """
@@ -49,6 +49,7 @@ from tlessbot_ros.core.common import (
     transform_points,
 )
 from tlessbot_ros.core.pose.flat_turns import (
+    mesh_scene,
     outline_half_turns,
     outline_yaws,
     principal_half_turns,
@@ -472,19 +473,6 @@ def refine_yaw(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np.ndarr
     if scores[k] > scores[p.yaw_steps] + p.yaw_min_gain:
         return poses[k], float(yaws[k])
     return T_camera_object, 0.0
-
-
-def mesh_scene(obj: ObjectTemplates) -> o3d.t.geometry.RaycastingScene | None:
-    """The ray-casting scene of the object's mesh in its model frame (cached on the object;
-    None without a mesh)."""
-    from tlessbot_ros.core.common import raycasting_scene
-
-    vertices, faces = obj.mesh_vertices, obj.mesh_faces
-    if faces is None or vertices is None:
-        return None
-    scene: o3d.t.geometry.RaycastingScene = obj.derived(
-        'raycasting', lambda: raycasting_scene(vertices, faces))
-    return scene
 
 
 def _centre(obj: ObjectTemplates) -> np.ndarray:

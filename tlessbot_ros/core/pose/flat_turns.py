@@ -1,5 +1,5 @@
-"""Half turns of a flat part, and a turned pose refitted to the depth (for
-:class:`~tlessbot_ros.core.pose.flat.FlatCheck`).
+"""Half turns of a flat part, its mesh's ray-casting scene, and a turned pose refitted to the
+depth (for :class:`~tlessbot_ros.core.pose.flat.FlatCheck`).
 
 Poses are ``T_camera_object`` (4, 4) float64, metres, optical frame; turns (4, 4) in the
 model frame (applied on the right of a pose).
@@ -14,6 +14,8 @@ import numpy as np
 from tlessbot_ros.core.common import rotation_about_axis
 
 if TYPE_CHECKING:
+    import open3d as o3d
+
     from tlessbot_ros.core.pose.database import ObjectTemplates
 
 
@@ -92,6 +94,19 @@ def _turn(axis: np.ndarray, angle: float, centre: np.ndarray) -> np.ndarray:
     return T
 
 
+def mesh_scene(obj: ObjectTemplates) -> o3d.t.geometry.RaycastingScene | None:
+    """The ray-casting scene of the object's mesh in its model frame (cached on the object;
+    None without a mesh)."""
+    from tlessbot_ros.core.common import raycasting_scene
+
+    vertices, faces = obj.mesh_vertices, obj.mesh_faces
+    if faces is None or vertices is None:
+        return None
+    scene: o3d.t.geometry.RaycastingScene = obj.derived(
+        'raycasting', lambda: raycasting_scene(vertices, faces))
+    return scene
+
+
 def refit_to_surface(obj: ObjectTemplates, T_camera_object: np.ndarray,
                      points_c: np.ndarray) -> np.ndarray:
     """``T_camera_object`` refined by point-to-plane ICP of the ROI cloud onto the mesh's
@@ -120,5 +135,5 @@ def refit_to_surface(obj: ObjectTemplates, T_camera_object: np.ndarray,
     return np.asarray(T_camera_object @ np.linalg.inv(result.transformation))
 
 
-__all__ = ['outline_frame', 'outline_half_turns', 'outline_yaws', 'principal_half_turns',
-           'refit_to_surface']
+__all__ = ['mesh_scene', 'outline_frame', 'outline_half_turns', 'outline_yaws',
+           'principal_half_turns', 'refit_to_surface']
