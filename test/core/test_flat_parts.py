@@ -346,3 +346,17 @@ def test_a_round_outline_competes_turned_about_its_thin_axis():
     plate = np.array([[x, y, z] for x in np.linspace(0, 0.06, 31)
                       for y in np.linspace(0, 0.04, 21) for z in (0.0, 0.004)])
     assert outline_yaws(plate, 2 * np.pi, 6) == []
+
+
+def test_the_depth_turn_may_not_overturn_what_the_aligned_votes_ranked_lower():
+    # the last aligned round's duels: pose 0 beat pose 1 clearly, pose 2 and 0 are level
+    check = FlatCheck(Refiner(PoseParams()))
+    T0 = np.eye(4)
+    T1 = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi), [0, 0, 0])
+    T2 = make_transform(rotation_about_axis([0.0, 0.0, 1.0], np.pi), [0, 0, 0])
+    assert not check.ranked_lower(T0, T1)   # no round yet
+    check.ranked = ([T0, T1, T2], np.array([[0, 40, 10], [5, 0, 9], [11, 8, 0]]))
+    near_T1 = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi - 0.05), [0, 0, 0])
+    assert check.ranked_lower(T0, near_T1)          # 40 against 5
+    assert not check.ranked_lower(T0, T2)           # 10 against 11: no clear rank
+    assert not check.ranked_lower(T1, T0)           # the other way round it ranked higher

@@ -13,7 +13,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams, ViewEvidence, refine_yaw
+from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams, ViewEvidence
+from tlessbot_ros.core.pose.flat_turns import refine_yaw
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -110,7 +111,7 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
     T, info['depth_turn_vote'] = check.depth_turn(obj, detection.pose.T_camera_object,
                                                   job.points, job.more_views,
                                                   job.T_world_camera)
-    if T is not None:
+    if T is not None and not check.ranked_lower(detection.pose.T_camera_object, T):
         detection.turned_over = not detection.turned_over
         detection.second = detection.pose
         detection.pose = replace(detection.pose, T_camera_object=T)

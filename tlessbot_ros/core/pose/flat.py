@@ -23,7 +23,7 @@ axes, and end for end, refitted by a short ICP each; the turned fits within
 (:mod:`~tlessbot_ros.core.pose.silhouette`; ``min_share`` of at least ``min_disputed_px``),
 with fewer such pixels on their agreement with the Canny edges (Canny, PAMI 1986; a one-sided
 chamfer match as in Barrow et al., IJCAI 1977) and the label (``min_gain``). The winner gets
-the fitted pose's polish, and :func:`refine_yaw` checks the yaw on the image.
+the fitted pose's polish, and :func:`~.flat_turns.refine_yaw` checks the yaw on the image.
 
 Unless the aligned votes decided, the depth has the last word (:meth:`FlatCheck.depth_turn`):
 the final pose turned by half a turn about each principal axis of the mesh, each refitted to
@@ -49,6 +49,7 @@ from tlessbot_ros.core.common import (
     transform_points,
 )
 from tlessbot_ros.core.pose.flat_turns import (
+    bbox_centre,
     mesh_scene,
     outline_half_turns,
     outline_yaws,
@@ -220,6 +221,8 @@ class FlatCheck:
         self.params = params
         self.voxel_scale = voxel_scale
         self._sor = (sor_neighbors, sor_std_ratio)
+        # the last aligned round: its poses of the part itself and their duels' votes
+        self.ranked: tuple[list[np.ndarray], np.ndarray] | None = None
 
     def applies(self, obj: ObjectTemplates) -> bool:
         """Whether ``obj`` is checked at all (enabled, and a flat part)."""
@@ -239,7 +242,7 @@ class FlatCheck:
         if len(scene) >= 10:
             scene = scene[remove_statistical_outliers(scene, neighbors=self._sor[0],
                                                       std_ratio=self._sor[1])]
-        centre = _centre(obj)
+        centre = bbox_centre(obj)
         T_world_object = T_world_camera @ T_camera_object
         starts = invert_transform(T_world_camera) @ flipped_poses(
             T_world_object, centre, p.flips, upright=p.upright)
@@ -386,6 +389,8 @@ class FlatCheck:
         decided = all(clear_margin(int(votes[k, j]), int(votes[j, k]), p.align_min_z)
                       for j in range(len(poses)) if j != k)
         info.update(align_winner=float(k), align_decided=float(decided))
+        own = [j for j in range(len(poses)) if meshes[j] is meshes[0]]
+        self.ranked = ([poses[j] for j in own], votes[np.ix_(own, own)])
         return k if decided else 0
 
     def image_winner(self, obj: ObjectTemplates, poses: Sequence[np.ndarray],
@@ -402,6 +407,20 @@ class FlatCheck:
         if gain[k] <= 0 or (decided[k] and scores[k] < scores[0] - p.min_gain):
             return 0
         return k
+
+    def ranked_lower(self, T_from: np.ndarray, T_to: np.ndarray) -> bool:
+        """Whether the last aligned round ranked the pose ``T_to`` below ``T_from`` by a clear
+        margin (``depth_min_z``): each taken as the round's candidate nearest in rotation."""
+        from tlessbot_ros.core.common import rotation_angle_deg
+        from tlessbot_ros.core.pose.lookalike import clear_margin
+
+        if self.ranked is None:
+            return False
+        poses, votes = self.ranked
+        a, b = (int(np.argmin([rotation_angle_deg(T[:3, :3], P[:3, :3]) for P in poses]))
+                for T in (T_from, T_to))
+        return a != b and clear_margin(int(votes[a, b]), int(votes[b, a]),
+                                       self.params.depth_min_z)
 
     def depth_turn(self, obj: ObjectTemplates, T_camera_object: np.ndarray,
                    points_c: np.ndarray,
@@ -441,44 +460,6 @@ class FlatCheck:
             if vote > best_vote:
                 best, best_vote = turned, vote
         return best, best_vote
-
-
-def refine_yaw(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np.ndarray,
-               T_world_camera: np.ndarray, views: Sequence[ViewEvidence]
-               ) -> tuple[np.ndarray, float]:
-    """A flat part's pose turned about the vertical through its centre by the yaw among
-    ``yaw_steps`` steps of ``yaw_step_deg`` either way whose silhouette agrees best with the
-    image (:func:`agreement`); the fitted pose unless that gains more than ``yaw_min_gain``.
-    The depth of a part 3 mm thin holds its yaw only by its few edge points (measured: 4-6°
-    off on a 60 x 40 x 3 mm plate); its outline in the image holds it better. Returns the pose
-    and the yaw (degrees) it was turned by."""
-    p = check.params
-    T_camera_object = np.asarray(T_camera_object, np.float64)
-    if p.yaw_steps < 1:
-        return T_camera_object, 0.0
-    yaws = p.yaw_step_deg * np.arange(-p.yaw_steps, p.yaw_steps + 1)
-    centre = _centre(obj)
-    T_world = np.asarray(T_world_camera, np.float64)
-    T_world_object = T_world @ T_camera_object
-    c = transform_points(T_world_object, centre[None])[0]
-    poses = []
-    for yaw in np.radians(yaws):
-        R = rotation_about_axis(np.array([0.0, 0.0, 1.0]), yaw)
-        T = T_world_object.copy()
-        T[:3, :3] = R @ T[:3, :3]
-        T[:3, 3] = R @ (T[:3, 3] - c) + c
-        poses.append(invert_transform(T_world) @ T)
-    scores, _, _ = check.image_evidence(obj, poses, views)
-    k = int(np.argmax(scores))
-    if scores[k] > scores[p.yaw_steps] + p.yaw_min_gain:
-        return poses[k], float(yaws[k])
-    return T_camera_object, 0.0
-
-
-def _centre(obj: ObjectTemplates) -> np.ndarray:
-    """(3,) the centre of the object's bounding box, object frame (cached on the object)."""
-    return cast(np.ndarray, obj.derived('bbox_centre', lambda: (
-        obj.model_points.min(axis=0) + obj.model_points.max(axis=0)).astype(np.float64) / 2))
 
 
 def _differ(T_a: np.ndarray, T_b: np.ndarray) -> bool:
