@@ -9,7 +9,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tlessbot_ros.core.flat_parts import colour_views
-from tlessbot_ros.core.pose.flat import is_flat, mesh_scene
+from tlessbot_ros.core.pose.flat import is_flat
+from tlessbot_ros.core.pose.flat_turns import mesh_scene
 from tlessbot_ros.core.pose.turns import TurnParams, choose_turn, near_turns
 
 if TYPE_CHECKING:

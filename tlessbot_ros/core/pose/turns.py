@@ -219,7 +219,7 @@ def edge_support(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarr
     for view in views:
         in_view = [view.T_view_fit @ T for T in poses]
         box = window(model_points, in_view, view.intrinsics, margin_px=4)
-        if box is None:
+        if box is None or view.rgb is None:
             continue
         distance = edge_distance(view.rgb, box)
         for k, T in enumerate(in_view):
