@@ -108,7 +108,7 @@ class FlatParams:
     """
 
     enabled: bool = True
-    flat_ratio: float = 0.2
+    flat_ratio: float = 0.12
     flips: int = 8
     upright: bool = True
     fitness_margin: float = 0.1
