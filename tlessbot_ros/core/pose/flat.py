@@ -74,8 +74,8 @@ if TYPE_CHECKING:   # this module is light: core.params imports FlatParams
 @dataclass(frozen=True)
 class FlatParams:
     """Settings of :class:`FlatCheck` (the generated plates rest 0.03-0.06 of their
-    diameter high, the 6 mm flange 0.135, a 20 mm block 0.34; no T-LESS part under 0.26, so
-    none is checked).
+    diameter high, a 6 mm flange 0.135 (the turn check's), a 20 mm block 0.34; no T-LESS part
+    under 0.26, so none is checked).
 
     Attributes:
         enabled: check flat parts' face (depth and colour image), yaw and look-alike (image).
