@@ -208,6 +208,7 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.pose.refinement import (  # noqa: F401
         Refiner,
     )
+    from tlessbot_ros.core.pose.silhouette import inside_outline  # noqa: F401
     from tlessbot_ros.core.pose.turns import (  # noqa: F401
         TurnParams,
         choose_turn,
