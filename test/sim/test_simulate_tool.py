@@ -29,6 +29,9 @@ def test_simulate_writes_two_view_bop(tmp_path, tless_models_dir, capsys):
                                b.T_world_camera @ gb.T_camera_object, atol=1e-6)
     info = json.loads((out / 'models_info.json').read_text())
     assert set(info) == {'6', '19'} and 50 < info['19']['diameter'] < 150
+    # the folder lists no symmetries: detected as tlessbot models-info does (6: a half turn)
+    (turn,) = info['6']['symmetries_discrete']
+    assert np.allclose(np.reshape(turn, (4, 4))[:3, :3], np.diag([-1, -1, 1]), atol=0.01)
     camera = json.loads((out / 'camera_top.json').read_text())
     assert camera['width'] == 320
 
@@ -85,3 +88,23 @@ def test_simulate_pile_packs_the_parts(tmp_path, tless_models_dir):
         gaps = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
         np.fill_diagonal(gaps, np.inf)
         assert gaps.min(axis=1).max() < 0.12   # both parts are 6-10 cm across
+
+
+def test_simulate_writes_the_listed_symmetries(tmp_path, tless_models_dir):
+    """A models folder with a models_info.json: the dataset lists the same symmetries, so a
+    tool that scores it (bop_toolkit reads the dataset's models_info) knows them."""
+    models = tmp_path / 'models'
+    models.mkdir()
+    for obj_id in (5, 19):
+        (models / f'obj_{obj_id:02d}.stl').symlink_to(tless_models_dir / f'obj_{obj_id:02d}.stl')
+    turn = [-1.0, 0, 0, 0, 0, -1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0]
+    (models / 'models_info.json').write_text(json.dumps(
+        {'5': {'symmetries_discrete': [turn]}, '19': {}}))
+    out = tmp_path / 'sim'
+    assert main(['simulate', '--models', str(models), '--out', str(out), '--frames', '1',
+                 '--parts-max', '1', '--width', '160', '--height', '120', '--no-masks',
+                 '--no-progress']) == 0
+    info = json.loads((out / 'models_info.json').read_text())
+    assert np.allclose(info['5']['symmetries_discrete'], [turn])
+    assert 'symmetries_discrete' not in info['19'] and 'symmetries_continuous' not in info['19']
+    assert info['19']['diameter'] > 50

@@ -3,7 +3,8 @@
     tlessbot models-info --models ../shared/data/tless_models_cad_stl --out models_info.json
 
 Symmetries come from the folder's own models_info.json when it has one, else they are detected
-from the mesh (core.symmetry.detect_symmetries). Units are millimetres, as in BOP.
+from the mesh (core.symmetry.detect_symmetries); ``tlessbot simulate`` writes the same
+entries. Units are millimetres, as in BOP.
 """
 from __future__ import annotations
 
@@ -11,34 +12,14 @@ import argparse
 import json
 from pathlib import Path
 
-from tlessbot_ros.core.common import (
-    Symmetries,
-    detect_symmetries,
-    symmetries_to_models_info,
-)
-from tlessbot_ros.io.models import ObjectModel, load_models
-from tlessbot_ros.tools.support.models_info import model_geometry_mm
+from tlessbot_ros.io.models import load_models
+from tlessbot_ros.tools.support.models_info import models_info_entry, model_symmetries
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--models', required=True, help='folder of CAD models (mm)')
     parser.add_argument('--out', required=True, help='models_info.json to write')
     parser.add_argument('--ids', type=int, nargs='+', default=None, help='only these ids')
-
-
-def model_symmetries(model: ObjectModel) -> Symmetries:
-    """The model's listed symmetries, or detected ones when the files list none."""
-    listed = model.listed_symmetries()
-    if listed is None:
-        return detect_symmetries(model.vertices, model.faces, diameter=model.diameter_m)
-    return listed
-
-
-def models_info_entry(model: ObjectModel, symmetries: Symmetries) -> dict:
-    """One BOP models_info.json entry (mm, rounded to 0.1 µm)."""
-    entry = {key: round(float(value), 4) for key, value in model_geometry_mm(model).items()}
-    entry.update(symmetries_to_models_info(symmetries))
-    return entry
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,7 +1,8 @@
 """Render simulated two-view table scenes of CAD parts to a BOP dataset (and/or a rosbag2).
 
 Writes ``<out>/test_top`` and ``<out>/test_side`` (same scene and image ids), ``camera_top.json``,
-``camera_side.json`` and ``models_info.json`` (diameters, mm); with ``--backgrounds`` also
+``camera_side.json`` and ``models_info.json`` (diameters, mm, and the symmetries the models'
+folder lists, else detected as ``tlessbot models-info`` does); with ``--backgrounds`` also
 ``background_top`` / ``background_side``: each frame's empty table (same ids, no ground truth).
 The rig comes from the YAML (``config/cell.yaml`` by default); ``--width/--height`` rescale its
 intrinsics. ``--cameras side`` writes that camera alone (a cell of one camera), the scenes
@@ -20,7 +21,7 @@ from pathlib import Path
 
 from tlessbot_ros.errors import DatasetError, TlessbotError
 from tlessbot_ros.tools.support.board_calibration import add_board_arguments, board_from_args
-from tlessbot_ros.tools.support.models_info import model_geometry_mm
+from tlessbot_ros.tools.support.models_info import models_info_entry, model_symmetries
 from tlessbot_ros.tools.support.rig import load_rig
 
 
@@ -179,8 +180,10 @@ def _dataset_writers(args: argparse.Namespace, sim, cameras: list[str]) -> tuple
         if args.backgrounds:
             backgrounds[name] = BopWriter(args.out, f'background_{name}')
         write_camera_json(args.out / f'camera_{name}.json', cam.intrinsics)
+    # the models' symmetries too: a tool that scores the dataset (bop_toolkit) reads them here
     (args.out / 'models_info.json').write_text(json.dumps(
-        {str(i): model_geometry_mm(m) for i, m in sim.models.items()}, indent=1))
+        {str(i): models_info_entry(m, model_symmetries(m)) for i, m in sim.models.items()},
+        indent=1))
     return writers, backgrounds
 
 

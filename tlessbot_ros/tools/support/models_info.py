@@ -1,4 +1,5 @@
-"""BOP models_info.json for the commands: symmetries read for scoring, geometry entries written.
+"""BOP models_info.json for the commands: symmetries read for scoring, entries written
+(geometry and symmetries).
 
 The per-entry symmetry parser is :func:`tlessbot_ros.core.common.symmetries_from_models_info`;
 this module only reads the file around it and writes the geometry (mm, as in BOP).
@@ -9,7 +10,12 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from tlessbot_ros.core.common import Symmetries, symmetries_from_models_info
+from tlessbot_ros.core.common import (
+    Symmetries,
+    detect_symmetries,
+    symmetries_from_models_info,
+    symmetries_to_models_info,
+)
 from tlessbot_ros.errors import ModelFileError
 
 if TYPE_CHECKING:
@@ -45,3 +51,18 @@ def model_geometry_mm(model: ObjectModel) -> dict[str, float]:
     return {'diameter': model.diameter_m * 1000.0,
             'min_x': low[0], 'min_y': low[1], 'min_z': low[2],
             'size_x': size[0], 'size_y': size[1], 'size_z': size[2]}
+
+
+def model_symmetries(model: ObjectModel) -> Symmetries:
+    """The model's listed symmetries, or detected ones when the files list none."""
+    listed = model.listed_symmetries()
+    if listed is None:
+        return detect_symmetries(model.vertices, model.faces, diameter=model.diameter_m)
+    return listed
+
+
+def models_info_entry(model: ObjectModel, symmetries: Symmetries) -> dict:
+    """One BOP models_info.json entry (mm, rounded to 0.1 µm): geometry and symmetries."""
+    entry = {key: round(float(value), 4) for key, value in model_geometry_mm(model).items()}
+    entry.update(symmetries_to_models_info(symmetries))
+    return entry
