@@ -12,6 +12,7 @@ from tlessbot_ros.io.parts import (
     PartsFolderError,
     cad_parts,
     check_part_mesh,
+    model_names,
     open_parts_folder,
     rig_summary,
     write_mesh,
@@ -33,6 +34,27 @@ def test_any_file_names_become_part_names(tmp_path):
     parts = cad_parts(tmp_path)
     assert [(p.obj_id, p.name) for p in parts] == [
         (1, 'Bracket_2'), (2, 'alpha'), (3, 'zeta'), (7, 'obj_07')]
+
+
+def test_models_folders_name_their_parts(tmp_path):
+    """Reports name parts as the graph does: a parts folder's manifest, else the CAD stems;
+    obj_NN files (T-LESS, BOP) and unreadable names keep the default."""
+    v, f = _cube()
+    cad = tmp_path / 'cad'
+    cad.mkdir()
+    for name in ('zeta.stl', 'obj_07.stl', 'obj_000009.ply'):
+        write_mesh(cad / name, v, f)
+    assert model_names(cad) == {1: 'zeta'}
+    parts = tmp_path / 'parts'
+    (parts / 'models').mkdir(parents=True)
+    write_mesh(parts / 'models' / 'obj_01.ply', v, f)
+    (parts / 'manifest.json').write_text(json.dumps(
+        {'format': FORMAT, 'parts': [{'id': 1, 'name': 'bracket_l', 'size_mm': [20, 20, 20]}]}))
+    assert model_names(parts / 'models') == {1: 'bracket_l'}
+    (parts / 'manifest.json').write_text('{"parts": [{"id": 1, "name": "no good"}]}')
+    assert model_names(parts / 'models') == {}
+    write_mesh(cad / 'M6 bolt.stl', v, f)
+    assert model_names(cad) == {} and model_names(tmp_path / 'nowhere') == {}
 
 
 def test_bad_names_and_twins_refused(tmp_path):

@@ -62,3 +62,17 @@ def test_a_piece_of_a_found_part_and_a_wrong_name():
     assert sum(out['missed'].values()) == 0
     assert out['false_pos']['piece of a found part'] == 1
     assert confusions([(image, boxes, matched)]) == {'7 -> 8': 1}
+
+
+def test_loss_tables_name_the_parts():
+    """report.md's loss tables and the 'named as another part' line carry the parts' names
+    (obj_NN for a part the names do not list; 0: no pose)."""
+    from tlessbot_ros.tools.support.eval_breakdown import markdown
+
+    part = _rect(10, 50, 10, 50)
+    image, boxes, matched = _scored([_gt(7, part)], np.zeros(part.shape, np.uint16), {})
+    total = add_up([frame_breakdown(image, np.zeros(part.shape, np.uint16), boxes, matched)])
+    total['confusions'] = {'7 -> 8': 2, '7 -> 0': 1, '8 -> 7': 1}
+    text = '\n'.join(markdown(total, 1, {7: 'bracket_l', 9: 'plate'}))
+    assert '| bracket_l | ' in text and 'obj_07' not in text
+    assert 'bracket_l -> obj_08 (2), bracket_l -> 0 (1), obj_08 -> bracket_l (1).' in text

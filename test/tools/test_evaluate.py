@@ -82,6 +82,28 @@ def test_scores_given_poses_exactly(dataset, tmp_path):
     assert len((out / 'estimates.csv').read_text().splitlines()) == len(results) + 1
 
 
+def test_reports_name_the_parts_of_a_parts_folder(dataset, tmp_path):
+    """--models PARTS/models: report.md and report.json name the parts by PARTS/manifest.json,
+    as the graph's topics do."""
+    models, data = dataset
+    parts = tmp_path / 'parts'
+    shutil.copytree(models, parts / 'models')
+    (parts / 'manifest.json').write_text(json.dumps(
+        {'parts': [{'id': 5, 'name': 'bracket_l'}, {'id': 11, 'name': 'housing'}]}))
+    results, _ = _estimates(data)
+    poses = tmp_path / 'poses.csv'
+    write_results(poses, results)
+    out = tmp_path / 'out'
+    assert main(['evaluate', '--dataset', str(data), '--models', str(parts / 'models'),
+                 '--poses', str(poses), '--out', str(out)]) == 0
+    report = json.loads((out / 'report.json').read_text())
+    assert report['names'] == {k: {'5': 'bracket_l', '11': 'housing'}[k]
+                               for k in report['per_object']}
+    page = (out / 'report.md').read_text()
+    assert all(f'| {name} | ' in page for name in report['names'].values())
+    assert 'obj_' not in page
+
+
 def test_missing_estimates_count_as_misses(dataset, tmp_path):
     models, data = dataset
     poses = tmp_path / 'empty.csv'
@@ -130,6 +152,31 @@ def test_missing_templates_are_built_once_and_cached(dataset, tmp_path, capsys, 
     assert [p['name'] for p in manifest['parts']] == ['obj_05', 'obj_11']
     assert main(argv) == 0
     assert 'using the parts built before' in capsys.readouterr().out
+
+
+def test_a_cad_folder_of_named_parts_is_scored_and_named(tless_models_dir, tmp_path,
+                                                         monkeypatch):
+    """--models of CAD files named by the user (ids 1, 2 in the order of the names, as parts
+    build gives them): scored with the models the build converted, reports carry the names."""
+    monkeypatch.setenv('TLESSBOT_CACHE_DIR', str(tmp_path / 'cache'))
+    numbered, cad = tmp_path / 'numbered', tmp_path / 'cad'
+    numbered.mkdir()
+    cad.mkdir()
+    for obj_id, (tless, name) in enumerate(((5, 'bracket_l'), (11, 'housing')), start=1):
+        shutil.copy(tless_models_dir / f'obj_{tless:02d}.stl', numbered / f'obj_{obj_id:02d}.stl')
+        shutil.copy(tless_models_dir / f'obj_{tless:02d}.stl', cad / f'{name}.stl')
+    data = tmp_path / 'bop'
+    assert main(['simulate', '--models', str(numbered), '--out', str(data), '--frames', '1',
+                 '--parts-min', '2', '--parts-max', '2', '--width', '320', '--height', '240',
+                 '--no-progress', '--seed', '3']) == 0
+    out = tmp_path / 'o'
+    assert main(['evaluate', '--models', str(cad), '--dataset', str(data), '--oracle',
+                 'boxes+classes', '--out', str(out)]) == 0
+    report = json.loads((out / 'report.json').read_text())
+    assert report['names'] == {'1': 'bracket_l', '2': 'housing'}
+    assert set(report['per_object']) == {'1', '2'}
+    page = (out / 'report.md').read_text()
+    assert '| bracket_l | ' in page and '| housing | ' in page and 'obj_0' not in page
 
 
 def test_pose_workers_give_the_same_estimates(dataset, tmp_path):
@@ -227,6 +274,10 @@ def test_recognition_after_the_pose_stage_counts_only_frames_with_depth():
             result['top1_after_pose']) == (1, 1.0, 0.0)
     assert result['per_part']['4']['top1_after_pose'] is None   # never posed: not a zero
     assert '| obj_04 | 1 | 0.000 | 0 | n/a |' in markdown(result)
+    named = markdown(result, {2: 'bracket_l', 4: 'plate'})   # as a parts folder names them
+    assert '| plate | 1 | 0.000 | 0 | n/a |' in named
+    assert '| part | unknown | bracket_l | plate |' in named
+    assert 'obj_0' not in named
     empty = summary([])
     assert empty['top1_after_pose'] is None and 'n/a' in markdown(empty)
 

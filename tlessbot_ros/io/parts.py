@@ -88,6 +88,26 @@ def cad_parts(folder: str | Path) -> list[CadPart]:
     return sorted(parts, key=lambda p: p.obj_id)
 
 
+def model_names(models: str | Path) -> dict[int, str]:
+    """{id: name} of the parts of a models folder that have names of their own: a parts
+    folder's ``models/`` (its manifest's names) or a CAD folder (the file stems, as
+    :func:`cad_parts`); the ``obj_NN`` files of T-LESS and BOP folders are left out (they keep
+    the default name), and so is a folder whose names cannot be read (then all are obj_NN)."""
+    models = Path(models)
+    manifest = models.parent / MANIFEST
+    try:
+        if models.name == MODELS and manifest.is_file():
+            folder = PartsFolder(models.parent, json.loads(manifest.read_text(encoding='utf-8')))
+            names = folder.names
+            for name in names.values():
+                check_part_name(name)
+            return names
+        return {p.obj_id: p.name for p in cad_parts(models)
+                if object_id_from_path(p.path) is None}
+    except (OSError, ValueError, KeyError, TypeError, ModelFileError, PartNameError):
+        return {}
+
+
 def read_part_mesh(path: Path, *, units: str = 'mm'
                    ) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """(V, 3) float64 vertices in metres, (F, 3) int32 faces and the warnings of one part,

@@ -10,7 +10,8 @@ the localiser (and classifier). Without --classifier / --templates both are buil
 --models as ``tlessbot parts build`` builds them (same recipe) and kept in the start-up cache
 by the models' content: a dataset of new parts is scored in one command. A dataset with
 test_top/ and test_side/ is evaluated as two views and scored in the side camera. Parts with
-visib_fract >= 0.3 are the targets.
+visib_fract >= 0.3 are the targets. The reports name the parts as the graph does: a parts
+folder's ``models/`` by its manifest, a CAD folder by its file stems, T-LESS and BOP by obj_NN.
 """
 from __future__ import annotations
 
@@ -20,8 +21,11 @@ import time
 from pathlib import Path
 
 from tlessbot_ros.core.common import SIDE
+from tlessbot_ros.core.common.names import part_name
 from tlessbot_ros.errors import DatasetError, ModelFileError, TlessbotError
 from tlessbot_ros.io.bop_results import read_results, write_results
+from tlessbot_ros.io.models import object_id_from_path
+from tlessbot_ros.io.parts import PartsFolder, model_names
 from tlessbot_ros.tools.support.eval_frames import TWO_VIEW_SPLITS, bag_frames, pipeline_frames
 from tlessbot_ros.tools.support.eval_recognition import write_recognition_page
 from tlessbot_ros.tools.support.eval_scoring import FrameOutput, load_scoring_models, score_frames
@@ -78,6 +82,14 @@ def _scored_split(dataset: Path, split: str | None) -> tuple[str, bool]:
                        '--split')
 
 
+def _scoring_folder(models: Path, built: PartsFolder | None) -> Path:
+    """The models to score with: ``models``, or for a CAD folder without obj_NN files (names
+    of its own) the ones the parts build converted from it (same ids, its symmetries)."""
+    if built is None or any(object_id_from_path(p) is not None for p in models.iterdir()):
+        return models
+    return built.models
+
+
 def _given_poses(path: Path) -> dict[tuple[int, int], FrameOutput]:
     outputs: dict[tuple[int, int], FrameOutput] = {}
     for result in read_results(path):
@@ -104,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
         raise TlessbotError('give exactly one of --dataset DIR and --bag FILE')
     started = time.perf_counter()
     frames: list[tuple[object, FrameOutput]] = []
+    built: PartsFolder | None = None
     if args.bag is not None:
         frames = bag_frames(args.bag, classifier=args.classifier, templates=args.templates,
                             limit=args.limit)
@@ -139,10 +152,13 @@ def run(args: argparse.Namespace) -> int:
         raise DatasetError(f'{args.dataset or args.bag}: {split} has no images')
     ids = {gt.obj_id for image, _ in frames for gt in image.gt}
     ids |= {p.obj_id for _, o in frames for p in o.poses}
-    models = load_scoring_models(args.models, ids)
+    models = load_scoring_models(_scoring_folder(args.models, built), ids)
     report = score_frames(frames, models)
+    # the parts' own names (a parts folder's manifest, CAD file stems), else obj_NN
+    names = model_names(args.models)
+    report['names'] = {str(i): part_name(i, names) for i in sorted(ids)}
     args.out.mkdir(parents=True, exist_ok=True)
-    recognition = write_recognition_page(frames, args.out)
+    recognition = write_recognition_page(frames, args.out, names)
     if recognition is not None:
         report['recognition'].update(recognition)
     report['mode'] = mode

@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 
 from tlessbot_ros.io.models import load_models
-from tlessbot_ros.tools.support.models_info import models_info_entry, model_symmetries
+from tlessbot_ros.tools.support.models_info import model_symmetries, models_info_entry
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from tlessbot_ros.errors import DatasetError, TlessbotError
 from tlessbot_ros.tools.support.board_calibration import add_board_arguments, board_from_args
-from tlessbot_ros.tools.support.models_info import models_info_entry, model_symmetries
+from tlessbot_ros.tools.support.models_info import model_symmetries, models_info_entry
 from tlessbot_ros.tools.support.rig import load_rig
 
 

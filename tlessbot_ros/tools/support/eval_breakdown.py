@@ -24,7 +24,11 @@ each also counted as ``with a pose`` when the pipeline published a pose for it.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
+
+from tlessbot_ros.core.common.names import part_name
 
 MISS_CAUSES = ('not found', 'merged', 'split', 'box off')
 FP_CAUSES = ('merged', 'piece of a found part', 'piece of a missed part',
@@ -145,14 +149,16 @@ def confusions(frames_boxes: list[tuple[object, list, dict[int, int]]]) -> dict[
     return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 
 
-def markdown(breakdown: dict, frames: int) -> list[str]:
-    """report.md lines of a breakdown (:func:`add_up` plus 'confusions')."""
+def markdown(breakdown: dict, frames: int, names: Mapping[int, str] | None = None
+             ) -> list[str]:
+    """report.md lines of a breakdown (:func:`add_up` plus 'confusions'); parts named by
+    ``names`` ({id: name}; obj_NN when not listed)."""
     lines = ['', '## Detection losses by cause (scored view)', '',
              '| misses (target parts) | ' + ' | '.join(MISS_CAUSES) + ' |',
              '|---' * (len(MISS_CAUSES) + 1) + '|',
              '| all | ' + ' | '.join(str(breakdown['missed'][c]) for c in MISS_CAUSES) + ' |']
     for obj, causes in sorted(breakdown['missed_by_obj'].items(), key=lambda kv: int(kv[0])):
-        lines.append(f'| obj_{int(obj):02d} | '
+        lines.append(f'| {part_name(int(obj), names)} | '
                      + ' | '.join(str(causes[c]) for c in MISS_CAUSES) + ' |')
     lines += ['', '| false positives | ' + ' | '.join(FP_CAUSES) + ' | per frame |',
               '|---' * (len(FP_CAUSES) + 2) + '|']
@@ -160,8 +166,10 @@ def markdown(breakdown: dict, frames: int) -> list[str]:
         counts = breakdown[key]
         lines.append(f'| {name} | ' + ' | '.join(str(counts[c]) for c in FP_CAUSES)
                      + f' | {sum(counts.values()) / max(frames, 1):.2f} |')
-    wrong = breakdown.get('confusions', {})
+    wrong = [([int(i) for i in k.split(' -> ')], n)
+             for k, n in breakdown.get('confusions', {}).items()]
     lines += ['', 'Matched boxes named as another part (true -> named, 0: no pose): '
-              + (', '.join(f'obj_{k.split(" -> ")[0]} -> {k.split(" -> ")[1]} ({n})'
-                           for k, n in wrong.items()) or 'none') + '.']
+              + (', '.join(f'{part_name(truth, names)} -> '
+                           f'{part_name(named, names) if named else 0} ({n})'
+                           for (truth, named), n in wrong) or 'none') + '.']
     return lines

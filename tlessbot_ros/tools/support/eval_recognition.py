@@ -7,11 +7,13 @@ is. Written as ``recognition.md`` and ``worst_crops.png`` beside ``report.md``.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from tlessbot_ros.core.common.names import part_name
 from tlessbot_ros.tools.support.report import cell as _cell
 
 MIN_VISIB_FRACT = 0.3  # the scored targets, as in eval_scoring
@@ -79,8 +81,9 @@ def summary(answers: list[CropAnswer]) -> dict:
             'per_part': per_part, 'confusion_ids': ids, 'confusion': matrix.tolist()}
 
 
-def markdown(result: dict) -> str:
-    """``recognition.md``: per-part table and confusion table (classifier alone)."""
+def markdown(result: dict, names: Mapping[int, str] | None = None) -> str:
+    """``recognition.md``: per-part table and confusion table (classifier alone); parts named
+    by ``names`` ({id: name}; obj_NN when not listed)."""
     lines = ['# Recognition on ground-truth boxes', '',
              f'- crops (visib_fract >= {MIN_VISIB_FRACT}): {result["crops"]}',
              f'- top-1, classifier alone: {_cell(result["top1_classifier"])}',
@@ -91,23 +94,25 @@ def markdown(result: dict) -> str:
              '| part | crops | classifier alone | crops with depth | after pose stage |',
              '|---|---|---|---|---|']
     for key, row in result['per_part'].items():
-        lines.append(f'| {name(int(key))} | {row["crops"]} | {_cell(row["top1_classifier"])} '
-                     f'| {row["posed_crops"]} | {_cell(row["top1_after_pose"])} |')
+        lines.append(f'| {name(int(key), names)} | {row["crops"]} | '
+                     f'{_cell(row["top1_classifier"])} | {row["posed_crops"]} | '
+                     f'{_cell(row["top1_after_pose"])} |')
     ids = result['confusion_ids']
     lines += ['', '## Confusion, classifier alone (rows: the part, columns: taken for)', '',
-              '| part | ' + ' | '.join(name(i) for i in ids) + ' |',
+              '| part | ' + ' | '.join(name(i, names) for i in ids) + ' |',
               '|---' * (len(ids) + 1) + '|']
     for i, row in zip(ids, result['confusion']):
         if sum(row):
-            lines.append(f'| {name(i)} | ' + ' | '.join(str(v) for v in row) + ' |')
+            lines.append(f'| {name(i, names)} | ' + ' | '.join(str(v) for v in row) + ' |')
     lines += ['', '![worst crops](worst_crops.png)', '',
               'The wrong answers the classifier was surest of: the crop, the part it was taken '
               'for, the part it is.']
     return '\n'.join(lines) + '\n'
 
 
-def worst_crops_sheet(frames: list, answers: list[CropAnswer], *,
-                      count: int = 24, columns: int = 8) -> np.ndarray | None:
+def worst_crops_sheet(frames: list, answers: list[CropAnswer], *, count: int = 24,
+                      columns: int = 8, names: Mapping[int, str] | None = None
+                      ) -> np.ndarray | None:
     """(H, W, 3) uint8 RGB sheet of the ``count`` surest wrong answers; None if none."""
     import cv2
 
@@ -127,21 +132,23 @@ def worst_crops_sheet(frames: list, answers: list[CropAnswer], *,
         top, left = (n // columns) * (_TILE_PX + _CAPTION_PX), (n % columns) * _TILE_PX
         sheet[top:top + _TILE_PX, left:left + _TILE_PX] = cv2.resize(square,
                                                                    (_TILE_PX, _TILE_PX))
-        for line, text in enumerate((f'took {name(answer.classifier)}',
-                                     f'is {name(answer.truth)}')):
+        for line, text in enumerate((f'took {name(answer.classifier, names)}',
+                                     f'is {name(answer.truth, names)}')):
             cv2.putText(sheet, text, (left + 2, top + _TILE_PX + 11 + 13 * line),
                         cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
     return sheet
 
 
-def name(obj_id: int) -> str:
-    """A part's name in reports (``obj_NN``; id 0 is unknown)."""
-    return 'unknown' if obj_id == 0 else f'obj_{obj_id:02d}'
+def name(obj_id: int, names: Mapping[int, str] | None = None) -> str:
+    """A part's name in reports (``names[obj_id]``, else ``obj_NN``; id 0 is unknown)."""
+    return 'unknown' if obj_id == 0 else part_name(obj_id, names)
 
 
-def write_recognition_page(frames: list, out: Path) -> dict | None:
-    """Write ``recognition.md`` and ``worst_crops.png`` into ``out``; the summary, or None
-    when no frame carries classifier answers on ground-truth boxes."""
+def write_recognition_page(frames: list, out: Path, names: Mapping[int, str] | None = None
+                           ) -> dict | None:
+    """Write ``recognition.md`` and ``worst_crops.png`` into ``out`` (parts named by
+    ``names``); the summary, or None when no frame carries classifier answers on ground-truth
+    boxes."""
     import cv2
 
     answers = crop_answers(frames)
@@ -149,8 +156,8 @@ def write_recognition_page(frames: list, out: Path) -> dict | None:
         return None
     result = summary(answers)
     out.mkdir(parents=True, exist_ok=True)
-    (out / 'recognition.md').write_text(markdown(result), encoding='utf-8')
-    sheet = worst_crops_sheet(frames, answers)
+    (out / 'recognition.md').write_text(markdown(result, names), encoding='utf-8')
+    sheet = worst_crops_sheet(frames, answers, names=names)
     if sheet is not None:
         cv2.imwrite(str(out / 'worst_crops.png'), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
     return result

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from tlessbot_ros.core.common.names import part_name
 from tlessbot_ros.tools.support.eval_breakdown import markdown as breakdown_lines
 
 _POSE_COLUMNS = (('recall_5cm5deg', '5 cm / 5°'), ('recall_1cm5deg', '1 cm / 5°'),
@@ -21,8 +22,15 @@ def cell(value) -> str:
     return f'{value:.3f}' if isinstance(value, float) else str(value)
 
 
+def report_names(report: dict) -> dict[int, str]:
+    """{id: name} of a report's parts (its ``names``; obj_NN for the parts it does not list)."""
+    return {int(k): str(v) for k, v in report.get('names', {}).items()}
+
+
 def markdown(report: dict) -> str:
-    """The report as Markdown: summary, per-object recall (Table 1), stage times (Table 3)."""
+    """The report as Markdown: summary, per-object recall (Table 1), stage times (Table 3);
+    parts named by the report's ``names``."""
+    names = report_names(report)
     lines = ['# Evaluation report', '',
              f'- dataset: `{report.get("dataset", "?")}` ({report.get("split", "?")})',
              f'- mode: {report.get("mode", "?")}',
@@ -42,7 +50,7 @@ def markdown(report: dict) -> str:
               '| object | parts | detected (IoU ≥ 0.7) | top-1 | '
               + ' | '.join(name for _, name in _POSE_COLUMNS) + ' |',
               '|---' * (4 + len(_POSE_COLUMNS)) + '|']
-    rows = [(f'obj_{int(k):02d}', v) for k, v in report['per_object'].items()]
+    rows = [(part_name(int(k), names), v) for k, v in report['per_object'].items()]
     rows.append(('**all**', {**report['pose'], 'objects_gt': report['objects_gt'],
                              'iou07_rate': report['detection']['iou07_rate'],
                              'top1': report['recognition']['top1']}))
@@ -51,7 +59,7 @@ def markdown(report: dict) -> str:
                      f'{cell(m.get("top1"))} | '
                      + ' | '.join(cell(m.get(key)) for key, _ in _POSE_COLUMNS) + ' |')
     if report['detection'].get('breakdown'):
-        lines += breakdown_lines(report['detection']['breakdown'], report['frames'])
+        lines += breakdown_lines(report['detection']['breakdown'], report['frames'], names)
     lines += ['', '## Time per stage, median ms per frame (Table 3 shape)', '',
               '| stage | ms |', '|---|---|']
     for stage in _STAGES:
@@ -80,7 +88,9 @@ def plot(report: dict, out: Path) -> list[Path]:
         for i, (key, name) in enumerate(keys):
             values = [report['per_object'][o].get(key) or 0.0 for o in objects]
             ax.bar(x + i * width, values, width, label=name)
-        ax.set_xticks(x + 0.4 - width / 2, [f'obj_{int(o):02d}' for o in objects], rotation=45)
+        names = report_names(report)
+        ax.set_xticks(x + 0.4 - width / 2, [part_name(int(o), names) for o in objects],
+                      rotation=45)
         ax.set_ylim(0, 1)
         ax.set_ylabel('recall')
         ax.set_title('Pose recall per object')
