@@ -65,6 +65,7 @@ def _score(name: str, models: Path, out: Path, args, *, classifier=None, templat
                                                           'recall_5cm5deg')}
                          for k, v in per.items()},
             'breakdown': report['detection'].get('breakdown'),
+            'names': report.get('names', {}),   # as evaluate names them
             'eval_s': round(time.perf_counter() - started, 1)}
 
 
@@ -102,7 +103,8 @@ def _losses(row: dict) -> list[str]:
         lines += ['', 'False positives by cause (with a pose): ' + ', '.join(
             f"{c} {loss['false_pos'][c]} ({loss['false_pos_posed'][c]})" for c in FP_CAUSES
             if loss['false_pos'][c]) or 'none', '', 'Named as another part: ' + (', '.join(
-                f'{k} ({n})' for k, n in loss['confusions'].items()) or 'none') + '.']
+                f"{' -> '.join(names.get(i, i) for i in k.split(' -> '))} ({n})"
+                for k, n in loss['confusions'].items()) or 'none') + '.']
     return lines
 
 
@@ -126,7 +128,6 @@ def run(args: argparse.Namespace) -> int:
     for name, folder in sets:
         rows.append(_score(name, folder.models, args.out, args, classifier=folder.classifier,
                            templates=folder.templates))
-        rows[-1]['names'] = {str(k): v for k, v in folder.names.items()}
     table = '\n'.join([_table(rows), '', '## Losses per set'] + sum((_losses(r) for r in rows),
                                                                    []))
     (args.out / 'report.json').write_text(json.dumps(rows, indent=1) + '\n')
