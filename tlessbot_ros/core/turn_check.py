@@ -27,7 +27,7 @@ def _checked(obj: ObjectTemplates, fit: FitParams) -> bool:
 
 
 def warm_up_turns(database: TemplateDatabase, fit: FitParams) -> None:
-    """List every checked part's near-symmetric turns now (0.1-0.6 s a part, once), so the
+    """List every checked part's near-symmetric turns now (once per part), so the
     first frame that shows it is not slower than the next."""
     p: TurnParams = fit.turns
     for obj in database.objects.values():

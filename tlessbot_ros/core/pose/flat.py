@@ -3,8 +3,8 @@
 A part a few millimetres thick shows the depth camera one flat face. Turned upside down
 (a half turn about an axis in the table plane) it shows the same flat face at the same height,
 and its outline becomes the mirror image of the true one: the depth fit explains the ROI cloud
-about as well either way (on a spanner 4 mm thick, 3 of 13 poses within 5 cm / 5° although
-ADD-S, blind to the turn, accepts all 13). The outline itself is not blind to it: an
+about as well either way (ADD-S is blind to the turn too; docs/bench/flat-parts.md).
+The outline itself is not blind to it: an
 asymmetric plate, a bracket or a spanner turned over shows its corner cut, its holes and its
 jaw on the other side.
 

@@ -116,8 +116,8 @@ def refine_yaw(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np.ndarr
     """A flat part's pose turned about the vertical through its centre by the yaw among
     ``yaw_steps`` steps of ``yaw_step_deg`` either way whose silhouette agrees best with the
     image (:func:`agreement`); the fitted pose unless that gains more than ``yaw_min_gain``.
-    The depth of a part 3 mm thin holds its yaw only by its few edge points (measured: 4-6°
-    off on a 60 x 40 x 3 mm plate); its outline in the image holds it better. Returns the pose
+    The depth of a part a few millimetres thin holds its yaw only by its few edge points; its
+    outline in the image holds it better (docs/bench/flat-parts.md). Returns the pose
     and the yaw (degrees) it was turned by."""
     p = check.params
     T_camera_object = np.asarray(T_camera_object, np.float64)
