@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from side_scene import SIDE, side_scene
 
 from tlessbot_ros.core.common import (
-    MeshRenderer,
-    default_rig,
     depth_to_points,
     make_transform,
     rotation_about_axis,
@@ -25,10 +24,6 @@ from tlessbot_ros.core.pose.flat import (
     is_flat_mesh,
 )
 
-SIDE = default_rig()['side']
-TABLE = (np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64),
-         np.array([[0, 1, 2], [0, 2, 3]]))
-
 
 def _boxes(*boxes):
     """One mesh of axis-aligned boxes ((x0, y0, z0), (x1, y1, z1)) in metres."""
@@ -42,18 +37,7 @@ def _boxes(*boxes):
     return np.asarray(mesh.vertices), np.asarray(mesh.faces)
 
 
-def _scene(vertices, faces, T_world_object, *, noise_m, seed=0):
-    """Side view of the part on a grey table: (rgb, depth with noise, part mask)."""
-    renderer = MeshRenderer()
-    renderer.add_mesh(*TABLE)
-    renderer.add_mesh(vertices, faces, T_world_object)
-    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
-    rng = np.random.default_rng(seed)
-    part = view.instance == 1
-    rgb = np.clip(rng.normal(120.0, 4.0, part.shape + (3,)), 0, 255)
-    rgb[part] = (70, 100, 190)
-    depth = view.depth_m + rng.normal(0.0, noise_m, part.shape).astype(np.float32)
-    return rgb.astype(np.uint8), np.where(view.depth_m > 0, depth, 0).astype(np.float32), part
+_scene = side_scene
 
 
 # ------------------------------------------------------------------------ the orientation check

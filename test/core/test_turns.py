@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from side_scene import SIDE, side_scene
 
 from tlessbot_ros.core.common import (
-    MeshRenderer,
-    default_rig,
     depth_to_points,
     make_transform,
     rotation_about_axis,
@@ -26,10 +25,6 @@ from tlessbot_ros.core.pose import (
 from tlessbot_ros.core.pose.flat import ViewEvidence, mesh_scene
 from tlessbot_ros.core.pose.turns import _surface_centre
 from tlessbot_ros.tools.support import part_generator as gen
-
-SIDE = default_rig()['side']
-TABLE = (np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64),
-         np.array([[0, 1, 2], [0, 2, 3]]))
 
 
 def _disc(small_holes: bool):
@@ -89,19 +84,7 @@ def test_near_turns_are_the_turns_the_small_holes_break(holed_disc):
 
 
 def _scene(vertices, faces, T_world_object, *, noise_m=0.0005, seed=0):
-    """Side view of the part on a grey table, lit from the camera (a surface seen at a grazing
-    angle, a hole's wall, is darker): (rgb, depth, part mask)."""
-    renderer = MeshRenderer()
-    renderer.add_mesh(*TABLE)
-    renderer.add_mesh(vertices, faces, T_world_object)
-    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
-    rng = np.random.default_rng(seed)
-    part = view.instance == 1
-    rgb = np.clip(rng.normal(120.0, 4.0, part.shape + (3,)), 0, 255)
-    light = np.abs(np.sum(view.normals_c * view.ray_dirs_c, axis=-1))
-    rgb[part] = np.array([70.0, 100.0, 190.0]) * (0.2 + 0.8 * light[part, None])
-    depth = view.depth_m + rng.normal(0.0, noise_m, part.shape).astype(np.float32)
-    return rgb.astype(np.uint8), np.where(view.depth_m > 0, depth, 0).astype(np.float32), part
+    return side_scene(vertices, faces, T_world_object, noise_m=noise_m, seed=seed, shaded=True)
 
 
 @pytest.mark.parametrize('wrong_deg', [30.0, -20.0, 45.0, 8.0])

@@ -1,0 +1,36 @@
+"""One part on a grey table seen by the default rig's side camera, for the pose checks' tests
+that read the colour image (flat parts, near-symmetric turns)."""
+from __future__ import annotations
+
+import numpy as np
+
+from tlessbot_ros.core.common import MeshRenderer, default_rig
+
+SIDE = default_rig()['side']
+# a table 2 x 2 m in the world's z = 0 plane: (vertices m, faces)
+TABLE = (np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64),
+         np.array([[0, 1, 2], [0, 2, 3]]))
+PART_RGB = np.array([70.0, 100.0, 190.0])
+
+
+def side_scene(vertices: np.ndarray, faces: np.ndarray, T_world_object: np.ndarray, *,
+               noise_m: float, seed: int = 0, shaded: bool = False
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Side view of the part (vertices m) on the table: (rgb (h, w, 3) uint8, depth (h, w)
+    float32 m with Gaussian noise of ``noise_m``, part mask (h, w) bool). ``shaded``: the
+    part lit from the camera (a surface seen at a grazing angle, a hole's wall, is darker);
+    else one flat colour."""
+    renderer = MeshRenderer()
+    renderer.add_mesh(*TABLE)
+    renderer.add_mesh(vertices, faces, T_world_object)
+    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
+    rng = np.random.default_rng(seed)
+    part = view.instance == 1
+    rgb = np.clip(rng.normal(120.0, 4.0, part.shape + (3,)), 0, 255)
+    if shaded:
+        light = np.abs(np.sum(view.normals_c * view.ray_dirs_c, axis=-1))
+        rgb[part] = PART_RGB * (0.2 + 0.8 * light[part, None])
+    else:
+        rgb[part] = PART_RGB
+    depth = view.depth_m + rng.normal(0.0, noise_m, part.shape).astype(np.float32)
+    return rgb.astype(np.uint8), np.where(view.depth_m > 0, depth, 0).astype(np.float32), part
