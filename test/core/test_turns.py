@@ -145,3 +145,23 @@ def test_turn_params_reject_bad_values():
         TurnParams(step_deg=0.0)
     with pytest.raises(ValueError, match='min_gain'):
         TurnParams(min_gain=2.0)
+
+
+def _listed_turns(obj) -> bool:
+    return any(isinstance(key, tuple) and len(key) == 2 and isinstance(key[1], tuple)
+               and key[1][:1] == ('near_turns',) for key in obj._cache)
+
+
+def test_turns_are_listed_at_warm_up_only_where_frames_bring_colour():
+    """A pose node without colour input never runs the check: its start-up lists no turns."""
+    from types import SimpleNamespace
+
+    from tlessbot_ros.core.params import FitParams
+    from tlessbot_ros.core.turn_check import warm_up_turns
+
+    _, _, obj = _disc(False)
+    database = SimpleNamespace(objects={1: obj})
+    warm_up_turns(database, FitParams(), colour=False)
+    assert not _listed_turns(obj)
+    warm_up_turns(database, FitParams())
+    assert _listed_turns(obj)

@@ -175,12 +175,12 @@ class PerceptionPipeline:
             warm_up_checks(self.pose_estimator.database, new.lookalike, new.flat_ids)
         return new
 
-    def warm_up(self) -> None:
-        """Build the pose stage's caches now (templates, look-alike meshes): no slow 1st frame."""
+    def warm_up(self, *, colour: bool = True) -> None:
+        """Build the pose stage's caches (the turns' only for ``colour``): no slow 1st frame."""
         if self.pose_estimator is not None:
             self.pose_estimator.warm_up()
             warm_up_checks(self.pose_estimator.database, self.lookalike, self.flat_ids)
-            warm_up_turns(self.pose_estimator.database, self.fit_params)
+            warm_up_turns(self.pose_estimator.database, self.fit_params, colour=colour)
         if self.fit_params.table_plane != 'rig':   # compiles the plane search's loop
             flat = np.full((48, 64), 0.5, np.float32)
             find_table_plane(flat, np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]),

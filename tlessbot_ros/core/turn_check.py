@@ -26,9 +26,12 @@ def _checked(obj: ObjectTemplates, fit: FitParams) -> bool:
         fit.flat.enabled and is_flat(obj, fit.flat.flat_ratio))
 
 
-def warm_up_turns(database: TemplateDatabase, fit: FitParams) -> None:
+def warm_up_turns(database: TemplateDatabase, fit: FitParams, *, colour: bool = True) -> None:
     """List every checked part's near-symmetric turns now (once per part), so the
-    first frame that shows it is not slower than the next."""
+    first frame that shows it is not slower than the next; nothing without ``colour`` views
+    (the check needs them: a pose node without colour input would list them for nothing)."""
+    if not colour:
+        return
     p: TurnParams = fit.turns
     for obj in database.objects.values():
         if _checked(obj, fit):

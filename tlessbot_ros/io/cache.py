@@ -99,17 +99,17 @@ def store_derived(database: TemplateDatabase, templates_path: str | Path, *,
 
 
 def warm_pose_stage(pipeline, templates_path: str | Path, *,
-                    directory: Path | None = None) -> WarmUpReport:
+                    directory: Path | None = None, colour: bool = True) -> WarmUpReport:
     """Ready a :class:`~tlessbot_ros.core.pipeline.PerceptionPipeline`'s pose stage: restore
     the derived arrays from the cache when it has them, then run its warm-up (which also
-    compiles the numba kernels, cached by numba on disk); store the arrays when they were
-    built here."""
+    compiles the numba kernels, cached by numba on disk; ``colour``: whether frames will bring
+    colour images); store the arrays when they were built here."""
     started = time.perf_counter()
     database = pipeline.pose_estimator.database
     fingerprint = file_fingerprint(templates_path)
     from_cache = load_derived(database, templates_path, directory=directory,
                               fingerprint=fingerprint)
-    pipeline.warm_up()
+    pipeline.warm_up(colour=colour)
     stored = None if from_cache else store_derived(database, templates_path,
                                                    directory=directory, fingerprint=fingerprint)
     return WarmUpReport(from_cache, stored, time.perf_counter() - started)

@@ -176,7 +176,8 @@ class PoseEstimatorNode(StageNode):
     def _warm_up(self) -> None:
         """Every cache the first frame would build (from the start-up cache when it has them,
         :func:`~tlessbot_ros.io.cache.warm_pose_stage`), the numba kernels, and the workers."""
-        report = warm_pose_stage(self.pipeline, self._templates_path)
+        report = warm_pose_stage(self.pipeline, self._templates_path,
+                                 colour=self.colour_input)
         # The label kernels of a frame's first steps, on a class image read as one arrives.
         label_boxes(decode_candidates(image_to_array(image_from_cdr(image_to_cdr(
             np.full((4, 4, 2), 1001, np.uint16), '16UC2'))))[0])
