@@ -8,9 +8,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tlessbot_ros.core.flat_parts import colour_views
-from tlessbot_ros.core.pose.flat import is_flat
+from tlessbot_ros.core.flat_parts import colour_views, table_frames
+from tlessbot_ros.core.pose.flat import FlatCheck, is_flat
 from tlessbot_ros.core.pose.flat_turns import mesh_scene
+from tlessbot_ros.core.pose.half_turns import choose_half_turn, self_half_turns
 from tlessbot_ros.core.pose.turns import TurnParams, choose_turn, near_turns
 
 if TYPE_CHECKING:
@@ -38,6 +39,9 @@ def warm_up_turns(database: TemplateDatabase, fit: FitParams, *, colour: bool = 
             near_turns(obj, step_deg=p.step_deg, min_turn_deg=p.min_turn_deg,
                        near_ratio=p.near_ratio, exact_ratio=p.exact_ratio,
                        exact_quantile=p.exact_quantile)
+            if p.half_turns:
+                self_half_turns(obj, min_share=p.half_min_share, exact_ratio=p.exact_ratio,
+                                exact_quantile=p.exact_quantile)
 
 
 def check_turns(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
@@ -66,6 +70,34 @@ def check_turns(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vie
 
     T, info = choose_turn(obj, scene, detection.pose.T_camera_object, evidence, fitness, params)
     if info['turned_deg'] > 0:
+        detection.second = detection.pose
+        detection.pose = replace(detection.pose, T_camera_object=T)
+    if params.half_turns:
+        info.update(check_half_turns(pipeline, job, views, labels))
+    return info
+
+
+def check_half_turns(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+                     labels: dict[str, np.ndarray]) -> dict[str, float]:
+    """Replace ``job``'s pose by a refitted half turn of it that the aligned height and colour
+    votes of every view choose clearly (:func:`~.pose.half_turns.choose_half_turn`; views
+    with a table frame); the former pose becomes the detection's ``second``."""
+    detection = job.detection
+    estimator = pipeline.pose_estimator
+    assert estimator is not None and detection.pose is not None
+    obj = estimator.database[detection.obj_id]
+    cloud = estimator.params.cloud
+    check = FlatCheck(estimator.refiner, pipeline.fit_params.flat,
+                      voxel_scale=estimator.params.table_voxel_scale,
+                      sor_neighbors=cloud.sor_neighbors, sor_std_ratio=cloud.sor_std_ratio)
+    evidence = colour_views(views, labels, detection.instance_id, detection.view,
+                            table_frames(pipeline, views))
+    scene_c = check.prepared_cloud(obj, job.points)
+    if len(scene_c) < 10:
+        return {}
+    T, info = choose_half_turn(check, obj, detection.pose.T_camera_object, scene_c, evidence,
+                               pipeline.fit_params.turns)
+    if info['half_winner'] > 0:
         detection.second = detection.pose
         detection.pose = replace(detection.pose, T_camera_object=T)
     return info

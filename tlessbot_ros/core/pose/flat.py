@@ -234,14 +234,8 @@ class FlatCheck:
         """The fitted pose's depth fitness, the flipped fits that compete with it
         (``(T_camera_object, fitness)`` best first, at most ``candidates`` of them) and the
         prepared ROI cloud they were fitted to."""
-        from tlessbot_ros.core.pose.cloud import remove_statistical_outliers, voxel_downsample
-
         p = self.params
-        scene, _ = voxel_downsample(np.asarray(points_c, np.float64),
-                                    obj.voxel_size_m * self.voxel_scale)
-        if len(scene) >= 10:
-            scene = scene[remove_statistical_outliers(scene, neighbors=self._sor[0],
-                                                      std_ratio=self._sor[1])]
+        scene = self.prepared_cloud(obj, points_c)
         centre = bbox_centre(obj)
         T_world_object = T_world_camera @ T_camera_object
         starts = invert_transform(T_world_camera) @ flipped_poses(
@@ -257,6 +251,18 @@ class FlatCheck:
             if all(_differ(refined[k], T) for T, _ in chosen):
                 chosen.append((refined[k], float(flipped[k])))
         return own, chosen, scene
+
+    def prepared_cloud(self, obj: ObjectTemplates, points_c: np.ndarray) -> np.ndarray:
+        """The ROI cloud as the fit saw it: voxel-downsampled at the part's voxel (times
+        ``voxel_scale``), statistical outliers removed."""
+        from tlessbot_ros.core.pose.cloud import remove_statistical_outliers, voxel_downsample
+
+        scene, _ = voxel_downsample(np.asarray(points_c, np.float64),
+                                    obj.voxel_size_m * self.voxel_scale)
+        if len(scene) >= 10:
+            scene = scene[remove_statistical_outliers(scene, neighbors=self._sor[0],
+                                                      std_ratio=self._sor[1])]
+        return scene
 
     def image_evidence(self, obj: ObjectTemplates, poses: Sequence[np.ndarray],
                        views: Sequence[ViewEvidence]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -59,6 +59,11 @@ class TurnParams:
         jump_m: neighbouring rendered pixels whose depths differ by more are an edge, m.
         crease_deg: neighbouring rendered pixels whose normals differ by more are an edge.
         points: the ROI points the turns' depth fitness is measured on, at most (>= 10).
+        half_turns: also try the half turns that map much of the part onto itself
+            (:mod:`.half_turns`), decided by the aligned votes of every view.
+        half_min_share: ... those that put at least this share of its surface samples within
+            its voxel of the surface (0..1).
+        half_icp_iterations: ICP steps refitting each turned pose to the ROI cloud (>= 1).
     """
 
     enabled: bool = True
@@ -74,6 +79,9 @@ class TurnParams:
     jump_m: float = 0.002
     crease_deg: float = 30.0
     points: int = 500
+    half_turns: bool = True
+    half_min_share: float = 0.4
+    half_icp_iterations: int = 10
 
     def __post_init__(self) -> None:
         if not 0.0 < self.step_deg <= 90.0:
@@ -90,6 +98,9 @@ class TurnParams:
                              f'{self.max_fitness_drop}, {self.min_gain}')
         if self.min_edge_px < 1 or self.points < 10 or self.edge_px <= 0 or self.jump_m <= 0:
             raise ValueError('min_edge_px must be >= 1, points >= 10, edge_px and jump_m > 0')
+        if not 0.0 <= self.half_min_share <= 1.0 or self.half_icp_iterations < 1:
+            raise ValueError('half_min_share must be in 0..1 and half_icp_iterations >= 1, got '
+                             f'{self.half_min_share}, {self.half_icp_iterations}')
 
 
 def _surface_centre(obj: ObjectTemplates) -> np.ndarray:

@@ -1,0 +1,130 @@
+"""Half turns of a fitted part that its depth may not rule out, decided by every view's aligned
+height and colour votes.
+
+A drilled block turned over about any of its axes shows the camera the same box: only its
+holes, 6 mm wide, move (the turn check's edges, :mod:`.turns`, see too few of them to decide).
+A bracket whose two legs differ by a quarter fits one view's depth nearly as well turned about
+the diagonal between them, and the fit's ICP can end there (a local minimum that the true pose
+beats on the depth by 0.05-0.06 of its points). Both are half turns that map a large share of
+the part's surface onto itself: :func:`self_half_turns` lists them once per part, about the
+model frame's axes, the surface's principal axes and the diagonals between any two of those,
+each through the point that maps the turned surface best onto itself (a few steps of
+translation-only ICP of the surface samples onto themselves, as Besl & McKay, PAMI 1992). A
+turn is kept when at least ``min_share`` of the turned samples lie within the part's voxel (the
+fit's own correspondence scale) of the surface (a view sees about half of a part, so a turn
+that puts less back cannot fit one) and it is no exact symmetry (those look the same).
+
+:func:`choose_half_turn` turns the fitted pose by each, refits each to the ROI cloud, and lets
+the turned fits that explain the depth about as well compete with the fit on the aligned
+height and colour votes of every view (:meth:`~.flat.FlatCheck.aligned_winner`, the flat
+parts' vote: each rendering aligned by a few pixels, compared pixel by pixel, a clear margin).
+
+Poses are ``T_camera_object`` (4, 4) metres, optical frame; turns (4, 4) in the model frame.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, cast
+
+import numpy as np
+
+from tlessbot_ros.core.common import rotation_about_axis
+from tlessbot_ros.core.pose.fallback import turn_axes
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.pose.database import ObjectTemplates
+    from tlessbot_ros.core.pose.flat import FlatCheck, ViewEvidence
+    from tlessbot_ros.core.pose.turns import TurnParams
+
+
+def half_turn_axes(points: np.ndarray) -> list[np.ndarray]:
+    """The axes half turns are tried about: :func:`~.fallback.turn_axes` (the model frame's and
+    the principal axes) and the diagonals (a ± b) / √2 of any two of them, none within 5° of
+    another (unit vectors)."""
+    base = turn_axes(points)
+    axes = list(base)
+    cos5 = np.cos(np.radians(5.0))
+    for i, a in enumerate(base):
+        for b in base[i + 1:]:
+            for sign in (1.0, -1.0):
+                v = a + sign * b
+                v = v / np.linalg.norm(v)
+                if all(abs(v @ u) < cos5 for u in axes):
+                    axes.append(v)
+    return axes
+
+
+def self_half_turns(obj: ObjectTemplates, *, min_share: float = 0.4,
+                    exact_ratio: float = 3.0, exact_quantile: float = 0.98,
+                    steps: int = 6) -> np.ndarray:
+    """(K, 4, 4) the half turns about :func:`half_turn_axes` that map at least ``min_share`` of
+    the part's surface samples within its voxel of the surface, and are no exact symmetry
+    (the ``exact_quantile`` of the distances at most ``exact_ratio`` sample spacings, as
+    :func:`~.turns.near_turns` judges it); each through the point found by ``steps`` steps of
+    translation-only ICP of the turned samples onto the samples (median offset). Cached."""
+    from tlessbot_ros.core.pose.turns import _surface_centre
+
+    key = ('self_half_turns', float(min_share), float(exact_ratio), float(exact_quantile),
+           int(steps))
+
+    def build() -> np.ndarray:
+        model = obj.model_points.astype(np.float64)
+        tree = obj.model_tree()
+        sub = model[::max(1, len(model) // 1500)]
+        spacing = float(np.median(tree.query(sub, k=2)[0][:, 1]))
+        centre = _surface_centre(obj)
+        kept = []
+        for axis in half_turn_axes(model):
+            S = np.eye(4)
+            S[:3, :3] = rotation_about_axis(axis, np.pi)
+            S[:3, 3] = centre - S[:3, :3] @ centre
+            for _ in range(steps):
+                moved = sub @ S[:3, :3].T + S[:3, 3]
+                S[:3, 3] += np.median(model[tree.query(moved)[1]] - moved, axis=0)
+            d = tree.query(sub @ S[:3, :3].T + S[:3, 3])[0]
+            if np.quantile(d, exact_quantile) <= exact_ratio * spacing:
+                continue   # an exact symmetry: it looks the same
+            if np.mean(d <= obj.voxel_size_m) >= min_share:
+                kept.append(S)
+        return np.array(kept).reshape(-1, 4, 4)
+    return cast(np.ndarray, obj.derived(key, build))
+
+
+def choose_half_turn(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np.ndarray,
+                     scene_c: np.ndarray, views: Sequence[ViewEvidence], params: TurnParams
+                     ) -> tuple[np.ndarray, dict[str, float]]:
+    """The fitted pose or the refitted half turn of it (:func:`self_half_turns`) that the
+    aligned votes of every view choose by a clear margin.
+
+    Each turned pose is refitted to the ROI cloud ``scene_c`` (``half_icp_iterations`` steps of
+    the pose stage's ICP); those whose depth fitness is at most ``max_fitness_drop`` below the
+    fitted pose's compete with it (:meth:`~.flat.FlatCheck.aligned_winner`: ``check``'s
+    ``align_px``, ``depth_tolerance_m`` and ``align_min_z``).
+
+    Returns:
+        the pose and what decided: ``half_turns`` that competed, ``half_fitness`` of the
+        fitted pose, ``half_winner`` (0: the fitted pose) and ``half_decided``.
+    """
+    from tlessbot_ros.core.pose.flat_turns import mesh_scene
+
+    T0 = np.asarray(T_camera_object, np.float64)
+    info = {'half_turns': 0.0, 'half_fitness': 0.0, 'half_winner': 0.0, 'half_decided': 0.0}
+    mesh = mesh_scene(obj)
+    turns = self_half_turns(obj, min_share=params.half_min_share,
+                            exact_ratio=params.exact_ratio, exact_quantile=params.exact_quantile)
+    if mesh is None or not len(turns) or not any(v.plane is not None for v in views):
+        return T0, info
+    refiner = check.refiner
+    turned = refiner.icp_batch(scene_c, obj, T0 @ turns, iterations=params.half_icp_iterations)
+    fitness = refiner.grid_fitness(np.concatenate([T0[None], turned]), scene_c, obj)
+    keep = np.flatnonzero(fitness[1:] >= fitness[0] - params.max_fitness_drop)
+    info.update(half_turns=float(len(keep)), half_fitness=float(fitness[0]))
+    if not len(keep):
+        return T0, info
+    poses = [T0] + [turned[k] for k in keep]
+    found: dict[str, float] = {}
+    k = check.aligned_winner(obj, [mesh] * len(poses), poses, views, found)
+    info.update(half_winner=float(k), half_decided=found.get('align_decided', 0.0))
+    return poses[k], info
+
+__all__ = ['choose_half_turn', 'half_turn_axes', 'self_half_turns']
