@@ -97,14 +97,15 @@ def choose_half_turn(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np
     aligned votes of every view choose by a clear margin.
 
     Each turned pose is refitted to the ROI cloud ``scene_c`` (``half_icp_iterations`` steps of
-    the pose stage's ICP); those whose depth fitness is at most ``max_fitness_drop`` below the
-    fitted pose's compete with it (:meth:`~.flat.FlatCheck.aligned_winner`: ``check``'s
+    the pose stage's ICP); the ``half_candidates`` best by depth fitness among those at most
+    ``max_fitness_drop`` below the fitted pose's, each a distinct pose, compete with it (:meth:`~.flat.FlatCheck.aligned_winner`: ``check``'s
     ``align_px``, ``depth_tolerance_m`` and ``align_min_z``).
 
     Returns:
         the pose and what decided: ``half_turns`` that competed, ``half_fitness`` of the
         fitted pose, ``half_winner`` (0: the fitted pose) and ``half_decided``.
     """
+    from tlessbot_ros.core.pose.candidates import poses_differ
     from tlessbot_ros.core.pose.flat_turns import mesh_scene
 
     T0 = np.asarray(T_camera_object, np.float64)
@@ -117,11 +118,18 @@ def choose_half_turn(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np
     refiner = check.refiner
     turned = refiner.icp_batch(scene_c, obj, T0 @ turns, iterations=params.half_icp_iterations)
     fitness = refiner.grid_fitness(np.concatenate([T0[None], turned]), scene_c, obj)
-    keep = np.flatnonzero(fitness[1:] >= fitness[0] - params.max_fitness_drop)
-    info.update(half_turns=float(len(keep)), half_fitness=float(fitness[0]))
-    if not len(keep):
+    poses = [T0]
+    for k in np.argsort(-fitness[1:], kind='stable'):
+        # best depth first; one of each refitted pose (a turn refitted back onto the fit, or
+        # onto another turn, would split the duels it is part of)
+        if len(poses) > params.half_candidates or \
+                fitness[1 + k] < fitness[0] - params.max_fitness_drop:
+            break
+        if all(poses_differ(turned[k], T) for T in poses):
+            poses.append(turned[k])
+    info.update(half_turns=float(len(poses) - 1), half_fitness=float(fitness[0]))
+    if len(poses) < 2:
         return T0, info
-    poses = [T0] + [turned[k] for k in keep]
     found: dict[str, float] = {}
     k = check.aligned_winner(obj, [mesh] * len(poses), poses, views, found)
     info.update(half_winner=float(k), half_decided=found.get('align_decided', 0.0))

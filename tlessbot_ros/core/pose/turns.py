@@ -63,7 +63,9 @@ class TurnParams:
             (:mod:`.half_turns`), decided by the aligned votes of every view.
         half_min_share: ... those that put at least this share of its surface samples within
             its voxel of the surface (0..1).
-        half_icp_iterations: ICP steps refitting each turned pose to the ROI cloud (>= 1).
+        half_icp_iterations: ICP steps refitting each turned pose to the ROI cloud (>= 1; the
+            fit's polish takes 30).
+        half_candidates: at most this many refitted turns, best by depth, compete (>= 1).
     """
 
     enabled: bool = True
@@ -81,7 +83,8 @@ class TurnParams:
     points: int = 500
     half_turns: bool = True
     half_min_share: float = 0.4
-    half_icp_iterations: int = 10
+    half_icp_iterations: int = 30
+    half_candidates: int = 3
 
     def __post_init__(self) -> None:
         if not 0.0 < self.step_deg <= 90.0:
@@ -98,9 +101,12 @@ class TurnParams:
                              f'{self.max_fitness_drop}, {self.min_gain}')
         if self.min_edge_px < 1 or self.points < 10 or self.edge_px <= 0 or self.jump_m <= 0:
             raise ValueError('min_edge_px must be >= 1, points >= 10, edge_px and jump_m > 0')
-        if not 0.0 <= self.half_min_share <= 1.0 or self.half_icp_iterations < 1:
-            raise ValueError('half_min_share must be in 0..1 and half_icp_iterations >= 1, got '
-                             f'{self.half_min_share}, {self.half_icp_iterations}')
+        if not 0.0 <= self.half_min_share <= 1.0 or self.half_icp_iterations < 1 or \
+                self.half_candidates < 1:
+            raise ValueError('half_min_share must be in 0..1, half_icp_iterations and '
+                             'half_candidates >= 1, got '
+                             f'{self.half_min_share}, {self.half_icp_iterations}, '
+                             f'{self.half_candidates}')
 
 
 def _surface_centre(obj: ObjectTemplates) -> np.ndarray:
