@@ -24,14 +24,14 @@ DIAGONAL = np.array([1.0, 0.0, 1.0]) / np.sqrt(2.0)   # between the bracket's le
 @pytest.fixture(scope='module')
 def bracket():
     """The generator's short bracket (legs 40 and 30 mm, 25 wide, 5 thick): (vertices m,
-    faces), its templates resting on its long leg."""
+    faces), its templates resting on its long leg, their database."""
     sdf, (low, high) = gen.part_shapes()['bracket_short']
     v, f = gen.mesh_part(sdf, low, high, spacing_mm=0.7)
     v = v / 1000.0
     lift = make_transform(np.eye(3), [0.0, 0.0, -float(v[:, 2].min())])
     db = build_database([(1, v, f, [(lift, 1.0)], None)], intrinsics=SIDE.intrinsics,
                         T_world_camera=SIDE.T_world_camera)
-    return v, f, db[1]
+    return v, f, db[1], db
 
 
 def _axis(S: np.ndarray) -> np.ndarray:
@@ -40,7 +40,7 @@ def _axis(S: np.ndarray) -> np.ndarray:
 
 
 def test_the_diagonal_half_turn_is_listed_where_the_turn_listing_has_none(bracket):
-    _, _, obj = bracket
+    _, _, obj, _ = bracket
     turns = self_half_turns(obj)
     assert len(turns)
     assert all(abs(rotation_angle_deg(S[:3, :3], np.eye(3)) - 180.0) < 1e-6 for S in turns)
@@ -71,7 +71,7 @@ def _views_and_cloud(v, f, T_world_object):
 
 
 def test_a_fit_stuck_on_the_diagonal_half_turn_is_turned_back(bracket):
-    v, f, obj = bracket
+    v, f, obj, _ = bracket
     lift = -float(v[:, 2].min())
     T_world_object = make_transform(np.eye(3), [0.005, -0.01, lift]) @ make_transform(
         np.eye(3), [-0.02, 0.0, 0.0])
@@ -92,7 +92,7 @@ def test_a_fit_stuck_on_the_diagonal_half_turn_is_turned_back(bracket):
 
 
 def test_no_candidates_without_a_table_plane(bracket):
-    v, f, obj = bracket
+    v, f, obj, _ = bracket
     T = np.linalg.inv(SIDE.T_world_camera) @ make_transform(np.eye(3), [0.0, 0.0, 0.0])
     view = ViewEvidence(None, np.zeros((480, 640), bool), SIDE.intrinsics, np.eye(4))
     check = FlatCheck(Refiner(PoseParams()), FlatParams())
@@ -105,3 +105,33 @@ def test_half_turn_params_reject_bad_values():
         TurnParams(half_min_share=1.5)
     with pytest.raises(ValueError, match='half_icp_iterations'):
         TurnParams(half_icp_iterations=0)
+
+
+def test_the_pipeline_turns_a_stuck_fit_back(bracket):
+    """In the composed pipeline (the checks after a fit): a bracket fitted at the diagonal
+    half turn comes out at the true pose, the stuck fit its second."""
+    from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
+    from tlessbot_ros.core.pose.candidates import PoseCandidate
+
+    v, f, obj, database = bracket
+    lift = -float(v[:, 2].min())
+    T_world_object = make_transform(np.eye(3), [-0.015, -0.01, lift])
+    rgb, depth, mask = side_scene(v, f, T_world_object, noise_m=0.0005, shaded=True)
+    T_true = np.linalg.inv(SIDE.T_world_camera) @ T_world_object
+    points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
+    refiner = Refiner(PoseParams())
+    S = min(self_half_turns(obj), key=lambda S: -abs(_axis(S) @ DIAGONAL))
+    T_stuck = refiner.icp_batch(points, obj, (T_true @ S)[None], iterations=30)[0]
+
+    class StuckFitter:
+        def fit_all(self, jobs, fit_here, on_done):
+            for job in jobs:
+                job.detection.pose = PoseCandidate(T_stuck, 0.9, 0.001, 1.0, 'table', -1, 0)
+                on_done(job)
+
+    pipeline = PerceptionPipeline(templates=database)
+    views = {'side': ViewInput(rgb, depth, SIDE.intrinsics, SIDE.T_world_camera)}
+    [detection] = pipeline.estimate_poses(views, {'side': mask.astype(np.uint16)}, {1: 1},
+                                          box_mode=True, fitter=StuckFitter())
+    assert rotation_angle_deg(detection.pose.T_camera_object[:3, :3], T_true[:3, :3]) < 5.0
+    assert np.array_equal(detection.second.T_camera_object, T_stuck)
