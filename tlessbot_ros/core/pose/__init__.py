@@ -9,7 +9,8 @@ search and the orchestration), ``hypotheses`` (the table path's resting hypothes
 ``ransac`` (the paper's FPFH + RANSAC path), ``grid_kernels``
 and ``buckets`` (the fast lookups), ``fallback`` (the bounded 6-DOF search for parts off the
 table path), ``lookalike``, ``flat`` (which face of a flat part is up), ``turns`` (near-symmetric
-turns told apart by the colour image), ``derived``
+turns told apart by the colour image), ``half_turns`` (half turns decided by every view's
+height and colour), ``derived``
 (start-up arrays to cache).
 Surface sampling is :func:`tlessbot_ros.core.common.sample_surface`.
 
@@ -99,6 +100,8 @@ _HOME = {
     'Refiner': 'refinement',
     'inside_outline': 'silhouette',
     'TurnParams': 'turns',
+    'choose_half_turn': 'half_turns',
+    'self_half_turns': 'half_turns',
     'choose_turn': 'turns',
     'near_turns': 'turns',
     'rendered_edges': 'turns',
@@ -183,6 +186,10 @@ if TYPE_CHECKING:
         normal_equations,
         self_visible,
         truncated_cost,
+    )
+    from tlessbot_ros.core.pose.half_turns import (  # noqa: F401
+        choose_half_turn,
+        self_half_turns,
     )
     from tlessbot_ros.core.pose.lookalike import (  # noqa: F401
         MISS_ERROR_M,
