@@ -82,10 +82,7 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
         return None
     database = estimator.database
     obj = database[detection.obj_id]
-    cloud = estimator.params.cloud
-    check = FlatCheck(estimator.refiner, pipeline.fit_params.flat,
-                      voxel_scale=estimator.params.table_voxel_scale,
-                      sor_neighbors=cloud.sor_neighbors, sor_std_ratio=cloud.sor_std_ratio)
+    check = flat_check(pipeline)
     if not check.applies(obj):
         return None
     evidence = colour_views(views, labels, detection.instance_id, detection.view,
@@ -116,6 +113,18 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
         detection.second = detection.pose
         detection.pose = replace(detection.pose, T_camera_object=T)
     return info
+
+
+def flat_check(pipeline: PerceptionPipeline) -> FlatCheck:
+    """The pipeline's :class:`~tlessbot_ros.core.pose.FlatCheck`: its refiner, ``flat``
+    settings and the ROI cloud's preparation (voxel scale, outlier removal) as the fit had it
+    (the pipeline must have a pose estimator)."""
+    estimator = pipeline.pose_estimator
+    assert estimator is not None
+    cloud = estimator.params.cloud
+    return FlatCheck(estimator.refiner, pipeline.fit_params.flat,
+                     voxel_scale=estimator.params.table_voxel_scale,
+                     sor_neighbors=cloud.sor_neighbors, sor_std_ratio=cloud.sor_std_ratio)
 
 
 def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],

@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tlessbot_ros.core.flat_parts import colour_views, table_frames
-from tlessbot_ros.core.pose.flat import FlatCheck, is_flat
+from tlessbot_ros.core.flat_parts import colour_views, flat_check, table_frames
+from tlessbot_ros.core.pose.flat import is_flat
 from tlessbot_ros.core.pose.flat_turns import mesh_scene
 from tlessbot_ros.core.pose.half_turns import choose_half_turn, self_half_turns
 from tlessbot_ros.core.pose.turns import TurnParams, choose_turn, near_turns
@@ -86,10 +86,7 @@ def check_half_turns(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
     estimator = pipeline.pose_estimator
     assert estimator is not None and detection.pose is not None
     obj = estimator.database[detection.obj_id]
-    cloud = estimator.params.cloud
-    check = FlatCheck(estimator.refiner, pipeline.fit_params.flat,
-                      voxel_scale=estimator.params.table_voxel_scale,
-                      sor_neighbors=cloud.sor_neighbors, sor_std_ratio=cloud.sor_std_ratio)
+    check = flat_check(pipeline)
     evidence = colour_views(views, labels, detection.instance_id, detection.view,
                             table_frames(pipeline, views))
     scene_c = check.prepared_cloud(obj, job.points)
