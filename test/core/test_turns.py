@@ -23,7 +23,7 @@ from tlessbot_ros.core.pose import (
     resting_pose,
 )
 from tlessbot_ros.core.pose.flat import ViewEvidence, mesh_scene
-from tlessbot_ros.core.pose.turns import _surface_centre
+from tlessbot_ros.core.pose.turns import surface_centre
 from tlessbot_ros.tools.support import part_generator as gen
 
 
@@ -49,7 +49,7 @@ def holed_disc():
 
 def _turn(obj, angle_deg: float) -> np.ndarray:
     """The turn by ``angle_deg`` about the model z axis through the surface centroid."""
-    centre = _surface_centre(obj)
+    centre = surface_centre(obj)
     R = rotation_about_axis([0.0, 0.0, 1.0], np.radians(angle_deg))
     return make_transform(R, centre - R @ centre)
 

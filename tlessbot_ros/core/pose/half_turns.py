@@ -62,7 +62,7 @@ def self_half_turns(obj: ObjectTemplates, *, min_share: float = 0.4,
     (the ``exact_quantile`` of the distances at most ``exact_ratio`` sample spacings, as
     :func:`~.turns.near_turns` judges it); each through the point found by ``steps`` steps of
     translation-only ICP of the turned samples onto the samples (median offset). Cached."""
-    from tlessbot_ros.core.pose.turns import _surface_centre
+    from tlessbot_ros.core.pose.turns import surface_centre
 
     key = ('self_half_turns', float(min_share), float(exact_ratio), float(exact_quantile),
            int(steps))
@@ -72,7 +72,7 @@ def self_half_turns(obj: ObjectTemplates, *, min_share: float = 0.4,
         tree = obj.model_tree()
         sub = model[::max(1, len(model) // 1500)]
         spacing = float(np.median(tree.query(sub, k=2)[0][:, 1]))
-        centre = _surface_centre(obj)
+        centre = surface_centre(obj)
         kept = []
         for axis in half_turn_axes(model):
             S = np.eye(4)

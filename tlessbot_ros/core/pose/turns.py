@@ -109,7 +109,7 @@ class TurnParams:
                              f'{self.half_candidates}')
 
 
-def _surface_centre(obj: ObjectTemplates) -> np.ndarray:
+def surface_centre(obj: ObjectTemplates) -> np.ndarray:
     """The area-weighted centroid of the part's mesh surface (of its surface samples without a
     mesh): the samples' own mean is a few tenths of a millimetre off (3000 random samples),
     enough to make a turn about it miss an exact symmetry's small features."""
@@ -128,7 +128,7 @@ def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: flo
 
     Candidates: turns by multiples of ``step_deg`` (``min_turn_deg`` or more) about the model
     frame's axes and the surface's principal axes, through the surface centroid
-    (:func:`_surface_centre`). Each is judged by the distances of the turned surface samples
+    (:func:`surface_centre`). Each is judged by the distances of the turned surface samples
     to the nearest sample, in units of the median spacing of neighbouring samples:
     near-symmetric when their median is at most ``near_ratio`` (most of the surface maps onto
     itself: a generic turn by 20° scores 1.8-3, a half-turn of a drilled block 1.2-1.5), exact
@@ -149,7 +149,7 @@ def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: flo
         tree = obj.model_tree()
         sub = model[::max(1, len(model) // 1500)]
         spacing = float(np.median(tree.query(sub, k=2)[0][:, 1]))  # [:, 0]: the sample itself
-        centre = _surface_centre(obj)
+        centre = surface_centre(obj)
         count = int(round(360.0 / step_deg))
         angles = 360.0 * np.arange(1, count) / count
         large = np.minimum(angles, 360.0 - angles) >= min_turn_deg - 1e-6
