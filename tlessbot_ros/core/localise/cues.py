@@ -275,6 +275,12 @@ def range_jumps(depth_m: np.ndarray, ratio: float) -> np.ndarray:
             out[:-1] |= jump
     return out & valid
 
+def table_height_m(params: SegmentationParams, sigma_m: float) -> float:
+    """The height (m) below which a valid depth pixel is table: ``depth_table_height_m``,
+    raised to half ``depth_noise_k`` robust deviations ``sigma_m`` of the table's height."""
+    return max(params.depth_table_height_m, 0.5 * params.depth_noise_k * sigma_m)
+
+
 def depth_cue(height: np.ndarray, params: SegmentationParams, *,
                depth: np.ndarray | None = None) -> DepthCue:
     """Object / table masks from a (h, w) height map (NaN invalid); with the (h, w) depth of
@@ -290,7 +296,7 @@ def depth_cue(height: np.ndarray, params: SegmentationParams, *,
     k = params.depth_noise_k
     low = max(params.depth_min_height_m, k * sigma)
     high = max(params.depth_sure_height_m, 1.5 * k * sigma)
-    table_h = max(params.depth_table_height_m, 0.5 * k * sigma)
+    table_h = table_height_m(params, sigma)
     high_raw = valid & (filled > low)
     # The median over a hole's neighbours fills it (invalid pixels count as table height,
     # so they never make an object on their own).

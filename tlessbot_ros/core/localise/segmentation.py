@@ -35,11 +35,13 @@ from tlessbot_ros.core.localise.cues import (
     opened,
     prepare_background,
     shadow_mask,
+    table_height_m,
     view_depth_cue,
 )
 from tlessbot_ros.core.localise.instances import instances_at_scale, watershed_refine
 from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.part_scale import whole_part_px
+from tlessbot_ros.core.localise.small_parts import small_blobs_from_depth
 from tlessbot_ros.core.localise.thin import thin_instances
 
 if TYPE_CHECKING:
@@ -179,6 +181,14 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         foreground, rgb, small, params,
         surfaces=None if depth_cue is None or not split_by_depth else depth_cue.surfaces,
         height_m=None if depth_cue is None else depth_cue.height_m)
+    if depth_cue is not None and depth_m is not None and T_world_camera is not None and \
+            split_by_depth and params.small_blob_candidates_px > 0:
+        # (the nearer view: a part a few pixels across, outlined by the full-resolution depth)
+        K = np.asarray(getattr(intrinsics, 'K', intrinsics), np.float64)
+        boxes, areas = small_blobs_from_depth(
+            labels, boxes, areas, depth_m, K, T_world_camera, params.small_blob_candidates_px,
+            table_height_m(params, depth_cue.sigma_m),
+            reach_px=int(np.ceil(1 / params.cue_scale)))
     thin = thin_instances(labels, None if depth_cue is None else depth_cue.height_m, params)
     watch.lap('instances')
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,

@@ -1,0 +1,45 @@
+"""A part a few pixels across takes its outline from the full-resolution depth
+(core/localise/small_parts.py); a blob the depth calls table keeps its own."""
+from __future__ import annotations
+
+import numpy as np
+
+from tlessbot_ros.core.localise.small_parts import small_blobs_from_depth
+
+K = np.array([[600.0, 0, 20], [0, 600.0, 20], [0, 0, 1]])
+T = np.diag([1.0, -1.0, -1.0, 1.0])   # 0.6 m above the table, looking straight down
+T[2, 3] = 0.6
+
+
+def _scene():
+    depth = np.full((40, 40), 0.6, np.float32)
+    depth[10:20, 12:21] = 0.594          # a part 6 mm high, 9 x 10 px
+    labels = np.zeros((40, 40), np.uint16)
+    labels[12:22, 14:22] = 1             # its blob, two cue-scale pixels off
+    labels[30:36, 2:8] = 2               # a shadow: table in the depth
+    labels[2:30, 28:38] = 3              # a large part: not touched
+    boxes = np.array([[14, 12, 8, 10], [2, 30, 6, 6], [28, 2, 10, 28]], np.int32)
+    areas = np.array([80, 36, 280], np.int64)
+    return depth, labels, boxes, areas
+
+
+def test_a_small_blob_takes_the_depths_outline_a_shadow_and_a_large_blob_keep_theirs():
+    depth, labels, boxes, areas = _scene()
+    before = labels.copy()
+    new_boxes, new_areas = small_blobs_from_depth(labels, boxes, areas, depth, K, T, 100,
+                                                  0.0025, reach_px=2)
+    assert new_boxes[0].tolist() == [12, 10, 9, 10] and new_areas[0] == 90
+    assert np.array_equal(labels == 1, depth < 0.595)
+    assert np.array_equal(labels == 2, before == 2) and new_boxes[1].tolist() == [2, 30, 6, 6]
+    assert np.array_equal(labels == 3, before == 3) and new_areas[2] == 280
+    # the inputs' boxes and areas are not changed
+    assert boxes[0].tolist() == [14, 12, 8, 10]
+
+
+def test_pixels_without_depth_stay_with_the_part_and_neighbours_are_not_taken():
+    depth, labels, boxes, areas = _scene()
+    depth[14:18, 15:19] = 0.0            # a dark patch: no depth
+    labels[10:12, 12:21] = 4             # a neighbour over the part's top rows
+    small_blobs_from_depth(labels, boxes, areas, depth, K, T, 100, 0.0025, reach_px=2)
+    assert (labels[14:18, 15:19] == 1).all()
+    assert (labels[10:12, 12:21] == 4).all()
