@@ -61,7 +61,7 @@ def test_large_parts_keep_the_fixed_sizes_small_ones_lower_them_where_they_can_b
              (ROD[0], params.part_area_fraction * areas[1],
               longest_part_px(np.array([ROD[:1] * 3]), K, T))]))
         assert min(px for _, px, _ in large.whole_parts) > params.min_area_px
-        assert replace(large, whole_parts=None) == params
+        assert replace(large, whole_parts=None, largest_part_px_m2=None) == params
         assert view_segmentation(params, None, *_camera(rig, camera)) is params
     side = view_segmentation(params, np.array([TLESS_SMALLEST, NUT, ROD]), *_camera(rig, 'side'))
     area, width = part_view_size(np.array([NUT]), *_camera(rig, 'side'))
@@ -73,7 +73,7 @@ def test_large_parts_keep_the_fixed_sizes_small_ones_lower_them_where_they_can_b
     # from the top (1.1 m) the nut is about 20 px: no larger than the noise the opening
     # clears, so that view keeps its sizes (the side view finds the nut)
     top = view_segmentation(params, np.array([NUT]), *_camera(rig, 'top'))
-    assert replace(top, whole_parts=None) == params
+    assert replace(top, whole_parts=None, largest_part_px_m2=None) == params
     assert 0 < top.whole_parts[0][1] < 20
     off = SegmentationParams(part_area_fraction=0.0, part_width_fraction=0.0)
     assert view_segmentation(off, np.array([NUT]), *_camera(rig, 'side')) is off

@@ -27,7 +27,7 @@ import numpy as np
 from tlessbot_ros.core.common import label_boxes
 from tlessbot_ros.core.localise.cues import Surfaces, depth_cue, opened
 from tlessbot_ros.core.localise.params import SegmentationParams
-from tlessbot_ros.core.localise.part_scale import join_pieces_no_part_fits
+from tlessbot_ros.core.localise.part_scale import join_pieces_no_part_fits, several_parts
 from tlessbot_ros.core.localise.thin import is_thin
 
 
@@ -171,8 +171,17 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
             if surfaces is not None:   # (the side view: the top one sees thin parts small)
                 by_colour = join_pieces_no_part_fits(by_colour, params)
             for piece_mask in by_colour:
-                parts = piece_mask.astype(np.int32) if thin else \
+                # a thin blob larger than any part can look is several parts: divided too,
+                # each piece a group of its own (the fusion keeps them apart)
+                several = thin and surfaces is not None and \
+                    several_parts(piece_mask, surfaces.depth_m[y0:y1, x0:x1], params)
+                parts = piece_mask.astype(np.int32) if thin and not several else \
                     _split_at_distance_cores(piece_mask, crop, params)
+                if several and parts.max() > 1:
+                    found += [(parts == k, n_groups + k)   # (thin: no depth groups)
+                              for k in range(1, int(parts.max()) + 1)]
+                    n_groups += int(parts.max())
+                    continue
                 found += [(parts == k, group) for k in range(1, int(parts.max()) + 1)]
         n_groups += len(by_depth) if len(set(ties)) > 1 else 0
         if len(found) > 1:
@@ -271,8 +280,9 @@ def _scaled_params(params: SegmentationParams, s: float) -> SegmentationParams:
     dataclass's checks cost ~0.1 ms a frame)."""
     whole = None if params.whole_parts is None else \
         tuple((a, px * s * s, look * s) for a, px, look in params.whole_parts)
+    largest = None if params.largest_part_px_m2 is None else params.largest_part_px_m2 * s * s
     return replace(params, min_area_px=max(1, int(round(params.min_area_px * s * s))),
-                   whole_parts=whole,
+                   whole_parts=whole, largest_part_px_m2=largest,
                    split_min_depth_px=params.split_min_depth_px * s,
                    split_min_core_px=max(1, int(round(params.split_min_core_px * s * s))),
                    depth_split_min_px=max(1, int(round(params.depth_split_min_px * s * s))))

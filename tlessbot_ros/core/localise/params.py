@@ -69,6 +69,10 @@ class SegmentationParams:
             whole in this view, ``part_area_fraction`` of its expected area, and the longest
             it can look there, in px), set by :mod:`.part_scale`; None: unknown (no ROS
             parameter).
+        largest_part_px_m2: with the parts' sizes, the most image pixels any part can cover
+            at 1 m from the camera (its largest outline, :mod:`.part_scale`; at z m: this
+            over z squared); a blob larger than that is several parts, thin or not, and is
+            divided; None: unknown (no ROS parameter).
 
     ``methods``: 'watershed' adds the grey-level histogram extremes as markers *and* refines the
     union by flooding (without it the union is used as is); 'background' is used only when an
@@ -118,6 +122,7 @@ class SegmentationParams:
     part_area_fraction: float = 0.5
     part_width_fraction: float = 0.5
     whole_parts: tuple[tuple[float, float, float], ...] | None = None
+    largest_part_px_m2: float | None = None
 
     def __post_init__(self) -> None:
         if self.thin_max_height_m < 0 or not 0.0 <= self.thin_quantile <= 1.0 or \

@@ -151,6 +151,38 @@ def join_pieces_no_part_fits(pieces: list[np.ndarray], params: SegmentationParam
     return pieces
 
 
+def largest_part_px_m2(extents_m: np.ndarray, K: np.ndarray) -> float:
+    """The most pixels any part of a set covers in a camera at 1 m (``z_min`` m away: this
+    over ``z_min``**2): a part lies inside its box, whose outline seen from any side is
+    at most ``sqrt((ab)^2 + (bc)^2 + (ca)^2)`` m^2; at the image's corner a ray meets the
+    sensor at the largest angle ``theta`` from the axis, which stretches the outline by at
+    most ``1 / cos(theta)``."""
+    e = np.abs(np.asarray(extents_m, np.float64).reshape(-1, 3))
+    if not len(e):
+        return 0.0
+    a, b, c = e[:, 0], e[:, 1], e[:, 2]
+    outline = float(np.sqrt((a * b) ** 2 + (b * c) ** 2 + (c * a) ** 2).max())
+    K = np.asarray(K, np.float64)
+    tan_corner = float(np.hypot(K[0, 2] / K[0, 0], K[1, 2] / K[1, 1]))
+    return float(K[0, 0] * K[1, 1] * outline * np.sqrt(1.0 + tan_corner ** 2))
+
+
+def several_parts(blob: np.ndarray, depth_m: np.ndarray,
+                  params: SegmentationParams) -> bool:
+    """Whether a blob (bool mask; ``depth_m`` its crop's depth, 0 = invalid, at the same
+    scale) covers more pixels than any part can at its nearest depth
+    (``params.largest_part_px_m2``): several parts. Its rim (the outline is known to one
+    pixel) is not counted; False without the parts or depth."""
+    if not params.largest_part_px_m2:
+        return False
+    z = depth_m[blob]
+    z = z[z > 0]
+    if not z.size:
+        return False
+    inside = cv2.erode(blob.view(np.uint8), np.ones((3, 3), np.uint8))
+    return cv2.countNonZero(inside) > params.largest_part_px_m2 / float(z.min()) ** 2
+
+
 def view_segmentation(params: SegmentationParams, extents_m: np.ndarray | None,
                       K: np.ndarray, T_world_camera: np.ndarray | None) -> SegmentationParams:
     """``params`` with ``min_area_px`` and ``open_px`` for one view of a parts set (see the
@@ -180,9 +212,10 @@ def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[floa
     whole = None if params.part_area_fraction <= 0 else tuple(
         (float(np.abs(e).max()), params.part_area_fraction * float(a),
          longest_part_px(e, camera, pose) or 0.0) for e, a in zip(parts, areas))
+    largest = largest_part_px_m2(parts, camera)
     if area_px < ((2 * params.open_px + 1) / params.cue_scale) ** 2:
         # no larger than the specks the opening clears: not told from noise
-        return replace(params, whole_parts=whole)
+        return replace(params, whole_parts=whole, largest_part_px_m2=largest)
     min_area, open_px = params.min_area_px, params.open_px
     if params.part_area_fraction > 0:
         min_area = min(min_area, max(1, int(params.part_area_fraction * area_px)))
@@ -191,13 +224,15 @@ def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[floa
         widest = params.part_width_fraction * width_px * params.cue_scale
         open_px = min(open_px, max(0, int((widest - 1) // 2)))
     if (min_area, open_px) == (params.min_area_px, params.open_px):
-        return replace(params, whole_parts=whole)
+        return replace(params, whole_parts=whole, largest_part_px_m2=largest)
     # the blobs only the parts' sizes admit keep their candidates' extent
     small = params.small_blob_candidates_px or \
         (params.min_area_px if min_area < params.min_area_px else 0)
     return replace(params, min_area_px=min_area, open_px=open_px,
-                   small_blob_candidates_px=small, whole_parts=whole)
+                   small_blob_candidates_px=small, whole_parts=whole,
+                   largest_part_px_m2=largest)
 
 
-__all__ = ['could_be_whole', 'join_pieces_no_part_fits', 'longest_part_px', 'mask_length_px',
-           'part_view_areas', 'part_view_size', 'view_segmentation', 'whole_part_px']
+__all__ = ['could_be_whole', 'join_pieces_no_part_fits', 'largest_part_px_m2',
+           'longest_part_px', 'mask_length_px', 'part_view_areas', 'part_view_size',
+           'several_parts', 'view_segmentation', 'whole_part_px']
