@@ -1,5 +1,6 @@
-"""A part a few pixels across takes its outline from the full-resolution depth
-(core/localise/small_parts.py); a blob the depth calls table keeps its own."""
+"""A part a few pixels across is completed by the full-resolution depth
+(core/localise/small_parts.py); a blob the depth calls table keeps its own; a thin blob larger
+than any part can look is divided (core/localise/part_scale.py)."""
 from __future__ import annotations
 
 import numpy as np
@@ -24,13 +25,15 @@ def _scene():
     return depth, labels, boxes, areas
 
 
-def test_a_small_blob_takes_the_depths_outline_a_shadow_and_a_large_blob_keep_theirs():
+def test_a_small_blob_grows_to_the_depths_outline_a_shadow_and_a_large_blob_keep_theirs():
     depth, labels, boxes, areas = _scene()
     before = labels.copy()
     new_boxes, new_areas = small_blobs_from_depth(labels, boxes, areas, depth, K, T, 100,
                                                   0.0025, reach_px=2)
-    assert new_boxes[0].tolist() == [12, 10, 9, 10] and new_areas[0] == 90
-    assert np.array_equal(labels == 1, depth < 0.595)
+    # the part's 9 x 10 px and the blob's two rows below it that the depth calls table
+    assert new_boxes[0].tolist() == [12, 10, 10, 12]
+    assert np.array_equal(labels == 1, (depth < 0.595) | (before == 1))
+    assert new_areas[0] == np.count_nonzero(labels == 1)
     assert np.array_equal(labels == 2, before == 2) and new_boxes[1].tolist() == [2, 30, 6, 6]
     assert np.array_equal(labels == 3, before == 3) and new_areas[2] == 280
     # the inputs' boxes and areas are not changed

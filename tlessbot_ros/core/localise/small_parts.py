@@ -1,14 +1,17 @@
-"""The outline of a part a few pixels across, from the depth at the image's own resolution.
+"""The outline of a part a few pixels across, completed by the depth at the image's own
+resolution.
 
 The colour and depth cues are computed at the cue scale (half resolution by default), so a
 blob's outline is known to one cue pixel: two image pixels. For a part 10 image pixels
-across (an 8 mm nut at 0.64 m) that is a box one or two pixels too large or too small on
-each side, and a box 9 x 10 px one pixel off on each side already overlaps the part's by
-less than 0.7. The blobs that only the parts' sizes admit
-(``SegmentationParams.small_blob_candidates_px``, :mod:`.part_scale`) take, instead, the
+across (an 8 mm nut at 0.64 m) that is a box one or two pixels too small or shifted on a
+side, and a box 9 x 10 px one pixel off on each side already overlaps the part's by less
+than 0.7. The blobs that only the parts' sizes admit
+(``SegmentationParams.small_blob_candidates_px``, :mod:`.part_scale`) also take the
 full-resolution depth pixels higher than the table (``table_height_m``: the height below
-which the depth cue calls a pixel table) within one cue pixel of the blob: where the depth
-sees the part, its outline at the image's resolution.
+which the depth cue calls a pixel table) within one cue pixel of them: where the depth sees
+the part beside the blob. The blob only grows (its holes filled): the depth of a part that
+small misses pixels at its rim, and a region shrunk below the classifier's smallest seen
+instance (``ClassifyParams.min_instance_px``) would lose its nearer view's vote.
 """
 from __future__ import annotations
 
@@ -23,11 +26,11 @@ def small_blobs_from_depth(labels: np.ndarray, boxes: np.ndarray, areas: np.ndar
                            below_px: int, table_height_m: float, reach_px: int
                            ) -> tuple[np.ndarray, np.ndarray]:
     """Each instance of fewer than ``below_px`` pixels of ``labels`` ((H, W), changed in
-    place) re-drawn as the full-resolution pixels within ``reach_px`` of it (and of no other
-    instance) whose depth lies higher than ``table_height_m`` above the table, in the pieces
-    that touch it, plus its own pixels without depth (a dark or shiny part returns depth
-    in scattered pixels). It keeps its outline when the depth sees none of it above the
-    table, or less than half of its pixels with depth.
+    place) grown by the full-resolution pixels within ``reach_px`` of it (and of no other
+    instance) whose depth lies higher than ``table_height_m`` above the table, in the
+    pieces that touch it, its holes filled. An instance the depth calls table (none of its
+    pixels higher, or fewer than half of those with depth: a shadow, a print) is left as
+    it is.
 
     Returns:
         the (N, 4) boxes and (N,) areas of the instances, updated.
@@ -52,16 +55,25 @@ def small_blobs_from_depth(labels: np.ndarray, boxes: np.ndarray, areas: np.ndar
         on_part = np.count_nonzero(seen & blob)
         if on_part == 0 or 2 * on_part < np.count_nonzero(valid & blob):
             continue   # the depth calls it table (a shadow, a print): no guide to its outline
-        _, pieces = cv2.connectedComponents((seen | (blob & ~valid)).view(np.uint8),
-                                            connectivity=8)
-        touching = np.unique(pieces[blob & seen])
-        new = np.isin(pieces, touching[touching > 0])
-        window[blob & ~new] = 0
+        # the blob and what the depth calls part beside it
+        _, pieces = cv2.connectedComponents((seen | blob).view(np.uint8), connectivity=8)
+        new = _filled(pieces == pieces[blob][0]) & ((window == 0) | blob)
         window[new] = k + 1
         bx, by, bw, bh = cv2.boundingRect(new.view(np.uint8))
         boxes[k] = (bx + x0, by + y0, bw, bh)
         areas[k] = np.count_nonzero(new)
     return boxes, areas
+
+
+def _filled(mask: np.ndarray) -> np.ndarray:
+    """``mask`` with the holes its outer contour encloses filled: the depth of a part a few
+    pixels across drops single pixels inside it (edges, specular spots), and a part's
+    region is whole."""
+    contours, _ = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL,
+                                   cv2.CHAIN_APPROX_NONE)
+    out = np.zeros(mask.shape, np.uint8)
+    cv2.drawContours(out, contours, -1, 1, thickness=cv2.FILLED)
+    return out.view(bool)
 
 
 __all__ = ['small_blobs_from_depth']
