@@ -170,19 +170,10 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
                 _colour_pieces(depth_piece, crop, params)
             if surfaces is not None:   # (the side view: the top one sees thin parts small)
                 by_colour = join_pieces_no_part_fits(by_colour, params)
-            for piece_mask in by_colour:
-                # a thin blob larger than any part can look is several parts: divided too,
-                # each piece a group of its own (the fusion keeps them apart)
-                several = thin and surfaces is not None and \
-                    several_parts(piece_mask, surfaces.depth_m[y0:y1, x0:x1], params)
-                parts = piece_mask.astype(np.int32) if thin and not several else \
-                    _split_at_distance_cores(piece_mask, crop, params)
-                if several and parts.max() > 1:
-                    found += [(parts == k, n_groups + k)   # (thin: no depth groups)
-                              for k in range(1, int(parts.max()) + 1)]
-                    n_groups += int(parts.max())
-                    continue
-                found += [(parts == k, group) for k in range(1, int(parts.max()) + 1)]
+            more, n_groups = _cores_of_pieces(
+                by_colour, crop, thin, None if surfaces is None else
+                surfaces.depth_m[y0:y1, x0:x1], params, group, n_groups)
+            found += more
         n_groups += len(by_depth) if len(set(ties)) > 1 else 0
         if len(found) > 1:
             pieces[int(i)] = (y0, x0, [(f, g) for f, g in found
@@ -214,6 +205,27 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
         labels[y0:y0 + f.shape[0], x0:x0 + f.shape[1]][f] = k
     return (labels, np.array(boxes, np.int32).reshape(-1, 4),
             np.array(areas, np.int64), np.array(groups, np.int32))
+
+
+def _cores_of_pieces(pieces: list[np.ndarray], crop: np.ndarray | None, thin: bool,
+                     depth_m: np.ndarray | None, params: SegmentationParams, group: int,
+                     n_groups: int) -> tuple[list[tuple[np.ndarray, int]], int]:
+    """The pieces of a blob (a crop's masks) divided at their distance cores, with depth
+    groups, and the groups used so far. A thin piece stays whole unless larger than any
+    part can look at its depth (``depth_m``, :func:`.part_scale.several_parts`): then it is
+    divided too, each part a group of its own (the fusion keeps them apart)."""
+    found: list[tuple[np.ndarray, int]] = []
+    for piece in pieces:
+        several = thin and depth_m is not None and several_parts(piece, depth_m, params)
+        parts = piece.astype(np.int32) if thin and not several else \
+            _split_at_distance_cores(piece, crop, params)
+        count = int(parts.max())
+        if several and count > 1:
+            found += [(parts == k, n_groups + k) for k in range(1, count + 1)]
+            n_groups += count
+        else:
+            found += [(parts == k, group) for k in range(1, count + 1)]
+    return found, n_groups
 
 
 def instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarray,

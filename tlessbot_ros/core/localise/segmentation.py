@@ -181,19 +181,30 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         foreground, rgb, small, params,
         surfaces=None if depth_cue is None or not split_by_depth else depth_cue.surfaces,
         height_m=None if depth_cue is None else depth_cue.height_m)
-    if depth_cue is not None and depth_m is not None and T_world_camera is not None and \
-            split_by_depth and params.small_blob_candidates_px > 0:
-        # (the nearer view: a part a few pixels across, outlined by the full-resolution depth)
-        K = np.asarray(getattr(intrinsics, 'K', intrinsics), np.float64)
-        boxes, areas = small_blobs_from_depth(
-            labels, boxes, areas, depth_m, K, T_world_camera, params.small_blob_candidates_px,
-            table_height_m(params, depth_cue.sigma_m),
-            reach_px=int(np.ceil(1 / params.cue_scale)))
+    if split_by_depth:   # the nearer view: a part a few pixels across, completed by depth
+        boxes, areas = _small_blobs_by_depth(labels, boxes, areas, depth_m, intrinsics,
+                                             T_world_camera, depth_cue, params)
     thin = thin_instances(labels, None if depth_cue is None else depth_cue.height_m, params)
     watch.lap('instances')
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
                         depth_groups=groups, thin=thin, cues=cues, timings_ms=watch.total(),
                         whole_parts=np.array(params.whole_parts or (), float).reshape(-1, 3))
+
+
+def _small_blobs_by_depth(labels: np.ndarray, boxes: np.ndarray, areas: np.ndarray,
+                          depth_m: np.ndarray | None,
+                          intrinsics: CameraIntrinsics | np.ndarray | None,
+                          T_world_camera: np.ndarray | None, depth_cue: DepthCue | None,
+                          params: SegmentationParams) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~tlessbot_ros.core.localise.small_parts.small_blobs_from_depth` where the
+    view has depth and the parts' sizes admit small blobs; the boxes and areas."""
+    if depth_cue is None or depth_m is None or T_world_camera is None or \
+            params.small_blob_candidates_px <= 0:
+        return boxes, areas
+    return small_blobs_from_depth(
+        labels, boxes, areas, depth_m, np.asarray(getattr(intrinsics, 'K', intrinsics)),
+        T_world_camera, params.small_blob_candidates_px,
+        table_height_m(params, depth_cue.sigma_m), int(np.ceil(1 / params.cue_scale)))
 
 
 def _background_for(rgb: np.ndarray, background: np.ndarray | BackgroundModel | None,
