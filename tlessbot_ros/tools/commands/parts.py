@@ -2,6 +2,7 @@
 
     tlessbot parts build --models MY_CAD --out my_parts [--units m] [--config my_cell.yaml]
     tlessbot parts generate --out my_cad      # 8 example parts (plates, brackets, a tube), STL
+    tlessbot parts generate --out held_out --seed 7 --count 8   # parts drawn from a seed
 
 build reads every STL / PLY / OBJ of --models (millimetres, or --units m; any file names, each
 stem a valid ROS name: it names the part's topic /objects/<stem>/pose) and writes into --out
@@ -46,19 +47,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     generate = sub.add_parser('generate', help='write example CAD parts (STL, mm)')
     generate.add_argument('--out', type=Path, required=True, help='folder to write')
     generate.add_argument('--names', nargs='+', help='only these parts')
+    generate.add_argument('--seed', type=int, help='draw a family of parts from this seed '
+                          '(random sizes, holes, look-alike pairs) instead of the fixed 8')
+    generate.add_argument('--count', type=int, default=8,
+                          help='parts drawn with --seed (1 to 26, default 8)')
 
 
 def run(args: argparse.Namespace) -> int:
     from tlessbot_ros.errors import TlessbotError
 
     if args.action == 'generate':
+        from tlessbot_ros.tools.support.part_family import family, generate_family
         from tlessbot_ros.tools.support.part_generator import generate_parts, part_shapes
 
-        unknown = sorted(set(args.names or ()) - set(part_shapes()))
+        if not 1 <= args.count <= 26:
+            raise TlessbotError(f'--count must be 1 to 26, got {args.count}')
+        if args.seed is None and args.count != 8:
+            raise TlessbotError('--count needs --seed (the fixed example parts are 8)')
+        known = sorted(part_shapes() if args.seed is None else family(args.seed, args.count))
+        unknown = sorted(set(args.names or ()) - set(known))
         if unknown:
-            raise TlessbotError(f'no generated part {unknown}; choose from '
-                                f'{sorted(part_shapes())}')
-        paths = generate_parts(args.out, args.names)
+            raise TlessbotError(f'no generated part {unknown}; choose from {known}')
+        paths = generate_parts(args.out, args.names) if args.seed is None else \
+            generate_family(args.out, args.seed, args.count, args.names)
         print(f'{len(paths)} parts -> {args.out}: {", ".join(p.stem for p in paths)}')
         return 0
     from tlessbot_ros.tools.support.parts_build import BuildOptions, build_parts

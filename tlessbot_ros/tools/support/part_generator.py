@@ -7,6 +7,7 @@ negative inside) meshed by marching cubes (Lorensen & Cline, SIGGRAPH 1987, as
 ``skimage.measure.marching_cubes``), then decimated: closed, manifold meshes.
 
     tlessbot parts generate --out my_cad
+    tlessbot parts generate --out held_out --seed 7 --count 8   # drawn at random (part_family)
 """
 from __future__ import annotations
 
@@ -76,6 +77,10 @@ def _bracket(leg_a, leg_b, width, thickness, holes_a, holes_b) -> Sdf:
     return _minus(_union(base, wall), *cut)
 
 
+# The primitives, public for part_family.py (parts of the same kinds drawn from a seed)
+box_sdf, cylinder_sdf, minus_sdf, bracket_sdf = _box, _cylinder, _minus, _bracket
+
+
 def part_shapes() -> dict[str, tuple[Sdf, tuple[np.ndarray, np.ndarray]]]:
     """Name -> (signed distance function in mm, (low, high) bounds in mm)."""
     def bounds(low, high):
@@ -135,6 +140,9 @@ def _rotation(axis, angle_deg: float, centre=(0.0, 0.0, 0.0)) -> list[float]:
     return [round(float(v), 9) for v in T.ravel()]
 
 
+bop_rotation = _rotation
+
+
 def true_symmetries() -> dict[str, dict]:
     """The symmetries each part has by construction (BOP models_info entries, mm); a part not
     listed has none. ``disc_flange``: 4 holes on a circle (8 elements); ``tube``: about its
@@ -148,22 +156,25 @@ def true_symmetries() -> dict[str, dict]:
                      'symmetries_discrete': [_rotation((0, 0, 1), 180)]}}
 
 
-def generate_parts(out: str | Path, names: list[str] | None = None) -> list[Path]:
+def generate_parts(out: str | Path, names: list[str] | None = None, *,
+                   shapes: dict | None = None, symmetries: dict | None = None) -> list[Path]:
     """Write the parts (all, or ``names``) as ``<out>/<name>.stl`` in mm, and their true
     symmetries as ``<out>/symmetries.json`` (by name, as ``tlessbot parts build`` reads it);
-    the STL paths."""
+    the STL paths. The 8 fixed example parts, or ``shapes`` (as :func:`part_shapes`) with
+    their ``symmetries`` (by name; part_family.py draws such parts from a seed)."""
     import json
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    shapes = part_shapes()
+    if shapes is None:
+        shapes, symmetries = part_shapes(), true_symmetries()
+    listed = symmetries or {}
     paths = []
     for name in names or sorted(shapes):
         sdf, (low, high) = shapes[name]
         vertices, faces = mesh_part(sdf, low, high)
         paths.append(out / f'{name}.stl')
         write_mesh(paths[-1], vertices, faces)
-    listed = true_symmetries()
     symmetries = {p.stem: listed.get(p.stem, {'symmetries_discrete': []}) for p in paths}
     (out / 'symmetries.json').write_text(json.dumps(symmetries, indent=1) + '\n')
     return paths
