@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams, ViewEvidence
-from tlessbot_ros.core.pose.flat_turns import refine_yaw
+from tlessbot_ros.core.pose.flat_turns import level_on_table, refine_yaw
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -31,11 +31,18 @@ def check_fitted_part(pipeline: PerceptionPipeline, job: PartJob,
     """The checks of a fitted part that read every view (so the pipeline runs them, not a
     worker): the flat parts' orientation check (:func:`check_flat`), the depth's look-alike
     check (:meth:`PerceptionPipeline.check_lookalike`), then the twins on the image
-    (:func:`check_twins`)."""
+    (:func:`check_twins`). Where the aligned votes decided the face but not the twin, the
+    depth's look-alike check may name the part only as those votes lean
+    (``info['twin_lean']``): it reads a part of their pixels (the depth, not aligned), so a
+    name against their lean comes from the fit's error of a pixel or two at a hole."""
     info = check_flat(pipeline, job, views, labels)
     if info is not None and info.get('align_decided'):
         return   # the aligned votes of every view named the part among its twins too
+    named = job.detection.obj_id
     pipeline.check_lookalike(job)
+    lean = None if info is None else info.get('twin_lean')
+    if lean is not None and job.detection.obj_id not in (named, int(lean)):
+        rename(job.detection, job, named)
     check_twins(pipeline, job, views, labels)
 
 
@@ -103,15 +110,20 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
         T, info['yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
                                         job.T_world_camera, evidence)
         detection.pose = replace(detection.pose, T_camera_object=T)
-    if info.get('align_decided'):   # the aligned votes of every view decided the face
-        return info
-    T, info['depth_turn_vote'] = check.depth_turn(obj, detection.pose.T_camera_object,
-                                                  job.points, job.more_views,
-                                                  job.T_world_camera)
-    if T is not None and not check.ranked_lower(detection.pose.T_camera_object, T):
-        detection.turned_over = not detection.turned_over
-        detection.second = detection.pose
+    if not info.get('face_decided'):   # else the aligned votes of every view decided it
+        T, info['depth_turn_vote'] = check.depth_turn(obj, detection.pose.T_camera_object,
+                                                      job.points, job.more_views,
+                                                      job.T_world_camera)
+        if T is not None and not check.ranked_lower(detection.pose.T_camera_object, T):
+            detection.turned_over = not detection.turned_over
+            detection.second = detection.pose
+            detection.pose = replace(detection.pose, T_camera_object=T)
+    T = level_on_table(detection.pose.T_camera_object, obj.model_points.astype(np.float64),
+                       np.linalg.inv(job.T_world_camera)[:3, 2],
+                       pipeline.fit_params.flat.depth_tolerance_m)
+    if T is not None:
         detection.pose = replace(detection.pose, T_camera_object=T)
+    info['levelled'] = float(T is not None)
     return info
 
 

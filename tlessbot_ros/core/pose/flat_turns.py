@@ -176,5 +176,39 @@ def refit_to_surface(obj: ObjectTemplates, T_camera_object: np.ndarray,
     return np.asarray(T_camera_object @ np.linalg.inv(result.transformation))
 
 
-__all__ = ['bbox_centre', 'mesh_scene', 'outline_frame', 'outline_half_turns', 'outline_yaws',
-           'principal_half_turns', 'refine_yaw', 'refit_to_surface']
+def level_on_table(T_camera_object: np.ndarray, points_o: np.ndarray, normal_c: np.ndarray,
+                   tolerance_m: float) -> np.ndarray | None:
+    """A flat part's pose turned, about its outline's centre, by the least rotation that lays
+    its thin axis along the table's normal ``normal_c`` (camera frame; lying on a face) or
+    square to it (standing on an edge), whichever is nearer; None when that moves a model
+    sample (``points_o``) by more than ``tolerance_m`` (the part leans, or the fit is off by
+    more than the depth's resolution) or by nothing.
+
+    Resting on the table, a flat part's face is level or upright. The depth of a strip 16 mm
+    wide holds its roll about its long axis only to about atan(noise / half-width) (2 mm over
+    8 mm: 14 degrees), so the fit leaves it a few degrees off; a turn that moves no sample by
+    more than the depth resolves is not measured, and the table decides it."""
+    T = np.asarray(T_camera_object, np.float64)
+    centre_o, _, _, thin_o, _ = outline_frame(points_o)
+    normal = np.asarray(normal_c, np.float64) / np.linalg.norm(normal_c)
+    thin = T[:3, :3] @ thin_o
+    along = float(thin @ normal)
+    target = normal * np.sign(along) if abs(along) >= np.sqrt(0.5) \
+        else thin - along * normal
+    target /= np.linalg.norm(target)
+    axis = np.cross(thin, target)
+    angle = float(np.arctan2(np.linalg.norm(axis), thin @ target))
+    if angle <= 0.0 or np.linalg.norm(axis) == 0.0:
+        return None
+    R = rotation_about_axis(axis / np.linalg.norm(axis), angle)
+    centre = T[:3, :3] @ centre_o + T[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = R @ T[:3, :3]
+    out[:3, 3] = centre + R @ (T[:3, 3] - centre)
+    moved = np.linalg.norm(transform_points(out, points_o) - transform_points(T, points_o),
+                           axis=1)
+    return out if float(moved.max()) <= tolerance_m else None
+
+
+__all__ = ['bbox_centre', 'level_on_table', 'mesh_scene', 'outline_frame', 'outline_half_turns',
+           'outline_yaws', 'principal_half_turns', 'refine_yaw', 'refit_to_surface']
