@@ -346,35 +346,6 @@ def test_the_depth_turn_may_not_overturn_what_the_aligned_votes_ranked_lower():
     assert not check.ranked_lower(T1, T0)           # the other way round it ranked higher
 
 
-# ------------------------------------------------------- the face and the twin, decided apart
-def test_a_clear_turn_stands_though_the_twins_stay_level(monkeypatch):
-    # at the turned pose (1) the part and its twin are level (a hole the views hardly show),
-    # while that pose beats the fitted one (0) clearly for both meshes: the turn is taken with
-    # the part's own mesh (its name stays), where one decision for both kept the fitted pose
-    import tlessbot_ros.core.pose.flat_align as flat_align
-
-    own, twin = object(), object()
-    T0 = np.eye(4)
-    T1 = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi), [0, 0, 0])
-    votes = np.array([[0, 5, 0, 5],      # own @ T0
-                      [80, 0, 82, 12],   # own @ T1
-                      [0, 6, 0, 5],      # twin @ T0
-                      [81, 10, 79, 0]])  # twin @ T1
-    monkeypatch.setattr(flat_align, 'view_votes', lambda *args, **kwargs: votes)
-    check = FlatCheck(Refiner(PoseParams()))
-    obj = type('Part', (), {'model_points': np.zeros((4, 3), np.float32)})()
-    info: dict[str, float] = {}
-    k = check.aligned_winner(obj, [own, own, twin, twin], [T0, T1, T0, T1], [], info)
-    assert k == 1 and info['face_decided'] == 1.0 and info['align_decided'] == 0.0, info
-    assert flat_align.split_decision(votes, 1, [(own, T0), (own, T1), (twin, T0), (twin, T1)],
-                                     3.0) == (True, False)
-    # where the twin wins clearly too, both are decided and the twin's index comes back
-    votes[3, 1], votes[1, 3] = 60, 4
-    info = {}
-    assert check.aligned_winner(obj, [own, own, twin, twin], [T0, T1, T0, T1], [], info) == 3
-    assert info['align_decided'] == 1.0 and info['twin_lean'] == 3.0
-
-
 # ------------------------------------------------------------------- level on the table
 @pytest.mark.parametrize('standing', [False, True])
 def test_a_flat_part_the_depth_leaves_rolled_is_levelled_on_the_table(standing):

@@ -31,18 +31,11 @@ def check_fitted_part(pipeline: PerceptionPipeline, job: PartJob,
     """The checks of a fitted part that read every view (so the pipeline runs them, not a
     worker): the flat parts' orientation check (:func:`check_flat`), the depth's look-alike
     check (:meth:`PerceptionPipeline.check_lookalike`), then the twins on the image
-    (:func:`check_twins`). Where the aligned votes decided the face but not the twin, the
-    depth's look-alike check may name the part only as those votes lean
-    (``info['twin_lean']``): it reads a part of their pixels (the depth, not aligned), so a
-    name against their lean comes from the fit's error of a pixel or two at a hole."""
+    (:func:`check_twins`)."""
     info = check_flat(pipeline, job, views, labels)
     if info is not None and info.get('align_decided'):
         return   # the aligned votes of every view named the part among its twins too
-    named = job.detection.obj_id
     pipeline.check_lookalike(job)
-    lean = None if info is None else info.get('twin_lean')
-    if lean is not None and job.detection.obj_id not in (named, int(lean)):
-        rename(job.detection, job, named)
     check_twins(pipeline, job, views, labels)
 
 
@@ -110,7 +103,7 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
         T, info['yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
                                         job.T_world_camera, evidence)
         detection.pose = replace(detection.pose, T_camera_object=T)
-    if not info.get('face_decided'):   # else the aligned votes of every view decided it
+    if not info.get('align_decided'):   # else the aligned votes of every view decided it
         T, info['depth_turn_vote'] = check.depth_turn(obj, detection.pose.T_camera_object,
                                                       job.points, job.more_views,
                                                       job.T_world_camera)

@@ -362,8 +362,6 @@ class FlatCheck:
                                 [T for _ in parts for T in base], views, info)
         winner, k = parts[k // len(base)][0], k % len(base)
         info['twin'] = float(winner.obj_id)
-        if 'twin_lean' in info:
-            info['twin_lean'] = float(parts[int(info['twin_lean']) // len(base)][0].obj_id)
         if k == 0:
             return None, info
         scene, _ = voxel_downsample(np.asarray(points_c, np.float64),
@@ -381,41 +379,25 @@ class FlatCheck:
                        meshes: Sequence[o3d.t.geometry.RaycastingScene],
                        poses: Sequence[np.ndarray], views: Sequence[ViewEvidence],
                        info: dict[str, float]) -> int:
-        """The pose among ``poses`` (of ``meshes``, the fitted pose of ``obj`` first; the
-        look-alike twins at the same poses) that the aligned height and colour votes of every
-        view choose (:func:`~.flat_align.view_votes`), from the winner of the duels between
-        all of them (:func:`~.flat_align.round_robin`); 0 (the fitted pose) when undecided.
-
-        The face and the twin are decided apart (:func:`~.flat_align.split_decision`): the
-        winner's pose stands when it beats every other pose clearly (``align_min_z``;
-        ``info['face_decided']`` 1), and its mesh when it also beats the twins at that pose
-        (``info['align_decided']`` 1, the fitted pose kept as clearly as a turn is taken);
-        with the face decided and the twin not, the part's own mesh at the winner's pose is
-        returned (its name stays the classifier's; ``info['twin_lean']``: the index of the
-        mesh that the votes at that pose favour, if one). A twin differs by one hole, a turn by
-        the whole layout of the holes: where a view shows a hole edge-on or the hole is a few
-        pixels, the twin's duel can stay undecided while the turns are clear."""
-        from tlessbot_ros.core.pose.flat_align import round_robin, split_decision, view_votes
+        """The pose among ``poses`` (of ``meshes``, the fitted pose of ``obj`` first) that the
+        aligned height and colour votes of every view choose
+        (:func:`~.flat_align.view_votes`): the winner of the duels between all of them
+        (:func:`~.flat_align.round_robin`) when its surplus over every other pose is clear
+        (``align_min_z``; ``info['align_decided']`` 1, the fitted pose kept as clearly as a
+        turn is taken); else 0 (undecided)."""
+        from tlessbot_ros.core.pose.flat_align import round_robin, view_votes
+        from tlessbot_ros.core.pose.lookalike import clear_margin
 
         p = self.params
         votes = view_votes(meshes, poses, obj.model_points.astype(np.float64),
                            views, pad=p.align_px, tolerance_m=p.depth_tolerance_m)
         k = round_robin(votes)
-        face, twin = split_decision(votes, k, [(meshes[j], poses[j]) for j in range(len(poses))],
-                                    p.align_min_z)
-        info.update(align_winner=float(k), align_decided=float(face and twin),
-                    face_decided=float(face))
-        same = [j for j in range(len(poses)) if np.array_equal(poses[j], poses[k])]
-        net = [sum(int(votes[j, i]) - int(votes[i, j]) for i in same) for j in same]
-        if face and max(net) > 0 and net.count(max(net)) == 1:
-            info['twin_lean'] = float(same[int(np.argmax(net))])   # the mesh the votes favour
+        decided = all(clear_margin(int(votes[k, j]), int(votes[j, k]), p.align_min_z)
+                      for j in range(len(poses)) if j != k)
+        info.update(align_winner=float(k), align_decided=float(decided))
         own = [j for j in range(len(poses)) if meshes[j] is meshes[0]]
         self.ranked = ([poses[j] for j in own], votes[np.ix_(own, own)])
-        if not face:
-            return 0
-        if twin:
-            return k
-        return next(j for j in own if np.array_equal(poses[j], poses[k]))
+        return k if decided else 0
 
     def image_winner(self, obj: ObjectTemplates, poses: Sequence[np.ndarray],
                      views: Sequence[ViewEvidence], info: dict[str, float]) -> int:

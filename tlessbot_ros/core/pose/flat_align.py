@@ -129,50 +129,38 @@ def alignment_score(view: AlignedView, hit: np.ndarray, height: np.ndarray,
     return float(np.count_nonzero(region & explained) + np.sum(colour[region]))
 
 
-def best_shift(view: AlignedView, k: int, tolerance_m: float) -> tuple[int, int]:
-    """The shift (dx, dy) that moves pose ``k``'s rendering to where it agrees best with the
-    view (:func:`alignment_score`, every whole-pixel shift of at most ``pad``; no shift on a
+def best_shift(view: AlignedView, k: int, tolerance_m: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Pose ``k``'s rendering shifted to where it agrees best with the view
+    (:func:`alignment_score`, every whole-pixel shift of at most ``pad``; no shift on a
     tie)."""
     hit, height = view.renders[k]
     pad = view.pad
-    best = (0, 0)
-    best_score = alignment_score(view, *rendering_at(view, k, best), tolerance_m)
+    best = (shifted(hit, pad, 0, 0), shifted(height, pad, 0, 0))
+    best_score = alignment_score(view, *best, tolerance_m)
     for dy in range(-pad, pad + 1):
         for dx in range(-pad, pad + 1):
             if dx == dy == 0:
                 continue
-            score = alignment_score(view, *rendering_at(view, k, (dx, dy)), tolerance_m)
+            moved = (shifted(hit, pad, dx, dy), shifted(height, pad, dx, dy))
+            score = alignment_score(view, *moved, tolerance_m)
             if score > best_score:
-                best, best_score = (dx, dy), score
+                best, best_score = moved, score
     return best
-
-
-def rendering_at(view: AlignedView, k: int, shift: tuple[int, int]
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Pose ``k``'s rendering (hit, height) over the view's window, moved by ``shift``."""
-    hit, height = view.renders[k]
-    return shifted(hit, view.pad, *shift), shifted(height, view.pad, *shift)
 
 
 def pooled_votes(views: Sequence[AlignedView], count: int, tolerance_m: float
                  ) -> np.ndarray:
     """(count, count) int: [i, j] the pixels of every view that pose i explains better than
-    pose j (:func:`pixel_votes`), compared where they stand together: at pose i's own best
-    shift (:func:`best_shift`) and at pose j's, the mean of the two. Two turns of a
-    symmetric outline, or two twins, cover the same outline; aligned apart, a shift of one
-    pixel between them moves the whole outline and its pixels vote as if the poses differed
-    there (dozens, against the 10-30 pixels of a 4-5 mm hole); at one shift only the pixels
-    where the poses themselves differ vote."""
+    pose j (:func:`pixel_votes`), each pose aligned on its own (:func:`best_shift`)."""
     votes = np.zeros((count, count), np.int64)
     for view in views:
-        shifts = [best_shift(view, k, tolerance_m) for k in range(count)]
+        aligned = [best_shift(view, k, tolerance_m) for k in range(count)]
         for i in range(count):
             for j in range(i + 1, count):
-                both = [pixel_votes(view, rendering_at(view, i, s), rendering_at(view, j, s),
-                                    tolerance_m) for s in {shifts[i], shifts[j]}]
-                favour, against = np.mean(both, axis=0)
-                votes[i, j] += int(favour)
-                votes[j, i] += int(against)
+                votes[i, j], votes[j, i] = np.add(
+                    (votes[i, j], votes[j, i]),
+                    pixel_votes(view, aligned[i], aligned[j], tolerance_m))
     return votes
 
 
@@ -183,28 +171,6 @@ def round_robin(votes: np.ndarray) -> int:
     wins = np.count_nonzero(net > 0, axis=1)
     order = np.lexsort((np.arange(len(wins)), -net.sum(axis=1), -wins))
     return int(order[0])
-
-
-def split_decision(votes: np.ndarray, k: int,
-                   candidates: Sequence[tuple[object, np.ndarray]], min_z: float
-                   ) -> tuple[bool, bool]:
-    """(face, twin): whether candidate ``k`` (``candidates`` (mesh, pose) each, ``votes``
-    their duels as in :func:`pooled_votes`) beats every candidate at another pose by a clear
-    margin (:func:`~.lookalike.clear_margin`, ``min_z``), and every other mesh at its own
-    pose."""
-    from tlessbot_ros.core.pose.lookalike import clear_margin
-
-    pose = candidates[k][1]
-    face = twin = True
-    for j, (_, other) in enumerate(candidates):
-        if j == k:
-            continue
-        clear = clear_margin(int(votes[k, j]), int(votes[j, k]), min_z)
-        if np.array_equal(other, pose):
-            twin = twin and clear
-        else:
-            face = face and clear
-    return face, twin
 
 
 def aligned_view(renderers: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.ndarray]],
@@ -275,5 +241,5 @@ def voting_region(renders: Sequence[tuple[np.ndarray, np.ndarray]], pad: int,
 
 
 __all__ = ['AlignedView', 'aligned_view', 'alignment_score', 'best_shift', 'measured_heights',
-           'pixel_votes', 'pooled_votes', 'render_heights', 'rendering_at', 'round_robin',
-           'shifted', 'split_decision', 'view_votes', 'voting_region']
+           'pixel_votes', 'pooled_votes', 'render_heights', 'round_robin', 'shifted',
+           'view_votes', 'voting_region']
