@@ -11,6 +11,10 @@ processes complete in any order; the answer must not depend on that order. So a 
 decided once it and every detection that could overlap it (ROI centroids within half their
 summed diameters) are fitted: a part with no such neighbour goes out at once, neighbours
 together when the last of them is fitted.
+
+A piece is also a fragment of a neighbour whose fit explains it (``explains``, see
+:mod:`tlessbot_ros.core.one_part`): one part the fusion divided, fitted whole on one piece.
+Each dropped piece's keeper is in :attr:`FragmentFilter.kept_by`, so its region can join it.
 """
 from __future__ import annotations
 
@@ -62,14 +66,19 @@ class FragmentFilter(Generic[D]):
         publish: called once per kept detection, in an order that depends on completion.
         overlap: fraction of the smaller diameter under which two fitted centres are one part
             (0: keep everything).
+        explains: ``explains(a, b)``: whether ``a``'s fit explains ``b``'s depth points (both
+            fitted neighbours); None: centres only.
     """
 
     def __init__(self, pieces: Sequence[tuple[D, np.ndarray, str, int, float]],
-                 publish: Callable[[D], None], *, overlap: float) -> None:
+                 publish: Callable[[D], None], *, overlap: float,
+                 explains: Callable[[D, D], bool] | None = None) -> None:
         self._publish = publish
         self._overlap = float(overlap)
+        self._explains = explains
         self._lock = threading.Lock()
         self.dropped: list[D] = []
+        self.kept_by: dict[int, D] = {}   # id(dropped detection) -> the one it is a piece of
         self._pieces = [_Piece(d, frame, np.asarray(c, np.float64), int(n), float(diam))
                         for d, c, frame, n, diam in pieces]
         self._index = {id(p.detection): k for k, p in enumerate(self._pieces)}
@@ -101,24 +110,34 @@ class FragmentFilter(Generic[D]):
                     not all(self._pieces[b].done for b in piece.neighbours):
                 continue
             piece.decided = True
-            if self._is_fragment(piece):
+            if (keeper := self._fragment_of(piece)) is not None:
                 self.dropped.append(piece.detection)
+                self.kept_by[id(piece.detection)] = keeper
             else:
                 kept.append(piece.detection)
         return kept
 
-    def _is_fragment(self, piece: _Piece[D]) -> bool:
-        """Whether a neighbour that fits better sits on this piece's fitted centre."""
+    def _fragment_of(self, piece: _Piece[D]) -> D | None:
+        """The neighbour this piece is a fragment of, if any: one whose fit explains it where
+        its own fit does not explain the other, or one that fits better and sits on its
+        fitted centre or (each explaining the other) is the same part."""
         if piece.centre is None:
-            return False
+            return None
+        explains = self._explains or (lambda a, b: False)
         for b in piece.neighbours:
             other = self._pieces[b]
-            if other.centre is None or _better(piece, other):
+            if other.centre is None:
                 continue
             limit = self._overlap * min(piece.fitted_diameter_m, other.fitted_diameter_m)
-            if np.linalg.norm(other.centre - piece.centre) < limit:
-                return True
-        return False
+            explained = explains(other.detection, piece.detection)
+            if explained != explains(piece.detection, other.detection):
+                if explained:   # only the other's fit explains both: this is its piece
+                    return other.detection
+                continue
+            if (explained or np.linalg.norm(other.centre - piece.centre) < limit) and \
+                    not _better(piece, other):
+                return other.detection
+        return None
 
 
 def _better(a: _Piece[Any], b: _Piece[Any]) -> bool:
@@ -129,7 +148,9 @@ def _better(a: _Piece[Any], b: _Piece[Any]) -> bool:
 
 
 def fragment_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None],
-                    database: TemplateDatabase, overlap: float) -> FragmentFilter[Detection]:
+                    database: TemplateDatabase, overlap: float,
+                    explains: Callable[[Detection, Detection], bool] | None = None
+                    ) -> FragmentFilter[Detection]:
     """The :class:`FragmentFilter` of one frame's parts (``PartJob`` items): ROI centroids in
     the world (camera frame without a table frame), first-class diameters from ``database``."""
     pieces = []
@@ -140,4 +161,4 @@ def fragment_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None
             centroid = transform_points(job.T_world_camera, centroid[None])[0]
         pieces.append((job.detection, centroid, frame, len(job.points),
                        database[job.candidates[0]].diameter_m))
-    return FragmentFilter(pieces, publish, overlap=overlap)
+    return FragmentFilter(pieces, publish, overlap=overlap, explains=explains)

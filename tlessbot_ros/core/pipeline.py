@@ -50,7 +50,6 @@ from tlessbot_ros.core.common import (
     transform_points,
 )
 from tlessbot_ros.core.flat_parts import check_fitted_part
-from tlessbot_ros.core.fragments import fragment_filter
 from tlessbot_ros.core.frame import (
     ClassGuess,
     Detection,
@@ -80,6 +79,7 @@ from tlessbot_ros.core.localise import (
     single_view,
     view_segmentation,
 )
+from tlessbot_ros.core.one_part import join_pieces, one_part_filter
 from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
 from tlessbot_ros.core.part_fit import (
     check_lookalike,
@@ -409,7 +409,7 @@ class PerceptionPipeline:
         # ground-truth boxes are one part each, never a fragment: in a pile the boxes of
         # long parts (keys, screws) overlap and their fits sit closer than the filter allows
         last = unknown_last(self.fit_params, jobs, done, self.pose_estimator, box_mode=box_mode)
-        arbiter = fragment_filter(jobs, last, database,
+        arbiter = one_part_filter(jobs, last, self.fit_params, self.pose_estimator,
                                   0.0 if box_mode else self.fit_params.fragment_overlap)
 
         def fitted(job: PartJob) -> None:
@@ -423,8 +423,7 @@ class PerceptionPipeline:
                 fitted(job)
         else:
             fitter.fit_all(jobs, self.fit_part, fitted)
-        dropped = {id(d) for d in arbiter.dropped}
-        return [d for d in detections if id(d) not in dropped]
+        return join_pieces(arbiter, detections, labels)   # a dropped piece's region joins
 
     def _lookalike_views(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
                          counts: dict[str, np.ndarray], boxes: dict[str, np.ndarray],
