@@ -14,7 +14,9 @@ together when the last of them is fitted.
 
 A piece is also a fragment of a neighbour whose fit explains it (``explains``, see
 :mod:`tlessbot_ros.core.one_part`): one part the fusion divided, fitted whole on one piece.
-Each dropped piece's keeper is in :attr:`FragmentFilter.kept_by`, so its region can join it.
+A dropped piece that its keeper's fit explains is in :attr:`FragmentFilter.kept_by`, so its
+region can join the keeper (a piece dropped for its fitted centre alone keeps its region: two
+thin parts on top of each other fit one pose).
 """
 from __future__ import annotations
 
@@ -78,7 +80,8 @@ class FragmentFilter(Generic[D]):
         self._explains = explains
         self._lock = threading.Lock()
         self.dropped: list[D] = []
-        self.kept_by: dict[int, D] = {}   # id(dropped detection) -> the one it is a piece of
+        # id(dropped detection) -> the detection whose fit explains it
+        self.kept_by: dict[int, D] = {}
         self._pieces = [_Piece(d, frame, np.asarray(c, np.float64), int(n), float(diam))
                         for d, c, frame, n, diam in pieces]
         self._index = {id(p.detection): k for k, p in enumerate(self._pieces)}
@@ -112,7 +115,8 @@ class FragmentFilter(Generic[D]):
             piece.decided = True
             if (keeper := self._fragment_of(piece)) is not None:
                 self.dropped.append(piece.detection)
-                self.kept_by[id(piece.detection)] = keeper
+                if self._explains is not None and self._explains(keeper, piece.detection):
+                    self.kept_by[id(piece.detection)] = keeper
             else:
                 kept.append(piece.detection)
         return kept

@@ -82,18 +82,19 @@ def points_in_view(job: PartJob, other: PartJob) -> np.ndarray | None:
 
 def join_pieces(arbiter: FragmentFilter[Detection], detections: Sequence[Detection],
                 labels: dict[str, np.ndarray]) -> list[Detection]:
-    """``detections`` less the fragments ``arbiter`` dropped; each dropped piece's region
-    joins the detection it is a piece of in every view of ``labels`` (its arrays are replaced,
-    not written into), and that detection's box grows to the joined region in its view."""
+    """``detections`` less the fragments ``arbiter`` dropped; each dropped piece that another
+    detection's fit explains (``arbiter.kept_by``) joins it in every view of ``labels`` (its
+    arrays are replaced, not written into), and that detection's box grows to the joined
+    region in its view."""
     dropped = {id(d) for d in arbiter.dropped}
     joined: list[Detection] = []
     for piece in arbiter.dropped:
-        keeper = arbiter.kept_by[id(piece)]
+        keeper = arbiter.kept_by.get(id(piece))
         seen = {id(piece)}
-        while id(keeper) in dropped and id(keeper) not in seen:   # a piece of a piece
-            seen.add(id(keeper))
-            keeper = arbiter.kept_by[id(keeper)]
-        if id(keeper) in dropped:
+        while keeper is not None and id(keeper) in dropped and id(keeper) not in seen:
+            seen.add(id(keeper))   # a piece of a piece
+            keeper = arbiter.kept_by.get(id(keeper))
+        if keeper is None or id(keeper) in dropped:
             continue
         for view, image in labels.items():
             where = image == piece.instance_id
