@@ -11,6 +11,7 @@ from tlessbot_ros.core.pose import (
     TemplateDatabase,
     TemplateParams,
     build_database,
+    listed_yaw_period,
     resting_pose,
     yaw_period,
 )
@@ -123,6 +124,54 @@ def test_yaw_period_of_simple_shapes():
     side[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
     side[2, 3] = 0.02
     assert yaw_period(v, f, side, tolerance_m=4e-4) == pytest.approx(np.pi)
+
+
+def _turn_about(axis, angle_deg: float) -> np.ndarray:
+    from tlessbot_ros.core.common import rotation_about_axis
+    T = np.eye(4)
+    T[:3, :3] = rotation_about_axis(axis, np.radians(angle_deg))
+    return T
+
+
+def test_listed_symmetries_give_the_yaw_period():
+    # n-fold about the table normal: 2π/n whatever n (5 is none of the mesh test's 36, 4, 3, 2);
+    # a continuous axis along it: 0; a lying tube's axis across it and a half turn about z: π
+    from tlessbot_ros.core.common import Symmetries
+    z, x = [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]
+    rest = np.eye(4)
+    for n in (2, 4, 5, 7):
+        fold = Symmetries(discrete=tuple(_turn_about(z, 360.0 * k / n) for k in range(1, n)))
+        assert listed_yaw_period(fold, rest) == pytest.approx(2 * np.pi / n)
+    assert listed_yaw_period(Symmetries(), rest) == pytest.approx(2 * np.pi)
+    assert listed_yaw_period(Symmetries(continuous=((z, [0, 0, 0]),)), rest) == 0.0
+    tube = Symmetries(discrete=(_turn_about(z, 180.0),), continuous=((x, [0, 0, 0]),))
+    assert listed_yaw_period(tube, rest) == pytest.approx(np.pi)
+    # a half turn about x (upside down) is no yaw; lying on its side (x up) the tube's axis is
+    # the normal: continuous
+    assert listed_yaw_period(Symmetries(discrete=(_turn_about(x, 180.0),)), rest) == \
+        pytest.approx(2 * np.pi)
+    on_end = np.eye(4)
+    on_end[:3, :3] = [[0, 0, -1], [0, 1, 0], [1, 0, 0]]    # model x -> table z
+    assert listed_yaw_period(tube, on_end) == 0.0
+
+
+def test_templates_take_the_yaw_period_from_the_listed_symmetries():
+    # A disc whose features the mesh test cannot see (here: none at all, a plain cylinder),
+    # listed 4-fold as its holes make it: the listed symmetries decide, not the mesh test
+    # (which reads continuous, and a flat disc's yaw is then never checked)
+    import open3d as o3d
+
+    from tlessbot_ros.core.common import Symmetries
+    cyl = o3d.geometry.TriangleMesh.create_cylinder(radius=0.024, height=0.0044, resolution=72)
+    v, f = np.asarray(cyl.vertices), np.asarray(cyl.triangles)
+    side = default_rig()['side']
+    item = [(9, v, f, [(resting_pose(v), 1.0)], None)]
+    kwargs = dict(intrinsics=side.intrinsics, T_world_camera=side.T_world_camera,
+                  params=TemplateParams(n_views=2))
+    assert build_database(item, **kwargs)[9].yaw_periods[0] == 0.0
+    four = Symmetries(discrete=tuple(_turn_about([0, 0, 1], 90.0 * k) for k in (1, 2, 3)))
+    db = build_database(item, symmetries={9: four}, **kwargs)
+    assert db[9].yaw_periods[0] == pytest.approx(np.pi / 2)
 
 
 def test_precompute_features_fills_every_template(obj21, tmp_path):

@@ -11,7 +11,7 @@ same resting shape (:func:`merge_equivalent_poses`), the yaw period of each stab
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any, cast
 
@@ -23,9 +23,11 @@ from tlessbot_ros.core.common import (
     invert_transform,
     make_transform,
     o3d_tensor,
+    Symmetries,
     point_set_diameter,
     raycasting_scene,
     rotation_about_axis,
+    rotation_angle_deg,
     sample_surface,
     transform_points,
 )
@@ -124,6 +126,23 @@ def yaw_period(vertices: np.ndarray, faces: np.ndarray, T_table_object: np.ndarr
     return 2.0 * np.pi
 
 
+def listed_yaw_period(symmetries: Symmetries, T_table_object: np.ndarray, *,
+                      tolerance_deg: float = 1.0) -> float:
+    """The yaw period of a resting object from its listed symmetries (models_info.json, the
+    ones the scorer uses): 0 when a continuous axis stands along the table normal, else the
+    smallest angle of a listed rotation about the normal (2π/n of an n-fold), 2π for none.
+    Unlike :func:`yaw_period`'s mesh test, a disc whose small holes move too few samples to
+    tell is not taken for continuous, and any n-fold counts (a 5-fold flange too)."""
+    axis = invert_transform(T_table_object)[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    cos_tol = np.cos(np.radians(tolerance_deg))
+    if any(abs(float(np.dot(a, axis))) >= cos_tol for a, _ in symmetries.continuous):
+        return CONTINUOUS_YAW_PERIOD
+    angles = [rotation_angle_deg(S[:3, :3], np.eye(3)) for S in symmetries.discrete
+              if float(np.dot(S[:3, :3] @ axis, axis)) >= cos_tol]   # it keeps the normal
+    angles = [a for a in angles if a > tolerance_deg]
+    return float(np.radians(min(angles))) if angles else 2.0 * np.pi
+
+
 def merge_equivalent_poses(vertices: np.ndarray, faces: np.ndarray,
                            poses: list[tuple[np.ndarray, float]], *, tolerance_m: float,
                            samples: int = 300, yaw_steps: int = 72,
@@ -186,7 +205,8 @@ def build_object_templates(
         stable_poses: Iterable[tuple[np.ndarray, float]], *, intrinsics: CameraIntrinsics,
         T_world_camera: np.ndarray, params: TemplateParams = TemplateParams(),
         diameter_m: float | None = None,
-        position_m: np.ndarray | None = None) -> ObjectTemplates:
+        position_m: np.ndarray | None = None,
+        symmetries: Symmetries | None = None) -> ObjectTemplates:
     """Render the turntable templates of one object.
 
     The object rests on the table (world z = 0) at ``position_m`` (default: where the camera's
@@ -202,6 +222,8 @@ def build_object_templates(
         intrinsics, T_world_camera: the rendering camera (the rig's side camera).
         diameter_m: the object's diameter (computed from the vertices if None).
         position_m: (3,) turntable centre on the table in world coordinates.
+        symmetries: the part's listed symmetries, which give its yaw periods
+            (:func:`listed_yaw_period`); None (none listed): the mesh test of :func:`yaw_period`.
     """
     from tlessbot_ros.core.common import MeshRenderer
 
@@ -218,7 +240,8 @@ def build_object_templates(
     voxel = diam * params.voxel_fraction
     model_points, model_normals = _samples(vertices, faces, params.model_samples,
                                            seed=params.seed)
-    periods = np.array([yaw_period(vertices, faces, T, tolerance_m=0.01 * diam)
+    periods = np.array([listed_yaw_period(symmetries, T) if symmetries is not None else
+                        yaw_period(vertices, faces, T, tolerance_m=0.01 * diam)
                         for T, _ in poses])
     if position_m is None:
         position_m = _optical_axis_on_table(T_world_camera)
@@ -257,10 +280,12 @@ def build_database(models: Iterable[tuple[int, np.ndarray, np.ndarray,
                    intrinsics: CameraIntrinsics, T_world_camera: np.ndarray,
                    params: TemplateParams = TemplateParams(),
                    progress: Callable[[Iterable[Any]], Iterable[Any]] | None = None,
-                   keep_meshes: bool = True) -> TemplateDatabase:
+                   keep_meshes: bool = True,
+                   symmetries: Mapping[int, Symmetries | None] | None = None) -> TemplateDatabase:
     """Templates of several objects: ``models`` yields (obj_id, vertices m, faces,
     stable poses, diameter_m or None); ``progress`` wraps the iterable (e.g. ``tqdm``).
-    ``keep_meshes``: store every part's mesh (off: only look-alikes' and flat parts')."""
+    ``keep_meshes``: store every part's mesh (off: only look-alikes' and flat parts').
+    ``symmetries``: each part's listed symmetries, by id (:func:`build_object_templates`)."""
     items = list(models)
     db = TemplateDatabase(params={**{k: v for k, v in asdict(params).items() if k != 'cloud'},
                                   'T_world_camera': np.asarray(T_world_camera).tolist(),
@@ -269,7 +294,8 @@ def build_database(models: Iterable[tuple[int, np.ndarray, np.ndarray,
     for obj_id, vertices, faces, poses, diam in (progress(items) if progress else items):
         db.objects[int(obj_id)] = build_object_templates(
             obj_id, vertices, faces, poses, intrinsics=intrinsics,
-            T_world_camera=T_world_camera, params=params, diameter_m=diam)
+            T_world_camera=T_world_camera, params=params, diameter_m=diam,
+            symmetries=(symmetries or {}).get(int(obj_id)))
     meshes = {int(obj_id): (vertices, faces) for obj_id, vertices, faces, _, _ in items}
     for obj_id, others in lookalike_pairs(meshes, tolerance_m=params.lookalike_tolerance_m,
                                           min_shared=params.lookalike_min_shared).items():

@@ -65,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
               m.diameter_m) for i, m in sorted(models.items())]
     db = build_database(items, intrinsics=side.intrinsics, T_world_camera=side.T_world_camera,
                         params=params, progress=lambda it: tqdm(it, desc='templates',
-                                                                unit='obj'))
+                                                                unit='obj'),
+                        symmetries={i: m.listed_symmetries() for i, m in models.items()})
     db.save(args.out)
     count = sum(len(o.templates) for o in db.objects.values())
     print(f'{len(db.objects)} objects, {count} templates -> {args.out} '

@@ -121,7 +121,8 @@ def template_database(models: dict, *, views: int, path: Path | None = None):
              for i, m in sorted(models.items())]
     return build_database(items, intrinsics=side.intrinsics, T_world_camera=side.T_world_camera,
                           params=TemplateParams(n_views=views),
-                          progress=lambda it: tqdm(it, desc='templates', unit='obj'))
+                          progress=lambda it: tqdm(it, desc='templates', unit='obj'),
+                          symmetries={i: m.listed_symmetries() for i, m in models.items()})
 
 
 def warm(db, ids) -> None:
