@@ -146,6 +146,9 @@ def test_listed_symmetries_give_the_yaw_period():
     assert listed_yaw_period(Symmetries(continuous=((z, [0, 0, 0]),)), rest) == 0.0
     tube = Symmetries(discrete=(_turn_about(z, 180.0),), continuous=((x, [0, 0, 0]),))
     assert listed_yaw_period(tube, rest) == pytest.approx(np.pi)
+    lying = np.eye(4)
+    lying[:3, :3] = _turn_about(x, 30.0)[:3, :3]    # rolled about its axis: still a half turn
+    assert listed_yaw_period(tube, lying) == pytest.approx(np.pi, abs=np.radians(2.0))
     # a half turn about x (upside down) is no yaw; lying on its side (x up) the tube's axis is
     # the normal: continuous
     assert listed_yaw_period(Symmetries(discrete=(_turn_about(x, 180.0),)), rest) == \

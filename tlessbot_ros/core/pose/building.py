@@ -127,7 +127,7 @@ def yaw_period(vertices: np.ndarray, faces: np.ndarray, T_table_object: np.ndarr
 
 
 def listed_yaw_period(symmetries: Symmetries, T_table_object: np.ndarray, *,
-                      tolerance_deg: float = 1.0) -> float:
+                      tolerance_deg: float = 2.0) -> float:
     """The yaw period of a resting object from its listed symmetries (models_info.json, the
     ones the scorer uses): 0 when a continuous axis stands along the table normal, else the
     smallest angle of a listed rotation about the normal (2π/n of an n-fold), 2π for none.
@@ -137,9 +137,13 @@ def listed_yaw_period(symmetries: Symmetries, T_table_object: np.ndarray, *,
     cos_tol = np.cos(np.radians(tolerance_deg))
     if any(abs(float(np.dot(a, axis))) >= cos_tol for a, _ in symmetries.continuous):
         return CONTINUOUS_YAW_PERIOD
-    angles = [rotation_angle_deg(S[:3, :3], np.eye(3)) for S in symmetries.discrete
-              if float(np.dot(S[:3, :3] @ axis, axis)) >= cos_tol]   # it keeps the normal
-    angles = [a for a in angles if a > tolerance_deg]
+    # every listed rotation, a continuous axis's composed with the discrete ones (a lying
+    # tube's half turn about the normal is one about its axis composed with one across it)
+    rotations = symmetries.transforms(step_rad=np.radians(tolerance_deg))[:, :3, :3]
+    angles = [rotation_angle_deg(R, np.eye(3)) for R in rotations
+              if float(np.dot(R @ axis, axis)) >= cos_tol]   # it keeps the normal
+    # (a sampled step about an axis across the normal keeps it too: no yaw)
+    angles = [a for a in angles if a > 2.0 * tolerance_deg]
     return float(np.radians(min(angles))) if angles else 2.0 * np.pi
 
 
