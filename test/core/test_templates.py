@@ -158,10 +158,10 @@ def test_listed_symmetries_give_the_yaw_period():
     assert listed_yaw_period(tube, on_end) == 0.0
 
 
-def test_templates_take_the_yaw_period_from_the_listed_symmetries():
+def test_templates_hold_the_listed_yaw_period(tmp_path):
     # A disc whose features the mesh test cannot see (here: none at all, a plain cylinder),
-    # listed 4-fold as its holes make it: the listed symmetries decide, not the mesh test
-    # (which reads continuous, and a flat disc's yaw is then never checked)
+    # listed 4-fold as its holes make it: the flat check's yaw turns take the listed period,
+    # not the mesh test's (continuous: a flat disc's yaw was then never checked)
     import open3d as o3d
 
     from tlessbot_ros.core.common import Symmetries
@@ -171,10 +171,15 @@ def test_templates_take_the_yaw_period_from_the_listed_symmetries():
     item = [(9, v, f, [(resting_pose(v), 1.0)], None)]
     kwargs = dict(intrinsics=side.intrinsics, T_world_camera=side.T_world_camera,
                   params=TemplateParams(n_views=2))
-    assert build_database(item, **kwargs)[9].yaw_periods[0] == 0.0
+    assert build_database(item, **kwargs)[9].listed_yaw_periods is None
     four = Symmetries(discrete=tuple(_turn_about([0, 0, 1], 90.0 * k) for k in (1, 2, 3)))
     db = build_database(item, symmetries={9: four}, **kwargs)
-    assert db[9].yaw_periods[0] == pytest.approx(np.pi / 2)
+    assert db[9].listed_yaw_periods[0] == pytest.approx(np.pi / 2)
+    assert db[9].yaw_periods[0] == 0.0      # what the depth tells apart: nothing
+    db.save(tmp_path / 't.npz')
+    loaded = TemplateDatabase.load(tmp_path / 't.npz')[9]
+    assert loaded.listed_yaw_periods == pytest.approx(db[9].listed_yaw_periods)
+    assert loaded.exact_yaw_period() == pytest.approx(np.pi / 2)
 
 
 def test_precompute_features_fills_every_template(obj21, tmp_path):

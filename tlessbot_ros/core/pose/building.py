@@ -19,11 +19,11 @@ import numpy as np
 
 from tlessbot_ros.core.common import (
     CameraIntrinsics,
+    Symmetries,
     depth_to_points,
     invert_transform,
     make_transform,
     o3d_tensor,
-    Symmetries,
     point_set_diameter,
     raycasting_scene,
     rotation_about_axis,
@@ -226,8 +226,9 @@ def build_object_templates(
         intrinsics, T_world_camera: the rendering camera (the rig's side camera).
         diameter_m: the object's diameter (computed from the vertices if None).
         position_m: (3,) turntable centre on the table in world coordinates.
-        symmetries: the part's listed symmetries, which give its yaw periods
-            (:func:`listed_yaw_period`); None (none listed): the mesh test of :func:`yaw_period`.
+        symmetries: the part's listed symmetries, which give its exact yaw periods
+            (:func:`listed_yaw_period`; the flat check turns a round part by their steps);
+            None: none listed.
     """
     from tlessbot_ros.core.common import MeshRenderer
 
@@ -244,9 +245,10 @@ def build_object_templates(
     voxel = diam * params.voxel_fraction
     model_points, model_normals = _samples(vertices, faces, params.model_samples,
                                            seed=params.seed)
-    periods = np.array([listed_yaw_period(symmetries, T) if symmetries is not None else
-                        yaw_period(vertices, faces, T, tolerance_m=0.01 * diam)
+    periods = np.array([yaw_period(vertices, faces, T, tolerance_m=0.01 * diam)
                         for T, _ in poses])
+    listed = None if symmetries is None else np.array(
+        [listed_yaw_period(symmetries, T) for T, _ in poses])
     if position_m is None:
         position_m = _optical_axis_on_table(T_world_camera)
     T_camera_world = invert_transform(T_world_camera)
@@ -267,6 +269,7 @@ def build_object_templates(
         obj_id=int(obj_id), diameter_m=diam, voxel_size_m=voxel, model_points=model_points,
         model_normals=model_normals, stable_poses=np.array([T for T, _ in poses]),
         stable_probabilities=np.array([p for _, p in poses]), yaw_periods=periods,
+        listed_yaw_periods=listed,
         templates=templates, normal_radius_voxels=params.cloud.normal_radius_voxels,
         normal_max_nn=params.cloud.normal_max_nn, fpfh_radius_voxels=params.fpfh_radius_voxels,
         fpfh_max_nn=params.fpfh_max_nn)

@@ -92,6 +92,9 @@ class ObjectTemplates:
             :mod:`tlessbot_ros.core.pose.lookalike`); empty for most.
         mesh_vertices, mesh_faces: (V, 3) float32 metres and (F, 3) int32, the CAD mesh, kept
             only for parts with look-alikes (None otherwise).
+        listed_yaw_periods: (S,) float64 the yaw periods the part's listed symmetries give
+            (models_info.json; exact, where ``yaw_periods`` are what the depth cannot tell
+            apart); None when none were listed.
     """
 
     obj_id: int
@@ -110,7 +113,16 @@ class ObjectTemplates:
     lookalikes: tuple[int, ...] = ()
     mesh_vertices: np.ndarray | None = None
     mesh_faces: np.ndarray | None = None
+    listed_yaw_periods: np.ndarray | None = None
     _cache: dict[Hashable, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def exact_yaw_period(self) -> float:
+        """The yaw period resting in the most probable stable pose, radians: the listed
+        symmetries' where the templates hold it (a disc with four small holes: a quarter
+        turn, which the depth reads as continuous), else the depth's; 2π for none."""
+        periods = self.yaw_periods if self.listed_yaw_periods is None else \
+            self.listed_yaw_periods
+        return float(periods[0]) if len(periods) else 2.0 * np.pi
 
     def features(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Normals (N, 3) and FPFH (N, 33) float32 of template ``index``, computed on the first
@@ -297,6 +309,8 @@ class TemplateDatabase:
             arrays[p + 'stable_poses'] = np.asarray(obj.stable_poses, np.float64).reshape(-1, 4, 4)
             arrays[p + 'stable_probabilities'] = np.asarray(obj.stable_probabilities, np.float64)
             arrays[p + 'yaw_periods'] = np.asarray(obj.yaw_periods, np.float64)
+            if obj.listed_yaw_periods is not None:
+                arrays[p + 'listed_yaw_periods'] = np.asarray(obj.listed_yaw_periods, np.float64)
             t = obj.templates
             counts = [len(x.points) for x in t]
             arrays[p + 'offsets'] = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -385,6 +399,9 @@ def _read_object(data: np.lib.npyio.NpzFile, obj_id: int) -> ObjectTemplates:
             raise ValueError(f'inconsistent mesh arrays of obj_{obj_id:02d}')
     lookalikes = tuple(int(i) for i in data[p + 'lookalikes']) \
         if p + 'lookalikes' in data.files else ()
+    listed = data[p + 'listed_yaw_periods'] if p + 'listed_yaw_periods' in data.files else None
+    if listed is not None and listed.shape != data[p + 'yaw_periods'].shape:
+        raise ValueError(f'inconsistent yaw periods of obj_{obj_id:02d}')
     return ObjectTemplates(
         obj_id=obj_id, diameter_m=float(scalars[0]), voxel_size_m=float(scalars[1]),
         model_points=(data[p + 'model_points'].astype(np.float64) * POINT_QUANTUM_M
@@ -395,4 +412,5 @@ def _read_object(data: np.lib.npyio.NpzFile, obj_id: int) -> ObjectTemplates:
         yaw_periods=data[p + 'yaw_periods'], templates=templates,
         normal_radius_voxels=float(scalars[2]), normal_max_nn=int(scalars[3]),
         fpfh_radius_voxels=float(scalars[4]), fpfh_max_nn=int(scalars[5]),
-        lookalikes=lookalikes, mesh_vertices=mesh_vertices, mesh_faces=mesh_faces)
+        lookalikes=lookalikes, mesh_vertices=mesh_vertices, mesh_faces=mesh_faces,
+        listed_yaw_periods=listed)

@@ -104,7 +104,8 @@ class FlatParams:
         align_min_z: a turned pose wins the aligned vote only with a surplus above this many
             coin-toss deviations (>= 0).
         yaw_turns: a part with a round outline also competes turned about its thin axis by
-            each 1/yaw_turns of its yaw period (>= 1; 1: not).
+            each 1/yaw_turns of its yaw period (the listed symmetries' where the templates
+            hold it: exact, not the depth's) (>= 1; 1: not).
     """
 
     enabled: bool = True
@@ -353,7 +354,7 @@ class FlatCheck:
 
         samples = obj.model_points.astype(np.float64)
         turns = obj.derived('outline_turns', lambda: outline_half_turns(samples) + outline_yaws(
-            samples, float(obj.yaw_periods[0]) if len(obj.yaw_periods) else 2 * np.pi,
+            samples, obj.exact_yaw_period(),
             self.params.yaw_turns))
         base = [T_camera_object] + [T_camera_object @ turn for turn in turns]
         parts = [(obj, mesh)] + [(t, m) for t in twins if (m := mesh_scene(t)) is not None]
