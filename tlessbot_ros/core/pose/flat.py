@@ -351,6 +351,7 @@ class FlatCheck:
         centre), so where the outline looks the same turned, the poses differ only where the
         holes, slots and cut corners do."""
         from tlessbot_ros.core.pose.cloud import voxel_downsample
+        from tlessbot_ros.core.pose.database import CONTINUOUS_YAW_PERIOD
 
         samples = obj.model_points.astype(np.float64)
         turns = obj.derived('outline_turns', lambda: outline_half_turns(samples) + outline_yaws(
@@ -359,8 +360,15 @@ class FlatCheck:
         base = [T_camera_object] + [T_camera_object @ turn for turn in turns]
         parts = [(obj, mesh)] + [(t, m) for t in twins if (m := mesh_scene(t)) is not None]
         info: dict[str, float] = {}
+        rivals = None
+        if len(obj.yaw_periods) and obj.yaw_periods[0] == CONTINUOUS_YAW_PERIOD and \
+                obj.exact_yaw_period() != CONTINUOUS_YAW_PERIOD:
+            # the depth holds no yaw of this part (a disc with small holes): the fitted yaw
+            # is a guess, so the best turn need only beat it (and the twins), not each other
+            # turn, of which the two beside the true yaw split the votes
+            rivals = [0] + list(range(len(base), len(base) * len(parts)))
         k = self.aligned_winner(obj, [m for _, m in parts for _ in base],
-                                [T for _ in parts for T in base], views, info)
+                                [T for _ in parts for T in base], views, info, rivals)
         winner, k = parts[k // len(base)][0], k % len(base)
         info['twin'] = float(winner.obj_id)
         if k == 0:
@@ -379,13 +387,14 @@ class FlatCheck:
     def aligned_winner(self, obj: ObjectTemplates,
                        meshes: Sequence[o3d.t.geometry.RaycastingScene],
                        poses: Sequence[np.ndarray], views: Sequence[ViewEvidence],
-                       info: dict[str, float]) -> int:
+                       info: dict[str, float], rivals: Sequence[int] | None = None) -> int:
         """The pose among ``poses`` (of ``meshes``, the fitted pose of ``obj`` first) that the
         aligned height and colour votes of every view choose
         (:func:`~.flat_align.view_votes`): the winner of the duels between all of them
-        (:func:`~.flat_align.round_robin`) when its surplus over every other pose is clear
-        (``align_min_z``; ``info['align_decided']`` 1, the fitted pose kept as clearly as a
-        turn is taken); else 0 (undecided)."""
+        (:func:`~.flat_align.round_robin`) when its surplus over every other pose (over the
+        ``rivals`` among them, when given) is clear (``align_min_z``;
+        ``info['align_decided']`` 1, the fitted pose kept as clearly as a turn is taken);
+        else 0 (undecided)."""
         from tlessbot_ros.core.pose.flat_align import round_robin, view_votes
         from tlessbot_ros.core.pose.lookalike import clear_margin
 
@@ -394,7 +403,7 @@ class FlatCheck:
                            views, pad=p.align_px, tolerance_m=p.depth_tolerance_m)
         k = round_robin(votes)
         decided = all(clear_margin(int(votes[k, j]), int(votes[j, k]), p.align_min_z)
-                      for j in range(len(poses)) if j != k)
+                      for j in (range(len(poses)) if rivals is None else rivals) if j != k)
         info.update(align_winner=float(k), align_decided=float(decided))
         own = [j for j in range(len(poses)) if meshes[j] is meshes[0]]
         self.ranked = ([poses[j] for j in own], votes[np.ix_(own, own)])
