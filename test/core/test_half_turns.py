@@ -135,3 +135,24 @@ def test_the_pipeline_turns_a_stuck_fit_back(bracket):
                                           box_mode=True, fitter=StuckFitter())
     assert rotation_angle_deg(detection.pose.T_camera_object[:3, :3], T_true[:3, :3]) < 5.0
     assert np.array_equal(detection.second.T_camera_object, T_stuck)
+
+
+def test_the_best_turn_need_only_beat_the_given_rivals(monkeypatch):
+    """Two turns either side of a disc's true yaw split their duel (12 against 10 pixels): the
+    winner beats every pose clearly but its neighbour. Against every pose it is undecided
+    (the fitted pose stays); with the fitted pose as its only rival it is taken."""
+    from tlessbot_ros.core.pose import flat_align
+
+    votes = np.array([[0, 2, 3, 10],
+                      [40, 0, 12, 40],
+                      [42, 10, 0, 40],
+                      [10, 5, 5, 0]])
+    monkeypatch.setattr(flat_align, 'view_votes', lambda *args, **kwargs: votes)
+    check = FlatCheck(Refiner(PoseParams()), FlatParams())
+    obj = type('Obj', (), {'model_points': np.zeros((3, 3), np.float32)})()
+    poses = [np.eye(4)] * 4
+    info: dict[str, float] = {}
+    assert check.aligned_winner(obj, [None] * 4, poses, [], info) == 0
+    assert info['align_winner'] == 1.0 and info['align_decided'] == 0.0
+    assert check.aligned_winner(obj, [None] * 4, poses, [], info, rivals=[0]) == 1
+    assert info['align_decided'] == 1.0
