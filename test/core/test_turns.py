@@ -83,6 +83,26 @@ def test_near_turns_are_the_turns_the_small_holes_break(holed_disc):
     assert not any(np.isfinite(_angle_about(S, [0, 0, 1])) for S in near_turns(plain))
 
 
+def test_listed_symmetries_are_the_exact_turns():
+    # a disc whose holes the sampling cannot see (here: none beside the centre bore) listed
+    # 4-fold, as its bolt holes make it: the mesh test reads every turn about its axis as
+    # exact, the listed symmetries only the quarter turns; the others are near, asked of the
+    # colour image
+    from tlessbot_ros.core.common import Symmetries
+    v, f, plain = _disc(False)
+    four = Symmetries(discrete=tuple(
+        make_transform(rotation_about_axis([0, 0, 1], np.radians(90.0 * k)), [0, 0, 0])
+        for k in (1, 2, 3)))
+    db = build_database([(1, v, f, [(resting_pose(v), 1.0)], None)], symmetries={1: four},
+                        intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera)
+    assert db[1].listed_rotations is not None and len(db[1].listed_rotations) == 4
+    angles = [_angle_about(S, [0, 0, 1]) for S in near_turns(db[1])]
+    rounded = set(np.round([a for a in angles if np.isfinite(a)]))
+    assert {30.0, 45.0, 60.0} <= rounded
+    assert not rounded & {80.0, 85.0, 90.0, 95.0, 100.0, 180.0}
+    assert not any(np.isfinite(_angle_about(S, [0, 0, 1])) for S in near_turns(plain))
+
+
 def _scene(vertices, faces, T_world_object, *, noise_m=0.0005, seed=0):
     return side_scene(vertices, faces, T_world_object, noise_m=noise_m, seed=seed, shaded=True)
 

@@ -227,8 +227,8 @@ def build_object_templates(
         diameter_m: the object's diameter (computed from the vertices if None).
         position_m: (3,) turntable centre on the table in world coordinates.
         symmetries: the part's listed symmetries, which give its exact yaw periods
-            (:func:`listed_yaw_period`; the flat check turns a round part by their steps);
-            None: none listed.
+            (:func:`listed_yaw_period`; the flat check turns a round part by their steps) and
+            the exact symmetries of the near-symmetric turn check; None: none listed.
     """
     from tlessbot_ros.core.common import MeshRenderer
 
@@ -269,7 +269,8 @@ def build_object_templates(
         obj_id=int(obj_id), diameter_m=diam, voxel_size_m=voxel, model_points=model_points,
         model_normals=model_normals, stable_poses=np.array([T for T, _ in poses]),
         stable_probabilities=np.array([p for _, p in poses]), yaw_periods=periods,
-        listed_yaw_periods=listed,
+        listed_yaw_periods=listed, listed_rotations=None if symmetries is None else
+        symmetries.transforms(step_rad=np.radians(2.0))[:, :3, :3],
         templates=templates, normal_radius_voxels=params.cloud.normal_radius_voxels,
         normal_max_nn=params.cloud.normal_max_nn, fpfh_radius_voxels=params.fpfh_radius_voxels,
         fpfh_max_nn=params.fpfh_max_nn)

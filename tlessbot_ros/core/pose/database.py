@@ -95,6 +95,8 @@ class ObjectTemplates:
         listed_yaw_periods: (S,) float64 the yaw periods the part's listed symmetries give
             (models_info.json; exact, where ``yaw_periods`` are what the depth cannot tell
             apart); None when none were listed.
+        listed_rotations: (K, 3, 3) float64 the rotations of the part's listed symmetries
+            (continuous axes sampled every 2°), the identity first; None when none were listed.
     """
 
     obj_id: int
@@ -114,6 +116,7 @@ class ObjectTemplates:
     mesh_vertices: np.ndarray | None = None
     mesh_faces: np.ndarray | None = None
     listed_yaw_periods: np.ndarray | None = None
+    listed_rotations: np.ndarray | None = None
     _cache: dict[Hashable, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def exact_yaw_period(self) -> float:
@@ -311,6 +314,9 @@ class TemplateDatabase:
             arrays[p + 'yaw_periods'] = np.asarray(obj.yaw_periods, np.float64)
             if obj.listed_yaw_periods is not None:
                 arrays[p + 'listed_yaw_periods'] = np.asarray(obj.listed_yaw_periods, np.float64)
+            if obj.listed_rotations is not None:
+                arrays[p + 'listed_rotations'] = np.asarray(obj.listed_rotations,
+                                                            np.float64).reshape(-1, 3, 3)
             t = obj.templates
             counts = [len(x.points) for x in t]
             arrays[p + 'offsets'] = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -402,6 +408,9 @@ def _read_object(data: np.lib.npyio.NpzFile, obj_id: int) -> ObjectTemplates:
     listed = data[p + 'listed_yaw_periods'] if p + 'listed_yaw_periods' in data.files else None
     if listed is not None and listed.shape != data[p + 'yaw_periods'].shape:
         raise ValueError(f'inconsistent yaw periods of obj_{obj_id:02d}')
+    rotations = data[p + 'listed_rotations'] if p + 'listed_rotations' in data.files else None
+    if rotations is not None and (rotations.ndim != 3 or rotations.shape[1:] != (3, 3)):
+        raise ValueError(f'inconsistent listed rotations of obj_{obj_id:02d}')
     return ObjectTemplates(
         obj_id=obj_id, diameter_m=float(scalars[0]), voxel_size_m=float(scalars[1]),
         model_points=(data[p + 'model_points'].astype(np.float64) * POINT_QUANTUM_M
@@ -413,4 +422,4 @@ def _read_object(data: np.lib.npyio.NpzFile, obj_id: int) -> ObjectTemplates:
         normal_radius_voxels=float(scalars[2]), normal_max_nn=int(scalars[3]),
         fpfh_radius_voxels=float(scalars[4]), fpfh_max_nn=int(scalars[5]),
         lookalikes=lookalikes, mesh_vertices=mesh_vertices, mesh_faces=mesh_faces,
-        listed_yaw_periods=listed)
+        listed_yaw_periods=listed, listed_rotations=rotations)

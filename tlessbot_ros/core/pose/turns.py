@@ -134,7 +134,9 @@ def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: flo
     itself: a generic turn by 20° scores 1.8-3, a half-turn of a drilled block 1.2-1.5), exact
     when their ``exact_quantile`` is at most ``exact_ratio`` too (the small features map as
     well: 2.2-2.7 for the listed symmetries of the generated parts, 3.5-6 for the turns of a
-    disc with four holes and the half-turns of a drilled block). A part with a continuous axis
+    disc with four holes and the half-turns of a drilled block); where the templates hold the
+    part's listed symmetries (``listed_rotations``), a turn is exact when it is one of those
+    (within half a step) instead, and those are the exact ones. A part with a continuous axis
     has no turn about it here (all exact). Turns within ``min_turn_deg`` of an exact symmetry
     (the identity too) are left out: they are that symmetry and a small turn, which the fit's
     own refinement settles. About an axis the surface nearly turns on at every angle (every
@@ -153,7 +155,10 @@ def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: flo
         count = int(round(360.0 / step_deg))
         angles = 360.0 * np.arange(1, count) / count
         large = np.minimum(angles, 360.0 - angles) >= min_turn_deg - 1e-6
-        exact, turns, fine = [np.eye(3)], [], []
+        # the part's listed symmetries, where the templates hold them, are its exact ones
+        # (those the scorer uses): holes small against the sampling do not make a turn exact
+        listed = obj.listed_rotations
+        exact, turns, fine = [np.eye(3)] + list(listed if listed is not None else []), [], []
         for axis in turn_axes(model):
             kinds = []
             for angle in angles:
@@ -161,7 +166,10 @@ def near_turns(obj: ObjectTemplates, *, step_deg: float = 5.0, min_turn_deg: flo
                 S[:3, :3] = rotation_about_axis(axis, np.radians(angle))
                 S[:3, 3] = centre - S[:3, :3] @ centre
                 d = tree.query(sub @ S[:3, :3].T + S[:3, 3])[0] / spacing
-                kinds.append((S, 'exact' if np.quantile(d, exact_quantile) <= exact_ratio
+                exact_turn = np.quantile(d, exact_quantile) <= exact_ratio if listed is None \
+                    else float(np.max(np.einsum('ij,kij->k', S[:3, :3], listed))) >= \
+                    1.0 + 2.0 * np.cos(np.radians(step_deg / 2))   # trace: within half a step
+                kinds.append((S, 'exact' if exact_turn
                               else 'near' if np.median(d) <= near_ratio else 'far'))
             big = [kind for (_, kind), is_large in zip(kinds, large) if is_large]
             exact += [S[:3, :3] for (S, kind), is_large in zip(kinds, large)
