@@ -55,6 +55,19 @@ def test_restored_arrays_equal_the_built_ones_and_give_the_same_pose(
     np.testing.assert_array_equal(poses[0].T_camera_object, poses[1].T_camera_object)
 
 
+def test_the_near_turns_listed_at_warm_up_are_kept(templates_file, tmp_path):
+    from tlessbot_ros.core.pose import near_turns
+    built = TemplateDatabase.load(templates_file)
+    listed = near_turns(built[21])                  # built now, kept with the derived arrays
+    store_derived(built, templates_file, directory=tmp_path)
+    restored = TemplateDatabase.load(templates_file)
+    assert load_derived(restored, templates_file, directory=tmp_path)
+    kept = {k: v for k, v in restored[21].derived_items().items() if k[0] == 'near_turns'}
+    assert len(kept) == 1
+    np.testing.assert_array_equal(next(iter(kept.values())), listed)
+    assert near_turns(restored[21]) is next(iter(kept.values()))   # read, not built again
+
+
 def test_a_foreign_or_broken_cache_is_ignored(templates_file, tmp_path):
     db = TemplateDatabase.load(templates_file)
     path = store_derived(db, templates_file, directory=tmp_path)

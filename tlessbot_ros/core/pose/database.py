@@ -160,6 +160,15 @@ class ObjectTemplates:
             self._cache[key] = build()
         return self._cache[key]
 
+    def derived_items(self) -> dict[tuple[Any, ...], Any]:
+        """The values :meth:`derived` has built so far, by key."""
+        return {key[1]: value for key, value in self._cache.items()
+                if isinstance(key, tuple) and len(key) == 2 and key[0] == 'derived'}
+
+    def adopt_derived(self, key: Hashable, value: Any) -> None:
+        """Keep ``value`` as :meth:`derived`'s for ``key`` (restored from a cache)."""
+        self._cache[('derived', key)] = value
+
     def model_arrays_float64(self) -> tuple[np.ndarray, np.ndarray]:
         """float64 ``(model_normals, model_points)``, (M, 3) each (converted once)."""
         if 'float64' not in self._cache:

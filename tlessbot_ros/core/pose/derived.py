@@ -15,7 +15,9 @@ import numpy as np
 
 from tlessbot_ros.core.pose.database import NearestGrid, TemplateDatabase
 
-DERIVED_VERSION = 1
+DERIVED_VERSION = 2
+# the derived turn listings kept too (0.4-1 s a part at start-up): keys of a name and numbers
+CACHED_LISTINGS = ('near_turns', 'self_half_turns')
 
 
 def derived_arrays(database: TemplateDatabase, *, fingerprint: str) -> dict[str, np.ndarray]:
@@ -34,7 +36,26 @@ def derived_arrays(database: TemplateDatabase, *, fingerprint: str) -> dict[str,
             normals, fpfh = obj.features(index)
             arrays[f'{obj_id}/{index}/normals'] = normals
             arrays[f'{obj_id}/{index}/fpfh'] = fpfh
+        for key, value in obj.derived_items().items():
+            if isinstance(key, tuple) and key and key[0] in CACHED_LISTINGS and \
+                    isinstance(value, np.ndarray):
+                name = '|'.join([key[0], *(repr(k) for k in key[1:])])
+                arrays[f'{obj_id}/listing/{name}'] = value
     return arrays
+
+
+def _listings(arrays: Mapping[str, np.ndarray], obj_id: int
+              ) -> dict[tuple[str | float, ...], np.ndarray]:
+    """The turn listings of ``obj_id`` among ``arrays``, by their :meth:`derived` key."""
+    prefix = f'{obj_id}/listing/'
+    out = {}
+    for name in list(arrays.keys()):
+        if name.startswith(prefix):
+            first, *numbers = name[len(prefix):].split('|')
+            if first in CACHED_LISTINGS:
+                key = (first,) + tuple(float(x) for x in numbers)
+                out[key] = np.asarray(arrays[name], np.float64)
+    return out
 
 
 def restore_derived(database: TemplateDatabase, arrays: Mapping[str, np.ndarray], *,
@@ -45,8 +66,9 @@ def restore_derived(database: TemplateDatabase, arrays: Mapping[str, np.ndarray]
         if int(arrays['version']) != DERIVED_VERSION or \
                 str(arrays['fingerprint']) != fingerprint:
             return False
-        grids, features = {}, {}
+        grids, features, listings = {}, {}, {}
         for obj_id, obj in database.objects.items():
+            listings[obj_id] = _listings(arrays, obj_id)
             grids[obj_id] = NearestGrid(
                 np.asarray(arrays[f'{obj_id}/grid_origin'], np.float64),
                 float(arrays[f'{obj_id}/grid_spacing']),
@@ -62,6 +84,8 @@ def restore_derived(database: TemplateDatabase, arrays: Mapping[str, np.ndarray]
         return False
     for obj_id, grid in grids.items():
         database[obj_id].adopt_nearest_grid(grid)
+        for key, value in listings[obj_id].items():
+            database[obj_id].adopt_derived(key, value)
     for (obj_id, index), (normals, fpfh) in features.items():
         template = database[obj_id].templates[index]
         template.normals, template.fpfh = normals, fpfh
