@@ -34,7 +34,8 @@ from tlessbot_ros.core.common import (
 __all__ = [
     'Symmetries', 'PoseError', 'pose_error', 'is_correct_cm_deg', 'add', 'adds', 'mssd', 'mspd',
     'ModelDepthRenderer', 'vsd_from_depth', 'vsd', 'box_iou', 'recall',
-    'BOP19_THRESHOLDS', 'BOP19_MSPD_THRESHOLDS_PX', 'average_recall']
+    'BOP19_THRESHOLDS', 'BOP19_MSPD_THRESHOLDS_PX', 'average_recall',
+    'count_duplicates', 'duplicate_radius_m']
 
 #: BOP'19 correctness thresholds: MSSD (× diameter), VSD tau (× diameter) and VSD theta.
 BOP19_THRESHOLDS = np.arange(0.05, 0.501, 0.05)
@@ -411,7 +412,18 @@ def average_recall(errors: np.ndarray, thresholds: np.ndarray) -> float:
 DUPLICATE_RADIUS_M = 0.03
 
 
-def count_duplicates(positions_m: np.ndarray, *, radius_m: float = DUPLICATE_RADIUS_M) -> int:
+def duplicate_radius_m(extents_m: np.ndarray) -> float:
+    """How close two poses of a part with these bounding-box extents (3,) metres must lie to be
+    one part reported twice: half its thinnest side, at most :data:`DUPLICATE_RADIUS_M`.
+
+    Two distinct parts side by side keep their origins (near the bounding-box centre) about a
+    thickness apart, so a fixed 3 cm took two 8 mm nuts lying 2 cm apart for one nut."""
+    thinnest = float(np.min(np.asarray(extents_m, np.float64)))
+    return min(DUPLICATE_RADIUS_M, 0.5 * thinnest) if thinnest > 0 else DUPLICATE_RADIUS_M
+
+
+def count_duplicates(positions_m: np.ndarray, *,
+                     radius_m: float | np.ndarray = DUPLICATE_RADIUS_M) -> int:
     """How many of one frame's poses repeat another: one part reported more than once.
 
     Poses whose translations lie within ``radius_m`` of each other (single linkage) count as
@@ -421,6 +433,8 @@ def count_duplicates(positions_m: np.ndarray, *, radius_m: float = DUPLICATE_RAD
     Args:
         positions_m: (N, 3) translations of the frame's poses in one frame of reference
             (distances do not depend on which), metres.
+        radius_m: one radius, or (N,) one per pose (e.g. :func:`duplicate_radius_m` of its
+            part); two poses are near when closer than the smaller of their radii.
     """
     points = np.asarray(positions_m, np.float64).reshape(-1, 3)
     if len(points) < 2:
@@ -428,6 +442,7 @@ def count_duplicates(positions_m: np.ndarray, *, radius_m: float = DUPLICATE_RAD
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial.distance import cdist
 
-    near = cdist(points, points) < radius_m
+    radii = np.broadcast_to(np.asarray(radius_m, np.float64), (len(points),))
+    near = cdist(points, points) < np.minimum(radii[:, None], radii[None, :])
     groups, _ = connected_components(near, directed=False)
     return int(len(points) - groups)

@@ -15,11 +15,13 @@ from tlessbot_ros.core.common import Symmetries, detect_symmetries
 from tlessbot_ros.core.metrics import (
     BOP19_MSPD_THRESHOLDS_PX,
     BOP19_THRESHOLDS,
+    DUPLICATE_RADIUS_M,
     ModelDepthRenderer,
     adds,
     average_recall,
     box_iou,
     count_duplicates,
+    duplicate_radius_m,
     is_correct_cm_deg,
     mspd,
     mssd,
@@ -61,6 +63,11 @@ class ScoringModel:
         if self._renderer is None:
             self._renderer = ModelDepthRenderer(self.vertices, self.faces)
         return self._renderer
+
+    @property
+    def duplicate_radius_m(self) -> float:
+        """How close two of its poses lie when they are one part reported twice (m)."""
+        return duplicate_radius_m(np.ptp(self.vertices, axis=0))
 
     @property
     def symmetry_stack(self) -> np.ndarray:
@@ -261,6 +268,15 @@ def _unknowns(targets: list[_Target], regions: list[tuple[int, int]], ran: bool)
             else None}
 
 
+def repeated_poses(poses: list[BopEstimate], models: dict[int, ScoringModel]) -> int:
+    """How many of one frame's poses repeat another (:func:`count_duplicates`), each with the
+    radius of its part (:func:`duplicate_radius_m`; the fixed one for a part not scored)."""
+    return count_duplicates(
+        np.array([p.T_camera_object[:3, 3] for p in poses]).reshape(-1, 3),
+        radius_m=np.array([models[p.obj_id].duplicate_radius_m if p.obj_id in models
+                           else DUPLICATE_RADIUS_M for p in poses]))
+
+
 def score_frames(frames: list[tuple[object, FrameOutput]],
                  models: dict[int, ScoringModel]) -> dict:
     """The report dictionary (see issue 8) from (BopImage, FrameOutput) pairs."""
@@ -271,8 +287,7 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
     detection_ran = recognition_ran = False
     for image, output in frames:
         matches = _match_poses(image, output.poses)
-        duplicates += count_duplicates(
-            np.array([p.T_camera_object[:3, 3] for p in output.poses]).reshape(-1, 3))
+        duplicates += repeated_poses(output.poses, models)
         box_matches: dict[int, int] = {}
         if output.boxes is not None:
             detection_ran = True
