@@ -183,8 +183,8 @@ def test_two_small_parts_side_by_side_are_no_duplicate_of_one_another():
     from tlessbot_ros.core.metrics import DUPLICATE_RADIUS_M, count_duplicates, duplicate_radius_m
 
     nut = duplicate_radius_m(np.array([0.008, 0.0092, 0.0063]))   # an 8 mm hex nut
-    assert nut == pytest.approx(0.00315)
-    assert duplicate_radius_m(np.array([0.2, 0.1, 0.08])) == DUPLICATE_RADIUS_M
+    assert nut == pytest.approx(0.004)
+    assert duplicate_radius_m(np.array([0.2, 0.08, 0.01])) == DUPLICATE_RADIUS_M
     two_nuts = np.array([[0.0, 0, 0.6], [0.022, 0, 0.6]])          # 22 mm apart
     assert count_duplicates(two_nuts) == 1                       # the fixed radius joined them
     assert count_duplicates(two_nuts, radius_m=np.array([nut, nut])) == 0
