@@ -103,9 +103,8 @@ class FlatParams:
             pixels before the height and colour vote (>= 0).
         align_min_z: a turned pose wins the aligned vote only with a surplus above this many
             coin-toss deviations (>= 0).
-        yaw_turns: a part with a round outline also competes turned about its thin axis by
-            each 1/yaw_turns of its yaw period (the listed symmetries' where the templates
-            hold it: exact, not the depth's) (>= 1; 1: not).
+        yaw_turns: a round flat part also competes turned about its thin axis by each
+            1/yaw_turns of its exact (listed) yaw period (>= 1; 1: not).
     """
 
     enabled: bool = True
