@@ -14,6 +14,7 @@ training options: it does not depend on the rig, so a build for another cell, or
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 import subprocess
@@ -80,7 +81,6 @@ def finish_tool(command: str, process: subprocess.Popen, log: Path) -> None:
 def classifier_cache_path(fingerprint: str, options: BuildOptions) -> Path:
     """Where the classifier of a CAD content (``fingerprint``) and the training settings of
     ``options`` is kept (the rig is not in it: the classifier does not depend on it)."""
-    import hashlib
 
     from tlessbot_ros.io.cache import cache_dir
 
@@ -333,15 +333,41 @@ def _run_steps(cad: Path, out: Path, options: BuildOptions, manifest: dict, mesh
     return times
 
 
+# What the templates of a parts folder are made by: a change to any of these files builds the
+# cached parts folders again (the classifier keeps its own cache, keyed by its recipe).
+TEMPLATE_CODE = ('core/pose', 'core/common', 'io', 'tools/commands/templates.py')
+
+
+def template_code_fingerprint(root: Path | None = None) -> str:
+    """SHA-256 (hex) of the Python sources under :data:`TEMPLATE_CODE` of the package at
+    ``root`` (this one by default), names and bytes, in a fixed order."""
+    root = root or Path(__file__).resolve().parents[2]
+    digest = hashlib.sha256()
+    for entry in TEMPLATE_CODE:
+        path = root / entry
+        files = sorted(path.rglob('*.py')) if path.is_dir() else [path] * path.is_file()
+        for file in files:
+            digest.update(file.relative_to(root).as_posix().encode() + b'\0')
+            digest.update(file.read_bytes())
+    return digest.hexdigest()
+
+
+def parts_cache_name(cad: Path, options: BuildOptions, *, code: str | None = None) -> str:
+    """The cache folder's name of ``cad``'s parts: the CAD files' content and units, the code
+    that makes templates (``code``: its fingerprint, this package's by default), the recipe."""
+    fingerprint = parts_io.cad_fingerprint(parts_io.cad_parts(cad), units=options.units)
+    code = code or template_code_fingerprint()
+    return f'{fingerprint[:16]}-{code[:8]}_{options.recipe or "defaults"}'
+
+
 def cached_parts(cad: Path, options: BuildOptions, *, classifier: bool = True
                  ) -> parts_io.PartsFolder:
     """The parts folder of ``cad`` built without the self-check (and without the classifier
-    unless ``classifier``), kept in the start-up cache by the CAD files' content, units and
-    recipe: built once, reused after."""
+    unless ``classifier``), kept in the start-up cache by :func:`parts_cache_name`: built once,
+    reused after, built again when the code that makes templates changed."""
     from tlessbot_ros.io.cache import cache_dir
 
-    fingerprint = parts_io.cad_fingerprint(parts_io.cad_parts(cad), units=options.units)
-    out = cache_dir() / 'parts' / f'{fingerprint[:16]}_{options.recipe or "defaults"}'
+    out = cache_dir() / 'parts' / parts_cache_name(cad, options)
     folder = parts_io.PartsFolder(out, {})
     wanted = [out / parts_io.MANIFEST, folder.templates] + [folder.classifier] * classifier
     if all(path.is_file() for path in wanted):
