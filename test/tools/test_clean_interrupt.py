@@ -150,6 +150,7 @@ def test_replay_echo_and_record_end_cleanly_when_interrupted(pose_bag, tmp_path,
     try:
         assert record.wait_for('recording 2 topic(s)', 90), record.output
         assert echo.wait_for('frame: side_color_optical_frame', 90, count=20), echo.output
+        assert record.wait_for(f'first message on {POSE_TOPIC}', 90), record.output
         for tool in tools.values():
             tool.signal_group(how)
         codes = {name: tool.wait(60) for name, tool in tools.items()}

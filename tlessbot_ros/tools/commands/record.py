@@ -109,14 +109,16 @@ def message_recorder(writer: BagWriter, topic: str, counts: dict[str, int],
                      ) -> Callable[[bytes], None]:
     """The subscription callback that appends ``topic``'s serialized messages to ``writer``,
     stamped with the time of arrival, and counts them in ``counts`` (then calls
-    ``on_message(topic, raw)``). A message is written whole or not at all: Ctrl-C inside the
-    write is deferred to the end of the turn."""
+    ``on_message(topic, raw)``); prints the first of each topic. A message is written whole
+    or not at all: Ctrl-C inside the write is deferred to the end of the turn."""
     from tlessbot_ros.nodes.common import interrupts_deferred
 
     def on_raw(raw: bytes) -> None:
         with interrupts_deferred():
             writer.write(topic, time.time_ns(), raw)
             counts[topic] += 1
+            if counts[topic] == 1:   # data flows: what a user (or a test) waits for
+                print(f'first message on {topic}', flush=True)
             if on_message is not None:
                 on_message(topic, raw)
     return on_raw
