@@ -417,9 +417,9 @@ def duplicate_radius_m(extents_m: np.ndarray) -> float:
     one part reported twice: half its middle extent, at most :data:`DUPLICATE_RADIUS_M`.
 
     Two distinct parts lying side by side keep their origins (near the bounding-box centre)
-    about a width apart, so a fixed 3 cm took two 8 mm nuts lying 2 cm apart for one nut; the
-    middle extent rather than the thinnest leaves room for the few millimetres by which two
-    fits of one thin part differ (only parts stacked or standing face to face come closer)."""
+    about a width apart; the middle extent rather than the thinnest leaves room for the few
+    millimetres by which two fits of one thin part differ (only parts stacked or standing
+    face to face come closer)."""
     middle = float(np.median(np.asarray(extents_m, np.float64)))
     return min(DUPLICATE_RADIUS_M, 0.5 * middle) if middle > 0 else DUPLICATE_RADIUS_M
 
