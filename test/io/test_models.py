@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from tlessbot_ros.core.common import transform_points
+from tlessbot_ros.core.common.resting import centre_of_mass
 from tlessbot_ros.errors import ModelFileError
-from tlessbot_ros.io.models import centre_of_mass, load_models, stable_poses
+from tlessbot_ros.io.models import load_models, stable_poses
 
 
 @pytest.fixture(scope='module')

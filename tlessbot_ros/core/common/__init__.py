@@ -46,6 +46,8 @@ _HOME = {
     'part_name': 'names',
     'suggest_part_name': 'names',
     'OverlayPart': 'overlay',
+    'centre_of_mass': 'resting',
+    'resting_poses': 'resting',
     'depth_overlay': 'overlay',
     'MeshRenderer': 'render',
     'NO_HIT': 'render',
@@ -143,6 +145,7 @@ if TYPE_CHECKING:
         o3d_tensor,
         raycasting_scene,
     )
+    from tlessbot_ros.core.common.resting import centre_of_mass, resting_poses  # noqa: F401
     from tlessbot_ros.core.common.rig import (  # noqa: F401
         CAMERA_NAMES,
         D415_FOCAL_PX_AT_640,
