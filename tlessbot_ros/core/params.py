@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 from tlessbot_ros.core.common.table_plane import TABLE_PLANE_MODES
 from tlessbot_ros.core.pose.flat import FlatParams
+from tlessbot_ros.core.pose.resting import RestingParams
 from tlessbot_ros.core.pose.turns import TurnParams
 
 
@@ -170,6 +171,7 @@ class FitParams:
     fit_rank_coverage_weight: float = 0.0
     flat: FlatParams = field(default_factory=FlatParams)
     turns: TurnParams = field(default_factory=TurnParams)
+    resting: RestingParams = field(default_factory=RestingParams)
 
     def __post_init__(self) -> None:
         _check(self.min_roi_points >= 3, f'min_roi_points must be at least 3 (a pose needs '

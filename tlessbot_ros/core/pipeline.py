@@ -99,6 +99,7 @@ from tlessbot_ros.core.pose import (
     roi_cloud,
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
+from tlessbot_ros.core.resting_check import check_resting
 from tlessbot_ros.core.turn_check import check_turns, warm_up_turns
 
 _REPLACEABLE = frozenset({'rig', 'classifier', 'localise_params', 'classify_params',
@@ -169,8 +170,7 @@ class PerceptionPipeline:
             new.pose_estimator = PoseEstimator(self.pose_estimator.database,
                                                params=changes['pose'])
         old, fit = self.fit_params, new.fit_params
-        if self.pose_estimator is not None and lookalike_options(old) != \
-                lookalike_options(fit):
+        if self.pose_estimator is not None and lookalike_options(old) != lookalike_options(fit):
             new.lookalike, new.flat_ids = depth_checks(self.pose_estimator.database, fit)
             warm_up_checks(self.pose_estimator.database, new.lookalike, new.flat_ids)
         return new
@@ -415,6 +415,7 @@ class PerceptionPipeline:
         def fitted(job: PartJob) -> None:
             check_fitted_part(self, job, views, labels)   # every view: not in a worker
             check_turns(self, job, views, labels)
+            check_resting(self, job, views, labels)   # last: a turn may tilt the part
             arbiter.fitted(job.detection, *self._fitted_centre(job))
 
         if fitter is None:

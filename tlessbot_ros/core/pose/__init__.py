@@ -10,7 +10,7 @@ search and the orchestration), ``hypotheses`` (the table path's resting hypothes
 and ``buckets`` (the fast lookups), ``fallback`` (the bounded 6-DOF search for parts off the
 table path), ``lookalike``, ``flat`` (which face of a flat part is up), ``turns`` (near-symmetric
 turns told apart by the colour image), ``half_turns`` (half turns decided by every view's
-height and colour), ``derived``
+height and colour), ``resting`` (a fit on the table levelled onto a stable pose), ``derived``
 (start-up arrays to cache).
 Surface sampling is :func:`tlessbot_ros.core.common.sample_surface`.
 
@@ -101,6 +101,9 @@ _HOME = {
     'Refiner': 'refinement',
     'inside_outline': 'silhouette',
     'TurnParams': 'turns',
+    'RestingParams': 'resting',
+    'settle': 'resting',
+    'stable_directions': 'resting',
     'choose_half_turn': 'half_turns',
     'self_half_turns': 'half_turns',
     'choose_turn': 'turns',
@@ -217,6 +220,7 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.pose.refinement import (  # noqa: F401
         Refiner,
     )
+    from tlessbot_ros.core.pose.resting import RestingParams, settle, stable_directions  # noqa: F401
     from tlessbot_ros.core.pose.silhouette import inside_outline  # noqa: F401
     from tlessbot_ros.core.pose.turns import (  # noqa: F401
         TurnParams,

@@ -14,10 +14,12 @@ from collections.abc import Mapping
 import numpy as np
 
 from tlessbot_ros.core.pose.database import NearestGrid, TemplateDatabase
+from tlessbot_ros.core.pose.resting import RESTING_KEY, stable_directions
 
-DERIVED_VERSION = 2
-# the derived turn listings kept too (0.4-1 s a part at start-up): keys of a name and numbers
-CACHED_LISTINGS = ('near_turns', 'self_half_turns')
+DERIVED_VERSION = 3
+# the derived turn listings kept too (0.4-1 s a part at start-up): keys of a name and numbers;
+# and every meshed part's stable poses (the resting-pose prior, core/pose/resting.py)
+CACHED_LISTINGS = ('near_turns', 'self_half_turns', RESTING_KEY[0])
 
 
 def derived_arrays(database: TemplateDatabase, *, fingerprint: str) -> dict[str, np.ndarray]:
@@ -36,6 +38,7 @@ def derived_arrays(database: TemplateDatabase, *, fingerprint: str) -> dict[str,
             normals, fpfh = obj.features(index)
             arrays[f'{obj_id}/{index}/normals'] = normals
             arrays[f'{obj_id}/{index}/fpfh'] = fpfh
+        stable_directions(obj)   # the part's own: built now where missing
         for key, value in obj.derived_items().items():
             if isinstance(key, tuple) and key and key[0] in CACHED_LISTINGS and \
                     isinstance(value, np.ndarray):

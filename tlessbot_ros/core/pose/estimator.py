@@ -57,6 +57,7 @@ from tlessbot_ros.core.pose.hypotheses import (
 from tlessbot_ros.core.pose.params import METHODS, PoseParams
 from tlessbot_ros.core.pose.ransac import ransac_candidates
 from tlessbot_ros.core.pose.refinement import Refiner
+from tlessbot_ros.core.pose.resting import stable_directions
 
 
 def after_polish(polished: list[PoseCandidate], margin: float) -> list[PoseCandidate]:
@@ -109,7 +110,8 @@ class PoseEstimator:
     # ----------------------------------------------------------------------------------- API
     def warm_up(self, obj_ids: Iterable[int] | None = None, *, features: bool = True) -> None:
         """Build every per-object cache now (nearest-point grids, KD-trees, scoring subsets, the
-        fallback's view grid, and with ``features`` the templates' FPFH), so the first frame
+        fallback's view grid, every meshed part's stable poses, and with ``features`` the
+        templates' FPFH), so the first frame
         that shows an object is not slower than the next: about 0.5 s per object, once. Each
         object's first template cloud is run through :meth:`estimate` with the template
         camera's pose."""
@@ -120,6 +122,7 @@ class PoseEstimator:
             obj = self.database[obj_id]
             obj.nearest_grid()
             obj.model_tree()
+            stable_directions(obj)   # the resting-pose prior's stable poses (mesh: once)
             if p.fallback_method == 'views':
                 view_grid(obj, directions=p.fallback_directions,
                           in_plane_steps=p.fallback_in_plane_steps)

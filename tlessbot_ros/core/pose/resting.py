@@ -1,0 +1,188 @@
+"""The resting-pose prior: a part that sits on the table rests in one of its stable poses.
+
+A part lying on a table is in one of the resting poses of its convex hull
+(:func:`tlessbot_ros.core.common.resting.resting_poses`, the quasi-static model the simulator
+draws parts from; the same physics holds in a real cell): its gravity direction, read in the
+part's frame, is the outward normal of a stable hull face. A free 6-DOF fit of a small part
+(an 8 mm nut, a few dozen depth points) can stop 5-25 degrees away from every such direction,
+tilted by the depth's noise, which is a pose no resting part can have.
+
+:func:`settle` takes a fit whose lowest point touches the table (within ``contact_m``) and whose
+gravity direction is more than ``min_tilt_deg`` from every stable pose's (modulo the part's
+listed symmetries), tilts it onto the nearest stable poses by the least rotation (its yaw
+kept), lowers each onto the table, refits it in (yaw, x, y) on the table (the pose stage's
+planar Gauss-Newton) and keeps the best one only when it explains the depth as well as the free
+fit, within ``fitness_margin``. A part that leans on a neighbour (its lowest point above the
+table, or no stable pose that fits) keeps its fit.
+
+Poses are ``T_camera_object`` (4, 4) metres in the optical frame; the table frame is
+``T_world_camera`` with the table at world z = 0.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, cast
+
+import numpy as np
+
+from tlessbot_ros.core.common import invert_transform, rotation_about_axis, transform_points
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.pose.database import ObjectTemplates
+    from tlessbot_ros.core.pose.refinement import Refiner
+
+DOWN = np.array([0.0, 0.0, -1.0])
+RESTING_KEY = ('stable_downs',)
+
+
+@dataclass(frozen=True)
+class RestingParams:
+    """Settings of the resting-pose prior (:func:`settle`).
+
+    Attributes:
+        enabled: level a fit that sits on the table onto the nearest stable poses of its part.
+        min_tilt_deg: a fit whose gravity direction is within this of a stable pose's is left
+            as it is, deg (>= 0).
+        max_tilt_deg: the stable poses within this of the fit's gravity direction are tried,
+            deg (> min_tilt_deg).
+        candidates: at most this many of them, nearest first (>= 1).
+        contact_m: a fit sits on the table when its lowest point is within this of the
+            table plane, m (> 0).
+        fitness_margin: a levelled pose is taken when its depth fitness is at most this below
+            the free fit's (0..1).
+    """
+
+    enabled: bool = True
+    min_tilt_deg: float = 2.0
+    max_tilt_deg: float = 30.0
+    candidates: int = 3
+    contact_m: float = 0.004
+    fitness_margin: float = 0.02
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.min_tilt_deg < self.max_tilt_deg <= 180.0:
+            raise ValueError('need 0 <= min_tilt_deg < max_tilt_deg <= 180 degrees, got '
+                             f'{self.min_tilt_deg}, {self.max_tilt_deg}')
+        if self.candidates < 1 or self.contact_m <= 0 or not 0 <= self.fitness_margin <= 1:
+            raise ValueError('candidates must be >= 1, contact_m > 0 and fitness_margin in '
+                             f'0..1, got {self.candidates}, {self.contact_m}, '
+                             f'{self.fitness_margin}')
+
+
+def stable_directions(obj: ObjectTemplates) -> np.ndarray | None:
+    """(S, 4) float64 per stable pose of ``obj``'s mesh: the gravity direction in the part's
+    frame (the stable hull face's outward normal) and the pose's probability, most probable
+    first (every pose, none merged); None without a mesh. Built once per part (cached with the
+    start-up listings, :mod:`tlessbot_ros.core.pose.derived`)."""
+    from tlessbot_ros.core.common.resting import resting_poses
+
+    vertices, faces = obj.mesh_vertices, obj.mesh_faces
+    if vertices is None or faces is None:
+        return None
+
+    def build() -> np.ndarray:
+        poses = resting_poses(np.asarray(vertices, np.float64), faces, obj.diameter_m)
+        return np.array([[*(T[:3, :3].T @ DOWN), p] for T, p in poses],
+                        np.float64).reshape(-1, 4)
+    return cast(np.ndarray, obj.derived(RESTING_KEY, build))
+
+
+def stable_offsets(obj: ObjectTemplates, R_world_object: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(S,) angle (deg) between the gravity direction of a part turned by ``R_world_object``
+    (read in its frame) and each stable pose's, modulo the part's listed symmetries, and (S, 3)
+    the symmetric image of each stable direction that is nearest. Empty without a mesh."""
+    table = stable_directions(obj)
+    if table is None or not len(table):
+        return np.zeros(0), np.zeros((0, 3))
+    down_o = np.asarray(R_world_object, np.float64)[:3, :3].T @ DOWN
+    rotations = obj.listed_rotations if obj.listed_rotations is not None else np.eye(3)[None]
+    images = np.einsum('kij,sj->ksi', rotations, table[:, :3])          # (K, S, 3)
+    cos = images @ down_o                                                # (K, S)
+    best = np.argmax(cos, axis=0)
+    nearest = images[best, np.arange(images.shape[1])]
+    angle = np.degrees(np.arccos(np.clip(cos[best, np.arange(cos.shape[1])], -1.0, 1.0)))
+    return angle, nearest
+
+
+def contact_points(obj: ObjectTemplates) -> np.ndarray:
+    """(N, 3) float64 the points of ``obj`` that can touch the table: its mesh vertices, or
+    its surface samples without a mesh."""
+    vertices = obj.mesh_vertices if obj.mesh_vertices is not None else obj.model_points
+    return np.asarray(vertices, np.float64)
+
+
+def levelled(T_world_object: np.ndarray, targets_o: np.ndarray, points_o: np.ndarray,
+             centre_o: np.ndarray) -> np.ndarray:
+    """(K, 4, 4) ``T_world_object`` turned, about the part's ``centre_o``, by the least rotation
+    that points each of (K, 3) ``targets_o`` (directions in the part's frame) straight down,
+    then lowered or raised so that the lowest of ``points_o`` touches the table (z = 0)."""
+    T = np.asarray(T_world_object, np.float64)
+    centre = T[:3, :3] @ centre_o + T[:3, 3]
+    out = np.repeat(T[None], len(targets_o), axis=0)
+    for k, target in enumerate(np.asarray(targets_o, np.float64)):
+        now = T[:3, :3] @ target
+        axis = np.cross(now, DOWN)
+        sin, cos = float(np.linalg.norm(axis)), float(now @ DOWN)
+        R = np.eye(3) if sin < 1e-12 else rotation_about_axis(axis / sin, np.arctan2(sin, cos))
+        out[k, :3, :3] = R @ T[:3, :3]
+        out[k, :3, 3] = centre + R @ (T[:3, 3] - centre)
+        out[k, 2, 3] -= float(np.min(points_o @ out[k, :3, :3].T[:, 2] + out[k, 2, 3]))
+    return out
+
+
+def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
+           scene_c: np.ndarray, T_world_camera: np.ndarray, params: RestingParams
+           ) -> tuple[np.ndarray | None, dict[str, float]]:
+    """The fit levelled onto a stable pose of its part, or None (the fit stands).
+
+    Args:
+        refiner: the pose stage's refinement and scoring.
+        obj: the part's templates (its mesh gives the stable poses).
+        T_camera_object: the fit.
+        scene_c: (N, 3) the ROI cloud as the fit saw it (optical frame, m).
+        T_world_camera: the table frame (table at world z = 0).
+        params: the settings.
+
+    Returns:
+        the levelled pose (None when the part does not sit on the table, rests already,
+        has no stable pose near enough, or none fits as well) and what decided:
+        ``rest_tilt_deg`` (the fit's angle from the nearest stable pose), ``rest_contact_m``
+        (its lowest point's height), ``rest_tried``, ``rest_fitness`` (the free fit's),
+        ``rest_best_fitness`` (the best levelled one's) and ``rest_levelled``.
+    """
+    T_wc = np.asarray(T_world_camera, np.float64)
+    T_co = np.asarray(T_camera_object, np.float64)
+    T_wo = T_wc @ T_co
+    points_o = contact_points(obj)
+    height = float(np.min(transform_points(T_wo, points_o)[:, 2]))
+    angle, nearest = stable_offsets(obj, T_wo[:3, :3])
+    info = {'rest_tilt_deg': float(angle.min()) if len(angle) else 0.0,
+            'rest_contact_m': height, 'rest_tried': 0.0, 'rest_levelled': 0.0}
+    if not len(angle) or abs(height) > params.contact_m or \
+            angle.min() <= params.min_tilt_deg or len(scene_c) < 10:
+        return None, info
+    order = [int(s) for s in np.argsort(angle, kind='stable')
+             if angle[s] <= params.max_tilt_deg][:params.candidates]
+    if not order:
+        return None, info
+    centre_o = obj.derived('surface_centre',
+                           lambda: obj.model_points.mean(axis=0).astype(np.float64))
+    starts = levelled(T_wo, nearest[order], points_o, centre_o)
+    scene_w = transform_points(T_wc, scene_c)
+    sub = scene_w[::max(1, len(scene_w) // refiner.params.score_points)]
+    settled, _ = refiner.planar(starts, sub, obj, tau=obj.voxel_size_m)
+    T_cw = invert_transform(T_wc)
+    poses = np.einsum('ij,kjl->kil', T_cw, settled)
+    fitness = refiner.grid_fitness(np.concatenate([T_co[None], poses]), scene_c, obj)
+    k = int(np.argmax(fitness[1:]))
+    info.update(rest_tried=float(len(order)), rest_fitness=float(fitness[0]),
+                rest_best_fitness=float(fitness[1 + k]))
+    if fitness[1 + k] < fitness[0] - params.fitness_margin:
+        return None, info
+    info['rest_levelled'] = 1.0
+    return poses[k], info
+
+
+__all__ = ['RestingParams', 'contact_points', 'levelled', 'settle', 'stable_directions',
+           'stable_offsets']

@@ -1,0 +1,56 @@
+"""The resting-pose prior in the composed pipeline: a fitted part that sits on the table is
+levelled onto the nearest stable pose of its part when that fits its depth as well
+(:func:`~tlessbot_ros.core.pose.resting.settle`, ``FitParams.resting``) and the aligned
+height and colour votes of its views do not clearly prefer the free fit."""
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tlessbot_ros.core.flat_parts import colour_views, flat_check, table_frames
+from tlessbot_ros.core.pose.flat_turns import mesh_scene
+from tlessbot_ros.core.pose.resting import settle
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.frame import PartJob, ViewInput
+    from tlessbot_ros.core.pipeline import PerceptionPipeline
+
+
+def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+                  labels: dict[str, np.ndarray]) -> dict[str, float] | None:
+    """Level ``job``'s fit onto a stable pose of its part (:func:`settle`) unless the aligned
+    votes of its views (those with a table frame) clearly choose the free fit; the free fit
+    becomes the detection's ``second``. Returns what decided (None when not checked: the
+    prior off, no fit or no table frame)."""
+    detection = job.detection
+    estimator = pipeline.pose_estimator
+    params = pipeline.fit_params.resting
+    if not params.enabled or estimator is None or detection.pose is None or \
+            job.T_world_camera is None:
+        return None
+    obj = estimator.database[detection.obj_id]
+    check = flat_check(pipeline)
+    T_free = detection.pose.T_camera_object
+    T, info = settle(estimator.refiner, obj, T_free, check.prepared_cloud(obj, job.points),
+                     job.T_world_camera, params)
+    if T is None:
+        return info
+    mesh = mesh_scene(obj)
+    evidence = colour_views(views, labels, detection.instance_id, detection.view,
+                            table_frames(pipeline, views))
+    if mesh is not None and any(v.plane is not None for v in evidence):
+        found: dict[str, float] = {}
+        check.aligned_winner(obj, [mesh, mesh], [T_free, T], evidence, found)
+        if found.get('align_decided') and found.get('align_winner') == 0.0:
+            info['rest_levelled'] = 0.0
+            info['rest_votes_kept'] = 1.0
+            return info
+    detection.second = detection.pose
+    detection.pose = replace(detection.pose, T_camera_object=T,
+                             fitness=info['rest_best_fitness'])
+    return info
+
+
+__all__ = ['check_resting']
