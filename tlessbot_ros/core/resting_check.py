@@ -33,8 +33,8 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
     obj = estimator.database[detection.obj_id]
     check = flat_check(pipeline)
     T_free = detection.pose.T_camera_object
-    T, info = settle(estimator.refiner, obj, T_free, check.prepared_cloud(obj, job.points),
-                     job.T_world_camera, params)
+    scene_c = check.prepared_cloud(obj, job.points)
+    T, info = settle(estimator.refiner, obj, T_free, scene_c, job.T_world_camera, params)
     if T is None:
         return info
     mesh = mesh_scene(obj)
@@ -48,8 +48,8 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
             info['rest_votes_kept'] = 1.0
             return info
     detection.second = detection.pose
-    detection.pose = replace(detection.pose, T_camera_object=T,
-                             fitness=info['rest_best_fitness'])
+    fitness = float(estimator.refiner.grid_fitness(T[None], scene_c, obj)[0])
+    detection.pose = replace(detection.pose, T_camera_object=T, fitness=fitness)
     return info
 
 

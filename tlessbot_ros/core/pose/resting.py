@@ -12,8 +12,11 @@ gravity direction is more than ``min_tilt_deg`` from every stable pose's (modulo
 listed symmetries), tilts it onto the nearest stable poses by the least rotation (its yaw
 kept), lowers each onto the table, refits it in (yaw, x, y) on the table (the pose stage's
 planar Gauss-Newton) and keeps the best one only when it explains the depth as well as the free
-fit, within ``fitness_margin``. A part that leans on a neighbour (its lowest point above the
-table, or no stable pose that fits) keeps its fit.
+fit: as large a share of the depth points within ``tolerance_m`` of its surface (about two
+depth-noise widths: a tilt the depth cannot resolve is not measured), less ``fitness_margin``;
+among the levelled poses the one that explains most points (then the lowest RMSE) competes.
+A part that leans on a neighbour (its lowest point above the table, or no stable pose that
+fits) keeps its fit.
 
 Poses are ``T_camera_object`` (4, 4) metres in the optical frame; the table frame is
 ``T_world_camera`` with the table at world z = 0.
@@ -48,8 +51,10 @@ class RestingParams:
         candidates: at most this many of them, nearest first (>= 1).
         contact_m: a fit sits on the table when its lowest point is within this of the
             table plane, m (> 0).
-        fitness_margin: a levelled pose is taken when its depth fitness is at most this below
-            the free fit's (0..1).
+        tolerance_m: a depth point is explained within this of the surface, m (> 0; about two
+            depth-noise widths).
+        fitness_margin: a levelled pose is taken when it explains at most this share of the
+            depth points fewer than the free fit (0..1).
     """
 
     enabled: bool = True
@@ -57,16 +62,18 @@ class RestingParams:
     max_tilt_deg: float = 30.0
     candidates: int = 3
     contact_m: float = 0.004
+    tolerance_m: float = 0.002
     fitness_margin: float = 0.02
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_tilt_deg < self.max_tilt_deg <= 180.0:
             raise ValueError('need 0 <= min_tilt_deg < max_tilt_deg <= 180 degrees, got '
                              f'{self.min_tilt_deg}, {self.max_tilt_deg}')
-        if self.candidates < 1 or self.contact_m <= 0 or not 0 <= self.fitness_margin <= 1:
-            raise ValueError('candidates must be >= 1, contact_m > 0 and fitness_margin in '
-                             f'0..1, got {self.candidates}, {self.contact_m}, '
-                             f'{self.fitness_margin}')
+        if self.candidates < 1 or self.contact_m <= 0 or self.tolerance_m <= 0 or \
+                not 0 <= self.fitness_margin <= 1:
+            raise ValueError('candidates must be >= 1, contact_m and tolerance_m > 0, '
+                             f'fitness_margin in 0..1, got {self.candidates}, '
+                             f'{self.contact_m}, {self.tolerance_m}, {self.fitness_margin}')
 
 
 def stable_directions(obj: ObjectTemplates) -> np.ndarray | None:
@@ -148,8 +155,9 @@ def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
         the levelled pose (None when the part does not sit on the table, rests already,
         has no stable pose near enough, or none fits as well) and what decided:
         ``rest_tilt_deg`` (the fit's angle from the nearest stable pose), ``rest_contact_m``
-        (its lowest point's height), ``rest_tried``, ``rest_fitness`` (the free fit's),
-        ``rest_best_fitness`` (the best levelled one's) and ``rest_levelled``.
+        (its lowest point's height), ``rest_tried``, ``rest_fitness`` and ``rest_rmse_m``
+        (the free fit's, at ``tolerance_m``), ``rest_best_fitness`` and ``rest_best_rmse_m``
+        (the best levelled pose's) and ``rest_levelled``.
     """
     T_wc = np.asarray(T_world_camera, np.float64)
     T_co = np.asarray(T_camera_object, np.float64)
@@ -174,11 +182,13 @@ def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
     settled, _ = refiner.planar(starts, sub, obj, tau=obj.voxel_size_m)
     T_cw = invert_transform(T_wc)
     poses = np.einsum('ij,kjl->kil', T_cw, settled)
-    fitness = refiner.grid_fitness(np.concatenate([T_co[None], poses]), scene_c, obj)
-    k = int(np.argmax(fitness[1:]))
-    info.update(rest_tried=float(len(order)), rest_fitness=float(fitness[0]),
-                rest_best_fitness=float(fitness[1 + k]))
-    if fitness[1 + k] < fitness[0] - params.fitness_margin:
+    fits = [refiner.surface_fit(scene_c, obj, T, inlier_m=params.tolerance_m)
+            for T in np.concatenate([T_co[None], poses])]
+    k = min(range(len(poses)), key=lambda j: (-fits[1 + j][0], fits[1 + j][1]))
+    info.update(rest_tried=float(len(order)), rest_fitness=fits[0][0],
+                rest_best_fitness=fits[1 + k][0], rest_rmse_m=fits[0][1],
+                rest_best_rmse_m=fits[1 + k][1])
+    if fits[1 + k][0] < fits[0][0] - params.fitness_margin:
         return None, info
     info['rest_levelled'] = 1.0
     return poses[k], info
