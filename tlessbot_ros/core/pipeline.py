@@ -99,8 +99,8 @@ from tlessbot_ros.core.pose import (
     roi_cloud,
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
-from tlessbot_ros.core.resting_check import check_resting
-from tlessbot_ros.core.turn_check import check_turns, warm_up_turns
+from tlessbot_ros.core.resting_check import check_resting_and_turns
+from tlessbot_ros.core.turn_check import warm_up_turns
 
 _REPLACEABLE = frozenset({'rig', 'classifier', 'localise_params', 'classify_params',
                           'fit_params', 'segmentation', 'fusion', 'pose', 'part_extents_m'})
@@ -414,8 +414,7 @@ class PerceptionPipeline:
 
         def fitted(job: PartJob) -> None:
             check_fitted_part(self, job, views, labels)   # every view: not in a worker
-            check_turns(self, job, views, labels)
-            check_resting(self, job, views, labels)   # last: a turn may tilt the part
+            check_resting_and_turns(self, job, views, labels)
             arbiter.fitted(job.detection, *self._fitted_centre(job))
 
         if fitter is None:

@@ -12,6 +12,7 @@ import numpy as np
 from tlessbot_ros.core.flat_parts import colour_views, flat_check, table_frames
 from tlessbot_ros.core.pose.flat_turns import mesh_scene
 from tlessbot_ros.core.pose.resting import settle
+from tlessbot_ros.core.turn_check import check_turns
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.frame import PartJob, ViewInput
@@ -53,4 +54,16 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
     return info
 
 
-__all__ = ['check_resting']
+def check_resting_and_turns(pipeline: PerceptionPipeline, job: PartJob,
+                            views: dict[str, ViewInput], labels: dict[str, np.ndarray]) -> None:
+    """The resting prior (:func:`check_resting`), then the near-symmetric turns
+    (:func:`~tlessbot_ros.core.turn_check.check_turns`: they compare turns of a levelled pose),
+    then the prior again when a turn changed the pose (a refitted half turn may tilt it)."""
+    check_resting(pipeline, job, views, labels)
+    before = job.detection.pose
+    check_turns(pipeline, job, views, labels)
+    if job.detection.pose is not before:
+        check_resting(pipeline, job, views, labels)
+
+
+__all__ = ['check_resting', 'check_resting_and_turns']
