@@ -7,6 +7,7 @@ the table onto the nearest of them (:mod:`tlessbot_ros.core.pose.resting`): one 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -20,7 +21,8 @@ def centre_of_mass(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     total = vol6.sum()
     hull_volume = _hull_volume(v)
     if total != 0 and 0.05 * hull_volume < abs(total) / 6.0 <= 1.01 * hull_volume:
-        return (vol6[:, None] * tri.sum(axis=1)).sum(axis=0) / (4.0 * total)
+        com: np.ndarray = (vol6[:, None] * tri.sum(axis=1)).sum(axis=0) / (4.0 * total)
+        return com
     from scipy.spatial import ConvexHull
 
     hull = ConvexHull(v)
@@ -28,7 +30,9 @@ def centre_of_mass(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     ref = hull.points[hull.vertices].mean(axis=0)
     rel = tri - ref
     vol6 = np.abs(np.einsum('ij,ij->i', rel[:, 0], np.cross(rel[:, 1], rel[:, 2])))
-    return ref + (vol6[:, None] * rel.sum(axis=1)).sum(axis=0) / (4.0 * vol6.sum())
+    centroid: np.ndarray = ref + (vol6[:, None] * rel.sum(axis=1)).sum(axis=0) / (
+        4.0 * vol6.sum())
+    return centroid
 
 
 def _hull_volume(v: np.ndarray) -> float:
@@ -43,7 +47,8 @@ def _solid_angle(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     numer = np.abs(np.einsum('ij,ij->i', a, np.cross(b, c)))
     denom = (la * lb * lc + np.einsum('ij,ij->i', a, b) * lc + np.einsum('ij,ij->i', a, c) * lb
              + np.einsum('ij,ij->i', b, c) * la)
-    return 2.0 * np.arctan2(numer, denom)
+    angle: np.ndarray = 2.0 * np.arctan2(numer, denom)
+    return angle
 
 
 def _rotation_to_minus_z(n: np.ndarray) -> np.ndarray:
@@ -55,10 +60,11 @@ def _rotation_to_minus_z(n: np.ndarray) -> np.ndarray:
         return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
     axis /= s
     K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + s * K + (1 - c) * K @ K
+    R: np.ndarray = np.eye(3) + s * K + (1 - c) * K @ K
+    return R
 
 
-def _facets(hull) -> tuple[np.ndarray, np.ndarray]:
+def _facets(hull: Any) -> tuple[np.ndarray, np.ndarray]:
     """Coplanar hull triangles grouped: (facet index per triangle, one triangle per facet)."""
     eq = hull.equations
     scale = max(float(np.ptp(hull.points, axis=0).max()), 1e-9)
@@ -189,9 +195,9 @@ def _merge_rolling(g: _HullGeometry, com: np.ndarray, final: np.ndarray, stable_
                        shape=(n_facets, n_facets))
     _, component = connected_components(graph, directed=False)
     merged = np.bincount(component, weights=np.where(stable_f, share, 0.0))
-    keep = {}
+    keep: dict[int, int] = {}
     for f in stable:
-        c = component[f]
+        c = int(component[f])
         if c not in keep or share[f] > share[keep[c]]:
             keep[c] = f
     share = share.copy()
