@@ -31,7 +31,8 @@ are verified), ``lookalike_check``, ``lookalike_tolerance_m``, ``lookalike_min_z
 pose, checked in this process), ``flat.*`` (flat parts: the face that is up, told by the depth
 of both views and, with ``colour_input``, the colour image), ``turns.*`` (parts that are not
 flat: a near-symmetric turn of the fit that the colour image's edges support better, with
-``colour_input``; these and ``min_roi_points``,
+``colour_input``), ``resting.*`` (a fit on the table levelled onto the nearest stable pose of
+its part when that fits as well; these and ``min_roi_points``,
 ``table_clearance_m``, ``steep_angle_deg``: FitParams),
 ``pose.*``
 (PoseParams), ``workers.*`` (PoseWorkerParams: worker processes that fit parts while this node
