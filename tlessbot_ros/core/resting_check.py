@@ -11,7 +11,7 @@ import numpy as np
 
 from tlessbot_ros.core.flat_parts import colour_views, flat_check, table_frames
 from tlessbot_ros.core.pose.flat_turns import mesh_scene
-from tlessbot_ros.core.pose.resting import settle
+from tlessbot_ros.core.pose.resting import level_starts, settle
 from tlessbot_ros.core.turn_check import check_turns
 
 if TYPE_CHECKING:
@@ -32,8 +32,11 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
             job.T_world_camera is None:
         return None
     obj = estimator.database[detection.obj_id]
-    check = flat_check(pipeline)
     T_free = detection.pose.T_camera_object
+    starts, info = level_starts(obj, job.T_world_camera @ T_free, params)
+    if not len(starts):
+        return info   # nothing to try: the ROI cloud is not prepared
+    check = flat_check(pipeline)
     scene_c = check.prepared_cloud(obj, job.points)
     T, info = settle(estimator.refiner, obj, T_free, scene_c, job.T_world_camera, params)
     if T is None:

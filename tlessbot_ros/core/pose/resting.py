@@ -138,6 +138,29 @@ def levelled(T_world_object: np.ndarray, targets_o: np.ndarray, points_o: np.nda
     return out
 
 
+def level_starts(obj: ObjectTemplates, T_world_object: np.ndarray, params: RestingParams
+                 ) -> tuple[np.ndarray, dict[str, float]]:
+    """(K, 4, 4) ``T_world_object`` of the fit levelled onto each of the stable poses of
+    ``obj`` that :func:`settle` tries (:func:`levelled`; none when the fit does not sit on the
+    table, rests already or has no stable pose within ``max_tilt_deg``) and the fit's
+    ``rest_tilt_deg``, ``rest_contact_m``, ``rest_tried`` (0) and ``rest_levelled`` (0)."""
+    T_wo = np.asarray(T_world_object, np.float64)
+    points_o = contact_points(obj)
+    height = float(np.min(transform_points(T_wo, points_o)[:, 2]))
+    angle, nearest = stable_offsets(obj, T_wo[:3, :3])
+    info = {'rest_tilt_deg': float(angle.min()) if len(angle) else 0.0,
+            'rest_contact_m': height, 'rest_tried': 0.0, 'rest_levelled': 0.0}
+    order = [] if not len(angle) or abs(height) > params.contact_m or \
+        angle.min() <= params.min_tilt_deg else \
+        [int(s) for s in np.argsort(angle, kind='stable')
+         if angle[s] <= params.max_tilt_deg][:params.candidates]
+    if not order:
+        return np.zeros((0, 4, 4)), info
+    centre_o = obj.derived('surface_centre',
+                           lambda: obj.model_points.mean(axis=0).astype(np.float64))
+    return levelled(T_wo, nearest[order], points_o, centre_o), info
+
+
 def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
            scene_c: np.ndarray, T_world_camera: np.ndarray, params: RestingParams
            ) -> tuple[np.ndarray | None, dict[str, float]]:
@@ -161,22 +184,9 @@ def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
     """
     T_wc = np.asarray(T_world_camera, np.float64)
     T_co = np.asarray(T_camera_object, np.float64)
-    T_wo = T_wc @ T_co
-    points_o = contact_points(obj)
-    height = float(np.min(transform_points(T_wo, points_o)[:, 2]))
-    angle, nearest = stable_offsets(obj, T_wo[:3, :3])
-    info = {'rest_tilt_deg': float(angle.min()) if len(angle) else 0.0,
-            'rest_contact_m': height, 'rest_tried': 0.0, 'rest_levelled': 0.0}
-    if not len(angle) or abs(height) > params.contact_m or \
-            angle.min() <= params.min_tilt_deg or len(scene_c) < 10:
+    starts, info = level_starts(obj, T_wc @ T_co, params)
+    if not len(starts) or len(scene_c) < 10:
         return None, info
-    order = [int(s) for s in np.argsort(angle, kind='stable')
-             if angle[s] <= params.max_tilt_deg][:params.candidates]
-    if not order:
-        return None, info
-    centre_o = obj.derived('surface_centre',
-                           lambda: obj.model_points.mean(axis=0).astype(np.float64))
-    starts = levelled(T_wo, nearest[order], points_o, centre_o)
     scene_w = transform_points(T_wc, scene_c)
     sub = scene_w[::max(1, len(scene_w) // refiner.params.score_points)]
     settled, _ = refiner.planar(starts, sub, obj, tau=obj.voxel_size_m)
@@ -185,7 +195,7 @@ def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
     fits = [refiner.surface_fit(scene_c, obj, T, inlier_m=params.tolerance_m)
             for T in np.concatenate([T_co[None], poses])]
     k = min(range(len(poses)), key=lambda j: (-fits[1 + j][0], fits[1 + j][1]))
-    info.update(rest_tried=float(len(order)), rest_fitness=fits[0][0],
+    info.update(rest_tried=float(len(starts)), rest_fitness=fits[0][0],
                 rest_best_fitness=fits[1 + k][0], rest_rmse_m=fits[0][1],
                 rest_best_rmse_m=fits[1 + k][1])
     if fits[1 + k][0] < fits[0][0] - params.fitness_margin:
@@ -194,5 +204,5 @@ def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
     return poses[k], info
 
 
-__all__ = ['RestingParams', 'contact_points', 'levelled', 'settle', 'stable_directions',
-           'stable_offsets']
+__all__ = ['RestingParams', 'contact_points', 'level_starts', 'levelled', 'settle',
+           'stable_directions', 'stable_offsets']
