@@ -145,9 +145,9 @@ def level_starts(obj: ObjectTemplates, T_world_object: np.ndarray, params: Resti
     table, rests already or has no stable pose within ``max_tilt_deg``) and the fit's
     ``rest_tilt_deg``, ``rest_contact_m``, ``rest_tried`` (0) and ``rest_levelled`` (0)."""
     T_wo = np.asarray(T_world_object, np.float64)
-    points_o = contact_points(obj)
-    height = float(np.min(transform_points(T_wo, points_o)[:, 2]))
     angle, nearest = stable_offsets(obj, T_wo[:3, :3])
+    points_o = contact_points(obj)
+    height = float(np.min(transform_points(T_wo, points_o)[:, 2])) if len(angle) else 0.0
     info = {'rest_tilt_deg': float(angle.min()) if len(angle) else 0.0,
             'rest_contact_m': height, 'rest_tried': 0.0, 'rest_levelled': 0.0}
     order = [] if not len(angle) or abs(height) > params.contact_m or \
