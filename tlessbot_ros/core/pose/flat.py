@@ -99,8 +99,8 @@ class FlatParams:
             this, m (>= 0).
         depth_min_z: the depth vote overturns the pose only with a surplus above this many
             coin-toss deviations (>= 0).
-        align_px: each pose's rendering is aligned to the view by shifts of at most this many
-            pixels before the height and colour vote (>= 0).
+        align_m: each pose's rendering is aligned to the view by shifts that cover this error
+            of the fit in the table plane before the height and colour vote, m (>= 0).
         align_min_z: a turned pose wins the aligned vote only with a surplus above this many
             coin-toss deviations (>= 0).
         yaw_turns: a round flat part also competes turned about its thin axis by each
@@ -124,7 +124,7 @@ class FlatParams:
     yaw_min_gain: float = 0.02
     depth_tolerance_m: float = 0.002
     depth_min_z: float = 2.0
-    align_px: int = 3
+    align_m: float = 0.006
     align_min_z: float = 3.0
     yaw_turns: int = 6
 
@@ -138,11 +138,11 @@ class FlatParams:
                              f'got {self.min_share}, {self.iou_weight}, {self.yaw_step_deg}')
         if not 0.0 <= self.flat_ratio <= 1.0 or self.edge_px <= 0:
             raise ValueError('flat_ratio must be in [0, 1] and edge_px positive')
-        if self.depth_tolerance_m < 0 or self.depth_min_z < 0 or self.align_px < 0 or \
+        if self.depth_tolerance_m < 0 or self.depth_min_z < 0 or self.align_m < 0 or \
                 self.align_min_z < 0:
-            raise ValueError(f'depth_tolerance_m, depth_min_z, align_px and align_min_z must '
+            raise ValueError(f'depth_tolerance_m, depth_min_z, align_m and align_min_z must '
                              f'be >= 0; got {self.depth_tolerance_m}, {self.depth_min_z}, '
-                             f'{self.align_px}, {self.align_min_z}')
+                             f'{self.align_m}, {self.align_min_z}')
 
 
 @dataclass(frozen=True)
@@ -367,8 +367,12 @@ class FlatCheck:
             # turn, of which the two beside the true yaw split the votes
             rivals = [0] + list(range(len(base), len(base) * len(parts)))
         k = self.aligned_winner(obj, [m for _, m in parts for _ in base],
-                                [T for _ in parts for T in base], views, info, rivals)
+                                [T for _ in parts for T in base], views, info, rivals,
+                                fitted=range(0, len(base) * len(parts), len(base))
+                                if rivals is None else ())
         winner, k = parts[k // len(base)][0], k % len(base)
+        if not info['align_decided']:
+            winner = obj   # a face taken undecided: the twins' own checks name the part
         info['twin'] = float(winner.obj_id)
         if k == 0:
             return None, info
@@ -386,27 +390,40 @@ class FlatCheck:
     def aligned_winner(self, obj: ObjectTemplates,
                        meshes: Sequence[o3d.t.geometry.RaycastingScene],
                        poses: Sequence[np.ndarray], views: Sequence[ViewEvidence],
-                       info: dict[str, float], rivals: Sequence[int] | None = None) -> int:
+                       info: dict[str, float], rivals: Sequence[int] | None = None, *,
+                       fitted: Sequence[int] = ()) -> int:
         """The pose among ``poses`` (of ``meshes``, the fitted pose of ``obj`` first) that the
         aligned height and colour votes of every view choose
         (:func:`~.flat_align.view_votes`): the winner of the duels between all of them
         (:func:`~.flat_align.round_robin`) when its surplus over every other pose (over the
         ``rivals`` among them, when given) is clear (``align_min_z``;
         ``info['align_decided']`` 1, the fitted pose kept as clearly as a turn is taken);
-        else 0 (undecided)."""
-        from tlessbot_ros.core.pose.flat_align import round_robin, view_votes
+        else 0 (undecided), unless another pose clearly beats each of the ``fitted`` ones (the
+        fitted pose, of each mesh): then the winner of the duels among the poses that no pose
+        beats clearly (:func:`~.flat_align.undominated`; ``info['align_cleared']`` 1).
+
+        A pose that another beats by a clear margin is what the views rule out (the margin's
+        premise, the one a decided round rests on); the round being undecided between other
+        poses is no reason to keep it (docs/flat-parts.md)."""
+        from tlessbot_ros.core.pose.flat_align import round_robin, undominated, view_votes
         from tlessbot_ros.core.pose.lookalike import clear_margin
 
         p = self.params
         votes = view_votes(meshes, poses, obj.model_points.astype(np.float64),
-                           views, pad=p.align_px, tolerance_m=p.depth_tolerance_m)
+                           views, align_m=p.align_m, tolerance_m=p.depth_tolerance_m)
         k = round_robin(votes)
         decided = all(clear_margin(int(votes[k, j]), int(votes[j, k]), p.align_min_z)
                       for j in (range(len(poses)) if rivals is None else rivals) if j != k)
-        info.update(align_winner=float(k), align_decided=float(decided))
+        info.update(align_winner=float(k), align_decided=float(decided), align_cleared=0.0)
         own = [j for j in range(len(poses)) if meshes[j] is meshes[0]]
         self.ranked = ([poses[j] for j in own], votes[np.ix_(own, own)])
-        return k if decided else 0
+        if decided:
+            return k
+        alive = undominated(votes, p.align_min_z)
+        if not fitted or not alive or set(fitted) & set(alive):
+            return 0
+        info['align_cleared'] = 1.0
+        return alive[round_robin(votes[np.ix_(alive, alive)])]
 
     def image_winner(self, obj: ObjectTemplates, poses: Sequence[np.ndarray],
                      views: Sequence[ViewEvidence], info: dict[str, float]) -> int:

@@ -5,9 +5,10 @@ look-alike twin) differ where their holes, slots and cut corners lie: a few pixe
 depth fit leaves a thin part a few millimetres off in the table plane (its flat face does not
 hold it there), which moves its outline by as many pixels: compared where they stand, the
 two poses' outlines dispute more pixels than their holes do, and the vote follows the fit's
-error. So each pose is first aligned: its rendering is shifted by whole pixels (at most
-``align_px`` either way) to where it agrees best with the view (a small in-plane search, in
-the spirit of chamfer matching, Barrow et al., IJCAI 1977), and the poses are compared
+error. So each pose is first aligned: its rendering is shifted by whole pixels (as many
+either way as ``align_m`` spans at the part's distance) to where it agrees best with the view
+(a small in-plane search, in the spirit of chamfer matching, Barrow et al., IJCAI 1977), and
+the poses are compared
 aligned, pixel by pixel, on two cues:
 
 * **height above the table**: the mesh's top surface where a pixel's ray meets the mesh,
@@ -132,21 +133,28 @@ def alignment_score(view: AlignedView, hit: np.ndarray, height: np.ndarray,
 def best_shift(view: AlignedView, k: int, tolerance_m: float
                ) -> tuple[np.ndarray, np.ndarray]:
     """Pose ``k``'s rendering shifted to where it agrees best with the view
-    (:func:`alignment_score`, every whole-pixel shift of at most ``pad``; no shift on a
-    tie)."""
+    (:func:`alignment_score`; no shift on a tie): every shift of at most ``pad`` pixels on a
+    grid of 2 pixels, then the 8 shifts around the best of them. The score is an overlap of
+    a part tens of pixels wide, smooth over a pixel or two, so the grid finds its peak's
+    neighbourhood at a quarter of the cost of every shift."""
     hit, height = view.renders[k]
     pad = view.pad
-    best = (shifted(hit, pad, 0, 0), shifted(height, pad, 0, 0))
-    best_score = alignment_score(view, *best, tolerance_m)
-    for dy in range(-pad, pad + 1):
-        for dx in range(-pad, pad + 1):
-            if dx == dy == 0:
-                continue
-            moved = (shifted(hit, pad, dx, dy), shifted(height, pad, dx, dy))
-            score = alignment_score(view, *moved, tolerance_m)
-            if score > best_score:
-                best, best_score = moved, score
-    return best
+
+    def score(shift: tuple[int, int]) -> float:
+        return alignment_score(view, shifted(hit, pad, *shift), shifted(height, pad, *shift),
+                               tolerance_m)
+
+    best, best_score = (0, 0), score((0, 0))
+    grid = range(-(pad // 2) * 2, pad + 1, 2)
+    coarse = [(dx, dy) for dy in grid for dx in grid]
+    for shifts in (coarse, None):
+        if shifts is None:   # the 8 neighbours of the grid's best
+            shifts = [(best[0] + dx, best[1] + dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+                      if max(abs(best[0] + dx), abs(best[1] + dy)) <= pad]
+        for shift in shifts:
+            if shift != (0, 0) and (value := score(shift)) > best_score:
+                best, best_score = shift, value
+    return shifted(hit, pad, *best), shifted(height, pad, *best)
 
 
 def pooled_votes(views: Sequence[AlignedView], count: int, tolerance_m: float
@@ -171,6 +179,17 @@ def round_robin(votes: np.ndarray) -> int:
     wins = np.count_nonzero(net > 0, axis=1)
     order = np.lexsort((np.arange(len(wins)), -net.sum(axis=1), -wins))
     return int(order[0])
+
+
+def undominated(votes: np.ndarray, min_z: float) -> list[int]:
+    """The poses that no other pose beats by a clear margin (``votes`` [i, j]: pixels for i
+    against j; :func:`~.lookalike.clear_margin` at ``min_z``)."""
+    from tlessbot_ros.core.pose.lookalike import clear_margin
+
+    count = len(votes)
+    return [i for i in range(count)
+            if not any(clear_margin(int(votes[j, i]), int(votes[i, j]), min_z)
+                       for j in range(count) if j != i)]
 
 
 def aligned_view(renderers: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.ndarray]],
@@ -206,11 +225,12 @@ def aligned_view(renderers: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.nd
 
 
 def view_votes(scenes: Sequence[o3d.t.geometry.RaycastingScene], poses: Sequence[np.ndarray],
-               points_o: np.ndarray, views: Sequence[ViewEvidence], *, pad: int,
+               points_o: np.ndarray, views: Sequence[ViewEvidence], *, align_m: float,
                tolerance_m: float) -> np.ndarray:
     """(K, K) :func:`pooled_votes` of K poses (pose k of the mesh ``scenes[k]``, in the fitted
     view's frame; ``points_o`` the model samples that bound them) over every view with a
-    table plane and colour or depth."""
+    table plane and colour or depth, each rendering aligned by shifts that cover ``align_m``
+    in the table plane (:func:`shift_px`)."""
     from tlessbot_ros.core.pose.silhouette import window
 
     aligned = []
@@ -218,6 +238,7 @@ def view_votes(scenes: Sequence[o3d.t.geometry.RaycastingScene], poses: Sequence
         if view.plane is None or (view.rgb is None and view.depth_m is None):
             continue
         T = [view.T_view_fit @ np.asarray(T_k, np.float64) for T_k in poses]
+        pad = shift_px(view.intrinsics, points_o, T[0], align_m)
         box = window(points_o, T, view.intrinsics, margin_px=pad + 4)
         if box is None:
             continue
@@ -225,6 +246,19 @@ def view_votes(scenes: Sequence[o3d.t.geometry.RaycastingScene], poses: Sequence
                                     view.plane, rgb=view.rgb, depth_m=view.depth_m,
                                     others=view.others, tolerance_m=tolerance_m))
     return pooled_votes(aligned, len(poses), tolerance_m)
+
+
+def shift_px(intrinsics: CameraIntrinsics, points_o: np.ndarray, T_camera_object: np.ndarray,
+             align_m: float) -> int:
+    """The whole pixels that ``align_m`` spans at the distance of a part at a pose (the
+    median depth of its model samples ``points_o``): how far the aligned votes shift each
+    rendering. The fit's error in the table plane is a length; a camera twice as near sees it
+    twice as many pixels long."""
+    depth = float(np.median(np.asarray(points_o, np.float64) @ T_camera_object[2, :3]
+                            + T_camera_object[2, 3]))
+    if align_m <= 0 or depth <= 0:
+        return 0
+    return int(np.ceil(intrinsics.K[0, 0] * align_m / depth))
 
 
 def voting_region(renders: Sequence[tuple[np.ndarray, np.ndarray]], pad: int,
@@ -241,5 +275,5 @@ def voting_region(renders: Sequence[tuple[np.ndarray, np.ndarray]], pad: int,
 
 
 __all__ = ['AlignedView', 'aligned_view', 'alignment_score', 'best_shift', 'measured_heights',
-           'pixel_votes', 'pooled_votes', 'render_heights', 'round_robin', 'shifted',
-           'view_votes', 'voting_region']
+           'pixel_votes', 'pooled_votes', 'render_heights', 'round_robin', 'shift_px',
+           'shifted', 'undominated', 'view_votes', 'voting_region']
