@@ -366,13 +366,14 @@ class FlatCheck:
             # is a guess, so the best turn need only beat it (and the twins), not each other
             # turn, of which the two beside the true yaw split the votes
             rivals = [0] + list(range(len(base), len(base) * len(parts)))
+        # the fitted face may be left undecided only among half turns: a round part's yaw
+        # turns lie a few pixels apart, and two neighbours beat a third by chance
+        faces = len(base) == 4 and rivals is None
         k = self.aligned_winner(obj, [m for _, m in parts for _ in base],
                                 [T for _ in parts for T in base], views, info, rivals,
                                 fitted=range(0, len(base) * len(parts), len(base))
-                                if rivals is None else ())
+                                if faces else ())
         winner, k = parts[k // len(base)][0], k % len(base)
-        if not info['align_decided']:
-            winner = obj   # a face taken undecided: the twins' own checks name the part
         info['twin'] = float(winner.obj_id)
         if k == 0:
             return None, info
