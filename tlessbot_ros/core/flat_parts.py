@@ -32,11 +32,10 @@ def check_fitted_part(pipeline: PerceptionPipeline, job: PartJob,
     worker): the flat parts' orientation check (:func:`check_flat`), the depth's look-alike
     check (:meth:`PerceptionPipeline.check_lookalike`), then the twins on the image
     (:func:`check_twins`)."""
-    info = check_flat(pipeline, job, views, labels) or {}
-    if info.get('align_decided'):
+    info = check_flat(pipeline, job, views, labels)
+    if info is not None and info.get('align_decided'):
         return   # the aligned votes of every view named the part among its twins too
-    if not info.get('align_cleared'):   # else named as the aligned votes lean
-        pipeline.check_lookalike(job)
+    pipeline.check_lookalike(job)
     check_twins(pipeline, job, views, labels)
 
 
@@ -93,8 +92,7 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
         twins = [database[i] for i in obj.lookalikes if i in database]
         T, info = check.resolve(obj, detection.pose.T_camera_object, job.points,
                                 job.T_world_camera, evidence, twins)
-        if (info.get('align_decided') or info.get('align_cleared')) and \
-                int(info['twin']) != detection.obj_id:
+        if info.get('align_decided') and int(info['twin']) != detection.obj_id:
             rename(detection, job, int(info['twin']))
             obj = database[detection.obj_id]
         if T is not None:

@@ -366,14 +366,14 @@ class FlatCheck:
             # is a guess, so the best turn need only beat it (and the twins), not each other
             # turn, of which the two beside the true yaw split the votes
             rivals = [0] + list(range(len(base), len(base) * len(parts)))
-        # the fitted face may be left undecided only among half turns: a round part's yaw
-        # turns lie a few pixels apart, and two neighbours beat a third by chance
-        faces = len(base) == 4 and rivals is None
+        faces = len(base) == 4 and rivals is None   # half turns only (docs/flat-parts.md)
         k = self.aligned_winner(obj, [m for _, m in parts for _ in base],
                                 [T for _ in parts for T in base], views, info, rivals,
                                 fitted=range(0, len(base) * len(parts), len(base))
                                 if faces else ())
         winner, k = parts[k // len(base)][0], k % len(base)
+        if not info['align_decided']:
+            winner = obj   # a face taken undecided: the twins' own checks name the part
         info['twin'] = float(winner.obj_id)
         if k == 0:
             return None, info
@@ -401,11 +401,8 @@ class FlatCheck:
         ``info['align_decided']`` 1, the fitted pose kept as clearly as a turn is taken);
         else 0 (undecided), unless another pose clearly beats each of the ``fitted`` ones (the
         fitted pose, of each mesh): then the winner of the duels among the poses that no pose
-        beats clearly (:func:`~.flat_align.undominated`; ``info['align_cleared']`` 1).
-
-        A pose that another beats by a clear margin is what the views rule out (the margin's
-        premise, the one a decided round rests on); the round being undecided between other
-        poses is no reason to keep it (docs/flat-parts.md)."""
+        beats clearly (:func:`~.flat_align.undominated`; ``info['align_cleared']`` 1): a pose
+        that another beats clearly is what the views rule out (docs/flat-parts.md)."""
         from tlessbot_ros.core.pose.flat_align import round_robin, undominated, view_votes
         from tlessbot_ros.core.pose.lookalike import clear_margin
 
