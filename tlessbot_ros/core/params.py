@@ -129,6 +129,8 @@ class FitParams:
             mask's depth points is unknown (0..1; 0: off; never in box mode: a box holds others).
         unknown_without_fit: a part with depth but no fit (fewer than ``min_roi_points``
             points) is unknown too (off: it keeps the classifier's name).
+        split_unexplained: a connected piece of a region's depth points (at least
+            ``min_roi_points``) that its fit leaves unexplained is fitted as a part of its own.
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
             visible surface (>= 0; 0: off).
         flat: flat parts: the face that is up (depth and colour image), the yaw and a look-alike
@@ -168,6 +170,7 @@ class FitParams:
     unknown_in_outline: bool = True
     unknown_below_cover: float = 0.5
     unknown_without_fit: bool = False
+    split_unexplained: bool = True
     fit_rank_coverage_weight: float = 0.0
     flat: FlatParams = field(default_factory=FlatParams)
     turns: TurnParams = field(default_factory=TurnParams)

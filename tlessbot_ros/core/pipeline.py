@@ -101,6 +101,7 @@ from tlessbot_ros.core.pose import (
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
 from tlessbot_ros.core.resting_check import check_resting_and_turns
 from tlessbot_ros.core.turn_check import warm_up_turns
+from tlessbot_ros.core.two_parts import split_then
 
 _REPLACEABLE = frozenset({'rig', 'classifier', 'localise_params', 'classify_params',
                           'fit_params', 'segmentation', 'fusion', 'pose', 'part_extents_m'})
@@ -406,9 +407,9 @@ class PerceptionPipeline:
                 if self.fit_params.unknown_without_fit:   # no depth to fit: unknown
                     mark_unknown(detection, len(candidates))
             done(detection)
-        # ground-truth boxes are one part each, never a fragment: in a pile the boxes of
-        # long parts (keys, screws) overlap and their fits sit closer than the filter allows
+        # a ground-truth box is one part, never a fragment (piled keys' boxes overlap)
         last = unknown_last(self.fit_params, jobs, done, self.pose_estimator, box_mode=box_mode)
+        last, pieces = split_then(self, views, labels, jobs, last, done, box_mode=box_mode)
         arbiter = one_part_filter(jobs, last, self.fit_params, self.pose_estimator,
                                   0.0 if box_mode else self.fit_params.fragment_overlap)
 
@@ -423,7 +424,7 @@ class PerceptionPipeline:
                 fitted(job)
         else:
             fitter.fit_all(jobs, self.fit_part, fitted)
-        return join_pieces(arbiter, detections, labels)   # a dropped piece's region joins
+        return join_pieces(arbiter, detections, labels) + pieces   # one_part.py, two_parts.py
 
     def _lookalike_views(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
                          counts: dict[str, np.ndarray], boxes: dict[str, np.ndarray],
@@ -486,9 +487,9 @@ class PerceptionPipeline:
                                          {i: g.candidates for i, g in guesses.items()},
                                          fitter=fitter)
         t3 = time.perf_counter()
-        for detection in detections:
-            guess = guesses[detection.instance_id]
-            detection.class_score, detection.class_margin = guess.score, guess.margin
+        for detection in detections:   # a divided region's piece has no guess of its own
+            if (guess := guesses.get(detection.instance_id)) is not None:
+                detection.class_score, detection.class_margin = guess.score, guess.margin
         return FrameResult(detections, fusion.labels, {
             'segmentation': 1e3 * (t1 - t0), 'classification': 1e3 * (t2 - t1),
             'pose': 1e3 * (t3 - t2), 'frame': 1e3 * (t3 - t0)}, self.table_frames)

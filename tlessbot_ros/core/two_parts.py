@@ -1,0 +1,340 @@
+"""Two parts found as one are divided after the fit (issue 41): the mirror of
+:mod:`tlessbot_ros.core.one_part`.
+
+Flat parts that touch on the table (a plate against a disc, a strip across a bracket's foot)
+stand at the same height, often in the same colour, and the localiser finds them as one
+region in both views; the region is classified as one part and fitted as one. After the fit
+it shows: the fitted part explains its own depth points (inside its outline, within
+``verify_inlier_m`` of its surface: the unknown rule's test,
+:func:`~tlessbot_ros.core.part_fit.outline_shares`), and the other part's points are left
+over as one connected piece. A rigid part cannot leave a piece of itself unexplained by a
+correct fit, so a connected piece of at least ``min_roi_points`` unexplained points is
+another part: it becomes its own region (in every view whose depth shows it), is classified
+(the classifier where the pipeline has one, else its fit among every known part) and fitted.
+
+The rest of the region is classified and fitted again the same way, the region's pixels go
+to the one fit that explains them, and both sides are fitted once more on their pixels. The
+piece is kept only when it is a part by the rules of any region (:func:`fits_alone`: the
+unknown rule on its own points, and its points cover :data:`MIN_COVERAGE` of its fitted
+model), the rest still is one, and neither fit explains the other's points (:func:`apart`:
+else one part was fitted twice). Otherwise the region is left as it was. A kept piece may be
+divided again (three parts in a row).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from tlessbot_ros.core.common import depth_to_points, mask_box, transform_points
+from tlessbot_ros.core.flat_parts import check_fitted_part
+from tlessbot_ros.core.frame import Detection, PartJob
+from tlessbot_ros.core.part_fit import outline_shares, pose_stage, unknown_last
+from tlessbot_ros.core.pose import inside_outline, roi_cloud
+from tlessbot_ros.core.recognise import UNKNOWN_ID
+from tlessbot_ros.core.resting_check import check_resting_and_turns
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.frame import ViewInput
+    from tlessbot_ros.core.pipeline import PerceptionPipeline
+    from tlessbot_ros.core.pose import ObjectTemplates, Refiner
+
+# A piece is a part only when its points cover at least this share of its fitted model's
+# surface that faces the camera: the share of a part that must be visible for it to count
+# as seen (the BOP targets' visib_fract >= 0.3).
+MIN_COVERAGE = 0.3
+
+
+def unexplained_piece(mask: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
+                      obj: ObjectTemplates, T_camera_object: np.ndarray, refiner: Refiner, *,
+                      inlier_m: float, min_points: int) -> np.ndarray | None:
+    """(H, W) bool: the largest connected piece of ``mask``'s depth pixels that ``obj`` at
+    ``T_camera_object`` (this camera's optical frame) does not explain (outside its outline or
+    farther than ``inlier_m`` from its surface), with the mask's other pixels that lie nearer
+    to it than to the explained ones; None when that piece has fewer than ``min_points``
+    points."""
+    box = mask_box(mask)
+    if box[2] == 0:
+        return None
+    points, pixels = depth_to_points(depth_m, K, mask=mask, box=box)
+    if len(points) < min_points:
+        return None
+    points = points.astype(np.float64)
+    model = transform_points(T_camera_object, obj.model_points.astype(np.float64))
+    inside = inside_outline(points, model, obj.sample_spacing_m())
+    off = refiner.surface_distances(points, obj, T_camera_object, reach_m=inlier_m) > inlier_m
+    bad = ~inside | off
+    if np.count_nonzero(bad) < min_points:
+        return None
+    x0, y0, w, h = box
+    marks = np.zeros((h, w), np.uint8)
+    marks[pixels[bad, 0] - y0, pixels[bad, 1] - x0] = 1
+    count, components = cv2.connectedComponents(marks, connectivity=8)
+    sizes = np.bincount(components[marks > 0], minlength=count)
+    sizes[0] = 0
+    biggest = int(np.argmax(sizes))
+    if sizes[biggest] < min_points:
+        return None
+    piece = components == biggest
+    explained = np.zeros((h, w), np.uint8)
+    explained[pixels[~bad, 0] - y0, pixels[~bad, 1] - x0] = 1
+    # the mask's other pixels (no depth, or unexplained specks) go to the nearer side
+    to_piece = cv2.distanceTransform((~piece).astype(np.uint8), cv2.DIST_L2, 3)
+    to_rest = cv2.distanceTransform(1 - explained, cv2.DIST_L2, 3) if explained.any() else \
+        np.full((h, w), np.inf, np.float32)
+    window = mask[y0:y0 + h, x0:x0 + w]
+    out = np.zeros(mask.shape, bool)
+    out[y0:y0 + h, x0:x0 + w] = window & (piece | ((explained == 0) & (to_piece < to_rest)))
+    return out
+
+
+def piece_in_views(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+                   labels: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Per view that sees ``job``'s part with depth and a table frame: the piece of its
+    region that the fit leaves unexplained (:func:`unexplained_piece`), in the fitted view
+    first; {} when the fitted view has none."""
+    detection = job.detection
+    estimator = pose_stage(pipeline.pose_estimator)
+    assert detection.pose is not None
+    obj = estimator.database[detection.obj_id]
+    p = pipeline.fit_params
+    fit_view = views[detection.view]
+    pieces: dict[str, np.ndarray] = {}
+    for name in [detection.view] + [v for v in labels if v != detection.view]:
+        view = views.get(name)
+        if view is None or view.depth_m is None:
+            continue
+        if name == detection.view:
+            T = detection.pose.T_camera_object
+        elif view.T_world_camera is None or fit_view.T_world_camera is None:
+            continue
+        else:
+            T = np.linalg.inv(view.T_world_camera) @ fit_view.T_world_camera @ \
+                detection.pose.T_camera_object
+        region = labels[name] == detection.instance_id
+        piece = unexplained_piece(region, view.depth_m, view.intrinsics.K, obj, T,
+                                  estimator.refiner, inlier_m=p.verify_inlier_m,
+                                  min_points=p.min_roi_points)
+        if piece is None and name == detection.view:
+            return {}
+        if piece is not None:
+            pieces[name] = piece
+    return pieces
+
+
+def split_then(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
+               labels: dict[str, np.ndarray], jobs: Sequence[PartJob],
+               judge: Callable[[Detection], None], publish: Callable[[Detection], None], *,
+               box_mode: bool = False, found: list[Detection] | None = None
+               ) -> tuple[Callable[[Detection], None], list[Detection]]:
+    """``judge`` (the unknown rule, then ``publish``) behind the division of each kept part's
+    region (see the module), and the list (``found``, or a new one) that each piece kept as
+    a part of its own is appended to, once judged and published; ``labels`` then give it its
+    own instance id in every view that shows it (arrays replaced, not written into). Off
+    (``judge`` itself) with ``FitParams.split_unexplained`` off or in ``box_mode``."""
+    found = [] if found is None else found
+    if box_mode or not pipeline.fit_params.split_unexplained:
+        return judge, found
+    by_detection = {id(job.detection): job for job in jobs}
+
+    def divided(detection: Detection) -> None:
+        job = by_detection[id(detection)]
+        piece = None
+        if detection.pose is not None and detection.obj_id != UNKNOWN_ID and \
+                job.T_world_camera is not None:
+            piece = split_off(pipeline, job, views, labels, list(by_detection.values()))
+        judge(detection)
+        if piece is not None:   # the piece may hold a third part
+            by_detection[id(piece.detection)] = piece
+            found.append(piece.detection)
+            split_then(pipeline, views, labels, list(by_detection.values()), unknown_last(
+                pipeline.fit_params, [piece], publish, pipeline.pose_estimator), publish,
+                found=found)[0](piece.detection)
+    return divided, found
+
+
+def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+              labels: dict[str, np.ndarray], others: Sequence[PartJob] = ()) -> PartJob | None:
+    """The piece of ``job``'s region that its fit leaves unexplained, fitted, when it is a
+    part (see the module) that none of ``others`` (the frame's fitted parts) sits on already:
+    ``labels`` are then divided and ``job`` (its points, box, class and pose) refitted on what
+    is left; else None and nothing changed."""
+    if not pipeline.flat_ids:   # no flat part: the depth's seams divide touching parts
+        return None
+    pieces = piece_in_views(pipeline, job, views, labels)
+    if not pieces:
+        return None
+    detection = job.detection
+    new_id = 1 + max(int(image.max(initial=0)) for image in labels.values())
+    if new_id > np.iinfo(labels[detection.view].dtype).max:
+        return None
+    divided = dict(labels)
+    divided.update({name: np.where(piece, new_id, labels[name]).astype(labels[name].dtype)
+                    for name, piece in pieces.items()})
+    piece = divided_job(pipeline, job, views, divided, new_id)
+    if piece is None or not fits_alone(pipeline, piece):
+        return None
+    if any(same_place(pipeline, piece, other) for other in others if other is not job):
+        return None   # a part found in a region of its own too
+    rest = divided_job(pipeline, job, views, divided, detection.instance_id)
+    if rest is None or not fits_alone(pipeline, rest) or not apart(pipeline, piece, rest) or \
+            not {piece.detection.obj_id, rest.detection.obj_id} & pipeline.flat_ids:
+        return None
+    view = views[detection.view]
+    divided[detection.view] = reassigned(pipeline, view, divided[detection.view], rest, piece)
+    for side in (rest, piece):   # once more, each on the pixels that its first fit explains
+        first = dict(vars(side.detection))
+        pipeline.fit_part(side)
+        if side.detection.pose is None:
+            vars(side.detection).update(first)
+    divided[detection.view] = reassigned(pipeline, view, divided[detection.view], rest, piece)
+    for fitted in (piece, rest):
+        check_fitted_part(pipeline, fitted, views, divided)
+        check_resting_and_turns(pipeline, fitted, views, divided)
+        mask = divided[detection.view] == fitted.detection.instance_id
+        fitted.detection.box = mask_box(mask)
+    labels.update(divided)
+    job.points, job.candidates = rest.points, rest.candidates
+    vars(detection).update(vars(rest.detection))
+    return piece
+
+
+def reassigned(pipeline: PerceptionPipeline, view: ViewInput, labels: np.ndarray, *jobs: PartJob
+               ) -> np.ndarray:
+    """``labels`` of the fitted view with each depth pixel of ``jobs``' regions given to the
+    one fit that explains it (inside its outline, within ``verify_inlier_m`` of its surface),
+    where exactly one does; ``jobs``' points follow their regions."""
+    estimator = pose_stage(pipeline.pose_estimator)
+    assert view.depth_m is not None
+    ids = [job.detection.instance_id for job in jobs]
+    region = np.isin(labels, ids)
+    points, pixels = depth_to_points(view.depth_m, view.intrinsics.K, mask=region,
+                                     box=mask_box(region))
+    points = points.astype(np.float64)
+    explains = []
+    for job in jobs:
+        pose, obj = job.detection.pose, estimator.database[job.detection.obj_id]
+        assert pose is not None
+        T = pose.T_camera_object
+        near = estimator.refiner.surface_distances(points, obj, T, reach_m=pipeline.fit_params
+                                                   .verify_inlier_m)
+        explains.append(inside_outline(points, transform_points(T, obj.model_points.astype(
+            np.float64)), obj.sample_spacing_m()) & (near <= pipeline.fit_params.verify_inlier_m))
+    out: np.ndarray = np.array(labels, copy=True)
+    for k, instance in enumerate(ids):
+        alone = explains[k] & ~np.any([e for j, e in enumerate(explains) if j != k], axis=0)
+        out[pixels[alone, 0], pixels[alone, 1]] = instance
+    for job in jobs:
+        mask = out == job.detection.instance_id
+        job.points = roi_cloud(view.depth_m, mask, view.intrinsics, box=mask_box(mask))
+        job.detection.n_points = len(job.points)
+    return out
+
+
+def divided_job(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+                labels: dict[str, np.ndarray], instance: int) -> PartJob | None:
+    """One side of a divided region (``instance`` in ``labels``), classified
+    (:func:`piece_candidates`) and fitted in ``job``'s view and table frame; None when it
+    has too few depth points or no candidate."""
+    name = job.detection.view
+    view = views[name]
+    assert view.depth_m is not None
+    mask = labels[name] == instance
+    box = mask_box(mask)
+    points = roi_cloud(view.depth_m, mask, view.intrinsics, box=box)
+    candidates = piece_candidates(pipeline, views, labels, instance, job.candidates
+                                  if instance == job.detection.instance_id else None)
+    if not candidates or len(points) < pipeline.fit_params.min_roi_points or \
+            (instance != job.detection.instance_id and not raised(pipeline, points, job)):
+        return None
+    side = PartJob(Detection(instance, candidates[0], name, box), points, candidates,
+                   job.T_world_camera)
+    side.detection.n_points = len(points)
+    pipeline.fit_part(side)
+    return side
+
+
+def raised(pipeline: PerceptionPipeline, points: np.ndarray, job: PartJob) -> bool:
+    """Whether ``points`` (``job``'s view) stand above the table by at least half the thinnest
+    known part's thickness (median height): a part lying on the table has its points that
+    high, the table seen through a region's gaps has them at 0."""
+    extents = pose_stage(pipeline.pose_estimator).database.extents_m()
+    if extents is None or job.T_world_camera is None or not len(points):
+        return False
+    height = float(np.median(transform_points(job.T_world_camera, points)[:, 2]))
+    return height >= 0.5 * float(extents.min())
+
+
+def fits_alone(pipeline: PerceptionPipeline, job: PartJob) -> bool:
+    """Whether ``job``'s fit makes it a part: it passes the unknown rule on its points, and
+    its points cover at least ``unknown_below_cover`` of the fitted model's surface that
+    faces the camera, :data:`MIN_COVERAGE` (a sliver of a part fitted as a larger one does
+    not)."""
+    estimator = pose_stage(pipeline.pose_estimator)
+    p = pipeline.fit_params
+    pose = job.detection.pose
+    if pose is None or job.detection.obj_id == UNKNOWN_ID or pose.coverage < MIN_COVERAGE:
+        return False
+    share, covered = outline_shares(p, job.points, job.detection.obj_id, pose, estimator)
+    return share >= p.unknown_below_fitness and covered >= p.unknown_below_cover
+
+
+def apart(pipeline: PerceptionPipeline, a: PartJob, b: PartJob) -> bool:
+    """Whether two fits are two parts: neither explains the other's points as the unknown
+    rule reads a part's own (the fragment filter's test, :mod:`tlessbot_ros.core.one_part`):
+    one part's two pieces fitted alone each fit the whole part, over the other piece too."""
+    estimator = pose_stage(pipeline.pose_estimator)
+    p = pipeline.fit_params
+    for fitted, other in ((a, b), (b, a)):
+        pose = fitted.detection.pose
+        assert pose is not None
+        share, covered = outline_shares(p, other.points, fitted.detection.obj_id, pose,
+                                        estimator)
+        if share >= p.unknown_below_fitness and covered >= p.unknown_below_cover:
+            return False
+    return True
+
+
+def same_place(pipeline: PerceptionPipeline, a: PartJob, b: PartJob) -> bool:
+    """Whether two fitted parts' centres (in the table frame, or one camera's) lie within
+    ``fragment_overlap`` of the smaller diameter: one part fitted twice
+    (:mod:`tlessbot_ros.core.fragments`)."""
+    centres = []
+    for job in (a, b):
+        pose = job.detection.pose
+        if pose is None or job.detection.obj_id == UNKNOWN_ID:
+            return False
+        T = np.eye(4) if job.T_world_camera is None else job.T_world_camera
+        centres.append(transform_points(T, pose.T_camera_object[None, :3, 3])[0])
+    if (a.T_world_camera is None or b.T_world_camera is None) and \
+            a.detection.view != b.detection.view:
+        return False
+    database = pose_stage(pipeline.pose_estimator).database
+    diameter = min(database[a.detection.obj_id].diameter_m,
+                   database[b.detection.obj_id].diameter_m)
+    gap = np.linalg.norm(centres[0] - centres[1])
+    return bool(gap < pipeline.fit_params.fragment_overlap * diameter)
+
+
+def piece_candidates(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
+                     labels: dict[str, np.ndarray], instance: int,
+                     before: tuple[int, ...] | None = None) -> tuple[int, ...]:
+    """The classes to fit to one side of a divided region: the classifier's candidates for
+    its crops where the pipeline has a classifier and the views colour; else (the pose node)
+    ``before``, the region's own candidates, or every known part (ranked by their fit,
+    :func:`~tlessbot_ros.core.part_fit.fit_part`)."""
+    database = pose_stage(pipeline.pose_estimator).database
+    rgb = {name: view.rgb for name, view in views.items() if view.rgb is not None}
+    if pipeline.classifier is not None and rgb:
+        alone = {name: np.where(image == instance, image, 0).astype(image.dtype)
+                 for name, image in labels.items() if name in rgb}
+        guess = pipeline.classify(rgb, alone, views=views).get(instance)
+        return () if guess is None else tuple(c for c in guess.candidates if c in database)
+    return before if before is not None else tuple(sorted(database.objects))
+
+
+__all__ = ['MIN_COVERAGE', 'apart', 'divided_job', 'fits_alone', 'piece_candidates',
+           'piece_in_views', 'raised', 'reassigned', 'same_place', 'split_off', 'split_then',
+           'unexplained_piece']
