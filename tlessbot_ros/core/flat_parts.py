@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams, ViewEvidence
-from tlessbot_ros.core.pose.flat_turns import level_on_table, refine_yaw
+from tlessbot_ros.core.pose.flat_turns import level_on_table, mesh_scene, refine_yaw
+from tlessbot_ros.core.pose.flat_yaw import hole_yaw, hole_yaw_period
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -88,6 +89,7 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
     evidence = colour_views(views, labels, detection.instance_id, detection.view,
                             table_frames(pipeline, views))
     info: dict[str, float] = {}
+    round_part = False   # a round outline with holes: only the holes tell its yaw
     if evidence:
         twins = [database[i] for i in obj.lookalikes if i in database]
         T, info = check.resolve(obj, detection.pose.T_camera_object, job.points,
@@ -100,9 +102,12 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
             detection.second = detection.pose
             detection.pose = replace(detection.pose, T_camera_object=T,
                                      fitness=info['flip_fitness'])
-        T, info['yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
-                                        job.T_world_camera, evidence)
-        detection.pose = replace(detection.pose, T_camera_object=T)
+        round_part = hole_yaw_period(obj) > 0 and mesh_scene(obj) is not None and \
+            any(view.plane is not None for view in evidence)
+        if not round_part:
+            T, info['yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
+                                            job.T_world_camera, evidence)
+            detection.pose = replace(detection.pose, T_camera_object=T)
     if not info.get('align_decided'):   # else the aligned votes of every view decided it
         T, info['depth_turn_vote'] = check.depth_turn(obj, detection.pose.T_camera_object,
                                                       job.points, job.more_views,
@@ -111,6 +116,12 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
             detection.turned_over = not detection.turned_over
             detection.second = detection.pose
             detection.pose = replace(detection.pose, T_camera_object=T)
+    if round_part:
+        mesh = mesh_scene(obj)
+        assert mesh is not None
+        T, info['hole_yaw_deg'] = hole_yaw(obj, mesh, detection.pose.T_camera_object,
+                                           evidence, check.params)
+        detection.pose = replace(detection.pose, T_camera_object=T)
     T = level_on_table(detection.pose.T_camera_object, obj.model_points.astype(np.float64),
                        np.linalg.inv(job.T_world_camera)[:3, 2],
                        pipeline.fit_params.flat.depth_tolerance_m)

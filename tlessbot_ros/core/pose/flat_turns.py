@@ -48,11 +48,16 @@ def outline_half_turns(points_o: np.ndarray) -> list[np.ndarray]:
     otherwise symmetric outline is symmetric about: turned about them, such an outline covers
     the same pixels and the turned poses differ only where the holes and cut corners do."""
     centre, first, second, thin, _ = outline_frame(points_o)
-    return [_turn(axis, np.pi, centre) for axis in (first, second, thin)]
+    return [turn_about(axis, np.pi, centre) for axis in (first, second, thin)]
+
+
+# an outline is round when its convex hull covers this share of the circle through its
+# farthest point (a disc 1, a square 2/π)
+ROUND_SHARE = 0.95
 
 
 def outline_yaws(points_o: np.ndarray, period_rad: float, steps: int, *,
-                 roundness: float = 0.95) -> list[np.ndarray]:
+                 roundness: float = ROUND_SHARE) -> list[np.ndarray]:
     """For a flat part with a round outline (its convex hull covers at least ``roundness`` of
     the circle about the outline's centre through its farthest point): the (4, 4) turns about
     its thin axis through the outline's centre by k / ``steps`` of ``period_rad`` (its yaw
@@ -62,7 +67,7 @@ def outline_yaws(points_o: np.ndarray, period_rad: float, steps: int, *,
     centre, _, _, thin, round_share = outline_frame(points_o)
     if period_rad <= 0 or steps < 2 or round_share < roundness:
         return []
-    return [_turn(thin, k * period_rad / steps, centre) for k in range(1, steps)]
+    return [turn_about(thin, k * period_rad / steps, centre) for k in range(1, steps)]
 
 
 def outline_frame(points_o: np.ndarray
@@ -89,7 +94,7 @@ def outline_frame(points_o: np.ndarray
     return centre, first, np.cross(thin, first), thin, round_share
 
 
-def _turn(axis: np.ndarray, angle: float, centre: np.ndarray) -> np.ndarray:
+def turn_about(axis: np.ndarray, angle: float, centre: np.ndarray) -> np.ndarray:
     """(4, 4) rotation by ``angle`` about ``axis`` through the point ``centre``."""
     T = np.eye(4)
     T[:3, :3] = rotation_about_axis(axis, angle)
@@ -210,5 +215,6 @@ def level_on_table(T_camera_object: np.ndarray, points_o: np.ndarray, normal_c: 
     return out if float(moved.max()) <= tolerance_m else None
 
 
-__all__ = ['bbox_centre', 'level_on_table', 'mesh_scene', 'outline_frame', 'outline_half_turns',
-           'outline_yaws', 'principal_half_turns', 'refine_yaw', 'refit_to_surface']
+__all__ = ['ROUND_SHARE', 'bbox_centre', 'level_on_table', 'mesh_scene', 'outline_frame',
+           'outline_half_turns', 'outline_yaws', 'principal_half_turns', 'refine_yaw',
+           'refit_to_surface', 'turn_about']

@@ -1,0 +1,167 @@
+"""The yaw of a round flat part, told by its holes (for :func:`~tlessbot_ros.core.flat_parts.
+check_flat`).
+
+A flat part whose outline is round (a disc, a flange: its outline's convex hull covers most of
+its circle, :func:`~.flat_turns.outline_frame`) shows the depth and its outline alike at every
+turn about its thin axis: only its holes tell the turn, within the yaw period its listed
+symmetries give (four bolt holes: 90°). Neither the ICP polish of a turned pose (the depth of
+a disc holds no yaw, so the polish lets it drift) nor the silhouette's agreement with the
+colour edges (:func:`~.flat_turns.refine_yaw`; a round outline scores alike at every yaw) can
+hold it. The aligned score of every view does (:func:`~.flat_align.alignment_score`: the
+pixels whose height above the table the posed mesh explains and whose colour it agrees with,
+each rendering first aligned to the view by a few pixels): it rises as the rendered holes move
+onto the imaged ones, over about a hole's width as seen from the part's axis (a 3.8 mm hole
+16 mm out: some ±13°), and is flat elsewhere (docs/bench/own-parts.md, 2026-12-05).
+
+So a search in one dimension (:func:`hole_yaw`): the pose turned about its thin axis, through
+its outline's centre, by each 1/``yaw_turns`` of the period, the best of them refined by
+halving steps down to half ``yaw_step_deg``. The best turn replaces the pose when it wins the
+pixel votes against it (:func:`~.flat_align.pixel_votes`, every view) by a clear margin
+(``align_min_z``): where no view shows the holes (a disc standing on its edge), every yaw
+explains the view alike and the pose stays.
+
+Poses are ``T_camera_object`` (4, 4) metres in the fitted view's optical frame; turns (4, 4)
+in the model frame (applied on the right of a pose).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tlessbot_ros.core.pose.flat_align import (
+    aligned_view,
+    alignment_score,
+    best_shift,
+    pixel_votes,
+    render_heights,
+)
+from tlessbot_ros.core.pose.flat_turns import ROUND_SHARE, outline_frame, turn_about
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    import open3d as o3d
+
+    from tlessbot_ros.core.pose.database import ObjectTemplates
+    from tlessbot_ros.core.pose.flat import FlatParams, ViewEvidence
+    from tlessbot_ros.core.pose.flat_align import AlignedView
+
+
+def hole_yaw_period(obj: ObjectTemplates) -> float:
+    """The yaw period (radians) within which :func:`hole_yaw` searches ``obj``: its exact
+    (listed) yaw period when its outline is round and the period is not continuous (a disc
+    with holes), else 0 (not searched: a plate's outline holds its yaw; a plain disc has
+    none)."""
+    period = obj.exact_yaw_period()
+    return period if period > 0 and _outline(obj)[4] >= ROUND_SHARE else 0.0
+
+
+def _outline(obj: ObjectTemplates) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                             float]:
+    """:func:`~.flat_turns.outline_frame` of the part's samples (cached on the part)."""
+    samples = obj.model_points
+    frame: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float] = obj.derived(
+        'outline_frame', lambda: outline_frame(samples.astype(np.float64)))
+    return frame
+
+
+class _YawScores:
+    """The pooled aligned score of a pose turned about the part's thin axis by any angle, in
+    every view with a table plane: each view's window, voting pixels and colour likeness are
+    fixed by the turns of the coarse search (their union covers the part at every yaw), so
+    the scores of every turn are comparable."""
+
+    def __init__(self, mesh: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
+                 obj: ObjectTemplates, views: Sequence[ViewEvidence], coarse: np.ndarray,
+                 params: FlatParams) -> None:
+        from tlessbot_ros.core.pose.silhouette import window
+
+        self.mesh, self.T0, self.tolerance = mesh, T_camera_object, params.depth_tolerance_m
+        self.centre, _, _, self.thin, _ = _outline(obj)
+        samples = obj.model_points.astype(np.float64)
+        pad = params.align_px
+        self.views: list[tuple[ViewEvidence, AlignedView]] = []
+        for view in views:
+            if view.plane is None or (view.rgb is None and view.depth_m is None):
+                continue
+            poses = [view.T_view_fit @ self.pose(a) for a in coarse]
+            box = window(samples, poses, view.intrinsics, margin_px=pad + 4)
+            if box is None:
+                continue
+            self.views.append((view, aligned_view(
+                [(mesh, T) for T in poses], box, pad, view.intrinsics, view.plane,
+                rgb=view.rgb, depth_m=view.depth_m, others=view.others,
+                tolerance_m=self.tolerance)))
+
+    def pose(self, angle: float) -> np.ndarray:
+        """The pose turned by ``angle`` (radians) about the thin axis."""
+        return self.T0 @ turn_about(self.thin, angle, self.centre)
+
+    def aligned(self, angles: Sequence[float]) -> list[list[tuple[np.ndarray, np.ndarray]]]:
+        """Per view, each turn's rendering aligned to it (:func:`~.flat_align.best_shift`)."""
+        out = []
+        for view, av in self.views:
+            x0, y0, w, h = av.box
+            grown = (x0 - av.pad, y0 - av.pad, w + 2 * av.pad, h + 2 * av.pad)
+            plane = np.asarray(view.plane, np.float64)
+            moved = replace(av, renders=[render_heights(
+                self.mesh, view.T_view_fit @ self.pose(a), view.intrinsics, grown, plane)
+                for a in angles])
+            out.append([best_shift(moved, k, self.tolerance) for k in range(len(angles))])
+        return out
+
+    def scores(self, angles: Sequence[float]) -> np.ndarray:
+        """(len(angles),) the turns' aligned scores summed over the views."""
+        total = np.zeros(len(angles))
+        for (_, av), aligned in zip(self.views, self.aligned(angles)):
+            total += [alignment_score(av, hit, height, self.tolerance) for hit, height in aligned]
+        return total
+
+    def votes(self, angle: float) -> tuple[int, int]:
+        """(pixels that the turn by ``angle`` explains better than the pose, pixels the pose
+        explains better), every view."""
+        favour = against = 0
+        for (_, av), (turned, own) in zip(self.views, self.aligned([angle, 0.0])):
+            f, a = pixel_votes(av, turned, own, self.tolerance)
+            favour, against = favour + f, against + a
+        return favour, against
+
+
+def hole_yaw(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
+             T_camera_object: np.ndarray, views: Sequence[ViewEvidence], params: FlatParams
+             ) -> tuple[np.ndarray, float]:
+    """A round flat part's pose turned about its thin axis by the angle within its yaw period
+    (:func:`hole_yaw_period`) whose aligned score is best (coarse steps of 1/``yaw_turns``
+    of the period, then halving steps down to half ``yaw_step_deg``), when that turn wins the
+    pixel votes against the pose by a clear margin (``align_min_z``). Returns (the pose,
+    the turn in degrees; 0 when kept)."""
+    from tlessbot_ros.core.pose.lookalike import clear_margin
+
+    T0 = np.asarray(T_camera_object, np.float64)
+    period = hole_yaw_period(obj)
+    steps = max(params.yaw_turns, 2)
+    if period <= 0:
+        return T0, 0.0
+    coarse = period * np.arange(steps) / steps
+    search = _YawScores(mesh, T0, obj, views, coarse, params)
+    if not search.views:
+        return T0, 0.0
+    scores = search.scores(coarse)
+    k = int(np.argmax(scores))
+    best, best_score = float(coarse[k]), float(scores[k])
+    step = period / steps / 2.0
+    while step >= np.radians(params.yaw_step_deg) / 2.0:
+        pair = [best - step, best + step]
+        found = search.scores(pair)
+        if found.max() > best_score:
+            best, best_score = pair[int(np.argmax(found))], float(found.max())
+        step /= 2.0
+    best = float((best + period / 2.0) % period - period / 2.0)   # nearest the pose
+    if best == 0.0 or not clear_margin(*search.votes(best), params.align_min_z):
+        return T0, 0.0
+    return search.pose(best), float(np.degrees(best))
+
+
+__all__ = ['hole_yaw', 'hole_yaw_period']
