@@ -193,3 +193,21 @@ def test_check_flat_leaves_a_disc_at_the_yaw_its_holes_show(holed_disc):
     check_flat(pipeline, job, views, {'side': mask.astype(np.uint16)})
     assert detection.pose is not None
     assert _yaw_error(detection.pose.T_camera_object, T_true, 90.0) < 2.0
+
+
+def test_a_disc_with_one_hole_is_searched_in_steps_its_hole_resolves():
+    # one 3.8 mm hole 16 mm out: no symmetry (period 2π), and six coarse steps (60 degrees)
+    # would leave the true yaw up to 30 degrees from the nearest, where the hole of the
+    # rendering no longer overlaps the imaged one; the steps are as wide as the turn over
+    # which the hole moves off itself (3.8 / 16 rad, some 14 degrees)
+    from tlessbot_ros.core.pose.flat_yaw import feature_turn, hole_yaw
+
+    vertices, faces = _disc(holes=1)
+    obj = _templates(vertices, faces, 2 * np.pi)
+    mesh = raycasting_scene(vertices, faces)
+    assert 8.0 < np.degrees(feature_turn(obj, mesh, 2 * np.pi)) < 20.0
+    evidence, T_true = _view(vertices, faces, -50.0, seed=4)
+    T_fit = T_true @ make_transform(rotation_about_axis([0, 0, 1], np.radians(130.0)),
+                                    [0, 0, 0])
+    T, _ = hole_yaw(obj, mesh, T_fit, evidence, FlatParams())
+    assert _yaw_error(T, T_true, 360.0) < 2.0

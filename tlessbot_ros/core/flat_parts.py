@@ -76,7 +76,9 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
     """Turn ``job``'s fitted flat part over when the image shows the other face up, check its
     yaw on the image, then let the depth of its views turn it over
     (:class:`~tlessbot_ros.core.pose.FlatCheck`, ``FitParams.flat``); the former pose becomes
-    the detection's ``second``. Returns what decided (None when the part is not checked)."""
+    the detection's ``second``. A round part's yaw is searched last, on its holes
+    (:func:`~tlessbot_ros.core.pose.flat_yaw.hole_yaw`: the silhouette of a round outline holds
+    no yaw). Returns what decided (None when the part is not checked)."""
     detection = job.detection
     estimator = pipeline.pose_estimator
     if estimator is None or detection.pose is None or job.T_world_camera is None:
@@ -102,8 +104,8 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
             detection.second = detection.pose
             detection.pose = replace(detection.pose, T_camera_object=T,
                                      fitness=info['flip_fitness'])
-        round_part = hole_yaw_period(obj) > 0 and mesh_scene(obj) is not None and \
-            any(view.plane is not None for view in evidence)
+        round_part = check.params.yaw_steps > 0 and hole_yaw_period(obj) > 0 and \
+            mesh_scene(obj) is not None and any(view.plane is not None for view in evidence)
         if not round_part:
             T, info['yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
                                             job.T_world_camera, evidence)

@@ -93,7 +93,7 @@ class FlatParams:
         edge_px: an outline pixel agrees when a colour edge is this near, px (> 0).
         icp_iterations: ICP steps of each turned start (>= 1).
         yaw_steps, yaw_step_deg: the yaw checked on the image this many steps of this many deg
-            either way (0 steps: off).
+            either way (0 steps: off); a round part's hole yaw search ends at half the step.
         yaw_min_gain: a new yaw is kept when its agreement gains more than this (0..1).
         depth_tolerance_m: a pixel votes for a pose whose depth error is lower by more than
             this, m (>= 0).
@@ -103,8 +103,8 @@ class FlatParams:
             of the fit in the table plane before the height and colour vote, m (>= 0).
         align_min_z: a turned pose wins the aligned vote only with a surplus above this many
             coin-toss deviations (>= 0).
-        yaw_turns: a round flat part also competes turned about its thin axis by each
-            1/yaw_turns of its exact (listed) yaw period (>= 1; 1: not).
+        yaw_turns: a round flat part competes (and its holes' yaw is searched) turned about its
+            thin axis by each 1/yaw_turns (or finer) of its listed yaw period (>= 1).
     """
 
     enabled: bool = True

@@ -67,6 +67,40 @@ def _outline(obj: ObjectTemplates) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     return frame
 
 
+def feature_turn(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
+                 period: float) -> float:
+    """The turn (radians) about a round flat part's thin axis over which its top view stops
+    overlapping itself: where the share of its pixels that a turn changes first reaches 0.9 of
+    its median over the period (a hole of width d at a distance R from the axis moves off
+    itself after d / R). Within it the aligned score rises towards the true yaw; a coarse
+    search with steps this wide lands in it. The top view is ray-cast along the thin axis on
+    a grid of 201 x 201 over the part's outline; cached on the part."""
+    def build() -> float:
+        import cv2
+        import open3d as o3d
+
+        centre, first, second, thin, _ = _outline(obj)
+        points = obj.model_points.astype(np.float64) - centre
+        radius = float(np.linalg.norm(points - np.outer(points @ thin, thin), axis=1).max())
+        n = 201
+        u, v = np.meshgrid(*[np.linspace(-radius, radius, n)] * 2)
+        origins = centre + u[..., None] * first + v[..., None] * second + radius * thin
+        rays = np.concatenate([origins.reshape(-1, 3), np.tile(-thin, (n * n, 1))], axis=1)
+        hits = mesh.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))['t_hit'].numpy()
+        top = np.isfinite(hits).reshape(n, n).astype(np.uint8)
+        turns = np.radians(np.arange(0.5, np.degrees(period) / 2.0 + 1e-9, 0.5))
+        changed = np.array([np.count_nonzero(cv2.warpAffine(
+            top, cv2.getRotationMatrix2D(((n - 1) / 2, (n - 1) / 2), float(np.degrees(a)),
+                                         1.0), (n, n), flags=cv2.INTER_NEAREST) != top)
+            for a in turns]) / max(int(np.count_nonzero(top)), 1)
+        if not len(turns) or changed.max() <= 0:
+            return period
+        return float(turns[int(np.argmax(changed >= 0.9 * np.median(changed)))])
+
+    width: float = obj.derived(('feature_turn', round(period, 9)), build)
+    return width
+
+
 class _YawScores:
     """The pooled aligned score of a pose turned about the part's thin axis by any angle, in
     every view with a table plane: each view's window, voting pixels and colour likeness are
@@ -144,6 +178,8 @@ def hole_yaw(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
     steps = max(params.yaw_turns, 2)
     if period <= 0:
         return T0, 0.0
+    # coarse steps no wider than the turn over which the holes stop overlapping themselves
+    steps = max(steps, int(np.ceil(period / feature_turn(obj, mesh, period))))
     coarse = period * np.arange(steps) / steps
     search = _YawScores(mesh, T0, obj, views, coarse, params)
     if not search.views:
@@ -164,4 +200,4 @@ def hole_yaw(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
     return search.pose(best), float(np.degrees(best))
 
 
-__all__ = ['hole_yaw', 'hole_yaw_period']
+__all__ = ['feature_turn', 'hole_yaw', 'hole_yaw_period']
