@@ -105,7 +105,7 @@ class _YawScores:
     """The pooled aligned score of a pose turned about the part's thin axis by any angle, in
     every view with a table plane: each view's window, voting pixels and colour likeness are
     fixed by the turns of the coarse search (their union covers the part at every yaw), so
-    the scores of every turn are comparable."""
+    the scores of every turn are comparable. Each turn is rendered and aligned once."""
 
     def __init__(self, mesh: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
                  obj: ObjectTemplates, views: Sequence[ViewEvidence], coarse: np.ndarray,
@@ -117,47 +117,55 @@ class _YawScores:
         samples = obj.model_points.astype(np.float64)
         pad = params.align_px
         self.views: list[tuple[ViewEvidence, AlignedView]] = []
+        # per turn (radians): per view its aligned rendering (hit, height) and its score
+        self.done: dict[float, list[tuple[tuple[np.ndarray, np.ndarray], float]]] = {}
         for view in views:
             if view.plane is None or (view.rgb is None and view.depth_m is None):
                 continue
             poses = [view.T_view_fit @ self.pose(a) for a in coarse]
             box = window(samples, poses, view.intrinsics, margin_px=pad + 4)
-            if box is None:
-                continue
-            self.views.append((view, aligned_view(
-                [(mesh, T) for T in poses], box, pad, view.intrinsics, view.plane,
-                rgb=view.rgb, depth_m=view.depth_m, others=view.others,
-                tolerance_m=self.tolerance)))
+            if box is not None:
+                self.views.append((view, aligned_view(
+                    [(mesh, T) for T in poses], box, pad, view.intrinsics, view.plane,
+                    rgb=view.rgb, depth_m=view.depth_m, others=view.others,
+                    tolerance_m=self.tolerance)))
+        for k, angle in enumerate(coarse):   # their renderings are the views' own
+            self.done[float(angle)] = [self._aligned(av, av.renders[k]) for _, av in self.views]
 
     def pose(self, angle: float) -> np.ndarray:
         """The pose turned by ``angle`` (radians) about the thin axis."""
         return self.T0 @ turn_about(self.thin, angle, self.centre)
 
-    def aligned(self, angles: Sequence[float]) -> list[list[tuple[np.ndarray, np.ndarray]]]:
-        """Per view, each turn's rendering aligned to it (:func:`~.flat_align.best_shift`)."""
-        out = []
-        for view, av in self.views:
-            x0, y0, w, h = av.box
-            grown = (x0 - av.pad, y0 - av.pad, w + 2 * av.pad, h + 2 * av.pad)
-            plane = np.asarray(view.plane, np.float64)
-            moved = replace(av, renders=[render_heights(
-                self.mesh, view.T_view_fit @ self.pose(a), view.intrinsics, grown, plane)
-                for a in angles])
-            out.append([best_shift(moved, k, self.tolerance) for k in range(len(angles))])
-        return out
+    def _aligned(self, av: AlignedView, render: tuple[np.ndarray, np.ndarray]
+                 ) -> tuple[tuple[np.ndarray, np.ndarray], float]:
+        """A rendering over the view's grown window aligned to it, and its score there."""
+        hit, height = best_shift(replace(av, renders=[render]), 0, self.tolerance)
+        return (hit, height), alignment_score(av, hit, height, self.tolerance)
 
-    def scores(self, angles: Sequence[float]) -> np.ndarray:
-        """(len(angles),) the turns' aligned scores summed over the views."""
-        total = np.zeros(len(angles))
-        for (_, av), aligned in zip(self.views, self.aligned(angles)):
-            total += [alignment_score(av, hit, height, self.tolerance) for hit, height in aligned]
-        return total
+    def turned(self, angle: float) -> list[tuple[tuple[np.ndarray, np.ndarray], float]]:
+        """Per view, the turn's aligned rendering and score (:func:`~.flat_align.best_shift`,
+        :func:`~.flat_align.alignment_score`)."""
+        if angle not in self.done:
+            out = []
+            for view, av in self.views:
+                x0, y0, w, h = av.box
+                grown = (x0 - av.pad, y0 - av.pad, w + 2 * av.pad, h + 2 * av.pad)
+                render = render_heights(self.mesh, view.T_view_fit @ self.pose(angle),
+                                        view.intrinsics, grown, np.asarray(view.plane))
+                out.append(self._aligned(av, render))
+            self.done[angle] = out
+        return self.done[angle]
+
+    def score(self, angle: float) -> float:
+        """The turn's aligned score summed over the views."""
+        return float(sum(score for _, score in self.turned(angle)))
 
     def votes(self, angle: float) -> tuple[int, int]:
         """(pixels that the turn by ``angle`` explains better than the pose, pixels the pose
         explains better), every view."""
         favour = against = 0
-        for (_, av), (turned, own) in zip(self.views, self.aligned([angle, 0.0])):
+        for (_, av), (turned, _), (own, _) in zip(self.views, self.turned(angle),
+                                                  self.turned(0.0)):
             f, a = pixel_votes(av, turned, own, self.tolerance)
             favour, against = favour + f, against + a
         return favour, against
@@ -175,29 +183,23 @@ def hole_yaw(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
 
     T0 = np.asarray(T_camera_object, np.float64)
     period = hole_yaw_period(obj)
-    steps = max(params.yaw_turns, 2)
     if period <= 0:
         return T0, 0.0
     # coarse steps no wider than the turn over which the holes stop overlapping themselves
-    steps = max(steps, int(np.ceil(period / feature_turn(obj, mesh, period))))
+    steps = max(params.yaw_turns, 2, int(np.ceil(period / feature_turn(obj, mesh, period))))
     coarse = period * np.arange(steps) / steps
     search = _YawScores(mesh, T0, obj, views, coarse, params)
     if not search.views:
         return T0, 0.0
-    scores = search.scores(coarse)
-    k = int(np.argmax(scores))
-    best, best_score = float(coarse[k]), float(scores[k])
+    best = max((float(a) for a in coarse), key=search.score)
     step = period / steps / 2.0
     while step >= np.radians(params.yaw_step_deg) / 2.0:
-        pair = [best - step, best + step]
-        found = search.scores(pair)
-        if found.max() > best_score:
-            best, best_score = pair[int(np.argmax(found))], float(found.max())
+        best = max((best, best - step, best + step), key=search.score)   # a tie keeps it
         step /= 2.0
-    best = float((best + period / 2.0) % period - period / 2.0)   # nearest the pose
-    if best == 0.0 or not clear_margin(*search.votes(best), params.align_min_z):
+    nearest = float((best + period / 2.0) % period - period / 2.0)   # the same, nearest T0
+    if nearest == 0.0 or not clear_margin(*search.votes(best), params.align_min_z):
         return T0, 0.0
-    return search.pose(best), float(np.degrees(best))
+    return search.pose(nearest), float(np.degrees(nearest))
 
 
 __all__ = ['feature_turn', 'hole_yaw', 'hole_yaw_period']
