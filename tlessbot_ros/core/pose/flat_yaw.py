@@ -77,7 +77,8 @@ def feature_turn(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
     a grid of 201 x 201 over the part's outline; cached on the part."""
     def build() -> float:
         import cv2
-        import open3d as o3d
+
+        from tlessbot_ros.core.common import o3d_tensor
 
         centre, first, second, thin, _ = _outline(obj)
         points = obj.model_points.astype(np.float64) - centre
@@ -86,7 +87,7 @@ def feature_turn(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
         u, v = np.meshgrid(*[np.linspace(-radius, radius, n)] * 2)
         origins = centre + u[..., None] * first + v[..., None] * second + radius * thin
         rays = np.concatenate([origins.reshape(-1, 3), np.tile(-thin, (n * n, 1))], axis=1)
-        hits = mesh.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))['t_hit'].numpy()
+        hits = mesh.cast_rays(o3d_tensor(rays.astype(np.float32)))['t_hit'].numpy()
         top = np.isfinite(hits).reshape(n, n).astype(np.uint8)
         turns = np.radians(np.arange(0.5, np.degrees(period) / 2.0 + 1e-9, 0.5))
         changed = np.array([np.count_nonzero(cv2.warpAffine(
@@ -134,7 +135,8 @@ class _YawScores:
 
     def pose(self, angle: float) -> np.ndarray:
         """The pose turned by ``angle`` (radians) about the thin axis."""
-        return self.T0 @ turn_about(self.thin, angle, self.centre)
+        T: np.ndarray = self.T0 @ turn_about(self.thin, angle, self.centre)
+        return T
 
     def _aligned(self, av: AlignedView, render: tuple[np.ndarray, np.ndarray]
                  ) -> tuple[tuple[np.ndarray, np.ndarray], float]:
