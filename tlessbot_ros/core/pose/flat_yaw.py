@@ -36,6 +36,7 @@ from tlessbot_ros.core.pose.flat_align import (
     best_shift,
     pixel_votes,
     render_heights,
+    shift_px,
 )
 from tlessbot_ros.core.pose.flat_turns import ROUND_SHARE, outline_frame, turn_about
 
@@ -116,7 +117,6 @@ class _YawScores:
         self.mesh, self.T0, self.tolerance = mesh, T_camera_object, params.depth_tolerance_m
         self.centre, _, _, self.thin, _ = _outline(obj)
         samples = obj.model_points.astype(np.float64)
-        pad = params.align_px
         self.views: list[tuple[ViewEvidence, AlignedView]] = []
         # per turn (radians): per view its aligned rendering (hit, height) and its score
         self.done: dict[float, list[tuple[tuple[np.ndarray, np.ndarray], float]]] = {}
@@ -124,6 +124,7 @@ class _YawScores:
             if view.plane is None or (view.rgb is None and view.depth_m is None):
                 continue
             poses = [view.T_view_fit @ self.pose(a) for a in coarse]
+            pad = shift_px(view.intrinsics, samples, poses[0], params.align_m)
             box = window(samples, poses, view.intrinsics, margin_px=pad + 4)
             if box is not None:
                 self.views.append((view, aligned_view(
