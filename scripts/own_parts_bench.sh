@@ -1,0 +1,58 @@
+#!/bin/bash
+# The own-parts bench of issue 41 from nothing: parts folders, scenes, end-to-end scores.
+#
+#   scripts/own_parts_bench.sh BENCH make            # once: parts folders and scenes (~40 min)
+#   scripts/own_parts_bench.sh BENCH eval OUT SEED SET...   # SEED 4100 | 4242 | 4343
+#   scripts/own_parts_bench.sh BENCH why OUT SEED SET       # each part's outcome by cause
+#
+# SETs: T (T-LESS, packaged classifier and templates), g (the 8 parts of `tlessbot parts
+# generate`), s (the SyGrid CAD models), h7 / h8 (families drawn with `parts generate --seed 7 /
+# 8 --count 8`). Scenes: 20 frames of `tlessbot bench own-parts --seed SEED` (T, g, s; the held-
+# out families at 4100 and 4242). Templates are rebuilt by the code being scored (`make` builds
+# them; rebuild with `tlessbot templates` after changing what templates hold). Needs ../shared.
+set -eu
+BENCH=$1; what=$2; shift 2
+SHARED=${SHARED:-$(cd "$(dirname "$0")/../.." && pwd)/shared}
+PY=${PYTHON:-python}
+cli() { nice -n 10 "$PY" -m tlessbot_ros.tools.cli "$@"; }
+case $what in
+make)
+  mkdir -p "$BENCH/parts" "$BENCH/scenes"
+  cli parts generate --out "$BENCH/cad/g"
+  cli parts generate --out "$BENCH/cad/h7" --seed 7 --count 8
+  cli parts generate --out "$BENCH/cad/h8" --seed 8 --count 8
+  for k in g h7 h8; do cli parts build --models "$BENCH/cad/$k" --out "$BENCH/parts/$k"; done
+  cli parts build --models "$SHARED/data/sygrid_real_d435i/models" --out "$BENCH/parts/s"
+  for seed in 4100 4242 4343; do
+    cli bench own-parts --set g="$BENCH/parts/g" --set s="$BENCH/parts/s" \
+      --reference "$SHARED/data/tless_models_cad_stl" --frames 20 --seed $seed \
+      --out "$BENCH/run/$seed"
+    for k in T-LESS_packaged g s; do
+      ln -sfn "$BENCH/run/$seed/$k/scenes" "$BENCH/scenes/$seed-${k%%-*}"
+    done
+  done
+  for seed in 4100 4242; do for k in h7 h8; do
+    cli bench own-parts --set $k="$BENCH/parts/$k" --frames 20 --seed $seed --out "$BENCH/run/$seed-$k"
+    ln -sfn "$BENCH/run/$seed-$k/$k/scenes" "$BENCH/scenes/$seed-$k"
+  done; done
+  ;;
+eval)
+  OUT=$1; SEED=$2; shift 2
+  for k in "$@"; do
+    if [ "$k" = T ]; then
+      more=(--models "$SHARED/data/tless_models_cad_stl" --classifier tlessbot_ros/data/classifier.npz
+            --templates tlessbot_ros/data/templates.npz)
+    else
+      more=(--models "$BENCH/parts/$k/models" --classifier "$BENCH/parts/$k/classifier.npz"
+            --templates "$BENCH/parts/$k/templates.npz")
+    fi
+    cli evaluate --dataset "$BENCH/scenes/$SEED-$k" "${more[@]}" --out "$OUT/$SEED/$k"
+  done
+  ;;
+why)
+  OUT=$1; SEED=$2; k=$3
+  "$PY" scripts/own_parts_why.py "$BENCH/scenes/$SEED-$k" "$BENCH/parts/$k/models" \
+    "$OUT/$SEED/$k/estimates.csv"
+  ;;
+*) echo "usage: $0 BENCH make | eval OUT SEED SET... | why OUT SEED SET" >&2; exit 2;;
+esac
