@@ -1,4 +1,4 @@
-"""Two parts found as one are divided after the fit (issue 41): the mirror of
+"""Two parts found as one are divided after the fit: the mirror of
 :mod:`tlessbot_ros.core.one_part`.
 
 Flat parts that touch on the table (a plate against a disc, a strip across a bracket's foot)
@@ -47,6 +47,17 @@ if TYPE_CHECKING:
 MIN_COVERAGE = 0.3
 
 
+def explained(points_c: np.ndarray, obj: ObjectTemplates, T_camera_object: np.ndarray,
+              refiner: Refiner, inlier_m: float) -> np.ndarray:
+    """(N,) bool: which of ``points_c`` (N, 3, camera frame, m) ``obj`` at ``T_camera_object``
+    explains: inside its outline and within ``inlier_m`` of its surface (the unknown rule's
+    two tests)."""
+    model = transform_points(T_camera_object, obj.model_points.astype(np.float64))
+    inside = inside_outline(points_c, model, obj.sample_spacing_m())
+    near = refiner.surface_distances(points_c, obj, T_camera_object, reach_m=inlier_m)
+    return np.asarray(inside & (near <= inlier_m))
+
+
 def unexplained_piece(mask: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
                       obj: ObjectTemplates, T_camera_object: np.ndarray, refiner: Refiner, *,
                       inlier_m: float, min_points: int) -> np.ndarray | None:
@@ -61,11 +72,7 @@ def unexplained_piece(mask: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
     points, pixels = depth_to_points(depth_m, K, mask=mask, box=box)
     if len(points) < min_points:
         return None
-    points = points.astype(np.float64)
-    model = transform_points(T_camera_object, obj.model_points.astype(np.float64))
-    inside = inside_outline(points, model, obj.sample_spacing_m())
-    off = refiner.surface_distances(points, obj, T_camera_object, reach_m=inlier_m) > inlier_m
-    bad = ~inside | off
+    bad = ~explained(points.astype(np.float64), obj, T_camera_object, refiner, inlier_m)
     if np.count_nonzero(bad) < min_points:
         return None
     x0, y0, w, h = box
@@ -78,15 +85,15 @@ def unexplained_piece(mask: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
     if sizes[biggest] < min_points:
         return None
     piece = components == biggest
-    explained = np.zeros((h, w), np.uint8)
-    explained[pixels[~bad, 0] - y0, pixels[~bad, 1] - x0] = 1
+    kept = np.zeros((h, w), np.uint8)
+    kept[pixels[~bad, 0] - y0, pixels[~bad, 1] - x0] = 1
     # the mask's other pixels (no depth, or unexplained specks) go to the nearer side
     to_piece = cv2.distanceTransform((~piece).astype(np.uint8), cv2.DIST_L2, 3)
-    to_rest = cv2.distanceTransform(1 - explained, cv2.DIST_L2, 3) if explained.any() else \
+    to_rest = cv2.distanceTransform(1 - kept, cv2.DIST_L2, 3) if kept.any() else \
         np.full((h, w), np.inf, np.float32)
     window = mask[y0:y0 + h, x0:x0 + w]
     out = np.zeros(mask.shape, bool)
-    out[y0:y0 + h, x0:x0 + w] = window & (piece | ((explained == 0) & (to_piece < to_rest)))
+    out[y0:y0 + h, x0:x0 + w] = window & (piece | ((kept == 0) & (to_piece < to_rest)))
     return out
 
 
@@ -215,13 +222,11 @@ def reassigned(pipeline: PerceptionPipeline, view: ViewInput, labels: np.ndarray
     points = points.astype(np.float64)
     explains = []
     for job in jobs:
-        pose, obj = job.detection.pose, estimator.database[job.detection.obj_id]
+        pose = job.detection.pose
         assert pose is not None
-        T = pose.T_camera_object
-        near = estimator.refiner.surface_distances(points, obj, T, reach_m=pipeline.fit_params
-                                                   .verify_inlier_m)
-        explains.append(inside_outline(points, transform_points(T, obj.model_points.astype(
-            np.float64)), obj.sample_spacing_m()) & (near <= pipeline.fit_params.verify_inlier_m))
+        explains.append(explained(points, estimator.database[job.detection.obj_id],
+                                  pose.T_camera_object, estimator.refiner,
+                                  pipeline.fit_params.verify_inlier_m))
     out: np.ndarray = np.array(labels, copy=True)
     for k, instance in enumerate(ids):
         alone = explains[k] & ~np.any([e for j, e in enumerate(explains) if j != k], axis=0)
@@ -335,6 +340,6 @@ def piece_candidates(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
     return before if before is not None else tuple(sorted(database.objects))
 
 
-__all__ = ['MIN_COVERAGE', 'apart', 'divided_job', 'fits_alone', 'piece_candidates',
+__all__ = ['MIN_COVERAGE', 'apart', 'divided_job', 'explained', 'fits_alone', 'piece_candidates',
            'piece_in_views', 'raised', 'reassigned', 'same_place', 'split_off', 'split_then',
            'unexplained_piece']

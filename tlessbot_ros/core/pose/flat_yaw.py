@@ -11,7 +11,7 @@ hold it. The aligned score of every view does (:func:`~.flat_align.alignment_sco
 pixels whose height above the table the posed mesh explains and whose colour it agrees with,
 each rendering first aligned to the view by a few pixels): it rises as the rendered holes move
 onto the imaged ones, over about a hole's width as seen from the part's axis (a 3.8 mm hole
-16 mm out: some ±13°), and is flat elsewhere (docs/bench/own-parts.md, 2026-12-05).
+16 mm out: some ±13°), and is flat elsewhere.
 
 So a search in one dimension (:func:`hole_yaw`): the pose turned about its thin axis, through
 its outline's centre, by each 1/``yaw_turns`` of the period, the best of them refined by

@@ -4,8 +4,8 @@ A part lying on a table is in one of the resting poses of its convex hull
 (:func:`tlessbot_ros.core.common.resting.resting_poses`, the quasi-static model the simulator
 draws parts from; the same physics holds in a real cell): its gravity direction, read in the
 part's frame, is the outward normal of a stable hull face. A free 6-DOF fit of a small part
-(an 8 mm nut, a few dozen depth points) can stop 5-25 degrees away from every such direction,
-tilted by the depth's noise, which is a pose no resting part can have.
+(a few dozen depth points) can stop tilted by the depth's noise away from every such
+direction, a pose no resting part can have.
 
 :func:`settle` takes a fit whose lowest point touches the table (within ``contact_m``) and whose
 gravity direction is more than ``min_tilt_deg`` from every stable pose's (modulo the part's
@@ -28,7 +28,8 @@ from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
-from tlessbot_ros.core.common import invert_transform, rotation_about_axis, transform_points
+from tlessbot_ros.core.common import invert_transform, transform_points
+from tlessbot_ros.core.pose.fallback import rotation_between
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.pose.database import ObjectTemplates
@@ -128,10 +129,7 @@ def levelled(T_world_object: np.ndarray, targets_o: np.ndarray, points_o: np.nda
     centre = T[:3, :3] @ centre_o + T[:3, 3]
     out = np.repeat(T[None], len(targets_o), axis=0)
     for k, target in enumerate(np.asarray(targets_o, np.float64)):
-        now = T[:3, :3] @ target
-        axis = np.cross(now, DOWN)
-        sin, cos = float(np.linalg.norm(axis)), float(now @ DOWN)
-        R = np.eye(3) if sin < 1e-12 else rotation_about_axis(axis / sin, np.arctan2(sin, cos))
+        R = rotation_between(T[:3, :3] @ target, DOWN)
         out[k, :3, :3] = R @ T[:3, :3]
         out[k, :3, 3] = centre + R @ (T[:3, 3] - centre)
         out[k, 2, 3] -= float(np.min(points_o @ out[k, :3, :3].T[:, 2] + out[k, 2, 3]))
