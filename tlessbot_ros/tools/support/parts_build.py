@@ -193,6 +193,8 @@ def _lookalikes(out: Path, entries: list[dict]) -> None:
 def self_check(out: Path, options: BuildOptions) -> list[dict]:
     """Simulate ``options.check_frames`` scenes of the parts seen by the rig, run the pipeline
     on them with the new files, and return one row per part (``out/self_check.md`` too)."""
+    from tlessbot_ros.tools.support.observability import unseen_note
+
     config = ['--config', str(options.config)] if options.config else []
     models = str(out / parts_io.MODELS)
     with tempfile.TemporaryDirectory(prefix='tlessbot_check_') as tmp:
@@ -211,7 +213,8 @@ def self_check(out: Path, options: BuildOptions) -> list[dict]:
         rows.append({'name': part['name'], 'seen': stats['objects_gt'],
                      'pose': stats.get('recall_5cm5deg'), 'top1': stats.get('top1'),
                      'detected': stats.get('iou07_rate'),
-                     'lookalikes': part.get('lookalikes', [])})
+                     'lookalikes': part.get('lookalikes', []),
+                     'unseen': unseen_note(part.get('unseen_turns_5deg'))})
     summary = {'frames': report['frames'], 'pose': report['pose']['recall_5cm5deg'],
                'top1': report['recognition']['top1'],
                'detected': report['detection']['iou07_rate'],
@@ -227,15 +230,16 @@ def self_check_table(rows: list[dict], summary: dict) -> str:
     def cell(value):
         return '-' if value is None else f'{value:.2f}'
 
-    lines = ['| part | seen | 5 cm / 5° | top-1 | detected | look-alikes | note |',
-             '|---|---|---|---|---|---|---|']
+    lines = ['| part | seen | 5 cm / 5° | top-1 | detected | look-alikes | 5° turn not seen '
+             '(px changed) | note |', '|---|---|---|---|---|---|---|---|']
     for r in rows:
         hard = r['pose'] is not None and r['pose'] < HARD_RECALL
         note = 'hard' if hard else ('not seen' if not r['seen'] else '')
         lines.append(f"| {r['name']} | {r['seen']} | {cell(r['pose'])} | {cell(r['top1'])} | "
-                     f"{cell(r['detected'])} | {', '.join(r['lookalikes']) or '-'} | {note} |")
+                     f"{cell(r['detected'])} | {', '.join(r['lookalikes']) or '-'} | "
+                     f"{r.get('unseen', '-')} | {note} |")
     lines.append(f"| **all** ({summary['frames']} frames) | | {cell(summary['pose'])} | "
-                 f"{cell(summary['top1'])} | {cell(summary['detected'])} | | false positives "
+                 f"{cell(summary['top1'])} | {cell(summary['detected'])} | | | false positives "
                  f"{cell(summary['false_pos_per_frame'])} / frame |")
     return '\n'.join(lines)
 
@@ -287,8 +291,11 @@ def _run_steps(cad: Path, out: Path, options: BuildOptions, manifest: dict, mesh
 
     from tqdm import tqdm
 
+    from tlessbot_ros.tools.support.observability import record_unseen_turns
+    from tlessbot_ros.tools.support.rig import load_rig
+
     config = ['--config', str(options.config)] if options.config else []
-    names = ['meshes + symmetries', 'templates', 'classifier' if classifier else None,
+    names = ['meshes + symmetries', 'turns the rig sees', 'templates', 'classifier' if classifier else None,
              'manifest', 'self-check' if check else None]
     times: dict[str, float] = {}
     with tqdm(total=sum(n is not None for n in names), desc='parts build', unit='step') as bar, \
@@ -303,6 +310,8 @@ def _run_steps(cad: Path, out: Path, options: BuildOptions, manifest: dict, mesh
 
         timed('meshes + symmetries',
               lambda: manifest.update(parts=_write_models(cad, out, meshes)))
+        timed('turns the rig sees', lambda: record_unseen_turns(
+            out / parts_io.MODELS, manifest['parts'], load_rig(options.config)))
         log = Path(tmp) / 'templates.log'
         t0 = time.perf_counter()
         templates = start_tool('templates', '--models', str(out / parts_io.MODELS), '--out',

@@ -1,0 +1,213 @@
+"""What the rig can see of a small turn of a part: pixels that change when it turns.
+
+A pose error is only found if it shows in the cameras. Turning a part by a few degrees about
+an axis moves its outline, its creases and its depth; a part whose features are small against
+a pixel (a nozzle's slots a millimetre wide, seen at 1 mm a pixel) barely changes when turned
+about its own axis, and no pose stage can tell the turn from the true pose. This measures it
+before the cell runs: the part is rendered noise-free on the table in every camera of the rig,
+at the pose and turned by ``turn_deg`` about an axis through its centre, and two kinds of
+pixels are counted: those whose depth moves by more than ``noise_sigmas`` times the stereo
+depth noise at that distance (sigma = ``noise_at_1m_m`` * z^2, the D415 model of the
+simulator), and the colour-edge pixels (outline, depth steps and creases, as the turn check
+renders them: :func:`~.turns.rendered_edges`) that have no edge of the other render within
+``edge_px``. A pixel counts once if it changes both ways.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tlessbot_ros.core.common import CameraIntrinsics, rotation_about_axis
+from tlessbot_ros.core.pose.fallback import turn_axes
+from tlessbot_ros.core.pose.silhouette import window, window_depth
+from tlessbot_ros.core.pose.turns import rendered_edges
+
+if TYPE_CHECKING:
+    import open3d as o3d
+
+
+@dataclass(frozen=True)
+class ObservabilityParams:
+    """Settings of :func:`turn_visibility`.
+
+    Attributes:
+        turn_deg: the turn measured (0 < turn < 90): the pose tolerance of the scoring, 5°.
+        noise_at_1m_m: the depth noise (one sigma) at 1 m; it grows with the square of the
+            distance (stereo). 2.1 mm: the simulator's D415 model.
+        noise_sigmas: a depth change counts when larger than this many sigmas (> 0).
+        edge_px: an edge pixel moved when the other render has no edge within this, px (> 0).
+        min_px: a turn is seen when at least this many pixels change, all cameras (>= 1).
+        poses: the most probable resting poses measured (>= 1).
+        rest_ratio: a turn keeps the part at rest when it lifts the part's centre (seated
+            on the table again) by at most this share of its size times sin(turn) (0..1):
+            a roll on a round side lifts it by nothing, a tilt off a face by its distance to
+            the edge; a tilt the stage levels onto the resting pose (:mod:`.resting`).
+        jump_m, crease_deg: what makes a rendered edge (:class:`~.turns.TurnParams`).
+    """
+
+    turn_deg: float = 5.0
+    noise_at_1m_m: float = 0.0021
+    noise_sigmas: float = 3.0
+    edge_px: float = 1.0
+    min_px: int = 20
+    poses: int = 4
+    rest_ratio: float = 0.02
+    jump_m: float = 0.002
+    crease_deg: float = 30.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.turn_deg < 90.0 or self.noise_at_1m_m <= 0.0 or \
+                self.noise_sigmas <= 0.0 or self.edge_px <= 0.0:
+            raise ValueError('turn_deg must be in (0, 90); noise_at_1m_m, noise_sigmas and '
+                             f'edge_px > 0; got {self.turn_deg}, {self.noise_at_1m_m}, '
+                             f'{self.noise_sigmas}, {self.edge_px}')
+        if not 0.0 <= self.rest_ratio <= 1.0:
+            raise ValueError(f'rest_ratio must be in [0, 1], got {self.rest_ratio}')
+        if self.min_px < 1 or self.poses < 1:
+            raise ValueError(f'min_px and poses must be >= 1, got {self.min_px}, {self.poses}')
+
+
+@dataclass(frozen=True)
+class ViewOfTable:
+    """One camera of the rig: its intrinsics and ``T_world_camera`` (optical frame; the
+    table is the world plane z = 0)."""
+
+    intrinsics: CameraIntrinsics
+    T_world_camera: np.ndarray
+
+
+def changed_pixels(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
+                   T_world_a: np.ndarray, T_world_b: np.ndarray, view: ViewOfTable,
+                   params: ObservabilityParams) -> tuple[int, int, int]:
+    """(depth, edge, either) pixels of ``view`` that tell the part at ``T_world_a`` from the
+    part at ``T_world_b`` (world poses on the table; ``scene`` its mesh and ``points`` (N, 3)
+    its surface samples in the model frame, metres)."""
+    import cv2
+
+    T_camera_world = np.linalg.inv(view.T_world_camera)
+    poses = [T_camera_world @ T_world_a, T_camera_world @ T_world_b]
+    box = window(points, poses, view.intrinsics, margin_px=3)
+    if box is None:
+        return 0, 0, 0
+    rays, depth_a = window_depth(scene, poses[0], view.intrinsics, box)
+    depth_b = window_depth(scene, poses[1], view.intrinsics, box)[1]
+    R, origin = view.T_world_camera[:3, :3], view.T_world_camera[:3, 3]
+    down = rays @ R.T[:, 2]                       # world z per unit of depth along each ray
+    with np.errstate(divide='ignore'):
+        table = np.where(down < 0, -origin[2] / down, np.inf)
+    depth_a = np.where(np.isfinite(depth_a), depth_a, table)
+    depth_b = np.where(np.isfinite(depth_b), depth_b, table)
+    near = np.minimum(depth_a, depth_b)
+    noise = params.noise_sigmas * params.noise_at_1m_m * near ** 2
+    with np.errstate(invalid='ignore'):
+        depth_moved = (np.abs(depth_a - depth_b) > noise).reshape(box[3], box[2])
+    edges = [rendered_edges(scene, T, view.intrinsics, box, jump_m=params.jump_m,
+                            crease_deg=params.crease_deg) for T in poses]
+    moved = np.zeros_like(edges[0])
+    for mine, other in ((edges[0], edges[1]), (edges[1], edges[0])):
+        distance = cv2.distanceTransform((~other).astype(np.uint8), cv2.DIST_L2, 3)
+        moved |= mine & (distance > params.edge_px)
+    return (int(np.count_nonzero(depth_moved)), int(np.count_nonzero(moved)),
+            int(np.count_nonzero(depth_moved | moved)))
+
+
+def turned(T_world_object: np.ndarray, axis_o: np.ndarray, centre_o: np.ndarray,
+           angle_deg: float) -> np.ndarray:
+    """``T_world_object`` turned by ``angle_deg`` about the model-frame ``axis_o`` through the
+    model-frame point ``centre_o``."""
+    S = np.eye(4)
+    S[:3, :3] = rotation_about_axis(axis_o, np.radians(angle_deg))
+    S[:3, 3] = centre_o - S[:3, :3] @ centre_o
+    return np.asarray(T_world_object, np.float64) @ S
+
+
+def axis_name(axis: np.ndarray) -> str:
+    """'x', 'y' or 'z' for a model axis (either sign), else the axis rounded, as text."""
+    for k, name in enumerate('xyz'):
+        if abs(abs(axis[k]) - 1.0) < 1e-6:
+            return name
+    return '(' + ' '.join(f'{a:.2f}' for a in axis) + ')'
+
+
+@dataclass(frozen=True)
+class AxisVisibility:
+    """A turn about one axis: its name ('x', 'y', 'z': model axes; a principal axis as a
+    vector; 'yaw': the vertical of each resting pose), the pixels it changes in the median
+    resting pose (weighted by probability; depth, edges, either), the share of the resting
+    poses' probability where it keeps the part at rest (a yaw, a roll on a round side: the
+    table does not settle it) and the share where it does and fewer than ``min_px`` pixels
+    change (the turn is not seen)."""
+
+    axis: str
+    depth_px: float
+    edge_px: float
+    changed_px: float
+    resting_share: float
+    unseen_share: float
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    order = np.argsort(values)
+    cumulative = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+
+
+def turn_visibility(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
+                    resting: Sequence[tuple[np.ndarray, float]], views: Sequence[ViewOfTable],
+                    params: ObservabilityParams, *,
+                    continuous_axes: Sequence[np.ndarray] = ()) -> list[AxisVisibility]:
+    """How well the rig sees a turn by ``params.turn_deg`` of a part resting on the table.
+
+    Args:
+        scene: the part's mesh in its model frame (an Open3D ``RaycastingScene``, metres).
+        points: (N, 3) samples of its surface, model frame.
+        resting: its resting poses ``(T_table_object, probability)`` (the table's origin seen
+            by the rig: :func:`~tlessbot_ros.core.common.resting.resting_poses`); the
+            ``params.poses`` most probable are measured.
+        views: the rig's cameras.
+        params: the settings.
+        continuous_axes: model-frame axes the part turns about onto itself (left out).
+
+    Returns:
+        one :class:`AxisVisibility` per axis: the model axes and the principal axes of the
+        samples (:func:`~.fallback.turn_axes`), then 'yaw' (about the vertical).
+    """
+    points = np.asarray(points, np.float64)
+    centre = points.mean(axis=0)
+    lift = params.rest_ratio * float(np.linalg.norm(np.ptp(points, axis=0))) * \
+        np.sin(np.radians(params.turn_deg))
+    best = sorted(resting, key=lambda rp: -rp[1])[:params.poses]
+    weights = np.array([p for _, p in best], np.float64)
+    axes: list[tuple[str, np.ndarray | None]] = [
+        (axis_name(a), a) for a in turn_axes(points)
+        if all(abs(float(a @ c)) < np.cos(np.radians(5.0)) for c in continuous_axes)]
+    axes.append(('yaw', None))
+    out = []
+    for name, axis in axes:
+        counts = np.full((len(best), 3), np.nan)
+        rests = np.zeros(len(best), bool)
+        for k, (T, _) in enumerate(best):
+            up_o = np.asarray(T, np.float64)[2, :3]     # the world's z in the model frame
+            if axis is None and any(abs(float(up_o @ c)) > np.cos(np.radians(5.0))
+                                    for c in continuous_axes):
+                continue              # standing on its round end: a yaw maps it onto itself
+            T_b = turned(T, up_o if axis is None else axis, centre, params.turn_deg)
+            heights = [(points @ A[2, :3] + A[2, 3]).min() for A in (T, T_b)]
+            rests[k] = heights[0] - heights[1] <= lift    # the centre rises by the drop
+            counts[k] = np.sum([changed_pixels(scene, points, T, T_b, view, params)
+                                for view in views], axis=0)
+        measured = ~np.isnan(counts[:, 0])
+        if not measured.any():
+            continue
+        c, w, r = counts[measured], weights[measured], rests[measured]
+        out.append(AxisVisibility(name, *(_weighted_median(c[:, j], w) for j in range(3)),
+                                  float(w[r].sum() / w.sum()),
+                                  float(w[r & (c[:, 2] < params.min_px)].sum() / w.sum())))
+    return out
+
+
+__all__ = ['AxisVisibility', 'ObservabilityParams', 'ViewOfTable', 'axis_name',
+           'changed_pixels', 'turn_visibility', 'turned']
