@@ -1,0 +1,71 @@
+"""tlessbot parts build's check of what the rig can see: a 5° turn of a round part about its
+axis is seen when a large feature breaks its symmetry, not when only a tiny one does."""
+import numpy as np
+import open3d as o3d
+import pytest
+
+from tlessbot_ros.core.common import default_rig, raycasting_scene
+from tlessbot_ros.core.pose.observability import (
+    ObservabilityParams,
+    ViewOfTable,
+    changed_pixels,
+    turned,
+)
+from tlessbot_ros.io.models import ObjectModel
+from tlessbot_ros.tools.support.observability import part_turns, unseen_note, unseen_turns
+from tlessbot_ros.tools.support.parts_build import self_check_table
+
+
+def _round_part(key_mm: float) -> ObjectModel:
+    """A disc 30 mm across and 12 mm high (64 sides) with a cube ``key_mm`` wide on its rim."""
+    disc = o3d.geometry.TriangleMesh.create_cylinder(radius=0.015, height=0.012,
+                                                     resolution=64, split=1)
+    key = o3d.geometry.TriangleMesh.create_box(key_mm / 1000, key_mm / 1000, key_mm / 1000)
+    key.translate((0.015 - key_mm / 2000, -key_mm / 2000, -key_mm / 2000))
+    mesh = disc + key
+    v, f = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int32)
+    size = v.max(axis=0) - v.min(axis=0)
+    return ObjectModel(obj_id=1, vertices=v, faces=f, diameter_m=float(np.linalg.norm(size)),
+                       extent_m=size, symmetries_discrete=[], symmetries_continuous=[])
+
+
+@pytest.fixture(scope='module')
+def rig():
+    return default_rig()
+
+
+def test_a_tiny_key_leaves_the_turn_about_the_axis_unseen_a_large_one_does_not(rig):
+    tiny = unseen_turns(part_turns(_round_part(0.5), rig))
+    large = unseen_turns(part_turns(_round_part(8.0), rig))
+    assert {a['axis'] for a in tiny['axes']} & {'z', 'yaw'}, tiny
+    assert all(a['changed_px'] < ObservabilityParams().min_px for a in tiny['axes'])
+    assert not tiny['every_axis']          # tilting it off its face is seen (and levelled)
+    assert large['axes'] == [], large
+    assert unseen_note(large) == '-' and unseen_note(tiny).endswith('px)')
+
+
+def test_pixels_change_with_the_turn_and_not_without(rig):
+    model = _round_part(8.0)
+    scene, points = raycasting_scene(model.vertices, model.faces), model.vertices
+    T = np.eye(4)
+    T[2, 3] = 0.006                                  # lying on its end, centred
+    params = ObservabilityParams()
+    view = ViewOfTable(rig['side'].intrinsics, rig['side'].T_world_camera)
+    assert changed_pixels(scene, points, T, T, view, params) == (0, 0, 0)
+    small = changed_pixels(scene, points, T, turned(T, np.eye(3)[2], np.zeros(3), 5.0), view,
+                           params)
+    larger = changed_pixels(scene, points, T, turned(T, np.eye(3)[2], np.zeros(3), 30.0), view,
+                            params)
+    assert 0 < small[2] < larger[2] and larger[2] >= max(larger[:2])
+
+
+def test_the_self_check_table_says_which_turns_are_not_seen():
+    rows = [{'name': 'nut', 'seen': 4, 'pose': 0.25, 'top1': 1.0, 'detected': 1.0,
+             'lookalikes': [], 'unseen': 'yaw (2 px)'},
+            {'name': 'block', 'seen': 4, 'pose': 1.0, 'top1': 1.0, 'detected': 1.0,
+             'lookalikes': [], 'unseen': '-'}]
+    table = self_check_table(rows, {'frames': 2, 'pose': 0.6, 'top1': 1.0, 'detected': 1.0,
+                                    'false_pos_per_frame': 0.0}).splitlines()
+    assert '5° turn not seen' in table[0]
+    assert '| yaw (2 px) | hard |' in table[2] and '| - |  |' in table[3]
+    assert len({line.count('|') for line in table}) == 1
