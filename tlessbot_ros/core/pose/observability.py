@@ -203,7 +203,8 @@ def turn_visibility(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
         if not measured.any():
             continue
         c, w, r = counts[measured], weights[measured], rests[measured]
-        out.append(AxisVisibility(name, *(_weighted_median(c[:, j], w) for j in range(3)),
+        depth_px, edge_px, changed_px = (_weighted_median(c[:, j], w) for j in range(3))
+        out.append(AxisVisibility(name, depth_px, edge_px, changed_px,
                                   float(w[r].sum() / w.sum()),
                                   float(w[r & (c[:, 2] < params.min_px)].sum() / w.sum())))
     return out

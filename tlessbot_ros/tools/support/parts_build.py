@@ -295,8 +295,8 @@ def _run_steps(cad: Path, out: Path, options: BuildOptions, manifest: dict, mesh
     from tlessbot_ros.tools.support.rig import load_rig
 
     config = ['--config', str(options.config)] if options.config else []
-    names = ['meshes + symmetries', 'turns the rig sees', 'templates', 'classifier' if classifier else None,
-             'manifest', 'self-check' if check else None]
+    names = ['meshes + symmetries', 'turns the rig sees', 'templates',
+             'classifier' if classifier else None, 'manifest', 'self-check' if check else None]
     times: dict[str, float] = {}
     with tqdm(total=sum(n is not None for n in names), desc='parts build', unit='step') as bar, \
             tempfile.TemporaryDirectory(prefix='tlessbot_build_') as tmp:
