@@ -37,11 +37,23 @@ def rig():
 def test_a_tiny_key_leaves_the_turn_about_the_axis_unseen_a_large_one_does_not(rig):
     tiny = unseen_turns(part_turns(_round_part(0.5), rig))
     large = unseen_turns(part_turns(_round_part(8.0), rig))
-    assert {a['axis'] for a in tiny['axes']} & {'z', 'yaw'}, tiny
+    assert {a['axis'] for a in tiny['axes'] if a['turn_deg'] == 5.0} & {'z', 'yaw'}, tiny
     assert all(a['changed_px'] < ObservabilityParams().min_px for a in tiny['axes'])
     assert not tiny['every_axis']          # tilting it off its face is seen (and levelled)
-    assert large['axes'] == [], large
-    assert unseen_note(large) == '-' and unseen_note(tiny).endswith('px)')
+    assert [a for a in large['axes'] if a['turn_deg'] == 5.0] == [], large
+    assert unseen_note(tiny).endswith('px)') and unseen_note(None) == '-'
+    assert unseen_note({'axes': [], 'every_axis': False}) == '-'
+
+
+def test_a_half_turn_the_list_leaves_out_is_reported_when_the_rig_cannot_tell_it(rig):
+    # the key sits half-way up the disc's rim: turned over about x the part maps onto itself
+    # (a symmetry its empty list leaves out); turned over about y the key goes to the far side
+    record = unseen_turns(part_turns(_round_part(8.0), rig))
+    turns = {(a['axis'], a['turn_deg']) for a in record['axes']}
+    assert ('x', 180.0) in turns and ('y', 180.0) not in turns
+    model = _round_part(8.0)
+    model.symmetries_discrete = [np.diag([1.0, -1.0, -1.0, 1.0])]     # now listed
+    assert unseen_turns(part_turns(model, rig))['axes'] == []
 
 
 def test_pixels_change_with_the_turn_and_not_without(rig):
@@ -66,6 +78,20 @@ def test_the_self_check_table_says_which_turns_are_not_seen():
              'lookalikes': [], 'unseen': '-'}]
     table = self_check_table(rows, {'frames': 2, 'pose': 0.6, 'top1': 1.0, 'detected': 1.0,
                                     'false_pos_per_frame': 0.0}).splitlines()
-    assert '5° turn not seen' in table[0]
+    assert 'turns not seen' in table[0]
     assert '| yaw (2 px) | hard |' in table[2] and '| - |  |' in table[3]
     assert len({line.count('|') for line in table}) == 1
+
+
+def test_parts_observe_prints_one_row_per_part(tmp_path, capsys):
+    from tlessbot_ros.io.parts import write_mesh
+    from tlessbot_ros.tools.cli import main
+
+    for name, key in (('disc_key', 8.0), ('disc_plain', 0.5)):
+        model = _round_part(key)
+        write_mesh(tmp_path / f'{name}.stl', model.vertices * 1000.0, model.faces)
+    assert main(['parts', 'observe', '--models', str(tmp_path)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert 'turns not seen (px changed)' in out[0]
+    assert [line.split('|')[1].strip() for line in out[2:4]] == ['disc_key', 'disc_plain']
+    assert out[-1].startswith('2 parts in ')

@@ -137,9 +137,9 @@ class AxisVisibility:
     """A turn about one axis: its name ('x', 'y', 'z': model axes; a principal axis as a
     vector; 'yaw': the vertical of each resting pose), the pixels it changes in the median
     resting pose (weighted by probability; depth, edges, either), the share of the resting
-    poses' probability where it keeps the part at rest (a yaw, a roll on a round side: the
-    table does not settle it) and the share where it does and fewer than ``min_px`` pixels
-    change (the turn is not seen)."""
+    poses' probability where it keeps the part at rest (a yaw, a roll on a round side, a half
+    turn onto a face alike: the table does not settle it), the share where it does and fewer
+    than ``min_px`` pixels change (the turn is not seen), and the turn's angle."""
 
     axis: str
     depth_px: float
@@ -147,6 +147,7 @@ class AxisVisibility:
     changed_px: float
     resting_share: float
     unseen_share: float
+    turn_deg: float = 5.0
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
@@ -155,11 +156,30 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
 
+def _is_symmetry(R: np.ndarray, listed: Sequence[np.ndarray],
+                continuous_axes: Sequence[np.ndarray]) -> bool:
+    """Whether the rotation ``R`` is a listed symmetry, or one composed with a turn about a
+    continuous axis."""
+    from tlessbot_ros.core.common import rotation_angle_deg
+
+    for L in [np.eye(3), *listed]:
+        M = R @ np.asarray(L, np.float64)[:3, :3].T
+        if rotation_angle_deg(M, np.eye(3)) < 1.0:
+            return True
+        values, vectors = np.linalg.eig(M)
+        axis = np.real(vectors[:, int(np.argmin(np.abs(values - 1.0)))])   # a half turn too
+        if any(abs(float(axis @ c)) > np.cos(np.radians(5.0)) for c in continuous_axes):
+            return True
+    return False
+
+
 def turn_visibility(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
                     resting: Sequence[tuple[np.ndarray, float]], views: Sequence[ViewOfTable],
-                    params: ObservabilityParams, *,
-                    continuous_axes: Sequence[np.ndarray] = ()) -> list[AxisVisibility]:
-    """How well the rig sees a turn by ``params.turn_deg`` of a part resting on the table.
+                    params: ObservabilityParams, *, continuous_axes: Sequence[np.ndarray] = (),
+                    listed: Sequence[np.ndarray] = (), centre: np.ndarray | None = None
+                    ) -> list[AxisVisibility]:
+    """How well the rig sees a turn by ``params.turn_deg`` of a part resting on the table, and
+    its half turns (end for end) that are no listed symmetry.
 
     Args:
         scene: the part's mesh in its model frame (an Open3D ``RaycastingScene``, metres).
@@ -170,44 +190,65 @@ def turn_visibility(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
         views: the rig's cameras.
         params: the settings.
         continuous_axes: model-frame axes the part turns about onto itself (left out).
+        listed: its listed discrete symmetries ((3, 3) or (4, 4); half turns that are one of
+            them are left out).
+        centre: (3,) the point the turns are about (its centre of mass: a half turn about
+            an axis through it maps a part symmetric end for end onto itself); None: the
+            samples' mean.
 
     Returns:
-        one :class:`AxisVisibility` per axis: the model axes and the principal axes of the
-        samples (:func:`~.fallback.turn_axes`), then 'yaw' (about the vertical).
+        one :class:`AxisVisibility` per turn: about the model axes and the principal axes of
+        the samples (:func:`~.fallback.turn_axes`), 'yaw' (about the vertical), then the
+        half turns about the model axes ('x', 'y', 'z' with ``turn_deg`` 180).
     """
     points = np.asarray(points, np.float64)
-    centre = points.mean(axis=0)
-    lift = params.rest_ratio * float(np.linalg.norm(np.ptp(points, axis=0))) * \
-        np.sin(np.radians(params.turn_deg))
+    centre = points.mean(axis=0) if centre is None else np.asarray(centre, np.float64)
     best = sorted(resting, key=lambda rp: -rp[1])[:params.poses]
-    weights = np.array([p for _, p in best], np.float64)
-    axes: list[tuple[str, np.ndarray | None]] = [
-        (axis_name(a), a) for a in turn_axes(points)
-        if all(abs(float(a @ c)) < np.cos(np.radians(5.0)) for c in continuous_axes)]
-    axes.append(('yaw', None))
+    cos5 = np.cos(np.radians(5.0))
+    turns: list[tuple[str, np.ndarray | None, float]] = [
+        (axis_name(a), a, params.turn_deg) for a in turn_axes(points)
+        if all(abs(float(a @ c)) < cos5 for c in continuous_axes)]
+    turns.append(('yaw', None, params.turn_deg))
+    turns += [(axis_name(a), a, 180.0) for a in np.eye(3)
+              if not _is_symmetry(rotation_about_axis(a, np.pi), listed, continuous_axes)]
     out = []
-    for name, axis in axes:
-        counts = np.full((len(best), 3), np.nan)
-        rests = np.zeros(len(best), bool)
-        for k, (T, _) in enumerate(best):
-            up_o = np.asarray(T, np.float64)[2, :3]     # the world's z in the model frame
-            if axis is None and any(abs(float(up_o @ c)) > np.cos(np.radians(5.0))
-                                    for c in continuous_axes):
-                continue              # standing on its round end: a yaw maps it onto itself
-            T_b = turned(T, up_o if axis is None else axis, centre, params.turn_deg)
-            heights = [(points @ A[2, :3] + A[2, 3]).min() for A in (T, T_b)]
-            rests[k] = heights[0] - heights[1] <= lift    # the centre rises by the drop
-            counts[k] = np.sum([changed_pixels(scene, points, T, T_b, view, params)
-                                for view in views], axis=0)
-        measured = ~np.isnan(counts[:, 0])
-        if not measured.any():
-            continue
-        c, w, r = counts[measured], weights[measured], rests[measured]
-        depth_px, edge_px, changed_px = (_weighted_median(c[:, j], w) for j in range(3))
-        out.append(AxisVisibility(name, depth_px, edge_px, changed_px,
-                                  float(w[r].sum() / w.sum()),
-                                  float(w[r & (c[:, 2] < params.min_px)].sum() / w.sum())))
+    for name, axis, angle in turns:
+        found = _one_turn(scene, points, centre, best, views, params, axis, angle,
+                          continuous_axes)
+        if found is not None:
+            out.append(AxisVisibility(name, *found, turn_deg=angle))
     return out
+
+
+def _one_turn(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray, centre: np.ndarray,
+              best: Sequence[tuple[np.ndarray, float]], views: Sequence[ViewOfTable],
+              params: ObservabilityParams, axis: np.ndarray | None, angle: float,
+              continuous_axes: Sequence[np.ndarray]) -> tuple[float, ...] | None:
+    """:class:`AxisVisibility`'s figures of one turn (``axis`` None: the vertical), None when
+    it maps every pose onto itself. The turned part is seated on the table again."""
+    lift = params.rest_ratio * float(np.linalg.norm(np.ptp(points, axis=0))) * \
+        np.sin(np.radians(min(angle, 90.0)))
+    weights = np.array([p for _, p in best], np.float64)
+    counts = np.full((len(best), 3), np.nan)
+    rests = np.zeros(len(best), bool)
+    for k, (T, _) in enumerate(best):
+        up_o = np.asarray(T, np.float64)[2, :3]     # the world's z in the model frame
+        if axis is None and any(abs(float(up_o @ c)) > np.cos(np.radians(5.0))
+                                for c in continuous_axes):
+            continue              # standing on its round end: a yaw maps it onto itself
+        T_b = turned(T, up_o if axis is None else axis, centre, angle)
+        heights = [float((points @ A[2, :3] + A[2, 3]).min()) for A in (T, T_b)]
+        T_b[2, 3] += heights[0] - heights[1]                # seated: the centre moves by this
+        rests[k] = abs(heights[0] - heights[1]) <= lift
+        counts[k] = np.sum([changed_pixels(scene, points, T, T_b, view, params)
+                            for view in views], axis=0)
+    measured = ~np.isnan(counts[:, 0])
+    if not measured.any():
+        return None
+    c, w, r = counts[measured], weights[measured], rests[measured]
+    depth_px, edge_px, changed_px = (_weighted_median(c[:, j], w) for j in range(3))
+    return (depth_px, edge_px, changed_px, float(w[r].sum() / w.sum()),
+            float(w[r & (c[:, 2] < params.min_px)].sum() / w.sum()))
 
 
 __all__ = ['AxisVisibility', 'ObservabilityParams', 'ViewOfTable', 'axis_name',

@@ -1,6 +1,7 @@
 """Your own parts: build a parts folder from CAD files, or generate example CAD parts.
 
     tlessbot parts build --models MY_CAD --out my_parts [--units m] [--config my_cell.yaml]
+    tlessbot parts observe --models MY_CAD    # which 5° turns the rig cannot see (seconds)
     tlessbot parts generate --out my_cad      # 8 example parts (plates, brackets, a tube), STL
     tlessbot parts generate --out held_out --seed 7 --count 8   # parts drawn from a seed
 
@@ -44,6 +45,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument('--train-arg', action='append', default=[], metavar='ARG',
                        help='pass ARG on to tlessbot train (repeatable; --train-arg=--scenes='
                             '200)')
+    observe = sub.add_parser('observe', help="which 5° turns of each part the rig's "
+                             'cameras cannot see (the build does it too)')
+    observe.add_argument('--models', type=Path, required=True,
+                         help='folder of STL / PLY / OBJ files, one part each')
+    observe.add_argument('--units', choices=('mm', 'm'), default='mm',
+                         help="the CAD files' units (default mm)")
+    observe.add_argument('--config', type=Path, help='the cell YAML whose rig sees the parts '
+                         '(default config/cell.yaml)')
     generate = sub.add_parser('generate', help='write example CAD parts (STL, mm)')
     generate.add_argument('--out', type=Path, required=True, help='folder to write')
     generate.add_argument('--names', nargs='+', help='only these parts')
@@ -72,8 +81,11 @@ def run(args: argparse.Namespace) -> int:
             generate_family(args.out, args.seed, args.count, args.names)
         print(f'{len(paths)} parts -> {args.out}: {", ".join(p.stem for p in paths)}')
         return 0
-    from tlessbot_ros.tools.support.parts_build import BuildOptions, build_parts
+    from tlessbot_ros.tools.support.parts_build import BuildOptions, build_parts, observe_parts
 
+    if args.action == 'observe':
+        print(observe_parts(args.models, BuildOptions(units=args.units, config=args.config)))
+        return 0
     if args.check_frames < 0:
         raise TlessbotError('--check-frames must be >= 0')
     options = BuildOptions(units=args.units, config=args.config,

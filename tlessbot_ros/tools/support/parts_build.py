@@ -230,7 +230,7 @@ def self_check_table(rows: list[dict], summary: dict) -> str:
     def cell(value):
         return '-' if value is None else f'{value:.2f}'
 
-    lines = ['| part | seen | 5 cm / 5° | top-1 | detected | look-alikes | 5° turn not seen '
+    lines = ['| part | seen | 5 cm / 5° | top-1 | detected | look-alikes | turns not seen '
              '(px changed) | note |', '|---|---|---|---|---|---|---|---|']
     for r in rows:
         hard = r['pose'] is not None and r['pose'] < HARD_RECALL
@@ -242,6 +242,26 @@ def self_check_table(rows: list[dict], summary: dict) -> str:
                  f"{cell(summary['top1'])} | {cell(summary['detected'])} | | | false positives "
                  f"{cell(summary['false_pos_per_frame'])} / frame |")
     return '\n'.join(lines)
+
+
+def observe_parts(cad: Path, options: BuildOptions) -> str:
+    """``tlessbot parts observe``: the build's "turns the rig sees" step alone, on the CAD
+    folder ``cad`` (same meshes and symmetries), as a Markdown table, one row per part."""
+    from tlessbot_ros.tools.support.observability import record_unseen_turns, unseen_note
+    from tlessbot_ros.tools.support.rig import load_rig
+
+    rig = load_rig(options.config)
+    meshes = read_meshes(parts_io.cad_parts(cad), options.units)
+    with tempfile.TemporaryDirectory(prefix='tlessbot_observe_') as tmp:
+        entries = _write_models(cad, Path(tmp), meshes)
+        started = time.perf_counter()
+        record_unseen_turns(Path(tmp) / parts_io.MODELS, entries, rig, quiet=True)
+        took = time.perf_counter() - started
+    lines = ['| part | size (mm) | symmetry | turns not seen (px changed) |',
+             '|---|---|---|---|']
+    lines += [f"| {e['name']} | {' x '.join(f'{v:.0f}' for v in e['size_mm'])} | "
+              f"{e['symmetry']} | {unseen_note(e['unseen_turns_5deg'])} |" for e in entries]
+    return '\n'.join(lines) + f'\n\n{len(entries)} parts in {took:.1f} s'
 
 
 def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = True,
