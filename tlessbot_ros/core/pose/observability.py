@@ -1,4 +1,4 @@
-"""What the rig can see of a small turn of a part: pixels that change when it turns.
+"""What the rig can see of a turn of a part: pixels that change when it turns.
 
 A pose error is only found if it shows in the cameras. Turning a part by a few degrees about
 an axis moves its outline, its creases and its depth; a part whose features are small against
@@ -10,7 +10,10 @@ pixels are counted: those whose depth moves by more than ``noise_sigmas`` times 
 depth noise at that distance (sigma = ``noise_at_1m_m`` * z^2, the D415 model of the
 simulator), and the colour-edge pixels (outline, depth steps and creases, as the turn check
 renders them: :func:`~.turns.rendered_edges`) that have no edge of the other render within
-``edge_px``. A pixel counts once if it changes both ways.
+``edge_px``. A pixel counts once if it changes both ways. The half turns about the model axes
+that are no listed symmetry are measured too (a hex nut turned end for end: its chamfers
+differ by half a millimetre). The turned part is seated on the table again; only turns that
+keep it at rest count (a tilt off a face the pose stage levels away: :mod:`.resting`).
 """
 from __future__ import annotations
 
