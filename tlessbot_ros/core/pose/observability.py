@@ -219,14 +219,17 @@ def turn_visibility(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
         found = _one_turn(scene, points, centre, best, views, params, axis, angle,
                           continuous_axes)
         if found is not None:
-            out.append(AxisVisibility(name, *found, turn_deg=angle))
+            depth_px, edge_px, changed_px, rest_share, unseen = found
+            out.append(AxisVisibility(name, depth_px, edge_px, changed_px, rest_share, unseen,
+                                      turn_deg=angle))
     return out
 
 
 def _one_turn(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray, centre: np.ndarray,
               best: Sequence[tuple[np.ndarray, float]], views: Sequence[ViewOfTable],
               params: ObservabilityParams, axis: np.ndarray | None, angle: float,
-              continuous_axes: Sequence[np.ndarray]) -> tuple[float, ...] | None:
+              continuous_axes: Sequence[np.ndarray]
+              ) -> tuple[float, float, float, float, float] | None:
     """:class:`AxisVisibility`'s figures of one turn (``axis`` None: the vertical), None when
     it maps every pose onto itself. The turned part is seated on the table again."""
     lift = params.rest_ratio * float(np.linalg.norm(np.ptp(points, axis=0))) * \
