@@ -30,7 +30,7 @@ from tlessbot_ros.core.common import (
     sample_surface,
     symmetries_from_models_info,
 )
-from tlessbot_ros.core.pose.observability import ObservabilityParams, ViewOfTable, changed_pixels
+from tlessbot_ros.core.pose import ObservabilityParams, ViewOfTable, changed_pixels
 from tlessbot_ros.io.models import load_models
 
 

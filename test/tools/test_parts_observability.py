@@ -5,12 +5,8 @@ import open3d as o3d
 import pytest
 
 from tlessbot_ros.core.common import default_rig, raycasting_scene
-from tlessbot_ros.core.pose.observability import (
-    ObservabilityParams,
-    ViewOfTable,
-    changed_pixels,
-    turned,
-)
+from tlessbot_ros.core.pose import ObservabilityParams, ViewOfTable, changed_pixels
+from tlessbot_ros.core.pose.observability import turned
 from tlessbot_ros.io.models import ObjectModel
 from tlessbot_ros.tools.support.observability import part_turns, unseen_note, unseen_turns
 from tlessbot_ros.tools.support.parts_build import self_check_table

@@ -10,7 +10,8 @@ search and the orchestration), ``hypotheses`` (the table path's resting hypothes
 and ``buckets`` (the fast lookups), ``fallback`` (the bounded 6-DOF search for parts off the
 table path), ``lookalike``, ``flat`` (which face of a flat part is up), ``turns`` (near-symmetric
 turns told apart by the colour image), ``half_turns`` (half turns decided by every view's
-height and colour), ``resting`` (a fit on the table levelled onto a stable pose), ``derived``
+height and colour), ``observability`` (what the rig can see of a turn), ``resting`` (a fit
+on the table levelled onto a stable pose), ``derived``
 (start-up arrays to cache).
 Surface sampling is :func:`tlessbot_ros.core.common.sample_surface`.
 
@@ -109,6 +110,11 @@ _HOME = {
     'choose_turn': 'turns',
     'near_turns': 'turns',
     'rendered_edges': 'turns',
+    'AxisVisibility': 'observability',
+    'ObservabilityParams': 'observability',
+    'ViewOfTable': 'observability',
+    'changed_pixels': 'observability',
+    'turn_visibility': 'observability',
 }
 __all__ = sorted(_HOME)
 
@@ -207,6 +213,13 @@ if TYPE_CHECKING:
         shared_surface,
         visible_difference,
         vote_counts,
+    )
+    from tlessbot_ros.core.pose.observability import (  # noqa: F401
+        AxisVisibility,
+        ObservabilityParams,
+        ViewOfTable,
+        changed_pixels,
+        turn_visibility,
     )
     from tlessbot_ros.core.pose.params import (  # noqa: F401
         FALLBACK_METHODS,

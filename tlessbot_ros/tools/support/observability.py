@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.common import Rig
-    from tlessbot_ros.core.pose.observability import AxisVisibility, ObservabilityParams
+    from tlessbot_ros.core.pose import AxisVisibility, ObservabilityParams
     from tlessbot_ros.io.models import ObjectModel
 
 SAMPLES = 3000          # surface samples a part's window and centre are taken from
@@ -23,7 +23,7 @@ def part_turns(model: ObjectModel, rig: Rig,
     observability.turn_visibility`; axes of its listed continuous symmetries left out)."""
     from tlessbot_ros.core.common import raycasting_scene, sample_surface
     from tlessbot_ros.core.common.resting import centre_of_mass
-    from tlessbot_ros.core.pose.observability import (
+    from tlessbot_ros.core.pose import (
         ObservabilityParams,
         ViewOfTable,
         turn_visibility,
@@ -67,7 +67,7 @@ def record_unseen_turns(models_dir: Path, entries: list[dict], rig: Rig, *,
                         quiet: bool = False) -> None:
     """Each manifest entry's ``unseen_turns_5deg`` (:func:`unseen_turns`), from the models of
     ``models_dir``; prints the parts with any (not ``quiet``)."""
-    from tlessbot_ros.core.pose.observability import ObservabilityParams
+    from tlessbot_ros.core.pose import ObservabilityParams
     from tlessbot_ros.io.models import load_models
 
     params = ObservabilityParams()
