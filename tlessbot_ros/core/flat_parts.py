@@ -178,7 +178,7 @@ def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vie
     if any(view.plane is not None for view in evidence):
         T = detection.pose.T_camera_object
         votes = view_votes(scenes, [T] * len(parts), obj.model_points.astype(np.float64),
-                           evidence, align_m=params.align_m,
+                           evidence, align_at_1m_m=params.align_at_1m_m,
                            tolerance_m=params.depth_tolerance_m)
         k = round_robin(votes)
         decided = all(clear_margin(int(votes[k, j]), int(votes[j, k]), params.align_min_z)

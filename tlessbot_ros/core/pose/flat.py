@@ -99,8 +99,8 @@ class FlatParams:
             this, m (>= 0).
         depth_min_z: the depth vote overturns the pose only with a surplus above this many
             coin-toss deviations (>= 0).
-        align_m: each pose's rendering is aligned to the view by shifts that cover this error
-            of the fit in the table plane before the height and colour vote, m (>= 0).
+        align_at_1m_m: each pose's rendering is aligned to the view by shifts that cover the
+            fit's error in the table plane, this at 1 m, growing with distance², m (>= 0).
         align_min_z: a turned pose wins the aligned vote only with a surplus above this many
             coin-toss deviations (>= 0).
         yaw_turns: a round flat part competes (and its holes' yaw is searched) turned about its
@@ -124,7 +124,7 @@ class FlatParams:
     yaw_min_gain: float = 0.02
     depth_tolerance_m: float = 0.002
     depth_min_z: float = 2.0
-    align_m: float = 0.006
+    align_at_1m_m: float = 0.010
     align_min_z: float = 3.0
     yaw_turns: int = 6
 
@@ -138,11 +138,11 @@ class FlatParams:
                              f'got {self.min_share}, {self.iou_weight}, {self.yaw_step_deg}')
         if not 0.0 <= self.flat_ratio <= 1.0 or self.edge_px <= 0:
             raise ValueError('flat_ratio must be in [0, 1] and edge_px positive')
-        if self.depth_tolerance_m < 0 or self.depth_min_z < 0 or self.align_m < 0 or \
+        if self.depth_tolerance_m < 0 or self.depth_min_z < 0 or self.align_at_1m_m < 0 or \
                 self.align_min_z < 0:
-            raise ValueError(f'depth_tolerance_m, depth_min_z, align_m and align_min_z must '
+            raise ValueError(f'depth_tolerance_m, depth_min_z, align_at_1m_m and align_min_z must '
                              f'be >= 0; got {self.depth_tolerance_m}, {self.depth_min_z}, '
-                             f'{self.align_m}, {self.align_min_z}')
+                             f'{self.align_at_1m_m}, {self.align_min_z}')
 
 
 @dataclass(frozen=True)
@@ -408,7 +408,7 @@ class FlatCheck:
 
         p = self.params
         votes = view_votes(meshes, poses, obj.model_points.astype(np.float64),
-                           views, align_m=p.align_m, tolerance_m=p.depth_tolerance_m)
+                           views, align_at_1m_m=p.align_at_1m_m, tolerance_m=p.depth_tolerance_m)
         k = round_robin(votes)
         decided = all(clear_margin(int(votes[k, j]), int(votes[j, k]), p.align_min_z)
                       for j in (range(len(poses)) if rivals is None else rivals) if j != k)

@@ -6,10 +6,9 @@ depth fit leaves a thin part a few millimetres off in the table plane (its flat 
 hold it there), which moves its outline by as many pixels: compared where they stand, the
 two poses' outlines dispute more pixels than their holes do, and the vote follows the fit's
 error. So each pose is first aligned: its rendering is shifted by whole pixels (as many
-either way as ``align_m`` spans at the part's distance) to where it agrees best with the view
-(a small in-plane search, in the spirit of chamfer matching, Barrow et al., IJCAI 1977), and
-the poses are compared
-aligned, pixel by pixel, on two cues:
+either way as the fit's error spans at the part's distance, :func:`shift_px`) to where it agrees
+best with the view (a small in-plane search, in the spirit of chamfer matching, Barrow et al.,
+IJCAI 1977), and the poses are compared aligned, pixel by pixel, on two cues:
 
 * **height above the table**: the mesh's top surface where a pixel's ray meets the mesh,
   the table (0) where it does not (a hole, beside the outline), against the height the
@@ -225,12 +224,12 @@ def aligned_view(renderers: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.nd
 
 
 def view_votes(scenes: Sequence[o3d.t.geometry.RaycastingScene], poses: Sequence[np.ndarray],
-               points_o: np.ndarray, views: Sequence[ViewEvidence], *, align_m: float,
+               points_o: np.ndarray, views: Sequence[ViewEvidence], *, align_at_1m_m: float,
                tolerance_m: float) -> np.ndarray:
     """(K, K) :func:`pooled_votes` of K poses (pose k of the mesh ``scenes[k]``, in the fitted
     view's frame; ``points_o`` the model samples that bound them) over every view with a
-    table plane and colour or depth, each rendering aligned by shifts that cover ``align_m``
-    in the table plane (:func:`shift_px`)."""
+    table plane and colour or depth, each rendering aligned by shifts that cover the fit's
+    error in the table plane (``align_at_1m_m`` at 1 m, :func:`shift_px`)."""
     from tlessbot_ros.core.pose.silhouette import window
 
     aligned = []
@@ -238,7 +237,7 @@ def view_votes(scenes: Sequence[o3d.t.geometry.RaycastingScene], poses: Sequence
         if view.plane is None or (view.rgb is None and view.depth_m is None):
             continue
         T = [view.T_view_fit @ np.asarray(T_k, np.float64) for T_k in poses]
-        pad = shift_px(view.intrinsics, points_o, T[0], align_m)
+        pad = shift_px(view.intrinsics, points_o, T[0], align_at_1m_m)
         box = window(points_o, T, view.intrinsics, margin_px=pad + 4)
         if box is None:
             continue
@@ -249,16 +248,17 @@ def view_votes(scenes: Sequence[o3d.t.geometry.RaycastingScene], poses: Sequence
 
 
 def shift_px(intrinsics: CameraIntrinsics, points_o: np.ndarray, T_camera_object: np.ndarray,
-             align_m: float) -> int:
-    """The whole pixels that ``align_m`` spans at the distance of a part at a pose (the
-    median depth of its model samples ``points_o``): how far the aligned votes shift each
-    rendering. The fit's error in the table plane is a length; a camera twice as near sees it
-    twice as many pixels long."""
+             align_at_1m_m: float) -> int:
+    """The whole pixels that the fit's error in the table plane spans at the distance z of a
+    part at a pose (the median depth of its model samples ``points_o``): how far the aligned
+    votes shift each rendering. The error grows as the depth's noise, with z² (a stereo
+    camera's disparity error; ``align_at_1m_m`` is its size at 1 m), and a length at z spans
+    f / z pixels: f · align_at_1m_m · z in all."""
     depth = float(np.median(np.asarray(points_o, np.float64) @ T_camera_object[2, :3]
                             + T_camera_object[2, 3]))
-    if align_m <= 0 or depth <= 0:
+    if align_at_1m_m <= 0 or depth <= 0:
         return 0
-    return int(np.ceil(intrinsics.K[0, 0] * align_m / depth))
+    return int(np.ceil(intrinsics.K[0, 0] * align_at_1m_m * depth))
 
 
 def voting_region(renders: Sequence[tuple[np.ndarray, np.ndarray]], pad: int,

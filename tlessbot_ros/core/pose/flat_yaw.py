@@ -124,7 +124,7 @@ class _YawScores:
             if view.plane is None or (view.rgb is None and view.depth_m is None):
                 continue
             poses = [view.T_view_fit @ self.pose(a) for a in coarse]
-            pad = shift_px(view.intrinsics, samples, poses[0], params.align_m)
+            pad = shift_px(view.intrinsics, samples, poses[0], params.align_at_1m_m)
             box = window(samples, poses, view.intrinsics, margin_px=pad + 4)
             if box is not None:
                 self.views.append((view, aligned_view(

@@ -99,7 +99,7 @@ def choose_half_turn(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np
     Each turned pose is refitted to the ROI cloud ``scene_c`` (``half_icp_iterations`` steps of
     the pose stage's ICP); the ``half_candidates`` best by depth fitness among those at most
     ``max_fitness_drop`` below the fitted pose's, each a distinct pose, compete with it
-    (:meth:`~.flat.FlatCheck.aligned_winner`: ``check``'s ``align_m``,
+    (:meth:`~.flat.FlatCheck.aligned_winner`: ``check``'s ``align_at_1m_m``,
     ``depth_tolerance_m`` and ``align_min_z``).
 
     Returns:
