@@ -108,3 +108,54 @@ def test_the_piece_is_the_part_the_fit_leaves_out(touching):
     assert piece is not None
     assert np.mean(piece[second]) > 0.9 and np.mean(piece[first]) < 0.1
     assert not (piece & (region == 0)).any()
+
+
+
+@pytest.fixture(scope='module')
+def in_a_row():
+    """A block, the plate and a block in a row on the table, 1 mm apart, one region holding
+    all three; the database knows the plate (id 1) and the block (id 2)."""
+    trimesh = pytest.importorskip('trimesh')
+    v, f = _plate()
+    block = trimesh.creation.box(extents=(0.03, 0.02, 0.02))
+    bv, bf = np.asarray(block.vertices), np.asarray(block.faces)
+    flipped = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi), [0, 0, 0.004])
+    db = build_database([(1, v, f, [(np.eye(4), 0.5), (flipped, 0.5)], None),
+                         (2, bv, bf, [(make_transform(np.eye(3), [0, 0, 0.01]), 1.0)], None)],
+                        intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera)
+    turn = rotation_about_axis([0, 0, 1], np.radians(20))
+    shift = np.array([-0.04, -0.01, 0.0])
+    parts = [(bv, bf, make_transform(turn, turn @ np.array([-0.016, 0.02, 0.01]) + shift)),
+             (v, f, make_transform(turn, shift)),
+             (bv, bf, make_transform(turn, turn @ np.array([0.096, 0.015, 0.01]) + shift))]
+    renderer = MeshRenderer()
+    renderer.add_mesh(*TABLE)
+    for vertices, faces, T in parts:
+        renderer.add_mesh(vertices, faces, T)
+    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
+    masks = [view.instance == k for k in (1, 2, 3)]
+    assert all(m.sum() > 300 for m in masks)
+    rng = np.random.default_rng(0)
+    depth = (view.depth_m + rng.normal(0, 0.0005, masks[0].shape) * (view.depth_m > 0)).astype(
+        np.float32)
+    region = np.logical_or.reduce(masks)
+    rgb = np.full((*region.shape, 3), 120, np.uint8)
+    rgb[region] = (70, 100, 190)
+    views = {'side': ViewInput(rgb, depth, SIDE.intrinsics, SIDE.T_world_camera)}
+    return db, views, region.astype(np.uint16), masks, [SIDE.T_camera_world @ T
+                                                        for *_, T in parts]
+
+
+def test_three_parts_in_a_row_are_found_as_three(in_a_row):
+    """The first fit lands on the plate in the middle and leaves both ends out; one end is
+    divided off at a time, so the rest is divided again (issue 41: three parts in a row)."""
+    db, views, region, masks, truth = in_a_row
+    labels = {'side': region.copy()}
+    found = PerceptionPipeline(templates=db, pose=POSE).estimate_poses(views, labels, {1: (1,)})
+    assert len(found) == 3 and all(d.pose is not None for d in found)
+    assert sorted(d.obj_id for d in found) == [1, 2, 2]
+    for part, T in zip(masks, truth):
+        gaps = [np.linalg.norm(d.pose.T_camera_object[:3, 3] - T[:3, 3]) for d in found]
+        assert min(gaps) < 0.01
+        owner = found[int(np.argmin(gaps))]
+        assert np.mean(labels['side'][part] == owner.instance_id) > 0.8

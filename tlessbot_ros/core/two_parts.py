@@ -18,7 +18,10 @@ piece is kept only when it is a part by the rules of any region (:func:`fits_alo
 unknown rule on its own points, and its points cover :data:`MIN_COVERAGE` of its fitted
 model), the rest still is one, and neither fit explains the other's points (:func:`apart`:
 else one part was fitted twice). Otherwise the region is left as it was. A kept piece may be
-divided again (three parts in a row).
+divided again, and so may the rest, by a piece that does not touch the one divided off (three
+parts in a row: a fit on the middle one leaves both ends out, one is divided off at a time;
+a piece against the one divided off is more likely that one's rim, left out by its fit on
+part of its pixels).
 """
 from __future__ import annotations
 
@@ -148,13 +151,19 @@ def split_then(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
 
     def divided(detection: Detection) -> None:
         job = by_detection[id(detection)]
-        piece = None
-        if detection.pose is not None and detection.obj_id != UNKNOWN_ID and \
+        pieces: list[PartJob] = []
+        # the rest may hold a part more: a fit on the middle one of three parts in a row
+        # leaves both ends out, and one piece is divided off at a time
+        while detection.pose is not None and detection.obj_id != UNKNOWN_ID and \
                 job.T_world_camera is not None:
-            piece = split_off(pipeline, job, views, labels, list(by_detection.values()))
-        judge(detection)
-        if piece is not None:   # the piece may hold a third part
+            piece = split_off(pipeline, job, views, labels, list(by_detection.values()),
+                              apart_from=[p.detection.instance_id for p in pieces])
+            if piece is None:
+                break
             by_detection[id(piece.detection)] = piece
+            pieces.append(piece)
+        judge(detection)
+        for piece in pieces:   # a piece may hold a part more
             found.append(piece.detection)
             split_then(pipeline, views, labels, list(by_detection.values()), unknown_last(
                 pipeline.fit_params, [piece], publish, pipeline.pose_estimator), publish,
@@ -163,17 +172,20 @@ def split_then(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
 
 
 def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
-              labels: dict[str, np.ndarray], others: Sequence[PartJob] = ()) -> PartJob | None:
+              labels: dict[str, np.ndarray], others: Sequence[PartJob] = (), *,
+              apart_from: Sequence[int] = ()) -> PartJob | None:
     """The piece of ``job``'s region that its fit leaves unexplained, fitted, when it is a
-    part (see the module) that none of ``others`` (the frame's fitted parts) sits on already:
-    ``labels`` are then divided and ``job`` (its points, box, class and pose) refitted on what
-    is left; else None and nothing changed."""
+    part (see the module) that none of ``others`` (the frame's fitted parts) sits on already
+    and that does not touch the regions ``apart_from`` (pieces just divided off this region,
+    in the fitted view: their fits, made on part of their pixels, can leave a rim of their
+    own in the rest): ``labels`` are then divided and ``job`` (its points, box, class and
+    pose) refitted on what is left; else None and nothing changed."""
     if not pipeline.flat_ids:   # no flat part: the depth's seams divide touching parts
         return None
     pieces = piece_in_views(pipeline, job, views, labels)
-    if not pieces:
-        return None
     detection = job.detection
+    if not pieces or touches(pieces[detection.view], labels[detection.view], apart_from):
+        return None
     new_id = 1 + max(int(image.max(initial=0)) for image in labels.values())
     if new_id > np.iinfo(labels[detection.view].dtype).max:
         return None
@@ -206,6 +218,15 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
     job.points, job.candidates = rest.points, rest.candidates
     vars(detection).update(vars(rest.detection))
     return piece
+
+
+def touches(mask: np.ndarray, labels: np.ndarray, instances: Sequence[int]) -> bool:
+    """Whether ``mask`` (H, W) bool borders (8-connected) or overlaps a region of
+    ``instances`` in ``labels``."""
+    if not len(instances):
+        return False
+    grown = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    return bool(np.isin(labels[grown], instances).any())
 
 
 def reassigned(pipeline: PerceptionPipeline, view: ViewInput, labels: np.ndarray, *jobs: PartJob
@@ -342,4 +363,4 @@ def piece_candidates(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
 
 __all__ = ['MIN_COVERAGE', 'apart', 'divided_job', 'explained', 'fits_alone', 'piece_candidates',
            'piece_in_views', 'raised', 'reassigned', 'same_place', 'split_off', 'split_then',
-           'unexplained_piece']
+           'touches', 'unexplained_piece']
