@@ -1,7 +1,7 @@
 """Every part with no pose of its class within 5 cm ("none" of own_parts_why.py), by cause.
 
     python scripts/own_parts_none.py SCENES MODELS ESTIMATES_CSV [--manifest PARTS/manifest.json]
-        [--rerun --classifier C.npz --templates T.npz] [--named-cm 1.5]
+        [--templates T.npz [--rerun --classifier C.npz]] [--named-cm 1.5]
 
 From the estimates alone, each "none" part is
 
@@ -12,11 +12,18 @@ From the estimates alone, each "none" part is
   the neighbour's centre than to this part's) whose side-view mask touches this part's;
 * ``other``: anything else (an estimate of another class 1.5-5 cm off, not a neighbour's).
 
+With ``--templates`` (meshes kept), each part named as its listed look-alike is also scored at
+its TRUE pose: do its two views show the difference at all (``shows``)? Where they do not
+(the holes that tell a mirror bracket from its twin seen edge-on), no check after the fit can
+name it; only the classifier's guess, or another view.
+
 With ``--rerun`` the pipeline runs again (as ``tlessbot evaluate``) on the frames that hold a
-"none" part and says, for each, which instance of the side view holds it (none: the localiser
-lost it; one that also holds >= 20 % of another part: merged), the classifier's rank of the
-right class on that instance (1 = first), the classes the pose stage fitted and the class it
-kept. A rerun is a new run: Open3D's RANSAC moves about one part a cell between runs.
+"none" part and says, for each, which instance of the side view holds most of it and its
+share of the part's pixels, the classifier's rank of the right class on that instance (1 =
+first, -1 not ranked) and the class the pose stage kept; ``why`` is then ``localiser`` (no
+instance holds it), ``split`` (none holds half of it), ``merged`` (its instance also holds
+>= 20 % of another part) or the cause above. A rerun is a new run: Open3D's RANSAC and the
+fallback's time budget move about one part a cell between runs.
 """
 from __future__ import annotations
 
@@ -100,6 +107,62 @@ def none_parts(scenes: Path, estimates: Path, named_m: float) -> list[dict]:
     return rows
 
 
+class KeepGuesses:
+    """A pipeline's ``classify``, keeping the instances it ranked (in its order)."""
+
+    def __init__(self, classify, stash: list[np.ndarray]) -> None:
+        self.classify, self.stash = classify, stash
+
+    def __call__(self, *args, **kwargs):
+        guesses = self.classify(*args, **kwargs)
+        self.stash.append(np.array(list(guesses)))
+        return guesses
+
+
+def twin_votes(rows: list[dict], scenes: Path, templates: Path) -> None:
+    """For each part named as its listed look-alike: whether its views show the difference
+    at the TRUE pose (the aligned height and colour votes of the flat check, both views,
+    ground-truth masks as the parts' regions; :func:`~tlessbot_ros.core.pose.flat_align.
+    view_votes`): 'truth_votes' = pixels for the truth / for the look-alike, 'shows' = a clear
+    margin (``FlatParams.align_min_z``)."""
+    from tlessbot_ros.core.common import SIDE, TOP, plane_of_frame, raycasting_scene
+    from tlessbot_ros.core.pose import FlatParams, TemplateDatabase
+    from tlessbot_ros.core.pose.flat import ViewEvidence
+    from tlessbot_ros.core.pose.flat_align import view_votes
+    from tlessbot_ros.core.pose.lookalike import clear_margin
+    from tlessbot_ros.io.bop import read_split
+
+    database = TemplateDatabase.load(templates)
+    params = FlatParams()
+    wanted = [r for r in rows if r.get('lookalike')]
+    readers = [read_split(scenes, f'test_{v}') for v in (SIDE, TOP)]
+    for side, top in zip(*readers):
+        for r in (r for r in wanted if (r['scene'], r['im']) == (side.scene_id, side.im_id)):
+            k, named = r['gt'], int(r['detail'].split()[0].split('->')[1])
+            parts = [database[r['obj']], database[named]]
+            if any(p.mesh_faces is None or p.mesh_vertices is None for p in parts):
+                continue
+            evidence = []
+            for image in (side, top):
+                mask = image.gt[k].mask
+                if mask is None:
+                    continue
+                others = np.zeros_like(mask)
+                for j, g in enumerate(image.gt):
+                    if j != k and g.mask is not None:
+                        others |= g.mask
+                evidence.append(ViewEvidence(
+                    image.rgb, mask, image.intrinsics,
+                    np.linalg.inv(image.T_world_camera) @ side.T_world_camera, image.depth_m,
+                    plane_of_frame(image.T_world_camera), others))
+            T = side.gt[k].T_camera_object
+            votes = view_votes([raycasting_scene(p.mesh_vertices, p.mesh_faces) for p in parts],
+                               [T, T], parts[0].model_points.astype(np.float64), evidence,
+                               align_m=params.align_m, tolerance_m=params.depth_tolerance_m)
+            r['truth_votes'] = f'{votes[0, 1]}/{votes[1, 0]}'
+            r['shows'] = clear_margin(int(votes[0, 1]), int(votes[1, 0]), params.align_min_z)
+
+
 def rerun(rows: list[dict], scenes: Path, classifier: Path, templates: Path) -> None:
     """Add the rerun's columns to ``rows`` (see the module's docstring)."""
     from tlessbot_ros.core.common import SIDE, TOP, CameraMount, Rig
@@ -136,14 +199,7 @@ def rerun(rows: list[dict], scenes: Path, classifier: Path, templates: Path) -> 
             rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
                        for v, im in by_view.items()})
             pipeline = PerceptionPipeline(rig=rig, classifier=model, templates=database)
-            classify = pipeline.classify
-
-            def classify_kept(*a, **kw):
-                guesses = classify(*a, **kw)
-                stash.append(np.array(list(guesses)))
-                return guesses
-
-            pipeline.classify = classify_kept   # type: ignore[method-assign]
+            pipeline.classify = KeepGuesses(pipeline.classify, stash)   # type: ignore
         stash.clear()
         scored.clear()
         result = pipeline.process({v: ViewInput(im.rgb, im.depth_m, im.intrinsics,
@@ -171,8 +227,9 @@ def rerun(rows: list[dict], scenes: Path, classifier: Path, templates: Path) -> 
                 order = list(ranked[row_of[inst]])
                 rank = order.index(r['obj']) + 1 if r['obj'] in order else -1
             r.update({'inst': inst, 'share': round(float(share), 2), 'inst_merged': merged,
-                      'rank': rank, 'fitted': det.obj_id if det else '',
-                      'pose_ok_class': bool(det and det.obj_id == r['obj'])})
+                      'rank': rank, 'fitted': det.obj_id if det else ''})
+            r['why'] = ('localiser' if inst == 0 else 'split' if share < 0.5 else
+                        'merged' if merged else r['cause'])
 
 
 def main() -> None:
@@ -197,10 +254,14 @@ def main() -> None:
         if r['cause'] == 'named':
             a, b = (int(x) for x in r['detail'].split()[0].split('->'))
             r['lookalike'] = (names.get(a), names.get(b)) in pairs
+    if args.templates:
+        twin_votes(rows, args.scenes, args.templates)
     if args.rerun:
         rerun(rows, args.scenes, args.classifier, args.templates)
-    print('causes: ' + ', '.join(f'{k} {v}' for k, v in sorted(Counter(
-        r['cause'] for r in rows).items())) + f' (of {len(rows)})')
+    for key in ('cause', 'why'):
+        if any(key in r for r in rows):
+            print(f'{key}: ' + ', '.join(f'{k} {v}' for k, v in sorted(Counter(
+                r[key] for r in rows).items())) + f' (of {len(rows)})')
     for r in rows:
         r['name'] = names.get(r['obj'], '')
         print('  ' + ' '.join(f'{k}={v}' for k, v in r.items()))
