@@ -4,6 +4,7 @@
 #   scripts/own_parts_bench.sh BENCH make            # once: parts folders and scenes (~40 min)
 #   scripts/own_parts_bench.sh BENCH eval OUT SEED SET...   # SEED 4100 | 4242 | 4343
 #   scripts/own_parts_bench.sh BENCH why OUT SEED SET       # each part's outcome by cause
+#   scripts/own_parts_bench.sh BENCH none OUT SEED SET      # each "none" part by cause (rerun)
 #
 # SETs: T (T-LESS, packaged classifier and templates), g (the 8 parts of `tlessbot parts
 # generate`), s (the SyGrid CAD models), h7 / h8 (families drawn with `parts generate --seed 7 /
@@ -54,5 +55,11 @@ why)
   "$PY" scripts/own_parts_why.py "$BENCH/scenes/$SEED-$k" "$BENCH/parts/$k/models" \
     "$OUT/$SEED/$k/estimates.csv"
   ;;
-*) echo "usage: $0 BENCH make | eval OUT SEED SET... | why OUT SEED SET" >&2; exit 2;;
+none)
+  OUT=$1; SEED=$2; k=$3
+  "$PY" scripts/own_parts_none.py "$BENCH/scenes/$SEED-$k" "$BENCH/parts/$k/models" \
+    "$OUT/$SEED/$k/estimates.csv" --manifest "$BENCH/parts/$k/manifest.json" \
+    --templates "$BENCH/parts/$k/templates.npz" --rerun --classifier "$BENCH/parts/$k/classifier.npz"
+  ;;
+*) echo "usage: $0 BENCH make | eval OUT SEED SET... | why|none OUT SEED SET" >&2; exit 2;;
 esac
