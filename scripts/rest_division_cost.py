@@ -44,9 +44,10 @@ def main() -> None:
         if pipeline is None:
             rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
                        for v, im in by_view.items()})
+            folder = BENCH / 'parts' / cell
             pipeline = PerceptionPipeline(
-                rig=rig, classifier=LinearClassifier.load(BENCH / 'parts' / cell / 'classifier.npz'),
-                templates=TemplateDatabase.load(BENCH / 'parts' / cell / 'templates.npz'))
+                rig=rig, classifier=LinearClassifier.load(folder / 'classifier.npz'),
+                templates=TemplateDatabase.load(folder / 'templates.npz'))
             pipeline.warm_up()
         inputs = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera)
                   for v, im in by_view.items()}
