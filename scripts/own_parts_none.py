@@ -158,7 +158,8 @@ def twin_votes(rows: list[dict], scenes: Path, templates: Path) -> None:
             T = side.gt[k].T_camera_object
             votes = view_votes([raycasting_scene(p.mesh_vertices, p.mesh_faces) for p in parts],
                                [T, T], parts[0].model_points.astype(np.float64), evidence,
-                               align_m=params.align_m, tolerance_m=params.depth_tolerance_m)
+                               align_at_1m_m=params.align_at_1m_m,
+                               tolerance_m=params.depth_tolerance_m)
             r['truth_votes'] = f'{votes[0, 1]}/{votes[1, 0]}'
             r['shows'] = clear_margin(int(votes[0, 1]), int(votes[1, 0]), params.align_min_z)
 
