@@ -43,8 +43,9 @@ def test_parts_folder_holds_what_a_cell_needs(own_parts):
     by_name = {p['name']: p for p in manifest['parts']}
     assert by_name['plate_holes2']['size_mm'] == pytest.approx([60, 40, 4], abs=0.5)
     assert 'continuous' in by_name['tube']['symmetry']
-    assert set(manifest['build_s']) == {'meshes + symmetries', 'templates', 'classifier',
-                                        'manifest', 'self-check'}
+    assert set(manifest['build_s']) == {'meshes + symmetries', 'turns the rig sees',
+                                        'templates', 'classifier', 'manifest', 'self-check'}
+    assert all('unseen_turns_5deg' in part for part in manifest['parts'])
     table = (parts / 'self_check.md').read_text()
     assert all(f'| {name} |' in table for name in PARTS)
 
