@@ -154,13 +154,83 @@ def parts(models: Path, flat_mm: float) -> None:
               f'toppled by {np.median(tips) if tips else 0:.1f} deg (median)')
 
 
+def seen(models: Path, flat_mm: float) -> None:
+    """Per flat part: the pixels of both cameras of the default rig that its outline's half
+    turns change (:func:`~tlessbot_ros.core.pose.observability.changed_pixels`: depth beyond 3
+    sigma of the D415 model, or a colour edge moved; fewer than 20: not seen), lying on its
+    likeliest face and standing on its likeliest edge, median over 6 yaws."""
+    from tlessbot_ros.core.common import (
+        default_rig,
+        raycasting_scene,
+        resting_poses,
+        rotation_about_axis,
+        sample_surface,
+    )
+    from tlessbot_ros.core.pose import ObservabilityParams, ViewOfTable
+    from tlessbot_ros.core.pose.flat_turns import outline_frame, outline_half_turns
+    from tlessbot_ros.core.pose.observability import changed_pixels
+    from tlessbot_ros.io.models import read_mesh
+
+    views = [ViewOfTable(c.intrinsics, c.T_world_camera) for c in default_rig().cameras.values()]
+    params = ObservabilityParams()
+    info = json.loads((models / 'models_info.json').read_text())
+    for key, entry in sorted(info.items(), key=lambda kv: int(kv[0])):
+        path = next(iter(models.glob(f'obj_{int(key):02d}.*')), None)
+        if min(entry[f'size_{a}'] for a in 'xyz') > flat_mm or path is None:
+            continue
+        vertices, faces = read_mesh(path)
+        vertices = vertices / 1000.0
+        scene = raycasting_scene(vertices, faces)
+        points = sample_surface(vertices, faces, 4000, seed=0)[0]
+        thin = outline_frame(points)[3]
+        poses = resting_poses(vertices, faces, entry['diameter'] / 1000)
+        out = []
+        for label, stands in (('lying', False), ('standing', True)):
+            T = next((T for T, _ in poses
+                      if (abs((T[:3, :3] @ thin)[2]) < np.cos(np.radians(70))) == stands), None)
+            if T is None:
+                continue
+            counts = []
+            for turn in outline_half_turns(points):
+                per_yaw = []
+                for yaw in np.radians(np.arange(0, 180, 30)):
+                    Y = np.eye(4)
+                    Y[:3, :3] = rotation_about_axis(np.array([0, 0, 1.0]), yaw)
+                    A, B = Y @ T, Y @ T @ turn
+                    B[2, 3] += (points @ A[2, :3]).min() + A[2, 3] - \
+                        (points @ B[2, :3]).min() - B[2, 3]
+                    per_yaw.append(sum(changed_pixels(scene, points, A, B, v, params)[2]
+                                       for v in views))
+                counts.append(int(np.median(per_yaw)))
+            errors = []   # what a fit 1 mm off along the face's normal, or 1 deg in yaw, changes
+            for shift, yaw_error in ((0.001, 0.0), (0.0, 1.0)):
+                per_yaw = []
+                for yaw in np.radians(np.arange(0, 180, 30)):
+                    Y = np.eye(4)
+                    Y[:3, :3] = rotation_about_axis(np.array([0, 0, 1.0]), yaw)
+                    A = Y @ T
+                    B = A.copy()
+                    B[:3, 3] += shift * (A[:3, :3] @ thin) * [1, 1, 0]
+                    B[:3, :3] = rotation_about_axis(np.array([0, 0, 1.0]),
+                                                    np.radians(yaw_error)) @ B[:3, :3]
+                    per_yaw.append(sum(changed_pixels(scene, points, A, B, v, params)[2]
+                                       for v in views))
+                errors.append(int(np.median(per_yaw)))
+            out.append(f'{label} {counts} (1 mm off: {errors[0]}, 1 deg: {errors[1]})')
+        print(f'obj {int(key):3d}: px its half turns change (both cameras): {"; ".join(out)}')
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('paths', type=Path, nargs='*')
     ap.add_argument('--parts', type=Path, help='a models folder: its flat parts only')
+    ap.add_argument('--seen', action='store_true', help='with --parts: the pixels its half '
+                    'turns change, lying and standing')
     ap.add_argument('--flat-mm', type=float, default=6.0)
     args = ap.parse_args()
-    if args.parts:
+    if args.parts and args.seen:
+        seen(args.parts, args.flat_mm)
+    elif args.parts:
         parts(args.parts, args.flat_mm)
     else:
         standing(*args.paths, args.flat_mm)
