@@ -13,15 +13,21 @@ another part: it becomes its own region (in every view whose depth shows it), is
 (the classifier where the pipeline has one, else its fit among every known part) and fitted.
 
 The rest of the region is classified and fitted again the same way, the region's pixels go
-to the one fit that explains them, and both sides are fitted once more on their pixels. The
-piece is kept only when it is a part by the rules of any region (:func:`fits_alone`: the
-unknown rule on its own points, and its points cover :data:`MIN_COVERAGE` of its fitted
-model), the rest still is one, and neither fit explains the other's points (:func:`apart`:
-else one part was fitted twice). Otherwise the region is left as it was. A kept piece may be
-divided again, and so may the rest, by a piece that does not touch the one divided off (three
-parts in a row: a fit on the middle one leaves both ends out, one is divided off at a time;
-a piece against the one divided off is more likely that one's rim, left out by its fit on
-part of its pixels).
+to the one fit that explains them (those without depth to the nearer side,
+:func:`reassigned`), and both sides are fitted once more on their pixels (then, for their
+regions and boxes, the pixels neither fit explains go to the nearer side too). The piece is
+kept only when it is a part by the rules of any region (:func:`fits_alone`: the unknown rule
+on its own points, and its points cover :data:`MIN_COVERAGE` of its fitted model), the rest
+still is one, neither fit explains the other's points (:func:`apart`: else one part was
+fitted twice), and the piece's part is seen where it is fitted (:func:`seen_share`: its own
+region covers :data:`MIN_COVERAGE` of its silhouette; a band of a plate's rim that a fit a
+few millimetres off leaves unexplained is fitted as a strip lying over the plate, whose
+silhouette then lies on the plate's pixels: depth 1 mm apart, which the depth cannot tell,
+but two parts lying on the table cannot both be seen at one pixel). Otherwise the region is
+left as it was. A kept piece may be divided again, and so may the rest, by a piece that does
+not touch the one divided off (three parts in a row: a fit on the middle one leaves both ends
+out, one is divided off at a time; a piece against the one divided off is more likely that
+one's rim, left out by its fit on part of its pixels).
 """
 from __future__ import annotations
 
@@ -36,6 +42,7 @@ from tlessbot_ros.core.flat_parts import check_fitted_part
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.part_fit import outline_shares, pose_stage, unknown_last
 from tlessbot_ros.core.pose import inside_outline, roi_cloud
+from tlessbot_ros.core.pose.silhouette import silhouette
 from tlessbot_ros.core.recognise import UNKNOWN_ID
 from tlessbot_ros.core.resting_check import check_resting_and_turns
 
@@ -212,8 +219,13 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
     for fitted in (piece, rest):
         check_fitted_part(pipeline, fitted, views, divided)
         check_resting_and_turns(pipeline, fitted, views, divided)
+    divided[detection.view] = reassigned(pipeline, view, divided[detection.view], rest, piece,
+                                         final=True)
+    for fitted in (piece, rest):
         mask = divided[detection.view] == fitted.detection.instance_id
         fitted.detection.box = mask_box(mask)
+    if seen_share(pipeline, piece, view, divided[detection.view]) < MIN_COVERAGE:
+        return None   # a part hidden or seen through where it is fitted: not seen (module)
     labels.update(divided)
     job.points, job.candidates = rest.points, rest.candidates
     vars(detection).update(vars(rest.detection))
@@ -229,17 +241,55 @@ def touches(mask: np.ndarray, labels: np.ndarray, instances: Sequence[int]) -> b
     return bool(np.isin(labels[grown], instances).any())
 
 
-def reassigned(pipeline: PerceptionPipeline, view: ViewInput, labels: np.ndarray, *jobs: PartJob
-               ) -> np.ndarray:
+def seen_share(pipeline: PerceptionPipeline, job: PartJob, view: ViewInput,
+               labels: np.ndarray) -> float:
+    """The share of ``job``'s fitted part's silhouette in its view (its model's samples at its
+    pose, :func:`~tlessbot_ros.core.pose.silhouette.silhouette`) that its own region of
+    ``labels`` covers: where the silhouette lies on another region or on the table, the part
+    would be hidden there (or the table seen through it), so this is the share of it that
+    is seen (0 without a pose)."""
+    pose = job.detection.pose
+    if pose is None or job.detection.obj_id == UNKNOWN_ID:
+        return 0.0
+    obj = pose_stage(pipeline.pose_estimator).database[job.detection.obj_id]
+    points = obj.model_points.astype(np.float64)
+    camera = transform_points(pose.T_camera_object, points)
+    camera = camera[camera[:, 2] > 1e-3]
+    if not len(camera):
+        return 0.0
+    K, (height, width) = view.intrinsics.K, labels.shape
+    u = K[0, 0] * camera[:, 0] / camera[:, 2] + K[0, 2]
+    v = K[1, 1] * camera[:, 1] / camera[:, 2] + K[1, 2]
+    x0, y0 = int(max(0, np.floor(u.min()) - 2)), int(max(0, np.floor(v.min()) - 2))
+    x1, y1 = int(min(width, np.ceil(u.max()) + 3)), int(min(height, np.ceil(v.max()) + 3))
+    if x1 <= x0 or y1 <= y0:
+        return 0.0
+    outline = silhouette(points, pose.T_camera_object, view.intrinsics,
+                         (x0, y0, x1 - x0, y1 - y0), obj.sample_spacing_m())
+    if not outline.any():
+        return 0.0
+    own = labels[y0:y1, x0:x1] == job.detection.instance_id
+    return float(np.count_nonzero(own & outline) / np.count_nonzero(outline))
+
+
+def reassigned(pipeline: PerceptionPipeline, view: ViewInput, labels: np.ndarray, *jobs: PartJob,
+               final: bool = False) -> np.ndarray:
     """``labels`` of the fitted view with each depth pixel of ``jobs``' regions given to the
     one fit that explains it (inside its outline, within ``verify_inlier_m`` of its surface),
-    where exactly one does; ``jobs``' points follow their regions."""
+    where exactly one does, and each pixel of the regions without depth to the region whose
+    claimed pixels lie nearest in the image, as :func:`unexplained_piece` divides them (what
+    the depth cannot attribute belongs to the part beside it: a thin part's rim, its dark
+    faces); ``jobs``' points follow their regions. ``final`` (the fits are done): the depth
+    pixels neither fit explains go to the nearer side too, so that the regions and boxes
+    hold every pixel of their parts, and the points stay as the fits saw them (given to the
+    nearer side before the refit, such pixels moved it: a block turned over, seed 4242,
+    family 8)."""
     estimator = pose_stage(pipeline.pose_estimator)
     assert view.depth_m is not None
     ids = [job.detection.instance_id for job in jobs]
     region = np.isin(labels, ids)
-    points, pixels = depth_to_points(view.depth_m, view.intrinsics.K, mask=region,
-                                     box=mask_box(region))
+    box = mask_box(region)
+    points, pixels = depth_to_points(view.depth_m, view.intrinsics.K, mask=region, box=box)
     points = points.astype(np.float64)
     explains = []
     for job in jobs:
@@ -249,10 +299,22 @@ def reassigned(pipeline: PerceptionPipeline, view: ViewInput, labels: np.ndarray
                                   pose.T_camera_object, estimator.refiner,
                                   pipeline.fit_params.verify_inlier_m))
     out: np.ndarray = np.array(labels, copy=True)
+    x0, y0, w, h = box
+    nearest = np.full((len(ids), h, w), np.inf, np.float32)
     for k, instance in enumerate(ids):
         alone = explains[k] & ~np.any([e for j, e in enumerate(explains) if j != k], axis=0)
         out[pixels[alone, 0], pixels[alone, 1]] = instance
-    for job in jobs:
+        claimed = np.ones((h, w), np.uint8)
+        claimed[pixels[alone, 0] - y0, pixels[alone, 1] - x0] = 0
+        if not claimed.all():
+            nearest[k] = cv2.distanceTransform(claimed, cv2.DIST_L2, 3)
+    blind = region[y0:y0 + h, x0:x0 + w].copy()   # without depth (final: or no fit's)
+    attributed = np.any(explains, axis=0) | (not final)
+    blind[pixels[attributed, 0] - y0, pixels[attributed, 1] - x0] = False
+    if np.isfinite(nearest).any(axis=(1, 2)).all():   # every side claims pixels
+        side = np.asarray(ids)[np.argmin(nearest, axis=0)]
+        out[y0:y0 + h, x0:x0 + w][blind] = side[blind]
+    for job in [] if final else jobs:
         mask = out == job.detection.instance_id
         job.points = roi_cloud(view.depth_m, mask, view.intrinsics, box=mask_box(mask))
         job.detection.n_points = len(job.points)
@@ -361,6 +423,6 @@ def piece_candidates(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
     return before if before is not None else tuple(sorted(database.objects))
 
 
-__all__ = ['MIN_COVERAGE', 'apart', 'divided_job', 'explained', 'fits_alone', 'piece_candidates',
-           'piece_in_views', 'raised', 'reassigned', 'same_place', 'split_off', 'split_then',
-           'touches', 'unexplained_piece']
+__all__ = ['MIN_COVERAGE', 'apart', 'divided_job', 'explained', 'fits_alone',
+           'piece_candidates', 'piece_in_views', 'raised', 'reassigned', 'same_place',
+           'seen_share', 'split_off', 'split_then', 'touches', 'unexplained_piece']
