@@ -76,9 +76,10 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
     """Turn ``job``'s fitted flat part over when the image shows the other face up, check its
     yaw on the image, then let the depth of its views turn it over
     (:class:`~tlessbot_ros.core.pose.FlatCheck`, ``FitParams.flat``); the former pose becomes
-    the detection's ``second``. A round part's yaw is searched last, on its holes
-    (:func:`~tlessbot_ros.core.pose.flat_yaw.hole_yaw`: the silhouette of a round outline holds
-    no yaw). Returns what decided (None when the part is not checked)."""
+    the detection's ``second``. The yaw is searched last on the aligned score
+    (:func:`~tlessbot_ros.core.pose.flat_yaw.hole_yaw`): a round part's within its period (its
+    silhouette holds no yaw, so it skips the silhouette's check), another's lying on a face
+    within a few degrees. Returns what decided (None when the part is not checked)."""
     detection = job.detection
     estimator = pipeline.pose_estimator
     if estimator is None or detection.pose is None or job.T_world_camera is None:
@@ -118,11 +119,11 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
             detection.turned_over = not detection.turned_over
             detection.second = detection.pose
             detection.pose = replace(detection.pose, T_camera_object=T)
-    if round_part:
-        mesh = mesh_scene(obj)
-        assert mesh is not None
+    mesh = mesh_scene(obj)
+    if mesh is not None and any(view.plane is not None for view in evidence):
         T, info['hole_yaw_deg'] = hole_yaw(obj, mesh, detection.pose.T_camera_object,
-                                           evidence, check.params)
+                                           evidence, check.params,
+                                           np.linalg.inv(job.T_world_camera)[:3, 2])
         detection.pose = replace(detection.pose, T_camera_object=T)
     T = level_on_table(detection.pose.T_camera_object, obj.model_points.astype(np.float64),
                        np.linalg.inv(job.T_world_camera)[:3, 2],

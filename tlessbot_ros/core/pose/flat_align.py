@@ -133,9 +133,16 @@ def best_shift(view: AlignedView, k: int, tolerance_m: float
                ) -> tuple[np.ndarray, np.ndarray]:
     """Pose ``k``'s rendering shifted to where it agrees best with the view
     (:func:`alignment_score`; no shift on a tie): every shift of at most ``pad`` pixels on a
-    grid of 2 pixels, then the 8 shifts around the best of them. The score is an overlap of
-    a part tens of pixels wide, smooth over a pixel or two, so the grid finds its peak's
-    neighbourhood at a quarter of the cost of every shift."""
+    grid of 2 pixels, then the 8 shifts around the best of them (:func:`shift_of`)."""
+    hit, height = view.renders[k]
+    dx, dy = shift_of(view, k, tolerance_m)
+    return shifted(hit, view.pad, dx, dy), shifted(height, view.pad, dx, dy)
+
+
+def shift_of(view: AlignedView, k: int, tolerance_m: float) -> tuple[int, int]:
+    """(dx, dy) pixels: the shift :func:`best_shift` moves pose ``k``'s rendering by. The
+    score is an overlap of a part tens of pixels wide, smooth over a pixel or two, so the
+    grid finds its peak's neighbourhood at a quarter of the cost of every shift."""
     hit, height = view.renders[k]
     pad = view.pad
 
@@ -153,7 +160,7 @@ def best_shift(view: AlignedView, k: int, tolerance_m: float
         for shift in shifts:
             if shift != (0, 0) and (value := score(shift)) > best_score:
                 best, best_score = shift, value
-    return shifted(hit, pad, *best), shifted(height, pad, *best)
+    return best
 
 
 def pooled_votes(views: Sequence[AlignedView], count: int, tolerance_m: float
@@ -275,5 +282,5 @@ def voting_region(renders: Sequence[tuple[np.ndarray, np.ndarray]], pad: int,
 
 
 __all__ = ['AlignedView', 'aligned_view', 'alignment_score', 'best_shift', 'measured_heights',
-           'pixel_votes', 'pooled_votes', 'render_heights', 'round_robin', 'shift_px',
-           'shifted', 'undominated', 'view_votes', 'voting_region']
+           'pixel_votes', 'pooled_votes', 'render_heights', 'round_robin', 'shift_of',
+           'shift_px', 'shifted', 'undominated', 'view_votes', 'voting_region']

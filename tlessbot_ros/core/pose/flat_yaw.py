@@ -1,5 +1,5 @@
-"""The yaw of a round flat part, told by its holes (for :func:`~tlessbot_ros.core.flat_parts.
-check_flat`).
+"""The yaw of a flat part on the table, told by its holes and edges (for
+:func:`~tlessbot_ros.core.flat_parts.check_flat`).
 
 A flat part whose outline is round (a disc, a flange: its outline's convex hull covers most of
 its circle, :func:`~.flat_turns.outline_frame`) shows the depth and its outline alike at every
@@ -18,7 +18,12 @@ its outline's centre, by each 1/``yaw_turns`` of the period, the best of them re
 halving steps down to half ``yaw_step_deg``. The best turn replaces the pose when it wins the
 pixel votes against it (:func:`~.flat_align.pixel_votes`, every view) by a clear margin
 (``align_min_z``): where no view shows the holes (a disc standing on its edge), every yaw
-explains the view alike and the pose stays.
+explains the view alike and the pose stays. Every other flat part lying on a face gets the
+same search within the reach of the silhouette's yaw check (``yaw_steps`` x
+``yaw_step_deg``): its outline holds its yaw to a few degrees (the Canny edges' 1.5° steps,
+the polish after), its edges and holes on the aligned score to a fraction of one. Each view's
+renderings are aligned by one shift, found again about each round's best turn (it makes up
+for the fit's error in the table plane, the same for turns about the part's own centre).
 
 Poses are ``T_camera_object`` (4, 4) metres in the fitted view's optical frame; turns (4, 4)
 in the model frame (applied on the right of a pose).
@@ -36,7 +41,9 @@ from tlessbot_ros.core.pose.flat_align import (
     best_shift,
     pixel_votes,
     render_heights,
+    shift_of,
     shift_px,
+    shifted,
 )
 from tlessbot_ros.core.pose.flat_turns import ROUND_SHARE, outline_frame, turn_about
 
@@ -118,8 +125,6 @@ class _YawScores:
         self.centre, _, _, self.thin, _ = _outline(obj)
         samples = obj.model_points.astype(np.float64)
         self.views: list[tuple[ViewEvidence, AlignedView]] = []
-        # per turn (radians): per view its aligned rendering (hit, height) and its score
-        self.done: dict[float, list[tuple[tuple[np.ndarray, np.ndarray], float]]] = {}
         for view in views:
             if view.plane is None or (view.rgb is None and view.depth_m is None):
                 continue
@@ -131,72 +136,94 @@ class _YawScores:
                     [(mesh, T) for T in poses], box, pad, view.intrinsics, view.plane,
                     rgb=view.rgb, depth_m=view.depth_m, others=view.others,
                     tolerance_m=self.tolerance)))
-        for k, angle in enumerate(coarse):   # their renderings are the views' own
-            self.done[float(angle)] = [self._aligned(av, av.renders[k]) for _, av in self.views]
+        # per turn (radians): per view its rendering over the grown window
+        self.renders: dict[float, list[tuple[np.ndarray, np.ndarray]]] = {
+            float(a): [av.renders[k] for _, av in self.views] for k, a in enumerate(coarse)}
+        self.shifts: list[tuple[int, int]] = []
+        self.done: dict[float, float] = {}   # per turn its score at the current shifts
+        self.centre_at(0.0)
 
     def pose(self, angle: float) -> np.ndarray:
         """The pose turned by ``angle`` (radians) about the thin axis."""
         T: np.ndarray = self.T0 @ turn_about(self.thin, angle, self.centre)
         return T
 
-    def _aligned(self, av: AlignedView, render: tuple[np.ndarray, np.ndarray]
-                 ) -> tuple[tuple[np.ndarray, np.ndarray], float]:
-        """A rendering over the view's grown window aligned to it, and its score there."""
-        hit, height = best_shift(replace(av, renders=[render]), 0, self.tolerance)
-        return (hit, height), alignment_score(av, hit, height, self.tolerance)
+    def rendered(self, angle: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per view, the turn's rendering over the view's grown window (each once)."""
+        if angle not in self.renders:
+            self.renders[angle] = [render_heights(
+                self.mesh, view.T_view_fit @ self.pose(angle), view.intrinsics,
+                (av.box[0] - av.pad, av.box[1] - av.pad, av.box[2] + 2 * av.pad,
+                 av.box[3] + 2 * av.pad), np.asarray(view.plane)) for view, av in self.views]
+        return self.renders[angle]
 
-    def turned(self, angle: float) -> list[tuple[tuple[np.ndarray, np.ndarray], float]]:
-        """Per view, the turn's aligned rendering and score (:func:`~.flat_align.best_shift`,
-        :func:`~.flat_align.alignment_score`)."""
-        if angle not in self.done:
-            out = []
-            for view, av in self.views:
-                x0, y0, w, h = av.box
-                grown = (x0 - av.pad, y0 - av.pad, w + 2 * av.pad, h + 2 * av.pad)
-                render = render_heights(self.mesh, view.T_view_fit @ self.pose(angle),
-                                        view.intrinsics, grown, np.asarray(view.plane))
-                out.append(self._aligned(av, render))
-            self.done[angle] = out
-        return self.done[angle]
+    def centre_at(self, angle: float) -> None:
+        """Align every view's renderings by the shift that suits the turn by ``angle``
+        (:func:`~.flat_align.shift_of`): it makes up for the fit's error in the table plane,
+        which is about the same for every turn near it about the part's own centre."""
+        self.shifts = [shift_of(replace(av, renders=[render]), 0, self.tolerance)
+                       for (_, av), render in zip(self.views, self.rendered(angle))]
+        self.done = {}
 
     def score(self, angle: float) -> float:
-        """The turn's aligned score summed over the views."""
-        return float(sum(score for _, score in self.turned(angle)))
+        """The turn's aligned score summed over the views, at the views' current shifts."""
+        if angle not in self.done:
+            total = 0.0
+            for (_, av), (dx, dy), (hit, height) in zip(self.views, self.shifts,
+                                                         self.rendered(angle)):
+                total += alignment_score(av, shifted(hit, av.pad, dx, dy),
+                                         shifted(height, av.pad, dx, dy), self.tolerance)
+            self.done[angle] = total
+        return self.done[angle]
 
     def votes(self, angle: float) -> tuple[int, int]:
         """(pixels that the turn by ``angle`` explains better than the pose, pixels the pose
-        explains better), every view."""
+        explains better), every view, each rendering at its own best shift."""
         favour = against = 0
-        for (_, av), (turned, _), (own, _) in zip(self.views, self.turned(angle),
-                                                  self.turned(0.0)):
-            f, a = pixel_votes(av, turned, own, self.tolerance)
+        for (_, av), turned, own in zip(self.views, self.rendered(angle), self.rendered(0.0)):
+            both = replace(av, renders=[turned, own])
+            f, a = pixel_votes(av, best_shift(both, 0, self.tolerance),
+                               best_shift(both, 1, self.tolerance), self.tolerance)
             favour, against = favour + f, against + a
         return favour, against
 
 
 def hole_yaw(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
-             T_camera_object: np.ndarray, views: Sequence[ViewEvidence], params: FlatParams
-             ) -> tuple[np.ndarray, float]:
-    """A round flat part's pose turned about its thin axis by the angle within its yaw period
-    (:func:`hole_yaw_period`) whose aligned score is best (coarse steps of 1/``yaw_turns``
-    of the period, then halving steps down to half ``yaw_step_deg``), when that turn wins the
-    pixel votes against the pose by a clear margin (``align_min_z``). Returns (the pose,
-    the turn in degrees; 0 when kept)."""
+             T_camera_object: np.ndarray, views: Sequence[ViewEvidence], params: FlatParams,
+             normal_c: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """A flat part's pose turned about its thin axis by the angle whose aligned score is
+    best: for a round part within its yaw period (:func:`hole_yaw_period`; coarse steps of
+    1/``yaw_turns`` of the period), for another within ``yaw_steps`` x ``yaw_step_deg``
+    either way (its outline holds the yaw that far; coarse steps of half that) and only
+    lying on a face (its thin axis nearer the table's normal ``normal_c``, camera frame, than
+    square to it: a part standing on an edge turned about its thin axis would leave the
+    table), then halving steps down to half ``yaw_step_deg``; taken when that turn wins the
+    pixel votes against the pose by a clear margin (``align_min_z``). Returns (the pose, the
+    turn in degrees; 0 when kept)."""
     from tlessbot_ros.core.pose.lookalike import clear_margin
 
     T0 = np.asarray(T_camera_object, np.float64)
     period = hole_yaw_period(obj)
-    if period <= 0:
-        return T0, 0.0
-    # coarse steps no wider than the turn over which the holes stop overlapping themselves
-    steps = max(params.yaw_turns, 2, int(np.ceil(period / feature_turn(obj, mesh, period))))
-    coarse = period * np.arange(steps) / steps
+    if period > 0:
+        # coarse steps no wider than the turn over which the holes stop overlapping themselves
+        steps = max(params.yaw_turns, 2, int(np.ceil(period / feature_turn(obj, mesh, period))))
+        coarse = period * np.arange(steps) / steps
+        step = period / steps / 2.0
+    else:
+        thin = T0[:3, :3] @ _outline(obj)[3]
+        if normal_c is None or abs(float(thin @ normal_c)) < np.sqrt(0.5) * np.linalg.norm(
+                normal_c):
+            return T0, 0.0
+        period = 2.0 * np.pi
+        step = np.radians(params.yaw_steps * params.yaw_step_deg) / 2.0
+        coarse = np.array([0.0, -step, step])
+        step /= 2.0
     search = _YawScores(mesh, T0, obj, views, coarse, params)
-    if not search.views:
+    if not search.views or params.yaw_steps < 1:
         return T0, 0.0
     best = max((float(a) for a in coarse), key=search.score)
-    step = period / steps / 2.0
     while step >= np.radians(params.yaw_step_deg) / 2.0:
+        search.centre_at(best)
         best = max((best, best - step, best + step), key=search.score)   # a tie keeps it
         step /= 2.0
     nearest = float((best + period / 2.0) % period - period / 2.0)   # the same, nearest T0
