@@ -38,7 +38,6 @@ import numpy as np
 from tlessbot_ros.core.pose.flat_align import (
     aligned_view,
     alignment_score,
-    best_shift,
     pixel_votes,
     render_heights,
     shift_of,
@@ -140,6 +139,7 @@ class _YawScores:
         self.renders: dict[float, list[tuple[np.ndarray, np.ndarray]]] = {
             float(a): [av.renders[k] for _, av in self.views] for k, a in enumerate(coarse)}
         self.shifts: list[tuple[int, int]] = []
+        self.own_shifts: dict[float, list[tuple[int, int]]] = {}   # per turn, found once
         self.done: dict[float, float] = {}   # per turn its score at the current shifts
         self.centre_at(0.0)
 
@@ -161,9 +161,8 @@ class _YawScores:
         """Align every view's renderings by the shift that suits the turn by ``angle``
         (:func:`~.flat_align.shift_of`): it makes up for the fit's error in the table plane,
         which is about the same for every turn near it about the part's own centre."""
-        self.shifts = [shift_of(replace(av, renders=[render]), 0, self.tolerance)
-                       for (_, av), render in zip(self.views, self.rendered(angle))]
-        self.done = {}
+        if self.shift(angle) != self.shifts:
+            self.shifts, self.done = self.shift(angle), {}
 
     def score(self, angle: float) -> float:
         """The turn's aligned score summed over the views, at the views' current shifts."""
@@ -180,12 +179,22 @@ class _YawScores:
         """(pixels that the turn by ``angle`` explains better than the pose, pixels the pose
         explains better), every view, each rendering at its own best shift."""
         favour = against = 0
-        for (_, av), turned, own in zip(self.views, self.rendered(angle), self.rendered(0.0)):
-            both = replace(av, renders=[turned, own])
-            f, a = pixel_votes(av, best_shift(both, 0, self.tolerance),
-                               best_shift(both, 1, self.tolerance), self.tolerance)
+        for k, (_, av) in enumerate(self.views):
+            (hit, height), (own_hit, own_height) = self.rendered(angle)[k], self.rendered(0.0)[k]
+            (dx, dy), (ox, oy) = self.shift(angle)[k], self.shift(0.0)[k]
+            f, a = pixel_votes(av, (shifted(hit, av.pad, dx, dy), shifted(height, av.pad, dx, dy)),
+                               (shifted(own_hit, av.pad, ox, oy),
+                                shifted(own_height, av.pad, ox, oy)), self.tolerance)
             favour, against = favour + f, against + a
         return favour, against
+
+    def shift(self, angle: float) -> list[tuple[int, int]]:
+        """Per view, the turn's own best shift (:func:`~.flat_align.shift_of`; each once)."""
+        if angle not in self.own_shifts:
+            self.own_shifts[angle] = [
+                shift_of(replace(av, renders=[render]), 0, self.tolerance)
+                for (_, av), render in zip(self.views, self.rendered(angle))]
+        return self.own_shifts[angle]
 
 
 def hole_yaw(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
