@@ -245,3 +245,28 @@ def test_a_plate_lying_a_few_degrees_off_is_turned_to_its_yaw(off_deg):
     T, turned = hole_yaw(obj, raycasting_scene(vertices, faces), standing, evidence,
                          FlatParams(), normal_c)
     assert turned == 0.0 and np.array_equal(T, standing)
+
+
+def test_the_yaw_search_finds_the_pose_s_shift_on_the_grid_once(monkeypatch):
+    # the fit's error in the table plane is shared by turns a few degrees apart: each view's
+    # grid of shifts is searched once (for the pose), the turns' shifts climbed to from there
+    from tlessbot_ros.core.pose import flat_align, flat_yaw
+
+    grids: list[int] = []
+    original = flat_align.shift_of
+
+    def counted(view, k, tolerance_m, near=None):
+        grids.extend([1] if near is None else [])
+        return original(view, k, tolerance_m, near)
+
+    monkeypatch.setattr(flat_yaw, 'shift_of', counted)
+    vertices, faces = _plate()
+    obj = _templates(vertices, faces, 2 * np.pi)
+    evidence, T_true = _view(vertices, faces, 23.0)
+    T_fit = T_true @ make_transform(rotation_about_axis([0, 0, 1], np.radians(-5.5)),
+                                    [0, 0, 0])
+    normal_c = np.linalg.inv(SIDE.T_world_camera)[:3, 2]
+    T, turned = flat_yaw.hole_yaw(obj, raycasting_scene(vertices, faces), T_fit, evidence,
+                                  FlatParams(), normal_c)
+    assert turned != 0.0 and _yaw_error(T, T_true, 360.0) < 1.0
+    assert len(grids) == len(evidence)

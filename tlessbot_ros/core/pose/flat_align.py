@@ -26,7 +26,7 @@ pixels; planes (4,) (n·x + d = 0, camera frame, n towards the camera side: the 
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -139,10 +139,13 @@ def best_shift(view: AlignedView, k: int, tolerance_m: float
     return shifted(hit, view.pad, dx, dy), shifted(height, view.pad, dx, dy)
 
 
-def shift_of(view: AlignedView, k: int, tolerance_m: float) -> tuple[int, int]:
+def shift_of(view: AlignedView, k: int, tolerance_m: float,
+             near: tuple[int, int] | None = None) -> tuple[int, int]:
     """(dx, dy) pixels: the shift :func:`best_shift` moves pose ``k``'s rendering by. The
     score is an overlap of a part tens of pixels wide, smooth over a pixel or two, so the
-    grid finds its peak's neighbourhood at a quarter of the cost of every shift."""
+    grid finds its peak's neighbourhood at a quarter of the cost of every shift. Given a
+    shift ``near`` which the peak lies beside (that of a pose a little way off), the best of
+    its 8 neighbours is taken while it scores better (a climb of a few pixels, no grid)."""
     hit, height = view.renders[k]
     pad = view.pad
 
@@ -150,6 +153,8 @@ def shift_of(view: AlignedView, k: int, tolerance_m: float) -> tuple[int, int]:
         return alignment_score(view, shifted(hit, pad, *shift), shifted(height, pad, *shift),
                                tolerance_m)
 
+    if near is not None:
+        return _climb(score, near, pad)
     best, best_score = (0, 0), score((0, 0))
     grid = range(-(pad // 2) * 2, pad + 1, 2)
     coarse = [(dx, dy) for dy in grid for dx in grid]
@@ -161,6 +166,20 @@ def shift_of(view: AlignedView, k: int, tolerance_m: float) -> tuple[int, int]:
             if shift != (0, 0) and (value := score(shift)) > best_score:
                 best, best_score = shift, value
     return best
+
+
+def _climb(score: Callable[[tuple[int, int]], float], start: tuple[int, int], pad: int
+           ) -> tuple[int, int]:
+    """The shift reached from ``start`` by steps to the best-scoring of the 8 neighbours
+    (within ``pad`` either way) while it scores better than where the climb stands."""
+    best, best_score = start, score(start)
+    while True:
+        around = [(best[0] + dx, best[1] + dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+                  if (dx or dy) and max(abs(best[0] + dx), abs(best[1] + dy)) <= pad]
+        value, shift = max(((score(a), a) for a in around), default=(best_score, best))
+        if value <= best_score:
+            return best
+        best, best_score = shift, value
 
 
 def pooled_votes(views: Sequence[AlignedView], count: int, tolerance_m: float

@@ -189,11 +189,15 @@ class _YawScores:
         return favour, against
 
     def shift(self, angle: float) -> list[tuple[int, int]]:
-        """Per view, the turn's own best shift (:func:`~.flat_align.shift_of`; each once)."""
+        """Per view, the turn's own best shift (:func:`~.flat_align.shift_of`; each once):
+        the pose's found on the grid, another turn's climbed to from the shifts the search
+        stands at (the fit's error in the table plane, shared by turns about the part's own
+        centre a few degrees apart)."""
         if angle not in self.own_shifts:
+            near: list[tuple[int, int] | None] = [*self.shifts] or [None] * len(self.views)
             self.own_shifts[angle] = [
-                shift_of(replace(av, renders=[render]), 0, self.tolerance)
-                for (_, av), render in zip(self.views, self.rendered(angle))]
+                shift_of(replace(av, renders=[render]), 0, self.tolerance, start)
+                for (_, av), render, start in zip(self.views, self.rendered(angle), near)]
         return self.own_shifts[angle]
 
 
