@@ -23,7 +23,9 @@ same search within the reach of the silhouette's yaw check (``yaw_steps`` x
 ``yaw_step_deg``): its outline holds its yaw to a few degrees (the Canny edges' 1.5° steps,
 the polish after), its edges and holes on the aligned score to a fraction of one. Each view's
 renderings are aligned by one shift, found again about each round's best turn (it makes up
-for the fit's error in the table plane, the same for turns about the part's own centre).
+for the fit's error in the table plane, the same for turns about the part's own centre): on
+the grid of shifts for the pose, climbed to from the shift the search stands at for a turn a
+few degrees off (a few scores instead of some eighty a view).
 
 Poses are ``T_camera_object`` (4, 4) metres in the fitted view's optical frame; turns (4, 4)
 in the model frame (applied on the right of a pose).
