@@ -281,9 +281,8 @@ def reassigned(pipeline: PerceptionPipeline, view: ViewInput, labels: np.ndarray
     the depth cannot attribute belongs to the part beside it: a thin part's rim, its dark
     faces); ``jobs``' points follow their regions. ``final`` (the fits are done): the depth
     pixels neither fit explains go to the nearer side too, so that the regions and boxes
-    hold every pixel of their parts, and the points stay as the fits saw them (given to the
-    nearer side before the refit, such pixels moved it: a block turned over, seed 4242,
-    family 8)."""
+    hold every pixel of their parts, and the points stay as the fits saw them (pixels no fit
+    explains, given to a side before its refit, can pull that refit off its part)."""
     estimator = pose_stage(pipeline.pose_estimator)
     assert view.depth_m is not None
     ids = [job.detection.instance_id for job in jobs]
