@@ -92,6 +92,7 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
     evidence = colour_views(views, labels, detection.instance_id, detection.view,
                             table_frames(pipeline, views))
     info: dict[str, float] = {}
+    up_c = np.linalg.inv(job.T_world_camera)[:3, 2]   # the table's normal, camera frame
     round_part = False   # a round outline with holes: only the holes tell its yaw
     if evidence:
         twins = [database[i] for i in obj.lookalikes if i in database]
@@ -105,8 +106,8 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
             detection.second = detection.pose
             detection.pose = replace(detection.pose, T_camera_object=T,
                                      fitness=info['flip_fitness'])
-        round_part = check.params.yaw_steps > 0 and hole_yaw_period(obj) > 0 and \
-            mesh_scene(obj) is not None and any(view.plane is not None for view in evidence)
+        round_part = hole_yaw_period(obj) > 0 and \
+            yaw_search_mesh(obj, evidence, check.params) is not None
         if not round_part:
             T, info['yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
                                             job.T_world_camera, evidence)
@@ -119,15 +120,13 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
             detection.turned_over = not detection.turned_over
             detection.second = detection.pose
             detection.pose = replace(detection.pose, T_camera_object=T)
-    mesh = mesh_scene(obj)
-    if mesh is not None and any(view.plane is not None for view in evidence):
+    mesh = yaw_search_mesh(obj, evidence, check.params)
+    if mesh is not None:
         T, info['hole_yaw_deg'] = hole_yaw(obj, mesh, detection.pose.T_camera_object,
-                                           evidence, check.params,
-                                           np.linalg.inv(job.T_world_camera)[:3, 2])
+                                           evidence, check.params, up_c)
         detection.pose = replace(detection.pose, T_camera_object=T)
     T = level_on_table(detection.pose.T_camera_object, obj.model_points.astype(np.float64),
-                       np.linalg.inv(job.T_world_camera)[:3, 2],
-                       pipeline.fit_params.flat.depth_tolerance_m)
+                       up_c, pipeline.fit_params.flat.depth_tolerance_m)
     if T is not None:
         detection.pose = replace(detection.pose, T_camera_object=T)
     info['levelled'] = float(T is not None)
@@ -144,6 +143,16 @@ def flat_check(pipeline: PerceptionPipeline) -> FlatCheck:
     return FlatCheck(estimator.refiner, pipeline.fit_params.flat,
                      voxel_scale=estimator.params.table_voxel_scale,
                      sor_neighbors=cloud.sor_neighbors, sor_std_ratio=cloud.sor_std_ratio)
+
+
+def yaw_search_mesh(obj: ObjectTemplates, evidence: Sequence[ViewEvidence], params: FlatParams
+                    ) -> o3d.t.geometry.RaycastingScene | None:
+    """``obj``'s ray-casting scene when its yaw is searched on the aligned score
+    (:func:`~tlessbot_ros.core.pose.flat_yaw.hole_yaw`: yaw steps on, a mesh, a view with a
+    table frame), else None."""
+    if params.yaw_steps < 1 or not any(view.plane is not None for view in evidence):
+        return None
+    return mesh_scene(obj)
 
 
 def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],

@@ -42,7 +42,7 @@ from tlessbot_ros.core.flat_parts import check_fitted_part
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.part_fit import outline_shares, pose_stage, unknown_last
 from tlessbot_ros.core.pose import inside_outline, roi_cloud
-from tlessbot_ros.core.pose.silhouette import silhouette
+from tlessbot_ros.core.pose.silhouette import silhouette, window
 from tlessbot_ros.core.recognise import UNKNOWN_ID
 from tlessbot_ros.core.resting_check import check_resting_and_turns
 
@@ -253,22 +253,15 @@ def seen_share(pipeline: PerceptionPipeline, job: PartJob, view: ViewInput,
         return 0.0
     obj = pose_stage(pipeline.pose_estimator).database[job.detection.obj_id]
     points = obj.model_points.astype(np.float64)
-    camera = transform_points(pose.T_camera_object, points)
-    camera = camera[camera[:, 2] > 1e-3]
-    if not len(camera):
+    box = window(points, [pose.T_camera_object], view.intrinsics, margin_px=2)
+    if box is None:
         return 0.0
-    K, (height, width) = view.intrinsics.K, labels.shape
-    u = K[0, 0] * camera[:, 0] / camera[:, 2] + K[0, 2]
-    v = K[1, 1] * camera[:, 1] / camera[:, 2] + K[1, 2]
-    x0, y0 = int(max(0, np.floor(u.min()) - 2)), int(max(0, np.floor(v.min()) - 2))
-    x1, y1 = int(min(width, np.ceil(u.max()) + 3)), int(min(height, np.ceil(v.max()) + 3))
-    if x1 <= x0 or y1 <= y0:
-        return 0.0
-    outline = silhouette(points, pose.T_camera_object, view.intrinsics,
-                         (x0, y0, x1 - x0, y1 - y0), obj.sample_spacing_m())
+    outline = silhouette(points, pose.T_camera_object, view.intrinsics, box,
+                         obj.sample_spacing_m())
     if not outline.any():
         return 0.0
-    own = labels[y0:y1, x0:x1] == job.detection.instance_id
+    x0, y0, w, h = box
+    own = labels[y0:y0 + h, x0:x0 + w] == job.detection.instance_id
     return float(np.count_nonzero(own & outline) / np.count_nonzero(outline))
 
 

@@ -218,6 +218,8 @@ def hole_yaw(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
     from tlessbot_ros.core.pose.lookalike import clear_margin
 
     T0 = np.asarray(T_camera_object, np.float64)
+    if params.yaw_steps < 1:
+        return T0, 0.0
     period = hole_yaw_period(obj)
     if period > 0:
         # coarse steps no wider than the turn over which the holes stop overlapping themselves
@@ -234,7 +236,7 @@ def hole_yaw(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
         coarse = np.array([0.0, -step, step])
         step /= 2.0
     search = _YawScores(mesh, T0, obj, views, coarse, params)
-    if not search.views or params.yaw_steps < 1:
+    if not search.views:
         return T0, 0.0
     best = max((float(a) for a in coarse), key=search.score)
     while step >= np.radians(params.yaw_step_deg) / 2.0:

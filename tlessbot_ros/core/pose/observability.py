@@ -25,6 +25,7 @@ import numpy as np
 
 from tlessbot_ros.core.common import CameraIntrinsics, rotation_about_axis
 from tlessbot_ros.core.pose.fallback import turn_axes
+from tlessbot_ros.core.pose.flat_turns import turn_about
 from tlessbot_ros.core.pose.silhouette import window, window_depth
 from tlessbot_ros.core.pose.turns import rendered_edges
 
@@ -121,10 +122,10 @@ def turned(T_world_object: np.ndarray, axis_o: np.ndarray, centre_o: np.ndarray,
            angle_deg: float) -> np.ndarray:
     """``T_world_object`` turned by ``angle_deg`` about the model-frame ``axis_o`` through the
     model-frame point ``centre_o``."""
-    S = np.eye(4)
-    S[:3, :3] = rotation_about_axis(axis_o, np.radians(angle_deg))
-    S[:3, 3] = centre_o - S[:3, :3] @ centre_o
-    return np.asarray(T_world_object, np.float64) @ S
+    turn = turn_about(np.asarray(axis_o, np.float64), np.radians(angle_deg),
+                      np.asarray(centre_o, np.float64))
+    out: np.ndarray = np.asarray(T_world_object, np.float64) @ turn
+    return out
 
 
 def axis_name(axis: np.ndarray) -> str:

@@ -173,7 +173,7 @@ def part_likeness(rgb: np.ndarray, part: np.ndarray, surroundings: np.ndarray,
     # a pixel's likeness depends on its colour alone: each distinct colour once (a window of
     # 8-bit colour holds about one distinct colour in five pixels)
     codes = rgb[where].astype(np.int32) @ np.array([65536, 256, 1], np.int32)
-    distinct, first, back = np.unique(codes, return_index=True, return_inverse=True)
+    _, first, back = np.unique(codes, return_index=True, return_inverse=True)
     query = colour[where][first]
     d_part = np.sqrt(np.maximum(_nearest(query, _samples(colour, part, rng)), 0.0))
     d_around = np.sqrt(np.maximum(_nearest(query, _samples(colour, surroundings, rng)), 0.0))
