@@ -22,9 +22,8 @@ Every stage reads heights in a table frame (world z = 0 the table, z up): the vi
 (:meth:`PerceptionPipeline.table_frame`). So one RGB-D view without extrinsics still takes the
 pose stage's fast table path.
 
-What a frame takes and gives is in :mod:`tlessbot_ros.core.frame`, the label images' per-view
-bookkeeping in :mod:`tlessbot_ros.core.label_views`, one part's fit in
-:mod:`tlessbot_ros.core.part_fit`.
+What a frame takes and gives: :mod:`tlessbot_ros.core.frame`; the label images' per-view
+bookkeeping: :mod:`tlessbot_ros.core.label_views`; one part's fit: :mod:`.part_fit`.
 """
 from __future__ import annotations
 
@@ -44,6 +43,7 @@ from tlessbot_ros.core.common import (
     TableFrame,
     TablePlaneParams,
     TablePlaneTracker,
+    above_table,
     choose_table_frame,
     find_table_plane,
     plane_of_frame,
@@ -395,9 +395,9 @@ class PerceptionPipeline:
                                   self.fit_params.steep_angle_deg)
                 points = roi_cloud(data.depth_m, mask, data.intrinsics, box=detection.box)
                 T_world_camera = self.table_frame(view, data).T_world_camera
-                if box_mode and T_world_camera is not None:
-                    height = transform_points(T_world_camera, points)[:, 2]
-                    points = points[height > self.fit_params.table_clearance_m]
+                if box_mode and T_world_camera is not None:   # clear of the table's noise
+                    points = above_table(points, self.table_frame(view, data),
+                                         self.fit_params.table_clearance_m, self.table_plane)
                 detection.n_points = len(points)
                 if len(points) >= self.fit_params.min_roi_points:
                     jobs.append(PartJob(detection, points, candidates, T_world_camera,

@@ -120,12 +120,15 @@ class TablePlane:
         inlier_share: share of the valid sampled points on the plane.
         n_points: valid sampled points.
         centroid: (3,) centroid of the inliers, camera frame, metres (where the table is seen).
+        noise_at_1m_m: the depth noise measured on the plane (sigma at 1 m, m; residuals over
+            z²), or None when not measured (no refit).
     """
 
     plane: np.ndarray
     inlier_share: float
     n_points: int
     centroid: np.ndarray
+    noise_at_1m_m: float | None = None
 
     @property
     def normal(self) -> np.ndarray:
@@ -208,25 +211,27 @@ def _near_prior(normals: np.ndarray, offsets: np.ndarray, prior: np.ndarray,
 
 
 def _robust_refit(points: np.ndarray, normal: np.ndarray, offset: float,
-                  params: TablePlaneParams) -> tuple[np.ndarray, float, np.ndarray | None]:
+                  params: TablePlaneParams
+                  ) -> tuple[np.ndarray, float, np.ndarray | None, float | None]:
     """The RANSAC winner refitted ``refits`` times by least squares on its inliers; after the
     first fit the inlier distance follows the noise measured on the plane (median absolute
     residual over z², as sigma at 1 m), so a clean sensor gets a tight band (part bottoms
-    stay out) and a noisy one keeps its whole table. Returns the plane and its (N,) inlier
-    mask (None: too few inliers)."""
+    stay out) and a noisy one keeps its whole table. Returns the plane, its (N,) inlier
+    mask (None: too few inliers) and the noise measured last (sigma at 1 m; None: no refit)."""
     from tlessbot_ros.core.common import plane_kernels as kernels
 
     inliers = kernels.near_plane(points, normal, offset, _inlier_distance(points, params))
+    noise_at_1m = None
     for _ in range(params.refits):
         if inliers.sum() < 3:
-            return normal, offset, None
+            return normal, offset, None, None
         normal, offset = _refit(points, inliers)
         residual, ratio = kernels.residuals(points, normal, offset, inliers)
         noise_at_1m = 1.4826 * float(kernels.median_in_place(ratio))
         inliers = kernels.within_noise(points, residual, params.inlier_sigmas * noise_at_1m,
                                        params.min_inlier_distance_m,
                                        params.max_inlier_distance_m)
-    return normal, offset, inliers
+    return normal, offset, inliers, noise_at_1m
 
 
 def _refit(points: np.ndarray, inliers: np.ndarray) -> tuple[np.ndarray, float]:
@@ -281,7 +286,8 @@ def find_table_plane(depth_m: np.ndarray, K: np.ndarray, *,
 
     counts = kernels.count_inliers(subset, normals, offsets, _inlier_distance(subset, params))
     best = int(np.argmax(counts))
-    normal, offset, inliers = _robust_refit(points, normals[best], float(offsets[best]), params)
+    normal, offset, inliers, noise = _robust_refit(points, normals[best], float(offsets[best]),
+                                                   params)
     if inliers is None:
         return None
     count = int(inliers.sum())
@@ -291,7 +297,7 @@ def find_table_plane(depth_m: np.ndarray, K: np.ndarray, *,
     if share < params.min_inlier_share or count < params.min_image_share * pixels:
         return None
     return TablePlane(np.append(normal, offset), share, len(points),
-                      kernels.centre_and_scatter(points, inliers)[0])
+                      kernels.centre_and_scatter(points, inliers)[0], noise)
 
 
 class TablePlaneTracker:
@@ -323,7 +329,7 @@ class TablePlaneTracker:
         blended = (1.0 - p.smoothing) * old + p.smoothing * observed.plane
         blended /= np.linalg.norm(blended[:3])
         self.plane = TablePlane(blended, observed.inlier_share, observed.n_points,
-                                observed.centroid)
+                                observed.centroid, observed.noise_at_1m_m)
         return self.plane
 
     def _jumped(self, tracked: TablePlane, observed: TablePlane) -> bool:
@@ -455,3 +461,21 @@ def choose_table_frame(T_rig: np.ndarray | None, observed: TablePlane | None, *,
     T = table_frame_from_plane(observed.plane) if T_rig is None else \
         align_frame_to_plane(T_rig, observed.plane)
     return TableFrame(T, 'observed', observed, angle, offset, find_ms)
+
+
+def above_table(points_c: np.ndarray, frame: TableFrame, ceiling_m: float,
+                params: TablePlaneParams = TablePlaneParams()) -> np.ndarray:
+    """The points of ``points_c`` ((N, 3), camera frame, m) that stand clear of the table of
+    ``frame`` (which must have a ``T_world_camera``): higher than the table's own points reach
+    at their depth, i.e. the plane fit's inlier distance (``inlier_sigmas`` sigmas of the
+    noise measured on the plane, else of ``params.noise_at_1m_m``, times z², at least
+    ``min_inlier_distance_m``), and never more than ``ceiling_m`` (the fixed clearance)."""
+    from tlessbot_ros.core.common.geometry import transform_points
+
+    observed = frame.observed
+    noise = params.noise_at_1m_m if observed is None or observed.noise_at_1m_m is None \
+        else observed.noise_at_1m_m
+    band = np.clip(params.inlier_sigmas * noise * points_c[:, 2] ** 2,
+                   params.min_inlier_distance_m, None)
+    height = transform_points(np.asarray(frame.T_world_camera), points_c)[:, 2]
+    return points_c[height > np.minimum(band, ceiling_m)]
