@@ -9,6 +9,7 @@ from tlessbot_ros.core.common import (
     TablePlane,
     TablePlaneParams,
     TablePlaneTracker,
+    above_table,
     align_frame_to_plane,
     choose_table_frame,
     default_rig,
@@ -51,6 +52,25 @@ def table_scene(camera, *, seed=0, holes=0.2):
 
 def _angle_deg(a, b):
     return float(np.degrees(np.arccos(np.clip(np.dot(a[:3], b[:3]), -1.0, 1.0))))
+
+
+@pytest.mark.parametrize('camera', [SIDE, TOP], ids=['side', 'top'])
+def test_the_noise_measured_on_the_table_sets_what_stands_clear_of_it(camera):
+    depth, _ = table_scene(camera)
+    table = find_table_plane(depth, camera.intrinsics.K)
+    assert table is not None and table.noise_at_1m_m == pytest.approx(0.0021, rel=0.25)
+    frame = choose_table_frame(None, table, mode='observed', max_angle_deg=10.0,
+                               max_offset_m=0.05)
+    T_camera_world = invert_transform(frame.T_world_camera)
+    heights = np.array([0.0005, 0.0015, 0.0038, 0.010])
+    points = transform_points(T_camera_world, np.c_[np.zeros((4, 2)), heights])
+    kept = transform_points(frame.T_world_camera, above_table(points, frame, 0.004))[:, 2]
+    band = 3.0 * table.noise_at_1m_m * points[0, 2] ** 2   # the plane fit's inlier distance
+    np.testing.assert_allclose(kept, heights[heights > min(max(band, 0.002), 0.004)],
+                               atol=1e-6)
+    # near (side, 0.64 m: 3 sigma 2.6 mm) a point 3.8 mm high stands clear of the table; far
+    # (top, 1.1 m: 7.6 mm) the noise reaches above the fixed 4 mm, which stays the ceiling
+    assert len(kept) == (2 if camera is SIDE else 1)
 
 
 @pytest.mark.parametrize('camera', [SIDE, TOP], ids=['side', 'top'])

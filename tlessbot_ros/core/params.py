@@ -90,8 +90,8 @@ class FitParams:
 
     Attributes:
         min_roi_points: fewer valid depth points than this: the pose is not estimated (>= 1).
-        table_clearance_m: in box mode, ROI points closer than this to the table plane are dropped,
-            m (>= 0).
+        table_clearance_m: in box mode, ROI points lower than this above the table, or than the
+            table's measured noise reaches where that is less, are dropped, m (>= 0).
         steep_angle_deg: ROI pixels whose depth slope turns more than this from the camera are
             dropped (depth ramps at edges, grazing views), deg (0..90; 0: off).
         verify_accept_fitness: the first class is kept without fitting the others when its pose
