@@ -64,7 +64,10 @@ def test_the_noise_measured_on_the_table_sets_what_stands_clear_of_it(camera):
     T_camera_world = invert_transform(frame.T_world_camera)
     heights = np.array([0.0005, 0.0015, 0.0038, 0.010])
     points = transform_points(T_camera_world, np.c_[np.zeros((4, 2)), heights])
-    kept = transform_points(frame.T_world_camera, above_table(points, frame, 0.004))[:, 2]
+    fixed = transform_points(frame.T_world_camera, above_table(points, frame, 0.004))[:, 2]
+    np.testing.assert_allclose(fixed, [0.010], atol=1e-6)
+    kept = transform_points(frame.T_world_camera,
+                            above_table(points, frame, 0.004, TablePlaneParams()))[:, 2]
     band = 3.0 * table.noise_at_1m_m * points[0, 2] ** 2   # the plane fit's inlier distance
     np.testing.assert_allclose(kept, heights[heights > min(max(band, 0.002), 0.004)],
                                atol=1e-6)

@@ -90,8 +90,10 @@ class FitParams:
 
     Attributes:
         min_roi_points: fewer valid depth points than this: the pose is not estimated (>= 1).
-        table_clearance_m: in box mode, ROI points lower than this above the table, or than the
-            table's measured noise reaches where that is less, are dropped, m (>= 0).
+        table_clearance_m: in box mode, ROI points closer than this to the table plane are dropped,
+            m (>= 0).
+        table_clearance_noise: in box mode, the clearance drops to where the noise measured on the
+            table reaches at each point's depth, where that is lower (real-pose-gap.md).
         steep_angle_deg: ROI pixels whose depth slope turns more than this from the camera are
             dropped (depth ramps at edges, grazing views), deg (0..90; 0: off).
         verify_accept_fitness: the first class is kept without fitting the others when its pose
@@ -150,6 +152,7 @@ class FitParams:
 
     min_roi_points: int = 30
     table_clearance_m: float = 0.004
+    table_clearance_noise: bool = False
     steep_angle_deg: float = 0.0
     verify_accept_fitness: float = 0.9
     verify_rmse_weight: float = 50.0

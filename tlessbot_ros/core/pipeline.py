@@ -356,8 +356,7 @@ class PerceptionPipeline:
         Args:
             views: per view, the depth, intrinsics and extrinsics (each part is fitted in its
                 view's table frame, :meth:`table_frame`: without one, by the fallback).
-            labels: instance label images per view (in box mode, each instance is its
-                filled box, and points on the table plane are discarded).
+            labels: instance label images per view (box mode: filled boxes, table dropped).
             classes: {instance: obj_id} or {instance: (obj_id, ...)} candidates best first
                 (see :class:`ClassGuess`); 0 and ids without templates are skipped, an
                 instance without any is skipped. Several candidates are verified by their
@@ -394,10 +393,11 @@ class PerceptionPipeline:
                 mask = drop_steep(mask, data.depth_m, detection.box, float(data.intrinsics.fx),
                                   self.fit_params.steep_angle_deg)
                 points = roi_cloud(data.depth_m, mask, data.intrinsics, box=detection.box)
-                T_world_camera = self.table_frame(view, data).T_world_camera
-                if box_mode and T_world_camera is not None:   # clear of the table's noise
-                    points = above_table(points, self.table_frame(view, data),
-                                         self.fit_params.table_clearance_m, self.table_plane)
+                frame, fit = self.table_frame(view, data), self.fit_params
+                T_world_camera = frame.T_world_camera
+                if box_mode and T_world_camera is not None:   # (table_clearance_noise)
+                    points = above_table(points, frame, fit.table_clearance_m,
+                                         self.table_plane if fit.table_clearance_noise else None)
                 detection.n_points = len(points)
                 if len(points) >= self.fit_params.min_roi_points:
                     jobs.append(PartJob(detection, points, candidates, T_world_camera,

@@ -464,18 +464,21 @@ def choose_table_frame(T_rig: np.ndarray | None, observed: TablePlane | None, *,
 
 
 def above_table(points_c: np.ndarray, frame: TableFrame, ceiling_m: float,
-                params: TablePlaneParams = TablePlaneParams()) -> np.ndarray:
-    """The points of ``points_c`` ((N, 3), camera frame, m) that stand clear of the table of
-    ``frame`` (which must have a ``T_world_camera``): higher than the table's own points reach
-    at their depth, i.e. the plane fit's inlier distance (``inlier_sigmas`` sigmas of the
-    noise measured on the plane, else of ``params.noise_at_1m_m``, times z², at least
-    ``min_inlier_distance_m``), and never more than ``ceiling_m`` (the fixed clearance)."""
+                params: TablePlaneParams | None = None) -> np.ndarray:
+    """The points of ``points_c`` ((N, 3), camera frame, m) higher than ``ceiling_m`` above the
+    table of ``frame`` (which must have a ``T_world_camera``); with ``params``, higher than the
+    table's own points reach at their depth where that is lower: the plane fit's inlier
+    distance (``inlier_sigmas`` sigmas of the noise measured on the plane, else of
+    ``params.noise_at_1m_m``, times z², at least ``min_inlier_distance_m``)."""
     from tlessbot_ros.core.common.geometry import transform_points
 
-    observed = frame.observed
-    noise = params.noise_at_1m_m if observed is None or observed.noise_at_1m_m is None \
-        else observed.noise_at_1m_m
-    band = np.clip(params.inlier_sigmas * noise * points_c[:, 2] ** 2,
-                   params.min_inlier_distance_m, None)
+    clearance = np.full(len(points_c), ceiling_m)
+    if params is not None:
+        observed = frame.observed
+        noise = params.noise_at_1m_m if observed is None or observed.noise_at_1m_m is None \
+            else observed.noise_at_1m_m
+        band = np.clip(params.inlier_sigmas * noise * points_c[:, 2] ** 2,
+                       params.min_inlier_distance_m, None)
+        clearance = np.minimum(band, ceiling_m)
     height = transform_points(np.asarray(frame.T_world_camera), points_c)[:, 2]
-    return points_c[height > np.minimum(band, ceiling_m)]
+    return points_c[height > clearance]
