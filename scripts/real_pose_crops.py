@@ -38,6 +38,7 @@ from tlessbot_ros.io.bop import read_split
 from tlessbot_ros.io.models import read_mesh
 from tlessbot_ros.tools.support.eval_frames import _first_pipeline, oracle_labels
 from tlessbot_ros.tools.support.eval_scoring import load_scoring_models
+from tlessbot_ros.tools.support.overrides import stage_overrides
 
 STEPS = ('fit', 'checks', 'rest', 'turns')
 
@@ -183,14 +184,19 @@ def _steps(pipeline, trace, image, view, labels, T_world_camera, models, optimum
     return hits
 
 
+def _rendered(image, meshes):
+    """Every ground-truth part ray-cast at its pose (``instance`` k = GT k, -1 none)."""
+    renderer = MeshRenderer()
+    for gt in image.gt:
+        renderer.add_mesh(*meshes[gt.obj_id], gt.T_camera_object)
+    return renderer.render(image.intrinsics, np.eye(4))
+
+
 def _optimum(pipeline, image, meshes) -> dict:
     """{(im_id, GT index): the depth optimum}: ICP from the truth on the part's own visible
     pixels (as scripts/real_pose_diagnosis.py)."""
     estimator = pipeline.pose_estimator
-    renderer = MeshRenderer()
-    for gt in image.gt:
-        renderer.add_mesh(*meshes[gt.obj_id], gt.T_camera_object)
-    rendered = renderer.render(image.intrinsics, np.eye(4))
+    rendered = _rendered(image, meshes)
     out = {}
     for k, gt in enumerate(image.gt):
         own = roi_cloud(image.depth_m, rendered.instance == k, image.intrinsics)
@@ -209,6 +215,11 @@ def main() -> None:
     parser.add_argument('--classifier', type=Path)
     parser.add_argument('--steps', action='store_true',
                         help='the error after each step of the pose stage (true classes)')
+    parser.add_argument('--pipeline-param', action='append', metavar='NAME=VALUE',
+                        help='a pipeline setting, as `tlessbot evaluate --pipeline-param`')
+    parser.add_argument('--masks', action='store_true',
+                        help="with --steps: each part's own visible pixels (the truth "
+                             'ray-cast) instead of its box')
     parser.add_argument('--split', default='test')
     parser.add_argument('--units', type=float, default=1e-3, help='model units, m (mm: 1e-3)')
     args = parser.parse_args()
@@ -237,11 +248,14 @@ def main() -> None:
         if image.depth_m is None:
             continue
         if pipeline is None:
-            pipeline = _first_pipeline({SIDE: image}, classifier=classifier, templates=database)
+            pipeline = _first_pipeline({SIDE: image}, classifier=classifier, templates=database,
+                                       **stage_overrides(args.pipeline_param))
             trace = _traced(pipeline) if args.steps else trace
         view = ViewInput(image.rgb, image.depth_m, image.intrinsics, image.T_world_camera)
         labels = oracle_labels({SIDE: image})[SIDE]
         T_world_camera = pipeline.table_frame(SIDE, view).T_world_camera
+        if args.masks:
+            labels = (_rendered(image, meshes).instance + 1).astype(np.uint16)
         if args.steps:
             hits += _steps(pipeline, trace, image, view, labels, T_world_camera, models,
                            _optimum(pipeline, image, meshes))
