@@ -330,7 +330,8 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'steep_angle_deg',
         'split_unexplained',   # #41: two touching parts found as one, divided after the fit
         'turns',   # #41: near-symmetric turns told apart by the colour image
-        'resting'])   # #41: a fit on the table levelled onto a stable pose of its part
+        'resting',   # #41: a fit on the table levelled onto a stable pose of its part
+        'table_clearance_noise'])   # #41: box mode, the clearance from the table's noise
 
 
 # ------------------------------------------------------------------ the table plane seen in depth
