@@ -39,8 +39,8 @@ from tlessbot_ros.io.bop_results import BopEstimate
 from tlessbot_ros.tools.support.eval_scoring import (
     MIN_VISIB_FRACT,
     _match_boxes,
-    _match_poses,
     load_scoring_models,
+    match_poses,
 )
 from tlessbot_ros.tools.support.overrides import apply_overrides, stage_overrides
 
@@ -111,7 +111,7 @@ def main(argv=None) -> int:
                 T = T_side_world @ by_view[d.view].T_world_camera @ T
             estimates.append(BopEstimate(side.scene_id, side.im_id, d.obj_id,
                                          float(d.pose.fitness), T))
-        matches = _match_poses(side, estimates)
+        matches = match_poses(side, estimates, models)
         boxes = [mask_box(labels[SIDE] == i) for i in np.unique(labels[SIDE]) if i]
         false_pos += _match_boxes(side, boxes)[1]
         masks = {v: [g.mask for g in im.gt] for v, im in by_view.items()}

@@ -322,3 +322,24 @@ def test_background_boxes_are_named_or_called_unknown(dataset, tmp_path, capsys)
     assert main([*common, '--oracle', 'none', '--background-boxes', '3',
                  '--out', str(tmp_path / 'p')]) == 1
     assert '--background-boxes' in capsys.readouterr().err
+
+
+def test_a_right_pose_is_scored_against_its_own_part_in_a_pile():
+    """Two parts of one class 8 mm apart, turned 90° to each other: the estimate that is
+    right for the first lies nearer the second's centre; it is still scored as the first's."""
+    from types import SimpleNamespace
+
+    from tlessbot_ros.core.common import Symmetries
+    from tlessbot_ros.tools.support.eval_scoring import match_poses
+
+    first = make_transform(np.eye(3), [0.0, 0.0, 0.5])
+    second = make_transform(rotation_about_axis(np.array([0.0, 0.0, 1.0]), np.pi / 2),
+                            [0.008, 0.0, 0.5])
+    image = SimpleNamespace(gt=[SimpleNamespace(obj_id=4, T_camera_object=first),
+                                SimpleNamespace(obj_id=4, T_camera_object=second)])
+    right_for_first = first.copy()
+    right_for_first[0, 3] += 0.006            # 6 mm off: 2 mm from the second's centre
+    estimates = [BopEstimate(1, 0, 4, 0.9, right_for_first), BopEstimate(1, 0, 4, 0.5, second)]
+    models = {4: SimpleNamespace(symmetries=Symmetries())}
+    matches = match_poses(image, estimates, models)
+    assert matches[0] is estimates[0] and matches[1] is estimates[1]

@@ -1,8 +1,8 @@
 """Scoring evaluated frames against BOP ground truth (``tlessbot evaluate``): the report.
 
-Targets are the parts with visib_fract >= 0.3. Poses are matched to ground truth greedily by
-score, boxes by IoU >= 0.7; the measures are n cm / n° recall, VSD, ADD-S and the BOP'19
-MSSD / MSPD average recalls (:mod:`tlessbot_ros.core.metrics`).
+Targets are the parts with visib_fract >= 0.3. Poses are matched to ground truth by least
+summed pose error within each class, boxes by IoU >= 0.7; the measures are n cm / n° recall,
+VSD, ADD-S and the BOP'19 MSSD / MSPD average recalls (:mod:`tlessbot_ros.core.metrics`).
 """
 from __future__ import annotations
 
@@ -159,19 +159,27 @@ class _Target:
     posed: bool = True
 
 
-def _match_poses(image, poses: list[BopEstimate]) -> dict[int, BopEstimate]:
-    """Greedy by score: each estimate takes the nearest unmatched GT of its class."""
+def match_poses(image, poses: list[BopEstimate],
+                 models: dict[int, ScoringModel]) -> dict[int, BopEstimate]:
+    """{gt index: estimate}: per class, the assignment of estimates to parts whose summed
+    symmetry-aware error (degrees + millimetres) is least. Nearest centres alone hand a right
+    pose another part's truth when parts of one class lie close together (a pile of keys)."""
+    from scipy.optimize import linear_sum_assignment
+
     taken: dict[int, BopEstimate] = {}
-    for est in sorted(poses, key=lambda p: -p.score):
-        best, best_d = None, np.inf
-        for k, gt in enumerate(image.gt):
-            if k in taken or gt.obj_id != est.obj_id:
-                continue
-            d = float(np.linalg.norm(gt.T_camera_object[:3, 3] - est.T_camera_object[:3, 3]))
-            if d < best_d:
-                best, best_d = k, d
-        if best is not None:
-            taken[best] = est
+    for obj_id in {est.obj_id for est in poses}:
+        truth = [k for k, gt in enumerate(image.gt) if gt.obj_id == obj_id]
+        ours = [est for est in poses if est.obj_id == obj_id]
+        if not truth:
+            continue
+        symmetries = models[obj_id].symmetries if obj_id in models else None
+        cost = np.empty((len(ours), len(truth)))
+        for i, est in enumerate(ours):
+            for j, k in enumerate(truth):
+                error = pose_error(est.T_camera_object, image.gt[k].T_camera_object, symmetries)
+                cost[i, j] = error.rotation_deg + 1e3 * error.translation_m
+        for i, j in zip(*linear_sum_assignment(cost)):
+            taken[truth[j]] = ours[i]
     return taken
 
 
@@ -286,7 +294,7 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
     losses, matched_boxes = [], []
     detection_ran = recognition_ran = False
     for image, output in frames:
-        matches = _match_poses(image, output.poses)
+        matches = match_poses(image, output.poses, models)
         duplicates += repeated_poses(output.poses, models)
         box_matches: dict[int, int] = {}
         if output.boxes is not None:
