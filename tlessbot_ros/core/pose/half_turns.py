@@ -32,6 +32,8 @@ from tlessbot_ros.core.common import rotation_about_axis
 from tlessbot_ros.core.pose.fallback import turn_axes
 
 if TYPE_CHECKING:
+    import open3d as o3d
+
     from tlessbot_ros.core.pose.database import ObjectTemplates
     from tlessbot_ros.core.pose.flat import FlatCheck, ViewEvidence
     from tlessbot_ros.core.pose.turns import TurnParams
@@ -106,7 +108,6 @@ def choose_half_turn(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np
         the pose and what decided: ``half_turns`` that competed, ``half_fitness`` of the
         fitted pose, ``half_winner`` (0: the fitted pose) and ``half_decided``.
     """
-    from tlessbot_ros.core.pose.candidates import poses_differ
     from tlessbot_ros.core.pose.flat_turns import mesh_scene
 
     T0 = np.asarray(T_camera_object, np.float64)
@@ -117,17 +118,13 @@ def choose_half_turn(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np
     if mesh is None or not len(turns) or not any(v.plane is not None for v in views):
         return T0, info
     refiner = check.refiner
+    T, box_info = _box_turn(check, obj, mesh, T0, turns, scene_c, views, params)
+    info.update(box_info)
+    if T is not None:
+        return T, info
     turned = refiner.icp_batch(scene_c, obj, T0 @ turns, iterations=params.half_icp_iterations)
     fitness = refiner.grid_fitness(np.concatenate([T0[None], turned]), scene_c, obj)
-    poses = [T0]
-    for k in np.argsort(-fitness[1:], kind='stable'):
-        # best depth first; one of each refitted pose (a turn refitted back onto the fit, or
-        # onto another turn, would split the duels it is part of)
-        if len(poses) > params.half_candidates or \
-                fitness[1 + k] < fitness[0] - params.max_fitness_drop:
-            break
-        if all(poses_differ(turned[k], T) for T in poses):
-            poses.append(turned[k])
+    poses = _distinct_by_fitness([T0], list(turned), fitness[1:], fitness[0], params)
     info.update(half_turns=float(len(poses) - 1), half_fitness=float(fitness[0]))
     if len(poses) < 2:
         return T0, info
@@ -136,4 +133,67 @@ def choose_half_turn(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np
     info.update(half_winner=float(k), half_decided=found.get('align_decided', 0.0))
     return poses[k], info
 
-__all__ = ['choose_half_turn', 'half_turn_axes', 'self_half_turns']
+
+def box_turns(obj: ObjectTemplates, turns: np.ndarray, params: TurnParams) -> np.ndarray:
+    """(K,) bool: which of the half ``turns`` are near-symmetric turns of the part
+    (:func:`~.turns.near_turns`, within half a step: most of its surface, its hull, maps onto
+    itself: a drilled block turned about one of its box's axes)."""
+    from tlessbot_ros.core.common import rotation_angle_deg
+    from tlessbot_ros.core.pose.turns import near_turns
+
+    near = near_turns(obj, step_deg=params.step_deg, min_turn_deg=params.min_turn_deg,
+                      near_ratio=params.near_ratio, exact_ratio=params.exact_ratio,
+                      exact_quantile=params.exact_quantile)
+    return np.array([any(rotation_angle_deg(S[:3, :3], N[:3, :3]) <= params.step_deg / 2
+                         for N in near) for S in turns], bool).reshape(len(turns))
+
+
+def _box_turn(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
+              T0: np.ndarray, turns: np.ndarray, scene_c: np.ndarray,
+              views: Sequence[ViewEvidence], params: TurnParams
+              ) -> tuple[np.ndarray | None, dict[str, float]]:
+    """The fit turned as it is by the one of its :func:`box_turns` that wins the aligned votes
+    against the other turns and beats the fit by a clear margin (None: none does), and what
+    decided (``box_turns`` that competed, ``box_winner``).
+
+    Such a turn fits the depth where the fit does (the part's hull maps onto itself), so
+    turned as it is it keeps the fit's own placement error and the duel sees only the features
+    that tell the two apart: a drilled block's 6 mm holes, which an error of a refit, as large
+    as their displacement, would drown. The fit is the pose to beat; the other turns, each as
+    wrong as the fit where another wins, need only lose their duels."""
+    kept = box_turns(obj, turns, params)
+    info = {'box_turns': 0.0, 'box_winner': 0.0}
+    if not kept.any():
+        return None, info
+    exact = [T0 @ S for S in turns[kept]]
+    fitness = check.refiner.grid_fitness(np.stack([T0, *exact]), scene_c, obj)
+    poses = _distinct_by_fitness([T0], exact, fitness[1:], fitness[0], params)
+    info['box_turns'] = float(len(poses) - 1)
+    if len(poses) < 2:
+        return None, info
+    found: dict[str, float] = {}
+    k = check.aligned_winner(obj, [mesh] * len(poses), poses, views, found, rivals=[0])
+    if k == 0 or not found.get('align_decided'):
+        return None, info
+    info.update(box_winner=float(k), half_winner=float(k), half_decided=1.0)
+    return poses[k], info
+
+
+def _distinct_by_fitness(poses: list[np.ndarray], more: list[np.ndarray], fitness: np.ndarray,
+                         fitted: float, params: TurnParams) -> list[np.ndarray]:
+    """``poses`` and, best depth ``fitness`` first, those of ``more`` at most
+    ``max_fitness_drop`` below the ``fitted`` pose's that differ from every pose taken (a turn
+    refitted onto another would split the duels it is part of), until ``half_candidates``
+    compete besides the fitted pose."""
+    from tlessbot_ros.core.pose.candidates import poses_differ
+
+    poses = list(poses)
+    for k in np.argsort(-np.asarray(fitness), kind='stable'):
+        if len(poses) > params.half_candidates or fitness[k] < fitted - params.max_fitness_drop:
+            break
+        if all(poses_differ(more[k], T) for T in poses):
+            poses.append(more[k])
+    return poses
+
+
+__all__ = ['box_turns', 'choose_half_turn', 'half_turn_axes', 'self_half_turns']
