@@ -108,6 +108,7 @@ def choose_half_turn(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np
         the pose and what decided: ``half_turns`` that competed, ``half_fitness`` of the
         fitted pose, ``half_winner`` (0: the fitted pose) and ``half_decided``.
     """
+    from tlessbot_ros.core.pose.candidates import poses_differ
     from tlessbot_ros.core.pose.flat_turns import mesh_scene
 
     T0 = np.asarray(T_camera_object, np.float64)
@@ -118,11 +119,16 @@ def choose_half_turn(check: FlatCheck, obj: ObjectTemplates, T_camera_object: np
     if mesh is None or not len(turns) or not any(v.plane is not None for v in views):
         return T0, info
     refiner = check.refiner
-    T, box_info = _box_turn(check, obj, mesh, T0, turns, scene_c, views, params)
+    kept = box_turns(obj, turns, params)
+    T, box_info = _box_turn(check, obj, mesh, T0, turns[kept], scene_c, views, params)
     info.update(box_info)
-    if T is not None:
-        return T, info
-    turned = refiner.icp_batch(scene_c, obj, T0 @ turns, iterations=params.half_icp_iterations)
+    if T is not None or kept.all():
+        return T0 if T is None else T, info
+    turned = refiner.icp_batch(scene_c, obj, T0 @ turns[~kept],
+                               iterations=params.half_icp_iterations)
+    # a refit that ends on a box turn of the fit is that turn, which the fair duel judged
+    turned = np.array([T for T in turned if all(poses_differ(T, T0 @ S) for S in turns[kept])]
+                      ).reshape(-1, 4, 4)
     fitness = refiner.grid_fitness(np.concatenate([T0[None], turned]), scene_c, obj)
     poses = _distinct_by_fitness([T0], list(turned), fitness[1:], fitness[0], params)
     info.update(half_turns=float(len(poses) - 1), half_fitness=float(fitness[0]))
@@ -161,11 +167,10 @@ def _box_turn(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Rayca
     that tell the two apart: a drilled block's 6 mm holes, which an error of a refit, as large
     as their displacement, would drown. The fit is the pose to beat; the other turns, each as
     wrong as the fit where another wins, need only lose their duels."""
-    kept = box_turns(obj, turns, params)
     info = {'box_turns': 0.0, 'box_winner': 0.0}
-    if not kept.any():
+    if not len(turns):
         return None, info
-    exact = [T0 @ S for S in turns[kept]]
+    exact = [T0 @ S for S in turns]
     fitness = check.refiner.grid_fitness(np.stack([T0, *exact]), scene_c, obj)
     poses = _distinct_by_fitness([T0], exact, fitness[1:], fitness[0], params)
     info['box_turns'] = float(len(poses) - 1)
