@@ -166,7 +166,9 @@ def _box_turn(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Rayca
     turned as it is it keeps the fit's own placement error and the duel sees only the features
     that tell the two apart: a drilled block's 6 mm holes, which an error of a refit, as large
     as their displacement, would drown. The fit is the pose to beat; the other turns, each as
-    wrong as the fit where another wins, need only lose their duels."""
+    wrong as the fit where another wins, need only lose their duels. The winner is then
+    refitted to the depth (``half_icp_iterations`` ICP steps), as a fit is: the shared error
+    served the duel only."""
     info = {'box_turns': 0.0, 'box_winner': 0.0}
     if not len(turns):
         return None, info
@@ -181,7 +183,8 @@ def _box_turn(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Rayca
     if k == 0 or not found.get('align_decided'):
         return None, info
     info.update(box_winner=float(k), half_winner=float(k), half_decided=1.0)
-    return poses[k], info
+    return check.refiner.icp_batch(scene_c, obj, poses[k][None],
+                                   iterations=params.half_icp_iterations)[0], info
 
 
 def _distinct_by_fitness(poses: list[np.ndarray], more: list[np.ndarray], fitness: np.ndarray,
