@@ -8,14 +8,15 @@ scored like ``tlessbot evaluate`` in ``test_side``); MODELS: its models folder
 (models_info.json); TEMPLATES: the templates the evaluation used (their meshes and listings);
 ESTIMATES_CSV: ``tlessbot evaluate``'s estimates.csv.
 
-Per part of ``--obj``: how it ended (ok within 5 cm / 5 deg, none, far, or wrong with the
-turn from the truth to the estimate: its angle and axis in the model frame); for a wrong one
-the listed half turn nearest that turn (:func:`~tlessbot_ros.core.pose.half_turns.
-self_half_turns`, ``box`` where it is a near-symmetric turn that maps the hull onto itself:
-:func:`~tlessbot_ros.core.pose.half_turns.box_turns`) and its residual angle; for every part
-the pixels each camera shows change when the part at its true pose is turned by each box
-turn (:func:`~tlessbot_ros.core.pose.observability.changed_pixels`: depth beyond 3 sigma of
-the simulator's D415 model, or a rendered edge moved by more than a pixel), top / side.
+Per part of ``--obj``: the angle of its model z axis (a generated block's drilled holes) to
+the vertical; how it ended (ok within 5 cm / 5 deg, none, far, or wrong with the turn from the
+truth to the estimate: its angle and axis in the model frame); for a wrong one the listed half
+turn nearest that turn (:func:`~tlessbot_ros.core.pose.half_turns.self_half_turns`, ``box``
+where it maps the hull onto itself: :func:`~tlessbot_ros.core.pose.half_turns.box_turns`)
+and its residual angle; for every part the pixels each camera shows change when the part at
+its true pose is turned by each box turn
+(:func:`~tlessbot_ros.core.pose.observability.changed_pixels`: depth beyond 3 sigma of the
+simulator's D415 model, or a rendered edge moved by more than a pixel), top / side.
 """
 from __future__ import annotations
 
@@ -103,8 +104,10 @@ def main() -> None:
                     px = ['/'.join(str(changed_pixels(mesh, points, T_world, T_world @ S, v,
                                                       seen)[2]) for v in views)
                           for S in turns[box]]
-                    print(f'obj {obj_id} scene {int(scene.name)} im {int(im):3d}: {outcome}'
-                          f'{extra}; px the box turns change (top/side) {", ".join(px)}')
+                    tilt = np.degrees(np.arccos(abs(T_world[2, 2])))
+                    print(f'obj {obj_id} scene {int(scene.name)} im {int(im):3d} (model z '
+                          f'{tilt:3.0f} deg off the vertical): {outcome}{extra}; px the box '
+                          f'turns change (top/side) {", ".join(px)}')
 
 
 if __name__ == '__main__':
