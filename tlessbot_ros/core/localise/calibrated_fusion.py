@@ -19,6 +19,7 @@ from tlessbot_ros.core.localise.fusion_result import (
 from tlessbot_ros.core.localise.instances import fill_from_nearest
 from tlessbot_ros.core.localise.part_scale import mask_length_px
 from tlessbot_ros.core.localise.segmentation import Segmentation
+from tlessbot_ros.core.localise.table_gap import apart_by_table
 
 
 # --------------------------------------------------------------------------- calibrated
@@ -193,6 +194,8 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
                 kernel, next_id, side.whole_part_px())
             out[blob] = ids[blob]
             split_ids.update(divided)
+    if params.table_divides and side.table_seen is not None:
+        next_id = apart_by_table(side_labels, blobs, pred, side, next_id)
     next_id = _place_fragments(side_labels, blobs, stats, fragments, side, next_id)
     timings['split'] = (time.perf_counter() - t1) * 1e3
     labels = {'top': top_labels, 'side': side_labels}

@@ -36,6 +36,8 @@ class FusionParams:
             keeps its pieces apart (new ids).
         keep_thin_beside_tall: ... and so does one whose side segmentation holds a thin part
             (:mod:`.thin`) beside a part that is not.
+        table_divides: side blobs that one top blob predicts get ids of their own where
+            every path between them in the side image crosses the table seen (:mod:`.table_gap`).
         box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
             in a side box.
     """
@@ -54,6 +56,7 @@ class FusionParams:
     drop_unpredicted: bool = False
     keep_depth_splits: bool = True
     keep_thin_beside_tall: bool = True
+    table_divides: bool = True
 
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:

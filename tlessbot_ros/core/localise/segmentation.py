@@ -63,6 +63,8 @@ class Segmentation:
             (``SegmentationParams.whole_parts``; none: unknown; :meth:`whole_part_px`).
         depth_groups: (N,) int32; instances cut from one piece of a depth split share an id
             > 0 (two parts whose seam the depth shows), 0 = not divided by depth.
+        table_seen: (H, W) bool pixels whose own valid depth lies at table height (no
+            filter: a gap of a few pixels between two parts shows), None without depth.
         cues: per-method bool candidate masks at ``params.cue_scale`` (for inspection).
         timings_ms: wall time per stage in milliseconds: 'lab' (conversion), 'depth',
             'cue_<method>' per colour cue, 'cues' (the union), 'watershed', 'instances' and
@@ -75,6 +77,7 @@ class Segmentation:
     foreground: np.ndarray
     depth_groups: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     thin: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    table_seen: np.ndarray | None = None
     whole_parts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     cues: dict[str, np.ndarray] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
@@ -185,9 +188,14 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         boxes, areas = _small_blobs_by_depth(labels, boxes, areas, depth_m, intrinsics,
                                              T_world_camera, depth_cue, params)
     thin = thin_instances(labels, None if depth_cue is None else depth_cue.height_m, params)
+    seen = None if depth_cue is None or depth_cue.height_m is None else _upscale(
+        np.nan_to_num(depth_cue.height_m, nan=np.inf) < table_height_m(params,
+                                                                        depth_cue.sigma_m),
+        rgb.shape)
     watch.lap('instances')
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
-                        depth_groups=groups, thin=thin, cues=cues, timings_ms=watch.total(),
+                        depth_groups=groups, thin=thin, table_seen=seen, cues=cues,
+                        timings_ms=watch.total(),
                         whole_parts=np.array(params.whole_parts or (), float).reshape(-1, 3))
 
 
