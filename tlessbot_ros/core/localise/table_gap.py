@@ -41,8 +41,13 @@ def apart_by_table(side_labels: np.ndarray, blobs: np.ndarray, pred: np.ndarray,
     Returns:
         The next free id.
     """
-    ids = np.unique(side_labels[side_labels > 0])
-    if not ids.size or side.table_seen is None:
+    if side.table_seen is None:
+        return next_id
+    n_ids, n_blobs = int(side_labels.max()) + 1, int(blobs.max()) + 1
+    pairs = np.bincount(side_labels.ravel().astype(np.int64) * n_blobs + blobs.ravel(),
+                        minlength=n_ids * n_blobs).reshape(n_ids, n_blobs)[1:, 1:]
+    ids = 1 + np.flatnonzero(np.count_nonzero(pairs, axis=1) > 1)   # carried by 2+ blobs
+    if not ids.size:
         return next_id
     # where a path may run without crossing the table: 8-connected, so a wall of table
     # must be closed to separate
