@@ -188,15 +188,21 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         boxes, areas = _small_blobs_by_depth(labels, boxes, areas, depth_m, intrinsics,
                                              T_world_camera, depth_cue, params)
     thin = thin_instances(labels, None if depth_cue is None else depth_cue.height_m, params)
-    seen = None if depth_cue is None or depth_cue.height_m is None else _upscale(
-        np.nan_to_num(depth_cue.height_m, nan=np.inf) < table_height_m(params,
-                                                                        depth_cue.sigma_m),
-        rgb.shape)
     watch.lap('instances')
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
-                        depth_groups=groups, thin=thin, table_seen=seen, cues=cues,
-                        timings_ms=watch.total(),
+                        depth_groups=groups, thin=thin, cues=cues, timings_ms=watch.total(),
+                        table_seen=_table_seen(depth_cue, params, rgb.shape),
                         whole_parts=np.array(params.whole_parts or (), float).reshape(-1, 3))
+
+
+def _table_seen(depth_cue: DepthCue | None, params: SegmentationParams,
+                shape: tuple[int, ...]) -> np.ndarray | None:
+    """(H, W) bool: the pixels whose own valid depth (no filter) lies at table height
+    (:func:`~tlessbot_ros.core.localise.cues.table_height_m`), None without depth."""
+    if depth_cue is None or depth_cue.height_m is None:
+        return None
+    height = np.nan_to_num(depth_cue.height_m, nan=np.inf)
+    return _upscale(height < table_height_m(params, depth_cue.sigma_m), shape)
 
 
 def _small_blobs_by_depth(labels: np.ndarray, boxes: np.ndarray, areas: np.ndarray,
