@@ -13,7 +13,10 @@ crosses a pixel where the table is seen (it runs over the part itself, the neare
 hides it, or pixels without depth that may be either). Where every path between them crosses
 the table, they are two parts: the blob that holds most of the prediction keeps its id, the
 others get new ones (seen from the side only). Pixels without depth never separate, so dark
-parts and holes keep the fusion's answer.
+parts and holes keep the fusion's answer, and neither do the blobs' own pixels (the depth is
+read at the cue scale: a blob's rim may read as the table beside it). Nor does the table
+between two thin blobs (:mod:`.thin`): a thin part's top lies within the depth's noise of the
+table, so its middle may read as table where the cues lost it (a slotted strip's narrow rim).
 """
 from __future__ import annotations
 
@@ -50,8 +53,10 @@ def apart_by_table(side_labels: np.ndarray, blobs: np.ndarray, pred: np.ndarray,
     if not ids.size:
         return next_id
     # where a path may run without crossing the table: 8-connected, so a wall of table
-    # must be closed to separate
-    _, reach = cv2.connectedComponents((~side.table_seen).view(np.uint8), connectivity=8)
+    # must be closed to separate; over the blobs too (the depth is read at the cue scale,
+    # so a blob's rim may read as the table beside it)
+    walls = side.table_seen & (side.labels == 0)
+    _, reach = cv2.connectedComponents((~walls).view(np.uint8), connectivity=8)
     for k in ids.tolist():
         own = side_labels == k
         carriers = np.unique(blobs[own])
