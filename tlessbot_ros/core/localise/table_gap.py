@@ -46,8 +46,9 @@ def apart_by_table(side_labels: np.ndarray, blobs: np.ndarray, pred: np.ndarray,
     """
     if side.table_seen is None:
         return next_id
+    on = side_labels > 0
     n_ids, n_blobs = int(side_labels.max()) + 1, int(blobs.max()) + 1
-    pairs = np.bincount(side_labels.ravel().astype(np.int64) * n_blobs + blobs.ravel(),
+    pairs = np.bincount(side_labels[on].astype(np.int64) * n_blobs + blobs[on],
                         minlength=n_ids * n_blobs).reshape(n_ids, n_blobs)[1:, 1:]
     ids = 1 + np.flatnonzero(np.count_nonzero(pairs, axis=1) > 1)   # carried by 2+ blobs
     if not ids.size:
