@@ -62,7 +62,16 @@ def test_bad_names_and_twins_refused(tmp_path):
     write_mesh(tmp_path / 'M6 bolt.stl', v, f)
     with pytest.raises(PartNameError, match='rename the file to M6_bolt.stl'):
         cad_parts(tmp_path)
+    write_mesh(tmp_path / 'Bracket-A.stl', v, f)
+    write_mesh(tmp_path / 'flange.stl', v, f)
+    with pytest.raises(PartNameError) as refused:   # every file to rename, in one message
+        cad_parts(tmp_path)
+    lines = str(refused.value).splitlines()
+    assert lines[0] == '2 of 3 CAD files cannot be used:'
+    assert 'rename the file to Bracket_A.stl' in lines[1]
+    assert 'rename the file to M6_bolt.stl' in lines[2] and len(lines) == 3
     (tmp_path / 'M6 bolt.stl').unlink()
+    (tmp_path / 'Bracket-A.stl').unlink()
     write_mesh(tmp_path / 'plate.stl', v, f)
     write_mesh(tmp_path / 'plate.ply', v, f)
     with pytest.raises(ModelFileError, match='same name'):
@@ -72,10 +81,17 @@ def test_bad_names_and_twins_refused(tmp_path):
 def test_unusable_meshes_say_why():
     v, f = _cube()
     assert check_part_mesh(v / 1000.0, f, name='cube.stl') == []
-    with pytest.raises(ModelFileError, match=r'probably in m; --units m'):
+    # --units is the folder's: the message says so, and how to scale the one file instead
+    with pytest.raises(ModelFileError, match=r'probably in m; --units m if all the files are '
+                       r'in m, else scale it to mm \(x1000\)$'):
         check_part_mesh(v / 1e6, f, name='cube.stl')            # a file in metres read as mm
-    with pytest.raises(ModelFileError, match=r'probably in mm; leave out --units m'):
+    with pytest.raises(ModelFileError, match=r'probably in mm; leave out --units m if all the '
+                       r'files are in mm, else scale it to m \(x0.001\)$'):
         check_part_mesh(v, f, name='cube.stl', units='m')       # mm read as metres
+    with pytest.raises(ModelFileError, match=r'read in mm: a part is 4 mm to 1.5 m across: '
+                       'check its units') as refused:
+        check_part_mesh(v * 1000.0, f, name='cube.stl')         # micrometres: not "in m"
+    assert '--units m' not in str(refused.value).split(':')[1]
     flat = v / 1000.0 * np.array([1.0, 1.0, 0.0])
     with pytest.raises(ModelFileError, match='degenerate'):
         check_part_mesh(flat, f, name='sheet.stl')
@@ -83,6 +99,40 @@ def test_unusable_meshes_say_why():
         check_part_mesh(v / 1000.0, f[:8], name='open.stl')
     assert 'not closed' in check_part_mesh(v / 1000.0, f[:11], name='hole.stl',
                                            max_open_fraction=0.5)[0]
+
+
+def test_large_hole_in_a_fine_mesh_is_warned_of():
+    """Half of a fine tube cut away: under 1 % of its edges are open, but its hole rim is
+    four times the part's size; the rim alone gets the warning."""
+    sdf, (low, high) = part_shapes()['tube']
+    v, f = mesh_part(sdf, low, high, spacing_mm=0.5)
+    centres = v[f].mean(axis=1)[:, 0]
+    cut = f[centres < np.median(centres)]           # one half along the tube's axis
+    warnings = check_part_mesh(v / 1000.0, cut, name='tube_open.stl')
+    assert len(warnings) == 1 and 'tube_open.stl is not closed (0.9 %' in warnings[0]
+    assert 'mm of hole rim on a part 57 mm across' in warnings[0]
+    assert check_part_mesh(v / 1000.0, cut, name='t', max_rim_fraction=10.0) == []
+    assert check_part_mesh(v / 1000.0, f, name='tube.stl') == []
+
+
+def test_read_meshes_lists_every_unusable_file(tmp_path, capsys):
+    from tlessbot_ros.io.parts import problems_listed
+    from tlessbot_ros.tools.support.parts_build import read_meshes
+
+    v, f = _cube()
+    write_mesh(tmp_path / 'good.stl', v, f)
+    write_mesh(tmp_path / 'block_m.stl', v / 1000.0, f)
+    write_mesh(tmp_path / 'sheet.stl', v * np.array([1.0, 1.0, 0.0]), f)
+    with pytest.raises(ModelFileError) as refused:
+        read_meshes(cad_parts(tmp_path), 'mm')
+    lines = str(refused.value).splitlines()
+    assert lines[0] == '2 of 3 CAD files cannot be used:'
+    assert lines[1].startswith('  block_m.stl is 3.464e-05 m across read in mm')
+    assert lines[2].startswith('  sheet.stl is degenerate')
+    assert problems_listed(['one'], 3) == 'one'
+    (tmp_path / 'block_m.stl').unlink()
+    (tmp_path / 'sheet.stl').unlink()
+    assert set(read_meshes(cad_parts(tmp_path), 'mm')) == {'good'}
 
 
 def test_generated_part_is_closed_and_outward():

@@ -70,12 +70,18 @@ def cad_parts(folder: str | Path) -> list[CadPart]:
     if not files:
         raise ModelFileError(f'no .stl, .ply or .obj files in {folder}')
     by_stem: dict[str, Path] = {}
+    bad: list[str] = []
     for path in files:
         if path.stem in by_stem:
             raise ModelFileError(f'{by_stem[path.stem].name} and {path.name} have the same '
                                  'name: keep one of them')
-        check_part_name(path.stem, source=path.name)
+        try:
+            check_part_name(path.stem, source=path.name)
+        except PartNameError as error:
+            bad.append(str(error))
         by_stem[path.stem] = path
+    if bad:   # every file to rename at once, not one per try
+        raise PartNameError(problems_listed(bad, len(files)))
     fixed = {object_id_from_path(p): p for p in files if object_id_from_path(p) is not None}
     free = (i for i in range(1, 10_000) if i not in fixed)
     parts = [CadPart(p.stem, object_id_from_path(p) or next(free), p) for p in files]
@@ -108,6 +114,15 @@ def model_names(models: str | Path) -> dict[int, str]:
         return {}
 
 
+def problems_listed(problems: list[str], files: int) -> str:
+    """One problem of a CAD folder as it is; several as a count of the ``files`` that
+    cannot be used and one indented line each (the user fixes them all in one go)."""
+    if len(problems) == 1:
+        return problems[0]
+    return (f'{len(problems)} of {files} CAD files cannot be used:\n  '
+            + '\n  '.join(problems))
+
+
 def read_part_mesh(path: Path, *, units: str = 'mm'
                    ) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """(V, 3) float64 vertices in metres, (F, 3) int32 faces and the warnings of one part,
@@ -120,7 +135,8 @@ def read_part_mesh(path: Path, *, units: str = 'mm'
 
 
 def check_part_mesh(vertices: np.ndarray, faces: np.ndarray, *, name: str,
-                    units: str = 'mm', max_open_fraction: float = 0.2) -> list[str]:
+                    units: str = 'mm', max_open_fraction: float = 0.2,
+                    max_rim_fraction: float = 0.5) -> list[str]:
     """Refuse a mesh the pipeline cannot use, with what to do about it; warn of a mesh with
     holes (rendering and the resting poses still work on it: they use the convex hull).
 
@@ -128,6 +144,8 @@ def check_part_mesh(vertices: np.ndarray, faces: np.ndarray, *, name: str,
         vertices: (V, 3) metres; faces: (F, 3) vertex indices.
         max_open_fraction: share of edges on a hole (used by one triangle only) above which
             the mesh is a sheet, not a solid.
+        max_rim_fraction: length of the holes' rims, relative to the part's size (its box's
+            diagonal), above which a mesh with few open edges is warned of.
 
     Returns:
         warnings, one line each (empty for a closed mesh).
@@ -137,12 +155,18 @@ def check_part_mesh(vertices: np.ndarray, faces: np.ndarray, *, name: str,
     """
     extent = np.ptp(vertices, axis=0)
     size = float(np.linalg.norm(extent))
-    other = 'm' if units == 'mm' else 'mm'
-    hint = f'--units {other}' if other == 'm' else 'leave out --units m'
     if size < MIN_DIAMETER_M or size > MAX_DIAMETER_M:
-        raise ModelFileError(
-            f'{name} is {size:.4g} m across read in {units}: its file is probably in {other}; '
-            f'{hint} (or scale it)')
+        # --units is the whole folder's: one file in other units is scaled, not the folder
+        if units == 'mm' and size < MIN_DIAMETER_M:
+            hint = ('its file is probably in m; --units m if all the files are in m, else '
+                    'scale it to mm (x1000)')
+        elif units == 'm' and size > MAX_DIAMETER_M:
+            hint = ('its file is probably in mm; leave out --units m if all the files are in '
+                    'mm, else scale it to m (x0.001)')
+        else:
+            hint = (f'a part is {1000 * MIN_DIAMETER_M:.0f} mm to {MAX_DIAMETER_M:g} m across: '
+                    'check its units (mm, or m with --units m)')
+        raise ModelFileError(f'{name} is {size:.4g} m across read in {units}: {hint}')
     tri = vertices[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     if extent.min() < 1e-4 or area.sum() <= 0:
@@ -150,13 +174,17 @@ def check_part_mesh(vertices: np.ndarray, faces: np.ndarray, *, name: str,
                              'export the part as a solid')
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]),
                     axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
     open_fraction = float(np.mean(counts == 1))
-    what = (f'{name} is not closed ({100 * open_fraction:.1f} % of its edges border a hole): '
+    # a fine mesh with a large hole has few open edges but a long hole rim: warn on either
+    rim = unique[counts == 1]
+    rim_m = float(np.linalg.norm(vertices[rim[:, 0]] - vertices[rim[:, 1]], axis=1).sum())
+    what = (f'{name} is not closed ({100 * open_fraction:.1f} % of its edges border a hole, '
+            f'{1000 * rim_m:.0f} mm of hole rim on a part {1000 * size:.0f} mm across): '
             'export it as a closed solid (or close the holes, e.g. MeshLab "Close Holes")')
     if open_fraction > max_open_fraction:
         raise ModelFileError(what)
-    return [what] if open_fraction > 0.01 else []
+    return [what] if open_fraction > 0.01 or rim_m > max_rim_fraction * size else []
 
 
 def write_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:

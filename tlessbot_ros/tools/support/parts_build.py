@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tlessbot_ros.errors import TlessbotError
+from tlessbot_ros.errors import ModelFileError, TlessbotError
 from tlessbot_ros.io import parts as parts_io
 
 DEFAULT_RECIPE = 'packaged'
@@ -116,12 +116,18 @@ def _train_classifier(out: Path, options: BuildOptions, fingerprint: str) -> Non
 def read_meshes(parts: list[parts_io.CadPart], units: str) -> dict[str, tuple]:
     """Every part's checked mesh ((V, 3) m, (F, 3)) by name, its warnings printed: a folder
     with an unusable mesh is refused before any work starts."""
-    meshes = {}
+    meshes, problems = {}, []
     for part in parts:
-        vertices, faces, warnings = parts_io.read_part_mesh(part.path, units=units)
+        try:
+            vertices, faces, warnings = parts_io.read_part_mesh(part.path, units=units)
+        except ModelFileError as error:   # every unusable file at once, not one per try
+            problems.append(str(error))
+            continue
         for warning in warnings:
             print(f'warning: {warning}')
         meshes[part.name] = (vertices, faces)
+    if problems:
+        raise ModelFileError(parts_io.problems_listed(problems, len(parts)))
     return meshes
 
 
