@@ -49,6 +49,17 @@ def _pose_messages():
     return messages
 
 
+def test_a_mistyped_part_name_gets_the_close_topics():
+    from tlessbot_ros.tools.commands.echo import missing_topic_hint
+
+    names = ['/objects/plate_holes2/pose', '/objects/plate_holes3/pose', '/objects/tube/pose',
+             '/objects/markers', '/diagnostics']
+    assert missing_topic_hint('/objects/plate_hole2/pose', names) == (
+        'did you mean /objects/plate_holes2/pose or /objects/plate_holes3/pose?')
+    assert missing_topic_hint('/objects/tube/pose', names) == ''      # it exists
+    assert missing_topic_hint('/camera/points', names) == ''          # nothing close
+
+
 @pytest.fixture
 def pose_bag(tmp_path):
     return write_bag(tmp_path / 'poses', _pose_messages())

@@ -18,8 +18,10 @@ def test_wrong_units_refused_before_any_work(tmp_path, capsys):
     _box(cad / 'block.stl', np.array([0.04, 0.03, 0.02]))     # metres, read as mm
     _box(cad / 'plate.stl', np.array([0.06, 0.04, 0.004]))
     assert main(['parts', 'build', '--models', str(cad), '--out', str(out)]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and 'probably in m; --units m' in err[0]
+    err = capsys.readouterr().err.strip().splitlines()   # every file named, one line each
+    assert err[0] == 'tlessbot parts: error: 2 of 2 CAD files cannot be used:'
+    assert [line.split()[0] for line in err[1:]] == ['block.stl', 'plate.stl']
+    assert all('probably in m; --units m if all the files are in m' in line for line in err[1:])
     assert not out.exists()
 
 
@@ -64,3 +66,36 @@ def test_a_failed_second_process_says_why(tmp_path):
     with pytest.raises(TlessbotError, match='tlessbot templates failed') as error:
         finish_tool('templates', process, log)
     assert 'none' in str(error.value)   # its log's end is quoted: the folder it missed
+
+
+def test_a_terminated_build_leaves_no_folder_and_no_child(tmp_path):
+    """SIGTERM to the tool alone (`timeout`, `kill`) stops a build as Ctrl-C does: the half-
+    built folder is removed and the train and templates children end with it (before, the
+    folder stayed and `tlessbot train` ran on alone)."""
+    import os
+    import signal
+    import sys
+    import time
+
+    import psutil
+    from running import Running
+
+    cad, out = tmp_path / 'cad', tmp_path / 'parts'
+    cad.mkdir()
+    _box(cad / 'block.stl', np.array([40.0, 30.0, 20.0]))
+    _box(cad / 'plate.stl', np.array([60.0, 40.0, 4.0]))
+    env = {**os.environ, 'TLESSBOT_CACHE_DIR': str(tmp_path / 'cache')}   # nothing cached
+    build = Running([sys.executable, '-m', 'tlessbot_ros.tools.cli', 'parts', 'build',
+                     '--models', str(cad), '--out', str(out), '--check-frames', '0'], env=env)
+    tool = psutil.Process(build.process.pid)
+    deadline, children = time.monotonic() + 120, []
+    while len(children) < 2 and time.monotonic() < deadline and build.process.poll() is None:
+        children = [child for child in tool.children(recursive=True)
+                    if {'train', 'templates'} & set(child.cmdline())]
+        time.sleep(0.2)
+    assert len(children) == 2 and out.is_dir(), build.output
+    build.process.send_signal(signal.SIGTERM)
+    assert build.wait(60) == 130, build.output
+    _, alive = psutil.wait_procs(children, timeout=30)
+    assert not alive, [child.cmdline() for child in alive]
+    assert not out.exists()

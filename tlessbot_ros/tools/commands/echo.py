@@ -12,6 +12,7 @@ publisher that comes later with a QoS the subscription cannot match makes it sub
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
 import sys
 import time
@@ -75,6 +76,16 @@ WAITING_NOTICE_S = 1.0
 QOS_CHECK_PERIOD_S = 0.5
 
 
+def missing_topic_hint(topic: str, names: list[str]) -> str:
+    """For a ``topic`` the graph lacks, the graph's topics (``names``) close to it, as
+    ``did you mean A or B?`` (a mistyped part name in /objects/<name>/pose); '' when it
+    exists or nothing is close."""
+    if topic in names:
+        return ''
+    close = difflib.get_close_matches(topic, names, n=3, cutoff=0.8)
+    return f'did you mean {" or ".join(close)}?' if close else ''
+
+
 def _wait_for_publisher(node: Any, topic: str, deadline: float | None,
                         timeout_s: float | None) -> str:
     """The type of ``topic`` once it has a publisher (the QoS is chosen from the publishers)."""
@@ -88,11 +99,16 @@ def _wait_for_publisher(node: Any, topic: str, deadline: float | None,
         if types.get(topic) and node.count_publishers(topic):
             return types[topic][0]
         if noticed_at is not None and time.monotonic() > noticed_at:
-            print(f'echo: waiting for a publisher on {topic}', file=sys.stderr, flush=True)
+            hint = missing_topic_hint(topic, sorted(types))
+            print(f'echo: waiting for a publisher on {topic}'
+                  + (f' (not in the graph yet; {hint})' if hint else ''), file=sys.stderr,
+                  flush=True)
             noticed_at = None
         if deadline is not None and time.monotonic() > deadline:
             if topic not in types:
-                raise TlessbotError(f'topic {topic} does not exist in the ROS graph')
+                hint = missing_topic_hint(topic, sorted(types))
+                raise TlessbotError(f'topic {topic} does not exist in the ROS graph'
+                                    + (f'; {hint}' if hint else ''))
             raise TlessbotError(f'no publisher on {topic} within {timeout_s} s')
         spin_once_or_interrupt(partial(rclpy.spin_once, node, timeout_sec=0.1))
 

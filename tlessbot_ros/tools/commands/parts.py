@@ -92,5 +92,8 @@ def run(args: argparse.Namespace) -> int:
                            recipe=None if args.recipe == 'defaults' else args.recipe,
                            check_frames=args.check_frames, seed=args.seed,
                            train_args=args.train_arg, reuse_classifier=not args.retrain)
+    from tlessbot_ros.nodes.signals import interrupt_on_signals
+
+    interrupt_on_signals()   # SIGTERM (kill, timeout) as Ctrl-C: no half folder, no child left
     build_parts(args.models, args.out, options, check=args.check_frames > 0)
     return 0
