@@ -38,6 +38,21 @@ def test_one_part_is_not_a_set_and_names_are_checked(tmp_path, capsys):
     assert "no generated part ['gear']" in capsys.readouterr().err
 
 
+def test_an_unknown_recipe_is_refused_before_any_work(tmp_path, capsys):
+    import pytest
+
+    cad = tmp_path / 'cad'
+    cad.mkdir()
+    _box(cad / 'block.stl', np.array([40.0, 30.0, 20.0]))
+    _box(cad / 'plate.stl', np.array([60.0, 40.0, 4.0]))
+    with pytest.raises(SystemExit) as refused:      # argparse, not `tlessbot train` minutes on
+        main(['parts', 'build', '--models', str(cad), '--out', str(tmp_path / 'p'),
+              '--recipe', 'fancy'])
+    assert refused.value.code == 2
+    assert "invalid choice: 'fancy'" in capsys.readouterr().err
+    assert not (tmp_path / 'p').exists()
+
+
 def test_the_cached_classifier_is_keyed_by_what_trains_it_not_the_rig(tmp_path, monkeypatch):
     from pathlib import Path
 

@@ -21,24 +21,30 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from tlessbot_ros.tools.commands.train import RECIPES
     from tlessbot_ros.tools.support.parts_build import CHECK_FRAMES, DEFAULT_RECIPE
 
     sub = parser.add_subparsers(dest='action', required=True, metavar='ACTION')
-    build = sub.add_parser('build', help='CAD folder -> parts folder')
+    build = sub.add_parser('build', help='CAD folder -> parts folder',
+                           description='Build a parts folder from a folder of CAD files '
+                           '(what it writes: tlessbot parts --help; docs/parts.md).')
     build.add_argument('--models', type=Path, required=True,
                        help='folder of STL / PLY / OBJ files, one part each')
     build.add_argument('--out', type=Path, required=True, help='parts folder to write')
     build.add_argument('--units', choices=('mm', 'm'), default='mm',
-                       help="the CAD files' units (default mm)")
+                       help='units of every file of --models (default mm)')
     build.add_argument('--config', type=Path, help='the cell YAML whose rig the parts are '
                        'seen by (default config/cell.yaml)')
-    build.add_argument('--recipe', default=DEFAULT_RECIPE,
+    build.add_argument('--recipe', default=DEFAULT_RECIPE,   # refused here, not minutes on
+                       choices=('clutter', 'turntable', *sorted(RECIPES), 'defaults'),
                        help=f"classifier recipe of tlessbot train (default {DEFAULT_RECIPE}; "
                             "'defaults': train's own defaults)")
     build.add_argument('--check-frames', type=int, default=CHECK_FRAMES,
                        help=f'simulated frames of the self-check (default {CHECK_FRAMES}; 0: '
                             'none)')
-    build.add_argument('--seed', type=int, default=0)
+    build.add_argument('--seed', type=int, default=0,
+                       help="seed of the classifier's training and the self-check's scenes "
+                            '(default 0)')
     build.add_argument('--retrain', action='store_true',
                        help='train the classifier even if one was trained before from the '
                             'same CAD files and settings (kept in the start-up cache)')
