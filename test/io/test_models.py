@@ -31,8 +31,13 @@ def test_load_units_ids_and_merge(two_models):
 def test_load_errors(tmp_path, tless_models_dir):
     with pytest.raises(ModelFileError, match='not found'):
         load_models(tmp_path / 'nope')
-    with pytest.raises(ModelFileError, match='no obj_NN'):
+    with pytest.raises(ModelFileError, match=r'no obj_NN.stl\|ply\|obj model files in \S+$'):
         load_models(tmp_path)
+    (tmp_path / 'Bracket_A.stl').write_bytes(b'solid a\nendsolid\n')   # a CAD folder
+    with pytest.raises(ModelFileError, match=r'\(1 meshes of other names: .*tlessbot parts '
+                       r'build --models CAD --out PARTS, then given as PARTS/models\)$'):
+        load_models(tmp_path)
+    (tmp_path / 'Bracket_A.stl').unlink()
     with pytest.raises(ModelFileError, match=r'\[1\]'):
         load_models(tless_models_dir, ids=[1])
     (tmp_path / 'obj_07.stl').write_bytes(b'solid broken\nendsolid\n')

@@ -196,7 +196,11 @@ def load_models(folder: str | Path, ids: list[int] | None = None, *,
         raise ModelFileError(f'model folder not found: {folder}')
     files = _model_files(folder)
     if not files:
-        raise ModelFileError(f'no obj_NN.stl|ply|obj model files in {folder}')
+        others = sum(p.suffix.lower() in MODEL_SUFFIXES for p in folder.iterdir())
+        hint = (f' ({others} meshes of other names: a CAD folder of your own parts is built '
+                'first, tlessbot parts build --models CAD --out PARTS, then given as '
+                'PARTS/models)') if others else ''
+        raise ModelFileError(f'no obj_NN.stl|ply|obj model files in {folder}{hint}')
     if ids is not None:
         missing = sorted(set(int(i) for i in ids) - set(files))
         if missing:
