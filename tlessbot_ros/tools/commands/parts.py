@@ -17,6 +17,7 @@ by the rig, evaluated, one row per part (self_check.md). Run the graph on it wit
 from __future__ import annotations
 
 import argparse
+import signal
 from pathlib import Path
 
 
@@ -98,8 +99,14 @@ def run(args: argparse.Namespace) -> int:
                            recipe=None if args.recipe == 'defaults' else args.recipe,
                            check_frames=args.check_frames, seed=args.seed,
                            train_args=args.train_arg, reuse_classifier=not args.retrain)
-    from tlessbot_ros.nodes.signals import interrupt_on_signals
-
-    interrupt_on_signals()   # SIGTERM (kill, timeout) as Ctrl-C: no half folder, no child left
-    build_parts(args.models, args.out, options, check=args.check_frames > 0)
+    # SIGTERM (kill, timeout) as Ctrl-C: the half-built folder is removed, the children end
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        build_parts(args.models, args.out, options, check=args.check_frames > 0)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     return 0
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
