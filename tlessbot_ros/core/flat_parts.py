@@ -95,9 +95,17 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
     up_c = np.linalg.inv(job.T_world_camera)[:3, 2]   # the table's normal, camera frame
     round_part = False   # a round outline with holes: only the holes tell its yaw
     if evidence:
+        if yaw_search_mesh(obj, evidence, check.params) is not None and \
+                hole_yaw_period(obj) <= 0:
+            # the aligned round compares exact half turns of the fit, which inherit its yaw:
+            # the outline's yaw (the same for either face) is checked first
+            T, info['first_yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
+                                                  job.T_world_camera, evidence)
+            detection.pose = replace(detection.pose, T_camera_object=T)
         twins = [database[i] for i in obj.lookalikes if i in database]
-        T, info = check.resolve(obj, detection.pose.T_camera_object, job.points,
-                                job.T_world_camera, evidence, twins)
+        T, turned = check.resolve(obj, detection.pose.T_camera_object, job.points,
+                                  job.T_world_camera, evidence, twins)
+        info.update(turned)
         if info.get('align_decided') and int(info['twin']) != detection.obj_id:
             rename(detection, job, int(info['twin']))
             obj = database[detection.obj_id]
