@@ -99,9 +99,9 @@ def check_flat(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, View
                 hole_yaw_period(obj) <= 0:
             # the aligned round compares exact half turns of the fit, which inherit its yaw:
             # the outline's yaw (the same for either face) is checked first
-            T, info['first_yaw_deg'] = refine_yaw(check, obj, detection.pose.T_camera_object,
-                                                  job.T_world_camera, evidence)
-            detection.pose = replace(detection.pose, T_camera_object=T)
+            first, info['first_yaw_deg'] = refine_yaw(
+                check, obj, detection.pose.T_camera_object, job.T_world_camera, evidence)
+            detection.pose = replace(detection.pose, T_camera_object=first)
         twins = [database[i] for i in obj.lookalikes if i in database]
         T, turned = check.resolve(obj, detection.pose.T_camera_object, job.points,
                                   job.T_world_camera, evidence, twins)
