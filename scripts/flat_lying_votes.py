@@ -53,7 +53,8 @@ def hooked(pipeline, job, views, labels):
     family = [d.obj_id, *obj.lookalikes]
     gts = [g for g in CURRENT['views'][d.view].gt if g.obj_id in family] or \
         CURRENT['views'][d.view].gt
-    G = min(gts, key=lambda g: np.linalg.norm(g.T_camera_object[:3, 3] - T0[:3, 3])).T_camera_object
+    G = min(gts, key=lambda g: np.linalg.norm(g.T_camera_object[:3, 3] - T0[:3, 3])
+            ).T_camera_object
     turns = outline_half_turns(obj.model_points.astype(np.float64))
     mesh = mesh_scene(obj)
     evidence = fp.colour_views(views, labels, d.instance_id, d.view,
@@ -65,7 +66,8 @@ def hooked(pipeline, job, views, labels):
         f'   fit round (0 the fit, 1-3 its turns): {_votes(pipeline, job, evidence, fit, mesh)}',
         f'   truth round (0 the truth): '
         f'{_votes(pipeline, job, evidence, [G] + [G @ t for t in turns], mesh)}',
-        f'   yaw checked first ({yaw:.1f} deg; face err {_error(T_yaw @ np.linalg.inv(T0) @ fit[near], G)[1]:.1f} deg): '
+        f'   yaw checked first ({yaw:.1f} deg; face err '
+        f'{_error(T_yaw @ np.linalg.inv(T0) @ fit[near], G)[1]:.1f} deg): '
         f'{_votes(pipeline, job, evidence, [T_yaw] + [T_yaw @ t for t in turns], mesh)}']
     info = ORIGINAL(pipeline, job, views, labels)
     e0, ef = _error(fit[near], G), _error(np.array(d.pose.T_camera_object), G)
