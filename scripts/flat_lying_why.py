@@ -11,12 +11,17 @@ ground-truth parts nearest that estimate; "missed" else), or the nearest estimat
 upside-down / yaw / tilt (the gravity direction in the part off by >100 / <5 / 5-100 deg,
 with the error's axis in the model frame).
 """
-import csv, json, sys
+import csv
+import json
+import sys
 from collections import defaultdict
 from pathlib import Path
+
 import numpy as np
+
 from tlessbot_ros.core.common.symmetry import symmetries_from_models_info
 from tlessbot_ros.core.metrics import pose_error
+
 
 def ang_r(A, B):
     return np.degrees(np.arccos(np.clip((np.trace(A.T @ B) - 1) / 2, -1, 1)))
