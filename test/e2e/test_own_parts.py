@@ -48,6 +48,8 @@ def test_parts_folder_holds_what_a_cell_needs(own_parts):
     assert all('unseen_turns_5deg' in part for part in manifest['parts'])
     table = (parts / 'self_check.md').read_text()
     assert all(f'| {name} |' in table for name in PARTS)
+    # the evaluation behind the table stays with the folder (its path is printed)
+    assert (parts / 'self_check' / 'report.md').is_file()
 
 
 def test_graph_publishes_named_poses(own_parts):

@@ -198,13 +198,15 @@ def _lookalikes(out: Path, entries: list[dict]) -> None:
 
 def self_check(out: Path, options: BuildOptions) -> list[dict]:
     """Simulate ``options.check_frames`` scenes of the parts seen by the rig, run the pipeline
-    on them with the new files, and return one row per part (``out/self_check.md`` too)."""
+    on them with the new files, and return one row per part (``out/self_check.md`` too; the
+    evaluation's whole report stays in ``out/self_check/``)."""
     from tlessbot_ros.tools.support.observability import unseen_note
 
     config = ['--config', str(options.config)] if options.config else []
     models = str(out / parts_io.MODELS)
+    report_dir = out / 'self_check'
     with tempfile.TemporaryDirectory(prefix='tlessbot_check_') as tmp:
-        data, report_dir = Path(tmp) / 'scenes', Path(tmp) / 'eval'
+        data = Path(tmp) / 'scenes'
         run_tool('simulate', '--models', models, '--out', str(data), '--frames',
                  str(options.check_frames), '--seed', str(options.seed + 7919), '--parts-min',
                  '3', *config)
