@@ -75,6 +75,11 @@ class PoseError:
     rotation_deg: float
     translation_m: float
 
+    @property
+    def ranking(self) -> float:
+        """One number to pair estimates with parts by: degrees + millimetres (1° ~ 1 mm)."""
+        return self.rotation_deg + 1e3 * self.translation_m
+
 
 def pose_error(T_est: np.ndarray, T_gt: np.ndarray,
                symmetries: Symmetries | None = None) -> PoseError:

@@ -93,7 +93,7 @@ class FitParams:
         table_clearance_m: in box mode, ROI points closer than this to the table plane are dropped,
             m (>= 0).
         table_clearance_noise: in box mode, the clearance drops to where the noise measured on the
-            table reaches at each point's depth, where that is lower (real-pose-gap.md).
+            table reaches at each point's depth, where that is lower (smoothed depth).
         steep_angle_deg: ROI pixels whose depth slope turns more than this from the camera are
             dropped (depth ramps at edges, grazing views), deg (0..90; 0: off).
         verify_accept_fitness: the first class is kept without fitting the others when its pose

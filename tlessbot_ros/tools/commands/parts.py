@@ -22,7 +22,7 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from tlessbot_ros.tools.commands.train import RECIPES
+    from tlessbot_ros.tools.commands.train import RECIPE_CHOICES
     from tlessbot_ros.tools.support.parts_build import CHECK_FRAMES, DEFAULT_RECIPE
 
     sub = parser.add_subparsers(dest='action', required=True, metavar='ACTION')
@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument('--config', type=Path, help='the cell YAML whose rig the parts are '
                        'seen by (default config/cell.yaml)')
     build.add_argument('--recipe', default=DEFAULT_RECIPE,   # refused here, not minutes on
-                       choices=('clutter', 'turntable', *sorted(RECIPES), 'defaults'),
+                       choices=(*RECIPE_CHOICES, 'defaults'),
                        help=f"classifier recipe of tlessbot train (default {DEFAULT_RECIPE}; "
                             "'defaults': train's own defaults)")
     build.add_argument('--check-frames', type=int, default=CHECK_FRAMES,

@@ -79,6 +79,7 @@ RECIPES = {
     'packaged': {'recipe': 'turntable', 'scenes': 800, 'kernel': 4000, 'kernel_axes': 256,
                  'hog_weight': 0.3, 'classifier': 'perceptron', 'average': True, 'epochs': 20},
 }
+RECIPE_CHOICES = ('clutter', 'turntable', *sorted(RECIPES))   # what --recipe takes
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -112,7 +113,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--augmentations', type=int, default=DEFAULT_AUGMENTATIONS,
                         help='shear/zoom copies per view (paper: 3, i.e. 4 images per view; '
                              f'default {DEFAULT_AUGMENTATIONS})')
-    parser.add_argument('--recipe', choices=('clutter', 'turntable', *sorted(RECIPES)),
+    parser.add_argument('--recipe', choices=RECIPE_CHOICES,
                         default='clutter',
                         help='clutter: views pasted among other parts on random tables, '
                              're-photographed, cut as loose boxes (default); turntable: the '

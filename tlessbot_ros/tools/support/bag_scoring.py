@@ -52,8 +52,7 @@ def score_frame(truth: Sequence[GroundTruthInstance], estimates: Sequence[Estima
             if estimate.obj_id != part.obj_id or T_gt is None:
                 continue
             error = pose_error(estimate.T, T_gt, symmetries.get(part.obj_id))
-            pairs.append((error.rotation_deg + 1e3 * error.translation_m, t_index, e_index,
-                          error))
+            pairs.append((error.ranking, t_index, e_index, error))
     pairs.sort(key=lambda p: p[0])
     used_truth: dict[int, tuple[int, PoseError]] = {}
     used_estimates: set[int] = set()

@@ -176,8 +176,8 @@ def match_poses(image, poses: list[BopEstimate],
         cost = np.empty((len(ours), len(truth)))
         for i, est in enumerate(ours):
             for j, k in enumerate(truth):
-                error = pose_error(est.T_camera_object, image.gt[k].T_camera_object, symmetries)
-                cost[i, j] = error.rotation_deg + 1e3 * error.translation_m
+                cost[i, j] = pose_error(est.T_camera_object, image.gt[k].T_camera_object,
+                                        symmetries).ranking
         for i, j in zip(*linear_sum_assignment(cost)):
             taken[truth[j]] = ours[i]
     return taken
