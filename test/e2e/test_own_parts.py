@@ -9,6 +9,7 @@ import json
 import pytest
 import yaml
 
+from tlessbot_ros.io.cache import derived_cache_path
 from tlessbot_ros.io.config import default_config_path
 from tlessbot_ros.io.parts import open_parts_folder
 from tlessbot_ros.tools.cli import main
@@ -44,7 +45,10 @@ def test_parts_folder_holds_what_a_cell_needs(own_parts):
     assert by_name['plate_holes2']['size_mm'] == pytest.approx([60, 40, 4], abs=0.5)
     assert 'continuous' in by_name['tube']['symmetry']
     assert set(manifest['build_s']) == {'meshes + symmetries', 'turns the rig sees',
-                                        'templates', 'classifier', 'manifest', 'self-check'}
+                                        'templates', 'classifier', 'manifest',
+                                        'start-up caches', 'self-check'}
+    # the pose node's first start reads the derived arrays the build cached
+    assert derived_cache_path(folder.templates).is_file()
     assert all('unseen_turns_5deg' in part for part in manifest['parts'])
     table = (parts / 'self_check.md').read_text()
     assert all(f'| {name} |' in table for name in PARTS)

@@ -47,6 +47,10 @@ class BuildOptions:
     reuse_classifier: bool = True
 
 
+# the build step that readies the pose stage's start-up caches of the new templates
+STARTUP_CACHES = 'start-up caches'
+
+
 def run_tool(command: str, *args: str) -> None:
     """``tlessbot <command> ARGS`` in a child process (its own progress bars).
 
@@ -273,11 +277,12 @@ def observe_parts(cad: Path, options: BuildOptions) -> str:
 
 
 def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = True,
-                classifier: bool = True) -> parts_io.PartsFolder | None:
+                classifier: bool = True, warm: bool = True) -> parts_io.PartsFolder | None:
     """Build the parts folder ``out`` from the CAD folder ``cad`` (see the module docstring);
     prints each step's time (the templates' beside the classifier's: they run at once) and
     the whole build's. A folder left by a failed build is removed. Without ``classifier``
-    (only templates: ``evaluate --oracle boxes+classes``) it returns None."""
+    (only templates: ``evaluate --oracle boxes+classes``) it returns None. ``warm``: build the
+    pose node's start-up caches of the templates too."""
     from tlessbot_ros.tools.support.rig import load_rig
 
     rig = load_rig(options.config)   # refused before minutes of work
@@ -296,7 +301,7 @@ def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = Tr
     started = time.perf_counter()
     try:
         times = _run_steps(cad, out, options, manifest, meshes, check=check and classifier,
-                           classifier=classifier)
+                           classifier=classifier, warm=warm)
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
         raise
@@ -312,7 +317,7 @@ def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = Tr
 
 
 def _run_steps(cad: Path, out: Path, options: BuildOptions, manifest: dict, meshes: dict,
-               *, check: bool, classifier: bool) -> dict[str, float]:
+               *, check: bool, classifier: bool, warm: bool) -> dict[str, float]:
     """The build's steps, timed: {step: s}. The templates are made in a child process while
     the classifier is trained."""
     import threading
@@ -324,7 +329,8 @@ def _run_steps(cad: Path, out: Path, options: BuildOptions, manifest: dict, mesh
 
     config = ['--config', str(options.config)] if options.config else []
     names = ['meshes + symmetries', 'turns the rig sees', 'templates',
-             'classifier' if classifier else None, 'manifest', 'self-check' if check else None]
+             'classifier' if classifier else None, 'manifest',
+             STARTUP_CACHES if warm else None, 'self-check' if check else None]
     times: dict[str, float] = {}
     with tqdm(total=sum(n is not None for n in names), desc='parts build', unit='step') as bar, \
             tempfile.TemporaryDirectory(prefix='tlessbot_build_') as tmp:
@@ -363,6 +369,9 @@ def _run_steps(cad: Path, out: Path, options: BuildOptions, manifest: dict, mesh
         bar.update()
         timed('manifest', lambda: (_lookalikes(out, manifest['parts']),
                                    parts_io.write_manifest(out, manifest)))
+        if warm:   # the pose node's first start on this folder then reads them
+            timed(STARTUP_CACHES, lambda: run_tool('warm-up', '--templates',
+                                                   str(out / parts_io.TEMPLATES)))
         if check:
             timed('self-check', lambda: print(self_check_table(
                 self_check(out, options), json.loads(
@@ -412,5 +421,5 @@ def cached_parts(cad: Path, options: BuildOptions, *, classifier: bool = True
     else:
         print(f'building the {"classifier and " * classifier}templates of {cad} into {out} '
               '(once)')
-        build_parts(cad, out, options, check=False, classifier=classifier)
+        build_parts(cad, out, options, check=False, classifier=classifier, warm=False)
     return folder
