@@ -61,6 +61,10 @@ class DropParams:
     area_radius_m: float = 0.11
     # the chance that a part is dropped right above one dropped before it (a pile)
     stack_prob: float = 0.35
+    # drop every part clear of the others' bounding spheres (no piles; they may still roll
+    # against each other), in a disc of apart_radius_m
+    apart: bool = False
+    apart_radius_m: float = 0.16
     # simulated time allowed to settle (s), and the speed (m/s, rad/s) counted as at rest
     settle_s: float = 4.0
     rest_speed: float = 2e-3
@@ -214,6 +218,19 @@ def _random_rotation(rng: np.random.Generator) -> np.ndarray:
                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
+def _drop_point(rng: np.random.Generator, params: DropParams, radius: float,
+                spheres: list[tuple[np.ndarray, float]]) -> np.ndarray:
+    """(2,) a drop point in the work area; with ``apart``, clear of the spheres (50 tries)."""
+    area = params.apart_radius_m if params.apart else params.area_radius_m
+    for _ in range(50):
+        r, a = area * np.sqrt(rng.random()), rng.uniform(0, 2 * np.pi)
+        xy = np.array([r * np.cos(a), r * np.sin(a)])
+        if not params.apart or all(np.linalg.norm(c[:2] - xy) > rc + radius
+                                   for c, rc in spheres):
+            break
+    return xy
+
+
 def drop_poses(models: dict[int, ObjectModel], ids: list[int], rng: np.random.Generator,
                params: DropParams) -> list[np.ndarray]:
     """Start poses (4, 4), model frame in world: random attitudes, bounding spheres apart;
@@ -225,11 +242,10 @@ def drop_poses(models: dict[int, ObjectModel], ids: list[int], rng: np.random.Ge
         R = _random_rotation(rng)
         centre_model = (model.vertices.min(0) + model.vertices.max(0)) / 2
         radius = float(np.linalg.norm(model.vertices - centre_model, axis=1).max())
-        if spheres and rng.random() < params.stack_prob:
+        if spheres and not params.apart and rng.random() < params.stack_prob:
             xy = spheres[int(rng.integers(len(spheres)))][0][:2] + rng.normal(0, 0.01, 2)
         else:
-            r, a = params.area_radius_m * np.sqrt(rng.random()), rng.uniform(0, 2 * np.pi)
-            xy = np.array([r * np.cos(a), r * np.sin(a)])
+            xy = _drop_point(rng, params, radius, spheres)
         z = radius + 0.005
         for c, rc in spheres:   # above every start it would touch
             if np.linalg.norm(c[:2] - xy) < rc + radius:
@@ -435,13 +451,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--parts-min', type=int, default=DropParams.parts_min)
     parser.add_argument('--parts-max', type=int, default=DropParams.parts_max)
+    parser.add_argument('--stack-prob', type=float, default=DropParams.stack_prob,
+                        help='chance that a part is dropped right above an earlier one')
+    parser.add_argument('--apart', action='store_true',
+                        help='drop the parts clear of each other (no piles)')
     parser.add_argument('--config', type=Path, help='cell YAML with the rig (config/cell.yaml)')
     parser.add_argument('--width', type=int, help="image width (default: the rig's)")
     parser.add_argument('--height', type=int, help="image height (default: the rig's)")
     args = parser.parse_args(argv)
     models = load_models(args.models, args.ids)
     rig = load_rig(args.config, width=args.width, height=args.height)
-    params = DropParams(parts_min=args.parts_min, parts_max=args.parts_max)
+    params = DropParams(parts_min=args.parts_min, parts_max=args.parts_max,
+                        stack_prob=args.stack_prob, apart=args.apart)
     write_scenes(models, rig, args.out, args.frames, args.seed, params)
     return 0
 
