@@ -76,6 +76,8 @@ class DropParams:
     # chance that a part gets a metal-like material, and that the table is textured
     metal_prob: float = 0.3
     textured_table_prob: float = 0.5
+    # 'stereo': the depth model of other_renderer_depth.py; 'clean': the rendered depth, mm
+    depth: str = 'stereo'
     # colour sensor noise (grey levels RMS) and blur (px)
     colour_noise: float = 2.0
     blur_sigma_px: float = 0.5
@@ -399,8 +401,9 @@ def render_view(model, data, cam, camera: str, ids: list[int], rng: np.random.Ge
     shiny = (visible >= 0) & metal[np.maximum(visible, 0)] & (rgb.min(axis=-1) >= HIGHLIGHT)
     rgb = _noisy_colour(rgb, rng, params)
     z = np.where(z < model.vis.map.zfar * 0.99, z, 0)
-    view = View(cam.intrinsics, cam.T_world_camera, rgb,
-                stereo_depth_mm(z, shiny, cam.intrinsics.K, rng))
+    depth_mm = (stereo_depth_mm(z, shiny, cam.intrinsics.K, rng) if params.depth == 'stereo'
+                else np.clip(np.rint(z * 1000.0), 0, 65535).astype(np.uint16))
+    view = View(cam.intrinsics, cam.T_world_camera, rgb, depth_mm)
     T_camera_world = invert_transform(cam.T_world_camera)
     for k, (obj_id, T) in enumerate(zip(ids, body_poses(model, data, len(ids)))):
         mask = visible == k
@@ -455,6 +458,8 @@ def main(argv: list[str] | None = None) -> int:
                         help='chance that a part is dropped right above an earlier one')
     parser.add_argument('--apart', action='store_true',
                         help='drop the parts clear of each other (no piles)')
+    parser.add_argument('--depth', choices=('stereo', 'clean'), default=DropParams.depth,
+                        help='the depth model (default) or the rendered depth in mm (ablation)')
     parser.add_argument('--config', type=Path, help='cell YAML with the rig (config/cell.yaml)')
     parser.add_argument('--width', type=int, help="image width (default: the rig's)")
     parser.add_argument('--height', type=int, help="image height (default: the rig's)")
@@ -462,7 +467,7 @@ def main(argv: list[str] | None = None) -> int:
     models = load_models(args.models, args.ids)
     rig = load_rig(args.config, width=args.width, height=args.height)
     params = DropParams(parts_min=args.parts_min, parts_max=args.parts_max,
-                        stack_prob=args.stack_prob, apart=args.apart)
+                        stack_prob=args.stack_prob, apart=args.apart, depth=args.depth)
     write_scenes(models, rig, args.out, args.frames, args.seed, params)
     return 0
 
