@@ -127,14 +127,16 @@ def _add_cameras(spec, rig) -> None:
                                   fovy=float(np.degrees(2 * np.arctan(h / 2 / K[1, 1]))))
 
 
-def _add_table(spec, rng: np.random.Generator, params: DropParams) -> None:
+def _add_table(spec, rng: np.random.Generator, params: DropParams) -> str:
     mujoco = _mujoco()
     base = rng.uniform(0.25, 0.75) * rng.uniform(0.8, 1.0, 3)
     material = spec.add_material(name='table', rgba=[*base, 1.0], specular=0.1,
                                  shininess=0.2)
+    kind = 'plain'
     if rng.random() < params.textured_table_prob:
-        builtin = [mujoco.mjtBuiltin.mjBUILTIN_CHECKER, mujoco.mjtBuiltin.mjBUILTIN_FLAT][
-            int(rng.integers(2))]
+        kind = ['checker', 'speckled'][int(rng.integers(2))]
+        builtin = (mujoco.mjtBuiltin.mjBUILTIN_CHECKER if kind == 'checker'
+                   else mujoco.mjtBuiltin.mjBUILTIN_FLAT)
         spec.add_texture(name='table', type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=builtin,
                          rgb1=base, rgb2=np.clip(base * rng.uniform(0.6, 1.3, 3), 0, 1),
                          mark=mujoco.mjtMark.mjMARK_RANDOM, random=0.05,
@@ -144,6 +146,7 @@ def _add_table(spec, rng: np.random.Generator, params: DropParams) -> None:
         material.rgba = [1.0, 1.0, 1.0, 1.0]
     spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1.0, 1.0, 0.01],
                             material='table', friction=[params.friction, 0.005, 0.0001])
+    return kind
 
 
 def _add_lights(spec, rng: np.random.Generator) -> None:
@@ -160,12 +163,13 @@ def _add_lights(spec, rng: np.random.Generator) -> None:
                                  diffuse=[rng.uniform(0.35, 0.7)] * 3, specular=[0.4] * 3)
 
 
-def _part_material(spec, name: str, rng: np.random.Generator, params: DropParams) -> None:
+def _part_material(spec, name: str, rng: np.random.Generator, params: DropParams) -> str:
     if rng.random() < params.metal_prob:   # brushed steel or aluminium: grey, shiny
         grey = rng.uniform(0.45, 0.75)
         spec.add_material(name=name, rgba=[grey, grey, grey * rng.uniform(0.95, 1.05), 1],
                           specular=rng.uniform(0.7, 1.0), shininess=rng.uniform(0.6, 0.95),
                           reflectance=rng.uniform(0.1, 0.35))
+        return 'metal'
     else:   # plastic, mostly light as T-LESS parts, some dark or coloured
         kind = rng.random()
         if kind < 0.55:
@@ -176,12 +180,14 @@ def _part_material(spec, name: str, rng: np.random.Generator, params: DropParams
             rgb = rng.uniform(0.15, 0.9, 3)
         spec.add_material(name=name, rgba=[*rgb, 1], specular=rng.uniform(0.1, 0.5),
                           shininess=rng.uniform(0.1, 0.5))
+        return ['light', 'dark', 'coloured'][(kind >= 0.55) + (kind >= 0.8)]
 
 
 def build_model(models: dict[int, ObjectModel], ids: list[int], drops: list[np.ndarray],
                 rig, rng: np.random.Generator, params: DropParams):
     """The MuJoCo model of one frame: table, lights, the rig's cameras and part k of ``ids``
-    as body ``part{k}`` (a free body; its frame is the model's) at pose ``drops[k]``."""
+    as body ``part{k}`` (a free body; its frame is the model's) at pose ``drops[k]``; and
+    what was drawn: the table's kind and each part's material."""
     mujoco = _mujoco()
     spec = mujoco.MjSpec()
     spec.option.timestep = 0.002
@@ -192,14 +198,14 @@ def build_model(models: dict[int, ObjectModel], ids: list[int], drops: list[np.n
     width = max(c.intrinsics.width for c in rig.cameras.values())
     height = max(c.intrinsics.height for c in rig.cameras.values())
     spec.visual.global_.offwidth, spec.visual.global_.offheight = width, height
-    _add_table(spec, rng, params)
+    drawn = {'table': _add_table(spec, rng, params), 'materials': []}
     _add_lights(spec, rng)
     _add_cameras(spec, rig)
     for k, (obj_id, T) in enumerate(zip(ids, drops)):
         model = models[obj_id]
         spec.add_mesh(name=f'mesh{k}', uservert=model.vertices.ravel(),
                       userface=model.faces.ravel())
-        _part_material(spec, f'part{k}', rng, params)
+        drawn['materials'].append(_part_material(spec, f'part{k}', rng, params))
         quat = np.zeros(4)
         mujoco.mju_mat2Quat(quat, T[:3, :3].ravel())
         body = spec.worldbody.add_body(name=f'part{k}', pos=T[:3, 3], quat=quat)
@@ -207,7 +213,7 @@ def build_model(models: dict[int, ObjectModel], ids: list[int], drops: list[np.n
         body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f'mesh{k}',
                       material=f'part{k}', density=params.density,
                       friction=[params.friction, 0.005, 0.0001])
-    return spec.compile()
+    return spec.compile(), drawn
 
 
 # --- dropping -----------------------------------------------------------------------------------
@@ -301,7 +307,8 @@ def _inside_images(vertices_w: np.ndarray, rig, margin_px: int) -> bool:
 
 def settled_frame(models: dict[int, ObjectModel], rig, rng: np.random.Generator,
                   params: DropParams):
-    """(MuJoCo model, data, part ids) of one frame whose parts rest inside both images."""
+    """(MuJoCo model, data, part ids, what was drawn) of one frame whose parts rest inside
+    both images."""
     mujoco = _mujoco()
     count = int(rng.integers(params.parts_min, params.parts_max + 1))
     ids = [int(i) for i in rng.choice(sorted(models), size=min(count, len(models)),
@@ -309,7 +316,8 @@ def settled_frame(models: dict[int, ObjectModel], rig, rng: np.random.Generator,
     drops = drop_poses(models, ids, rng, params)
     seed = int(rng.integers(2**31))
     while True:
-        model = build_model(models, ids, drops, rig, np.random.default_rng(seed), params)
+        model, drawn = build_model(models, ids, drops, rig, np.random.default_rng(seed),
+                                   params)
         data = mujoco.MjData(model)
         settle(model, data, params)
         poses = body_poses(model, data, len(ids))
@@ -317,7 +325,7 @@ def settled_frame(models: dict[int, ObjectModel], rig, rng: np.random.Generator,
             (T[:3, :3] @ models[ids[k]].vertices.T).T + T[:3, 3], rig, params.margin_px)]
         if len(keep) == len(ids) or len(keep) < params.parts_min:
             if len(keep) == len(ids):
-                return model, data, ids
+                return model, data, ids, drawn
             # too few left: a new drop of the same parts
             drops = drop_poses(models, ids, rng, params)
             continue
@@ -428,11 +436,12 @@ def write_scenes(models: dict[int, ObjectModel], rig, out: Path, frames: int, se
     (out / 'models_info.json').write_text(json.dumps(
         {str(i): models_info_entry(m, model_symmetries(m)) for i, m in models.items()},
         indent=1))
+    drawn: dict[int, dict] = {}
     try:
         for index in range(frames):
             started = time.perf_counter()
             rng = np.random.default_rng([seed, index])
-            model, data, ids = settled_frame(models, rig, rng, params)
+            model, data, ids, drawn[index] = settled_frame(models, rig, rng, params)
             for k, (name, cam) in enumerate(rig.cameras.items()):
                 view = render_view(model, data, cam, name, ids,
                                    np.random.default_rng([seed, index, k + 1]), params)
@@ -442,6 +451,8 @@ def write_scenes(models: dict[int, ObjectModel], rig, out: Path, frames: int, se
     finally:
         for writer in writers.values():
             writer.close()
+        # per frame: table kind and part materials (in scene_gt order), to sort misses by
+        (out / 'other_renderer.json').write_text(json.dumps(drawn, indent=1))
 
 
 def main(argv: list[str] | None = None) -> int:
