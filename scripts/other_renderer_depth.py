@@ -16,10 +16,20 @@ Steps, on the colour camera's z-depth (metres, 0 = nothing):
 6. Edge-preserving smoothing over ~10 px (a bilateral filter in disparity): real D435i /
    D415 depth is smoothed so (docs/bench/real-pose-gap.md section 1).
 7. Back to depth, 1 mm uint16 (0 = invalid).
+
+As a command it applies the model, with fields changed, to a scenes folder written with
+``--depth clean`` (an ablation without rendering again; metal parts from its
+other_renderer.json, their highlights where the colour image is bright)::
+
+    python scripts/other_renderer_depth.py CLEAN OUT [NAME=VALUE ...]
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+import shutil
+import sys
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -140,8 +150,39 @@ def stereo_depth_mm(z_m: np.ndarray, shiny: np.ndarray, K: np.ndarray,
              | _blobs(highlight, params.highlight_dropout / 3, rng))
     disparity[holes] = 0
     # the range kernel (0.4 px) keeps holes (disparity 0) and far surfaces out of each mean
-    smoothed = cv2.bilateralFilter(disparity, params.smooth_diameter_px,
-                                   params.smooth_sigma_disparity_px,
-                                   params.smooth_sigma_space_px)
+    smoothed = disparity if params.smooth_diameter_px <= 0 else cv2.bilateralFilter(
+        disparity, params.smooth_diameter_px, params.smooth_sigma_disparity_px,
+        params.smooth_sigma_space_px)
     out = np.where((disparity > 0) & (smoothed > 0), fb / np.maximum(smoothed, 1e-6), 0)
     return np.clip(np.rint(out * 1000.0), 0, 65535).astype(np.uint16)
+
+
+def redepth(clean: Path, out: Path, params: StereoDepthParams, *, highlight: int = 235) -> None:
+    """Copy the scenes folder ``clean`` to ``out`` with this model's depth (see the module)."""
+    shutil.copytree(clean, out)
+    drawn = json.loads((clean / 'other_renderer.json').read_text())
+    for k, camera in enumerate(sorted(p.name for p in out.glob('test_*'))):
+        folder = out / camera / '000000'
+        cameras = json.loads((folder / 'scene_camera.json').read_text())
+        for im, entry in cameras.items():
+            name = f'{int(im):06d}.png'
+            z = cv2.imread(str(folder / 'depth' / name), cv2.IMREAD_UNCHANGED) / 1000.0
+            grey = cv2.imread(str(folder / 'rgb' / name)).min(axis=-1)
+            shiny = np.zeros(z.shape, bool)
+            for j, material in enumerate(drawn[im]['materials']):
+                mask = cv2.imread(str(folder / 'mask_visib' / f'{int(im):06d}_{j:06d}.png'), 0)
+                if material == 'metal' and mask is not None:
+                    shiny |= (mask > 0) & (grey >= highlight)
+            rng = np.random.default_rng([int(im), k])
+            K = np.array(entry['cam_K']).reshape(3, 3)
+            cv2.imwrite(str(folder / 'depth' / name), stereo_depth_mm(z, shiny, K, rng, params))
+
+
+if __name__ == '__main__':
+    names = {f.name: f.type for f in fields(StereoDepthParams)}
+    changes = dict(a.split('=', 1) for a in sys.argv[3:])
+    if set(changes) - set(names):
+        raise SystemExit(f'unknown fields {sorted(set(changes) - set(names))}; know {names}')
+    params = replace(StereoDepthParams(), **{k: (int if names[k] == 'int' else float)(v)
+                                               for k, v in changes.items()})
+    redepth(Path(sys.argv[1]), Path(sys.argv[2]), params)
