@@ -64,21 +64,29 @@ def _box_obj(path: Path, size_mm: tuple[float, float, float]) -> None:
                     + ''.join(f'f {a} {b} {c}\n' for a, b, c in faces))
 
 
-def test_a_tiny_mujoco_scene_reads_back_with_its_truth(tmp_path):
+def _tiny_scenes(folder: Path, *more: str) -> Path:
+    """One frame of two boxes at 320 x 240 (skips without mujoco or offscreen OpenGL)."""
     os.environ.setdefault('MUJOCO_GL', 'egl')
     mujoco = pytest.importorskip('mujoco')
     try:
         mujoco.Renderer(mujoco.MjModel.from_xml_string('<mujoco/>'), 8, 8).close()
     except Exception as error:   # no offscreen OpenGL here
         pytest.skip(f'MuJoCo cannot render offscreen: {error}')
+    models = folder / 'models'
+    models.mkdir()
+    _box_obj(models / 'obj_01.obj', (40, 30, 20))
+    _box_obj(models / 'obj_02.obj', (50, 50, 6))
+    out = folder / 'scenes'
+    _script('other_renderer_scenes').main([
+        '--models', str(models), '--out', str(out), '--frames', '1', '--parts-min', '2',
+        '--parts-max', '2', '--width', '320', '--height', '240', *more])
+    return out
+
+
+def test_a_tiny_mujoco_scene_reads_back_with_its_truth(tmp_path):
     from tlessbot_ros.io.bop import read_split
 
-    scenes = _script('other_renderer_scenes')
-    _box_obj(tmp_path / 'obj_01.obj', (40, 30, 20))
-    _box_obj(tmp_path / 'obj_02.obj', (50, 50, 6))
-    out = tmp_path / 'scenes'
-    scenes.main(['--models', str(tmp_path), '--out', str(out), '--frames', '1',
-                 '--parts-min', '2', '--parts-max', '2', '--width', '320', '--height', '240'])
+    out = _tiny_scenes(tmp_path)
     views = {s: list(read_split(out, s)) for s in ('test_top', 'test_side')}
     assert [len(v) for v in views.values()] == [1, 1]
     for [image] in views.values():
@@ -100,3 +108,17 @@ def test_a_tiny_mujoco_scene_reads_back_with_its_truth(tmp_path):
             seen = image.depth_m[gt.mask]
             near, far = camera[:, 2].min(), camera[:, 2].max()
             assert np.nanmedian(seen) == pytest.approx((near + far) / 2, abs=far - near + 0.005)
+
+
+def test_the_depth_model_applied_to_clean_scenes_keeps_the_table(tmp_path):
+    from tlessbot_ros.io.bop import read_split
+
+    clean = _tiny_scenes(tmp_path, '--depth', 'clean')
+    depth = _script('other_renderer_depth')
+    depth.redepth(clean, tmp_path / 'stereo', depth.StereoDepthParams())
+    [before] = read_split(clean, 'test_side')
+    [after] = read_split(tmp_path / 'stereo', 'test_side')
+    table = np.isfinite(after.depth_m) & ~np.any([gt.mask for gt in before.gt], axis=0)
+    error = after.depth_m[table] - before.depth_m[table]
+    assert table.mean() > 0.8 and abs(np.median(error)) < 0.001
+    assert 0 < np.abs(error).mean() < 0.003   # noisy, within a few mm at 0.6 m
