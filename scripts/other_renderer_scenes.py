@@ -323,13 +323,12 @@ def settled_frame(models: dict[int, ObjectModel], rig, rng: np.random.Generator,
         poses = body_poses(model, data, len(ids))
         keep = [k for k, T in enumerate(poses) if _inside_images(
             (T[:3, :3] @ models[ids[k]].vertices.T).T + T[:3, 3], rig, params.margin_px)]
-        if len(keep) == len(ids) or len(keep) < params.parts_min:
-            if len(keep) == len(ids):
-                return model, data, ids, drawn
-            # too few left: a new drop of the same parts
+        if len(keep) == len(ids):
+            return model, data, ids, drawn
+        if len(keep) < params.parts_min:   # too few left: a new drop of the same parts
             drops = drop_poses(models, ids, rng, params)
-            continue
-        ids, drops = [ids[k] for k in keep], [drops[k] for k in keep]
+        else:
+            ids, drops = [ids[k] for k in keep], [drops[k] for k in keep]
 
 
 # --- rendering ----------------------------------------------------------------------------------
