@@ -11,7 +11,7 @@ import numpy as np
 
 from tlessbot_ros.core.common import CameraIntrinsics, TableFrame
 from tlessbot_ros.core.localise import BackgroundModel
-from tlessbot_ros.core.pose import PoseCandidate
+from tlessbot_ros.core.pose import ImageBox, PoseCandidate
 
 
 @dataclass
@@ -99,13 +99,21 @@ class PartJob:
     table frame, the pose stage's fallback). ``more_views``: for a part whose candidates have
     a look-alike, its ROI clouds in the other cameras, each as ((M, 3) points in that
     camera's optical frame, (4, 4) ``T_other_camera``), for the look-alike check
-    (:meth:`PerceptionPipeline.check_lookalike`; the fit does not use them)."""
+    (:meth:`PerceptionPipeline.check_lookalike`; the fit does not use them). ``box_camera``: in box
+    mode, the (3, 3) camera matrix of ``detection.view``: the detection's box is then the part's
+    given box, which the fit's poses must cover (``FitParams.box_cover``); None: no box."""
 
     detection: Detection
     points: np.ndarray
     candidates: tuple[int, ...]
     T_world_camera: np.ndarray | None
     more_views: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+    box_camera: np.ndarray | None = None
+
+    @property
+    def box(self) -> ImageBox | None:
+        """The part's given box (box mode, ``box_camera``), else None."""
+        return None if self.box_camera is None else ImageBox(self.detection.box, self.box_camera)
 
 
 class PartFitter(Protocol):

@@ -108,3 +108,18 @@ def join_pieces(arbiter: FragmentFilter[Detection], detections: Sequence[Detecti
 
 
 __all__ = ['explainer', 'join_pieces', 'one_part_filter', 'points_in_view']
+
+
+def fitted_centre(estimator: PoseEstimator | None, job: PartJob
+                  ) -> tuple[np.ndarray | None, float, float]:
+    """A fitted part's centre in its fragment-filter frame, its class's diameter and its
+    pose fitness (of two overlapping fits the one that explains more of its own ROI wins:
+    the coverage term of the pose score favours a fragment fitted as the whole part)."""
+    detection = job.detection
+    if detection.pose is None:
+        return None, 0.0, -np.inf
+    centre = detection.pose.T_camera_object[:3, 3]
+    if job.T_world_camera is not None:
+        centre = transform_points(job.T_world_camera, centre[None])[0]
+    return (centre, pose_stage(estimator).database[detection.obj_id].diameter_m,
+            detection.pose.fitness)

@@ -94,6 +94,8 @@ class FitParams:
             m (>= 0).
         table_clearance_noise: in box mode, the clearance drops to where the noise measured on the
             table reaches at each point's depth, where that is lower (smoothed depth).
+        box_cover: in box mode, every pose of the fit is weighed by the share of the part's box
+            that its projected model covers (a box is its part's extent; pose/image_box.py).
         steep_angle_deg: ROI pixels whose depth slope turns more than this from the camera are
             dropped (depth ramps at edges, grazing views), deg (0..90; 0: off).
         verify_accept_fitness: the first class is kept without fitting the others when its pose
@@ -153,6 +155,7 @@ class FitParams:
     min_roi_points: int = 30
     table_clearance_m: float = 0.004
     table_clearance_noise: bool = False
+    box_cover: bool = True
     steep_angle_deg: float = 0.0
     verify_accept_fitness: float = 0.9
     verify_rmse_weight: float = 50.0

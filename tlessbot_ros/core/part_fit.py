@@ -40,7 +40,8 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
     for rank, obj_id in enumerate(job.candidates):
         result = estimator.estimate(points, obj_id, T_world_camera=T_world_camera,
                                     fallback=False if quick else None,
-                                    polish=False if quick else None, scenes=scenes)
+                                    polish=False if quick else None, scenes=scenes,
+                                    box=job.box)
         if result.best is None:
             continue
         value = _verify_value(estimator, params, sample, obj_id, result.best)
@@ -54,13 +55,13 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
             break
     if winner is not None:
         if quick:
-            winner = estimator.polish(points, winner, scenes=scenes)
+            winner = estimator.polish(points, winner, scenes=scenes, box=job.box)
         detection.pose, detection.second = winner.best, winner.second
     pose_params = estimator.params
     if quick and detection.pose is not None and pose_params.fallback and \
             params.fallback_min_fitness <= detection.pose.fitness < pose_params.fallback_fitness:
         result = estimator.estimate(points, detection.obj_id, T_world_camera=T_world_camera,
-                                    scenes=scenes)
+                                    scenes=scenes, box=job.box)
         if result.best is not None and result.best.score > detection.pose.score:
             detection.pose, detection.second = result.best, result.second
     if detection.pose is not None and len(job.candidates) > 1 and \

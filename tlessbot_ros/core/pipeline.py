@@ -47,7 +47,6 @@ from tlessbot_ros.core.common import (
     choose_table_frame,
     find_table_plane,
     plane_of_frame,
-    transform_points,
 )
 from tlessbot_ros.core.flat_parts import check_fitted_part
 from tlessbot_ros.core.frame import (
@@ -79,7 +78,7 @@ from tlessbot_ros.core.localise import (
     single_view,
     view_segmentation,
 )
-from tlessbot_ros.core.one_part import join_pieces, one_part_filter
+from tlessbot_ros.core.one_part import fitted_centre, join_pieces, one_part_filter
 from tlessbot_ros.core.params import ClassifyParams, FitParams, LocaliseParams
 from tlessbot_ros.core.part_fit import (
     check_lookalike,
@@ -362,7 +361,8 @@ class PerceptionPipeline:
                 instance without any is skipped. Several candidates are verified by their
                 pose fit (``verify_accept_fitness``, ``verify_rmse_weight``).
             box_mode: regions are boxes, not masks (the paper's "GT box" setting): one part each,
-                so none is dropped as a fragment of another.
+                so none is dropped as a fragment of another, and each pose must cover its box
+                (``FitParams.box_cover``).
             on_detection: called with each detection as soon as it is complete, so a node
                 can publish a part's pose without waiting for the rest of the frame (parts
                 fitted in parallel complete in any order). A fragment of a larger part
@@ -402,7 +402,8 @@ class PerceptionPipeline:
                 if len(points) >= self.fit_params.min_roi_points:
                     jobs.append(PartJob(detection, points, candidates, T_world_camera,
                                         self._lookalike_views(views, labels, counts, boxes,
-                                                              instance, view, candidates)))
+                                                              instance, view, candidates),
+                                        data.intrinsics.K if box_mode and fit.box_cover else None))
                     continue
                 if self.fit_params.unknown_without_fit:   # no depth to fit: unknown
                     mark_unknown(detection, len(candidates))
@@ -416,7 +417,7 @@ class PerceptionPipeline:
         def fitted(job: PartJob) -> None:
             check_fitted_part(self, job, views, labels)   # every view: not in a worker
             check_resting_and_turns(self, job, views, labels)
-            arbiter.fitted(job.detection, *self._fitted_centre(job))
+            arbiter.fitted(job.detection, *fitted_centre(self.pose_estimator, job))
 
         if fitter is None:
             for job in jobs:
@@ -451,19 +452,6 @@ class PerceptionPipeline:
             more.append((points, np.linalg.inv(data.T_world_camera) @
                          views[view].T_world_camera))
         return tuple(more)
-
-    def _fitted_centre(self, job: PartJob) -> tuple[np.ndarray | None, float, float]:
-        """A fitted part's centre in its fragment-filter frame, its class's diameter and its
-        pose fitness (of two overlapping fits the one that explains more of its own ROI wins:
-        the coverage term of the pose score favours a fragment fitted as the whole part)."""
-        detection = job.detection
-        if detection.pose is None:
-            return None, 0.0, -np.inf
-        centre = detection.pose.T_camera_object[:3, 3]
-        if job.T_world_camera is not None:
-            centre = transform_points(job.T_world_camera, centre[None])[0]
-        return (centre, pose_stage(self.pose_estimator).database[detection.obj_id].diameter_m,
-                detection.pose.fitness)
 
     def fit_part(self, job: PartJob) -> None:
         """Fit one part's class candidates, keep the best (:func:`~.part_fit.fit_part`)."""

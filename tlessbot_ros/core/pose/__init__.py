@@ -6,6 +6,7 @@ file format), ``building`` (rendering and building the templates), ``params`` an
 ``candidates`` (the settings and results of the pose search), ``estimator`` (the table-plane
 search and the orchestration), ``hypotheses`` (the table path's resting hypotheses),
 ``refinement`` (ICP, planar Gauss-Newton, scoring: swap it with ``PoseEstimator(refiner=...)``),
+``image_box`` (box mode: how much of a part's given box a pose covers),
 ``ransac`` (the paper's FPFH + RANSAC path), ``grid_kernels``
 and ``buckets`` (the fast lookups), ``fallback`` (the bounded 6-DOF search for parts off the
 table path), ``lookalike``, ``flat`` (which face of a flat part is up), ``turns`` (near-symmetric
@@ -80,6 +81,8 @@ _HOME = {
     'normal_equations': 'grid_kernels',
     'self_visible': 'grid_kernels',
     'truncated_cost': 'grid_kernels',
+    'ImageBox': 'image_box',
+    'box_cover': 'image_box',
     'FlatCheck': 'flat',
     'FlatParams': 'flat',
     'ViewEvidence': 'flat',
@@ -202,6 +205,7 @@ if TYPE_CHECKING:
         choose_half_turn,
         self_half_turns,
     )
+    from tlessbot_ros.core.pose.image_box import ImageBox, box_cover  # noqa: F401
     from tlessbot_ros.core.pose.lookalike import (  # noqa: F401
         MISS_ERROR_M,
         LookalikeCheck,

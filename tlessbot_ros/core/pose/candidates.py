@@ -22,6 +22,8 @@ class PoseCandidate:
         method: 'table' or 'ransac'.
         template_index: the template a RANSAC candidate came from (-1 for the table path).
         stable_index: the stable pose of a table candidate (-1 otherwise).
+        box_cover: in box mode, the share of the part's given box that the projected model
+            covers (:func:`~tlessbot_ros.core.pose.image_box.box_cover`; 1 without a box).
     """
 
     T_camera_object: np.ndarray
@@ -31,12 +33,19 @@ class PoseCandidate:
     method: str = 'table'
     template_index: int = -1
     stable_index: int = -1
+    box_cover: float = 1.0
 
     @property
     def score(self) -> float:
         """Ranking score: fitness, plus a weaker coverage term (the back-face visibility test
-        behind coverage ignores self-occlusion, so it only breaks near-ties)."""
-        return self.fitness + COVERAGE_WEIGHT * self.coverage
+        behind coverage ignores self-occlusion, so it only breaks near-ties), times
+        ``box_cover`` (a pose that leaves part of its box empty explains a neighbour)."""
+        return (self.fitness + COVERAGE_WEIGHT * self.coverage) * self.box_cover
+
+    @property
+    def box_fitness(self) -> float:
+        """``fitness`` times ``box_cover`` (the fitness itself without a box)."""
+        return self.fitness * self.box_cover
 
 
 @dataclass

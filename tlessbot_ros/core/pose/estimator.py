@@ -54,6 +54,7 @@ from tlessbot_ros.core.pose.hypotheses import (
     resting_hypotheses,
     rotations_about_z,
 )
+from tlessbot_ros.core.pose.image_box import ImageBox, box_cover
 from tlessbot_ros.core.pose.params import METHODS, PoseParams
 from tlessbot_ros.core.pose.ransac import ransac_candidates
 from tlessbot_ros.core.pose.refinement import Refiner
@@ -73,15 +74,16 @@ def after_polish(polished: list[PoseCandidate], margin: float) -> list[PoseCandi
     ~180° (90° for a part with a 180° symmetry) can cover more than the right pose while it
     explains fewer points (obj_07 on simulated D415 depth: coverage 0.83 against 0.65, fitness
     0.91 against 0.95); and between two converged near-equal fits (fitness 0.971 against
-    0.973, obj_25 on the demo bag) neither term tells them apart.
+    0.973, obj_25 on the demo bag) neither term tells them apart. In box mode the fitness is
+    weighed by the box's cover (:attr:`PoseCandidate.box_fitness`).
     """
     ranked = PoseEstimator._rank(polished)
     if margin >= 1.0 or len(polished) < 2:
         return ranked
     first = polished[0]
-    fitter = [c for c in polished[1:] if c.fitness > first.fitness + margin]
+    fitter = [c for c in polished[1:] if c.box_fitness > first.box_fitness + margin]
     if fitter:
-        first = max(fitter, key=lambda c: c.fitness)
+        first = max(fitter, key=lambda c: c.box_fitness)
     return [first] + [c for c in ranked if c is not first]
 
 
@@ -137,7 +139,8 @@ class PoseEstimator:
                  T_world_camera: np.ndarray | None = None,
                  method: str | None = None, fallback: bool | None = None,
                  polish: bool | None = None,
-                 scenes: dict[float, np.ndarray] | None = None) -> PoseResult:
+                 scenes: dict[float, np.ndarray] | None = None,
+                 box: ImageBox | None = None) -> PoseResult:
         """Pose of object ``obj_id`` from its ROI cloud.
 
         Args:
@@ -158,6 +161,8 @@ class PoseEstimator:
                 caller that fits several classes to the same ``points_c`` passes the same
                 dict to each call, and a class whose voxel edge was seen already reuses that
                 cloud (it is the same cloud; it is filled here and must not be modified).
+            box: the part's given 2D box (box mode): every pose is weighed by the share of
+                the box it covers (:mod:`~tlessbot_ros.core.pose.image_box`); None: not.
 
         Returns:
             a :class:`PoseResult`; ``best`` is None when the ROI has too few points.
@@ -183,7 +188,7 @@ class PoseEstimator:
             t0 = time.perf_counter()
             polish = p.polish_iterations > 0 and (polish is None or polish)
             candidates = self._table_path(scene, obj, np.asarray(T_world_camera, np.float64),
-                                          polish=polish)
+                                          polish=polish, box=box)
             timings['table'] = 1e3 * (time.perf_counter() - t0)
             fallback = p.fallback if fallback is None else fallback
             if not fallback or (candidates and candidates[0].fitness >= p.fallback_fitness):
@@ -194,6 +199,11 @@ class PoseEstimator:
             scene = self._prepare(points_c, obj, 1.0, timings, scenes)
         candidates = self._fallback_path(scene, obj, candidates, timings, method=method,
                                          after_table=use_table, start=start)
+        if box is not None:   # the fallback's candidates weighed as the table path's
+            for candidate, cover in zip(candidates, box_cover(
+                    np.array([c.T_camera_object for c in candidates]), obj, box)):
+                candidate.box_cover = float(cover)
+            candidates = self._rank(candidates)
         timings['total'] = sum(v for k, v in timings.items()
                                if k in ('prep', 'table', 'ransac', 'fallback'))
         result.best, result.second = self._best_two(candidates)
@@ -233,7 +243,8 @@ class PoseEstimator:
         return start + 1e-3 * budget_ms if budget_ms > 0 else None
 
     def polish(self, points_c: np.ndarray, result: PoseResult, *,
-               scenes: dict[float, np.ndarray] | None = None) -> PoseResult:
+               scenes: dict[float, np.ndarray] | None = None,
+               box: ImageBox | None = None) -> PoseResult:
         """``result``'s table-path finalists with ``polish_iterations`` more ICP steps on every
         ROI point, scored and ranked again: the second half of an :meth:`estimate` call made
         with ``polish=False`` (for the class that the unpolished fits chose).
@@ -243,6 +254,7 @@ class PoseEstimator:
                 frame, metres).
             result: that estimate.
             scenes: the prepared clouds, as in :meth:`estimate` (the table path's is reused).
+            box: the part's given box, as in :meth:`estimate`.
 
         Returns:
             a new :class:`PoseResult` (``timings_ms['polish']`` added); ``result`` itself when
@@ -257,7 +269,7 @@ class PoseEstimator:
         timings = dict(result.timings_ms)
         scene = self._prepare(np.asarray(points_c, np.float64), obj, p.table_voxel_scale,
                               timings, scenes)
-        finalists = self._polish_finalists(scene, obj, result.finalists)
+        finalists = self._polish_finalists(scene, obj, result.finalists, box=box)
         timings['polish'] = 1e3 * (time.perf_counter() - t0)
         timings['total'] = timings.get('total', 0.0) + timings['polish']
         best, second = self._best_two(finalists)
@@ -296,7 +308,8 @@ class PoseEstimator:
 
     # --------------------------------------------------------------------------- table path
     def _table_path(self, scene_c: np.ndarray, obj: ObjectTemplates,
-                    T_world_camera: np.ndarray, *, polish: bool) -> list[PoseCandidate]:
+                    T_world_camera: np.ndarray, *, polish: bool,
+                    box: ImageBox | None = None) -> list[PoseCandidate]:
         p = self.params
         voxel = obj.voxel_size_m
         refiner = self.refiner
@@ -310,6 +323,9 @@ class PoseEstimator:
         # Score every hypothesis at once on the grid (truncated mean distance).
         tau = 2.0 * voxel
         cost = refiner.truncated_cost(T_all, sub, obj, tau=tau)
+        if box is not None:   # the share explained (1 - cost / tau) times the box's cover
+            cost = tau - (tau - cost) * box_cover(invert_transform(T_world_camera) @ T_all,
+                                                  obj, box)
         order_all = np.argsort(cost)
         keep = order_all[:p.top_k]
         # ... plus the best of every stable pose not yet represented (a part upside down can
@@ -326,9 +342,12 @@ class PoseEstimator:
         T_start[len(keep) - min(p.flip_hypotheses, len(keep) // 2):] = \
             flip @ T_start[len(keep) - min(p.flip_hypotheses, len(keep) // 2):]
         T_top, _ = refiner.planar(T_start, sub, obj, tau=voxel)
-        starts = self._icp_starts(T_top, stable_ids_arr[keep], scene_w, obj, T_world_camera)
+        starts = self._icp_starts(T_top, stable_ids_arr[keep], scene_w, obj, T_world_camera,
+                                  box)
         refined = refiner.icp_batch(scene_c, obj, np.array([T for T, _ in starts]))
         fit = refiner.grid_fitness(refined, scene_c, obj)
+        if box is not None:
+            fit = fit * box_cover(refined, obj, box)
         chosen: list[int] = []
         for k in np.argsort(-fit, kind='stable'):
             if len(chosen) == p.final_candidates:
@@ -338,8 +357,8 @@ class PoseEstimator:
         # one scene lookup for both scorings (before and after the polish)
         lookup = self._scene_lookup(scene_c, obj)
         ranked = self._rank(self._score_finalists(scene_c, obj, refined[chosen],
-                                                  [starts[k][1] for k in chosen], lookup))
-        return self._polish_finalists(scene_c, obj, ranked, lookup) if polish else ranked
+                                                  [starts[k][1] for k in chosen], lookup, box))
+        return self._polish_finalists(scene_c, obj, ranked, lookup, box) if polish else ranked
 
     def _scene_lookup(self, scene_c: np.ndarray, obj: ObjectTemplates
                       ) -> tuple[PointBuckets, float]:
@@ -350,25 +369,30 @@ class PoseEstimator:
 
     def _score_finalists(self, scene_c: np.ndarray, obj: ObjectTemplates, T: np.ndarray,
                          stables: list[int],
-                         lookup: tuple[PointBuckets, float] | None = None
-                         ) -> list[PoseCandidate]:
+                         lookup: tuple[PointBuckets, float] | None = None,
+                         box: ImageBox | None = None) -> list[PoseCandidate]:
         """The (K, 4, 4) ``T_camera_object`` table-path finalists (their stable-pose indices
-        ``stables``) scored fully (fitness, RMSE, coverage), in the order given; ``lookup``:
-        :meth:`_scene_lookup` of this scene and object (built here when not given)."""
+        ``stables``) scored fully (fitness, RMSE, coverage; the cover of ``box`` when given),
+        in the order given; ``lookup``: :meth:`_scene_lookup` of this scene and object (built
+        here when not given)."""
         refiner = self.refiner
         scene_buckets, scene_depth_m = lookup or self._scene_lookup(scene_c, obj)
-        return [refiner.evaluate(scene_c, obj, T_k, method='table', stable=stable,
-                                 scene_buckets=scene_buckets, scene_depth_m=scene_depth_m)
-                for T_k, stable in zip(T, stables)]
+        scored = [refiner.evaluate(scene_c, obj, T_k, method='table', stable=stable,
+                                   scene_buckets=scene_buckets, scene_depth_m=scene_depth_m)
+                  for T_k, stable in zip(T, stables)]
+        if box is not None:
+            for candidate, cover in zip(scored, box_cover(T, obj, box)):
+                candidate.box_cover = float(cover)
+        return scored
 
     def _polish_finalists(self, scene_c: np.ndarray, obj: ObjectTemplates,
                           ranked: list[PoseCandidate],
-                          lookup: tuple[PointBuckets, float] | None = None
-                          ) -> list[PoseCandidate]:
+                          lookup: tuple[PointBuckets, float] | None = None,
+                          box: ImageBox | None = None) -> list[PoseCandidate]:
         """The ranked finalists after ``polish_iterations`` more ICP steps on every ROI point,
         scored again and ranked by :func:`after_polish`; those more than
         ``polish_margin_fitness`` behind the former winner's fitness are not polished and keep
-        their fit. ``lookup``: as in :meth:`_score_finalists`."""
+        their fit. ``lookup`` and ``box``: as in :meth:`_score_finalists`."""
         p = self.params
         # The short ICP of the many starts stops a few degrees short on parts with a
         # (near-)symmetry axis (measured: fitness 0.85 where the converged pose scores 0.99),
@@ -378,14 +402,14 @@ class PoseEstimator:
         # had been at most 0.13 behind, most within 0.06; polish_margin_fitness 0.2): those
         # are left as they are.
         near = [k for k, c in enumerate(ranked)
-                if k == 0 or c.fitness >= ranked[0].fitness - p.polish_margin_fitness]
+                if k == 0 or c.box_fitness >= ranked[0].box_fitness - p.polish_margin_fitness]
         T = self.refiner.icp_batch(scene_c, obj,
                                    np.array([ranked[k].T_camera_object for k in near]),
                                    iterations=p.polish_iterations, points=len(scene_c),
                                    distance_m=p.polish_distance_voxels * obj.voxel_size_m)
         polished = list(ranked)
         for k, candidate in zip(near, self._score_finalists(
-                scene_c, obj, T, [ranked[k].stable_index for k in near], lookup)):
+                scene_c, obj, T, [ranked[k].stable_index for k in near], lookup, box)):
             polished[k] = candidate
         return after_polish(polished, p.polish_overturn_fitness)
 
@@ -417,16 +441,18 @@ class PoseEstimator:
         return np.concatenate(poses), np.array(stable_ids)
 
     def _icp_starts(self, T_top: np.ndarray, stable_top: np.ndarray, scene_w: np.ndarray,
-                    obj: ObjectTemplates, T_world_camera: np.ndarray
-                    ) -> list[tuple[np.ndarray, int]]:
+                    obj: ObjectTemplates, T_world_camera: np.ndarray,
+                    box: ImageBox | None = None) -> list[tuple[np.ndarray, int]]:
         """``(T_camera_object, stable index)`` starts of the final ICP from the planar-refined
-        ``T_top`` (world frame)."""
+        ``T_top`` (world frame); with ``box``, ranked by fitness times the box's cover."""
         # Rank the refined hypotheses by grid fitness (sharper than the truncated distance),
         # take the best and the best different one, add the half-turns of the best about the
         # object's axes (a part lying on one face or the opposite one fits the visible surface
         # almost equally), ICP them all, and score the few best fully (fitness + coverage).
         T_camera_world = invert_transform(T_world_camera)
         fit = self.refiner.grid_fitness(T_top, scene_w, obj)
+        if box is not None:
+            fit = fit * box_cover(T_camera_world @ T_top, obj, box)
         order = np.argsort(-fit, kind='stable')
         starts = [(T_camera_world @ T_top[order[0]], int(stable_top[order[0]]))]
         for k in order[1:]:
