@@ -31,7 +31,10 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
     right one): the fits name the class, then the winner's finalists alone are polished
     (:meth:`PoseEstimator.polish`) and the fallback runs once, for the winner, if its fit
     stays poor. The look-alike check comes after, in the pipeline's ``estimate_poses``
-    (:func:`check_lookalike`)."""
+    (:func:`check_lookalike`).
+
+    In box mode (``job.box``) the class is named as without a box (a larger class covers a
+    box as well as the right one), then the winner's pose is searched again with it."""
     detection, points, T_world_camera = job.detection, job.points, job.T_world_camera
     quick = len(job.candidates) > 1 and T_world_camera is not None
     best_value, winner = None, None
@@ -41,7 +44,7 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
         result = estimator.estimate(points, obj_id, T_world_camera=T_world_camera,
                                     fallback=False if quick else None,
                                     polish=False if quick else None, scenes=scenes,
-                                    box=job.box)
+                                    box=None if quick else job.box)
         if result.best is None:
             continue
         value = _verify_value(estimator, params, sample, obj_id, result.best)
@@ -54,8 +57,11 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
         if rank == 0 and result.best.fitness >= params.verify_accept_fitness:
             break
     if winner is not None:
-        if quick:
-            winner = estimator.polish(points, winner, scenes=scenes, box=job.box)
+        if quick and job.box is not None:
+            winner = estimator.estimate(points, detection.obj_id, T_world_camera=T_world_camera,
+                                        fallback=False, scenes=scenes, box=job.box)
+        elif quick:
+            winner = estimator.polish(points, winner, scenes=scenes)
         detection.pose, detection.second = winner.best, winner.second
     pose_params = estimator.params
     if quick and detection.pose is not None and pose_params.fallback and \
