@@ -108,6 +108,9 @@ class _Worker:
         deadline = time.monotonic() + timeout_s
         header = {'job': self._next_job, 'candidates': list(job.candidates),
                   'T_world_camera': matrix_to_json(job.T_world_camera)}
+        if job.box_camera is not None:   # box mode: the box and its camera matrix
+            header['box'] = [int(v) for v in job.detection.box]
+            header['box_camera'] = matrix_to_json(job.box_camera)
         if settings is not self.settings:
             header['params'] = {'pose': settings['pose'], 'fit': settings['fit']}
         try:

@@ -5,9 +5,10 @@ Reads messages (:mod:`~tlessbot_ros.parallel.wire`) on stdin, answers on stdout:
 1. ``{"templates": path, "pose": {PoseParams}, "fit": {FitParams}}`` -> loads the
    template database, builds every cache, answers ``{"ready": n_objects}`` (or ``{"error":
    text}`` and exits 1);
-2. then per part ``{"job": id, "candidates": [...], "T_world_camera": [16] | null}`` with the
-   ROI points as payload, and ``"params": {"pose": {...}, "fit": {...}}`` when the node's
-   settings changed since the worker's last part (kept for the parts after it) ->
+2. then per part ``{"job": id, "candidates": [...], "T_world_camera": [16] | null}`` (in box
+   mode with ``"box": [x, y, w, h], "box_camera": [9]``) with the ROI points as payload, and
+   ``"params": {"pose": {...}, "fit": {...}}`` when the node's settings changed since the
+   worker's last part (kept for the parts after it) ->
    ``{"job": id, "obj_id", "class_rank", "pose", "second"}`` (or ``{"job": id, "error":
    text}``), until stdin closes.
 
@@ -27,6 +28,8 @@ import threading
 import time
 from dataclasses import replace
 from typing import Any, BinaryIO
+
+import numpy as np
 
 from tlessbot_ros.core.pipeline import Detection, FitParams, PartJob, PerceptionPipeline
 from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
@@ -66,8 +69,13 @@ def with_settings(pipeline: PerceptionPipeline, settings: dict[str, Any]) -> Per
 def fit(pipeline: PerceptionPipeline, header: dict[str, Any], payload: bytes) -> dict[str, Any]:
     """Answer one job message."""
     candidates = tuple(int(c) for c in header['candidates'])
-    job = PartJob(Detection(0, candidates[0], '', (0, 0, 0, 0)), points_from_bytes(payload),
-                  candidates, matrix_from_json(header.get('T_world_camera')))
+    box = tuple(int(v) for v in header.get('box', (0, 0, 0, 0)))
+    box_camera = header.get('box_camera')
+    job = PartJob(Detection(0, candidates[0], '', (box[0], box[1], box[2], box[3])),
+                  points_from_bytes(payload), candidates,
+                  matrix_from_json(header.get('T_world_camera')),
+                  box_camera=None if box_camera is None else
+                  np.asarray(box_camera, np.float64).reshape(3, 3))
     pipeline.fit_part(job)
     detection = job.detection
     return {'job': header['job'], 'obj_id': detection.obj_id,

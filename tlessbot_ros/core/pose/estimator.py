@@ -54,7 +54,7 @@ from tlessbot_ros.core.pose.hypotheses import (
     resting_hypotheses,
     rotations_about_z,
 )
-from tlessbot_ros.core.pose.image_box import ImageBox, box_cover
+from tlessbot_ros.core.pose.image_box import ImageBox, box_cover, centred_on_box
 from tlessbot_ros.core.pose.params import METHODS, PoseParams
 from tlessbot_ros.core.pose.ransac import ransac_candidates
 from tlessbot_ros.core.pose.refinement import Refiner
@@ -319,6 +319,9 @@ class PoseEstimator:
             scene_w[rng.choice(len(scene_w), p.score_points, replace=False)]
         centroid = scene_w.mean(axis=0)
         T_all, stable_ids_arr = self._hypotheses(obj, centroid, T_world_camera[:3, 3])
+        if box is not None:   # each hypothesis also placed where the box says
+            T_all = np.concatenate([T_all, centred_on_box(T_all, obj, box, T_world_camera)])
+            stable_ids_arr = np.concatenate([stable_ids_arr, stable_ids_arr])
 
         # Score every hypothesis at once on the grid (truncated mean distance).
         tau = 2.0 * voxel

@@ -75,8 +75,31 @@ def box_cover(T_camera_object: np.ndarray, obj: ObjectTemplates, image_box: Imag
     u = K[0, 0] * points[..., 0] / z + K[0, 1] * points[..., 1] / z + K[0, 2]
     v = K[1, 1] * points[..., 1] / z + K[1, 2]
     x, y, w, h = image_box.box
-    # pixel k spans k - 0.5 .. k + 0.5 (pixel centres at integers, as the projection's)
-    across = np.minimum(u.max(axis=1), x + w - 0.5) - np.maximum(u.min(axis=1), x - 0.5)
-    down = np.minimum(v.max(axis=1), y + h - 0.5) - np.maximum(v.min(axis=1), y - 0.5)
+    # Pixel k spans k - 0.5 .. k + 0.5 (centres at integers, as the projection's), and a box
+    # holds the pixels whose centre a part covers: it reaches up to half a pixel beyond the
+    # part's extent on each side, so the extent is widened by that half pixel.
+    across = np.minimum(u.max(axis=1) + 0.5, x + w - 0.5) - \
+        np.maximum(u.min(axis=1) - 0.5, x - 0.5)
+    down = np.minimum(v.max(axis=1) + 0.5, y + h - 0.5) - np.maximum(v.min(axis=1) - 0.5, y - 0.5)
     cover = np.clip(across, 0.0, None) * np.clip(down, 0.0, None) / float(w * h)
     return np.where(in_front, np.minimum(cover, 1.0), 0.0)
+
+
+def centred_on_box(T_world_object: np.ndarray, obj: ObjectTemplates, image_box: ImageBox,
+                   T_world_camera: np.ndarray) -> np.ndarray:
+    """(H, 4, 4) the poses ``T_world_object`` (H, 4, 4; table at world z = 0) shifted along
+    the table so that the centre of ``obj``'s extent lies on the ray through the centre of
+    ``image_box``: the table path's hypotheses placed by the box rather than by the ROI's
+    centroid (which a box's neighbours pull away from its part)."""
+    T = np.array(T_world_object, np.float64).reshape(-1, 4, 4)
+    points = extreme_points(obj)
+    centre_o = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    centre_w = np.einsum('hij,j->hi', T[:, :3, :3], centre_o) + T[:, :3, 3]
+    x, y, w, h = image_box.box
+    ray_c = np.linalg.solve(image_box.K, [x + 0.5 * (w - 1), y + 0.5 * (h - 1), 1.0])
+    ray_w, origin_w = T_world_camera[:3, :3] @ ray_c, T_world_camera[:3, 3]
+    if abs(ray_w[2]) < 1e-9:   # a ray along the table: no shift
+        return T
+    along = (centre_w[:, 2] - origin_w[2]) / ray_w[2]
+    T[:, :2, 3] += origin_w[:2] + along[:, None] * ray_w[:2] - centre_w[:, :2]
+    return T
