@@ -94,8 +94,8 @@ class FitParams:
             m (>= 0).
         table_clearance_noise: in box mode, the clearance drops to where the noise measured on the
             table reaches at each point's depth, where that is lower (smoothed depth).
-        box_cover: in box mode, every pose of the fit is weighed by the share of the part's box
-            that its projected model covers (a box is its part's extent; pose/image_box.py).
+        box_cover: in box mode, the fit's poses are weighed by the share of the part's box their
+            projected model covers, and also placed on the box's centre.
         steep_angle_deg: ROI pixels whose depth slope turns more than this from the camera are
             dropped (depth ramps at edges, grazing views), deg (0..90; 0: off).
         verify_accept_fitness: the first class is kept without fitting the others when its pose

@@ -361,8 +361,7 @@ class PerceptionPipeline:
                 instance without any is skipped. Several candidates are verified by their
                 pose fit (``verify_accept_fitness``, ``verify_rmse_weight``).
             box_mode: regions are boxes, not masks (the paper's "GT box" setting): one part each,
-                so none is dropped as a fragment of another, and each pose must cover its box
-                (``FitParams.box_cover``).
+                never a fragment of another, whose poses cover it (``FitParams.box_cover``).
             on_detection: called with each detection as soon as it is complete, so a node
                 can publish a part's pose without waiting for the rest of the frame (parts
                 fitted in parallel complete in any order). A fragment of a larger part
