@@ -39,9 +39,6 @@ def pipeline_frames(dataset: Path, split: str, two_view: bool, *, templates: Pat
             the scored view (:func:`background_boxes`, seeded) go through the classifier and
             the pose stage too: :attr:`FrameOutput.background_named` holds their names.
     """
-    if oracle == 'none' and not two_view:
-        raise TlessbotError('--oracle none needs a two-view dataset (test_top + test_side); '
-                            'use --oracle boxes or boxes+classes for a single split')
     from tlessbot_ros.core.pipeline import ViewInput
     from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
     from tlessbot_ros.core.recognise import LinearClassifier
@@ -146,6 +143,8 @@ def _whole_pipeline(pipeline, inputs: dict, workers, output: FrameOutput) -> lis
     result = pipeline.process(inputs, fitter=workers)
     output.timings_ms.update(result.timings_ms)
     output.classified = True
+    # a frame without depth is localised and classified from colour alone: no pose to score
+    output.pose_ran = all(_has_depth(view) for view in inputs.values())
     output.boxes = []
     side_labels = result.labels.get(SIDE)
     output.labels = side_labels

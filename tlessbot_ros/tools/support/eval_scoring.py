@@ -6,12 +6,12 @@ VSD, ADD-S and the BOP'19 MSSD / MSPD average recalls (:mod:`tlessbot_ros.core.m
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from tlessbot_ros.core.common import Symmetries, detect_symmetries
+from tlessbot_ros.core.common import MeshRenderer, Symmetries, detect_symmetries
 from tlessbot_ros.core.metrics import (
     BOP19_MSPD_THRESHOLDS_PX,
     BOP19_THRESHOLDS,
@@ -202,6 +202,22 @@ def _match_boxes(image, boxes) -> tuple[dict[int, int], int]:
     return matched, len(boxes) - len(used)
 
 
+def with_visible_masks(image, models: dict[int, ScoringModel]):
+    """``image`` (a BopImage) with each part's visible mask ray-cast from its ground-truth pose
+    where the dataset has none (a BOP set without ``mask_visib/``): parts hide each other by
+    depth, nothing else hides them. Unchanged when every part has its mask."""
+    if all(gt.mask is not None for gt in image.gt) or \
+            any(gt.obj_id not in models for gt in image.gt):
+        return image
+    renderer = MeshRenderer()
+    for gt in image.gt:
+        renderer.add_mesh(models[gt.obj_id].vertices, models[gt.obj_id].faces,
+                          gt.T_camera_object)
+    instance = renderer.render(image.intrinsics, np.eye(4)).instance
+    return replace(image, gt=[gt if gt.mask is not None else replace(gt, mask=instance == k)
+                              for k, gt in enumerate(image.gt)])
+
+
 def _regions(output: FrameOutput, box_matches: dict[int, int]) -> tuple[int, int] | None:
     """(regions named as a part that are none, regions reported unknown) of one frame: the
     localiser's regions, or the ground-truth and ``background_named`` boxes; None when the
@@ -303,7 +319,8 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
             false_pos += unmatched
             matched_boxes.append((image, output.boxes, box_matches))
             if output.labels is not None:
-                losses.append(frame_breakdown(image, output.labels, output.boxes, box_matches))
+                losses.append(frame_breakdown(with_visible_masks(image, models),
+                                              output.labels, output.boxes, box_matches))
         if (counts := _regions(output, box_matches)) is not None:
             regions.append(counts)
         recognition_ran |= output.classified or output.classes_by_gt is not None
