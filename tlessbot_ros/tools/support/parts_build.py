@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -421,5 +422,25 @@ def cached_parts(cad: Path, options: BuildOptions, *, classifier: bool = True
     else:
         print(f'building the {"classifier and " * classifier}templates of {cad} into {out} '
               '(once)')
-        build_parts(cad, out, options, check=False, classifier=classifier, warm=False)
+        # built aside and moved in whole: a second evaluate started meanwhile on the same CAD
+        # builds its own copy instead of finding this one half-built
+        building = out.with_name(f'.{out.name}.{os.getpid()}.building')
+        try:
+            build_parts(cad, building, options, check=False, classifier=classifier,
+                        warm=False)
+            _move_in(building, out, [path.name for path in wanted])
+        finally:
+            shutil.rmtree(building, ignore_errors=True)
     return folder
+
+
+def _move_in(built: Path, out: Path, needed: list[str]) -> None:
+    """Rename the finished cache folder ``built`` to ``out``; an ``out`` that lacks one of
+    the ``needed`` files is replaced, a complete one (another process's) is kept."""
+    if out.exists() and not all((out / name).is_file() for name in needed):
+        shutil.rmtree(out, ignore_errors=True)
+    try:
+        built.rename(out)
+    except OSError:
+        if not all((out / name).is_file() for name in needed):
+            raise
