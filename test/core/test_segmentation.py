@@ -274,3 +274,25 @@ def test_depth_cue_errors() -> None:
                 T_world_camera=np.eye(4))
     with pytest.raises(ValueError, match='depth_min_height_m'):
         SegmentationParams(depth_min_height_m=0.02, depth_sure_height_m=0.01)
+
+
+def _light_part_beside_a_dark_one() -> np.ndarray:
+    rng = np.random.default_rng(0)
+    image = np.clip(150 + rng.normal(0, 2, (240, 320, 3)), 0, 255).astype(np.uint8)
+    image[40:100, 40:100] = 20        # strong edges: the watershed's markers
+    image[140:200, 180:260] = 180     # a light part on the light table
+    return image
+
+
+def test_a_light_part_the_watershed_floods_is_kept_whole():
+    """The colour cues find it, the watershed floods it as table (its edges are weaker than
+    its neighbour's): ``watershed_keep_share`` keeps it."""
+    image = _light_part_beside_a_dark_one()
+    kept = segment(image, params=SegmentationParams(watershed_keep_share=0.5))
+    assert (kept.labels[140:200, 180:260] > 0).mean() > 0.9
+    assert (kept.labels[40:100, 40:100] > 0).mean() > 0.9
+    assert kept.labels.max() == 2
+    flooded = segment(image, params=SegmentationParams(watershed_keep_share=0.0))
+    assert (flooded.labels[140:200, 180:260] > 0).mean() < 0.1   # what the rule is for
+    with pytest.raises(ValueError, match='watershed_keep_share'):
+        SegmentationParams(watershed_keep_share=1.5)

@@ -59,6 +59,8 @@ class SegmentationParams:
             thin part, kept whole, m (>= 0; 0: off).
         thin_quantile: the quantile of a blob's valid heights compared (0..1).
         thin_min_valid: share of a blob's pixels with depth needed to call it thin (0..1).
+        watershed_keep_share: a candidate blob of which the watershed keeps less than this
+            share is kept whole (a part with weaker edges than its surroundings; 0..1, 0: off).
         small_blob_candidates_px: a blob smaller than this (px) keeps its candidates' extent,
             not the watershed's contour (0: off; set where :mod:`.part_scale` lowers sizes).
         part_area_fraction: with the parts' sizes, a view keeps blobs down to this fraction
@@ -118,6 +120,7 @@ class SegmentationParams:
     thin_max_height_m: float = 0.008
     thin_quantile: float = 0.75
     thin_min_valid: float = 0.3
+    watershed_keep_share: float = 0.0
     small_blob_candidates_px: int = 0
     part_area_fraction: float = 0.5
     part_width_fraction: float = 0.5
@@ -140,6 +143,9 @@ class SegmentationParams:
         if not (0.0 <= self.part_area_fraction <= 1.0 and 0.0 <= self.part_width_fraction <= 1.0):
             raise ValueError('need part_area_fraction and part_width_fraction in 0..1, got '
                              f'{self.part_area_fraction} and {self.part_width_fraction}')
+        if not 0.0 <= self.watershed_keep_share <= 1.0:
+            raise ValueError('need watershed_keep_share in 0..1 (0: off), got '
+                             f'{self.watershed_keep_share}')
         if self.min_area_px < 1 or self.small_blob_candidates_px < 0:
             raise ValueError('need min_area_px >= 1 and small_blob_candidates_px >= 0, got '
                              f'{self.min_area_px} and {self.small_blob_candidates_px}')

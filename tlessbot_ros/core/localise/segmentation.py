@@ -175,6 +175,9 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     if 'watershed' in params.methods:
         foreground = watershed_refine(rgb, candidate, eroded(sure, 1), band_px=params.band_px,
                                       sure_background=table)
+        if params.watershed_keep_share > 0:
+            foreground = _blobs_the_watershed_lost(foreground, candidate,
+                                                   params.watershed_keep_share)
     else:
         foreground = candidate
     if params.small_blob_candidates_px > 0:
@@ -295,6 +298,20 @@ def _small_blobs_whole(foreground: np.ndarray, candidate: np.ndarray,
     _, pieces = cv2.connectedComponents(candidate.view(np.uint8), connectivity=8)
     under = np.unique(pieces[np.isin(blobs, small) & candidate])
     return foreground | np.isin(pieces, under[under > 0])
+
+
+def _blobs_the_watershed_lost(foreground: np.ndarray, candidate: np.ndarray,
+                              keep_share: float) -> np.ndarray:
+    """``foreground`` with every candidate blob of which it keeps less than ``keep_share``
+    added whole: the watershed floods from the strongest edges, and a part whose own edges are
+    weaker than its surroundings' (white plastic on a light table, no sure marker inside) is
+    flooded as table although the colour cues found it."""
+    count, blobs = cv2.connectedComponents(candidate.view(np.uint8), connectivity=8)
+    kept = np.bincount(blobs[foreground], minlength=count)
+    size = np.bincount(blobs.ravel(), minlength=count)
+    lost = np.flatnonzero(kept < keep_share * size)
+    lost = lost[lost > 0]
+    return foreground | np.isin(blobs, lost) if lost.size else foreground
 
 
 def _upscale(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
