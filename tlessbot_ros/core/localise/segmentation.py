@@ -175,9 +175,7 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     if 'watershed' in params.methods:
         foreground = watershed_refine(rgb, candidate, eroded(sure, 1), band_px=params.band_px,
                                       sure_background=table)
-        if params.watershed_keep_share > 0:
-            foreground = _blobs_the_watershed_lost(foreground, candidate,
-                                                   params.watershed_keep_share)
+        foreground = _blobs_the_watershed_lost(foreground, candidate, params.watershed_keep_share)
     else:
         foreground = candidate
     if params.small_blob_candidates_px > 0:
@@ -305,7 +303,9 @@ def _blobs_the_watershed_lost(foreground: np.ndarray, candidate: np.ndarray,
     """``foreground`` with every candidate blob of which it keeps less than ``keep_share``
     added whole: the watershed floods from the strongest edges, and a part whose own edges are
     weaker than its surroundings' (white plastic on a light table, no sure marker inside) is
-    flooded as table although the colour cues found it."""
+    flooded as table although the colour cues found it. ``keep_share`` 0: unchanged."""
+    if keep_share <= 0:
+        return foreground
     count, blobs = cv2.connectedComponents(candidate.view(np.uint8), connectivity=8)
     kept = np.bincount(blobs[foreground], minlength=count)
     size = np.bincount(blobs.ravel(), minlength=count)
