@@ -178,6 +178,20 @@ def _box_turn(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Rayca
     info['box_turns'] = float(len(poses) - 1)
     if len(poses) < 2:
         return None, info
+    if params.box_refine_deg > 0:
+        # the shared error hides the holes from the votes: each pose is first brought
+        # onto what the views show (docs/near-symmetric-parts.md)
+        from tlessbot_ros.core.pose.image_refine import refine_on_image
+        from tlessbot_ros.core.pose.turns import surface_centre
+
+        p = check.params
+        poses = refine_on_image(mesh, poses, obj.model_points.astype(np.float64),
+                                surface_centre(obj), views, align_at_1m_m=p.align_at_1m_m,
+                                tolerance_m=p.depth_tolerance_m,
+                                step_deg=params.box_refine_deg,
+                                min_step_deg=params.box_refine_min_deg,
+                                max_deg=params.box_refine_max_deg,
+                                max_move_m=params.box_refine_max_m)
     found: dict[str, float] = {}
     k = check.aligned_winner(obj, [mesh] * len(poses), poses, views, found, rivals=[0])
     if k == 0 or not found.get('align_decided'):

@@ -66,6 +66,11 @@ class TurnParams:
         half_icp_iterations: ICP steps refitting each turned pose to the ROI cloud (>= 1; the
             fit's polish takes 30).
         half_candidates: at most this many refitted turns, best by depth, compete (>= 1).
+        box_refine_deg: the fit and its box turns are refined on every view's image before
+            their vote, first by steps of this many degrees (0: compared as they are).
+        box_refine_min_deg: ... halved down to this step, degrees (> 0).
+        box_refine_max_deg: ... each staying within this turn of where it began, degrees.
+        box_refine_max_m: ... and within this distance, m (>= 0).
     """
 
     enabled: bool = True
@@ -85,6 +90,10 @@ class TurnParams:
     half_min_share: float = 0.4
     half_icp_iterations: int = 30
     half_candidates: int = 3
+    box_refine_deg: float = 1.0
+    box_refine_min_deg: float = 0.25
+    box_refine_max_deg: float = 3.0
+    box_refine_max_m: float = 0.001
 
     def __post_init__(self) -> None:
         if not 0.0 < self.step_deg <= 90.0:
@@ -107,6 +116,12 @@ class TurnParams:
                              'half_candidates >= 1, got '
                              f'{self.half_min_share}, {self.half_icp_iterations}, '
                              f'{self.half_candidates}')
+        if self.box_refine_deg < 0 or self.box_refine_min_deg <= 0 or \
+                self.box_refine_max_deg < 0 or self.box_refine_max_m < 0:
+            raise ValueError('box_refine_deg, box_refine_max_deg and box_refine_max_m must be '
+                             '>= 0 and box_refine_min_deg > 0, got '
+                             f'{self.box_refine_deg}, {self.box_refine_max_deg}, '
+                             f'{self.box_refine_max_m}, {self.box_refine_min_deg}')
 
 
 def surface_centre(obj: ObjectTemplates) -> np.ndarray:

@@ -1,0 +1,169 @@
+"""Poses refined on the image before their aligned votes (for :mod:`.half_turns`).
+
+A drilled block lying on a side shows the top camera a face without holes; the side camera
+sees the holes' ends at a slant, a few tens of pixels. The fit and its box turn (the same box,
+turned about one of its axes) share the fit's own error, a degree or two and a millimetre, and
+the aligned votes between them (:func:`~.flat_align.view_votes`) then weigh holes that neither
+rendering puts over the imaged ones: the right turn gets as few votes as the wrong one, while
+the exact true pose wins them clearly. The whole-pixel shifts of the votes make up for the
+fit's error in the table plane, not for its rotation.
+
+So each pose is first refined on what every view shows (:func:`refine_on_image`): turned
+about the part's centre by small steps about three axes, each turn rendered into every view
+and aligned by its own whole-pixel shift (:func:`~.flat_align.shift_of`), a step kept while it
+raises the aligned score summed over the views (:func:`~.flat_align.alignment_score`: the
+pixels whose height above the table the rendering explains and whose colour it agrees with), a
+coordinate ascent with halving steps (as a pattern search, Hooke & Jeeves, JACM 1961). The
+box's outline, hundreds of pixels, brings every pose to the imaged box alike; the right turn
+then lays its holes over the imaged ones and the wrong one cannot.
+
+Poses are ``T_camera_object`` (4, 4) metres in the fitted view's optical frame.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tlessbot_ros.core.common import rotation_about_axis
+from tlessbot_ros.core.pose.flat_align import (
+    aligned_view,
+    alignment_score,
+    render_heights,
+    shift_of,
+    shift_px,
+    shifted,
+)
+
+if TYPE_CHECKING:
+    import open3d as o3d
+
+    from tlessbot_ros.core.pose.flat import ViewEvidence
+    from tlessbot_ros.core.pose.flat_align import AlignedView
+
+
+def turned_about(T_camera_object: np.ndarray, centre_o: np.ndarray, axis_c: np.ndarray,
+                 angle_rad: float) -> np.ndarray:
+    """The pose turned by ``angle_rad`` about the axis ``axis_c`` (unit, camera frame) through
+    the model point ``centre_o``."""
+    T = np.asarray(T_camera_object, np.float64)
+    R = rotation_about_axis(axis_c, angle_rad)
+    centre = T[:3, :3] @ centre_o + T[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = R @ T[:3, :3]
+    out[:3, 3] = R @ (T[:3, 3] - centre) + centre
+    return out
+
+
+class _ImageScore:
+    """The aligned score of any pose near the given ones, summed over every view with a table
+    plane: each view's window, voting pixels and colour likeness are fixed by the given poses
+    (so the scores of poses near them are comparable); each pose is rendered over the grown
+    window and aligned by the best whole-pixel shift climbed to from ``start`` (per view)."""
+
+    def __init__(self, mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray],
+                 points_o: np.ndarray, views: Sequence[ViewEvidence], *, align_at_1m_m: float,
+                 tolerance_m: float, margin_px: int) -> None:
+        from tlessbot_ros.core.pose.silhouette import window
+
+        self.mesh, self.tolerance = mesh, tolerance_m
+        self.views: list[tuple[ViewEvidence, AlignedView]] = []
+        for view in views:
+            if view.plane is None or (view.rgb is None and view.depth_m is None):
+                continue
+            T = [view.T_view_fit @ np.asarray(P, np.float64) for P in poses]
+            pad = shift_px(view.intrinsics, points_o, T[0], align_at_1m_m)
+            box = window(points_o, T, view.intrinsics, margin_px=pad + 4 + margin_px)
+            if box is not None:
+                self.views.append((view, aligned_view(
+                    [(mesh, P) for P in T], box, pad, view.intrinsics, view.plane,
+                    rgb=view.rgb, depth_m=view.depth_m, others=view.others,
+                    tolerance_m=tolerance_m)))
+
+    def rendered(self, T: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per view, the pose's (hit, height) over the view's grown window."""
+        out = []
+        for view, av in self.views:
+            x0, y0, w, h = av.box
+            grown = (x0 - av.pad, y0 - av.pad, w + 2 * av.pad, h + 2 * av.pad)
+            out.append(render_heights(self.mesh, view.T_view_fit @ T, view.intrinsics, grown,
+                                      np.asarray(view.plane)))
+        return out
+
+    def score(self, T: np.ndarray, start: Sequence[tuple[int, int] | None]
+              ) -> tuple[float, list[tuple[int, int]]]:
+        """(the pose's aligned score summed over the views, per view its shift)."""
+        total, shifts = 0.0, []
+        for (_, av), render, near in zip(self.views, self.rendered(T), start):
+            dx, dy = shift_of(replace(av, renders=[render]), 0, self.tolerance, near)
+            hit, height = render
+            total += alignment_score(av, shifted(hit, av.pad, dx, dy),
+                                     shifted(height, av.pad, dx, dy), self.tolerance)
+            shifts.append((dx, dy))
+        return total, shifts
+
+
+def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray],
+                    points_o: np.ndarray, centre_o: np.ndarray, views: Sequence[ViewEvidence],
+                    *, align_at_1m_m: float, tolerance_m: float, step_deg: float,
+                    min_step_deg: float, max_deg: float, max_move_m: float
+                    ) -> list[np.ndarray]:
+    """Each of ``poses`` (of the mesh ``mesh``; ``points_o`` the model samples that bound
+    them) moved where its aligned score over every view is best: turned about ``centre_o``
+    (model frame) by ``step_deg`` about each of the fitted view's three axes, either way, and
+    moved along each by the arc that turn spans at the part's radius; the best of these steps
+    taken while it raises the score and the pose stays within ``max_deg`` and ``max_move_m`` of
+    where it began, then halved steps down to ``min_step_deg``. Each rendering is aligned by
+    its own whole-pixel shift (``align_at_1m_m``), heights compared within ``tolerance_m``.
+    Returns the refined poses (the poses themselves where no view has a table plane)."""
+    from tlessbot_ros.core.common import rotation_angle_deg
+
+    poses = [np.asarray(T, np.float64) for T in poses]
+    extent = float(np.ptp(points_o, axis=0).max())
+    depth = float(np.median(points_o @ poses[0][2, :3] + poses[0][2, 3]))
+    focal = max((float(view.intrinsics.K[0, 0]) for view in views), default=0.0)
+    # the window holds every pose a refinement may reach
+    reach = int(np.ceil(focal * (np.radians(max_deg) * extent / 2 + max_move_m)
+                        / max(depth, 1e-3)))
+    scores = _ImageScore(mesh, poses, points_o, views, align_at_1m_m=align_at_1m_m,
+                         tolerance_m=tolerance_m, margin_px=reach)
+    if not scores.views:
+        return poses
+    out = []
+    for T0 in poses:
+        best, (value, shifts) = T0, scores.score(T0, [None] * len(scores.views))
+        centre0 = T0[:3, :3] @ centre_o + T0[:3, 3]
+        step = step_deg
+        while step >= min_step_deg:
+            while True:
+                tried = [T for T in _steps(best, centre_o, np.radians(step), extent / 2)
+                         if rotation_angle_deg(T[:3, :3], T0[:3, :3]) <= max_deg and
+                         np.linalg.norm(T[:3, :3] @ centre_o + T[:3, 3] - centre0)
+                         <= max_move_m]
+                found = [(scores.score(T, shifts), T) for T in tried]
+                top = max(range(len(found)), key=lambda k: found[k][0][0], default=None)
+                if top is None or found[top][0][0] <= value:
+                    break
+                (value, shifts), best = found[top]
+            step /= 2.0
+        out.append(best)
+    return out
+
+
+def _steps(T: np.ndarray, centre_o: np.ndarray, angle_rad: float, radius_m: float
+           ) -> list[np.ndarray]:
+    """The pose turned by ``angle_rad`` about each camera axis through ``centre_o``, either
+    way, and moved along each by the arc ``angle_rad`` x ``radius_m``, either way (12)."""
+    out = []
+    for axis in np.eye(3):
+        for sign in (1.0, -1.0):
+            out.append(turned_about(T, centre_o, axis, sign * angle_rad))
+            moved = T.copy()
+            moved[:3, 3] += sign * angle_rad * radius_m * axis
+            out.append(moved)
+    return out
+
+
+__all__ = ['refine_on_image', 'turned_about']
