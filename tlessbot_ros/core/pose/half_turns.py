@@ -178,27 +178,45 @@ def _box_turn(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Rayca
     info['box_turns'] = float(len(poses) - 1)
     if len(poses) < 2:
         return None, info
-    if params.box_refine_deg > 0:
-        # the shared error hides the holes from the votes: each pose is first brought
-        # onto what the views show (docs/near-symmetric-parts.md)
-        from tlessbot_ros.core.pose.image_refine import refine_on_image
-        from tlessbot_ros.core.pose.turns import surface_centre
-
-        p = check.params
-        poses = refine_on_image(mesh, poses, obj.model_points.astype(np.float64),
-                                surface_centre(obj), views, align_at_1m_m=p.align_at_1m_m,
-                                tolerance_m=p.depth_tolerance_m,
-                                step_deg=params.box_refine_deg,
-                                min_step_deg=params.box_refine_min_deg,
-                                max_deg=params.box_refine_max_deg,
-                                max_move_m=params.box_refine_max_m)
-    found: dict[str, float] = {}
-    k = check.aligned_winner(obj, [mesh] * len(poses), poses, views, found, rivals=[0])
-    if k == 0 or not found.get('align_decided'):
+    k, decided = _box_winner(check, obj, mesh, poses, views, params)
+    if k == 0 or not decided:
         return None, info
     info.update(box_winner=float(k), half_winner=float(k), half_decided=1.0)
     return check.refiner.icp_batch(scene_c, obj, poses[k][None],
                                    iterations=params.half_icp_iterations)[0], info
+
+
+def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
+                poses: list[np.ndarray], views: Sequence[ViewEvidence], params: TurnParams
+                ) -> tuple[int, bool]:
+    """(the index of the pose among ``poses`` (the fit first, then its box turns as they
+    are) that wins most of the aligned duels, whether it beats the fit by a clear margin).
+
+    With ``box_refine_deg``, each pose is first refined on every view's image
+    (:func:`~.image_refine.refine_on_image`) and the duels are those of the refined poses,
+    each at its own alignment: the fit's own error of a degree or two, shared by its turns,
+    leaves the holes of the right turn beside the imaged ones, and their votes drown in the
+    outline's. Else :meth:`~.flat.FlatCheck.aligned_winner` of the poses as they are."""
+    from tlessbot_ros.core.pose.flat_align import round_robin
+    from tlessbot_ros.core.pose.image_refine import refine_on_image
+    from tlessbot_ros.core.pose.lookalike import clear_margin
+    from tlessbot_ros.core.pose.turns import surface_centre
+
+    p = check.params
+    if params.box_refine_deg > 0:
+        _, votes = refine_on_image(mesh, poses, obj.model_points.astype(np.float64),
+                                   surface_centre(obj), views, align_at_1m_m=p.align_at_1m_m,
+                                   tolerance_m=p.depth_tolerance_m,
+                                   step_deg=params.box_refine_deg,
+                                   min_step_deg=params.box_refine_min_deg,
+                                   max_deg=params.box_refine_max_deg,
+                                   max_move_m=params.box_refine_max_m)
+        if votes is not None:
+            k = round_robin(votes)
+            return k, clear_margin(int(votes[k, 0]), int(votes[0, k]), p.align_min_z)
+    found: dict[str, float] = {}
+    k = check.aligned_winner(obj, [mesh] * len(poses), poses, views, found, rivals=[0])
+    return k, bool(found.get('align_decided'))
 
 
 def _distinct_by_fitness(poses: list[np.ndarray], more: list[np.ndarray], fitness: np.ndarray,

@@ -31,6 +31,7 @@ from tlessbot_ros.core.common import rotation_about_axis
 from tlessbot_ros.core.pose.flat_align import (
     aligned_view,
     alignment_score,
+    pixel_votes,
     render_heights,
     shift_of,
     shift_px,
@@ -104,12 +105,31 @@ class _ImageScore:
             shifts.append((dx, dy))
         return total, shifts
 
+    def votes(self, poses: Sequence[tuple[np.ndarray, Sequence[tuple[int, int]]]]
+              ) -> np.ndarray:
+        """(K, K) int: [i, j] the pixels of every view that pose i explains better than pose
+        j (:func:`~.flat_align.pixel_votes`), each pose (``T``, per view its shift) rendered
+        at its shift."""
+        count = len(poses)
+        votes = np.zeros((count, count), np.int64)
+        renders = [self.rendered(T) for T, _ in poses]
+        for v, (_, av) in enumerate(self.views):
+            aligned = [(shifted(renders[k][v][0], av.pad, *poses[k][1][v]),
+                        shifted(renders[k][v][1], av.pad, *poses[k][1][v]))
+                       for k in range(count)]
+            for i in range(count):
+                for j in range(i + 1, count):
+                    favour, against = pixel_votes(av, aligned[i], aligned[j], self.tolerance)
+                    votes[i, j] += favour
+                    votes[j, i] += against
+        return votes
+
 
 def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray],
                     points_o: np.ndarray, centre_o: np.ndarray, views: Sequence[ViewEvidence],
                     *, align_at_1m_m: float, tolerance_m: float, step_deg: float,
                     min_step_deg: float, max_deg: float, max_move_m: float
-                    ) -> list[np.ndarray]:
+                    ) -> tuple[list[np.ndarray], np.ndarray | None]:
     """Each of ``poses`` (of the mesh ``mesh``; ``points_o`` the model samples that bound
     them) moved where its aligned score over every view is best: turned about ``centre_o``
     (model frame) by ``step_deg`` about each of the fitted view's three axes, either way, and
@@ -117,7 +137,10 @@ def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.nda
     taken while it raises the score and the pose stays within ``max_deg`` and ``max_move_m`` of
     where it began, then halved steps down to ``min_step_deg``. Each rendering is aligned by
     its own whole-pixel shift (``align_at_1m_m``), heights compared within ``tolerance_m``.
-    Returns the refined poses (the poses themselves where no view has a table plane)."""
+    Returns the refined poses and their (K, K) pixel votes, [i, j] the pixels of every view
+    that pose i explains better than pose j (:func:`~.flat_align.pixel_votes`), each rendering
+    at the shift its refinement found (a shift found again may end a pixel off, which moves
+    the votes of a box's whole outline); (the poses, None) where no view has a table plane."""
     from tlessbot_ros.core.common import rotation_angle_deg
 
     poses = [np.asarray(T, np.float64) for T in poses]
@@ -130,7 +153,7 @@ def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.nda
     scores = _ImageScore(mesh, poses, points_o, views, align_at_1m_m=align_at_1m_m,
                          tolerance_m=tolerance_m, margin_px=reach)
     if not scores.views:
-        return poses
+        return poses, None
     out = []
     for T0 in poses:
         best, (value, shifts) = T0, scores.score(T0, [None] * len(scores.views))
@@ -148,8 +171,8 @@ def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.nda
                     break
                 (value, shifts), best = found[top]
             step /= 2.0
-        out.append(best)
-    return out
+        out.append((best, shifts))
+    return [T for T, _ in out], scores.votes(out)
 
 
 def _steps(T: np.ndarray, centre_o: np.ndarray, angle_rad: float, radius_m: float
