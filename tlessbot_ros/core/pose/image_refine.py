@@ -130,13 +130,18 @@ def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.nda
                     *, align_at_1m_m: float, tolerance_m: float, step_deg: float,
                     min_step_deg: float, max_deg: float, max_move_m: float
                     ) -> tuple[list[np.ndarray], np.ndarray | None]:
-    """Each of ``poses`` (of the mesh ``mesh``; ``points_o`` the model samples that bound
-    them) moved where its aligned score over every view is best: turned about ``centre_o``
-    (model frame) by ``step_deg`` about each of the fitted view's three axes, either way, and
-    moved along each by the arc that turn spans at the part's radius; the best of these steps
+    """The first of ``poses`` (of the mesh ``mesh``; ``points_o`` the model samples that
+    bound them) moved where its aligned score over every view is best: turned about
+    ``centre_o`` (model frame) by ``step_deg`` about each of the fitted view's three axes,
+    either way, and moved along each by the arc that turn spans at the part's radius (a
+    fraction of a pixel: the whole-pixel shifts leave that much); the best of these steps
     taken while it raises the score and the pose stays within ``max_deg`` and ``max_move_m`` of
-    where it began, then halved steps down to ``min_step_deg``. Each rendering is aligned by
-    its own whole-pixel shift (``align_at_1m_m``), heights compared within ``tolerance_m``.
+    where it began, then halved steps down to ``min_step_deg``. The others are turns of the
+    first (``poses[k] = poses[0] @ S_k``): each starts from the first's refinement turned by
+    ``S_k`` (the error that refinement removed is theirs too: the box's outline is theirs)
+    and is refined by steps of ``min_step_deg`` only, which lay its own features (holes) over
+    the imaged ones. Each rendering is aligned by its own whole-pixel shift
+    (``align_at_1m_m``), heights compared within ``tolerance_m``.
     Returns the refined poses and their (K, K) pixel votes, [i, j] the pixels of every view
     that pose i explains better than pose j (:func:`~.flat_align.pixel_votes`), each rendering
     at the shift its refinement found (a shift found again may end a pixel off, which moves
@@ -154,11 +159,13 @@ def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.nda
                          tolerance_m=tolerance_m, margin_px=reach)
     if not scores.views:
         return poses, None
-    out = []
+    out: list[tuple[np.ndarray, list[tuple[int, int]]]] = []
     for T0 in poses:
+        step = step_deg
+        if out:   # a turn of the first pose starts where the first one's refinement ended
+            T0, step = out[0][0] @ np.linalg.inv(poses[0]) @ T0, min_step_deg
         best, (value, shifts) = T0, scores.score(T0, [None] * len(scores.views))
         centre0 = T0[:3, :3] @ centre_o + T0[:3, 3]
-        step = step_deg
         while step >= min_step_deg:
             while True:
                 tried = [T for T in _steps(best, centre_o, np.radians(step), extent / 2)
