@@ -18,6 +18,8 @@ that puts less back cannot fit one) and it is no exact symmetry (those look the 
 the turned fits that explain the depth about as well compete with the fit on the aligned
 height and colour votes of every view (:meth:`~.flat.FlatCheck.aligned_winner`, the flat
 parts' vote: each rendering aligned by a few pixels, compared pixel by pixel, a clear margin).
+A turn that maps the part's hull onto itself competes first turned as it is, the fit refined
+on the image before (:mod:`.image_refine`).
 
 Poses are ``T_camera_object`` (4, 4) metres, optical frame; turns (4, 4) in the model frame.
 """
@@ -166,9 +168,9 @@ def _box_turn(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Rayca
     turned as it is it keeps the fit's own placement error and the duel sees only the features
     that tell the two apart: a drilled block's 6 mm holes, which an error of a refit, as large
     as their displacement, would drown. The fit is the pose to beat; the other turns, each as
-    wrong as the fit where another wins, need only lose their duels. The winner is then
-    refitted to the depth (``half_icp_iterations`` ICP steps), as a fit is: the shared error
-    served the duel only."""
+    wrong as the fit where another wins, need only lose their duels (:func:`_box_winner`: on
+    the poses refined on the image first). The winner is then refitted to the depth
+    (``half_icp_iterations`` ICP steps), as a fit is: the shared error served the duel only."""
     info = {'box_turns': 0.0, 'box_winner': 0.0}
     if not len(turns):
         return None, info
