@@ -212,7 +212,8 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
                                    step_deg=params.box_refine_deg,
                                    min_step_deg=params.box_refine_min_deg,
                                    max_deg=params.box_refine_max_deg,
-                                   max_move_m=params.box_refine_max_m)
+                                   max_move_m=params.box_refine_max_m,
+                                   edge_px=params.box_edge_px)
         if votes is not None:
             k = round_robin(votes)
             return k, clear_margin(int(votes[k, 0]), int(votes[0, k]), p.align_min_z)

@@ -105,11 +105,15 @@ class _ImageScore:
             shifts.append((dx, dy))
         return total, shifts
 
-    def votes(self, poses: Sequence[tuple[np.ndarray, Sequence[tuple[int, int]]]]
-              ) -> np.ndarray:
+    def votes(self, poses: Sequence[tuple[np.ndarray, Sequence[tuple[int, int]]]],
+              edge_px: int) -> np.ndarray:
         """(K, K) int: [i, j] the pixels of every view that pose i explains better than pose
         j (:func:`~.flat_align.pixel_votes`), each pose (``T``, per view its shift) rendered
-        at its shift."""
+        at its shift, on the pixels inside both outlines (holes filled) and ``edge_px`` or
+        more from either."""
+        import cv2
+        from scipy.ndimage import binary_fill_holes
+
         count = len(poses)
         votes = np.zeros((count, count), np.int64)
         renders = [self.rendered(T) for T, _ in poses]
@@ -117,9 +121,13 @@ class _ImageScore:
             aligned = [(shifted(renders[k][v][0], av.pad, *poses[k][1][v]),
                         shifted(renders[k][v][1], av.pad, *poses[k][1][v]))
                        for k in range(count)]
+            filled = [binary_fill_holes(hit) for hit, _ in aligned]
             for i in range(count):
                 for j in range(i + 1, count):
-                    favour, against = pixel_votes(av, aligned[i], aligned[j], self.tolerance)
+                    inside = cv2.erode((filled[i] & filled[j]).astype(np.uint8),
+                                       np.ones((2 * edge_px + 1,) * 2, np.uint8)).astype(bool)
+                    favour, against = pixel_votes(replace(av, region=av.region & inside),
+                                                  aligned[i], aligned[j], self.tolerance)
                     votes[i, j] += favour
                     votes[j, i] += against
         return votes
@@ -128,7 +136,7 @@ class _ImageScore:
 def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray],
                     points_o: np.ndarray, centre_o: np.ndarray, views: Sequence[ViewEvidence],
                     *, align_at_1m_m: float, tolerance_m: float, step_deg: float,
-                    min_step_deg: float, max_deg: float, max_move_m: float
+                    min_step_deg: float, max_deg: float, max_move_m: float, edge_px: int
                     ) -> tuple[list[np.ndarray], np.ndarray | None]:
     """The first of ``poses`` (of the mesh ``mesh``; ``points_o`` the model samples that
     bound them) moved where its aligned score over every view is best: turned about
@@ -140,12 +148,16 @@ def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.nda
     first (``poses[k] = poses[0] @ S_k``): each starts from the first's refinement turned by
     ``S_k`` (the error that refinement removed is theirs too: the box's outline is theirs)
     and is refined by steps of ``min_step_deg`` only, which lay its own features (holes) over
-    the imaged ones. Each rendering is aligned by its own whole-pixel shift
+    the imaged ones. A turn keeps the part's lowest sample at its height above the fitted
+    view's table (:func:`_steps`). Each rendering is aligned by its own whole-pixel shift
     (``align_at_1m_m``), heights compared within ``tolerance_m``.
+
     Returns the refined poses and their (K, K) pixel votes, [i, j] the pixels of every view
     that pose i explains better than pose j (:func:`~.flat_align.pixel_votes`), each rendering
-    at the shift its refinement found (a shift found again may end a pixel off, which moves
-    the votes of a box's whole outline); (the poses, None) where no view has a table plane."""
+    at the shift its refinement found (a shift found again may end a pixel off), on the
+    pixels inside both outlines and ``edge_px`` or more from either: the turns share the
+    box's outline, where the poses differ only by what their refinements left; (the poses,
+    None) where no view has a table plane."""
     from tlessbot_ros.core.common import rotation_angle_deg
 
     poses = [np.asarray(T, np.float64) for T in poses]
@@ -160,6 +172,7 @@ def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.nda
     if not scores.views:
         return poses, None
     out: list[tuple[np.ndarray, list[tuple[int, int]]]] = []
+    support = _support(points_o, views)
     for T0 in poses:
         step = step_deg
         if out:   # a turn of the first pose starts where the first one's refinement ended
@@ -168,7 +181,7 @@ def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.nda
         centre0 = T0[:3, :3] @ centre_o + T0[:3, 3]
         while step >= min_step_deg:
             while True:
-                tried = [T for T in _steps(best, centre_o, np.radians(step), extent / 2)
+                tried = [T for T in _steps(best, centre_o, np.radians(step), extent / 2, support)
                          if rotation_angle_deg(T[:3, :3], T0[:3, :3]) <= max_deg and
                          np.linalg.norm(T[:3, :3] @ centre_o + T[:3, 3] - centre0)
                          <= max_move_m]
@@ -179,17 +192,42 @@ def refine_on_image(mesh: o3d.t.geometry.RaycastingScene, poses: Sequence[np.nda
                 (value, shifts), best = found[top]
             step /= 2.0
         out.append((best, shifts))
-    return [T for T, _ in out], scores.votes(out)
+    return [T for T, _ in out], scores.votes(out, edge_px)
 
 
-def _steps(T: np.ndarray, centre_o: np.ndarray, angle_rad: float, radius_m: float
-           ) -> list[np.ndarray]:
+def _support(points_o: np.ndarray, views: Sequence[ViewEvidence]
+             ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(some 500 model samples, the table plane (4,) in the fitted view) when the fitted view
+    (``T_view_fit`` the identity) has a table plane, else None."""
+    for view in views:
+        if view.plane is not None and np.allclose(view.T_view_fit, np.eye(4)):
+            return points_o[::max(1, len(points_o) // 500)], np.asarray(view.plane, np.float64)
+    return None
+
+
+def _lowest(samples: np.ndarray, T: np.ndarray, normal: np.ndarray) -> float:
+    """The least height along ``normal`` of the model ``samples`` at the pose ``T``."""
+    return float(np.min(samples @ (T[:3, :3].T @ normal)) + T[:3, 3] @ normal)
+
+
+def _steps(T: np.ndarray, centre_o: np.ndarray, angle_rad: float, radius_m: float,
+           support: tuple[np.ndarray, np.ndarray] | None) -> list[np.ndarray]:
     """The pose turned by ``angle_rad`` about each camera axis through ``centre_o``, either
-    way, and moved along each by the arc ``angle_rad`` x ``radius_m``, either way (12)."""
+    way, and moved along each by the arc ``angle_rad`` x ``radius_m``, either way (12). With
+    ``support`` (model samples, the table plane), each turn is also moved along the table's
+    normal to keep the lowest sample at its height: a part resting on the table rests on it
+    turned too, and a tilt about its centre alone would sink or lift it (the image score
+    rises along the coupled move, not along either alone)."""
     out = []
     for axis in np.eye(3):
         for sign in (1.0, -1.0):
-            out.append(turned_about(T, centre_o, axis, sign * angle_rad))
+            turned = turned_about(T, centre_o, axis, sign * angle_rad)
+            if support is not None:
+                samples, plane = support
+                normal = plane[:3]
+                turned[:3, 3] += (_lowest(samples, T, normal)
+                                  - _lowest(samples, turned, normal)) * normal
+            out.append(turned)
             moved = T.copy()
             moved[:3, 3] += sign * angle_rad * radius_m * axis
             out.append(moved)

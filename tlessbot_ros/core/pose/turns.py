@@ -71,6 +71,8 @@ class TurnParams:
         box_refine_min_deg: ... halved down to this step, degrees (> 0).
         box_refine_max_deg: ... each staying within this turn of where it began, degrees.
         box_refine_max_m: ... and within this distance, m (>= 0).
+        box_edge_px: the refined poses vote on the pixels inside both outlines and this many
+            pixels or more from either (>= 0).
     """
 
     enabled: bool = True
@@ -94,6 +96,7 @@ class TurnParams:
     box_refine_min_deg: float = 0.25
     box_refine_max_deg: float = 3.0
     box_refine_max_m: float = 0.001
+    box_edge_px: int = 1
 
     def __post_init__(self) -> None:
         if not 0.0 < self.step_deg <= 90.0:
@@ -117,11 +120,13 @@ class TurnParams:
                              f'{self.half_min_share}, {self.half_icp_iterations}, '
                              f'{self.half_candidates}')
         if self.box_refine_deg < 0 or self.box_refine_min_deg <= 0 or \
-                self.box_refine_max_deg < 0 or self.box_refine_max_m < 0:
-            raise ValueError('box_refine_deg, box_refine_max_deg and box_refine_max_m must be '
-                             '>= 0 and box_refine_min_deg > 0, got '
+                self.box_refine_max_deg < 0 or self.box_refine_max_m < 0 or \
+                self.box_edge_px < 0:
+            raise ValueError('box_refine_deg, box_refine_max_deg, box_refine_max_m and '
+                             'box_edge_px must be >= 0 and box_refine_min_deg > 0, got '
                              f'{self.box_refine_deg}, {self.box_refine_max_deg}, '
-                             f'{self.box_refine_max_m}, {self.box_refine_min_deg}')
+                             f'{self.box_refine_max_m}, {self.box_edge_px}, '
+                             f'{self.box_refine_min_deg}')
 
 
 def surface_centre(obj: ObjectTemplates) -> np.ndarray:
