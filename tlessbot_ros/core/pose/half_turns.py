@@ -194,32 +194,41 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
     """(the index of the pose among ``poses`` (the fit first, then its box turns as they
     are) that wins most of the aligned duels, whether it beats the fit by a clear margin).
 
-    With ``box_refine_deg``, each pose is first refined on every view's image
-    (:func:`~.image_refine.refine_on_image`) and the duels are those of the refined poses,
-    each at its own alignment: the fit's own error of a degree or two, shared by its turns,
-    leaves the holes of the right turn beside the imaged ones, and their votes drown in the
-    outline's. Else :meth:`~.flat.FlatCheck.aligned_winner` of the poses as they are."""
+    First :meth:`~.flat.FlatCheck.aligned_winner` of the poses as they are. Where that names
+    no turn clearly and the fit does not beat every turn clearly either, and with
+    ``box_refine_deg``, the poses are refined on every view's image
+    (:func:`~.image_refine.refine_on_image`) and the duels of the refined poses decide: the
+    fit's own error of a degree or two, shared by its turns, leaves the holes of the right
+    turn beside the imaged ones, and their few votes fall under the margin."""
     from tlessbot_ros.core.pose.flat_align import round_robin
     from tlessbot_ros.core.pose.image_refine import refine_on_image
     from tlessbot_ros.core.pose.lookalike import clear_margin
     from tlessbot_ros.core.pose.turns import surface_centre
 
     p = check.params
-    if params.box_refine_deg > 0:
-        _, votes = refine_on_image(mesh, poses, obj.model_points.astype(np.float64),
-                                   surface_centre(obj), views, align_at_1m_m=p.align_at_1m_m,
-                                   tolerance_m=p.depth_tolerance_m,
-                                   step_deg=params.box_refine_deg,
-                                   min_step_deg=params.box_refine_min_deg,
-                                   max_deg=params.box_refine_max_deg,
-                                   max_move_m=params.box_refine_max_m,
-                                   edge_px=params.box_edge_px)
-        if votes is not None:
-            k = round_robin(votes)
-            return k, clear_margin(int(votes[k, 0]), int(votes[0, k]), p.align_min_z)
     found: dict[str, float] = {}
     k = check.aligned_winner(obj, [mesh] * len(poses), poses, views, found, rivals=[0])
-    return k, bool(found.get('align_decided'))
+    named = k if k > 0 and found.get('align_decided') else 0
+    if params.box_refine_deg <= 0:
+        return k, bool(found.get('align_decided'))
+    votes = check.ranked[1] if check.ranked is not None else None
+    if votes is not None and len(votes) == len(poses) and all(
+            clear_margin(int(votes[0, j]), int(votes[j, 0]), p.align_min_z)
+            for j in range(1, len(poses))):
+        return 0, True   # the views rule every turn out as they are
+    _, refined = refine_on_image(mesh, poses, obj.model_points.astype(np.float64),
+                                 surface_centre(obj), views, align_at_1m_m=p.align_at_1m_m,
+                                 tolerance_m=p.depth_tolerance_m,
+                                 step_deg=params.box_refine_deg,
+                                 min_step_deg=params.box_refine_min_deg,
+                                 max_deg=params.box_refine_max_deg,
+                                 max_move_m=params.box_refine_max_m,
+                                 edge_px=params.box_edge_px)
+    if refined is None:
+        return k, bool(found.get('align_decided'))
+    k = round_robin(refined)
+    # a turn that the poses as they are name clearly stands when the refined ones agree
+    return k, k == named or clear_margin(int(refined[k, 0]), int(refined[0, k]), p.align_min_z)
 
 
 def _distinct_by_fitness(poses: list[np.ndarray], more: list[np.ndarray], fitness: np.ndarray,
