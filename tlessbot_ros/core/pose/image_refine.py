@@ -8,14 +8,18 @@ rendering puts over the imaged ones: the right turn gets as few votes as the wro
 the exact true pose wins them clearly. The whole-pixel shifts of the votes make up for the
 fit's error in the table plane, not for its rotation.
 
-So each pose is first refined on what every view shows (:func:`refine_on_image`): turned
-about the part's centre by small steps about three axes, each turn rendered into every view
-and aligned by its own whole-pixel shift (:func:`~.flat_align.shift_of`), a step kept while it
-raises the aligned score summed over the views (:func:`~.flat_align.alignment_score`: the
-pixels whose height above the table the rendering explains and whose colour it agrees with), a
-coordinate ascent with halving steps (as a pattern search, Hooke & Jeeves, JACM 1961). The
-box's outline, hundreds of pixels, brings every pose to the imaged box alike; the right turn
-then lays its holes over the imaged ones and the wrong one cannot.
+So the fit is first refined on what every view shows (:func:`refine_on_image`): turned
+about the part's centre by small steps about three axes, each turn keeping the part resting on
+the table (the image score rises along a tilt and the lift it brings, not along either alone),
+and moved by fractions of a pixel; each pose rendered into every view and aligned by its own
+whole-pixel shift (:func:`~.flat_align.shift_of`), a step kept while it raises the aligned
+score summed over the views (:func:`~.flat_align.alignment_score`: the pixels whose height
+above the table the rendering explains and whose colour it agrees with), a coordinate ascent
+with halving steps (a pattern search, Hooke & Jeeves, JACM 1961). The box's outline, hundreds
+of pixels, brings the fit onto the imaged box; each turn starts there (the outline is the
+same) and its finest steps lay its holes over the imaged ones, as the wrong turns' cannot. The
+refined poses then vote inside both outlines only: there they differ by their features, on the
+outline by what each refinement left.
 
 Poses are ``T_camera_object`` (4, 4) metres in the fitted view's optical frame.
 """
