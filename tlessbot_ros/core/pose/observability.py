@@ -85,10 +85,16 @@ class ViewOfTable:
 
 def changed_pixels(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
                    T_world_a: np.ndarray, T_world_b: np.ndarray, view: ViewOfTable,
-                   params: ObservabilityParams) -> tuple[int, int, int]:
+                   params: ObservabilityParams, *,
+                   scene_b: o3d.t.geometry.RaycastingScene | None = None,
+                   others: o3d.t.geometry.RaycastingScene | None = None
+                   ) -> tuple[int, int, int]:
     """(depth, edge, either) pixels of ``view`` that tell the part at ``T_world_a`` from the
     part at ``T_world_b`` (world poses on the table; ``scene`` its mesh and ``points`` (N, 3)
-    its surface samples in the model frame, metres)."""
+    its surface samples in the model frame, metres). ``scene_b``: the mesh at ``T_world_b``
+    when it is another part (a look-alike twin; ``points`` then cover both). ``others``: the
+    other parts of the scene, one mesh in the world frame, that hide the part where nearer
+    (None: the part alone on the table); an edge hidden in a render is not seen to move."""
     import cv2
 
     T_camera_world = np.linalg.inv(view.T_world_camera)
@@ -96,24 +102,30 @@ def changed_pixels(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
     box = window(points, poses, view.intrinsics, margin_px=3)
     if box is None:
         return 0, 0, 0
-    rays, depth_a = window_depth(scene, poses[0], view.intrinsics, box)
-    depth_b = window_depth(scene, poses[1], view.intrinsics, box)[1]
+    meshes = (scene, scene if scene_b is None else scene_b)
+    rays, depth_a = window_depth(meshes[0], poses[0], view.intrinsics, box)
+    depth_b = window_depth(meshes[1], poses[1], view.intrinsics, box)[1]
     R, origin = view.T_world_camera[:3, :3], view.T_world_camera[:3, 3]
     down = rays @ R.T[:, 2]                       # world z per unit of depth along each ray
     with np.errstate(divide='ignore'):
         table = np.where(down < 0, -origin[2] / down, np.inf)
+    shown = [np.ones((box[3], box[2]), bool)] * 2
+    if others is not None:
+        front = window_depth(others, T_camera_world, view.intrinsics, box)[1]
+        shown = [~(front < d).reshape(box[3], box[2]) for d in (depth_a, depth_b)]
+        depth_a, depth_b = np.minimum(depth_a, front), np.minimum(depth_b, front)
     depth_a = np.where(np.isfinite(depth_a), depth_a, table)
     depth_b = np.where(np.isfinite(depth_b), depth_b, table)
     near = np.minimum(depth_a, depth_b)
     noise = params.noise_sigmas * params.noise_at_1m_m * near ** 2
     with np.errstate(invalid='ignore'):
         depth_moved = (np.abs(depth_a - depth_b) > noise).reshape(box[3], box[2])
-    edges = [rendered_edges(scene, T, view.intrinsics, box, jump_m=params.jump_m,
-                            crease_deg=params.crease_deg) for T in poses]
+    edges = [rendered_edges(mesh, T, view.intrinsics, box, jump_m=params.jump_m,
+                            crease_deg=params.crease_deg) for mesh, T in zip(meshes, poses)]
     moved = np.zeros_like(edges[0])
-    for mine, other in ((edges[0], edges[1]), (edges[1], edges[0])):
+    for mine, other, seen in ((edges[0], edges[1], shown[0]), (edges[1], edges[0], shown[1])):
         distance = cv2.distanceTransform((~other).astype(np.uint8), cv2.DIST_L2, 3)
-        moved |= mine & (distance > params.edge_px)
+        moved |= mine & seen & (distance > params.edge_px)
     return (int(np.count_nonzero(depth_moved)), int(np.count_nonzero(moved)),
             int(np.count_nonzero(depth_moved | moved)))
 
@@ -208,15 +220,9 @@ def turn_visibility(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
     points = np.asarray(points, np.float64)
     centre = points.mean(axis=0) if centre is None else np.asarray(centre, np.float64)
     best = sorted(resting, key=lambda rp: -rp[1])[:params.poses]
-    cos5 = np.cos(np.radians(5.0))
-    turns: list[tuple[str, np.ndarray | None, float]] = [
-        (axis_name(a), a, params.turn_deg) for a in turn_axes(points)
-        if all(abs(float(a @ c)) < cos5 for c in continuous_axes)]
-    turns.append(('yaw', None, params.turn_deg))
-    turns += [(axis_name(a), a, 180.0) for a in np.eye(3)
-              if not _is_symmetry(rotation_about_axis(a, np.pi), listed, continuous_axes)]
     out = []
-    for name, axis, angle in turns:
+    for name, axis, angle in measured_turns(points, params, continuous_axes=continuous_axes,
+                                            listed=listed):
         found = _one_turn(scene, points, centre, best, views, params, axis, angle,
                           continuous_axes)
         if found is not None:
@@ -226,6 +232,50 @@ def turn_visibility(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
     return out
 
 
+def measured_turns(points: np.ndarray, params: ObservabilityParams, *,
+                   continuous_axes: Sequence[np.ndarray] = (),
+                   listed: Sequence[np.ndarray] = ()
+                   ) -> list[tuple[str, np.ndarray | None, float]]:
+    """The turns :func:`turn_visibility` measures, ``(name, model-frame axis or None for the
+    vertical, angle in degrees)``: by ``params.turn_deg`` about the model and principal axes of
+    the (N, 3) ``points`` but a continuous symmetry axis, about the vertical, then the half
+    turns about the model axes that are no listed symmetry."""
+    cos5 = np.cos(np.radians(5.0))
+    turns: list[tuple[str, np.ndarray | None, float]] = [
+        (axis_name(a), a, params.turn_deg) for a in turn_axes(np.asarray(points, np.float64))
+        if all(abs(float(a @ c)) < cos5 for c in continuous_axes)]
+    turns.append(('yaw', None, params.turn_deg))
+    turns += [(axis_name(a), a, 180.0) for a in np.eye(3)
+              if not _is_symmetry(rotation_about_axis(a, np.pi), listed, continuous_axes)]
+    return turns
+
+
+def turn_at_pose(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
+                 centre: np.ndarray, T_world: np.ndarray, views: Sequence[ViewOfTable],
+                 params: ObservabilityParams, axis: np.ndarray | None, angle: float, *,
+                 continuous_axes: Sequence[np.ndarray] = (),
+                 others: o3d.t.geometry.RaycastingScene | None = None
+                 ) -> tuple[np.ndarray, bool] | None:
+    """The part at ``T_world`` (on the table) turned by ``angle`` about the model-frame
+    ``axis`` (None: the vertical) through ``centre`` and seated on the table again: the
+    (depth, edge, either) pixels it changes, all ``views`` (:func:`changed_pixels`, ``others``
+    hiding it), and whether the turn keeps it at rest (``params.rest_ratio``). None for a yaw
+    of a part standing on its round end (it maps the part onto itself)."""
+    T = np.asarray(T_world, np.float64)
+    up_o = T[2, :3]                                 # the world's z in the model frame
+    if axis is None and any(abs(float(up_o @ c)) > np.cos(np.radians(5.0))
+                            for c in continuous_axes):
+        return None
+    lift = params.rest_ratio * float(np.linalg.norm(np.ptp(points, axis=0))) * \
+        np.sin(np.radians(min(angle, 90.0)))
+    T_b = turned(T, up_o if axis is None else axis, centre, angle)
+    heights = [float((points @ A[2, :3] + A[2, 3]).min()) for A in (T, T_b)]
+    T_b[2, 3] += heights[0] - heights[1]                # seated: the centre moves by this
+    counts = np.sum([changed_pixels(scene, points, T, T_b, view, params, others=others)
+                     for view in views], axis=0)
+    return counts, abs(heights[0] - heights[1]) <= lift
+
+
 def _one_turn(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray, centre: np.ndarray,
               best: Sequence[tuple[np.ndarray, float]], views: Sequence[ViewOfTable],
               params: ObservabilityParams, axis: np.ndarray | None, angle: float,
@@ -233,22 +283,14 @@ def _one_turn(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray, centre:
               ) -> tuple[float, float, float, float, float] | None:
     """:class:`AxisVisibility`'s figures of one turn (``axis`` None: the vertical), None when
     it maps every pose onto itself. The turned part is seated on the table again."""
-    lift = params.rest_ratio * float(np.linalg.norm(np.ptp(points, axis=0))) * \
-        np.sin(np.radians(min(angle, 90.0)))
     weights = np.array([p for _, p in best], np.float64)
     counts = np.full((len(best), 3), np.nan)
     rests = np.zeros(len(best), bool)
     for k, (T, _) in enumerate(best):
-        up_o = np.asarray(T, np.float64)[2, :3]     # the world's z in the model frame
-        if axis is None and any(abs(float(up_o @ c)) > np.cos(np.radians(5.0))
-                                for c in continuous_axes):
-            continue              # standing on its round end: a yaw maps it onto itself
-        T_b = turned(T, up_o if axis is None else axis, centre, angle)
-        heights = [float((points @ A[2, :3] + A[2, 3]).min()) for A in (T, T_b)]
-        T_b[2, 3] += heights[0] - heights[1]                # seated: the centre moves by this
-        rests[k] = abs(heights[0] - heights[1]) <= lift
-        counts[k] = np.sum([changed_pixels(scene, points, T, T_b, view, params)
-                            for view in views], axis=0)
+        found = turn_at_pose(scene, points, centre, T, views, params, axis, angle,
+                             continuous_axes=continuous_axes)
+        if found is not None:
+            counts[k], rests[k] = found
     measured = ~np.isnan(counts[:, 0])
     if not measured.any():
         return None
@@ -259,4 +301,4 @@ def _one_turn(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray, centre:
 
 
 __all__ = ['AxisVisibility', 'ObservabilityParams', 'ViewOfTable', 'axis_name',
-           'changed_pixels', 'turn_visibility', 'turned']
+           'changed_pixels', 'measured_turns', 'turn_at_pose', 'turn_visibility', 'turned']

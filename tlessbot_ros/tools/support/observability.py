@@ -9,8 +9,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from tlessbot_ros.core.common import Rig
+    from tlessbot_ros.core.common import Rig, Symmetries
     from tlessbot_ros.core.pose import AxisVisibility, ObservabilityParams
+    from tlessbot_ros.core.pose.resolvability import PartShape
     from tlessbot_ros.io.models import ObjectModel
 
 SAMPLES = 3000          # surface samples a part's window and centre are taken from
@@ -21,8 +22,6 @@ def part_turns(model: ObjectModel, rig: Rig,
     """What every camera of ``rig`` sees of ``model`` turned by ``params.turn_deg`` about each
     of its axes, in its most probable resting poses (:func:`~tlessbot_ros.core.pose.
     observability.turn_visibility`; axes of its listed continuous symmetries left out)."""
-    from tlessbot_ros.core.common import raycasting_scene, sample_surface
-    from tlessbot_ros.core.common.resting import centre_of_mass
     from tlessbot_ros.core.pose import (
         ObservabilityParams,
         ViewOfTable,
@@ -31,15 +30,33 @@ def part_turns(model: ObjectModel, rig: Rig,
     from tlessbot_ros.io.models import stable_poses
 
     params = params or ObservabilityParams()
-    points = sample_surface(model.vertices, model.faces, SAMPLES, seed=0)[0]
+    shape = part_shape(model)
     resting = [(p.T_table_object, p.probability)
                for p in stable_poses(model, merge_rolling=True)]
     views = [ViewOfTable(cam.intrinsics, cam.T_world_camera) for cam in rig.cameras.values()]
-    return turn_visibility(raycasting_scene(model.vertices, model.faces), points, resting,
-                           views, params, continuous_axes=[
-                               c['axis'] for c in model.symmetries_continuous or ()],
-                           listed=model.symmetries_discrete or (),
-                           centre=centre_of_mass(model.vertices, model.faces))
+    return turn_visibility(shape.scene, shape.points, resting, views, params,
+                           continuous_axes=shape.continuous_axes, listed=shape.listed,
+                           centre=shape.centre)
+
+
+def part_shape(model: ObjectModel, symmetries: Symmetries | None = None) -> PartShape:
+    """What the measures of :mod:`~tlessbot_ros.core.pose.observability` need of ``model``:
+    its mesh, ``SAMPLES`` surface samples, its centre of mass and its listed symmetries (or
+    ``symmetries``: those a scorer uses)."""
+    from tlessbot_ros.core.common import raycasting_scene, sample_surface
+    from tlessbot_ros.core.common.resting import centre_of_mass
+    from tlessbot_ros.core.pose.resolvability import PartShape
+
+    if symmetries is None:
+        listed = tuple(model.symmetries_discrete or ())
+        axes = tuple(c['axis'] for c in model.symmetries_continuous or ())
+    else:
+        listed = tuple(symmetries.discrete)
+        axes = tuple(axis for axis, _ in symmetries.continuous)
+    return PartShape(raycasting_scene(model.vertices, model.faces),
+                     sample_surface(model.vertices, model.faces, SAMPLES, seed=0)[0],
+                     centre_of_mass(model.vertices, model.faces), listed=listed,
+                     continuous_axes=axes)
 
 
 def unseen_turns(axes: list[AxisVisibility]) -> dict:
