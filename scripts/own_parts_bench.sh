@@ -5,6 +5,8 @@
 #   scripts/own_parts_bench.sh BENCH eval OUT SEED SET...   # SEED 4100 | 4242 | 4343
 #   scripts/own_parts_bench.sh BENCH why OUT SEED SET       # each part's outcome by cause
 #   scripts/own_parts_bench.sh BENCH none OUT SEED SET      # each "none" part by cause (rerun)
+#   scripts/own_parts_bench.sh BENCH resolvable OUT SEED SET...  # 5 cm / 5° over the parts the
+#                                  rig can resolve at their true pose (scripts/resolvable_parts.py)
 #
 # SETs: T (T-LESS, packaged classifier and templates), g (the 8 parts of `tlessbot parts
 # generate`), s (the SyGrid CAD models), h7 / h8 (families drawn with `parts generate --seed 7 /
@@ -61,5 +63,18 @@ none)
     "$OUT/$SEED/$k/estimates.csv" --manifest "$BENCH/parts/$k/manifest.json" \
     --templates "$BENCH/parts/$k/templates.npz" --rerun --classifier "$BENCH/parts/$k/classifier.npz"
   ;;
-*) echo "usage: $0 BENCH make | eval OUT SEED SET... | why|none OUT SEED SET" >&2; exit 2;;
+resolvable)
+  OUT=$1; SEED=$2; shift 2
+  header=()
+  for k in "$@"; do
+    if [ "$k" = T ]; then models=$SHARED/data/tless_models_cad_stl; twins=()
+    else models=$BENCH/parts/$k/models; twins=(--manifest "$BENCH/parts/$k/manifest.json"); fi
+    PYTHONPATH="$(cd "$(dirname "$0")/.." && pwd)" "$PY" scripts/resolvable_parts.py \
+      "$BENCH/scenes/$SEED-$k" "$models" "$OUT/$SEED/$k/estimates.csv" "${twins[@]}" \
+      --label "$SEED $k" "${header[@]}"
+    header=(--no-header)
+  done
+  ;;
+*) echo "usage: $0 BENCH make | eval OUT SEED SET... | why|none OUT SEED SET" \
+     "| resolvable OUT SEED SET..." >&2; exit 2;;
 esac

@@ -234,12 +234,13 @@ def turn_visibility(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
 
 def measured_turns(points: np.ndarray, params: ObservabilityParams, *,
                    continuous_axes: Sequence[np.ndarray] = (),
-                   listed: Sequence[np.ndarray] = ()
+                   listed: Sequence[np.ndarray] = (), up_o: np.ndarray | None = None
                    ) -> list[tuple[str, np.ndarray | None, float]]:
     """The turns :func:`turn_visibility` measures, ``(name, model-frame axis or None for the
     vertical, angle in degrees)``: by ``params.turn_deg`` about the model and principal axes of
     the (N, 3) ``points`` but a continuous symmetry axis, about the vertical, then the half
-    turns about the model axes that are no listed symmetry."""
+    turns about the model axes that are no listed symmetry; with ``up_o`` (the vertical in the
+    model frame of one pose) also the half turn about the vertical, unless a symmetry."""
     cos5 = np.cos(np.radians(5.0))
     turns: list[tuple[str, np.ndarray | None, float]] = [
         (axis_name(a), a, params.turn_deg) for a in turn_axes(np.asarray(points, np.float64))
@@ -247,6 +248,9 @@ def measured_turns(points: np.ndarray, params: ObservabilityParams, *,
     turns.append(('yaw', None, params.turn_deg))
     turns += [(axis_name(a), a, 180.0) for a in np.eye(3)
               if not _is_symmetry(rotation_about_axis(a, np.pi), listed, continuous_axes)]
+    if up_o is not None and not _is_symmetry(
+            rotation_about_axis(np.asarray(up_o, np.float64), np.pi), listed, continuous_axes):
+        turns.append(('yaw', None, 180.0))
     return turns
 
 

@@ -3,14 +3,15 @@
 :mod:`.observability` measures what the rig sees of a part's turns in its resting poses,
 alone on the table. Here the part is at its true pose in a scene, the other parts hide what
 they hide, and the truth is compared in every camera with each turn
-:func:`~.observability.measured_turns` lists (by ``turn_deg`` about its axes and the vertical,
-its half turns that are no listed symmetry: end for end) and with each look-alike twin at the
-same pose (:func:`~.observability.changed_pixels`: depth beyond ``noise_sigmas`` of the D415
-model, or a rendered edge moved by more than ``edge_px``). A turn that keeps the part at rest
-and changes fewer than ``min_px`` pixels, or a twin that changes fewer, cannot be told from the
-truth by any pose stage: the instance is unresolvable at ``turn_deg``. A turn that lifts the
-part off the table is no doubt (the pose stage levels it). No estimate is used: this is a
-property of the scene and the rig.
+:func:`~.observability.measured_turns` lists (by ``turn_deg`` about its axes and the vertical;
+half turns about its model axes and the vertical that are no listed symmetry: end for end, its
+face turned away from a camera) and with each look-alike twin at the same pose
+(:func:`~.observability.changed_pixels`: depth beyond ``noise_sigmas`` of the D415 model, or a
+rendered edge moved by more than ``edge_px``). A turn that keeps the part at rest and changes
+fewer than ``min_px`` pixels, or a twin that changes fewer, cannot be told from the truth by
+any pose stage: the instance is unresolvable at ``turn_deg``. A turn that lifts the part off
+the table is no doubt (the pose stage levels it). No estimate is used: this is a property of
+the scene and the rig.
 """
 from __future__ import annotations
 
@@ -109,9 +110,10 @@ def resolvability(part: PartShape, T_world_object: np.ndarray, views: Sequence[V
         twins: its look-alike parts by id (sharing its model frame), compared at its pose.
     """
     unseen_turns = []
+    up_o = np.asarray(T_world_object, np.float64)[2, :3]    # the vertical, model frame
     for name, axis, angle in measured_turns(part.points, params,
                                             continuous_axes=part.continuous_axes,
-                                            listed=part.listed):
+                                            listed=part.listed, up_o=up_o):
         found = turn_at_pose(part.scene, part.points, part.centre, T_world_object, views,
                              params, axis, angle, continuous_axes=part.continuous_axes,
                              others=others)
