@@ -122,12 +122,11 @@ def main() -> None:
     rows = measure_cell(args.scenes, args.models, args.estimates, args.manifest, label)
     if args.parts:
         for r in (r for r in rows if not r['found'].resolvable):
-            turns = ', '.join(f'{name} {angle:.0f}° ({px} px)'
-                              for name, angle, px in r['found'].unseen_turns)
-            twins = ', '.join(f'obj {i} ({px} px)' for i, px in r['found'].unseen_twins)
+            unseen = [f'{name} {angle:.0f}° ({px} px)'
+                      for name, angle, px in r['found'].unseen_turns]
+            unseen += [f'twin obj {i} ({px} px)' for i, px in r['found'].unseen_twins]
             print(f"scene {r['scene']} im {r['im']:3d} gt {r['gt']} obj {r['obj']:3d} "
-                  f"{'ok   ' if r['ok'] else 'wrong'} unseen: {turns}{'; twin ' if twins else ''}"
-                  f'{twins}')
+                  f"{'ok   ' if r['ok'] else 'wrong'} unseen: {', '.join(unseen)}")
     if not args.no_header:
         print(HEADER)
     print(table_row(label, rows))

@@ -258,13 +258,14 @@ def turn_at_pose(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
                  centre: np.ndarray, T_world: np.ndarray, views: Sequence[ViewOfTable],
                  params: ObservabilityParams, axis: np.ndarray | None, angle: float, *,
                  continuous_axes: Sequence[np.ndarray] = (),
-                 others: o3d.t.geometry.RaycastingScene | None = None
-                 ) -> tuple[np.ndarray, bool] | None:
+                 others: o3d.t.geometry.RaycastingScene | None = None,
+                 at_rest_only: bool = False) -> tuple[np.ndarray, bool] | None:
     """The part at ``T_world`` (on the table) turned by ``angle`` about the model-frame
     ``axis`` (None: the vertical) through ``centre`` and seated on the table again: the
     (depth, edge, either) pixels it changes, all ``views`` (:func:`changed_pixels`, ``others``
-    hiding it), and whether the turn keeps it at rest (``params.rest_ratio``). None for a yaw
-    of a part standing on its round end (it maps the part onto itself)."""
+    hiding it; not counted, zeros, for a turn off rest with ``at_rest_only``), and whether the
+    turn keeps it at rest (``params.rest_ratio``). None for a yaw of a part standing on its
+    round end (it maps the part onto itself)."""
     T = np.asarray(T_world, np.float64)
     up_o = T[2, :3]                                 # the world's z in the model frame
     if axis is None and any(abs(float(up_o @ c)) > np.cos(np.radians(5.0))
@@ -275,9 +276,12 @@ def turn_at_pose(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray,
     T_b = turned(T, up_o if axis is None else axis, centre, angle)
     heights = [float((points @ A[2, :3] + A[2, 3]).min()) for A in (T, T_b)]
     T_b[2, 3] += heights[0] - heights[1]                # seated: the centre moves by this
+    rests = abs(heights[0] - heights[1]) <= lift
+    if at_rest_only and not rests:
+        return np.zeros(3, int), False
     counts = np.sum([changed_pixels(scene, points, T, T_b, view, params, others=others)
                      for view in views], axis=0)
-    return counts, abs(heights[0] - heights[1]) <= lift
+    return counts, rests
 
 
 def _one_turn(scene: o3d.t.geometry.RaycastingScene, points: np.ndarray, centre: np.ndarray,

@@ -116,7 +116,7 @@ def resolvability(part: PartShape, T_world_object: np.ndarray, views: Sequence[V
                                             listed=part.listed, up_o=up_o):
         found = turn_at_pose(part.scene, part.points, part.centre, T_world_object, views,
                              params, axis, angle, continuous_axes=part.continuous_axes,
-                             others=others)
+                             others=others, at_rest_only=True)
         if found is not None and found[1] and found[0][2] < params.min_px:
             unseen_turns.append((name, angle, int(found[0][2])))
     unseen_twins = []
