@@ -86,3 +86,16 @@ def test_a_twin_is_resolved_only_when_the_views_show_its_difference(views):
     bigger_key = _shape(_keyed_block(key_mm=16.0))
     other = resolvability(block, _on_table(block), views, params, twins={8: bigger_key})
     assert other.unseen_twins == () and other.resolvable
+
+
+def test_the_half_turn_about_the_vertical_is_measured_unless_it_is_a_symmetry():
+    from tlessbot_ros.core.pose.observability import measured_turns
+
+    params = ObservabilityParams()
+    block, disc = _shape(_keyed_block()), _shape(_disc(), continuous=True)
+    level = np.array([1.0, 0.0, 0.0])           # standing on an end: the model x is vertical
+    assert ('yaw', None, 180.0) in measured_turns(block.points, params, up_o=level)
+    assert ('yaw', None, 180.0) not in measured_turns(block.points, params)
+    up = np.array([0.0, 0.0, 1.0])              # the disc lying on its face: round about it
+    assert ('yaw', None, 180.0) not in measured_turns(
+        disc.points, params, continuous_axes=disc.continuous_axes, up_o=up)
