@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 from collections import Counter, defaultdict
+from dataclasses import replace
 from pathlib import Path
 
 from tqdm import tqdm
@@ -117,6 +118,9 @@ def main() -> None:
     ap.add_argument('--label', help="the cell's name in the table (default: the scenes folder)")
     ap.add_argument('--no-header', action='store_true', help='the row alone')
     ap.add_argument('--parts', action='store_true', help='one line per unresolvable part')
+    ap.add_argument('--also-min-px', type=int, nargs='*', default=[], metavar='PX',
+                    help='rows at these thresholds too (a check of how much the split '
+                    "hangs on the measure's 20 px)")
     args = ap.parse_args()
     label = args.label or args.scenes.resolve().name
     rows = measure_cell(args.scenes, args.models, args.estimates, args.manifest, label)
@@ -130,6 +134,9 @@ def main() -> None:
     if not args.no_header:
         print(HEADER)
     print(table_row(label, rows))
+    for px in args.also_min_px:
+        print(table_row(f'{label} (< {px} px)',
+                        [{**r, 'found': replace(r['found'], min_px=px)} for r in rows]))
 
 
 if __name__ == '__main__':

@@ -58,12 +58,21 @@ class PartShape:
 
 @dataclass(frozen=True)
 class Resolvability:
-    """What the rig cannot tell from one instance's true pose: the turns ``(axis name,
-    angle in degrees, pixels changed)`` that keep it at rest and change fewer than
-    ``min_px`` pixels, and the look-alike twins ``(obj_id, pixels changed)`` likewise."""
+    """What the rig sees of the doubts about one instance's true pose: the turns that keep it
+    at rest ``(axis name, angle in degrees, pixels changed)`` and its look-alike twins
+    ``(obj_id, pixels changed)``; those that change fewer than ``min_px`` pixels are unseen."""
 
-    unseen_turns: tuple[tuple[str, float, int], ...] = field(default_factory=tuple)
-    unseen_twins: tuple[tuple[int, int], ...] = field(default_factory=tuple)
+    turns: tuple[tuple[str, float, int], ...] = field(default_factory=tuple)
+    twins: tuple[tuple[int, int], ...] = field(default_factory=tuple)
+    min_px: int = ObservabilityParams.min_px
+
+    @property
+    def unseen_turns(self) -> tuple[tuple[str, float, int], ...]:
+        return tuple(t for t in self.turns if t[2] < self.min_px)
+
+    @property
+    def unseen_twins(self) -> tuple[tuple[int, int], ...]:
+        return tuple(t for t in self.twins if t[1] < self.min_px)
 
     @property
     def causes(self) -> tuple[str, ...]:
@@ -109,7 +118,7 @@ def resolvability(part: PartShape, T_world_object: np.ndarray, views: Sequence[V
             it where nearer; None: alone on the table.
         twins: its look-alike parts by id (sharing its model frame), compared at its pose.
     """
-    unseen_turns = []
+    turns = []
     up_o = np.asarray(T_world_object, np.float64)[2, :3]    # the vertical, model frame
     for name, axis, angle in measured_turns(part.points, params,
                                             continuous_axes=part.continuous_axes,
@@ -117,17 +126,16 @@ def resolvability(part: PartShape, T_world_object: np.ndarray, views: Sequence[V
         found = turn_at_pose(part.scene, part.points, part.centre, T_world_object, views,
                              params, axis, angle, continuous_axes=part.continuous_axes,
                              others=others, at_rest_only=True)
-        if found is not None and found[1] and found[0][2] < params.min_px:
-            unseen_turns.append((name, angle, int(found[0][2])))
-    unseen_twins = []
+        if found is not None and found[1]:
+            turns.append((name, angle, int(found[0][2])))
+    twin_px = []
     for obj_id, twin in (twins or {}).items():
         points = np.vstack([part.points, twin.points])     # the window covers both
         changed = sum(changed_pixels(part.scene, points, T_world_object, T_world_object, view,
                                      params, scene_b=twin.scene, others=others)[2]
                       for view in views)
-        if changed < params.min_px:
-            unseen_twins.append((int(obj_id), int(changed)))
-    return Resolvability(tuple(unseen_turns), tuple(unseen_twins))
+        twin_px.append((int(obj_id), int(changed)))
+    return Resolvability(tuple(turns), tuple(twin_px), params.min_px)
 
 
 __all__ = ['CAUSES', 'PartShape', 'Resolvability', 'posed_scene', 'resolvability']
