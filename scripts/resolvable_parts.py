@@ -131,6 +131,16 @@ def main() -> None:
             unseen += [f'twin obj {i} ({px} px)' for i, px in r['found'].unseen_twins]
             print(f"scene {r['scene']} im {r['im']:3d} gt {r['gt']} obj {r['obj']:3d} "
                   f"{'ok   ' if r['ok'] else 'wrong'} unseen: {', '.join(unseen)}")
+        names = ({q['id']: q['name'] for q in json.loads(args.manifest.read_text())['parts']}
+                 if args.manifest else {})
+        for obj in sorted({r['obj'] for r in rows}):
+            mine = [r for r in rows if r['obj'] == obj]
+            lost = [r for r in mine if not r['found'].resolvable]
+            if lost:
+                print(f"{label}: obj {obj} {names.get(obj, '')}: {len(lost)} of {len(mine)} "
+                      f"unresolvable ({sum(r['ok'] for r in lost)} right), resolvable right "
+                      f"{sum(r['ok'] for r in mine if r['found'].resolvable)} of "
+                      f'{len(mine) - len(lost)}')
     if not args.no_header:
         print(HEADER)
     print(table_row(label, rows))
