@@ -137,7 +137,8 @@ def main() -> None:
             mine = [r for r in rows if r['obj'] == obj]
             lost = [r for r in mine if not r['found'].resolvable]
             if lost:
-                print(f"{label}: obj {obj} {names.get(obj, '')}: {len(lost)} of {len(mine)} "
+                name = names.get(obj, f'obj_{obj:02d}')
+                print(f'{label}: obj {obj} {name}: {len(lost)} of {len(mine)} '
                       f"unresolvable ({sum(r['ok'] for r in lost)} right), resolvable right "
                       f"{sum(r['ok'] for r in mine if r['found'].resolvable)} of "
                       f'{len(mine) - len(lost)}')
