@@ -69,7 +69,7 @@ resolvable)
   for k in "$@"; do
     if [ "$k" = T ]; then models=$SHARED/data/tless_models_cad_stl; twins=()
     else models=$BENCH/parts/$k/models; twins=(--manifest "$BENCH/parts/$k/manifest.json"); fi
-    PYTHONPATH="$(cd "$(dirname "$0")/.." && pwd)" "$PY" scripts/resolvable_parts.py \
+    PYTHONPATH="$(cd "$(dirname "$0")/.." && pwd)" nice -n 10 "$PY" scripts/resolvable_parts.py \
       "$BENCH/scenes/$SEED-$k" "$models" "$OUT/$SEED/$k/estimates.csv" "${twins[@]}" \
       --label "$SEED $k" "${header[@]}"
     header=(--no-header)
