@@ -17,6 +17,8 @@ set -eu
 BENCH=$1; what=$2; shift 2
 SHARED=${SHARED:-$(cd "$(dirname "$0")/../.." && pwd)/shared}
 PY=${PYTHON:-python}
+# the tree this script is in, not the package an editable install points at (a worktree)
+export PYTHONPATH="$(cd "$(dirname "$0")/.." && pwd)${PYTHONPATH:+:$PYTHONPATH}"
 cli() { nice -n 10 "$PY" -m tlessbot_ros.tools.cli "$@"; }
 case $what in
 make)
@@ -69,7 +71,7 @@ resolvable)
   for k in "$@"; do
     if [ "$k" = T ]; then models=$SHARED/data/tless_models_cad_stl; twins=()
     else models=$BENCH/parts/$k/models; twins=(--manifest "$BENCH/parts/$k/manifest.json"); fi
-    PYTHONPATH="$(cd "$(dirname "$0")/.." && pwd)" nice -n 10 "$PY" scripts/resolvable_parts.py \
+    nice -n 10 "$PY" scripts/resolvable_parts.py \
       "$BENCH/scenes/$SEED-$k" "$models" "$OUT/$SEED/$k/estimates.csv" "${twins[@]}" \
       --label "$SEED $k" "${header[@]}"
     header=(--no-header)
