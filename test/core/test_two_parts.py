@@ -89,6 +89,9 @@ def test_two_touching_parts_in_one_region_are_found_as_two(touching):
     # in the rest's region by the first division) is fitted right on some hosts and turned
     # end for end on others (an AMD EPYC: the flat check's depth turn wins by 0.6 % of the
     # pixels, a near tie), so its pose is not asserted here (docs/bench/two-parts-host.md).
+    # Refusing such small votes would not fix it: the piece's fit is already slid along its
+    # neighbour, 45 mm off without the turn, and right turns on the bench win by nearly as little
+    # (docs/bench/depth-turn-floor.md).
     gap = np.linalg.norm(owners[0].pose.T_camera_object[:3, 3] - truth[0][:3, 3])
     assert gap < 0.01
 
