@@ -1,6 +1,7 @@
 """Poses that `tlessbot evaluate` cannot score: those whose centre lies outside the side
 camera's image (only the top camera sees them there; evaluate scores in the side camera, so a
-false one there is no false positive of its report). docs/bench/other-renderer.md.
+false one there is no false positive of its report). docs/bench/other-renderer.md;
+``tlessbot evaluate`` now reports those near no part (unseen_parts.py).
 
     python scripts/unseen_estimates.py SCENES ESTIMATES_CSV [SCENES ESTIMATES_CSV ...]
 """
@@ -13,6 +14,7 @@ from collections import Counter
 import numpy as np
 
 from tlessbot_ros.io.bop import read_split
+from tlessbot_ros.tools.support.unseen_parts import outside_image
 
 
 def unseen(scenes: str, estimates: str) -> tuple[int, int, int]:
@@ -23,11 +25,8 @@ def unseen(scenes: str, estimates: str) -> tuple[int, int, int]:
         for row in csv.DictReader(f):
             image = images[int(row['im_id'])]
             t = np.array(row['t'].split(), float) / 1000.0   # in the side camera
-            u, v, w = image.intrinsics.K @ t
             poses += 1
-            inside = w > 0 and 0 <= u / w < image.intrinsics.width \
-                and 0 <= v / w < image.intrinsics.height
-            outside[image.im_id] += not inside
+            outside[image.im_id] += outside_image(image, t)
     return len(images), poses, sum(outside.values())
 
 

@@ -31,6 +31,7 @@ from tlessbot_ros.core.metrics import (
 from tlessbot_ros.errors import ModelFileError
 from tlessbot_ros.io.bop_results import BopEstimate
 from tlessbot_ros.tools.support.eval_breakdown import add_up, confusions, frame_breakdown
+from tlessbot_ros.tools.support.unseen_parts import unscored_false_parts
 
 MIN_VISIB_FRACT = 0.3
 IOU_THRESHOLD = 0.7
@@ -305,13 +306,15 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
                  models: dict[int, ScoringModel]) -> dict:
     """The report dictionary (see issue 8) from (BopImage, FrameOutput) pairs."""
     targets: list[_Target] = []
-    false_pos = duplicates = 0
+    false_pos = duplicates = unscored = 0
     regions: list[tuple[int, int]] = []   # per frame: (named but no part, called unknown)
     losses, matched_boxes = [], []
     detection_ran = recognition_ran = False
     for image, output in frames:
         matches = match_poses(image, output.poses, models)
         duplicates += repeated_poses(output.poses, models)
+        unscored += unscored_false_parts(image, output.poses, lambda i: models[i].diameter_m / 2
+                                         if i in models else DUPLICATE_RADIUS_M)
         box_matches: dict[int, int] = {}
         if output.boxes is not None:
             detection_ran = True
@@ -368,6 +371,10 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
             'false_pos_per_frame': (false_pos / len(frames)
                                     if detection_ran and frames else None),
             'duplicates_per_frame': duplicates / len(frames) if frames else None,
+            # poses outside the scored image near no part: in no other figure (see
+            # unseen_parts)
+            'unscored_false_parts_per_frame': (unscored / len(frames) if frames and any(
+                o.pose_ran for _, o in frames) else None),
             'breakdown': {**add_up(losses), 'confusions': confusions(matched_boxes)}
             if losses else None},
         'recognition': {'top1': overall.get('top1'), **_unknowns(targets, regions,

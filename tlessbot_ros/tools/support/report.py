@@ -39,6 +39,9 @@ def markdown(report: dict) -> str:
              f'- detection: IoU >= 0.7 rate {cell(report["detection"]["iou07_rate"])}, '
              f'false positives per frame {cell(report["detection"]["false_pos_per_frame"])}, '
              f'duplicates per frame {cell(report["detection"].get("duplicates_per_frame"))}',
+             '- false parts outside the scored camera per frame (poses outside its image near '
+             'no part: in no false-positive figure here) '
+             f'{cell(report["detection"].get("unscored_false_parts_per_frame"))}',
              f'- recognition top-1: {cell(report["recognition"]["top1"])}; parts called '
              f'unknown {cell(report["recognition"].get("unknown_rate"))}; regions that are no '
              f'part named as one (false positives) per frame '

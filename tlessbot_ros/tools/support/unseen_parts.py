@@ -1,0 +1,46 @@
+"""False parts that the scored camera does not see: poses whose centre projects outside the
+scored (side) image and that lie near no ground-truth part.
+
+``evaluate`` counts false positives among the scored view's boxes, so a part that only the
+other camera found (a noise patch on the table beside the side image) is in none of its
+figures, yet the graph publishes its pose. This is their count, kept apart from the
+false-positive figure so that every bench's baseline stays comparable
+(docs/bench/unseen-false-parts.md).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+
+import numpy as np
+
+from tlessbot_ros.io.bop_results import BopEstimate
+
+
+def outside_image(image, t_camera_m: np.ndarray) -> bool:
+    """Whether the point ``t_camera_m`` (3,) (the image's camera frame, metres) projects
+    outside ``image`` (its intrinsics), or lies behind the camera."""
+    u, v, w = image.intrinsics.K @ np.asarray(t_camera_m, float)
+    return not (w > 0 and 0 <= u / w < image.intrinsics.width
+                and 0 <= v / w < image.intrinsics.height)
+
+
+def near_a_part(image, t_camera_m: np.ndarray, radius_m: Callable[[int], float]) -> bool:
+    """Whether ``t_camera_m`` lies within ``radius_m(obj_id)`` of the centre of one of the
+    image's ground-truth parts (any class, seen or not: a part hidden from this camera is
+    still a part)."""
+    t = np.asarray(t_camera_m, float)
+    return any(np.linalg.norm(gt.T_camera_object[:3, 3] - t) <= radius_m(gt.obj_id)
+               for gt in image.gt)
+
+
+def unscored_false_parts(image, poses: Iterable[BopEstimate],
+                         radius_m: Callable[[int], float]) -> int:
+    """How many of ``poses`` (one frame, the image's camera frame) lie outside the image
+    (:func:`outside_image`) and near no ground-truth part (:func:`near_a_part`;
+    ``radius_m(obj_id)``: how far from a part's centre a pose of it may lie, e.g. half the
+    part's diameter)."""
+    return sum(outside_image(image, p.T_camera_object[:3, 3])
+               and not near_a_part(image, p.T_camera_object[:3, 3], radius_m) for p in poses)
+
+
+__all__ = ['near_a_part', 'outside_image', 'unscored_false_parts']
