@@ -31,7 +31,7 @@ from tlessbot_ros.core.metrics import (
 from tlessbot_ros.errors import ModelFileError
 from tlessbot_ros.io.bop_results import BopEstimate
 from tlessbot_ros.tools.support.eval_breakdown import add_up, confusions, frame_breakdown
-from tlessbot_ros.tools.support.unseen_parts import unscored_false_parts
+from tlessbot_ros.tools.support.unseen_parts import unscored_false_parts_per_frame
 
 MIN_VISIB_FRACT = 0.3
 IOU_THRESHOLD = 0.7
@@ -304,17 +304,26 @@ def repeated_poses(poses: list[BopEstimate], models: dict[int, ScoringModel]) ->
 
 def score_frames(frames: list[tuple[object, FrameOutput]],
                  models: dict[int, ScoringModel]) -> dict:
-    """The report dictionary (see issue 8) from (BopImage, FrameOutput) pairs."""
+    """The report dictionary (see issue 8) from (BopImage, FrameOutput) pairs; with the false
+    parts outside the scored camera (:mod:`.unseen_parts`), a figure apart from the false
+    positives, so that earlier reports stay comparable."""
+    report = _scored_frames(frames, models)
+    report['detection']['unscored_false_parts_per_frame'] = unscored_false_parts_per_frame(
+        frames, lambda i: models[i].diameter_m / 2 if i in models else DUPLICATE_RADIUS_M)
+    return report
+
+
+def _scored_frames(frames: list[tuple[object, FrameOutput]],
+                   models: dict[int, ScoringModel]) -> dict:
+    """The report dictionary but the false parts outside the scored camera."""
     targets: list[_Target] = []
-    false_pos = duplicates = unscored = 0
+    false_pos = duplicates = 0
     regions: list[tuple[int, int]] = []   # per frame: (named but no part, called unknown)
     losses, matched_boxes = [], []
     detection_ran = recognition_ran = False
     for image, output in frames:
         matches = match_poses(image, output.poses, models)
         duplicates += repeated_poses(output.poses, models)
-        unscored += unscored_false_parts(image, output.poses, lambda i: models[i].diameter_m / 2
-                                         if i in models else DUPLICATE_RADIUS_M)
         box_matches: dict[int, int] = {}
         if output.boxes is not None:
             detection_ran = True
@@ -371,10 +380,6 @@ def score_frames(frames: list[tuple[object, FrameOutput]],
             'false_pos_per_frame': (false_pos / len(frames)
                                     if detection_ran and frames else None),
             'duplicates_per_frame': duplicates / len(frames) if frames else None,
-            # poses outside the scored image near no part: in no other figure (see
-            # unseen_parts)
-            'unscored_false_parts_per_frame': (unscored / len(frames) if frames and any(
-                o.pose_ran for _, o in frames) else None),
             'breakdown': {**add_up(losses), 'confusions': confusions(matched_boxes)}
             if losses else None},
         'recognition': {'top1': overall.get('top1'), **_unknowns(targets, regions,

@@ -43,4 +43,15 @@ def unscored_false_parts(image, poses: Iterable[BopEstimate],
                and not near_a_part(image, p.T_camera_object[:3, 3], radius_m) for p in poses)
 
 
-__all__ = ['near_a_part', 'outside_image', 'unscored_false_parts']
+def unscored_false_parts_per_frame(frames: list, radius_m: Callable[[int], float]
+                                   ) -> float | None:
+    """:func:`unscored_false_parts` per frame over ``frames`` ((BopImage, FrameOutput)
+    pairs), None where the pose stage ran on none of them."""
+    if not any(output.pose_ran for _, output in frames):
+        return None
+    return sum(unscored_false_parts(image, output.poses, radius_m)
+               for image, output in frames) / len(frames)
+
+
+__all__ = ['near_a_part', 'outside_image', 'unscored_false_parts',
+           'unscored_false_parts_per_frame']
