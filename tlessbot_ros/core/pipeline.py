@@ -215,14 +215,6 @@ class PerceptionPipeline:
         self._tables[name] = (key, frame)
         return frame
 
-    def _table_band_at_1m_m(self, table: TableFrame | None) -> float:
-        """The plane fit's inlier distance at 1 m for the depth cue's table (0 where no plane
-        was fitted or its noise not measured: the table is then the cue's own height)."""
-        observed = None if table is None else table.observed
-        if observed is None or observed.noise_at_1m_m is None:
-            return 0.0
-        return self.table_plane.inlier_sigmas * observed.noise_at_1m_m
-
     @property
     def table_frames(self) -> dict[str, TableFrame]:
         """The latest table frame of each view (diagnostics: ``source``, ``find_ms``...)."""
@@ -241,8 +233,8 @@ class PerceptionPipeline:
         """
         def seg(name: str) -> Segmentation:   # depth splits in every view but the top one
             view = views[name]
-            table = None if view.depth_m is None else self.table_frame(name, view)
-            T_world_camera = None if table is None else table.T_world_camera
+            T_world_camera = None if view.depth_m is None else \
+                self.table_frame(name, view).T_world_camera
             with_depth = T_world_camera is not None
             pose = view.T_world_camera if T_world_camera is None else T_world_camera
             params = view_segmentation(self.segmentation, self.part_extents_m,
@@ -251,7 +243,7 @@ class PerceptionPipeline:
                            depth_m=view.depth_m if with_depth else None,
                            intrinsics=view.intrinsics if with_depth else None,
                            T_world_camera=T_world_camera, split_by_depth=name != TOP,
-                           table_band_at_1m_m=self._table_band_at_1m_m(table), params=params)
+                           params=params)
 
         if len(views) == 1:   # a rig of one camera: its segmentation, nothing to fuse
             return single_view(seg(*views), *views)

@@ -228,28 +228,22 @@ class Surfaces:
 def view_depth_cue(depth_m: np.ndarray, intrinsics: CameraIntrinsics | np.ndarray,
                    T_world_camera: np.ndarray,
                     shape: tuple[int, ...], cue_shape: tuple[int, ...],
-                    params: SegmentationParams, *, with_surfaces: bool = True,
-                    table_band_at_1m_m: float = 0.0) -> DepthCue:
+                    params: SegmentationParams, *, with_surfaces: bool = True) -> DepthCue:
     """The depth cue at the cue scale of a view: ``shape`` is the colour image's, ``cue_shape``
     the downscaled one's; ``intrinsics`` a CameraIntrinsics or a (3, 3) K; with its surfaces
-    (for the depth split) if ``with_surfaces`` and ``params.depth_split_jump`` > 0; with
-    ``table_band_at_1m_m`` > 0 (the table plane fit's inlier distance at 1 m), a pixel within
-    it times z² of the table is table too (:func:`depth_cue`)."""
+    (for the depth split) if ``with_surfaces`` and ``params.depth_split_jump`` > 0."""
     K = np.asarray(getattr(intrinsics, 'K', intrinsics))
     height = height_above_table(depth_m, K, T_world_camera, scale=cue_shape[0] / shape[0])
     size = (cue_shape[1], cue_shape[0])
     if height.shape != cue_shape[:2]:
         height = cv2.resize(height, size, interpolation=cv2.INTER_NEAREST)
     depth: np.ndarray | None = None
-    if table_band_at_1m_m > 0 or (with_surfaces and params.depth_split_jump > 0):
+    if with_surfaces and params.depth_split_jump > 0:
         # the same pixels as the height map (nearest neighbour), holes as 0
         depth = np.nan_to_num(np.asarray(depth_m, np.float32), nan=0.0, posinf=0.0)
         if depth.shape != cue_shape[:2]:
             depth = cv2.resize(depth, size, interpolation=cv2.INTER_NEAREST)
-    band = None if depth is None or table_band_at_1m_m <= 0 else \
-        np.float32(table_band_at_1m_m) * depth * depth
-    surfaces_depth = depth if with_surfaces and params.depth_split_jump > 0 else None
-    return depth_cue(height, params, depth=surfaces_depth, table_band_m=band)
+    return depth_cue(height, params, depth=depth)
 
 
 def range_jumps(depth_m: np.ndarray, ratio: float) -> np.ndarray:
@@ -288,14 +282,9 @@ def table_height_m(params: SegmentationParams, sigma_m: float) -> float:
 
 
 def depth_cue(height: np.ndarray, params: SegmentationParams, *,
-               depth: np.ndarray | None = None,
-               table_band_m: np.ndarray | None = None) -> DepthCue:
+               depth: np.ndarray | None = None) -> DepthCue:
     """Object / table masks from a (h, w) height map (NaN invalid); with the (h, w) depth of
-    the same pixels (metres, 0 invalid) also its surfaces (``depth_split_jump``). With
-    ``table_band_m`` ((h, w), m), a pixel is table up to that height where it is higher than
-    :func:`table_height_m`: smoothed stereo depth (a D435i's) raises table patches of a flat
-    part's size several millimetres, within the plane fit's own noise band but above twice
-    the per-pixel deviation (docs/bench/unseen-false-parts.md)."""
+    the same pixels (metres, 0 invalid) also its surfaces (``depth_split_jump``)."""
     valid = ~np.isnan(height)
     filled = height.copy()
     filled[~valid] = 0.0
@@ -328,8 +317,7 @@ def depth_cue(height: np.ndarray, params: SegmentationParams, *,
         candidate |= majority(high_raw) & (~valid | high_raw)
         high_sure = valid & (filled > high)
         sure |= majority(high_sure) & (~valid | high_sure)
-    table_top = table_h if table_band_m is None else np.maximum(table_h, table_band_m)
-    table = valid & (filtered < table_top) & (filled < table_top)
+    table = valid & (filtered < table_h) & (filled < table_h)
     surfaces = None
     if depth is not None:
         solid = high_raw & ~range_jumps(depth, params.depth_split_jump)

@@ -119,7 +119,6 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
             depth_m: np.ndarray | None = None,
             intrinsics: CameraIntrinsics | np.ndarray | None = None,
             T_world_camera: np.ndarray | None = None, split_by_depth: bool = True,
-            table_band_at_1m_m: float = 0.0,
             params: SegmentationParams = SegmentationParams()) -> Segmentation:
     """Segment the parts on a table in one RGB view (paper §3.1), optionally helped by depth.
 
@@ -146,10 +145,6 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         split_by_depth: with depth, divide blobs whose depth shows the seam of two parts
             (``params.depth_split_jump``); the pipeline does it in the side view only (see
             :meth:`~tlessbot_ros.core.pipeline.PerceptionPipeline.localise`).
-        table_band_at_1m_m: the table plane fit's inlier distance at 1 m (its inlier sigmas
-            times the noise it measured, m; 0: none): depth within it times z² of the table
-            is table, so it vetoes colour candidates (see
-            :func:`~tlessbot_ros.core.localise.cues.depth_cue`).
         params: see :class:`~tlessbot_ros.core.localise.SegmentationParams`.
 
     Returns:
@@ -167,8 +162,7 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     if depth_m is not None and intrinsics is not None and T_world_camera is not None \
             and 'depth' in params.methods:   # (depth without the other two: raised above)
         depth_cue = view_depth_cue(depth_m, intrinsics, T_world_camera, rgb.shape,
-                                    small.shape, params, with_surfaces=split_by_depth,
-                                    table_band_at_1m_m=table_band_at_1m_m)
+                                    small.shape, params, with_surfaces=split_by_depth)
         watch.lap('depth')
     cues, candidate, sure = _union_of_cues(small, lab, bgm, depth_cue, params, watch)
     if params.open_px > 0:
