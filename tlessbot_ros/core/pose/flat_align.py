@@ -13,7 +13,8 @@ IJCAI 1977), and the poses are compared aligned, pixel by pixel, on two cues:
 * **height above the table**: the mesh's top surface where a pixel's ray meets the mesh,
   the table (0) where it does not (a hole, beside the outline), against the height the
   measured depth gives (shift-invariant along the table, so a shifted rendering stays
-  exact); a pixel votes for the pose whose height is nearer by more than ``tolerance_m``.
+  exact; on a smoothed depth each rendering is smoothed alike, :func:`depth_spread_px`); a
+  pixel votes for the pose whose height is nearer by more than ``tolerance_m``.
 * **colour**: a pixel that looks like the part (its colour nearer the part's than the
   surroundings'; :func:`~.silhouette.part_likeness`) votes for the pose that covers it, one
   that looks like the surroundings for the pose that leaves it free.
