@@ -34,3 +34,19 @@ def side_scene(vertices: np.ndarray, faces: np.ndarray, T_world_object: np.ndarr
         rgb[part] = PART_RGB
     depth = view.depth_m + rng.normal(0.0, noise_m, part.shape).astype(np.float32)
     return rgb.astype(np.uint8), np.where(view.depth_m > 0, depth, 0).astype(np.float32), part
+
+
+def holed_plate() -> tuple[np.ndarray, np.ndarray]:
+    """A plate 60 x 40 x 4 mm with an 8 mm square hole off the middle (boxes): (vertices m,
+    faces)."""
+    import pytest
+
+    from tlessbot_ros.core.common import make_transform
+
+    trimesh = pytest.importorskip('trimesh')
+    boxes = [((0, 0, 0), (0.012, 0.04, 0.004)), ((0.020, 0, 0), (0.06, 0.04, 0.004)),
+             ((0.012, 0, 0), (0.020, 0.010, 0.004)), ((0.012, 0.018, 0), (0.020, 0.04, 0.004))]
+    meshes = [trimesh.creation.box(extents=np.subtract(hi, lo), transform=make_transform(
+        np.eye(3), np.add(lo, hi) / 2)) for lo, hi in boxes]
+    mesh = trimesh.util.concatenate(meshes)
+    return np.asarray(mesh.vertices), np.asarray(mesh.faces)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from side_scene import SIDE, side_scene
+from side_scene import SIDE, holed_plate, side_scene
 
 from tlessbot_ros.core.common import (
     make_transform,
@@ -213,24 +213,13 @@ def test_a_disc_with_one_hole_is_searched_in_steps_its_hole_resolves():
     assert _yaw_error(T, T_true, 360.0) < 2.0
 
 
-def _plate() -> tuple[np.ndarray, np.ndarray]:
-    """A plate 60 x 40 x 4 mm with an 8 mm square hole off the middle (boxes)."""
-    trimesh = pytest.importorskip('trimesh')
-    boxes = [((0, 0, 0), (0.012, 0.04, 0.004)), ((0.020, 0, 0), (0.06, 0.04, 0.004)),
-             ((0.012, 0, 0), (0.020, 0.010, 0.004)), ((0.012, 0.018, 0), (0.020, 0.04, 0.004))]
-    meshes = [trimesh.creation.box(extents=np.subtract(hi, lo), transform=make_transform(
-        np.eye(3), np.add(lo, hi) / 2)) for lo, hi in boxes]
-    mesh = trimesh.util.concatenate(meshes)
-    return np.asarray(mesh.vertices), np.asarray(mesh.faces)
-
-
 @pytest.mark.parametrize('off_deg', [-5.5, 4.5])
 def test_a_plate_lying_a_few_degrees_off_is_turned_to_its_yaw(off_deg):
     # a rectangle's outline holds its yaw only to a few degrees (the silhouette's check
     # stops there); its edges and hole, scored by the aligned score, within a degree
     from tlessbot_ros.core.pose.flat_yaw import hole_yaw
 
-    vertices, faces = _plate()
+    vertices, faces = holed_plate()
     obj = _templates(vertices, faces, 2 * np.pi)
     evidence, T_true = _view(vertices, faces, 23.0)
     T_fit = T_true @ make_transform(rotation_about_axis([0, 0, 1], np.radians(off_deg)),
@@ -262,7 +251,7 @@ def test_the_yaw_search_finds_the_pose_s_shift_on_the_grid_once(monkeypatch):
         return original(view, k, tolerance_m, near)
 
     monkeypatch.setattr(flat_yaw, 'shift_of', counted)
-    vertices, faces = _plate()
+    vertices, faces = holed_plate()
     obj = _templates(vertices, faces, 2 * np.pi)
     evidence, T_true = _view(vertices, faces, 23.0)
     T_fit = T_true @ make_transform(rotation_about_axis([0, 0, 1], np.radians(-5.5)),
