@@ -233,13 +233,6 @@ def aligned_view(renderers: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.nd
         else np.full((h, w), np.nan)
     cut = None if others is None else np.asarray(others[y0:y0 + h, x0:x0 + w], bool)
     region = voting_region(renders, pad, cut)
-    if depth_m is not None and len(renders):
-        # a smoothed depth (a RealSense's) spreads a thin part's edges and fills its small
-        # holes: each pose's heights are compared smoothed alike, so neither votes on them
-        sigma = depth_spread_px(height, renders[0], pad, region)
-        if sigma > 0:
-            renders = [(hit, cv2.GaussianBlur(rendered, (0, 0), sigma))
-                       for hit, rendered in renders]
     part_like = np.zeros((h, w), np.int8)
     if rgb is not None:
         from tlessbot_ros.core.pose.silhouette import part_likeness
@@ -255,7 +248,19 @@ def aligned_view(renderers: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.nd
         ring = outer & ~region & table & (cut is None or ~cut)
         window_rgb = np.asarray(rgb[y0:y0 + h, x0:x0 + w])
         part_like = part_likeness(window_rgb, inside & raised, ring, region)
-    return AlignedView(box, height, part_like, region, renders, pad)
+    view = AlignedView(box, height, part_like, region, renders, pad)
+    if depth_m is None or not renders:
+        return view
+    # a smoothed depth (a RealSense's) spreads a thin part's edges and fills its small holes:
+    # each pose's heights are compared smoothed alike, so neither votes on them; the spread is
+    # measured where the first pose aligns (a misplaced outline would pass for a spread)
+    sigma = depth_spread_px(height, renders[0], pad, region,
+                            shift_of(view, 0, tolerance_m))
+    if sigma <= 0:
+        return view
+    return AlignedView(box, height, part_like, region,
+                       [(hit, cv2.GaussianBlur(rendered, (0, 0), sigma))
+                        for hit, rendered in renders], pad)
 
 
 # the spreads (Gaussian sigma, pixels) tried for the depth's smoothing: none (a per-pixel
@@ -264,18 +269,19 @@ _SPREADS_PX = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0)
 
 
 def depth_spread_px(measured: np.ndarray, render: tuple[np.ndarray, np.ndarray], pad: int,
-                    region: np.ndarray) -> float:
+                    region: np.ndarray, shift: tuple[int, int] = (0, 0)) -> float:
     """The spread (Gaussian sigma, pixels) over which the view's depth is smoothed, measured
     on the part: of ``_SPREADS_PX``, the one whose blur of a pose's rendered heights (``render``
-    over the window grown by ``pad``) meets the measured ``(h, w)`` heights in ``region`` with
-    the least mean absolute error (0 with fewer than 50 such pixels)."""
+    over the window grown by ``pad``, moved by ``shift`` (dx, dy) pixels) meets the measured
+    ``(h, w)`` heights in ``region`` with the least mean absolute error (0 with fewer than 50
+    such pixels)."""
     has_depth = region & np.isfinite(measured)
     if np.count_nonzero(has_depth) < 50:
         return 0.0
     best, best_error = 0.0, np.inf
     for sigma in _SPREADS_PX:
         heights = cv2.GaussianBlur(render[1], (0, 0), sigma) if sigma > 0 else render[1]
-        error = float(np.mean(np.abs(shifted(heights, pad, 0, 0) - measured)[has_depth]))
+        error = float(np.mean(np.abs(shifted(heights, pad, *shift) - measured)[has_depth]))
         if error < best_error - 1e-5:   # a blur must explain the depth better, not as well
             best, best_error = sigma, error
     return best
