@@ -50,3 +50,20 @@ def holed_plate() -> tuple[np.ndarray, np.ndarray]:
         np.eye(3), np.add(lo, hi) / 2)) for lo, hi in boxes]
     mesh = trimesh.util.concatenate(meshes)
     return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+
+
+def drilled_block():
+    """The generator's drilled block (40 x 30 x 20 mm, two vertical holes, a cross hole,
+    chamfered vertical edges): (vertices m, faces, the object with its templates on its base,
+    seen by the side camera)."""
+    from tlessbot_ros.core.common import make_transform
+    from tlessbot_ros.core.pose import build_database
+    from tlessbot_ros.tools.support import part_generator as gen
+
+    sdf, (low, high) = gen.part_shapes()['block_drilled']
+    v, f = gen.mesh_part(sdf, low, high, spacing_mm=0.7)
+    v = v / 1000.0
+    lift = make_transform(np.eye(3), [0.0, 0.0, -float(v[:, 2].min())])
+    db = build_database([(1, v, f, [(lift, 1.0)], None)], intrinsics=SIDE.intrinsics,
+                        T_world_camera=SIDE.T_world_camera)
+    return v, f, db[1]

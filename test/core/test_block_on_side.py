@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from side_scene import SIDE, side_scene
+from side_scene import SIDE, drilled_block, side_scene
 
 from tlessbot_ros.core.common import (
     depth_to_points,
@@ -16,24 +16,18 @@ from tlessbot_ros.core.common import (
     rotation_about_axis,
     rotation_angle_deg,
 )
-from tlessbot_ros.core.pose import PoseParams, Refiner, TurnParams, build_database
+from tlessbot_ros.core.pose import PoseParams, Refiner, TurnParams
 from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams, ViewEvidence
 from tlessbot_ros.core.pose.half_turns import box_turns, choose_half_turn, self_half_turns
-from tlessbot_ros.tools.support import part_generator as gen
 
 
 @pytest.fixture(scope='module')
 def block():
     """The generator's drilled block: (vertices m, faces), the object (templates on its
     base), its box turns."""
-    sdf, (low, high) = gen.part_shapes()['block_drilled']
-    v, f = gen.mesh_part(sdf, low, high, spacing_mm=0.7)
-    v = v / 1000.0
-    lift = make_transform(np.eye(3), [0.0, 0.0, -float(v[:, 2].min())])
-    db = build_database([(1, v, f, [(lift, 1.0)], None)], intrinsics=SIDE.intrinsics,
-                        T_world_camera=SIDE.T_world_camera)
-    turns = self_half_turns(db[1])
-    return v, f, db[1], turns[box_turns(db[1], turns, TurnParams())]
+    v, f, obj = drilled_block()
+    turns = self_half_turns(obj)
+    return v, f, obj, turns[box_turns(obj, turns, TurnParams())]
 
 
 def _on_a_side(v, f, yaw_deg: float):

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from side_scene import SIDE, side_scene
+from side_scene import SIDE, drilled_block, side_scene
 
 from tlessbot_ros.core.common import (
     depth_to_points,
@@ -14,23 +14,16 @@ from tlessbot_ros.core.common import (
     rotation_about_axis,
     rotation_angle_deg,
 )
-from tlessbot_ros.core.pose import PoseParams, Refiner, TurnParams, build_database, near_turns
+from tlessbot_ros.core.pose import PoseParams, Refiner, TurnParams, near_turns
 from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams, ViewEvidence
 from tlessbot_ros.core.pose.half_turns import choose_half_turn, self_half_turns
-from tlessbot_ros.tools.support import part_generator as gen
 
 
 @pytest.fixture(scope='module')
 def block():
     """The generator's drilled block (40 x 30 x 20 mm, two vertical holes, a cross hole,
     chamfered vertical edges): (vertices m, faces), its templates on its base, the object."""
-    sdf, (low, high) = gen.part_shapes()['block_drilled']
-    v, f = gen.mesh_part(sdf, low, high, spacing_mm=0.7)
-    v = v / 1000.0
-    lift = make_transform(np.eye(3), [0.0, 0.0, -float(v[:, 2].min())])
-    db = build_database([(1, v, f, [(lift, 1.0)], None)], intrinsics=SIDE.intrinsics,
-                        T_world_camera=SIDE.T_world_camera)
-    return v, f, db[1]
+    return drilled_block()
 
 
 def _axis(S: np.ndarray) -> np.ndarray:

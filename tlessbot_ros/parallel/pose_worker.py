@@ -29,8 +29,6 @@ import time
 from dataclasses import replace
 from typing import Any, BinaryIO
 
-import numpy as np
-
 from tlessbot_ros.core.pipeline import Detection, FitParams, PartJob, PerceptionPipeline
 from tlessbot_ros.core.pose import PoseParams, TemplateDatabase
 from tlessbot_ros.io.cache import warm_pose_stage
@@ -74,8 +72,7 @@ def fit(pipeline: PerceptionPipeline, header: dict[str, Any], payload: bytes) ->
     job = PartJob(Detection(0, candidates[0], '', (box[0], box[1], box[2], box[3])),
                   points_from_bytes(payload), candidates,
                   matrix_from_json(header.get('T_world_camera')),
-                  box_camera=None if box_camera is None else
-                  np.asarray(box_camera, np.float64).reshape(3, 3))
+                  box_camera=matrix_from_json(box_camera, 3))
     pipeline.fit_part(job)
     detection = job.detection
     return {'job': header['job'], 'obj_id': detection.obj_id,

@@ -126,5 +126,5 @@ def matrix_to_json(T: np.ndarray | None) -> list[float] | None:
     return None if T is None else [float(v) for v in np.asarray(T, np.float64).ravel()]
 
 
-def matrix_from_json(values: list[float] | None) -> np.ndarray | None:
-    return None if values is None else np.asarray(values, np.float64).reshape(4, 4)
+def matrix_from_json(values: list[float] | None, size: int = 4) -> np.ndarray | None:
+    return None if values is None else np.asarray(values, np.float64).reshape(size, size)

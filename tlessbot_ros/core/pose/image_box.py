@@ -16,6 +16,7 @@ from typing import cast
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from tlessbot_ros.core.common import project_points
 from tlessbot_ros.core.pose.database import ObjectTemplates
 
 
@@ -68,12 +69,10 @@ def box_cover(T_camera_object: np.ndarray, obj: ObjectTemplates, image_box: Imag
     """
     T = np.asarray(T_camera_object, np.float64).reshape(-1, 4, 4)
     points = np.einsum('kij,vj->kvi', T[:, :3, :3], extreme_points(obj)) + T[:, None, :3, 3]
-    z = points[..., 2]
-    in_front = (z > 1e-6).all(axis=1)
-    z = np.where(z > 1e-6, z, 1.0)
-    K = image_box.K
-    u = K[0, 0] * points[..., 0] / z + K[0, 1] * points[..., 1] / z + K[0, 2]
-    v = K[1, 1] * points[..., 1] / z + K[1, 2]
+    in_front = (points[..., 2] > 1e-6).all(axis=1)
+    uv = project_points(points.reshape(-1, 3), image_box.K).reshape(*points.shape[:2], 2)
+    uv = np.where(in_front[:, None, None], uv, 0.0)   # behind the camera: covers nothing
+    u, v = uv[..., 0], uv[..., 1]
     x, y, w, h = image_box.box
     # Pixel k spans k - 0.5 .. k + 0.5 (centres at integers, as the projection's), and a box
     # holds the pixels whose centre a part covers: it reaches up to half a pixel beyond the

@@ -31,7 +31,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tlessbot_ros.core.common import rotation_about_axis
 from tlessbot_ros.core.pose.flat_align import (
     aligned_view,
     alignment_score,
@@ -41,25 +40,13 @@ from tlessbot_ros.core.pose.flat_align import (
     shift_px,
     shifted,
 )
+from tlessbot_ros.core.pose.flat_turns import turn_about
 
 if TYPE_CHECKING:
     import open3d as o3d
 
     from tlessbot_ros.core.pose.flat import ViewEvidence
     from tlessbot_ros.core.pose.flat_align import AlignedView
-
-
-def turned_about(T_camera_object: np.ndarray, centre_o: np.ndarray, axis_c: np.ndarray,
-                 angle_rad: float) -> np.ndarray:
-    """The pose turned by ``angle_rad`` about the axis ``axis_c`` (unit, camera frame) through
-    the model point ``centre_o``."""
-    T = np.asarray(T_camera_object, np.float64)
-    R = rotation_about_axis(axis_c, angle_rad)
-    centre = T[:3, :3] @ centre_o + T[:3, 3]
-    out = np.eye(4)
-    out[:3, :3] = R @ T[:3, :3]
-    out[:3, 3] = R @ (T[:3, 3] - centre) + centre
-    return out
 
 
 class _ImageScore:
@@ -225,7 +212,7 @@ def _steps(T: np.ndarray, centre_o: np.ndarray, angle_rad: float, radius_m: floa
     out = []
     for axis in np.eye(3):
         for sign in (1.0, -1.0):
-            turned = turned_about(T, centre_o, axis, sign * angle_rad)
+            turned = turn_about(axis, sign * angle_rad, T[:3, :3] @ centre_o + T[:3, 3]) @ T
             if support is not None:
                 samples, plane = support
                 normal = plane[:3]
@@ -238,4 +225,4 @@ def _steps(T: np.ndarray, centre_o: np.ndarray, angle_rad: float, radius_m: floa
     return out
 
 
-__all__ = ['refine_on_image', 'turned_about']
+__all__ = ['refine_on_image']

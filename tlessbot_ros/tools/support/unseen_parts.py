@@ -13,15 +13,16 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
+from tlessbot_ros.core.common import project_points
 from tlessbot_ros.io.bop_results import BopEstimate
 
 
 def outside_image(image, t_camera_m: np.ndarray) -> bool:
     """Whether the point ``t_camera_m`` (3,) (the image's camera frame, metres) projects
     outside ``image`` (its intrinsics), or lies behind the camera."""
-    u, v, w = image.intrinsics.K @ np.asarray(t_camera_m, float)
-    return not (w > 0 and 0 <= u / w < image.intrinsics.width
-                and 0 <= v / w < image.intrinsics.height)
+    u, v = project_points(np.asarray(t_camera_m, float), image.intrinsics.K)[0]
+    return not (np.isfinite(u) and 0 <= u < image.intrinsics.width
+                and 0 <= v < image.intrinsics.height)
 
 
 def near_a_part(image, t_camera_m: np.ndarray, radius_m: Callable[[int], float]) -> bool:
