@@ -9,7 +9,7 @@ setup:
 	@scripts/setup.sh
 
 test: setup
-	$(PY) -m pytest -m 'not hardware' $(PYTEST_ARGS)
+	$(PY) test/run_suite.py -m 'not hardware' $(PYTEST_ARGS)
 
 demo: setup
 	$(PY) -m tlessbot_ros.tools.cli demo
