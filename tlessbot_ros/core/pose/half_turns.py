@@ -195,8 +195,9 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
     are) that wins most of the aligned duels, whether it beats the fit by a clear margin).
 
     First :meth:`~.flat.FlatCheck.aligned_winner` of the poses as they are. Where that names
-    no turn clearly and the fit does not beat every turn clearly either, and with
-    ``box_refine_deg``, the poses are refined on every view's image
+    no turn clearly and the fit does not beat every turn clearly either, with
+    ``box_refine_deg``, and where every turn keeps the part's hull within
+    ``box_refine_max_m`` (:func:`hull_moved_m`), the poses are refined on every view's image
     (:func:`~.image_refine.refine_on_image`) and the duels of the refined poses decide: the
     fit's own error of a degree or two, shared by its turns, leaves the holes of the right
     turn beside the imaged ones, and their few votes fall under the margin."""
@@ -209,7 +210,11 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
     found: dict[str, float] = {}
     k = check.aligned_winner(obj, [mesh] * len(poses), poses, views, found, rivals=[0])
     named = k if k > 0 and found.get('align_decided') else 0
-    if params.box_refine_deg <= 0:
+    T0_inverse = np.linalg.inv(poses[0])
+    if params.box_refine_deg <= 0 or any(hull_moved_m(obj, T0_inverse @ T) >
+                                         params.box_refine_max_m for T in poses[1:]):
+        # the refined poses vote inside both outlines only: a turn that moves the part's hull
+        # (a screw end for end: its head) moves the outline, the evidence that vote leaves out
         return k, bool(found.get('align_decided'))
     votes = check.ranked[1] if check.ranked is not None else None
     if votes is not None and len(votes) == len(poses) and all(
@@ -231,6 +236,28 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
     return k, k == named or clear_margin(int(refined[k, 0]), int(refined[0, k]), p.align_min_z)
 
 
+def hull_moved_m(obj: ObjectTemplates, turn: np.ndarray) -> float:
+    """How far (m) the model-frame ``turn`` (4, 4) carries the part's convex hull (of its mesh,
+    else of its surface samples) out of itself: the largest distance of a turned hull vertex
+    outside the hull; 0 for a turn that maps the hull onto itself (a drilled block's box
+    turns), the head's overhang for a screw turned end for end."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    def build() -> tuple[np.ndarray, np.ndarray]:
+        points = obj.mesh_vertices if obj.mesh_vertices is not None else obj.model_points
+        try:
+            hull = ConvexHull(np.asarray(points, np.float64))
+        except (QhullError, ValueError):      # a flat or tiny set: no hull to leave
+            return np.zeros((0, 3)), np.zeros((0, 4))
+        return hull.points[hull.vertices], hull.equations
+
+    vertices, planes = obj.derived('convex_hull', build)
+    if not len(planes):
+        return 0.0
+    moved = vertices @ turn[:3, :3].T + turn[:3, 3]
+    return max(0.0, float((moved @ planes[:, :3].T + planes[:, 3]).max()))
+
+
 def _distinct_by_fitness(poses: list[np.ndarray], more: list[np.ndarray], fitness: np.ndarray,
                          fitted: float, params: TurnParams) -> list[np.ndarray]:
     """``poses`` and, best depth ``fitness`` first, those of ``more`` at most
@@ -248,4 +275,4 @@ def _distinct_by_fitness(poses: list[np.ndarray], more: list[np.ndarray], fitnes
     return poses
 
 
-__all__ = ['box_turns', 'choose_half_turn', 'half_turn_axes', 'self_half_turns']
+__all__ = ['box_turns', 'choose_half_turn', 'half_turn_axes', 'hull_moved_m', 'self_half_turns']

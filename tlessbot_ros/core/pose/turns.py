@@ -70,7 +70,8 @@ class TurnParams:
             their vote, first by steps of this many degrees (0: compared as they are).
         box_refine_min_deg: ... halved down to this step, degrees (> 0).
         box_refine_max_deg: ... each staying within this turn of where it began, degrees.
-        box_refine_max_m: ... and within this distance, m (>= 0).
+        box_refine_max_m: ... and within this distance, m (>= 0); turns that carry the part's
+            hull farther out of itself are compared as they are.
         box_edge_px: the refined poses vote on the pixels inside both outlines and this many
             pixels or more from either (>= 0).
     """
