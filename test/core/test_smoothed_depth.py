@@ -74,3 +74,52 @@ def test_no_turn_of_a_plate_outvotes_it_on_a_smoothed_depth(sigma):
     votes = view_votes([raycasting_scene(vertices, faces)] * 4, poses, points, evidence,
                        align_at_1m_m=params.align_at_1m_m, tolerance_m=params.depth_tolerance_m)
     assert all(votes[k, 0] <= votes[0, k] for k in range(1, 4))
+
+
+def test_a_pose_that_misses_the_depth_measures_no_spread():
+    render = _plate()
+    measured = _measured(render[1], 4.0)
+    measured[:, :40] += 0.006       # half the window 6 mm above what the pose explains
+    region = np.ones((60, 80), bool)
+    assert depth_spread_px(measured, render, PAD, region) == 4.0
+    assert depth_spread_px(measured, render, PAD, region, max_error_m=0.002) == 0.0
+
+
+def _aligned_plate_view(first_misplaced: bool):
+    """The holed plate on a depth smoothed by 3 px, seen by the side camera: the
+    :class:`AlignedView` of the plate's pose and of the plate stood up 40° about its long
+    axis, the one given first measuring the spread; with the plain renderings."""
+    from tlessbot_ros.core.pose.flat_align import aligned_view, render_heights, shift_px
+    from tlessbot_ros.core.pose.silhouette import window
+
+    vertices, faces = holed_plate()
+    T_world = make_transform(rotation_about_axis([0, 0, 1], np.radians(23.0)),
+                             [0.004, -0.006, 0.0])
+    _, depth, _ = side_scene(vertices, faces, T_world, noise_m=0.0005, seed=3)
+    valid = np.isfinite(depth) & (depth > 0)
+    blurred = cv2.GaussianBlur(np.where(valid, depth, 0).astype(np.float32), (0, 0), 3.0)
+    depth = np.where(valid, blurred, depth)
+    T = np.linalg.inv(SIDE.T_world_camera) @ T_world
+    up = make_transform(rotation_about_axis([1, 0, 0], np.radians(40.0)), [0, 0, 0.01])
+    poses = [T @ up, T] if first_misplaced else [T, T @ up]
+    points, scene = vertices.astype(np.float64), raycasting_scene(vertices, faces)
+    params = FlatParams()
+    pad = shift_px(SIDE.intrinsics, points, poses[0], params.align_at_1m_m)
+    box = window(points, poses, SIDE.intrinsics, margin_px=pad + 4)
+    plane = plane_of_frame(SIDE.T_world_camera)
+    x0, y0, w, h = box
+    grown = (x0 - pad, y0 - pad, w + 2 * pad, h + 2 * pad)
+    view = aligned_view([(scene, T_k) for T_k in poses], box, pad, SIDE.intrinsics, plane,
+                        rgb=None, depth_m=depth, others=None,
+                        tolerance_m=params.depth_tolerance_m)
+    return view, [render_heights(scene, T_k, SIDE.intrinsics, grown, plane)[1] for T_k in poses]
+
+
+@pytest.mark.parametrize('first_misplaced', [False, True])
+def test_the_renderings_are_blurred_where_the_measuring_pose_meets_the_depth(first_misplaced):
+    """Measured at the plate's pose, the spread blurs both renderings; measured at a pose that
+    misses the depth (stood up), the blur would only lower that pose's error: none."""
+    view, plain = _aligned_plate_view(first_misplaced)
+    blurred = [not np.allclose(rendered, plain_k)
+               for (_, rendered), plain_k in zip(view.renders, plain)]
+    assert blurred == [not first_misplaced] * 2

@@ -253,9 +253,11 @@ def aligned_view(renderers: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.nd
         return view
     # a smoothed depth (a RealSense's) spreads a thin part's edges and fills its small holes:
     # each pose's heights are compared smoothed alike, so neither votes on them; the spread is
-    # measured where the first pose aligns (a misplaced outline would pass for a spread)
+    # measured where the first pose aligns (a misplaced outline would pass for a spread), and
+    # only where that pose, blurred, meets the depth within the votes' tolerance: a blur
+    # lowers any misplaced rendering's error (a fit tens of degrees off), a spread it is not
     sigma = depth_spread_px(height, renders[0], pad, region,
-                            shift_of(view, 0, tolerance_m))
+                            shift_of(view, 0, tolerance_m), max_error_m=tolerance_m)
     if sigma <= 0:
         return view
     return AlignedView(box, height, part_like, region,
@@ -269,12 +271,14 @@ _SPREADS_PX = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0)
 
 
 def depth_spread_px(measured: np.ndarray, render: tuple[np.ndarray, np.ndarray], pad: int,
-                    region: np.ndarray, shift: tuple[int, int] = (0, 0)) -> float:
+                    region: np.ndarray, shift: tuple[int, int] = (0, 0), *,
+                    max_error_m: float = np.inf) -> float:
     """The spread (Gaussian sigma, pixels) over which the view's depth is smoothed, measured
     on the part: of ``_SPREADS_PX``, the one whose blur of a pose's rendered heights (``render``
     over the window grown by ``pad``, moved by ``shift`` (dx, dy) pixels) meets the measured
     ``(h, w)`` heights in ``region`` with the least mean absolute error (0 with fewer than 50
-    such pixels)."""
+    such pixels, and 0 where that least error exceeds ``max_error_m``: the pose misses the
+    depth, and what a blur gains on it is the pose's error)."""
     has_depth = region & np.isfinite(measured)
     if np.count_nonzero(has_depth) < 50:
         return 0.0
@@ -284,7 +288,7 @@ def depth_spread_px(measured: np.ndarray, render: tuple[np.ndarray, np.ndarray],
         error = float(np.mean(np.abs(shifted(heights, pad, *shift) - measured)[has_depth]))
         if error < best_error - 1e-5:   # a blur must explain the depth better, not as well
             best, best_error = sigma, error
-    return best
+    return best if best_error <= max_error_m else 0.0
 
 
 def view_votes(scenes: Sequence[o3d.t.geometry.RaycastingScene], poses: Sequence[np.ndarray],
