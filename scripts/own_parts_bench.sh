@@ -3,6 +3,9 @@
 #
 #   scripts/own_parts_bench.sh BENCH make            # once: parts folders and scenes (~40 min)
 #   scripts/own_parts_bench.sh BENCH eval OUT SEED SET...   # SEED 4100 | 4242 | 4343
+#   scripts/own_parts_bench.sh BENCH smoothed DIR SEED SET...   # the same scenes with smoothed,
+#                                  stereo-like depth (simulate --depth-model smoothed) in
+#                                  DIR/SEED-SET; score them with SCENES=DIR ... eval OUT SEED SET
 #   scripts/own_parts_bench.sh BENCH why OUT SEED SET       # each part's outcome by cause
 #   scripts/own_parts_bench.sh BENCH none OUT SEED SET      # each "none" part by cause (rerun)
 #   scripts/own_parts_bench.sh BENCH resolvable OUT SEED SET...  # 5 cm / 5° over the parts the
@@ -13,6 +16,7 @@
 # 8 --count 8`). Scenes: 20 frames of `tlessbot bench own-parts --seed SEED` (T, g, s; the held-
 # out families at 4100 and 4242). Templates are rebuilt by the code being scored (`make` builds
 # them; rebuild with `tlessbot templates` after changing what templates hold). Needs ../shared.
+# SCENES=DIR: eval, why, none and resolvable read the scenes from DIR/SEED-SET instead.
 set -eu
 BENCH=$1; what=$2; shift 2
 SHARED=${SHARED:-$(cd "$(dirname "$0")/../.." && pwd)/shared}
@@ -20,6 +24,7 @@ PY=${PYTHON:-python}
 # the tree this script is in, not the package an editable install points at (a worktree)
 export PYTHONPATH="$(cd "$(dirname "$0")/.." && pwd)${PYTHONPATH:+:$PYTHONPATH}"
 cli() { nice -n 10 "$PY" -m tlessbot_ros.tools.cli "$@"; }
+SCENES=${SCENES:-$BENCH/scenes}
 case $what in
 make)
   mkdir -p "$BENCH/parts" "$BENCH/scenes"
@@ -41,6 +46,16 @@ make)
     ln -sfn "$BENCH/run/$seed-$k/$k/scenes" "$BENCH/scenes/$seed-$k"
   done; done
   ;;
+smoothed)
+  # as `bench own-parts` simulates a set (its --parts-min/max and T-LESS ids), smoothed depth
+  DIR=$1; SEED=$2; shift 2
+  for k in "$@"; do
+    if [ "$k" = T ]; then models=(--models "$SHARED/data/tless_models_cad_stl" --ids 2 5 8 11 14 19 25 30)
+    else models=(--models "$BENCH/parts/$k/models"); fi
+    cli simulate "${models[@]}" --out "$DIR/$SEED-$k" --frames 20 --seed "$SEED" \
+      --parts-min 3 --parts-max 8 --depth-model smoothed --no-progress
+  done
+  ;;
 eval)
   OUT=$1; SEED=$2; shift 2
   for k in "$@"; do
@@ -51,17 +66,17 @@ eval)
       more=(--models "$BENCH/parts/$k/models" --classifier "$BENCH/parts/$k/classifier.npz"
             --templates "$BENCH/parts/$k/templates.npz")
     fi
-    cli evaluate --dataset "$BENCH/scenes/$SEED-$k" "${more[@]}" --out "$OUT/$SEED/$k"
+    cli evaluate --dataset "$SCENES/$SEED-$k" "${more[@]}" --out "$OUT/$SEED/$k"
   done
   ;;
 why)
   OUT=$1; SEED=$2; k=$3
-  "$PY" scripts/own_parts_why.py "$BENCH/scenes/$SEED-$k" "$BENCH/parts/$k/models" \
+  "$PY" scripts/own_parts_why.py "$SCENES/$SEED-$k" "$BENCH/parts/$k/models" \
     "$OUT/$SEED/$k/estimates.csv"
   ;;
 none)
   OUT=$1; SEED=$2; k=$3
-  "$PY" scripts/own_parts_none.py "$BENCH/scenes/$SEED-$k" "$BENCH/parts/$k/models" \
+  "$PY" scripts/own_parts_none.py "$SCENES/$SEED-$k" "$BENCH/parts/$k/models" \
     "$OUT/$SEED/$k/estimates.csv" --manifest "$BENCH/parts/$k/manifest.json" \
     --templates "$BENCH/parts/$k/templates.npz" --rerun --classifier "$BENCH/parts/$k/classifier.npz"
   ;;
@@ -72,11 +87,12 @@ resolvable)
     if [ "$k" = T ]; then models=$SHARED/data/tless_models_cad_stl; twins=()
     else models=$BENCH/parts/$k/models; twins=(--manifest "$BENCH/parts/$k/manifest.json"); fi
     nice -n 10 "$PY" scripts/resolvable_parts.py \
-      "$BENCH/scenes/$SEED-$k" "$models" "$OUT/$SEED/$k/estimates.csv" "${twins[@]}" \
+      "$SCENES/$SEED-$k" "$models" "$OUT/$SEED/$k/estimates.csv" "${twins[@]}" \
       --label "$SEED $k" "${header[@]}"
     header=(--no-header)
   done
   ;;
-*) echo "usage: $0 BENCH make | eval OUT SEED SET... | why|none OUT SEED SET" \
+*) echo "usage: $0 BENCH make | eval OUT SEED SET... | smoothed DIR SEED SET..." \
+     "| why|none OUT SEED SET" \
      "| resolvable OUT SEED SET..." >&2; exit 2;;
 esac

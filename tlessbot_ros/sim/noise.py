@@ -1,6 +1,11 @@
 """D415-like depth noise and colour sensor noise.
 
-Depth model (all on a depth image aligned to colour, metres in, uint16 millimetres out):
+Two depth models: ``DepthNoiseParams.kind = 'per_pixel'`` (the default, below) and
+``'smoothed'``, stereo-like depth as a real RealSense gives it (correlated disparity noise,
+sub-pixel steps, edge fattening, edge-preserving smoothing: :mod:`~tlessbot_ros.sim.
+stereo_depth`); both share the holes (shadow, highlights, random) but for edge dropout.
+
+Per-pixel model (all on a depth image aligned to colour, metres in, uint16 millimetres out):
 
 * **Axial noise.** Stereo depth error grows with the square of the distance:
   ``sigma_z = scale * z^2 * sigma_subpixel / (f_ir_px * baseline_m)``, where ``f_ir_px`` is the
@@ -28,10 +33,14 @@ quantised depth.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+
+from tlessbot_ros.sim.stereo_depth import StereoDepthParams, smoothed_depth
+
+DEPTH_KINDS = ('per_pixel', 'smoothed')
 
 
 @dataclass(frozen=True)
@@ -52,6 +61,12 @@ class DepthNoiseParams:
     min_depth_m: float = 0.16
     max_depth_m: float = 10.0
     projector_shadow: bool = True
+    kind: str = 'per_pixel'
+    stereo: StereoDepthParams = field(default_factory=StereoDepthParams)
+
+    def __post_init__(self) -> None:
+        if self.kind not in DEPTH_KINDS:
+            raise ValueError(f'unknown depth kind {self.kind!r}; choose from {DEPTH_KINDS}')
 
 
 def depth_sigma_m(depth_m: np.ndarray, params: DepthNoiseParams) -> np.ndarray:
@@ -100,6 +115,29 @@ def _blobs(seeds: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
+def _shared_holes(rng: np.random.Generator, params: DepthNoiseParams,
+                  highlight: np.ndarray | None, ir_dropout: np.ndarray | None,
+                  shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool holes of the smoothed kind: sparse random ones and strong highlights, grown
+    into small blobs (the per-pixel kind draws the same, interleaved with its edge dropout)."""
+    holes = rng.random(shape, dtype=np.float32) < params.random_holes * params.scale
+    _add_highlight_holes(holes, rng, params, highlight, ir_dropout)
+    return _blobs(holes, rng)
+
+
+def _add_highlight_holes(holes: np.ndarray, rng: np.random.Generator, params: DepthNoiseParams,
+                         highlight: np.ndarray | None, ir_dropout: np.ndarray | None) -> None:
+    """Mark in ``holes`` the pixels whose strong specular highlight drops their depth."""
+    if highlight is None or ir_dropout is None:
+        return
+    rows, cols = np.nonzero((highlight > params.highlight_threshold) & (ir_dropout > 0))
+    strong = ((highlight[rows, cols] - params.highlight_threshold)
+              / (1.0 - params.highlight_threshold))
+    p = np.clip(ir_dropout[rows, cols] * strong * params.scale * 4.0, 0, 1)
+    hit = rng.random(len(rows)) < p
+    holes[rows[hit], cols[hit]] = True
+
+
 def add_depth_noise(depth_m: np.ndarray, focal_px: float, rng: np.random.Generator,
                     params: DepthNoiseParams = DepthNoiseParams(), *,
                     cos_incidence: np.ndarray | None = None,
@@ -127,6 +165,11 @@ def add_depth_noise(depth_m: np.ndarray, focal_px: float, rng: np.random.Generat
     h, w = depth_m.shape
     valid = (depth_m >= params.min_depth_m) & (depth_m <= params.max_depth_m)
     s = float(params.scale)
+    if params.kind == 'smoothed' and s > 0:
+        holes = ~valid | _shared_holes(rng, params, highlight, ir_dropout, (h, w))
+        if params.projector_shadow and params.baseline_m > 0:
+            holes |= stereo_shadow(depth_m, focal_px, params.baseline_m)
+        return smoothed_depth(depth_m, focal_px, rng, params, holes)
     noisy = depth_m.copy()
     if s > 0:
         sigma = depth_sigma_m(depth_m, params) * s
@@ -145,13 +188,7 @@ def add_depth_noise(depth_m: np.ndarray, focal_px: float, rng: np.random.Generat
         u = rng.random((h, w), dtype=np.float32)
         drop = depth_edges(depth_m, params) & (u < min(1.0, params.edge_dropout * s))
         holes = u > 1.0 - params.random_holes * s
-        if highlight is not None and ir_dropout is not None:
-            rows, cols = np.nonzero((highlight > params.highlight_threshold) & (ir_dropout > 0))
-            strong = ((highlight[rows, cols] - params.highlight_threshold)
-                      / (1.0 - params.highlight_threshold))
-            p = np.clip(ir_dropout[rows, cols] * strong * s * 4.0, 0, 1)
-            hit = rng.random(len(rows)) < p
-            holes[rows[hit], cols[hit]] = True
+        _add_highlight_holes(holes, rng, params, highlight, ir_dropout)
         drop |= _blobs(holes, rng)
         valid &= ~drop
     if params.projector_shadow and params.baseline_m > 0:

@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='ROS parameter YAML with the rig (default config/cell.yaml)')
     parser.add_argument('--noise-scale', type=float, default=1.0,
                         help='depth noise sigma and dropout multiplier (0 = clean depth)')
+    parser.add_argument('--depth-model', choices=('per_pixel', 'smoothed'), default='per_pixel',
+                        help="depth noise: per_pixel (default) or smoothed, stereo-like as a "
+                             'real RealSense gives it (docs/bench/smoothed-sim-depth.md)')
     parser.add_argument('--materials', nargs='+', help='subset of light_yellow pink black blue')
     parser.add_argument('--tables', nargs='+', help='subset of plain wood checker')
     parser.add_argument('--no-masks', action='store_true', help='skip mask_visib/ PNGs')
@@ -141,6 +144,7 @@ def _simulator(args: argparse.Namespace):
     from tlessbot_ros.io.models import load_models
     from tlessbot_ros.sim.board import SimBoard
     from tlessbot_ros.sim.materials import MATERIALS, TABLE_KINDS
+    from tlessbot_ros.sim.noise import DepthNoiseParams
     from tlessbot_ros.sim.simulator import SimParams, Simulator
 
     board = None
@@ -150,6 +154,7 @@ def _simulator(args: argparse.Namespace):
     try:
         params = SimParams(parts_min=args.parts_min, parts_max=args.parts_max,
                            noise_scale=args.noise_scale,
+                           noise=DepthNoiseParams(kind=args.depth_model),
                            materials=tuple(args.materials or MATERIALS),
                            tables=tuple(args.tables or TABLE_KINDS), board=board,
                            lean_prob=args.lean_prob,
