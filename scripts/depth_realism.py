@@ -10,8 +10,9 @@ Per image: the table plane (``find_table_plane``, the pipeline's own fit) and it
 on the table (a quadratic in the image removed, parts and edges eroded away) and its
 autocorrelation along rows and columns: the lag (px) where it falls below 0.5; the edge
 spread: at every depth step of more than ``--jump-mm`` along a row or column (no hole within
-8 px, well above the slope of the surfaces on either side), the step over its steepest single-pixel difference (1 = sharp); holes: the share of
-pixels without depth.
+8 px, well above the slope of the surfaces on either side), the step over its steepest single
+pixel difference (1 = sharp); holes: the share of pixels without depth, and of those in a
+7x7 window whose valid depths span more than ``--jump-mm`` (at steps).
 """
 from __future__ import annotations
 
@@ -89,6 +90,16 @@ def _edge_spreads(depth_m: np.ndarray, jump_m: float, half_px: int = 8) -> np.nd
     return np.asarray(widths, float)
 
 
+def _holes_at_steps(depth_m: np.ndarray, jump_m: float) -> float:
+    """Share of holes among the pixels whose 7x7 window spans a depth step."""
+    window = np.ones((7, 7), np.uint8)
+    valid = depth_m > 0
+    high = cv2.dilate(np.where(valid, depth_m, 0).astype(np.float32), window)
+    low = cv2.erode(np.where(valid, depth_m, 1e3).astype(np.float32), window)
+    at_step = (high > 0) & (high - low > jump_m)
+    return float((~valid[at_step]).mean()) if at_step.any() else float('nan')
+
+
 def measure(depth_m: np.ndarray, K: np.ndarray, jump_m: float) -> dict:
     """All figures of one depth image (metres, 0 = hole)."""
     figures, residual, table = _table_residual(depth_m, K)
@@ -99,6 +110,7 @@ def measure(depth_m: np.ndarray, K: np.ndarray, jump_m: float) -> dict:
     figures['edges'] = len(spreads)
     figures['edge_spread_px'] = float(np.median(spreads)) if len(spreads) else float('nan')
     figures['holes'] = float((depth_m <= 0).mean())
+    figures['holes_at_steps'] = _holes_at_steps(depth_m, jump_m)
     return figures
 
 
@@ -128,7 +140,7 @@ def _scene_images(scenes: Path, frames: int):
             scale = float(info[key].get('depth_scale', 1.0))
             depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.float32) * scale / 1000
             K = np.array(info[key]['cam_K'], float).reshape(3, 3)
-            yield f'{scenes.name} {camera.name}', depth, K
+            yield f'{scenes} {camera.name}', depth, K
 
 
 def main() -> None:
@@ -142,7 +154,7 @@ def main() -> None:
     for scenes in args.scenes:
         images += list(_scene_images(scenes, args.frames))
     keys = ('plane_noise_1m_mm', 'table_z_m', 'table_sigma_mm', 'corr_row_px', 'corr_col_px',
-            'edge_spread_px', 'edges', 'holes')
+            'edge_spread_px', 'edges', 'holes', 'holes_at_steps')
     groups: dict[str, list[dict]] = {}
     for name, depth, K in images:
         groups.setdefault(name, []).append(measure(depth, K, args.jump_mm * 1e-3))

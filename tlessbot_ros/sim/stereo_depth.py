@@ -42,7 +42,7 @@ class StereoDepthParams:
     """Settings of the smoothed, stereo-like depth (module docstring)."""
 
     # matching noise in disparity (px RMS) before smoothing, and its correlation (px)
-    disparity_sigma_px: float = 0.15
+    disparity_sigma_px: float = 0.13
     correlation_px: float = 3.0
     # disparity steps per pixel (the ASIC's sub-pixel resolution)
     subpixel_steps: int = 16
@@ -52,7 +52,7 @@ class StereoDepthParams:
     edge_jump_px: float = 0.5
     # bilateral smoothing: spatial sigma (px; window 2.5 sigma) and disparity range sigma (px)
     smooth_space_px: float = 4.0
-    smooth_sigma_px: float = 0.4
+    smooth_sigma_px: float = 0.2
 
 
 def _correlated_field(shape: tuple[int, int], correlation_px: float,

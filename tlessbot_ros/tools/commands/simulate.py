@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--noise-scale', type=float, default=1.0,
                         help='depth noise sigma and dropout multiplier (0 = clean depth)')
     parser.add_argument('--depth-model', choices=('per_pixel', 'smoothed'), default='per_pixel',
-                        help="depth noise: per_pixel (default) or smoothed, stereo-like as a "
+                        help='depth noise: per_pixel (default) or smoothed, stereo-like as a '
                              'real RealSense gives it (docs/bench/smoothed-sim-depth.md)')
     parser.add_argument('--materials', nargs='+', help='subset of light_yellow pink black blue')
     parser.add_argument('--tables', nargs='+', help='subset of plain wood checker')
