@@ -11,8 +11,9 @@ on the table (a quadratic in the image removed, parts and edges eroded away) and
 autocorrelation along rows and columns: the lag (px) where it falls below 0.5; the edge
 spread: at every depth step of more than ``--jump-mm`` along a row or column (no hole within
 8 px, well above the slope of the surfaces on either side), the step over its steepest single
-pixel difference (1 = sharp); holes: the share of pixels without depth, and of those in a
-7x7 window whose valid depths span more than ``--jump-mm`` (at steps).
+pixel difference (1 = sharp), also in bins of the step's disparity (px); holes: the share of
+pixels without depth, and of those in a 7x7 window whose valid depths span more than
+``--jump-mm`` (at steps).
 """
 from __future__ import annotations
 
@@ -68,7 +69,8 @@ def _correlation_length(residual: np.ndarray, mask: np.ndarray, axis: int,
     return float(max_lag)
 
 
-def _edge_spreads(depth_m: np.ndarray, jump_m: float, half_px: int = 8) -> np.ndarray:
+def _edge_spreads(depth_m: np.ndarray, jump_m: float, max_jump_m: float = np.inf,
+                  half_px: int = 8) -> np.ndarray:
     """Ramp widths (px) of the depth steps along the rows: the step over its steepest single
     pixel difference (1 for a sharp step, ~2.5 sigma for a Gaussian blur of sigma px); slopes
     of the surfaces on either side barely change it."""
@@ -85,7 +87,7 @@ def _edge_spreads(depth_m: np.ndarray, jump_m: float, half_px: int = 8) -> np.nd
             jump = abs(float(window[-3:].mean() - window[:3].mean()))
             # a steady slope is no edge: the step must be well above the sides' own slopes
             side_slope = max(abs(window[3] - window[0]), abs(window[-1] - window[-4])) / 3
-            if jump >= jump_m and jump >= 3 * k * side_slope:
+            if jump_m <= jump < max_jump_m and jump >= 3 * k * side_slope:
                 widths.append(jump / float(np.abs(np.diff(window)).max()))
     return np.asarray(widths, float)
 
@@ -100,8 +102,12 @@ def _holes_at_steps(depth_m: np.ndarray, jump_m: float) -> float:
     return float((~valid[at_step]).mean()) if at_step.any() else float('nan')
 
 
-def measure(depth_m: np.ndarray, K: np.ndarray, jump_m: float) -> dict:
-    """All figures of one depth image (metres, 0 = hole)."""
+DISPARITY_BINS_PX = ((0.3, 0.6), (0.6, 1.0), (1.0, 2.0))
+
+
+def measure(depth_m: np.ndarray, K: np.ndarray, jump_m: float, fb_px_m: float) -> dict:
+    """All figures of one depth image (metres, 0 = hole); ``fb_px_m``: the depth camera's IR
+    focal length times its baseline (disparity = fb / z)."""
     figures, residual, table = _table_residual(depth_m, K)
     if table.sum() > 1000:
         figures['corr_row_px'] = _correlation_length(residual, table, 1)
@@ -109,29 +115,41 @@ def measure(depth_m: np.ndarray, K: np.ndarray, jump_m: float) -> dict:
     spreads = np.concatenate([_edge_spreads(depth_m, jump_m), _edge_spreads(depth_m.T, jump_m)])
     figures['edges'] = len(spreads)
     figures['edge_spread_px'] = float(np.median(spreads)) if len(spreads) else float('nan')
+    # the same in bins of the step's disparity: what the camera's smoothing keeps depends on it
+    z2 = float(np.median(depth_m[depth_m > 0])) ** 2
+    for low, high in DISPARITY_BINS_PX:
+        bounds = (low * z2 / fb_px_m, high * z2 / fb_px_m)
+        spreads = np.concatenate([_edge_spreads(depth_m, *bounds),
+                                  _edge_spreads(depth_m.T, *bounds)])
+        figures[f'spread_{low}-{high}px'] = \
+            float(np.median(spreads)) if len(spreads) else float('nan')
     figures['holes'] = float((depth_m <= 0).mean())
     figures['holes_at_steps'] = _holes_at_steps(depth_m, jump_m)
     return figures
 
 
+# D435: 50 mm baseline, IR focal 382 px at 640 x 480 (the visp set's unaligned depth camera)
+D435_FB = 382.0 * 0.050
+
+
 def _real_images(root: Path):
-    """(name, depth m, K) of the real RealSense depth images under ``root``."""
+    """(name, depth m, K, fb) of the real RealSense depth images under ``root``."""
     sygrid = root / 'sygrid_real_d435i'
     cam = json.loads((sygrid / 'camera.json').read_text())
     K = np.array([[cam['fx'], 0, cam['cx']], [0, cam['fy'], cam['cy']], [0, 0, 1]])
     for name in sorted((sygrid / 'test' / '000001' / 'depth').glob('*.png')):
         depth = cv2.imread(str(name), cv2.IMREAD_UNCHANGED).astype(np.float32) / 1000.0
-        yield f'real D435i sygrid {name.stem}', depth, K
+        yield f'real D435i sygrid {name.stem}', depth, K, D435_FB
     folder = root / 'visp_realsense_tutorial_data' / 'computer-vision' / 'd435_align_depth'
     raw = (folder / 'depth_image_0000.bin').read_bytes()
     h, w = np.frombuffer(raw[:8], '<u4')
     depth = np.frombuffer(raw[8:], '<u2').reshape(h, w).astype(np.float32) / 1000.0
     K = np.array([[605.1467, 0, 325.5325], [0, 604.7915, 244.9508], [0, 0, 1]])
-    yield 'real D435 visp align', depth, K
+    yield 'real D435 visp align', depth, K, D435_FB
 
 
-def _scene_images(scenes: Path, frames: int):
-    """(name, depth m, K) of the first ``frames`` images of each camera of a BOP folder."""
+def _scene_images(scenes: Path, frames: int, sim_fb: float):
+    """(name, depth m, K, fb) of the first ``frames`` images of each camera of a BOP folder."""
     for camera in sorted(scenes.glob('test_*')):
         folder = camera / '000000'
         info = json.loads((folder / 'scene_camera.json').read_text())
@@ -140,7 +158,7 @@ def _scene_images(scenes: Path, frames: int):
             scale = float(info[key].get('depth_scale', 1.0))
             depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.float32) * scale / 1000
             K = np.array(info[key]['cam_K'], float).reshape(3, 3)
-            yield f'{scenes} {camera.name}', depth, K
+            yield f'{scenes} {camera.name}', depth, K, sim_fb
 
 
 def main() -> None:
@@ -149,15 +167,18 @@ def main() -> None:
     parser.add_argument('--scenes', type=Path, nargs='*', default=[])
     parser.add_argument('--frames', type=int, default=5)
     parser.add_argument('--jump-mm', type=float, default=8.0)
+    parser.add_argument('--sim-fb', type=float, default=615.0 * 0.055,
+                        help='IR focal (px) x baseline (m) of the simulated camera (D415)')
     args = parser.parse_args()
     images = list(_real_images(args.real)) if args.real else []
     for scenes in args.scenes:
-        images += list(_scene_images(scenes, args.frames))
+        images += list(_scene_images(scenes, args.frames, args.sim_fb))
     keys = ('plane_noise_1m_mm', 'table_z_m', 'table_sigma_mm', 'corr_row_px', 'corr_col_px',
-            'edge_spread_px', 'edges', 'holes', 'holes_at_steps')
+            'edge_spread_px', 'edges', *(f'spread_{a}-{b}px' for a, b in DISPARITY_BINS_PX),
+            'holes', 'holes_at_steps')
     groups: dict[str, list[dict]] = {}
-    for name, depth, K in images:
-        groups.setdefault(name, []).append(measure(depth, K, args.jump_mm * 1e-3))
+    for name, depth, K, fb in images:
+        groups.setdefault(name, []).append(measure(depth, K, args.jump_mm * 1e-3, fb))
     print('| depth | images | ' + ' | '.join(keys) + ' |')
     print('|---|---:|' + '---:|' * len(keys))
     for name, rows in groups.items():
