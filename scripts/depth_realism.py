@@ -3,7 +3,7 @@ holes. For simulated scenes (BOP folders of ``tlessbot simulate``) and the real 
 frames in ../shared/data (docs/bench/smoothed-sim-depth.md).
 
     PYTHONPATH=. python scripts/depth_realism.py --real ../shared/data \\
-        --scenes /work/bench/scenes/4100-T /work/out-simsmooth/scenes/4100-T --frames 5
+        --synthetic per_pixel smoothed --scenes SIMULATED_SCENES... --frames 5
 
 Per image: the table plane (``find_table_plane``, the pipeline's own fit) and its noise
 (``noise_at_1m_m``: 1.48 median |residual| / z²; at the plane's mean depth too); the residual
@@ -161,16 +161,35 @@ def _scene_images(scenes: Path, frames: int, sim_fb: float):
             yield f'{scenes} {camera.name}', depth, K, sim_fb
 
 
+def _synthetic_images(kinds: list[str]):
+    """(name, depth m, K, fb) of a table 30 degrees off the view at 0.36 m with a 20 mm box on
+    it, seen as the real D435i frames are (their K, the D435's IR focal and baseline), through
+    each depth model: pixel lengths and noise comparable with the real frames."""
+    from tlessbot_ros.sim.noise import DepthNoiseParams, add_depth_noise
+
+    K = np.array([[608.56, 0, 310.26], [0, 608.56, 238.32], [0, 0, 1]])
+    u, v = np.meshgrid(np.arange(640), np.arange(480))
+    z = (0.36 / (1 + np.tan(np.radians(30)) * (v - K[1, 2]) / K[1, 1])).astype(np.float32)
+    z[(abs(u - 320) < 60) & (abs(v - 240) < 40)] -= 0.02
+    for kind in kinds:
+        params = DepthNoiseParams(kind=kind, ir_focal_px=382.0, baseline_m=0.05)
+        depth = add_depth_noise(z, K[0, 0], np.random.default_rng(0), params)
+        yield f'synthetic D435i view, {kind}', depth.astype(np.float32) / 1000, K, D435_FB
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--real', type=Path, help='the shared data folder (../shared/data)')
     parser.add_argument('--scenes', type=Path, nargs='*', default=[])
+    parser.add_argument('--synthetic', nargs='*', default=[], choices=('per_pixel', 'smoothed'),
+                        help='also a table and box rendered as the real D435i sees them')
     parser.add_argument('--frames', type=int, default=5)
     parser.add_argument('--jump-mm', type=float, default=8.0)
     parser.add_argument('--sim-fb', type=float, default=615.0 * 0.055,
                         help='IR focal (px) x baseline (m) of the simulated camera (D415)')
     args = parser.parse_args()
     images = list(_real_images(args.real)) if args.real else []
+    images += list(_synthetic_images(args.synthetic))
     for scenes in args.scenes:
         images += list(_scene_images(scenes, args.frames, args.sim_fb))
     keys = ('plane_noise_1m_mm', 'table_z_m', 'table_sigma_mm', 'corr_row_px', 'corr_col_px',
