@@ -2,8 +2,9 @@
 
 Two depth models: ``DepthNoiseParams.kind = 'per_pixel'`` (the default, below) and
 ``'smoothed'``, stereo-like depth as a real RealSense gives it (correlated disparity noise,
-sub-pixel steps, edge fattening, edge-preserving smoothing: :mod:`~tlessbot_ros.sim.
-stereo_depth`); both share the holes (shadow, highlights, random) but for edge dropout.
+sub-pixel steps, edge fattening, edge-preserving smoothing:
+:mod:`~tlessbot_ros.sim.stereo_depth`); both share the holes (shadow, highlights, random) but
+for edge dropout.
 
 Per-pixel model (all on a depth image aligned to colour, metres in, uint16 millimetres out):
 
@@ -45,7 +46,12 @@ DEPTH_KINDS = ('per_pixel', 'smoothed')
 
 @dataclass(frozen=True)
 class DepthNoiseParams:
-    """Parameters of the D415-like depth noise (see the module docstring)."""
+    """Parameters of the D415-like depth noise (see the module docstring).
+
+    ``kind`` picks the model: 'per_pixel' (default) or 'smoothed' (stereo-like, its settings in
+    ``stereo``); the other fields serve both but ``sigma_subpixel``, ``correlated_share``,
+    ``correlation_px`` and the edge dropout fields, which are the per-pixel kind's.
+    """
 
     scale: float = 1.0
     sigma_subpixel: float = 0.07

@@ -1,5 +1,5 @@
-"""Smoothed, stereo-like depth: the ``'smoothed'`` kind of :class:`~tlessbot_ros.sim.noise.
-DepthNoiseParams`.
+"""Smoothed, stereo-like depth: the ``'smoothed'`` kind of
+:class:`~tlessbot_ros.sim.noise.DepthNoiseParams`.
 
 Real RealSense D4xx depth is not per-pixel noisy but smoothed (docs/bench/real-pose-gap.md
 section 1, docs/bench/smoothed-sim-depth.md): the ASIC matches a window of the two IR images
@@ -21,9 +21,10 @@ left over ~10 px. Steps, on the colour camera's z-depth (metres, 0 = nothing):
 
 Image-domain lengths (correlation, fattening, smoothing) are in IR pixels and scale with
 ``focal_px / ir_focal_px`` on the aligned image. The noise and its correlation are set so
-that the depth's noise on a table and its correlation length match the real D435i frames
-(docs/bench/smoothed-sim-depth.md); the sub-pixel steps, the fattening and the smoothing are
-the values of scripts/other_renderer_depth.py (docs/bench/other-renderer.md).
+that the depth's noise on a table and its correlation length match the real D435i frames, the
+smoothing's range so that their steps of 0.6-2 px of disparity stay sharp
+(docs/bench/smoothed-sim-depth.md); the sub-pixel steps, the fattening and the smoothing's
+spatial sigma are the values of scripts/other_renderer_depth.py (docs/bench/other-renderer.md).
 """
 from __future__ import annotations
 
@@ -39,18 +40,24 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class StereoDepthParams:
-    """Settings of the smoothed, stereo-like depth (module docstring)."""
+    """Settings of the smoothed, stereo-like depth (module docstring).
 
-    # matching noise in disparity (px RMS) before smoothing, and its correlation (px)
+    Attributes:
+        disparity_sigma_px: matching noise in disparity (px RMS) before the smoothing.
+        correlation_px: Gaussian sigma (IR px) over which the matching noise is correlated.
+        subpixel_steps: disparity steps per pixel (the matcher's sub-pixel resolution).
+        fattening_px: background pixels this close (IR px) to a nearer surface take its
+            disparity.
+        edge_jump_px: a disparity difference (px) that the fattening counts as a depth edge.
+        smooth_space_px: spatial sigma (IR px) of the bilateral smoothing; 0 turns it off.
+        smooth_sigma_px: range sigma (px of disparity) of the bilateral smoothing.
+    """
+
     disparity_sigma_px: float = 0.13
     correlation_px: float = 3.0
-    # disparity steps per pixel (the ASIC's sub-pixel resolution)
     subpixel_steps: int = 16
-    # background pixels this close to a nearer surface (px) take its disparity
     fattening_px: float = 2.0
-    # a disparity difference (px) counted as a depth edge by the fattening
     edge_jump_px: float = 0.5
-    # bilateral smoothing: spatial sigma (px; window 2.5 sigma) and disparity range sigma (px)
     smooth_space_px: float = 4.0
     smooth_sigma_px: float = 0.2
 
