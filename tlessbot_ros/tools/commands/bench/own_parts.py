@@ -9,7 +9,8 @@ classifier and templates), run through the pipeline (``tlessbot evaluate``) and 
 5°, top-1, detection (IoU > 0.7) and false positives per frame, for all parts and for the flat
 ones (thinnest side <= --flat-mm), then per set a table per part with its misses by cause
 and the false positives by cause (``tlessbot evaluate``'s breakdown). Writes report.md and
-report.json to --out.
+report.json to --out. ``--depth-model smoothed`` simulates the depth a real stereo camera
+gives (smoothed, correlated; ``tlessbot simulate --depth-model``).
 """
 from __future__ import annotations
 
@@ -30,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--seed', type=int, default=4100)
     parser.add_argument('--flat-mm', type=float, default=6.0,
                         help='a part whose thinnest side is at most this is flat (6 mm)')
+    parser.add_argument('--depth-model', choices=('per_pixel', 'smoothed'), default='per_pixel',
+                        help="the simulated depth (simulate's --depth-model): smoothed is "
+                             'stereo-like, as a real RealSense gives it')
     parser.add_argument('--out', type=Path, default=Path('own_parts_bench'))
 
 
@@ -41,7 +45,7 @@ def _score(name: str, models: Path, out: Path, args, *, classifier=None, templat
     ids_arg = ['--ids', *map(str, ids)] if ids else []
     run_tool('simulate', '--models', str(models), '--out', str(data), '--frames',
              str(args.frames), '--seed', str(args.seed), '--parts-min', '3', '--parts-max', '8',
-             *ids_arg)
+             '--depth-model', args.depth_model, *ids_arg)
     more = ['--classifier', str(classifier), '--templates', str(templates)] if classifier else []
     started = time.perf_counter()
     run_tool('evaluate', '--dataset', str(data), '--models', str(models), '--out',
@@ -128,8 +132,10 @@ def run(args: argparse.Namespace) -> int:
     for name, folder in sets:
         rows.append(_score(name, folder.models, args.out, args, classifier=folder.classifier,
                            templates=folder.templates))
-    table = '\n'.join([_table(rows), '', '## Losses per set'] + sum((_losses(r) for r in rows),
-                                                                   []))
+    heading = (f'Simulated depth: {args.depth_model}, seed {args.seed}, {args.frames} frames '
+               'a set.')
+    losses = sum((_losses(r) for r in rows), [])
+    table = '\n'.join([heading, '', _table(rows), '', '## Losses per set', *losses])
     (args.out / 'report.json').write_text(json.dumps(rows, indent=1) + '\n')
     (args.out / 'report.md').write_text(table + '\n')
     print(table)
