@@ -58,6 +58,10 @@ class SegmentationParams:
         thin_max_height_m: a blob lower than this above the table (its ``thin_quantile``) is a
             thin part, kept whole, m (>= 0; 0: off).
         thin_quantile: the quantile of a blob's valid heights compared (0..1).
+        colour_edge_floors: a blob mostly without depth candidates whose LAB colour steps by less
+            than this many ``grey_floor`` / ``lab_floor`` across its outline is table (0: off).
+        colour_edge_ring_px: width (full-resolution px) of the bands inside and outside a
+            blob's outline whose colours that test compares.
         thin_min_valid: share of a blob's pixels with depth needed to call it thin (0..1).
         watershed_keep_share: a candidate blob of which the watershed keeps less than this
             share is kept whole (a part with weaker edges than its surroundings; 0..1, 0: off).
@@ -126,6 +130,8 @@ class SegmentationParams:
     part_width_fraction: float = 0.5
     whole_parts: tuple[tuple[float, float, float], ...] | None = None
     largest_part_px_m2: float | None = None
+    colour_edge_floors: float = 1.0
+    colour_edge_ring_px: int = 4
 
     def __post_init__(self) -> None:
         if self.thin_max_height_m < 0 or not 0.0 <= self.thin_quantile <= 1.0 or \
@@ -146,6 +152,10 @@ class SegmentationParams:
         if not 0.0 <= self.watershed_keep_share <= 1.0:
             raise ValueError('need watershed_keep_share in 0..1 (0: off), got '
                              f'{self.watershed_keep_share}')
+        if self.colour_edge_floors < 0 or self.colour_edge_ring_px < 1:
+            raise ValueError('need colour_edge_floors >= 0 (0: off) and colour_edge_ring_px '
+                             f'>= 1, got {self.colour_edge_floors} and '
+                             f'{self.colour_edge_ring_px}')
         if self.min_area_px < 1 or self.small_blob_candidates_px < 0:
             raise ValueError('need min_area_px >= 1 and small_blob_candidates_px >= 0, got '
                              f'{self.min_area_px} and {self.small_blob_candidates_px}')

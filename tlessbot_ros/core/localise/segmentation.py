@@ -38,6 +38,7 @@ from tlessbot_ros.core.localise.cues import (
     table_height_m,
     view_depth_cue,
 )
+from tlessbot_ros.core.localise.colour_edge import drop_blobs_without_colour_edge
 from tlessbot_ros.core.localise.instances import instances_at_scale, watershed_refine
 from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.part_scale import whole_part_px
@@ -180,6 +181,9 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         foreground = candidate
     if params.small_blob_candidates_px > 0:
         foreground = _small_blobs_whole(foreground, candidate, params.small_blob_candidates_px)
+    if depth_cue is not None:   # colour pieces of a patterned table that the depth let through
+        foreground = drop_blobs_without_colour_edge(
+            foreground, rgb, _upscale(depth_cue.candidate, rgb.shape), params)
     watch.lap('watershed')
     labels, boxes, areas, groups = instances_at_scale(
         foreground, rgb, small, params,

@@ -1,0 +1,119 @@
+"""Which cue tells the top view's false flat parts on smoothed depth from true thin parts:
+for every blob of the top view's foreground (before instance separation) (the pipeline's own parameters), whether it
+lies on a ground-truth part (its top visible mask) or on bare table, and the values of the
+candidate cues. docs/bench/table-false-parts.md.
+
+    python scripts/table_false_parts_cues.py SCENES TEMPLATES [FRAMES]
+
+Cues per instance: its share of depth candidates; the colour step across its outline (LAB
+distance between the medians of a ring inside and a ring outside it, and the largest
+channel step over that channel's cut-off floor); the height step across the outline (median
+height inside less the ring outside, mm).
+"""
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+
+import tlessbot_ros.core.pipeline as pipeline_module
+from tlessbot_ros.core.common import CameraMount, Rig
+from tlessbot_ros.core.localise.colour import rgb_to_lab
+from tlessbot_ros.core.localise.cues import height_above_table
+from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
+from tlessbot_ros.core.pose import TemplateDatabase
+from tlessbot_ros.io.bop import read_split
+
+RING_PX = 4
+ON_PART = 0.3    # share of an instance on a ground-truth mask: a true part
+OFF_PART = 0.05  # below: bare table
+
+
+def _ring(mask: np.ndarray, px: int, outside: bool) -> np.ndarray:
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * px + 1, 2 * px + 1))
+    m = mask.view(np.uint8)
+    if outside:
+        return cv2.dilate(m, kernel).astype(bool) & ~mask
+    return mask & ~cv2.erode(m, kernel).astype(bool)
+
+
+def instance_cues(mask: np.ndarray, others: np.ndarray, lab: np.ndarray, height: np.ndarray,
+                  depth_candidate: np.ndarray, floors: np.ndarray) -> dict[str, float]:
+    """The cue values of one instance (full-resolution masks and images)."""
+    inner = _ring(mask, RING_PX, outside=False)
+    outer = _ring(mask, RING_PX, outside=True) & ~others
+    if inner.sum() < 5 or outer.sum() < 5:
+        return {}
+    step = np.median(lab[inner], axis=0) - np.median(lab[outer], axis=0)
+    h_in, h_out = height[mask], height[outer]
+    h_in, h_out = h_in[~np.isnan(h_in)], h_out[~np.isnan(h_out)]
+    return {'area': float(mask.sum()), 'depth_share': float(depth_candidate[mask].mean()),
+            'colour_step': float(np.linalg.norm(step)),
+            'step_over_floor': float(np.max(np.abs(step) / floors)),
+            'height_step_mm': float(1000 * (np.median(h_in) - np.median(h_out)))
+            if h_in.size and h_out.size else float('nan'),
+            'height_in_mm': float(1000 * np.median(h_in)) if h_in.size else float('nan')}
+
+
+def _capture_top(pipeline: PerceptionPipeline, views: dict) -> tuple:
+    """The top view's Segmentation and the parameters it was segmented with."""
+    seen: dict = {}
+    original: Callable = pipeline_module.segment
+
+    def spy(rgb, **kw):
+        out = original(rgb, **kw)
+        if rgb is views['top'].rgb:
+            seen.update(seg=out, params=kw['params'], T=kw['T_world_camera'])
+        return out
+    pipeline_module.segment = spy
+    try:
+        pipeline.localise(views)
+    finally:
+        pipeline_module.segment = original
+    return seen['seg'], seen['params'], seen['T']
+
+
+def main(argv: list[str]) -> int:
+    scenes, templates = argv[:2]
+    frames = {int(a) for a in argv[2].split(',')} if len(argv) > 2 else None
+    tops = read_split(scenes, 'test_top')
+    sides = read_split(scenes, 'test_side', load_masks=False)
+    pipeline = None
+    print('frame\tlabel\tarea\tdepth_share\tcolour_step\tstep_over_floor\theight_step_mm'
+          '\theight_in_mm')
+    for top, side in zip(tops, sides):
+        if frames is not None and top.im_id not in frames:
+            continue
+        views = {'top': ViewInput(top.rgb, top.depth_m, top.intrinsics, top.T_world_camera),
+                 'side': ViewInput(side.rgb, side.depth_m, side.intrinsics,
+                                   side.T_world_camera)}
+        if pipeline is None:
+            rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
+                       for v, im in (('top', top), ('side', side))})
+            pipeline = PerceptionPipeline(rig=rig, templates=TemplateDatabase.load(templates))
+        seg, params, T = _capture_top(pipeline, views)
+        floors = np.array([params.grey_floor, params.lab_floor, params.lab_floor])
+        lab = rgb_to_lab(top.rgb)
+        height = height_above_table(top.depth_m, top.intrinsics.K, T)
+        depth_cand = cv2.resize(seg.cues['depth'].view(np.uint8), top.rgb.shape[1::-1],
+                                interpolation=cv2.INTER_NEAREST).astype(bool)
+        truth = np.zeros(top.rgb.shape[:2], bool)
+        for gt in top.gt:
+            if gt.mask is not None:
+                truth |= gt.mask
+        count, blobs = cv2.connectedComponents(seg.foreground.view(np.uint8), connectivity=8)
+        for i in range(1, count):
+            mask = blobs == i
+            on = truth[mask].mean()
+            label = 'true' if on >= ON_PART else 'false' if on < OFF_PART else 'mixed'
+            cues = instance_cues(mask, seg.foreground & ~mask, lab, height, depth_cand,
+                                 floors)
+            if cues:
+                print(f'{top.im_id}\t{label}\t' + '\t'.join(f'{v:.3g}' for v in cues.values()))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main(sys.argv[1:]))
