@@ -65,8 +65,8 @@ def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
     drop = []
     for i in range(1, count):
         x, y, bw, bh, area = stats[i]
-        if found[i] >= DEPTH_FOUND_SHARE * area or area < params.min_area_px:
-            continue   # the depth cue's, or too small to become a part anyway
+        if found[i] >= DEPTH_FOUND_SHARE * area:
+            continue
         rows = slice(max(y - pad, 0), min(y + bh + pad, h))
         cols = slice(max(x - pad, 0), min(x + bw + pad, w))
         crop = blobs[rows, cols]

@@ -1,0 +1,65 @@
+"""A blob of a patterned table that a depth bump lets through the table veto is dropped; a
+thin part as high as the bump, found by its colour, is kept
+(:mod:`~tlessbot_ros.core.localise.colour_edge`)."""
+from __future__ import annotations
+
+import numpy as np
+
+from tlessbot_ros.core.localise import SegmentationParams, segment
+
+BUMP_M = 0.0035   # between the depth cue's table (2.5 mm) and its candidates (4 mm)
+SQUARE = (slice(55, 125), slice(45, 120))    # a pink checker square of the table
+BUMP = (slice(80, 100), slice(70, 95))       # a smoothed-noise patch on it
+STRIP = (slice(110, 124), slice(200, 270))   # a blue strip on the grey table
+
+
+def _top_view() -> tuple[np.ndarray, np.ndarray, object]:
+    """(rgb, depth_m, camera) of a grey table with a pink square, a raised patch on the
+    square and a blue strip as high as the patch on the grey."""
+    from tlessbot_ros.core.common import default_rig
+
+    cam = default_rig(320, 240)['top']
+    rays = np.linalg.inv(cam.intrinsics.K) @ np.vstack([
+        np.mgrid[0:240, 0:320][::-1].reshape(2, -1), np.ones((1, 240 * 320))])
+    R, t = cam.T_world_camera[:3, :3], cam.T_world_camera[:3, 3]
+    along = (R[2] @ rays).reshape(240, 320)   # world height change per metre of depth
+    height = np.zeros((240, 320))
+    height[BUMP] = BUMP_M
+    height[STRIP] = BUMP_M
+    depth = ((height - t[2]) / along).astype(np.float32)
+    rng = np.random.default_rng(0)
+    rgb = np.empty((240, 320, 3))
+    rgb[:] = (200, 200, 195)
+    rgb[SQUARE] = (235, 120, 175)
+    rgb[STRIP] = (40, 70, 170)
+    rgb = np.clip(rgb + rng.normal(0, 2.0, rgb.shape), 0, 255).astype(np.uint8)
+    return rgb, depth, cam
+
+
+def _found(params: SegmentationParams) -> list[tuple[int, int]]:
+    rgb, depth, cam = _top_view()
+    seg = segment(rgb, depth_m=depth, intrinsics=cam.intrinsics,
+                  T_world_camera=cam.T_world_camera, split_by_depth=False, params=params)
+    centres = []
+    for i in range(1, seg.count + 1):
+        rows, cols = np.nonzero(seg.labels == i)
+        centres.append((int(rows.mean()), int(cols.mean())))
+    return centres
+
+
+def _inside(centre: tuple[int, int], region: tuple[slice, slice]) -> bool:
+    return region[0].start <= centre[0] < region[0].stop and \
+        region[1].start <= centre[1] < region[1].stop
+
+
+def test_a_raised_piece_of_a_table_square_is_not_a_part():
+    centres = _found(SegmentationParams())
+    assert not any(_inside(c, BUMP) for c in centres)
+    assert sum(_inside(c, STRIP) for c in centres) == 1
+
+
+def test_without_the_colour_edge_test_the_piece_is_found():
+    # what the test above guards against: the bump is a blob when the rule is off
+    centres = _found(SegmentationParams(colour_edge_floors=0.0))
+    assert any(_inside(c, BUMP) for c in centres)
+    assert sum(_inside(c, STRIP) for c in centres) == 1
