@@ -1,7 +1,8 @@
 """Which cue tells the top view's false flat parts on smoothed depth from true thin parts:
-for every blob of the top view's foreground (before instance separation) (the pipeline's own parameters), whether it
-lies on a ground-truth part (its top visible mask) or on bare table, and the values of the
-candidate cues. docs/bench/table-false-parts.md.
+for every blob of the top view's foreground (before instance separation; the pipeline's own
+parameters, with the colour edge test off), whether it lies on a ground-truth part (its top
+visible mask) or on bare table, and the values of the candidate cues.
+docs/bench/table-false-parts.md.
 
     python scripts/table_false_parts_cues.py SCENES TEMPLATES [FRAMES]
 
@@ -20,30 +21,23 @@ import numpy as np
 
 import tlessbot_ros.core.pipeline as pipeline_module
 from tlessbot_ros.core.common import CameraMount, Rig
+from tlessbot_ros.core.localise import SegmentationParams
 from tlessbot_ros.core.localise.colour import rgb_to_lab
+from tlessbot_ros.core.localise.colour_edge import rings
 from tlessbot_ros.core.localise.cues import height_above_table
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 from tlessbot_ros.core.pose import TemplateDatabase
 from tlessbot_ros.io.bop import read_split
 
-RING_PX = 4
+RING_PX = SegmentationParams().colour_edge_ring_px
 ON_PART = 0.3    # share of an instance on a ground-truth mask: a true part
 OFF_PART = 0.05  # below: bare table
-
-
-def _ring(mask: np.ndarray, px: int, outside: bool) -> np.ndarray:
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * px + 1, 2 * px + 1))
-    m = mask.view(np.uint8)
-    if outside:
-        return cv2.dilate(m, kernel).astype(bool) & ~mask
-    return mask & ~cv2.erode(m, kernel).astype(bool)
 
 
 def instance_cues(mask: np.ndarray, others: np.ndarray, lab: np.ndarray, height: np.ndarray,
                   depth_candidate: np.ndarray, floors: np.ndarray) -> dict[str, float]:
     """The cue values of one instance (full-resolution masks and images)."""
-    inner = _ring(mask, RING_PX, outside=False)
-    outer = _ring(mask, RING_PX, outside=True) & ~others
+    inner, outer = rings(mask, others, RING_PX)
     if inner.sum() < 5 or outer.sum() < 5:
         return {}
     step = np.median(lab[inner], axis=0) - np.median(lab[outer], axis=0)
@@ -92,7 +86,9 @@ def main(argv: list[str]) -> int:
         if pipeline is None:
             rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
                        for v, im in (('top', top), ('side', side))})
-            pipeline = PerceptionPipeline(rig=rig, templates=TemplateDatabase.load(templates))
+            pipeline = PerceptionPipeline(
+                rig=rig, templates=TemplateDatabase.load(templates),
+                segmentation=SegmentationParams(colour_edge_floors=0.0))
         seg, params, T = _capture_top(pipeline, views)
         floors = np.array([params.grey_floor, params.lab_floor, params.lab_floor])
         lab = rgb_to_lab(top.rgb)

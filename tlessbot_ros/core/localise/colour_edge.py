@@ -23,7 +23,7 @@ from tlessbot_ros.core.localise.params import SegmentationParams
 DEPTH_FOUND_SHARE = 0.5
 
 
-def _rings(blob: np.ndarray, others: np.ndarray, ring_px: int
+def rings(blob: np.ndarray, others: np.ndarray, ring_px: int
            ) -> tuple[np.ndarray, np.ndarray]:
     """(inside, outside) bands of ``ring_px`` along the outline of ``blob`` (bool crops);
     the outside band leaves out other blobs."""
@@ -38,7 +38,7 @@ def colour_step(rgb: np.ndarray, blob: np.ndarray, others: np.ndarray, ring_px: 
     """The largest LAB channel step across the outline of ``blob`` (median of the band inside
     less that of the band outside), in units of that channel's ``floors`` (L, a, b); inf
     when a band is too small to read."""
-    inside, outside = _rings(blob, others, ring_px)
+    inside, outside = rings(blob, others, ring_px)
     if inside.sum() < 5 or outside.sum() < 5:
         return float('inf')
     lab = rgb_to_lab(np.ascontiguousarray(rgb))

@@ -58,10 +58,6 @@ class SegmentationParams:
         thin_max_height_m: a blob lower than this above the table (its ``thin_quantile``) is a
             thin part, kept whole, m (>= 0; 0: off).
         thin_quantile: the quantile of a blob's valid heights compared (0..1).
-        colour_edge_floors: a blob mostly without depth candidates whose LAB colour steps by less
-            than this many ``grey_floor`` / ``lab_floor`` across its outline is table (0: off).
-        colour_edge_ring_px: width (full-resolution px) of the bands inside and outside a
-            blob's outline whose colours that test compares.
         thin_min_valid: share of a blob's pixels with depth needed to call it thin (0..1).
         watershed_keep_share: a candidate blob of which the watershed keeps less than this
             share is kept whole (a part with weaker edges than its surroundings; 0..1, 0: off).
@@ -79,6 +75,10 @@ class SegmentationParams:
             at 1 m from the camera (its largest outline, :mod:`.part_scale`; at z m: this
             over z squared); a blob larger than that is several parts, thin or not, and is
             divided; None: unknown (no ROS parameter).
+        colour_edge_floors: a blob mostly without depth candidates whose LAB colour steps by less
+            than this many ``grey_floor`` / ``lab_floor`` across its outline is table (0: off).
+        colour_edge_ring_px: width (full-resolution px) of the bands inside and outside a
+            blob's outline whose colours that test compares.
 
     ``methods``: 'watershed' adds the grey-level histogram extremes as markers *and* refines the
     union by flooding (without it the union is used as is); 'background' is used only when an

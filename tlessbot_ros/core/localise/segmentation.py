@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.localise.colour import check_rgb, rgb_to_lab
+from tlessbot_ros.core.localise.colour_edge import drop_blobs_without_colour_edge
 from tlessbot_ros.core.localise.cues import (
     COLOUR_CUES,
     BackgroundModel,
@@ -38,7 +39,6 @@ from tlessbot_ros.core.localise.cues import (
     table_height_m,
     view_depth_cue,
 )
-from tlessbot_ros.core.localise.colour_edge import drop_blobs_without_colour_edge
 from tlessbot_ros.core.localise.instances import instances_at_scale, watershed_refine
 from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.part_scale import whole_part_px
@@ -173,17 +173,7 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     sure = _upscale(sure, rgb.shape)
     table = None if depth_cue is None else _upscale(eroded(depth_cue.table, 1), rgb.shape)
     watch.lap('cues')
-    if 'watershed' in params.methods:
-        foreground = watershed_refine(rgb, candidate, eroded(sure, 1), band_px=params.band_px,
-                                      sure_background=table)
-        foreground = _blobs_the_watershed_lost(foreground, candidate, params.watershed_keep_share)
-    else:
-        foreground = candidate
-    if params.small_blob_candidates_px > 0:
-        foreground = _small_blobs_whole(foreground, candidate, params.small_blob_candidates_px)
-    if depth_cue is not None:   # colour pieces of a patterned table that the depth let through
-        foreground = drop_blobs_without_colour_edge(
-            foreground, rgb, _upscale(depth_cue.candidate, rgb.shape), params)
+    foreground = _foreground(rgb, candidate, sure, table, depth_cue, params)
     watch.lap('watershed')
     labels, boxes, areas, groups = instances_at_scale(
         foreground, rgb, small, params,
@@ -198,6 +188,26 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
                         depth_groups=groups, thin=thin, cues=cues, timings_ms=watch.total(),
                         table_seen=_table_seen(depth_cue, params, rgb.shape),
                         whole_parts=np.array(params.whole_parts or (), float).reshape(-1, 3))
+
+
+def _foreground(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray,
+                table: np.ndarray | None, depth_cue: DepthCue | None,
+                params: SegmentationParams) -> np.ndarray:
+    """The (H, W) bool union mask from the full-resolution candidates and sure markers: the
+    watershed's (``table``: its sure background), small blobs whole, and without the colour
+    pieces of a patterned table that the depth let through (:mod:`.colour_edge`)."""
+    if 'watershed' in params.methods:
+        foreground = watershed_refine(rgb, candidate, eroded(sure, 1), band_px=params.band_px,
+                                      sure_background=table)
+        foreground = _blobs_the_watershed_lost(foreground, candidate, params.watershed_keep_share)
+    else:
+        foreground = candidate
+    if params.small_blob_candidates_px > 0:
+        foreground = _small_blobs_whole(foreground, candidate, params.small_blob_candidates_px)
+    if depth_cue is not None:
+        foreground = drop_blobs_without_colour_edge(
+            foreground, rgb, _upscale(depth_cue.candidate, rgb.shape), params)
+    return foreground
 
 
 def _table_seen(depth_cue: DepthCue | None, params: SegmentationParams,
