@@ -1,5 +1,6 @@
-"""A blob of a patterned table that a depth bump lets through the table veto is dropped; a
-thin part as high as the bump, found by its colour, is kept
+"""A piece of a patterned table's square that a depth bump lets through the table veto is
+dropped; a thin part as high as the bump, found by its colour, is kept, and so are the pieces
+of a thin part whose top the depth reads as table around them
 (:mod:`~tlessbot_ros.core.localise.colour_edge`)."""
 from __future__ import annotations
 
@@ -8,14 +9,20 @@ import numpy as np
 from tlessbot_ros.core.localise import SegmentationParams, segment
 
 BUMP_M = 0.0035   # between the depth cue's table (2.5 mm) and its candidates (4 mm)
-SQUARE = (slice(55, 125), slice(45, 120))    # a pink checker square of the table
-BUMP = (slice(80, 100), slice(70, 95))       # a smoothed-noise patch on it
-STRIP = (slice(110, 124), slice(200, 270))   # a blue strip on the grey table
+SQUARE = (slice(50, 135), slice(20, 125))    # a pink checker square of the table, 105 px long
+BUMP = (slice(80, 100), slice(60, 85))       # a smoothed-noise patch on it
+STRIP = (slice(110, 124), slice(200, 270))   # a blue strip on the grey table, 70 px long
+LOW_STRIP = (slice(170, 184), slice(160, 230))   # a green one the depth reads as table ...
+RAISED = (slice(172, 182), slice(180, 205))      # ... but for a patch as high as the bump
+# the parts' largest extent (m), smallest whole blob and longest look (px) in this view
+PARTS = ((0.06, 60.0, 80.0),)
+SHORT_PARTS = ((0.04, 60.0, 50.0),)   # shorter than the green strip
 
 
 def _top_view() -> tuple[np.ndarray, np.ndarray, object]:
     """(rgb, depth_m, camera) of a grey table with a pink square, a raised patch on the
-    square and a blue strip as high as the patch on the grey."""
+    square, a blue strip as high as the patch on the grey, and a green strip read as table
+    but for a patch as high."""
     from tlessbot_ros.core.common import default_rig
 
     cam = default_rig(320, 240)['top']
@@ -26,12 +33,14 @@ def _top_view() -> tuple[np.ndarray, np.ndarray, object]:
     height = np.zeros((240, 320))
     height[BUMP] = BUMP_M
     height[STRIP] = BUMP_M
+    height[RAISED] = BUMP_M
     depth = ((height - t[2]) / along).astype(np.float32)
     rng = np.random.default_rng(0)
     rgb = np.empty((240, 320, 3))
     rgb[:] = (200, 200, 195)
     rgb[SQUARE] = (235, 120, 175)
     rgb[STRIP] = (40, 70, 170)
+    rgb[LOW_STRIP] = (40, 160, 80)
     rgb = np.clip(rgb + rng.normal(0, 2.0, rgb.shape), 0, 255).astype(np.uint8)
     return rgb, depth, cam
 
@@ -53,13 +62,26 @@ def _inside(centre: tuple[int, int], region: tuple[slice, slice]) -> bool:
 
 
 def test_a_raised_piece_of_a_table_square_is_not_a_part():
-    centres = _found(SegmentationParams())
+    centres = _found(SegmentationParams(whole_parts=PARTS))
     assert not any(_inside(c, BUMP) for c in centres)
     assert sum(_inside(c, STRIP) for c in centres) == 1
+    assert sum(_inside(c, LOW_STRIP) for c in centres) == 1
 
 
-def test_without_the_colour_edge_test_the_piece_is_found():
+def test_the_piece_is_found_without_the_test_or_the_parts_sizes():
     # what the test above guards against: the bump is a blob when the rule is off
-    centres = _found(SegmentationParams(colour_edge_floors=0.0))
-    assert any(_inside(c, BUMP) for c in centres)
+    for params in (SegmentationParams(whole_parts=PARTS, colour_edge_floors=0.0),
+                   SegmentationParams()):
+        centres = _found(params)
+        assert any(_inside(c, BUMP) for c in centres)
+        assert sum(_inside(c, STRIP) for c in centres) == 1
+        assert sum(_inside(c, LOW_STRIP) for c in centres) == 1
+
+
+def test_a_piece_of_a_thin_part_is_kept_as_the_part_ends_its_colour():
+    # the raised patch of the green strip has the strip's colour (read as table) around it,
+    # as a piece of a square has; the strip ends within a part's length, a square does not
+    assert sum(_inside(c, LOW_STRIP) for c in _found(SegmentationParams(whole_parts=PARTS))) == 1
+    centres = _found(SegmentationParams(whole_parts=SHORT_PARTS))
+    assert not any(_inside(c, LOW_STRIP) for c in centres)
     assert sum(_inside(c, STRIP) for c in centres) == 1

@@ -75,8 +75,8 @@ class SegmentationParams:
             at 1 m from the camera (its largest outline, :mod:`.part_scale`; at z m: this
             over z squared); a blob larger than that is several parts, thin or not, and is
             divided; None: unknown (no ROS parameter).
-        colour_edge_floors: a blob mostly without depth candidates whose LAB colour steps by less
-            than this many ``grey_floor`` / ``lab_floor`` across its outline is table (0: off).
+        colour_edge_floors: a blob the depth does not find, within this many ``grey_floor`` /
+            ``lab_floor`` of the table around it, in a region longer than any part: table (0: off).
         colour_edge_ring_px: width (full-resolution px) of the bands inside and outside a
             blob's outline whose colours that test compares.
 

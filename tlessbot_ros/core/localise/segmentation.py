@@ -206,7 +206,8 @@ def _foreground(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray,
         foreground = _small_blobs_whole(foreground, candidate, params.small_blob_candidates_px)
     if depth_cue is not None:
         foreground = drop_blobs_without_colour_edge(
-            foreground, rgb, _upscale(depth_cue.candidate, rgb.shape), params)
+            foreground, rgb, _upscale(depth_cue.candidate, rgb.shape),
+            _upscale(depth_cue.table, rgb.shape), params)
     return foreground
 
 

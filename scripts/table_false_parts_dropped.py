@@ -1,0 +1,85 @@
+"""What the colour edge test (``SegmentationParams.colour_edge_floors``) drops, per view: each
+frame is localised twice (the test off, then on; the pipeline's own parameters) and every
+foreground blob of the first run that the second lacks is counted as on a part (>= 30 % of it
+on a ground-truth visible mask of that view) or on bare table (< 5 %).
+docs/bench/table-false-parts.md.
+
+    python scripts/table_false_parts_dropped.py SCENES TEMPLATES [FLOORS]
+"""
+from __future__ import annotations
+
+import sys
+from collections import Counter
+
+import cv2
+import numpy as np
+
+import tlessbot_ros.core.pipeline as pipeline_module
+from tlessbot_ros.core.common import CameraMount, Rig
+from tlessbot_ros.core.localise import SegmentationParams
+from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
+from tlessbot_ros.core.pose import TemplateDatabase
+from tlessbot_ros.io.bop import read_split
+
+ON_PART, OFF_PART = 0.3, 0.05
+VIEWS = ('top', 'side')
+
+
+def _foregrounds(pipeline: PerceptionPipeline, views: dict) -> dict:
+    """Each view's foreground mask as the pipeline localises the frame."""
+    seen: dict = {}
+    original = pipeline_module.segment
+
+    def spy(rgb, **kw):
+        out = original(rgb, **kw)
+        seen[next(v for v in views if views[v].rgb is rgb)] = out.foreground
+        return out
+    pipeline_module.segment = spy
+    try:
+        pipeline.localise(views)
+    finally:
+        pipeline_module.segment = original
+    return seen
+
+
+def main(argv: list[str]) -> int:
+    scenes, templates = argv[:2]
+    floors = float(argv[2]) if len(argv) > 2 else SegmentationParams().colour_edge_floors
+    counts: Counter = Counter()
+    pipelines = None
+    for top, side in zip(read_split(scenes, 'test_top'), read_split(scenes, 'test_side')):
+        images = {'top': top, 'side': side}
+        views = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera)
+                 for v, im in images.items()}
+        if pipelines is None:
+            rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
+                       for v, im in images.items()})
+            db = TemplateDatabase.load(templates)
+            pipelines = [PerceptionPipeline(rig=rig, templates=db, segmentation=SegmentationParams(
+                colour_edge_floors=f)) for f in (0.0, floors)]
+        off, on = (_foregrounds(p, views) for p in pipelines)
+        for v in VIEWS:
+            truth = np.zeros(off[v].shape, bool)
+            for gt in images[v].gt:
+                if gt.mask is not None:
+                    truth |= gt.mask
+            count, blobs = cv2.connectedComponents(off[v].view(np.uint8), connectivity=8)
+            for i in range(1, count):
+                blob = blobs == i
+                if on[v][blob].any():
+                    continue
+                share = truth[blob].mean()
+                kind = 'part' if share >= ON_PART else 'table' if share < OFF_PART else 'mixed'
+                big = 'area >= 80' if blob.sum() >= 80 else 'area < 80'
+                counts[(v, kind, big)] += 1
+                if kind != 'table':
+                    print(f'frame {top.im_id} {v}: dropped a blob of {int(blob.sum())} px, '
+                          f'{share:.2f} on a part')
+    print(f'{scenes} (floors {floors}): blobs dropped')
+    for key in sorted(counts):
+        print(' ', *key, counts[key])
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main(sys.argv[1:]))
