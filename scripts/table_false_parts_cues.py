@@ -6,10 +6,13 @@ docs/bench/table-false-parts.md.
 
     python scripts/table_false_parts_cues.py SCENES TEMPLATES [FRAMES]
 
-Cues per instance: its share of depth candidates; the colour step across its outline (LAB
-distance between the medians of a ring inside and a ring outside it, and the largest
-channel step over that channel's cut-off floor); the height step across the outline (median
-height inside less the ring outside, mm).
+Cues per blob: its share of depth candidates; the colour step across its outline (the
+largest LAB channel step between the medians of a band inside and a band outside it, over
+that channel's cut-off floor), against the whole band outside and against the part of it
+the depth reads as table (``colour_edge.colour_step``: inf when that is under half the band);
+the length of the region of its colour (``colour_edge.colour_region_length``, within one
+floor) over the longest a part can look in the view; the height step across the outline
+(median height inside less the band outside, mm).
 """
 from __future__ import annotations
 
@@ -23,8 +26,8 @@ import tlessbot_ros.core.pipeline as pipeline_module
 from tlessbot_ros.core.common import CameraMount, Rig
 from tlessbot_ros.core.localise import SegmentationParams
 from tlessbot_ros.core.localise.colour import rgb_to_lab
-from tlessbot_ros.core.localise.colour_edge import rings
-from tlessbot_ros.core.localise.cues import height_above_table
+from tlessbot_ros.core.localise.colour_edge import colour_region_length, colour_step, rings
+from tlessbot_ros.core.localise.cues import height_above_table, view_depth_cue
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 from tlessbot_ros.core.pose import TemplateDatabase
 from tlessbot_ros.io.bop import read_split
@@ -35,20 +38,22 @@ OFF_PART = 0.05  # below: bare table
 
 
 def instance_cues(mask: np.ndarray, others: np.ndarray, lab: np.ndarray, height: np.ndarray,
-                  depth_candidate: np.ndarray, floors: np.ndarray) -> dict[str, float]:
-    """The cue values of one instance (full-resolution masks and images)."""
+                  depth_candidate: np.ndarray, depth_table: np.ndarray, floors: np.ndarray,
+                  longest_px: float) -> dict[str, float]:
+    """The cue values of one blob (full-resolution masks and images)."""
     inner, outer = rings(mask, others, RING_PX)
     if inner.sum() < 5 or outer.sum() < 5:
         return {}
     step = np.median(lab[inner], axis=0) - np.median(lab[outer], axis=0)
+    to_table, colour = colour_step(lab, mask, others, depth_table, RING_PX, floors)
     h_in, h_out = height[mask], height[outer]
     h_in, h_out = h_in[~np.isnan(h_in)], h_out[~np.isnan(h_out)]
     return {'area': float(mask.sum()), 'depth_share': float(depth_candidate[mask].mean()),
-            'colour_step': float(np.linalg.norm(step)),
             'step_over_floor': float(np.max(np.abs(step) / floors)),
+            'step_to_table': to_table,
+            'region_over_longest': colour_region_length(lab, mask, colour, floors) / longest_px,
             'height_step_mm': float(1000 * (np.median(h_in) - np.median(h_out)))
-            if h_in.size and h_out.size else float('nan'),
-            'height_in_mm': float(1000 * np.median(h_in)) if h_in.size else float('nan')}
+            if h_in.size and h_out.size else float('nan')}
 
 
 def _capture_top(pipeline: PerceptionPipeline, views: dict) -> tuple:
@@ -75,8 +80,8 @@ def main(argv: list[str]) -> int:
     tops = read_split(scenes, 'test_top')
     sides = read_split(scenes, 'test_side', load_masks=False)
     pipeline = None
-    print('frame\tlabel\tarea\tdepth_share\tcolour_step\tstep_over_floor\theight_step_mm'
-          '\theight_in_mm')
+    print('frame\tlabel\tarea\tdepth_share\tstep_over_floor\tstep_to_table'
+          '\tregion_over_longest\theight_step_mm')
     for top, side in zip(tops, sides):
         if frames is not None and top.im_id not in frames:
             continue
@@ -95,6 +100,10 @@ def main(argv: list[str]) -> int:
         height = height_above_table(top.depth_m, top.intrinsics.K, T)
         depth_cand = cv2.resize(seg.cues['depth'].view(np.uint8), top.rgb.shape[1::-1],
                                 interpolation=cv2.INTER_NEAREST).astype(bool)
+        cue = view_depth_cue(top.depth_m, top.intrinsics, T, top.rgb.shape,
+                             seg.cues['depth'].shape, params, with_surfaces=False)
+        depth_table = cv2.resize(cue.table.view(np.uint8), top.rgb.shape[1::-1],
+                                 interpolation=cv2.INTER_NEAREST).astype(bool)
         truth = np.zeros(top.rgb.shape[:2], bool)
         for gt in top.gt:
             if gt.mask is not None:
@@ -105,7 +114,7 @@ def main(argv: list[str]) -> int:
             on = truth[mask].mean()
             label = 'true' if on >= ON_PART else 'false' if on < OFF_PART else 'mixed'
             cues = instance_cues(mask, seg.foreground & ~mask, lab, height, depth_cand,
-                                 floors)
+                                 depth_table, floors, seg.longest_part_px)
             if cues:
                 print(f'{top.im_id}\t{label}\t' + '\t'.join(f'{v:.3g}' for v in cues.values()))
     return 0
