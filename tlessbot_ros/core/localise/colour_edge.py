@@ -59,10 +59,19 @@ def colour_region_length(lab: np.ndarray, blob: np.ndarray, colour: np.ndarray,
                          tolerance: np.ndarray) -> int:
     """The long side (px) of the box of the region of ``colour`` (each LAB channel within
     ``tolerance``, 8-connected) that holds ``blob``, within the window ``lab`` covers."""
-    same = np.all(np.abs(lab - colour) <= tolerance, axis=2) | blob
-    _, regions = cv2.connectedComponents(same.view(np.uint8), connectivity=8)
-    ys, xs = np.nonzero(np.isin(regions, np.unique(regions[blob])))
-    return int(max(np.ptp(ys), np.ptp(xs))) + 1
+    colour = np.asarray(colour, np.float64)
+    same = cv2.inRange(lab, colour - tolerance, colour + tolerance).astype(bool) | blob
+    _, regions, stats, _ = cv2.connectedComponentsWithStats(same.view(np.uint8),
+                                                            connectivity=8)
+    region = regions.flat[np.argmax(blob)]   # blob is one 8-connected piece of ``same``
+    return int(stats[region, cv2.CC_STAT_WIDTH:cv2.CC_STAT_HEIGHT + 1].max())
+
+
+def _window(box: np.ndarray, pad: int, shape: tuple[int, ...]) -> tuple[slice, slice]:
+    """The rows and columns of an (x, y, w, h) box grown by ``pad``, within ``shape``."""
+    x, y, w, h = (int(v) for v in box)
+    return (slice(max(y - pad, 0), min(y + h + pad, shape[0])),
+            slice(max(x - pad, 0), min(x + w + pad, shape[1])))
 
 
 def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
@@ -80,20 +89,22 @@ def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
                                                               connectivity=8)
     found = np.bincount(blobs[depth_candidate], minlength=count)
     floors = np.array([params.grey_floor, params.lab_floor, params.lab_floor], np.float32)
-    lab = None
-    h, w = foreground.shape
+    lab = rgb_to_lab(rgb)
     drop = []
-    for i in np.flatnonzero(found[1:] < DEPTH_FOUND_SHARE * stats[1:, cv2.CC_STAT_AREA]) + 1:
-        x, y, bw, bh = stats[i, :4]
-        pad = int(np.ceil(longest)) + params.colour_edge_ring_px
-        rows = slice(max(y - pad, 0), min(y + bh + pad, h))
-        cols = slice(max(x - pad, 0), min(x + bw + pad, w))
-        lab = rgb_to_lab(rgb) if lab is None else lab
-        crop = blobs[rows, cols]
+    area = stats[1:, cv2.CC_STAT_AREA]
+    # blobs under half the smallest instance are dropped anyway (instances_at_scale keeps
+    # min_area_px at its scale, which rounds a little below it)
+    for i in np.flatnonzero((found[1:] < DEPTH_FOUND_SHARE * area) &
+                            (area >= params.min_area_px // 2)) + 1:
+        near = _window(stats[i, :4], params.colour_edge_ring_px + 1, foreground.shape)
+        crop = blobs[near]
         blob = crop == i
-        step, colour = colour_step(lab[rows, cols], blob, (crop > 0) & ~blob,
-                                   depth_table[rows, cols], params.colour_edge_ring_px, floors)
-        if step < params.colour_edge_floors and colour_region_length(
-                lab[rows, cols], blob, colour, params.colour_edge_floors * floors) > longest:
+        step, colour = colour_step(lab[near], blob, (crop > 0) & ~blob, depth_table[near],
+                                   params.colour_edge_ring_px, floors)
+        if step >= params.colour_edge_floors:
+            continue
+        around = _window(stats[i, :4], int(np.ceil(longest)) + 1, foreground.shape)
+        if colour_region_length(lab[around], blobs[around] == i, colour,
+                                params.colour_edge_floors * floors) > longest:
             drop.append(i)
     return foreground & ~np.isin(blobs, drop) if drop else foreground
