@@ -8,8 +8,9 @@ docs/bench/table-false-parts.md.
 
 Cues per blob: its share of depth candidates; the colour step across its outline (the
 largest LAB channel step between the medians of a band inside and a band outside it, over
-that channel's cut-off floor), against the whole band outside and against the part of it
-the depth reads as table (``colour_edge.colour_step``: inf when that is under half the band);
+that channel's cut-off floor) against the whole band outside; the share of the band inside
+that has the colour of the band outside where the depth reads table, within one floor
+(``colour_edge.table_colour_share``: 0 when that is under half the band);
 the length of the region of its colour (``colour_edge.colour_region_length``, within one
 floor) over the longest a part can look in the view; the height step across the outline
 (median height inside less the band outside, mm).
@@ -26,7 +27,11 @@ import tlessbot_ros.core.pipeline as pipeline_module
 from tlessbot_ros.core.common import CameraMount, Rig
 from tlessbot_ros.core.localise import SegmentationParams
 from tlessbot_ros.core.localise.colour import rgb_to_lab
-from tlessbot_ros.core.localise.colour_edge import colour_region_length, colour_step, rings
+from tlessbot_ros.core.localise.colour_edge import (
+    colour_region_length,
+    rings,
+    table_colour_share,
+)
 from tlessbot_ros.core.localise.cues import height_above_table, view_depth_cue
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 from tlessbot_ros.core.pose import TemplateDatabase
@@ -45,12 +50,12 @@ def instance_cues(mask: np.ndarray, others: np.ndarray, lab: np.ndarray, height:
     if inner.sum() < 5 or outer.sum() < 5:
         return {}
     step = np.median(lab[inner], axis=0) - np.median(lab[outer], axis=0)
-    to_table, colour = colour_step(lab, mask, others, depth_table, RING_PX, floors)
+    share, colour = table_colour_share(lab, mask, others, depth_table, RING_PX, floors)
     h_in, h_out = height[mask], height[outer]
     h_in, h_out = h_in[~np.isnan(h_in)], h_out[~np.isnan(h_out)]
     return {'area': float(mask.sum()), 'depth_share': float(depth_candidate[mask].mean()),
             'step_over_floor': float(np.max(np.abs(step) / floors)),
-            'step_to_table': to_table,
+            'table_colour_share': share,
             'region_over_longest': colour_region_length(lab, mask, colour, floors) / longest_px,
             'height_step_mm': float(1000 * (np.median(h_in) - np.median(h_out)))
             if h_in.size and h_out.size else float('nan')}
@@ -80,7 +85,7 @@ def main(argv: list[str]) -> int:
     tops = read_split(scenes, 'test_top')
     sides = read_split(scenes, 'test_side', load_masks=False)
     pipeline = None
-    print('frame\tlabel\tarea\tdepth_share\tstep_over_floor\tstep_to_table'
+    print('frame\tlabel\tarea\tdepth_share\tstep_over_floor\ttable_colour_share'
           '\tregion_over_longest\theight_step_mm')
     for top, side in zip(tops, sides):
         if frames is not None and top.im_id not in frames:

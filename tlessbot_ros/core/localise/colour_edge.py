@@ -9,10 +9,10 @@ depth-vetoed table just around it, since its outline is drawn by the depth noise
 colour change. So is a piece of a thin part whose own top the depth reads as table; what tells
 them apart is the region of that colour: a square's runs on beyond the longest a part can look
 in the view (and on to the next square of the pattern), a part's ends at the part's outline.
-So a blob the depth cue does not find, with depth-vetoed table around it, is dropped when the
-colour inside its outline matches that table's to within the colour cues' own smallest
-cut-offs (``grey_floor``, ``lab_floor``) and the region of that colour around it is longer
-than any part (``whole_parts``; without the parts' sizes nothing is dropped).
+So a blob the depth cue does not find, with depth-vetoed table around it, is dropped when most
+of the band inside its outline has that table's colour, to within the colour cues' own
+smallest cut-offs (``grey_floor``, ``lab_floor``), and the region of that colour around it is
+longer than any part (``whole_parts``; without the parts' sizes nothing is dropped).
 """
 from __future__ import annotations
 
@@ -28,6 +28,9 @@ DEPTH_FOUND_SHARE = 0.5
 # A blob is compared with the table around it only where the depth reads table height on at
 # least this share of its outside band (otherwise what surrounds it is not known to be table).
 TABLE_SHARE = 0.5
+# A blob has the table's colour when most of the band inside its outline has it (a median
+# colour would not do: two parts' colours in one blob can average to the table's).
+TABLE_COLOUR_SHARE = 0.5
 
 
 def rings(blob: np.ndarray, others: np.ndarray, ring_px: int
@@ -40,19 +43,20 @@ def rings(blob: np.ndarray, others: np.ndarray, ring_px: int
     return inside, outside
 
 
-def colour_step(lab: np.ndarray, blob: np.ndarray, others: np.ndarray, table: np.ndarray,
-                ring_px: int, floors: np.ndarray) -> tuple[float, np.ndarray]:
-    """The largest LAB channel step from the table just outside ``blob`` to the band inside
-    its outline (medians), in units of that channel's ``floors`` (L, a, b), and the inside
-    band's median colour; inf when the band outside is mostly not ``table`` (depth at table
-    height) or a band is too small to read. All arguments are crops of one window."""
+def table_colour_share(lab: np.ndarray, blob: np.ndarray, others: np.ndarray,
+                       table: np.ndarray, ring_px: int, tolerance: np.ndarray
+                       ) -> tuple[float, np.ndarray]:
+    """The share of the band inside ``blob``'s outline whose colour is the table's just
+    outside it (each LAB channel within ``tolerance`` of the median of the outside band's
+    ``table`` pixels: depth at table height), and that colour; 0 when the outside band is
+    mostly not table or a band is too small to read. All arguments are crops of one window."""
     inside, outside = rings(blob, others, ring_px)
     seen = outside & table
-    colour = np.median(lab[inside], axis=0) if inside.sum() >= 5 else np.zeros(3)
     if inside.sum() < 5 or seen.sum() < 5 or seen.sum() < TABLE_SHARE * outside.sum():
-        return float('inf'), colour
-    step = colour - np.median(lab[seen], axis=0)
-    return float(np.max(np.abs(step) / floors)), colour
+        return 0.0, np.zeros(3)
+    colour = np.median(lab[seen], axis=0).astype(np.float64)
+    same = cv2.inRange(lab[inside][:, None, :], colour - tolerance, colour + tolerance)
+    return float(np.count_nonzero(same)) / len(same), colour
 
 
 def colour_region_length(lab: np.ndarray, blob: np.ndarray, colour: np.ndarray,
@@ -78,17 +82,18 @@ def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
                                    depth_candidate: np.ndarray, depth_table: np.ndarray,
                                    params: SegmentationParams) -> np.ndarray:
     """``foreground`` (H, W) bool without its blobs that the depth cue does not find
-    (``depth_candidate``, (H, W) bool), whose colour steps by less than
-    ``params.colour_edge_floors`` cut-off floors from the table around them (``depth_table``,
-    (H, W) bool: depth at table height) and whose colour runs on further than any part is long
-    (module doc; 0 or unknown parts: unchanged)."""
+    (``depth_candidate``, (H, W) bool), mostly of the colour of the table around them (within
+    ``params.colour_edge_floors`` cut-off floors; ``depth_table``, (H, W) bool: depth at table
+    height), where that colour runs on further than any part is long (module doc; 0 or
+    unknown parts: unchanged)."""
     longest = max((extent[2] for extent in params.whole_parts or ()), default=0.0)
     if params.colour_edge_floors <= 0 or longest <= 0:
         return foreground
     count, blobs, stats, _ = cv2.connectedComponentsWithStats(foreground.view(np.uint8),
                                                               connectivity=8)
     found = np.bincount(blobs[depth_candidate], minlength=count)
-    floors = np.array([params.grey_floor, params.lab_floor, params.lab_floor], np.float32)
+    tolerance = params.colour_edge_floors * np.array(
+        [params.grey_floor, params.lab_floor, params.lab_floor], np.float64)
     lab = rgb_to_lab(rgb)
     drop = []
     area = stats[1:, cv2.CC_STAT_AREA]
@@ -99,12 +104,12 @@ def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
         near = _window(stats[i, :4], params.colour_edge_ring_px + 1, foreground.shape)
         crop = blobs[near]
         blob = crop == i
-        step, colour = colour_step(lab[near], blob, (crop > 0) & ~blob, depth_table[near],
-                                   params.colour_edge_ring_px, floors)
-        if step >= params.colour_edge_floors:
+        share, colour = table_colour_share(lab[near], blob, (crop > 0) & ~blob,
+                                           depth_table[near], params.colour_edge_ring_px,
+                                           tolerance)
+        if share < TABLE_COLOUR_SHARE:
             continue
         around = _window(stats[i, :4], int(np.ceil(longest)) + 1, foreground.shape)
-        if colour_region_length(lab[around], blobs[around] == i, colour,
-                                params.colour_edge_floors * floors) > longest:
+        if colour_region_length(lab[around], blobs[around] == i, colour, tolerance) > longest:
             drop.append(i)
     return foreground & ~np.isin(blobs, drop) if drop else foreground
