@@ -44,8 +44,11 @@ renders: the localiser cuts the part out of every frame, described as CAD crops 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -330,8 +333,10 @@ def run(args: argparse.Namespace) -> int:
     for kind, path in output_paths(args.out, kinds).items():
         params = learners[kind]
         t0 = time.perf_counter()
-        with tqdm(total=args.epochs * len(labels), desc=f'train {kind}', unit='sample',
-                  unit_scale=True) as bar:
+        one_fit = params.kernel_components > 0   # one batch fit: no progress inside it
+        with tqdm(total=args.epochs * len(labels), unit='sample', unit_scale=True,
+                  desc=f'train {kind}' + (' (one batch fit)' if one_fit else '')) as bar, \
+                _elapsed_shown(bar if one_fit else None):
             model = train_classifier(features, labels, hog_params=hog, params=params,
                                      seed=args.seed, on_batch=bar.update,
                                      shape_params=shape)
@@ -347,6 +352,24 @@ def run(args: argparse.Namespace) -> int:
         print(f'{kind}: trained in {train_s:.1f} s (data {data_s:.1f} s), training accuracy '
               f'{100 * train_acc:.1f} % -> {path}')
     return 0
+
+
+@contextlib.contextmanager
+def _elapsed_shown(bar, every_s: float = 1.0) -> Iterator[None]:
+    """Redraw ``bar`` every ``every_s`` while the block runs, so its elapsed time moves during
+    a step that reports no progress (None: nothing)."""
+    done = threading.Event()
+
+    def redraw() -> None:
+        while not done.wait(every_s):
+            bar.refresh()
+
+    if bar is not None:
+        threading.Thread(target=redraw, daemon=True, name='train_progress').start()
+    try:
+        yield
+    finally:
+        done.set()
 
 
 def cad_features(args: argparse.Namespace, hog: HogParams, shape: ShapeParams | None
