@@ -28,8 +28,9 @@ def own_parts(tmp_path_factory):
     root = tmp_path_factory.mktemp('own_parts')
     cad, parts, bag = root / 'my_cad', root / 'my_parts', root / 'my_bag'
     assert main(['parts', 'generate', '--out', str(cad), '--names', *PARTS]) == 0
+    # the self-check on the smoothed depth a real stereo camera gives (the bag below: per pixel)
     assert main(['parts', 'build', '--models', str(cad), '--out', str(parts), *QUICK,
-                 '--check-frames', '1']) == 0
+                 '--check-frames', '1', '--check-depth', 'smoothed']) == 0
     assert main(['simulate', '--models', str(parts / 'models'), '--bag', str(bag),
                  '--frames', '3', '--parts-min', '3', '--parts-max', '3', '--seed', '41',
                  '--cloud-stride', '4', '--no-masks', '--no-progress']) == 0
@@ -52,6 +53,8 @@ def test_parts_folder_holds_what_a_cell_needs(own_parts):
     assert all('unseen_turns_5deg' in part for part in manifest['parts'])
     table = (parts / 'self_check.md').read_text()
     assert all(f'| {name} |' in table for name in PARTS)
+    assert '1 frames, smoothed depth' in table
+    assert manifest['self_check']['depth_model'] == 'smoothed'
     # the evaluation behind the table stays with the folder (its path is printed)
     assert (parts / 'self_check' / 'report.md').is_file()
 

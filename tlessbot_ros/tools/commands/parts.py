@@ -43,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument('--check-frames', type=int, default=CHECK_FRAMES,
                        help=f'simulated frames of the self-check (default {CHECK_FRAMES}; 0: '
                             'none)')
+    build.add_argument('--check-depth', choices=('per_pixel', 'smoothed'), default='per_pixel',
+                       help="the self-check's simulated depth: per_pixel (default) or smoothed, "
+                            'stereo-like as a real RealSense gives it')
     build.add_argument('--seed', type=int, default=0,
                        help="seed of the classifier's training and the self-check's scenes "
                             '(default 0)')
@@ -97,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
         raise TlessbotError('--check-frames must be >= 0')
     options = BuildOptions(units=args.units, config=args.config,
                            recipe=None if args.recipe == 'defaults' else args.recipe,
-                           check_frames=args.check_frames, seed=args.seed,
+                           check_frames=args.check_frames, check_depth=args.check_depth,
+                           seed=args.seed,
                            train_args=args.train_arg, reuse_classifier=not args.retrain)
     # SIGTERM (kill, timeout) as Ctrl-C: the half-built folder is removed, the children end
     previous = signal.signal(signal.SIGTERM, _interrupt)

@@ -43,6 +43,7 @@ class BuildOptions:
     recipe: str | None = DEFAULT_RECIPE
     config: Path | None = None
     check_frames: int = CHECK_FRAMES
+    check_depth: str = 'per_pixel'   # the self-check's simulated depth (simulate --depth-model)
     seed: int = 0
     train_args: list[str] = field(default_factory=list)
     reuse_classifier: bool = True
@@ -214,7 +215,7 @@ def self_check(out: Path, options: BuildOptions) -> list[dict]:
         data = Path(tmp) / 'scenes'
         run_tool('simulate', '--models', models, '--out', str(data), '--frames',
                  str(options.check_frames), '--seed', str(options.seed + 7919), '--parts-min',
-                 '3', *config)
+                 '3', '--depth-model', options.check_depth, *config)
         run_tool('evaluate', '--dataset', str(data), '--models', models, '--classifier',
                  str(out / parts_io.CLASSIFIER), '--templates', str(out / parts_io.TEMPLATES),
                  '--out', str(report_dir))
@@ -231,7 +232,8 @@ def self_check(out: Path, options: BuildOptions) -> list[dict]:
     summary = {'frames': report['frames'], 'pose': report['pose']['recall_5cm5deg'],
                'top1': report['recognition']['top1'],
                'detected': report['detection']['iou07_rate'],
-               'false_pos_per_frame': report['detection']['false_pos_per_frame']}
+               'false_pos_per_frame': report['detection']['false_pos_per_frame'],
+               'depth_model': options.check_depth}
     (out / 'self_check.md').write_text(self_check_table(rows, summary) + '\n')
     manifest['self_check'] = summary
     parts_io.write_manifest(out, manifest)
@@ -251,7 +253,9 @@ def self_check_table(rows: list[dict], summary: dict) -> str:
         lines.append(f"| {r['name']} | {r['seen']} | {cell(r['pose'])} | {cell(r['top1'])} | "
                      f"{cell(r['detected'])} | {', '.join(r['lookalikes']) or '-'} | "
                      f"{r.get('unseen', '-')} | {note} |")
-    lines.append(f"| **all** ({summary['frames']} frames) | | {cell(summary['pose'])} | "
+    depth = summary.get('depth_model', 'per_pixel').replace('_', '-')
+    lines.append(f"| **all** ({summary['frames']} frames, {depth} depth) | | "
+                 f"{cell(summary['pose'])} | "
                  f"{cell(summary['top1'])} | {cell(summary['detected'])} | | | false positives "
                  f"{cell(summary['false_pos_per_frame'])} / frame |")
     return '\n'.join(lines)
