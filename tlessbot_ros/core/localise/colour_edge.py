@@ -94,13 +94,16 @@ def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
     found = np.bincount(blobs[depth_candidate], minlength=count)
     tolerance = params.colour_edge_floors * np.array(
         [params.grey_floor, params.lab_floor, params.lab_floor], np.float64)
-    lab = rgb_to_lab(rgb)
     drop = []
     area = stats[1:, cv2.CC_STAT_AREA]
     # blobs under half the smallest instance are dropped anyway (instances_at_scale keeps
     # min_area_px at its scale, which rounds a little below it)
-    for i in np.flatnonzero((found[1:] < DEPTH_FOUND_SHARE * area) &
-                            (area >= params.min_area_px // 2)) + 1:
+    tested = np.flatnonzero((found[1:] < DEPTH_FOUND_SHARE * area) &
+                            (area >= params.min_area_px // 2)) + 1
+    if not len(tested):   # most frames: no full-resolution LAB image to make
+        return foreground
+    lab = rgb_to_lab(rgb)
+    for i in tested:
         near = _window(stats[i, :4], params.colour_edge_ring_px + 1, foreground.shape)
         crop = blobs[near]
         blob = crop == i
