@@ -61,22 +61,31 @@ def instance_cues(mask: np.ndarray, others: np.ndarray, lab: np.ndarray, height:
             if h_in.size and h_out.size else float('nan')}
 
 
-def _capture_top(pipeline: PerceptionPipeline, views: dict) -> tuple:
-    """The top view's Segmentation and the parameters it was segmented with."""
+def segmentations(pipeline: PerceptionPipeline, views: dict) -> dict:
+    """{view: (Segmentation, segment's keyword arguments)} as ``pipeline`` localises the frame
+    ``views`` ({view: ViewInput})."""
     seen: dict = {}
     original: Callable = pipeline_module.segment
 
     def spy(rgb, **kw):
         out = original(rgb, **kw)
-        if rgb is views['top'].rgb:
-            seen.update(seg=out, params=kw['params'], T=kw['T_world_camera'])
+        seen[next(v for v in views if views[v].rgb is rgb)] = (out, kw)
         return out
     pipeline_module.segment = spy
     try:
         pipeline.localise(views)
     finally:
         pipeline_module.segment = original
-    return seen['seg'], seen['params'], seen['T']
+    return seen
+
+
+def truth_mask(image) -> np.ndarray:
+    """(H, W) bool: the union of a dataset image's ground-truth visible masks."""
+    truth = np.zeros(image.rgb.shape[:2], bool)
+    for gt in image.gt:
+        if gt.mask is not None:
+            truth |= gt.mask
+    return truth
 
 
 def main(argv: list[str]) -> int:
@@ -99,7 +108,8 @@ def main(argv: list[str]) -> int:
             pipeline = PerceptionPipeline(
                 rig=rig, templates=TemplateDatabase.load(templates),
                 segmentation=SegmentationParams(colour_edge_floors=0.0))
-        seg, params, T = _capture_top(pipeline, views)
+        seg, kw = segmentations(pipeline, views)['top']
+        params, T = kw['params'], kw['T_world_camera']
         floors = np.array([params.grey_floor, params.lab_floor, params.lab_floor])
         lab = rgb_to_lab(top.rgb)
         height = height_above_table(top.depth_m, top.intrinsics.K, T)
@@ -109,10 +119,7 @@ def main(argv: list[str]) -> int:
                              seg.cues['depth'].shape, params, with_surfaces=False)
         depth_table = cv2.resize(cue.table.view(np.uint8), top.rgb.shape[1::-1],
                                  interpolation=cv2.INTER_NEAREST).astype(bool)
-        truth = np.zeros(top.rgb.shape[:2], bool)
-        for gt in top.gt:
-            if gt.mask is not None:
-                truth |= gt.mask
+        truth = truth_mask(top)
         count, blobs = cv2.connectedComponents(seg.foreground.view(np.uint8), connectivity=8)
         for i in range(1, count):
             mask = blobs == i

@@ -10,36 +10,21 @@ from __future__ import annotations
 
 import sys
 from collections import Counter
+from pathlib import Path
 
 import cv2
 import numpy as np
 
-import tlessbot_ros.core.pipeline as pipeline_module
 from tlessbot_ros.core.common import CameraMount, Rig
 from tlessbot_ros.core.localise import SegmentationParams
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 from tlessbot_ros.core.pose import TemplateDatabase
 from tlessbot_ros.io.bop import read_split
 
-ON_PART, OFF_PART = 0.3, 0.05
+sys.path.insert(0, str(Path(__file__).parent))
+from table_false_parts_cues import OFF_PART, ON_PART, segmentations, truth_mask  # noqa: E402
+
 VIEWS = ('top', 'side')
-
-
-def _foregrounds(pipeline: PerceptionPipeline, views: dict) -> dict:
-    """Each view's foreground mask as the pipeline localises the frame."""
-    seen: dict = {}
-    original = pipeline_module.segment
-
-    def spy(rgb, **kw):
-        out = original(rgb, **kw)
-        seen[next(v for v in views if views[v].rgb is rgb)] = out.foreground
-        return out
-    pipeline_module.segment = spy
-    try:
-        pipeline.localise(views)
-    finally:
-        pipeline_module.segment = original
-    return seen
 
 
 def main(argv: list[str]) -> int:
@@ -57,12 +42,10 @@ def main(argv: list[str]) -> int:
             db = TemplateDatabase.load(templates)
             pipelines = [PerceptionPipeline(rig=rig, templates=db, segmentation=SegmentationParams(
                 colour_edge_floors=f)) for f in (0.0, floors)]
-        off, on = (_foregrounds(p, views) for p in pipelines)
+        off, on = ({v: seg.foreground for v, (seg, _) in segmentations(p, views).items()}
+                   for p in pipelines)
         for v in VIEWS:
-            truth = np.zeros(off[v].shape, bool)
-            for gt in images[v].gt:
-                if gt.mask is not None:
-                    truth |= gt.mask
+            truth = truth_mask(images[v])
             count, blobs = cv2.connectedComponents(off[v].view(np.uint8), connectivity=8)
             for i in range(1, count):
                 blob = blobs == i
