@@ -22,6 +22,7 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from tlessbot_ros.sim.noise import DEPTH_KINDS
     from tlessbot_ros.tools.commands.train import RECIPE_CHOICES
     from tlessbot_ros.tools.support.parts_build import CHECK_FRAMES, DEFAULT_RECIPE
 
@@ -43,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument('--check-frames', type=int, default=CHECK_FRAMES,
                        help=f'simulated frames of the self-check (default {CHECK_FRAMES}; 0: '
                             'none)')
-    build.add_argument('--check-depth', choices=('per_pixel', 'smoothed'), default='per_pixel',
+    build.add_argument('--check-depth', choices=DEPTH_KINDS, default='per_pixel',
                        help="the self-check's simulated depth: per_pixel (default) or smoothed, "
                             'stereo-like as a real RealSense gives it')
     build.add_argument('--seed', type=int, default=0,

@@ -20,6 +20,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from tlessbot_ros.errors import DatasetError, TlessbotError
+from tlessbot_ros.sim.noise import DEPTH_KINDS
 from tlessbot_ros.tools.support.board_calibration import add_board_arguments, board_from_args
 from tlessbot_ros.tools.support.models_info import model_symmetries, models_info_entry
 from tlessbot_ros.tools.support.rig import load_rig
@@ -47,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='ROS parameter YAML with the rig (default config/cell.yaml)')
     parser.add_argument('--noise-scale', type=float, default=1.0,
                         help='depth noise sigma and dropout multiplier (0 = clean depth)')
-    parser.add_argument('--depth-model', choices=('per_pixel', 'smoothed'), default='per_pixel',
+    parser.add_argument('--depth-model', choices=DEPTH_KINDS, default='per_pixel',
                         help='depth noise: per_pixel (default) or smoothed, stereo-like as a '
                              'real RealSense gives it (docs/bench/smoothed-sim-depth.md)')
     parser.add_argument('--materials', nargs='+', help='subset of light_yellow pink black blue')

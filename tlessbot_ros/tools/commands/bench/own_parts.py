@@ -19,6 +19,8 @@ import json
 import time
 from pathlib import Path
 
+from tlessbot_ros.sim.noise import DEPTH_KINDS
+
 TLESS_IDS = (2, 5, 8, 11, 14, 19, 25, 30)
 
 
@@ -31,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--seed', type=int, default=4100)
     parser.add_argument('--flat-mm', type=float, default=6.0,
                         help='a part whose thinnest side is at most this is flat (6 mm)')
-    parser.add_argument('--depth-model', choices=('per_pixel', 'smoothed'), default='per_pixel',
+    parser.add_argument('--depth-model', choices=DEPTH_KINDS, default='per_pixel',
                         help="the simulated depth (simulate's --depth-model): smoothed is "
                              'stereo-like, as a real RealSense gives it')
     parser.add_argument('--out', type=Path, default=Path('own_parts_bench'))
