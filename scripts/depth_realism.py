@@ -109,6 +109,9 @@ def measure(depth_m: np.ndarray, K: np.ndarray, jump_m: float, fb_px_m: float) -
     """All figures of one depth image (metres, 0 = hole); ``fb_px_m``: the depth camera's IR
     focal length times its baseline (disparity = fb / z)."""
     figures, residual, table = _table_residual(depth_m, K)
+    if figures:   # the height's noise as disparity (px), along the table's normal
+        figures['disparity_sigma_px'] = figures['table_sigma_mm'] * 1e-3 * fb_px_m \
+            / figures['table_z_m'] ** 2
     if table.sum() > 1000:
         figures['corr_row_px'] = _correlation_length(residual, table, 1)
         figures['corr_col_px'] = _correlation_length(residual, table, 0)
@@ -146,6 +149,14 @@ def _real_images(root: Path):
     depth = np.frombuffer(raw[8:], '<u2').reshape(h, w).astype(np.float32) / 1000.0
     K = np.array([[605.1467, 0, 325.5325], [0, 604.7915, 244.9508], [0, 0, 1]])
     yield 'real D435 visp align', depth, K, D435_FB
+    # a desk seen from about 1 m: the top camera's distance (the camera model is not given)
+    rbt = root / 'visp_images_rbt_sequence' / 'sequence'
+    cam = json.loads((rbt / 'cam.json').read_text())
+    K = np.array([[cam['px'], 0, cam['u0']], [0, cam['py'], cam['v0']], [0, 0, 1]])
+    for name in sorted(rbt.glob('depth_image_*.npz')):
+        with np.load(name, allow_pickle=False) as npz:
+            depth = npz['data'].astype(np.float32) * float(cam['depthScale'])
+        yield f'real visp rbt desk {name.stem[-4:]}', depth, K, D435_FB
 
 
 def _scene_images(scenes: Path, frames: int, sim_fb: float):
@@ -192,7 +203,8 @@ def main() -> None:
     images += list(_synthetic_images(args.synthetic))
     for scenes in args.scenes:
         images += list(_scene_images(scenes, args.frames, args.sim_fb))
-    keys = ('plane_noise_1m_mm', 'table_z_m', 'table_sigma_mm', 'corr_row_px', 'corr_col_px',
+    keys = ('plane_noise_1m_mm', 'table_z_m', 'table_sigma_mm', 'disparity_sigma_px',
+            'corr_row_px', 'corr_col_px',
             'edge_spread_px', 'edges', *(f'spread_{a}-{b}px' for a, b in DISPARITY_BINS_PX),
             'holes', 'holes_at_steps')
     groups: dict[str, list[dict]] = {}
