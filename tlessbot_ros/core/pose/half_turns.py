@@ -233,7 +233,40 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
         return k, bool(found.get('align_decided'))
     k = round_robin(refined)
     # a turn that the poses as they are name clearly stands when the refined ones agree
-    return k, k == named or clear_margin(int(refined[k, 0]), int(refined[0, k]), p.align_min_z)
+    if k > 0 and (k == named or clear_margin(int(refined[k, 0]), int(refined[0, k]),
+                                             p.align_min_z)):
+        return k, True
+    if all(clear_margin(int(refined[0, j]), int(refined[j, 0]), p.align_min_z)
+           for j in range(1, len(poses))):
+        return 0, True   # the refined views rule every turn out
+    # the poses as they are: a turn refined on the image lays its rims over whatever edges it
+    # meets, and would win on them (a right block of g 4100 frame 7, 20 : 0)
+    return _edge_winner(check, obj, mesh, poses, views, params) or (k, False)
+
+
+def _edge_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
+                 poses: list[np.ndarray], views: Sequence[ViewEvidence], params: TurnParams
+                 ) -> tuple[int, bool] | None:
+    """(the turn among ``poses`` (the fit first) that wins most duels on the image's edges
+    inside the outline (:func:`~.image_edges.edge_votes`) and beats the fit there by the
+    aligned votes' margin, True), or None: ``box_image_edges`` off, or no turn does. On a
+    smoothed depth the holes' few millimetres leave the height votes open; their rims and the
+    chamfers' creases stay edges of the image."""
+    from tlessbot_ros.core.pose.flat_align import round_robin
+    from tlessbot_ros.core.pose.image_edges import edge_votes
+    from tlessbot_ros.core.pose.lookalike import clear_margin
+
+    if not params.box_image_edges:
+        return None
+    votes = edge_votes(mesh, poses, obj.model_points.astype(np.float64), views,
+                       align_at_1m_m=check.params.align_at_1m_m, jump_m=params.jump_m,
+                       crease_deg=params.crease_deg, edge_px=params.edge_px,
+                       # an image edge within edge_px of the outline is the outline's
+                       inner_px=params.box_edge_px + int(np.ceil(params.edge_px)))
+    k = round_robin(votes)
+    if k > 0 and clear_margin(int(votes[k, 0]), int(votes[0, k]), check.params.align_min_z):
+        return k, True
+    return None
 
 
 def hull_moved_m(obj: ObjectTemplates, turn: np.ndarray) -> float:

@@ -74,6 +74,8 @@ class TurnParams:
             hull farther out of itself are compared as they are.
         box_edge_px: the refined poses vote on the pixels inside both outlines and this many
             pixels or more from either (>= 0).
+        box_image_edges: a box round the height votes leave open is decided on the image's
+            edges inside the outline (:mod:`.image_edges`), by the aligned votes' margin.
     """
 
     enabled: bool = True
@@ -98,6 +100,7 @@ class TurnParams:
     box_refine_max_deg: float = 3.0
     box_refine_max_m: float = 0.001
     box_edge_px: int = 1
+    box_image_edges: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 < self.step_deg <= 90.0:

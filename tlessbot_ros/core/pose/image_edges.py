@@ -1,0 +1,104 @@
+"""Box turns compared on the image's edges inside the part's outline (for :mod:`.half_turns`).
+
+A drilled block's box turns (the same box turned about one of its axes) share the outline;
+only the holes' rims and the chamfers' creases move. On a smoothed, stereo-like depth those
+few millimetres are gone from the depth (a 6 mm hole reads 2 px wide or shut), and the
+aligned height votes between the turns fall to a few pixels either way; the colour image
+still shows the rims and creases as edges. So each pose's rendered edges
+(:func:`~.turns.rendered_edges`: outline, steps, creases) are laid on the image's Canny edges
+(:func:`~.silhouette.edge_distance`), each rendering moved by the whole-pixel shift that lays
+most of its edges on image edges (the outline brings every turn there alike), and two poses
+vote on the rendered edges inside both outlines that only one of them has: a pixel of such an
+edge that lies on an image edge votes for the pose that draws it (a one-sided chamfer test,
+as in Barrow et al., IJCAI 1977). A missing image edge votes for neither (Canny misses faint
+ones alike for every pose).
+
+Poses are ``T_camera_object`` (4, 4) metres in the fitted view's optical frame.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+if TYPE_CHECKING:
+    import open3d as o3d
+
+    from tlessbot_ros.core.pose.flat import ViewEvidence
+
+
+def edge_votes(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray],
+               points_o: np.ndarray, views: Sequence[ViewEvidence], *, align_at_1m_m: float,
+               jump_m: float, crease_deg: float, edge_px: float, inner_px: int) -> np.ndarray:
+    """(K, K) int: [i, j] the rendered edge pixels of pose i, over every colour view, inside
+    both poses' outlines (holes filled, ``inner_px`` or more from either), more than a pixel
+    from every edge of pose j and within ``edge_px`` of an image edge.
+
+    Each pose (of the mesh ``scene``; ``points_o`` the model samples that bound it) is
+    rendered (:func:`~.turns.rendered_edges`, ``jump_m``, ``crease_deg``) and moved by the
+    whole-pixel shift, within what the fit's error spans (``align_at_1m_m`` at 1 m,
+    :func:`~.flat_align.shift_px`), that lays most of its edges on image edges."""
+    from tlessbot_ros.core.pose.flat_align import shift_px, shifted
+    from tlessbot_ros.core.pose.silhouette import edge_distance, window
+    from tlessbot_ros.core.pose.turns import rendered_edges
+
+    count = len(poses)
+    votes = np.zeros((count, count), np.int64)
+    for view in views:
+        if view.rgb is None:
+            continue
+        T = [view.T_view_fit @ np.asarray(P, np.float64) for P in poses]
+        pad = shift_px(view.intrinsics, points_o, T[0], align_at_1m_m)
+        box = window(points_o, T, view.intrinsics, margin_px=pad + inner_px + 4)
+        if box is None:
+            continue
+        x0, y0, w, h = box
+        grown = (x0 - pad, y0 - pad, w + 2 * pad, h + 2 * pad)
+        on_image = edge_distance(view.rgb, box) <= edge_px
+        if view.others is not None:   # another part's edges vote for no pose of this one
+            on_image &= ~np.asarray(view.others[y0:y0 + h, x0:x0 + w], bool)
+        aligned = []
+        for T_k in T:
+            edges = rendered_edges(scene, T_k, view.intrinsics, grown, jump_m=jump_m,
+                                   crease_deg=crease_deg)
+            dx, dy = _best_shift(edges, on_image, pad)
+            aligned.append((shifted(edges, pad, dx, dy),
+                            shifted(_filled(scene, T_k, view, grown), pad, dx, dy)))
+        near = [cv2.dilate(e.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+                for e, _ in aligned]
+        for i in range(count):
+            for j in range(i + 1, count):
+                inside = cv2.erode((aligned[i][1] & aligned[j][1]).astype(np.uint8),
+                                   np.ones((2 * inner_px + 1,) * 2, np.uint8)).astype(bool)
+                inside &= on_image
+                votes[i, j] += np.count_nonzero(aligned[i][0] & inside & ~near[j])
+                votes[j, i] += np.count_nonzero(aligned[j][0] & inside & ~near[i])
+    return votes
+
+
+def _filled(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
+            view: ViewEvidence, box: tuple[int, int, int, int]) -> np.ndarray:
+    """(h, w) bool the pose's silhouette in ``box``, its through holes filled."""
+    from scipy.ndimage import binary_fill_holes
+
+    from tlessbot_ros.core.pose.silhouette import window_depth
+
+    _, _, w, h = box
+    _, depth = window_depth(scene, T_camera_object, view.intrinsics, box)
+    return np.asarray(binary_fill_holes(np.isfinite(depth).reshape(h, w)), bool)
+
+
+def _best_shift(edges: np.ndarray, on_image: np.ndarray, pad: int) -> tuple[int, int]:
+    """(dx, dy), |dx|, |dy| <= ``pad``: the shift of the rendered ``edges`` (over the window
+    grown by ``pad``) that lays most of them on ``on_image`` (the window's image edges);
+    the smallest such shift on a tie."""
+    from tlessbot_ros.core.pose.flat_align import shifted
+
+    shifts = sorted(((dx, dy) for dy in range(-pad, pad + 1) for dx in range(-pad, pad + 1)),
+                    key=lambda s: abs(s[0]) + abs(s[1]))
+    return max(shifts, key=lambda s: np.count_nonzero(shifted(edges, pad, *s) & on_image))
+
+
+__all__ = ['edge_votes']
