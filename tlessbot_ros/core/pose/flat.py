@@ -48,6 +48,7 @@ from tlessbot_ros.core.common import (
     rotation_about_axis,
     transform_points,
 )
+from tlessbot_ros.core.pose.candidates import poses_differ
 from tlessbot_ros.core.pose.flat_turns import (
     bbox_centre,
     mesh_scene,
@@ -105,6 +106,8 @@ class FlatParams:
             coin-toss deviations (>= 0).
         yaw_turns: a round flat part competes (and its holes' yaw is searched) turned about its
             thin axis by each 1/yaw_turns (or finer) of its listed yaw period (>= 1).
+        edge_vote_px: a turn the aligned votes leave open is decided on the image's edges
+            inside the outline, within this many pixels (0: not; :mod:`.image_edges`).
     """
 
     enabled: bool = True
@@ -127,6 +130,7 @@ class FlatParams:
     align_at_1m_m: float = 0.010
     align_min_z: float = 3.0
     yaw_turns: int = 6
+    edge_vote_px: float = 1.5
 
     def __post_init__(self) -> None:
         if self.flips < 1 or self.candidates < 1 or self.icp_iterations < 1 or \
@@ -136,8 +140,8 @@ class FlatParams:
         if not 0.5 <= self.min_share <= 1.0 or self.iou_weight < 0 or self.yaw_step_deg <= 0:
             raise ValueError(f'min_share must be in 0.5..1, iou_weight >= 0, yaw_step_deg > 0; '
                              f'got {self.min_share}, {self.iou_weight}, {self.yaw_step_deg}')
-        if not 0.0 <= self.flat_ratio <= 1.0 or self.edge_px <= 0:
-            raise ValueError('flat_ratio must be in [0, 1] and edge_px positive')
+        if not 0.0 <= self.flat_ratio <= 1.0 or self.edge_px <= 0 or self.edge_vote_px < 0:
+            raise ValueError('flat_ratio must be in [0, 1], edge_px > 0, edge_vote_px >= 0')
         if self.depth_tolerance_m < 0 or self.depth_min_z < 0 or self.align_at_1m_m < 0 or \
                 self.align_min_z < 0:
             raise ValueError(f'depth_tolerance_m, depth_min_z, align_at_1m_m and align_min_z must '
@@ -248,7 +252,7 @@ class FlatCheck:
         for k in np.argsort(-flipped, kind='stable'):
             if len(chosen) == p.candidates or flipped[k] < own - p.fitness_margin:
                 break
-            if all(_differ(refined[k], T) for T, _ in chosen):
+            if all(poses_differ(refined[k], T) for T, _ in chosen):
                 chosen.append((refined[k], float(flipped[k])))
         return own, chosen, scene
 
@@ -351,6 +355,7 @@ class FlatCheck:
         holes, slots and cut corners do."""
         from tlessbot_ros.core.pose.cloud import voxel_downsample
         from tlessbot_ros.core.pose.database import CONTINUOUS_YAW_PERIOD
+        from tlessbot_ros.core.pose.image_edges import edge_winner, flat_edge_settings
 
         samples = obj.model_points.astype(np.float64)
         turns = obj.derived('outline_turns', lambda: outline_half_turns(samples) + outline_yaws(
@@ -374,6 +379,9 @@ class FlatCheck:
         winner, k = parts[k // len(base)][0], k % len(base)
         if not info['align_decided']:
             winner = obj   # a face taken undecided: the twins' own checks name the part
+            if k == 0 and faces and self.params.edge_vote_px > 0:   # rims, slots (smoothed)
+                k = edge_winner(mesh, base, samples, views, min_z=self.params.align_min_z,
+                                **flat_edge_settings(self.params))
         info['twin'] = float(winner.obj_id)
         if k == 0:
             return None, info
@@ -490,8 +498,3 @@ class FlatCheck:
             if vote > best_vote:
                 best, best_vote = turned, vote
         return best, best_vote
-
-
-def _differ(T_a: np.ndarray, T_b: np.ndarray) -> bool:
-    from tlessbot_ros.core.pose.candidates import poses_differ
-    return poses_differ(T_a, T_b)

@@ -19,7 +19,8 @@ the turned fits that explain the depth about as well compete with the fit on the
 height and colour votes of every view (:meth:`~.flat.FlatCheck.aligned_winner`, the flat
 parts' vote: each rendering aligned by a few pixels, compared pixel by pixel, a clear margin).
 A turn that maps the part's hull onto itself competes first turned as it is, the fit refined
-on the image before (:mod:`.image_refine`).
+on the image before (:mod:`.image_refine`), and where the heights leave that round open, on
+the image's edges inside the outline (:mod:`.image_edges`).
 
 Poses are ``T_camera_object`` (4, 4) metres, optical frame; turns (4, 4) in the model frame.
 """
@@ -200,7 +201,9 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
     ``box_refine_max_m`` (:func:`hull_moved_m`), the poses are refined on every view's image
     (:func:`~.image_refine.refine_on_image`) and the duels of the refined poses decide: the
     fit's own error of a degree or two, shared by its turns, leaves the holes of the right
-    turn beside the imaged ones, and their few votes fall under the margin."""
+    turn beside the imaged ones, and their few votes fall under the margin. Where the
+    refined round is open too, the poses as they are vote on the image's edges inside the
+    outline (:func:`_edge_winner`)."""
     from tlessbot_ros.core.pose.flat_align import round_robin
     from tlessbot_ros.core.pose.image_refine import refine_on_image
     from tlessbot_ros.core.pose.lookalike import clear_margin
@@ -248,25 +251,20 @@ def _edge_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ra
                  poses: list[np.ndarray], views: Sequence[ViewEvidence], params: TurnParams
                  ) -> tuple[int, bool] | None:
     """(the turn among ``poses`` (the fit first) that wins most duels on the image's edges
-    inside the outline (:func:`~.image_edges.edge_votes`) and beats the fit there by the
-    aligned votes' margin, True), or None: ``box_image_edges`` off, or no turn does. On a
-    smoothed depth the holes' few millimetres leave the height votes open; their rims and the
-    chamfers' creases stay edges of the image."""
-    from tlessbot_ros.core.pose.flat_align import round_robin
-    from tlessbot_ros.core.pose.image_edges import edge_votes
-    from tlessbot_ros.core.pose.lookalike import clear_margin
+    inside the outline and beats the fit there by the aligned votes' margin
+    (:func:`~.image_edges.edge_winner`), True), or None: ``box_image_edges`` off, or no turn
+    does. On a smoothed depth the holes' few millimetres leave the height votes open; their
+    rims and the chamfers' creases stay edges of the image."""
+    from tlessbot_ros.core.pose.image_edges import edge_winner
 
     if not params.box_image_edges:
         return None
-    votes = edge_votes(mesh, poses, obj.model_points.astype(np.float64), views,
-                       align_at_1m_m=check.params.align_at_1m_m, jump_m=params.jump_m,
-                       crease_deg=params.crease_deg, edge_px=params.edge_px,
-                       # an image edge within edge_px of the outline is the outline's
-                       inner_px=params.box_edge_px + int(np.ceil(params.edge_px)))
-    k = round_robin(votes)
-    if k > 0 and clear_margin(int(votes[k, 0]), int(votes[0, k]), check.params.align_min_z):
-        return k, True
-    return None
+    k = edge_winner(mesh, poses, obj.model_points.astype(np.float64), views,
+                    min_z=check.params.align_min_z, align_at_1m_m=check.params.align_at_1m_m,
+                    jump_m=params.jump_m, crease_deg=params.crease_deg, edge_px=params.edge_px,
+                    # an image edge within edge_px of the outline is the outline's
+                    inner_px=params.box_edge_px + int(np.ceil(params.edge_px)))
+    return (k, True) if k > 0 else None
 
 
 def hull_moved_m(obj: ObjectTemplates, turn: np.ndarray) -> float:

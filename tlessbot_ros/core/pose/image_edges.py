@@ -26,7 +26,7 @@ import numpy as np
 if TYPE_CHECKING:
     import open3d as o3d
 
-    from tlessbot_ros.core.pose.flat import ViewEvidence
+    from tlessbot_ros.core.pose.flat import FlatParams, ViewEvidence
 
 
 def edge_votes(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray],
@@ -78,6 +78,29 @@ def edge_votes(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray
     return votes
 
 
+def edge_winner(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray],
+                points_o: np.ndarray, views: Sequence[ViewEvidence], *, min_z: float,
+                **settings: float) -> int:
+    """The pose among ``poses`` (the fit first) that wins most duels of :func:`edge_votes`
+    (``settings``: its keywords) when it beats the fit by ``min_z`` coin-toss deviations
+    (:func:`~.lookalike.clear_margin`); else 0."""
+    from tlessbot_ros.core.pose.flat_align import round_robin
+    from tlessbot_ros.core.pose.lookalike import clear_margin
+
+    votes = edge_votes(scene, poses, points_o, views, **settings)   # type: ignore[arg-type]
+    k = round_robin(votes)
+    return k if k > 0 and clear_margin(int(votes[k, 0]), int(votes[0, k]), min_z) else 0
+
+
+def flat_edge_settings(params: FlatParams) -> dict[str, float]:
+    """:func:`edge_votes`' settings for a flat part (``params``' ``edge_vote_px``, its
+    alignment): a step of the votes' height tolerance is an edge, a crease of 30° too (the
+    turn check's)."""
+    return dict(align_at_1m_m=params.align_at_1m_m, jump_m=params.depth_tolerance_m,
+                crease_deg=30.0, edge_px=params.edge_vote_px,
+                inner_px=1 + int(np.ceil(params.edge_vote_px)))
+
+
 def _filled(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
             view: ViewEvidence, box: tuple[int, int, int, int]) -> np.ndarray:
     """(h, w) bool the pose's silhouette in ``box``, its through holes filled."""
@@ -101,4 +124,4 @@ def _best_shift(edges: np.ndarray, on_image: np.ndarray, pad: int) -> tuple[int,
     return max(shifts, key=lambda s: np.count_nonzero(shifted(edges, pad, *s) & on_image))
 
 
-__all__ = ['edge_votes']
+__all__ = ['edge_votes', 'edge_winner', 'flat_edge_settings']
