@@ -67,3 +67,22 @@ def drilled_block():
     db = build_database([(1, v, f, [(lift, 1.0)], None)], intrinsics=SIDE.intrinsics,
                         T_world_camera=SIDE.T_world_camera)
     return v, f, db[1]
+
+
+def block_on_a_side(vertices: np.ndarray, yaw_deg: float) -> np.ndarray:
+    """(4, 4) T_world_object of a part (vertices m) turned a quarter about its x axis (a
+    drilled block on a side, its holes level), facing the side camera turned ``yaw_deg``,
+    resting on the table a little off the middle."""
+    from tlessbot_ros.core.common import make_transform, rotation_about_axis
+
+    look = SIDE.T_world_camera[:3, 2]
+    facing = np.degrees(np.arctan2(look[1], look[0])) + 90.0
+    R = rotation_about_axis(np.array([0, 0, 1.0]), np.radians(facing + yaw_deg)) @ \
+        rotation_about_axis(np.array([1.0, 0, 0]), np.pi / 2)
+    return make_transform(R, [0.01, -0.01, -float((vertices @ R.T)[:, 2].min())])
+
+
+def turn_axis(S: np.ndarray) -> np.ndarray:
+    """The axis (3,) of the turn ``S`` (4, 4)."""
+    w, V = np.linalg.eig(S[:3, :3])
+    return np.real(V[:, np.argmin(np.abs(w - 1))])

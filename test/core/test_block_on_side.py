@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from side_scene import SIDE, drilled_block, side_scene
+from side_scene import SIDE, block_on_a_side, drilled_block, side_scene, turn_axis
 
 from tlessbot_ros.core.common import (
     depth_to_points,
@@ -33,21 +33,12 @@ def block():
 def _on_a_side(v, f, yaw_deg: float):
     """The block on a side, its holes level, turned ``yaw_deg`` from facing the side camera:
     (T_camera_object true, its views, its ROI points)."""
-    look = SIDE.T_world_camera[:3, 2]
-    facing = np.degrees(np.arctan2(look[1], look[0])) + 90.0
-    R = rotation_about_axis(np.array([0, 0, 1.0]), np.radians(facing + yaw_deg)) @ \
-        rotation_about_axis(np.array([1.0, 0, 0]), np.pi / 2)
-    T_world_object = make_transform(R, [0.01, -0.01, -float((v @ R.T)[:, 2].min())])
+    T_world_object = block_on_a_side(v, yaw_deg)
     rgb, depth, mask = side_scene(v, f, T_world_object, noise_m=0.0007, shaded=True)
     points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
     view = ViewEvidence(rgb, mask, SIDE.intrinsics, np.eye(4), depth,
                         plane_of_frame(SIDE.T_world_camera), np.zeros_like(mask))
     return np.linalg.inv(SIDE.T_world_camera) @ T_world_object, [view], points
-
-
-def _axis(S: np.ndarray) -> np.ndarray:
-    w, V = np.linalg.eig(S[:3, :3])
-    return np.real(V[:, np.argmin(np.abs(w - 1))])
 
 
 def _fit_error():
@@ -66,7 +57,7 @@ def test_a_block_on_a_side_fitted_turned_is_turned_back(block, yaw_deg, axis):
     T_true, views, points = _on_a_side(v, f, yaw_deg)
     check = FlatCheck(Refiner(PoseParams()), FlatParams())
     scene = check.prepared_cloud(obj, points)
-    S = min(box, key=lambda S: -abs(_axis(S) @ np.eye(3)[axis]))
+    S = min(box, key=lambda S: -abs(turn_axis(S) @ np.eye(3)[axis]))
     turned, info = choose_half_turn(check, obj, T_true @ S @ _fit_error(), scene, views,
                                     TurnParams())
     assert rotation_angle_deg(turned[:3, :3], T_true[:3, :3]) < 5.0, info

@@ -7,13 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from side_scene import SIDE, drilled_block, side_scene
+from side_scene import SIDE, block_on_a_side, drilled_block, side_scene, turn_axis
 
 from tlessbot_ros.core.common import (
     depth_to_points,
-    make_transform,
     plane_of_frame,
-    rotation_about_axis,
     rotation_angle_deg,
 )
 from tlessbot_ros.core.pose import PoseParams, Refiner, TurnParams
@@ -34,11 +32,7 @@ def block():
 def _on_a_side(v, f, yaw_deg: float):
     """The block on a side facing the side camera, turned ``yaw_deg``, its depth smoothed:
     (T_camera_object true, its views, its ROI points)."""
-    look = SIDE.T_world_camera[:3, 2]
-    facing = np.degrees(np.arctan2(look[1], look[0])) + 90.0
-    R = rotation_about_axis(np.array([0, 0, 1.0]), np.radians(facing + yaw_deg)) @ \
-        rotation_about_axis(np.array([1.0, 0, 0]), np.pi / 2)
-    T_world_object = make_transform(R, [0.01, -0.01, -float((v @ R.T)[:, 2].min())])
+    T_world_object = block_on_a_side(v, yaw_deg)
     rgb, clean, mask = side_scene(v, f, T_world_object, noise_m=0.0, shaded=True)
     depth_mm = add_depth_noise(clean, float(SIDE.intrinsics.K[0, 0]), np.random.default_rng(3),
                                DepthNoiseParams(kind='smoothed'))
@@ -49,16 +43,11 @@ def _on_a_side(v, f, yaw_deg: float):
     return np.linalg.inv(SIDE.T_world_camera) @ T_world_object, [view], points
 
 
-def _axis(S: np.ndarray) -> np.ndarray:
-    w, V = np.linalg.eig(S[:3, :3])
-    return np.real(V[:, np.argmin(np.abs(w - 1))])
-
-
 @pytest.mark.parametrize('axis', [1, 2])
 def test_the_image_edges_tell_the_true_block_from_its_turn(block, axis):
     v, f, obj, box = block
     T_true, views, _ = _on_a_side(v, f, 25.0)
-    S = min(box, key=lambda S: -abs(_axis(S) @ np.eye(3)[axis]))
+    S = min(box, key=lambda S: -abs(turn_axis(S) @ np.eye(3)[axis]))
     p = TurnParams()
     votes = edge_votes(mesh_scene(obj), [T_true @ S, T_true], obj.model_points.astype(float),
                        views, align_at_1m_m=FlatParams().align_at_1m_m, jump_m=p.jump_m,
@@ -75,7 +64,7 @@ def test_a_block_fitted_turned_on_smoothed_depth_is_turned_back(block, axis):
     T_true, views, points = _on_a_side(v, f, 25.0)
     check = FlatCheck(Refiner(PoseParams()), FlatParams())
     scene = check.prepared_cloud(obj, points)
-    S = min(box, key=lambda S: -abs(_axis(S) @ np.eye(3)[axis]))
+    S = min(box, key=lambda S: -abs(turn_axis(S) @ np.eye(3)[axis]))
     turned, info = choose_half_turn(check, obj, T_true @ S, scene, views, TurnParams())
     assert rotation_angle_deg(turned[:3, :3], T_true[:3, :3]) < 10.0, info
 
