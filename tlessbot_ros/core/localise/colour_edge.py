@@ -13,6 +13,15 @@ So a blob the depth cue does not find, with depth-vetoed table around it, is dro
 of the band inside its outline has that table's colour, to within the colour cues' own
 smallest cut-offs (``grey_floor``, ``lab_floor``), and the region of that colour around it is
 longer than any part (``whole_parts``; without the parts' sizes nothing is dropped).
+
+A pattern's squares can be shorter than the parts (our simulator's checker), so a second test
+reads the outline itself: a part's outline is its edge, where the colour steps all along; a
+noise patch's piece of a square steps only where it meets the square's own edge. A piece of a
+thin part cut out by the veto steps nowhere either, so the test also asks that the blob's
+colour be common around it (a pattern's, not one part's): a blob the depth cue does not find
+is dropped when under ``colour_edge_outline_share`` of its outline steps by the same
+tolerance and its colour covers more than ``COMMON_COLOUR_SHARE`` of the window one part
+length around it (docs/bench/smoothed-localiser.md).
 """
 from __future__ import annotations
 
@@ -31,6 +40,13 @@ TABLE_SHARE = 0.5
 # A blob has the table's colour when most of the band inside its outline has it (a median
 # colour would not do: two parts' colours in one blob can average to the table's).
 TABLE_COLOUR_SHARE = 0.5
+# An outline pixel shows a colour step when the colour spans a tolerance within this many
+# pixels of it: the outline the cues draw lies within a pixel or two of a part's edge.
+OUTLINE_REACH_PX = 2
+# A blob's colour is the pattern's when more than this share of the window one part length
+# around it has it: a pattern's squares cover a large share of any window (a checker half of
+# it), a part's colour at most the part's own area (under a tenth of that window).
+COMMON_COLOUR_SHARE = 0.2
 
 
 def rings(blob: np.ndarray, others: np.ndarray, ring_px: int
@@ -71,6 +87,30 @@ def colour_region_length(lab: np.ndarray, blob: np.ndarray, colour: np.ndarray,
     return int(stats[region, cv2.CC_STAT_WIDTH:cv2.CC_STAT_HEIGHT + 1].max())
 
 
+def outline_step_share(lab: np.ndarray, blob: np.ndarray, tolerance: np.ndarray,
+                       reach_px: int) -> float:
+    """The share of ``blob``'s outline pixels where the colour steps: some LAB channel (3 x 3
+    means, against sensor noise) spans more than ``tolerance`` within ``reach_px`` of the
+    pixel. All arguments are crops of one window; 1.0 for a blob too small to have an inside."""
+    mask = blob.view(np.uint8)
+    outline = blob & ~cv2.erode(mask, np.ones((3, 3), np.uint8)).astype(bool)
+    if not outline.any():
+        return 1.0
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach_px + 1, 2 * reach_px + 1))
+    mean = cv2.blur(np.ascontiguousarray(lab, np.float32), (3, 3))
+    span = cv2.dilate(mean, kernel) - cv2.erode(mean, kernel)
+    steps = np.any(span[outline] > tolerance.astype(np.float32), axis=1)
+    return float(np.count_nonzero(steps)) / len(steps)
+
+
+def colour_share_around(lab: np.ndarray, blob: np.ndarray, tolerance: np.ndarray) -> float:
+    """The share of the pixels around ``blob`` (the window ``lab`` covers, less the blob) whose
+    colour is the blob's median colour, each LAB channel within ``tolerance``."""
+    colour = np.median(lab[blob], axis=0).astype(np.float64)
+    same = cv2.inRange(lab, colour - tolerance, colour + tolerance).astype(bool) & ~blob
+    return float(np.count_nonzero(same)) / max(blob.size - int(np.count_nonzero(blob)), 1)
+
+
 def _window(box: np.ndarray, pad: int, shape: tuple[int, ...]) -> tuple[slice, slice]:
     """The rows and columns of an (x, y, w, h) box grown by ``pad``, within ``shape``."""
     x, y, w, h = (int(v) for v in box)
@@ -84,7 +124,8 @@ def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
     """``foreground`` (H, W) bool without its blobs that the depth cue does not find
     (``depth_candidate``, (H, W) bool), mostly of the colour of the table around them (within
     ``params.colour_edge_floors`` cut-off floors; ``depth_table``, (H, W) bool: depth at table
-    height), where that colour runs on further than any part is long (module doc; 0 or
+    height), where that colour runs on further than any part is long, or without a colour
+    step along most of their outline in a colour common around them (module doc; 0 or
     unknown parts: unchanged)."""
     longest = max((extent[2] for extent in params.whole_parts or ()), default=0.0)
     if params.colour_edge_floors <= 0 or longest <= 0:
@@ -94,7 +135,6 @@ def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
     found = np.bincount(blobs[depth_candidate], minlength=count)
     tolerance = params.colour_edge_floors * np.array(
         [params.grey_floor, params.lab_floor, params.lab_floor], np.float64)
-    drop = []
     area = stats[1:, cv2.CC_STAT_AREA]
     # blobs under half the smallest instance are dropped anyway (instances_at_scale keeps
     # min_area_px at its scale, which rounds a little below it)
@@ -103,16 +143,26 @@ def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
     if not len(tested):   # most frames: no full-resolution LAB image to make
         return foreground
     lab = rgb_to_lab(rgb)
-    for i in tested:
-        near = _window(stats[i, :4], params.colour_edge_ring_px + 1, foreground.shape)
-        crop = blobs[near]
-        blob = crop == i
-        share, colour = table_colour_share(lab[near], blob, (crop > 0) & ~blob,
-                                           depth_table[near], params.colour_edge_ring_px,
-                                           tolerance)
-        if share < TABLE_COLOUR_SHARE:
-            continue
-        around = _window(stats[i, :4], int(np.ceil(longest)) + 1, foreground.shape)
-        if colour_region_length(lab[around], blobs[around] == i, colour, tolerance) > longest:
-            drop.append(i)
+    drop = [i for i in tested if _table_piece(lab, blobs, stats[i, :4], i, depth_table,
+                                              longest, tolerance, params)]
     return foreground & ~np.isin(blobs, drop) if drop else foreground
+
+
+def _table_piece(lab: np.ndarray, blobs: np.ndarray, box: np.ndarray, i: int,
+                 depth_table: np.ndarray, longest: float, tolerance: np.ndarray,
+                 params: SegmentationParams) -> bool:
+    """Whether blob ``i`` of ``blobs`` (its ``box``) is a piece of the table's pattern: of
+    the colour of the table around it in a region longer than any part, or without a colour
+    step along most of its outline in a colour common around it (module doc)."""
+    near = _window(box, params.colour_edge_ring_px + 1, blobs.shape)
+    crop = blobs[near]
+    blob = crop == i
+    around = _window(box, int(np.ceil(longest)) + 1, blobs.shape)
+    share, colour = table_colour_share(lab[near], blob, (crop > 0) & ~blob, depth_table[near],
+                                       params.colour_edge_ring_px, tolerance)
+    if share >= TABLE_COLOUR_SHARE and \
+            colour_region_length(lab[around], blobs[around] == i, colour, tolerance) > longest:
+        return True
+    return outline_step_share(lab[near], blob, tolerance, OUTLINE_REACH_PX) < \
+        params.colour_edge_outline_share and \
+        colour_share_around(lab[around], blobs[around] == i, tolerance) > COMMON_COLOUR_SHARE
