@@ -85,3 +85,56 @@ def test_a_piece_of_a_thin_part_is_kept_as_the_part_ends_its_colour():
     centres = _found(SegmentationParams(whole_parts=SHORT_PARTS))
     assert not any(_inside(c, LOW_STRIP) for c in centres)
     assert sum(_inside(c, STRIP) for c in centres) == 1
+
+
+# A table of dark tiles shorter than the parts (30 px, every 50 px): the colour's region does
+# not run on beyond a part, so only the outline tells a raised piece of a tile from a part.
+TILE_PX, TILE_PITCH = 30, 50
+TILE_BUMP = (slice(58, 72), slice(107, 123))   # inside the tile at rows 50-80, columns 100-130
+
+
+def _tiled_view() -> tuple[np.ndarray, np.ndarray, object]:
+    """(rgb, depth_m, camera): a grey table with dark tiles, a raised patch inside one tile,
+    the blue strip as high, and the green strip read as table but for a patch as high."""
+    _, _, cam = _top_view()
+    rows, cols = np.mgrid[0:240, 0:320]
+    rgb = np.empty((240, 320, 3))
+    rgb[:] = (200, 200, 195)
+    rgb[((rows % TILE_PITCH) < TILE_PX) & ((cols % TILE_PITCH) < TILE_PX)] = (70, 70, 75)
+    rgb[STRIP] = (40, 70, 170)
+    rgb[LOW_STRIP] = (40, 160, 80)
+    rgb += np.random.default_rng(1).normal(0, 2.0, rgb.shape)
+    rays = np.linalg.inv(cam.intrinsics.K) @ np.vstack([
+        np.mgrid[0:240, 0:320][::-1].reshape(2, -1), np.ones((1, 240 * 320))])
+    R, t = cam.T_world_camera[:3, :3], cam.T_world_camera[:3, 3]
+    along = (R[2] @ rays).reshape(240, 320)
+    height = np.zeros((240, 320))
+    for region in (TILE_BUMP, STRIP, RAISED):
+        height[region] = BUMP_M
+    depth = ((height - t[2]) / along).astype(np.float32)
+    return np.clip(rgb, 0, 255).astype(np.uint8), depth, cam
+
+
+def _found_on_tiles(params: SegmentationParams) -> list[tuple[int, int]]:
+    rgb, depth, cam = _tiled_view()
+    seg = segment(rgb, depth_m=depth, intrinsics=cam.intrinsics,
+                  T_world_camera=cam.T_world_camera, split_by_depth=False, params=params)
+    return [tuple(int(v) for v in np.argwhere(seg.labels == i).mean(axis=0))
+            for i in range(1, seg.count + 1)]
+
+
+def test_a_raised_piece_of_a_tile_shorter_than_the_parts_is_not_a_part():
+    centres = _found_on_tiles(SegmentationParams(whole_parts=PARTS))
+    assert not any(_inside(c, TILE_BUMP) for c in centres)
+    # a part steps all along its outline; a piece of a part (the green strip's raised patch)
+    # steps nowhere but its colour is not common around it
+    assert sum(_inside(c, STRIP) for c in centres) == 1
+    assert sum(_inside(c, LOW_STRIP) for c in centres) == 1
+
+
+def test_the_piece_of_a_tile_is_found_without_the_outline_test():
+    # what the test above guards against: the tiles are too short for the region test alone
+    centres = _found_on_tiles(SegmentationParams(whole_parts=PARTS,
+                                                 colour_edge_outline_share=0.0))
+    assert any(_inside(c, TILE_BUMP) for c in centres)
+    assert sum(_inside(c, STRIP) for c in centres) == 1
