@@ -2,9 +2,11 @@
 frame is localised twice (the test off, then on; the pipeline's own parameters) and every
 foreground blob of the first run that the second lacks is counted as on a part (>= 30 % of it
 on a ground-truth visible mask of that view) or on bare table (< 5 %).
-docs/bench/table-false-parts.md.
+docs/bench/table-false-parts.md. With KEY=VALUE the first run sets that parameter instead
+(``colour_edge_outline_share=0``: what the outline test alone drops,
+docs/bench/smoothed-localiser.md).
 
-    python scripts/table_false_parts_dropped.py SCENES TEMPLATES [FLOORS]
+    python scripts/table_false_parts_dropped.py SCENES TEMPLATES [FLOORS | KEY=VALUE]
 """
 from __future__ import annotations
 
@@ -29,7 +31,13 @@ VIEWS = ('top', 'side')
 
 def main(argv: list[str]) -> int:
     scenes, templates = argv[:2]
-    floors = float(argv[2]) if len(argv) > 2 else SegmentationParams().colour_edge_floors
+    first = {'colour_edge_floors': 0.0}
+    floors = SegmentationParams().colour_edge_floors
+    if len(argv) > 2 and '=' in argv[2]:
+        key, value = argv[2].split('=', 1)
+        first = {key: float(value)}
+    elif len(argv) > 2:
+        floors = float(argv[2])
     counts: Counter = Counter()
     pipelines = None
     for top, side in zip(read_split(scenes, 'test_top'), read_split(scenes, 'test_side')):
@@ -40,8 +48,9 @@ def main(argv: list[str]) -> int:
             rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
                        for v, im in images.items()})
             db = TemplateDatabase.load(templates)
-            pipelines = [PerceptionPipeline(rig=rig, templates=db, segmentation=SegmentationParams(
-                colour_edge_floors=f)) for f in (0.0, floors)]
+            pipelines = [PerceptionPipeline(rig=rig, templates=db, segmentation=params)
+                         for params in (SegmentationParams(**first),
+                                        SegmentationParams(colour_edge_floors=floors))]
         off, on = ({v: seg.foreground for v, (seg, _) in segmentations(p, views).items()}
                    for p in pipelines)
         for v in VIEWS:
@@ -58,7 +67,7 @@ def main(argv: list[str]) -> int:
                 if kind != 'table':
                     print(f'frame {top.im_id} {v}: dropped a blob of {int(blob.sum())} px, '
                           f'{share:.2f} on a part')
-    print(f'{scenes} (floors {floors}): blobs dropped')
+    print(f'{scenes} (floors {floors}, first run: {first}): blobs dropped')
     for key in sorted(counts):
         print(' ', *key, counts[key])
     return 0

@@ -143,7 +143,7 @@ def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
     if not len(tested):   # most frames: no full-resolution LAB image to make
         return foreground
     lab = rgb_to_lab(rgb)
-    drop = [i for i in tested if _table_piece(lab, blobs, stats[i, :4], i, depth_table,
+    drop = [i for i in tested if _table_piece(lab, blobs, stats[i, :4], int(i), depth_table,
                                               longest, tolerance, params)]
     return foreground & ~np.isin(blobs, drop) if drop else foreground
 
