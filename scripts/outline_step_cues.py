@@ -1,8 +1,8 @@
 """The outline rule's two values (``SegmentationParams.colour_edge_outline_share``) for every
-foreground blob of both views, the pipeline's own parameters: whether it lies on a part (>= 30 %
-on a ground-truth visible mask) or on bare table (< 5 %), its share of depth candidates, the
-share of its outline where the colour steps and the share of the window one part length around
-it that has its colour. docs/bench/smoothed-localiser.md.
+foreground blob of both views, with the pipeline's own parameters but that rule off: whether it
+lies on a part (>= 30 % on a ground-truth visible mask) or on bare table (< 5 %), its share of
+depth candidates, the share of its outline where the colour steps and the share of the window
+one part length around it that has its colour. docs/bench/smoothed-localiser.md.
 
     python scripts/outline_step_cues.py SCENES TEMPLATES
 """
@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.common import CameraMount, Rig
+from tlessbot_ros.core.localise import SegmentationParams
 from tlessbot_ros.core.localise.colour import rgb_to_lab
 from tlessbot_ros.core.localise.colour_edge import colour_share_around, outline_step_share
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
@@ -69,7 +70,9 @@ def main(argv: list[str]) -> int:
         if pipeline is None:
             rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
                        for v, im in images.items()})
-            pipeline = PerceptionPipeline(rig=rig, templates=TemplateDatabase.load(templates))
+            pipeline = PerceptionPipeline(
+                rig=rig, templates=TemplateDatabase.load(templates),
+                segmentation=SegmentationParams(colour_edge_outline_share=0.0))
         for v, (seg, kw) in segmentations(pipeline, views).items():
             for row in blob_rows(images[v], seg, kw['params']):
                 print(f'{top.im_id}\t{v}\t{row}')
