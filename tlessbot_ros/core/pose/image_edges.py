@@ -40,16 +40,28 @@ def edge_votes(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray
     rendered (:func:`~.turns.rendered_edges`, ``jump_m``, ``crease_deg``) and moved by the
     whole-pixel shift, within what the fit's error spans (``align_at_1m_m`` at 1 m,
     :func:`~.flat_align.shift_px`), that lays most of its edges on image edges."""
+    return candidate_edge_votes([(scene, P) for P in poses], points_o, views,
+                                align_at_1m_m=align_at_1m_m, jump_m=jump_m,
+                                crease_deg=crease_deg, edge_px=edge_px, inner_px=inner_px)
+
+
+def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.ndarray]],
+                         points_o: np.ndarray, views: Sequence[ViewEvidence], *,
+                         align_at_1m_m: float, jump_m: float, crease_deg: float, edge_px: float,
+                         inner_px: int) -> np.ndarray:
+    """:func:`edge_votes` for candidates that are each a (mesh, pose): a part's look-alikes
+    (one hole more, mirrored) at its fitted pose as well as one mesh's turns; ``points_o``
+    the model samples that bound them all (look-alikes share their model frame)."""
     from tlessbot_ros.core.pose.flat_align import shift_px, shifted
     from tlessbot_ros.core.pose.silhouette import edge_distance, window
     from tlessbot_ros.core.pose.turns import rendered_edges
 
-    count = len(poses)
+    count = len(candidates)
     votes = np.zeros((count, count), np.int64)
     for view in views:
         if view.rgb is None:
             continue
-        T = [view.T_view_fit @ np.asarray(P, np.float64) for P in poses]
+        T = [view.T_view_fit @ np.asarray(P, np.float64) for _, P in candidates]
         pad = shift_px(view.intrinsics, points_o, T[0], align_at_1m_m)
         box = window(points_o, T, view.intrinsics, margin_px=pad + inner_px + 4)
         if box is None:
@@ -60,7 +72,7 @@ def edge_votes(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray
         if view.others is not None:   # another part's edges vote for no pose of this one
             on_image &= ~np.asarray(view.others[y0:y0 + h, x0:x0 + w], bool)
         aligned = []
-        for T_k in T:
+        for (scene, _), T_k in zip(candidates, T):
             edges = rendered_edges(scene, T_k, view.intrinsics, grown, jump_m=jump_m,
                                    crease_deg=crease_deg)
             dx, dy = _best_shift(edges, on_image, pad)
@@ -124,4 +136,4 @@ def _best_shift(edges: np.ndarray, on_image: np.ndarray, pad: int) -> tuple[int,
     return max(shifts, key=lambda s: np.count_nonzero(shifted(edges, pad, *s) & on_image))
 
 
-__all__ = ['edge_votes', 'edge_winner', 'flat_edge_settings']
+__all__ = ['candidate_edge_votes', 'edge_votes', 'edge_winner', 'flat_edge_settings']
