@@ -32,8 +32,11 @@ def check_fitted_part(pipeline: PerceptionPipeline, job: PartJob,
     """The checks of a fitted part that read every view (so the pipeline runs them, not a
     worker): the flat parts' orientation check (:func:`check_flat`), the depth's look-alike
     check (:meth:`PerceptionPipeline.check_lookalike`), then the twins on the image
-    (:func:`check_twins`)."""
+    (:func:`check_twins`). A part with look-alikes is named first on the image's edges
+    (:func:`twins_on_edges`); the depth's checks name it where the edges leave it open."""
     info = check_flat(pipeline, job, views, labels)
+    if twins_on_edges(pipeline, job, views, labels):
+        return   # a hole's rim or a mirrored crease on the image: the depth may have lost it
     if info is not None and info.get('align_decided'):
         return   # the aligned votes of every view named the part among its twins too
     pipeline.check_lookalike(job)
@@ -209,6 +212,47 @@ def check_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vie
     if k > 0:
         rename(detection, job, parts[k].obj_id)
     return info
+
+
+def twins_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+                   labels: dict[str, np.ndarray]) -> bool:
+    """Name a fitted part among its look-alikes by the colour image's edges: each look-alike's
+    mesh drawn at the fitted pose (they share their model frame), its edges inside the outline
+    laid on the image's (:func:`~tlessbot_ros.core.pose.image_edges.candidate_edge_votes`).
+    The winner of their duels names the part when it beats every other by a clear margin
+    (``FitParams.lookalike_edge_min_z``). Returns whether the edges decided.
+
+    A feature that tells twins apart (a 6 mm hole, a mirrored crease) is a few pixels wide: a
+    smoothed, stereo-like depth fills it, and the depth then votes for the twin without it; its
+    rim stays an edge in the image."""
+    from tlessbot_ros.core.pose.flat_align import round_robin
+    from tlessbot_ros.core.pose.image_edges import candidate_edge_votes, flat_edge_settings
+    from tlessbot_ros.core.pose.lookalike import clear_margin
+
+    detection, check = job.detection, pipeline.lookalike
+    min_z = pipeline.fit_params.lookalike_edge_min_z
+    estimator = pipeline.pose_estimator
+    if check is None or estimator is None or detection.pose is None or min_z <= 0 or \
+            detection.obj_id not in check:
+        return False
+    evidence = [view for view in colour_views(views, labels, detection.instance_id,
+                                              detection.view, table_frames(pipeline, views))
+                if view.rgb is not None]
+    if not evidence:
+        return False
+    ids = (detection.obj_id, *check.lookalikes[detection.obj_id])
+    points_o = np.concatenate([estimator.database[i].model_points for i in ids])
+    T = detection.pose.T_camera_object
+    votes = candidate_edge_votes([(check.scene(i), T) for i in ids], points_o.astype(np.float64),
+                                 evidence,
+                                 **flat_edge_settings(pipeline.fit_params.flat))  # type: ignore[arg-type]
+    k = round_robin(votes)
+    if not all(clear_margin(int(votes[k, j]), int(votes[j, k]), min_z)
+               for j in range(len(ids)) if j != k):
+        return False
+    if k > 0:
+        rename(detection, job, ids[k])
+    return True
 
 
 def rename(detection: Detection, job: PartJob, obj_id: int) -> None:

@@ -117,6 +117,8 @@ class FitParams:
             coin-toss deviations (>= 0; 0: any).
         lookalike_all_views: the part's pixels in the other cameras vote in the look-alike check
             too (needs the rig extrinsics).
+        lookalike_edge_min_z: look-alikes are first compared on the colour image's edges at the
+            fitted pose; the winner needs a surplus above this many coin-toss deviations (0: off).
         fragment_overlap: a detection centred within this fraction of a larger one's diameter is
             its fragment: dropped (0..1; 0: off).
         table_plane: the table frame heights are read in: 'rig' (extrinsics), 'observed' (plane in
@@ -167,6 +169,7 @@ class FitParams:
     lookalike_tolerance_m: float = 0.002
     lookalike_min_z: float = 2.0
     lookalike_all_views: bool = True
+    lookalike_edge_min_z: float = 3.0
     fragment_overlap: float = 0.5
     table_plane: str = 'auto'
     table_plane_max_angle_deg: float = 0.1
@@ -215,6 +218,9 @@ class FitParams:
         _check(self.lookalike_min_z >= 0 and math.isfinite(self.lookalike_min_z),
                'lookalike_min_z must be a finite value >= 0 (standard deviations; 0: any '
                f'surplus), got {self.lookalike_min_z}')
+        _check(self.lookalike_edge_min_z >= 0 and math.isfinite(self.lookalike_edge_min_z),
+               'lookalike_edge_min_z must be a finite value >= 0 (standard deviations; 0: off), '
+               f'got {self.lookalike_edge_min_z}')
         _check(self.table_plane in TABLE_PLANE_MODES, f'table_plane must be one of '
                f'{", ".join(TABLE_PLANE_MODES)}, got {self.table_plane!r}')
         _check(self.table_plane_max_angle_deg >= 0 and self.table_plane_max_offset_m >= 0,

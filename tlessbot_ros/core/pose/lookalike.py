@@ -266,7 +266,8 @@ class LookalikeCheck:
         (:meth:`MeshScenes.warm_up`)."""
         self._scenes.warm_up(self.lookalikes)
 
-    def _scene(self, obj_id: int) -> o3d.t.geometry.RaycastingScene:
+    def scene(self, obj_id: int) -> o3d.t.geometry.RaycastingScene:
+        """The ray-casting scene of part ``obj_id``'s mesh (built on first use)."""
         return self._scenes[obj_id]
 
     def resolve(self, obj_id: int, T_camera_object: np.ndarray, points_c: np.ndarray, *,
@@ -299,11 +300,11 @@ class LookalikeCheck:
         views = [(T, points, plane) for (T, points), plane in zip(clouds, planes) if len(points)]
         if obj_id not in self.lookalikes or not views:
             return obj_id, 0.0
-        own = [depth_errors(self._scene(obj_id), T, points, plane)
+        own = [depth_errors(self.scene(obj_id), T, points, plane)
                for T, points, plane in views]
         best, best_vote = obj_id, 0.0
         for other in self.lookalikes[obj_id]:
-            vote = pooled_vote([depth_errors(self._scene(other), T, points, plane)
+            vote = pooled_vote([depth_errors(self.scene(other), T, points, plane)
                                 for T, points, plane in views], own, self.tolerance_m,
                                self.min_z)
             if vote > best_vote:
