@@ -243,7 +243,7 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
            for j in range(1, len(poses))):
         return 0, True   # the refined views rule every turn out
     # the poses as they are: a turn refined on the image lays its rims over whatever edges it
-    # meets, and would win on them (a right block of g 4100 frame 7, 20 : 0)
+    # meets, and would win on them (docs/bench/smoothed-turns.md)
     return _edge_winner(check, obj, mesh, poses, views, params) or (k, False)
 
 
