@@ -14,18 +14,24 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.common import CameraMount, Rig
 from tlessbot_ros.core.localise import SegmentationParams
 from tlessbot_ros.core.localise.colour import rgb_to_lab
-from tlessbot_ros.core.localise.colour_edge import colour_share_around, outline_step_share
-from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
+from tlessbot_ros.core.localise.colour_edge import (
+    OUTLINE_REACH_PX,
+    colour_share_around,
+    outline_step_share,
+)
+from tlessbot_ros.core.pipeline import PerceptionPipeline
 from tlessbot_ros.core.pose import TemplateDatabase
-from tlessbot_ros.io.bop import read_split
 
 sys.path.insert(0, str(Path(__file__).parent))
-from table_false_parts_cues import OFF_PART, ON_PART, segmentations, truth_mask  # noqa: E402
-
-REACH_PX = 2   # colour_edge.OUTLINE_REACH_PX
+from table_false_parts_cues import (  # noqa: E402
+    OFF_PART,
+    ON_PART,
+    segmentations,
+    truth_mask,
+    two_view_frames,
+)
 
 
 def window(box: np.ndarray, pad: int, shape: tuple[int, ...]) -> tuple[slice, slice]:
@@ -48,13 +54,13 @@ def blob_rows(image, seg, params) -> list[str]:
     for i in range(1, count):
         if stats[i, cv2.CC_STAT_AREA] < params.min_area_px // 2:
             continue
-        near = window(stats[i, :4], REACH_PX + 4, blobs.shape)
+        near = window(stats[i, :4], OUTLINE_REACH_PX + 4, blobs.shape)
         around = window(stats[i, :4], int(np.ceil(longest)) + 1, blobs.shape)
         blob = blobs[near] == i
         on = truth[near][blob].mean()
         label = 'part' if on >= ON_PART else 'table' if on < OFF_PART else 'mixed'
         rows.append(f'{label}\t{stats[i, cv2.CC_STAT_AREA]}\t{depth[near][blob].mean():.2f}'
-                    f'\t{outline_step_share(lab[near], blob, floors, REACH_PX):.2f}'
+                    f'\t{outline_step_share(lab[near], blob, floors, OUTLINE_REACH_PX):.2f}'
                     f'\t{colour_share_around(lab[around], blobs[around] == i, floors):.2f}')
     return rows
 
@@ -63,19 +69,14 @@ def main(argv: list[str]) -> int:
     scenes, templates = argv[:2]
     pipeline = None
     print('frame\tview\tlabel\tarea\tdepth_share\tstep_share\tcommon_colour')
-    for top, side in zip(read_split(scenes, 'test_top'), read_split(scenes, 'test_side')):
-        images = {'top': top, 'side': side}
-        views = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera)
-                 for v, im in images.items()}
+    for images, views, rig in two_view_frames(scenes):
         if pipeline is None:
-            rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
-                       for v, im in images.items()})
             pipeline = PerceptionPipeline(
                 rig=rig, templates=TemplateDatabase.load(templates),
                 segmentation=SegmentationParams(colour_edge_outline_share=0.0))
         for v, (seg, kw) in segmentations(pipeline, views).items():
             for row in blob_rows(images[v], seg, kw['params']):
-                print(f'{top.im_id}\t{v}\t{row}')
+                print(f"{images['top'].im_id}\t{v}\t{row}")
     return 0
 
 

@@ -12,14 +12,12 @@ import sys
 import time
 from pathlib import Path
 
-from tlessbot_ros.core.common import CameraMount, Rig
 from tlessbot_ros.core.localise import segment
-from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
+from tlessbot_ros.core.pipeline import PerceptionPipeline
 from tlessbot_ros.core.pose import TemplateDatabase
-from tlessbot_ros.io.bop import read_split
 
 sys.path.insert(0, str(Path(__file__).parent))
-from table_false_parts_cues import segmentations  # noqa: E402
+from table_false_parts_cues import segmentations, two_view_frames  # noqa: E402
 
 
 def main(argv: list[str]) -> int:
@@ -30,14 +28,8 @@ def main(argv: list[str]) -> int:
     found = [0, 0]
     pipeline = None
     frames = 0
-    for top, side in zip(read_split(scenes, 'test_top', load_masks=False),
-                         read_split(scenes, 'test_side', load_masks=False)):
-        images = {'top': top, 'side': side}
-        views = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera)
-                 for v, im in images.items()}
+    for _, views, rig in two_view_frames(scenes, load_masks=False):
         if pipeline is None:
-            rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
-                       for v, im in images.items()})
             pipeline = PerceptionPipeline(rig=rig, templates=TemplateDatabase.load(templates))
         _, kw = segmentations(pipeline, views)[view]
         both = [kw, {**kw, 'params': dataclasses.replace(kw['params'], **{key: float(value)})}]

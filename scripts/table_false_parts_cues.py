@@ -18,7 +18,7 @@ floor) over the longest a part can look in the view; the height step across the 
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import cv2
 import numpy as np
@@ -79,6 +79,20 @@ def segmentations(pipeline: PerceptionPipeline, views: dict) -> dict:
     return seen
 
 
+def two_view_frames(scenes: str, *, load_masks: bool = True) -> Iterator[tuple[dict, dict, Rig]]:
+    """({view: dataset image}, {view: ViewInput}, the rig of the first frame) of each frame of
+    a two-view scenes folder (test_top + test_side)."""
+    rig = None
+    for top, side in zip(read_split(scenes, 'test_top', load_masks=load_masks),
+                         read_split(scenes, 'test_side', load_masks=load_masks)):
+        images = {'top': top, 'side': side}
+        if rig is None:
+            rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
+                       for v, im in images.items()})
+        yield images, {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera)
+                       for v, im in images.items()}, rig
+
+
 def truth_mask(image) -> np.ndarray:
     """(H, W) bool: the union of a dataset image's ground-truth visible masks."""
     truth = np.zeros(image.rgb.shape[:2], bool)
@@ -91,20 +105,14 @@ def truth_mask(image) -> np.ndarray:
 def main(argv: list[str]) -> int:
     scenes, templates = argv[:2]
     frames = {int(a) for a in argv[2].split(',')} if len(argv) > 2 else None
-    tops = read_split(scenes, 'test_top')
-    sides = read_split(scenes, 'test_side', load_masks=False)
     pipeline = None
     print('frame\tlabel\tarea\tdepth_share\tstep_over_floor\ttable_colour_share'
           '\tregion_over_longest\theight_step_mm')
-    for top, side in zip(tops, sides):
+    for images, views, rig in two_view_frames(scenes):
+        top = images['top']
         if frames is not None and top.im_id not in frames:
             continue
-        views = {'top': ViewInput(top.rgb, top.depth_m, top.intrinsics, top.T_world_camera),
-                 'side': ViewInput(side.rgb, side.depth_m, side.intrinsics,
-                                   side.T_world_camera)}
         if pipeline is None:
-            rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
-                       for v, im in (('top', top), ('side', side))})
             pipeline = PerceptionPipeline(
                 rig=rig, templates=TemplateDatabase.load(templates),
                 segmentation=SegmentationParams(colour_edge_floors=0.0))

@@ -17,14 +17,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.common import CameraMount, Rig
 from tlessbot_ros.core.localise import SegmentationParams
-from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
+from tlessbot_ros.core.pipeline import PerceptionPipeline
 from tlessbot_ros.core.pose import TemplateDatabase
-from tlessbot_ros.io.bop import read_split
 
 sys.path.insert(0, str(Path(__file__).parent))
-from table_false_parts_cues import OFF_PART, ON_PART, segmentations, truth_mask  # noqa: E402
+from table_false_parts_cues import (  # noqa: E402
+    OFF_PART,
+    ON_PART,
+    segmentations,
+    truth_mask,
+    two_view_frames,
+)
 
 VIEWS = ('top', 'side')
 
@@ -40,13 +44,8 @@ def main(argv: list[str]) -> int:
         floors = float(argv[2])
     counts: Counter = Counter()
     pipelines = None
-    for top, side in zip(read_split(scenes, 'test_top'), read_split(scenes, 'test_side')):
-        images = {'top': top, 'side': side}
-        views = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera)
-                 for v, im in images.items()}
+    for images, views, rig in two_view_frames(scenes):
         if pipelines is None:
-            rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
-                       for v, im in images.items()})
             db = TemplateDatabase.load(templates)
             pipelines = [PerceptionPipeline(rig=rig, templates=db, segmentation=params)
                          for params in (SegmentationParams(**first),
@@ -65,7 +64,8 @@ def main(argv: list[str]) -> int:
                 big = 'area >= 80' if blob.sum() >= 80 else 'area < 80'
                 counts[(v, kind, big)] += 1
                 if kind != 'table':
-                    print(f'frame {top.im_id} {v}: dropped a blob of {int(blob.sum())} px, '
+                    print(f"frame {images['top'].im_id} {v}:"
+                          f' dropped a blob of {int(blob.sum())} px, '
                           f'{share:.2f} on a part')
     print(f'{scenes} (floors {floors}, first run: {first}): blobs dropped')
     for key in sorted(counts):
