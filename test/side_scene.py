@@ -86,3 +86,27 @@ def turn_axis(S: np.ndarray) -> np.ndarray:
     """The axis (3,) of the turn ``S`` (4, 4)."""
     w, V = np.linalg.eig(S[:3, :3])
     return np.real(V[:, np.argmin(np.abs(w - 1))])
+
+
+def block_with_box_turns():
+    """The generator's drilled block: (vertices m, faces), the object (templates on its
+    base), its box turns (:func:`~tlessbot_ros.core.pose.half_turns.box_turns`)."""
+    from tlessbot_ros.core.pose import TurnParams
+    from tlessbot_ros.core.pose.half_turns import box_turns, self_half_turns
+
+    v, f, obj = drilled_block()
+    turns = self_half_turns(obj)
+    return v, f, obj, turns[box_turns(obj, turns, TurnParams())]
+
+
+def side_evidence(rgb: np.ndarray, depth: np.ndarray, mask: np.ndarray, T_world_object):
+    """(T_camera_object, [the side view's evidence], its ROI points) of a part rendered by
+    :func:`side_scene` at ``T_world_object``, with ``depth`` (m, 0 = none) as measured."""
+    from tlessbot_ros.core.common import depth_to_points, plane_of_frame
+    from tlessbot_ros.core.pose.flat import ViewEvidence
+
+    points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask & (depth > 0))
+    view = ViewEvidence(rgb, mask, SIDE.intrinsics, np.eye(4), depth,
+                        plane_of_frame(SIDE.T_world_camera), np.zeros_like(mask))
+    return np.linalg.inv(SIDE.T_world_camera) @ T_world_object, [view], points
+

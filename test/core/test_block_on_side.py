@@ -7,27 +7,27 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from side_scene import SIDE, block_on_a_side, drilled_block, side_scene, turn_axis
+from side_scene import (
+    block_on_a_side,
+    block_with_box_turns,
+    side_evidence,
+    side_scene,
+    turn_axis,
+)
 
 from tlessbot_ros.core.common import (
-    depth_to_points,
     make_transform,
-    plane_of_frame,
     rotation_about_axis,
     rotation_angle_deg,
 )
 from tlessbot_ros.core.pose import PoseParams, Refiner, TurnParams
-from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams, ViewEvidence
-from tlessbot_ros.core.pose.half_turns import box_turns, choose_half_turn, self_half_turns
+from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams
+from tlessbot_ros.core.pose.half_turns import choose_half_turn
 
 
 @pytest.fixture(scope='module')
 def block():
-    """The generator's drilled block: (vertices m, faces), the object (templates on its
-    base), its box turns."""
-    v, f, obj = drilled_block()
-    turns = self_half_turns(obj)
-    return v, f, obj, turns[box_turns(obj, turns, TurnParams())]
+    return block_with_box_turns()
 
 
 def _on_a_side(v, f, yaw_deg: float):
@@ -35,10 +35,7 @@ def _on_a_side(v, f, yaw_deg: float):
     (T_camera_object true, its views, its ROI points)."""
     T_world_object = block_on_a_side(v, yaw_deg)
     rgb, depth, mask = side_scene(v, f, T_world_object, noise_m=0.0007, shaded=True)
-    points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
-    view = ViewEvidence(rgb, mask, SIDE.intrinsics, np.eye(4), depth,
-                        plane_of_frame(SIDE.T_world_camera), np.zeros_like(mask))
-    return np.linalg.inv(SIDE.T_world_camera) @ T_world_object, [view], points
+    return side_evidence(rgb, depth, mask, T_world_object)
 
 
 def _fit_error():

@@ -7,26 +7,29 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from side_scene import SIDE, block_on_a_side, drilled_block, side_scene, turn_axis
+from side_scene import (
+    SIDE,
+    block_on_a_side,
+    block_with_box_turns,
+    side_evidence,
+    side_scene,
+    turn_axis,
+)
 
 from tlessbot_ros.core.common import (
-    depth_to_points,
-    plane_of_frame,
     rotation_angle_deg,
 )
 from tlessbot_ros.core.pose import PoseParams, Refiner, TurnParams
-from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams, ViewEvidence
+from tlessbot_ros.core.pose.flat import FlatCheck, FlatParams
 from tlessbot_ros.core.pose.flat_turns import mesh_scene
-from tlessbot_ros.core.pose.half_turns import box_turns, choose_half_turn, self_half_turns
+from tlessbot_ros.core.pose.half_turns import choose_half_turn
 from tlessbot_ros.core.pose.image_edges import edge_votes
 from tlessbot_ros.sim.noise import DepthNoiseParams, add_depth_noise
 
 
 @pytest.fixture(scope='module')
 def block():
-    v, f, obj = drilled_block()
-    turns = self_half_turns(obj)
-    return v, f, obj, turns[box_turns(obj, turns, TurnParams())]
+    return block_with_box_turns()
 
 
 def _on_a_side(v, f, yaw_deg: float):
@@ -36,11 +39,7 @@ def _on_a_side(v, f, yaw_deg: float):
     rgb, clean, mask = side_scene(v, f, T_world_object, noise_m=0.0, shaded=True)
     depth_mm = add_depth_noise(clean, float(SIDE.intrinsics.K[0, 0]), np.random.default_rng(3),
                                DepthNoiseParams(kind='smoothed'))
-    depth = depth_mm.astype(np.float32) / 1000.0
-    points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask & (depth > 0))
-    view = ViewEvidence(rgb, mask, SIDE.intrinsics, np.eye(4), depth,
-                        plane_of_frame(SIDE.T_world_camera), np.zeros_like(mask))
-    return np.linalg.inv(SIDE.T_world_camera) @ T_world_object, [view], points
+    return side_evidence(rgb, depth_mm.astype(np.float32) / 1000.0, mask, T_world_object)
 
 
 @pytest.mark.parametrize('axis', [1, 2])

@@ -19,6 +19,28 @@ PARTS = ((0.06, 60.0, 80.0),)
 SHORT_PARTS = ((0.04, 60.0, 50.0),)   # shorter than the green strip
 
 
+def _depth_of(raised: tuple, cam) -> np.ndarray:
+    """(240, 320) float32 depth (m) of the table seen by ``cam``, the ``raised`` regions
+    ``BUMP_M`` above it."""
+    rays = np.linalg.inv(cam.intrinsics.K) @ np.vstack([
+        np.mgrid[0:240, 0:320][::-1].reshape(2, -1), np.ones((1, 240 * 320))])
+    R, t = cam.T_world_camera[:3, :3], cam.T_world_camera[:3, 3]
+    along = (R[2] @ rays).reshape(240, 320)   # world height change per metre of depth
+    height = np.zeros((240, 320))
+    for region in raised:
+        height[region] = BUMP_M
+    return ((height - t[2]) / along).astype(np.float32)
+
+
+def _centres(rgb: np.ndarray, depth: np.ndarray, cam, params: SegmentationParams
+             ) -> list[tuple[int, int]]:
+    """(row, column) centres of the instances ``segment`` finds."""
+    seg = segment(rgb, depth_m=depth, intrinsics=cam.intrinsics,
+                  T_world_camera=cam.T_world_camera, split_by_depth=False, params=params)
+    return [tuple(int(v) for v in np.argwhere(seg.labels == i).mean(axis=0))
+            for i in range(1, seg.count + 1)]
+
+
 def _top_view() -> tuple[np.ndarray, np.ndarray, object]:
     """(rgb, depth_m, camera) of a grey table with a pink square, a raised patch on the
     square, a blue strip as high as the patch on the grey, and a green strip read as table
@@ -26,15 +48,7 @@ def _top_view() -> tuple[np.ndarray, np.ndarray, object]:
     from tlessbot_ros.core.common import default_rig
 
     cam = default_rig(320, 240)['top']
-    rays = np.linalg.inv(cam.intrinsics.K) @ np.vstack([
-        np.mgrid[0:240, 0:320][::-1].reshape(2, -1), np.ones((1, 240 * 320))])
-    R, t = cam.T_world_camera[:3, :3], cam.T_world_camera[:3, 3]
-    along = (R[2] @ rays).reshape(240, 320)   # world height change per metre of depth
-    height = np.zeros((240, 320))
-    height[BUMP] = BUMP_M
-    height[STRIP] = BUMP_M
-    height[RAISED] = BUMP_M
-    depth = ((height - t[2]) / along).astype(np.float32)
+    depth = _depth_of((BUMP, STRIP, RAISED), cam)
     rng = np.random.default_rng(0)
     rgb = np.empty((240, 320, 3))
     rgb[:] = (200, 200, 195)
@@ -46,14 +60,7 @@ def _top_view() -> tuple[np.ndarray, np.ndarray, object]:
 
 
 def _found(params: SegmentationParams) -> list[tuple[int, int]]:
-    rgb, depth, cam = _top_view()
-    seg = segment(rgb, depth_m=depth, intrinsics=cam.intrinsics,
-                  T_world_camera=cam.T_world_camera, split_by_depth=False, params=params)
-    centres = []
-    for i in range(1, seg.count + 1):
-        rows, cols = np.nonzero(seg.labels == i)
-        centres.append((int(rows.mean()), int(cols.mean())))
-    return centres
+    return _centres(*_top_view(), params)
 
 
 def _inside(centre: tuple[int, int], region: tuple[slice, slice]) -> bool:
@@ -104,23 +111,11 @@ def _tiled_view() -> tuple[np.ndarray, np.ndarray, object]:
     rgb[STRIP] = (40, 70, 170)
     rgb[LOW_STRIP] = (40, 160, 80)
     rgb += np.random.default_rng(1).normal(0, 2.0, rgb.shape)
-    rays = np.linalg.inv(cam.intrinsics.K) @ np.vstack([
-        np.mgrid[0:240, 0:320][::-1].reshape(2, -1), np.ones((1, 240 * 320))])
-    R, t = cam.T_world_camera[:3, :3], cam.T_world_camera[:3, 3]
-    along = (R[2] @ rays).reshape(240, 320)
-    height = np.zeros((240, 320))
-    for region in (TILE_BUMP, STRIP, RAISED):
-        height[region] = BUMP_M
-    depth = ((height - t[2]) / along).astype(np.float32)
-    return np.clip(rgb, 0, 255).astype(np.uint8), depth, cam
+    return np.clip(rgb, 0, 255).astype(np.uint8), _depth_of((TILE_BUMP, STRIP, RAISED), cam), cam
 
 
 def _found_on_tiles(params: SegmentationParams) -> list[tuple[int, int]]:
-    rgb, depth, cam = _tiled_view()
-    seg = segment(rgb, depth_m=depth, intrinsics=cam.intrinsics,
-                  T_world_camera=cam.T_world_camera, split_by_depth=False, params=params)
-    return [tuple(int(v) for v in np.argwhere(seg.labels == i).mean(axis=0))
-            for i in range(1, seg.count + 1)]
+    return _centres(*_tiled_view(), params)
 
 
 def test_a_raised_piece_of_a_tile_shorter_than_the_parts_is_not_a_part():
