@@ -118,74 +118,72 @@ def _idle(seconds: float, *, busy: bool) -> None:
         pass
 
 
-def run(args: argparse.Namespace) -> int:
-    import rclpy
+def start_stage_nodes(args: argparse.Namespace, config: str) -> tuple[list, str]:
+    """The localiser, classifier and pose estimator nodes with the graph's parameters of
+    ``config`` (and the options' model files and pose workers), and a line on what the figures
+    depend on. Needs rclpy initialised."""
+    from rclpy.parameter import Parameter
 
     from tlessbot_ros.nodes.classifier import ClassifierNode
-    from tlessbot_ros.nodes.common import init_ros, limit_blas_threads
     from tlessbot_ros.nodes.localiser import LocaliserNode
     from tlessbot_ros.nodes.pose_estimator import PoseEstimatorNode
+
+    localiser = LocaliserNode()
+    classifier = ClassifierNode(parameter_overrides=[
+        Parameter('model_path', value=args.classifier)] if args.classifier else [])
+    pose = PoseEstimatorNode(parameter_overrides=[
+        *([Parameter('workers.count', value=args.pose_workers)]
+          if args.pose_workers is not None else []),
+        *([Parameter('templates_path', value=args.templates)] if args.templates else [])])
+    ran_with = (f'parameters of {config}: localiser parallel_views '
+                f'{localiser.localise_params.parallel_views}, pose_estimator workers.count '
+                f"{pose.get_parameter('workers.count').value}")
+    return [localiser, classifier, pose], ran_with
+
+
+def timed_passes(nodes: list, frames: list[dict[str, dict]], args: argparse.Namespace
+                 ) -> tuple[dict[str, list[float]], dict[str, float]]:
+    """Feed ``frames`` through the three stage nodes ``args.repeats`` times, each stage's
+    labels or classes the next one's input: ms per frame of each stage's ``process`` on its
+    frame thread, and each stage's CPU seconds (this process and the pose workers)."""
     from tlessbot_ros.tools.support.proc_stats import cpu_seconds, process_tree
 
-    frames = bag_frames(args.bag)
-    if not frames:
-        print(f'no two-view camera frames in {args.bag}')
-        return 1
-    limit_blas_threads()   # as every node process does (run_node): the same work, the same CPU
-    config = args.config or str(default_config_path())
-    init_ros(['--ros-args', '--params-file', config])   # the graph's parameters, per node name
-    try:
-        from rclpy.parameter import Parameter
-        localiser = LocaliserNode()
-        classifier = ClassifierNode(parameter_overrides=[
-            Parameter('model_path', value=args.classifier)] if args.classifier else [])
-        pose = PoseEstimatorNode(parameter_overrides=[
-            *([Parameter('workers.count', value=args.pose_workers)]
-              if args.pose_workers is not None else []),
-            *([Parameter('templates_path', value=args.templates)] if args.templates else [])])
-        # what the figures depend on, from the config and the options
-        ran_with = (f'parameters of {config}: localiser parallel_views '
-                    f'{localiser.localise_params.parallel_views}, pose_estimator workers.count '
-                    f"{pose.get_parameter('workers.count').value}")
-        ready_s = {}
-        for name, node in (('localiser', localiser), ('classifier', classifier),
-                           ('pose_estimator', pose)):
-            if not node.wait_ready():
-                print(f'{name} did not get ready: {node.last_error}')
-                return 1
-            ready_s[name] = node.ready_after_s
-        labels = {c: _Captured() for c in CAMERA_NAMES}
-        classes = {c: _Captured() for c in CAMERA_NAMES}
-        localiser._label_publishers, classifier._class_publishers = labels, classes
-        pose._pose_publishers = {k: _Captured() for k in pose._pose_publishers}
-        pose._markers, pose._overlay = _Captured(), _Captured()
-        times: dict[str, list[float]] = {'localiser': [], 'classifier': [], 'pose_estimator': []}
-        cpu_s = dict.fromkeys(times, 0.0)
-        # This process and the pose workers, found once: a scan of all of /proc per reading
-        # would be counted as the stages' CPU.
-        tree = process_tree(os.getpid())
+    localiser, classifier, pose = nodes
+    labels = {c: _Captured() for c in CAMERA_NAMES}
+    classes = {c: _Captured() for c in CAMERA_NAMES}
+    localiser._label_publishers, classifier._class_publishers = labels, classes
+    pose._pose_publishers = {k: _Captured() for k in pose._pose_publishers}
+    pose._markers, pose._overlay = _Captured(), _Captured()
+    times: dict[str, list[float]] = {'localiser': [], 'classifier': [], 'pose_estimator': []}
+    cpu_s = dict.fromkeys(times, 0.0)
+    # This process and the pose workers, found once: a scan of all of /proc per reading
+    # would be counted as the stages' CPU.
+    tree = process_tree(os.getpid())
 
-        def cpu_now() -> float:
-            return sum(cpu_seconds(pid, descendants=False) for pid in tree)
-        for _ in range(max(1, args.repeats)):
-            for frame in frames:
-                views = {c: dict(msgs) for c, msgs in frame.items()}
-                for name, node, outputs, key in (('localiser', localiser, labels, 'labels'),
-                                                 ('classifier', classifier, classes, 'classes'),
-                                                 ('pose_estimator', pose, None, None)):
-                    _idle(args.idle_before_ms / 1e3, busy=args.idle_busy)
-                    cpu0 = cpu_now()
-                    # on the node's frame thread, where the graph runs it (and warmed it up)
-                    times[name].append(node.on_frame_thread(
-                        partial(_timed_ms, node.process, views)).result())
-                    cpu_s[name] += cpu_now() - cpu0
-                    if outputs is not None:
-                        for c in views:   # the nodes publish images as CDR bytes
-                            views[c][key] = image_from_cdr(outputs[c].last)
-        for node in (localiser, classifier, pose):
-            node.destroy_node()
-    finally:
-        rclpy.try_shutdown()
+    def cpu_now() -> float:
+        return sum(cpu_seconds(pid, descendants=False) for pid in tree)
+    for _ in range(max(1, args.repeats)):
+        for frame in frames:
+            views = {c: dict(msgs) for c, msgs in frame.items()}
+            for name, node, outputs, key in (('localiser', localiser, labels, 'labels'),
+                                             ('classifier', classifier, classes, 'classes'),
+                                             ('pose_estimator', pose, None, None)):
+                _idle(args.idle_before_ms / 1e3, busy=args.idle_busy)
+                cpu0 = cpu_now()
+                # on the node's frame thread, where the graph runs it (and warmed it up)
+                times[name].append(node.on_frame_thread(
+                    partial(_timed_ms, node.process, views)).result())
+                cpu_s[name] += cpu_now() - cpu0
+                if outputs is not None:
+                    for c in views:   # the nodes publish images as CDR bytes
+                        views[c][key] = image_from_cdr(outputs[c].last)
+    return times, cpu_s
+
+
+def timing_table(times: dict[str, list[float]], ready_s: dict[str, float], frames: int
+                 ) -> list[str]:
+    """Markdown rows per stage: ready time, median / p90 / first-frame ms and the first pass
+    over ``frames`` frames against the later passes."""
     # The first frame after "ready" against the rest: a warm-up that covers every path the
     # first frame takes makes the ratio about 1 (the frame itself may be a busy one: compare
     # with the same frame's later passes, the last column).
@@ -195,14 +193,41 @@ def run(args: argparse.Namespace) -> int:
              'first / median | same frame, later passes (median ms) | '
              'first pass / later passes (medians) |',
              '|---|---|---|---|---|---|---|---|']
-    first_pass_ratio = {name: _first_pass_over_later(v, len(frames))
-                        for name, v in times.items()}
     for name, v in times.items():
-        later = v[len(frames)::len(frames)]
+        later = v[frames::frames]
+        ratio = _first_pass_over_later(v, frames)
         lines.append(f'| {name} | {ready_s[name]:.1f} | {np.median(v):.1f} | '
                      f'{np.percentile(v, 90):.1f} | {v[0]:.1f} | {v[0] / np.median(v):.2f} | '
-                     + (f'{np.median(later):.1f} | {first_pass_ratio[name]:.2f} |'
-                        if later else '- | - |'))
+                     + (f'{np.median(later):.1f} | {ratio:.2f} |' if later else '- | - |'))
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    import rclpy
+
+    from tlessbot_ros.nodes.common import init_ros, limit_blas_threads
+
+    frames = bag_frames(args.bag)
+    if not frames:
+        print(f'no two-view camera frames in {args.bag}')
+        return 1
+    limit_blas_threads()   # as every node process does (run_node): the same work, the same CPU
+    config = args.config or str(default_config_path())
+    init_ros(['--ros-args', '--params-file', config])   # the graph's parameters, per node name
+    try:
+        nodes, ran_with = start_stage_nodes(args, config)
+        ready_s = {}
+        for name, node in zip(('localiser', 'classifier', 'pose_estimator'), nodes):
+            if not node.wait_ready():
+                print(f'{name} did not get ready: {node.last_error}')
+                return 1
+            ready_s[name] = node.ready_after_s
+        times, cpu_s = timed_passes(nodes, frames, args)
+        for node in nodes:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+    lines = timing_table(times, ready_s, len(frames))
     load = ', '.join(f'{v:.2f}' for v in os.getloadavg())
     lines += ['', f'{len(frames)} frames x {max(1, args.repeats)} passes from {args.bag}; '
               f'load average {load} on {os.cpu_count()} cores.', ran_with + '.']
@@ -214,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps({name: {
             'median_ms': float(np.median(v)), 'p90_ms': float(np.percentile(v, 90)),
             'first_frame_ms': v[0],
-            'first_pass_over_later': first_pass_ratio[name],
+            'first_pass_over_later': _first_pass_over_later(v, len(frames)),
             'cpu_ms_per_frame': 1e3 * cpu_s[name] / len(v)} for name, v in times.items()},
             indent=1))
     return 0

@@ -284,25 +284,13 @@ def crop_pose_stage(model, templates, frames, min_pixels: int, scores: np.ndarra
     return classes, times
 
 
-def run(args: argparse.Namespace) -> int:
-    from tlessbot_ros.core.recognise import BACKGROUND_ID, LinearClassifier
-    from tlessbot_ros.io.models import load_models
-
-    classifiers = {path: LinearClassifier.load(path) for path in args.classifier}
-    ids = sorted(set().union(*(m.class_ids.tolist() for m in classifiers.values()))
-                 - {BACKGROUND_ID})
-    models = load_models(args.models, ids)
-    views, frames = simulated_crops(models, args.scenes, args.seed, args.min_pixels)
-    labels = np.concatenate([v[2] for v in views])
-    visib = np.concatenate([v[3] for v in views])
-    args.out.mkdir(parents=True, exist_ok=True)
-    templates = None
-    if args.templates is not None:
-        from tlessbot_ros.core.pose import TemplateDatabase
-
-        templates = TemplateDatabase.load(args.templates)
+def classifier_columns(classifiers: dict, views, frames, templates, args: argparse.Namespace
+                       ) -> tuple[dict, list]:
+    """Each classifier's crop predictions: {path: (model, predicted (N,), s per crop)} and the
+    table's columns [(header, predicted classes (N,), timing cell)], with the look-alike check
+    and the pose stage's columns after each classifier's when ``templates`` is given."""
     results = {}
-    columns = []  # (header, predicted, timing cell)
+    columns = []
     for path, model in classifiers.items():
         features = np.concatenate([model.describe(rgb, masks, **depth)
                                    for rgb, masks, _, _, depth in views])
@@ -311,27 +299,23 @@ def run(args: argparse.Namespace) -> int:
         results[path] = (model, predicted, time_per_crop(model, views[:60]))
         columns.append((f'{model.kind}, {"ours" if model.uses_depth else "paper"} ({path.name})',
                         predicted, f'{1e3 * results[path][2]:.3f}'))
-        if templates is not None:
-            for header, verify in (('+ look-alike check', False),
-                                   ('+ pose stage (verification, look-alike check)',
-                                    True)):
-                classes, ms = crop_pose_stage(model, templates, frames, args.min_pixels, scores,
-                                              candidates=args.candidates, verify=verify)
-                columns.append((header, classes, f'+{np.median(ms) if ms else 0:.1f} per fitted '
-                                f'crop ({len(ms)} fitted, {int(np.sum(classes != predicted))} '
-                                'changed)'))
-    lines = ['# Recognition on simulated two-view scenes', '',
-             f'{len(labels)} crops (ground-truth visible masks, >= {args.min_pixels} px) from '
-             f'{args.scenes} frames, simulator seed {args.seed}; objects {len(ids)}.', '',
-             '| obj | crops | ' + ' | '.join(header for header, _, _ in columns) + ' |',
-             '|---|---|' + '---|' * len(columns)]
-    if templates is not None:
-        lines[2] += (" Each crop also goes through the pose stage on its own view's depth: "
-                     '"+ look-alike check" fits the crops named as a part with a look-alike '
-                     'with that part and compares it with its look-alike at the fitted pose; '
-                     '"+ pose stage" also fits and verifies the best '
-                     f'{args.candidates} classes (of a top-view crop only when the classifier '
-                     'is unsure: ``top_view_verify_below_margin``), as the graph does.')
+        if templates is None:
+            continue
+        for header, verify in (('+ look-alike check', False),
+                               ('+ pose stage (verification, look-alike check)', True)):
+            classes, ms = crop_pose_stage(model, templates, frames, args.min_pixels, scores,
+                                          candidates=args.candidates, verify=verify)
+            columns.append((header, classes, f'+{np.median(ms) if ms else 0:.1f} per fitted '
+                            f'crop ({len(ms)} fitted, {int(np.sum(classes != predicted))} '
+                            'changed)'))
+    return results, columns
+
+
+def crop_table(ids: list[int], labels: np.ndarray, visib: np.ndarray, columns: list
+               ) -> list[str]:
+    """Markdown rows of the per-object crop table: one row per object, then all crops, the
+    mean over objects, the crops at least half visible and the timing row."""
+    lines = []
     for obj_id in ids:
         sel = labels == obj_id
         cells = [f'{100 * np.mean(pred[sel] == obj_id):.1f}' if sel.any() else '–'
@@ -353,6 +337,103 @@ def run(args: argparse.Namespace) -> int:
                  + ' | '.join(cell for _, _, cell in columns) + ' |')
     lines += ['', f'Load average (1, 5, 15 min) when timed: {load} on {os.cpu_count()} cores '
               '(timings scale with it; the goal is <= 1 ms on an idle core).']
+    return lines
+
+
+def confusion_lines(results: dict, ids: list[int], labels: np.ndarray, out: Path,
+                    overall_by_path: dict) -> list[str]:
+    """Write each classifier's confusion matrix to ``out``/confusion_<stem>.png; one list line
+    each."""
+    lines = []
+    index = {obj_id: k for k, obj_id in enumerate(ids)}
+    for path, (model, predicted, _) in results.items():
+        matrix = np.zeros((len(ids), len(ids)), np.int64)
+        for truth, guess in zip(labels, predicted):
+            if guess in index:
+                matrix[index[truth], index[guess]] += 1
+        png = out / f'confusion_{path.stem}.png'
+        confusion_png(png, matrix, ids, f'{model.kind} ({path.name}): '
+                      f'{100 * overall_by_path[path]:.1f} % top-1, {len(labels)} simulated crops')
+        lines.append(f'- confusion matrix of {model.kind} ({path.name}): {png.name}')
+    return lines
+
+
+def part_lines(results: dict, templates, frames, ids: list[int], args: argparse.Namespace
+               ) -> list[str]:
+    """The section on parts as the graph names them (two-view vote, pose verification)."""
+    lines = ['', '## Parts as the graph names them (two-view vote, pose verification)', '',
+             f'Parts seen by the side camera; verification fits the best {args.candidates} '
+             f"classes' templates ({args.templates.name}) to the side-view cloud.", '',
+             '| model | parts | side crop | two-view vote | + pose verification '
+             '| pose + verification ms/part |', '|---|---|---|---|---|---|']
+    for path, (model, _, _) in results.items():
+        parts = part_recognition(model, templates, frames, args.min_pixels, args.candidates)
+        truth = parts['truth']
+        cells = [f'{100 * np.mean(parts[key] == truth):.1f}'
+                 for key in ('side', 'vote', 'verified')]
+        lines.append(f'| {model.kind} ({path.name}) | {len(truth)} | ' + ' | '.join(cells)
+                     + f' | {np.median(parts["ms"]):.0f} (median) |')
+        lines += ['', '| obj | parts | side crop | + pose verification |', '|---|---|---|---|']
+        for obj_id in ids:
+            sel = truth == obj_id
+            if sel.any():
+                lines.append(f'| obj_{obj_id:02d} | {int(sel.sum())} | '
+                             f'{100 * np.mean(parts["side"][sel] == obj_id):.1f} | '
+                             f'{100 * np.mean(parts["verified"][sel] == obj_id):.1f} |')
+    return lines
+
+
+def real_crop_lines(results: dict, real_data: Path) -> list[str]:
+    """The section on the real T-LESS crops: each classifier's guess per crop."""
+    lines = ['', '## Real T-LESS crops', '',
+             'No depth with these crops: an "ours" model fills the shape part with its '
+             'training mean (the HOG decides alone), so read them as paper features.', '',
+             '| crop | mask | truth | ' + ' | '.join(m.kind for m, _, _ in
+                                                     results.values()) + ' |',
+             '|---|---|---|' + '---|' * len(results)]
+    for name, rgb, mask, obj_id, K in real_crops(real_data):
+        guesses = []
+        for model, _, _ in results.values():
+            boxes = [(0, 0, rgb.shape[1], rgb.shape[0])] if mask is None else None
+            features = model.describe(rgb, None if mask is None else [mask], boxes, K=K)
+            guess = int(model.predict(features, reject_margin=0.0).class_ids[0])
+            guesses.append(f'obj_{guess:02d}' + (' ✓' if guess == obj_id else ''))
+        lines.append(f'| {name} | {"GT" if mask is not None else "none"} | obj_{obj_id:02d} | '
+                     + ' | '.join(guesses) + ' |')
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    from tlessbot_ros.core.recognise import BACKGROUND_ID, LinearClassifier
+    from tlessbot_ros.io.models import load_models
+
+    classifiers = {path: LinearClassifier.load(path) for path in args.classifier}
+    ids = sorted(set().union(*(m.class_ids.tolist() for m in classifiers.values()))
+                 - {BACKGROUND_ID})
+    models = load_models(args.models, ids)
+    views, frames = simulated_crops(models, args.scenes, args.seed, args.min_pixels)
+    labels = np.concatenate([v[2] for v in views])
+    visib = np.concatenate([v[3] for v in views])
+    args.out.mkdir(parents=True, exist_ok=True)
+    templates = None
+    if args.templates is not None:
+        from tlessbot_ros.core.pose import TemplateDatabase
+
+        templates = TemplateDatabase.load(args.templates)
+    results, columns = classifier_columns(classifiers, views, frames, templates, args)
+    lines = ['# Recognition on simulated two-view scenes', '',
+             f'{len(labels)} crops (ground-truth visible masks, >= {args.min_pixels} px) from '
+             f'{args.scenes} frames, simulator seed {args.seed}; objects {len(ids)}.', '',
+             '| obj | crops | ' + ' | '.join(header for header, _, _ in columns) + ' |',
+             '|---|---|' + '---|' * len(columns)]
+    if templates is not None:
+        lines[2] += (" Each crop also goes through the pose stage on its own view's depth: "
+                     '"+ look-alike check" fits the crops named as a part with a look-alike '
+                     'with that part and compares it with its look-alike at the fitted pose; '
+                     '"+ pose stage" also fits and verifies the best '
+                     f'{args.candidates} classes (of a top-view crop only when the classifier '
+                     'is unsure: ``top_view_verify_below_margin``), as the graph does.')
+    lines += crop_table(ids, labels, visib, columns)
     overall_by_path = {p: float(np.mean(pred == labels)) for p, (_, pred, _) in results.items()}
     best = max(results, key=lambda p: overall_by_path[p])
     lines += ['', f'Best classifier: **{results[best][0].kind}** ({best.name}) with '
@@ -361,53 +442,11 @@ def run(args: argparse.Namespace) -> int:
     lines += lookalike_table(models, frames, labels, columns, min_pixels=args.min_pixels,
                              tolerance_m=args.lookalike_tolerance,
                              min_difference=args.min_difference)
-    for path, (model, predicted, _) in results.items():
-        matrix = np.zeros((len(ids), len(ids)), np.int64)
-        index = {obj_id: k for k, obj_id in enumerate(ids)}
-        for truth, guess in zip(labels, predicted):
-            if guess in index:
-                matrix[index[truth], index[guess]] += 1
-        png = args.out / f'confusion_{path.stem}.png'
-        confusion_png(png, matrix, ids, f'{model.kind} ({path.name}): '
-                      f'{100 * overall_by_path[path]:.1f} % top-1, {len(labels)} simulated crops')
-        lines.append(f'- confusion matrix of {model.kind} ({path.name}): {png.name}')
+    lines += confusion_lines(results, ids, labels, args.out, overall_by_path)
     if templates is not None:
-        lines += ['', '## Parts as the graph names them (two-view vote, pose verification)', '',
-                  f'Parts seen by the side camera; verification fits the best {args.candidates} '
-                  f"classes' templates ({args.templates.name}) to the side-view cloud.", '',
-                  '| model | parts | side crop | two-view vote | + pose verification '
-                  '| pose + verification ms/part |', '|---|---|---|---|---|---|']
-        for path, (model, _, _) in results.items():
-            parts = part_recognition(model, templates, frames, args.min_pixels, args.candidates)
-            truth = parts['truth']
-            cells = [f'{100 * np.mean(parts[key] == truth):.1f}'
-                     for key in ('side', 'vote', 'verified')]
-            lines.append(f'| {model.kind} ({path.name}) | {len(truth)} | ' + ' | '.join(cells)
-                         + f' | {np.median(parts["ms"]):.0f} (median) |')
-            lines += ['', '| obj | parts | side crop | + pose verification |', '|---|---|---|---|']
-            for obj_id in ids:
-                sel = truth == obj_id
-                if sel.any():
-                    lines.append(f'| obj_{obj_id:02d} | {int(sel.sum())} | '
-                                 f'{100 * np.mean(parts["side"][sel] == obj_id):.1f} | '
-                                 f'{100 * np.mean(parts["verified"][sel] == obj_id):.1f} |')
+        lines += part_lines(results, templates, frames, ids, args)
     if args.real_data is not None:
-        real = real_crops(args.real_data)
-        lines += ['', '## Real T-LESS crops', '',
-                  'No depth with these crops: an "ours" model fills the shape part with its '
-                  'training mean (the HOG decides alone), so read them as paper features.', '',
-                  '| crop | mask | truth | ' + ' | '.join(m.kind for m, _, _ in
-                                                          results.values()) + ' |',
-                  '|---|---|---|' + '---|' * len(results)]
-        for name, rgb, mask, obj_id, K in real:
-            guesses = []
-            for model, _, _ in results.values():
-                boxes = [(0, 0, rgb.shape[1], rgb.shape[0])] if mask is None else None
-                features = model.describe(rgb, None if mask is None else [mask], boxes, K=K)
-                guess = int(model.predict(features, reject_margin=0.0).class_ids[0])
-                guesses.append(f'obj_{guess:02d}' + (' ✓' if guess == obj_id else ''))
-            lines.append(f'| {name} | {"GT" if mask is not None else "none"} | obj_{obj_id:02d} | '
-                         + ' | '.join(guesses) + ' |')
+        lines += real_crop_lines(results, args.real_data)
     report = args.out / 'recognition.md'
     report.write_text('\n'.join(lines) + '\n', encoding='utf-8')
     print('\n'.join(lines))
