@@ -108,6 +108,7 @@ class FlatParams:
             thin axis by each 1/yaw_turns (or finer) of its listed yaw period (>= 1).
         edge_vote_px: a turn the aligned votes leave open is decided on the image's edges
             inside the outline, within this many pixels (0: not; :mod:`.image_edges`).
+        edge_hole_colour: ... a through hole's rims vote only where it shows the table's colour.
     """
 
     enabled: bool = True
@@ -131,6 +132,7 @@ class FlatParams:
     align_min_z: float = 3.0
     yaw_turns: int = 6
     edge_vote_px: float = 1.5
+    edge_hole_colour: bool = True
 
     def __post_init__(self) -> None:
         if self.flips < 1 or self.candidates < 1 or self.icp_iterations < 1 or \
@@ -221,10 +223,8 @@ class FlatCheck:
     def __init__(self, refiner: Refiner, params: FlatParams = FlatParams(), *,
                  voxel_scale: float = 1.0, sor_neighbors: int = 20,
                  sor_std_ratio: float = 2.0) -> None:
-        self.refiner = refiner
-        self.params = params
-        self.voxel_scale = voxel_scale
-        self._sor = (sor_neighbors, sor_std_ratio)
+        self.refiner, self.params = refiner, params
+        self.voxel_scale, self._sor = voxel_scale, (sor_neighbors, sor_std_ratio)
         # the last aligned round: its poses of the part itself and their duels' votes
         self.ranked: tuple[list[np.ndarray], np.ndarray] | None = None
 

@@ -53,7 +53,8 @@ class AlignedView:
     ``part_like`` (h, w) int8 colour likeness (+1 part, -1 surroundings, 0 no colour) and
     ``region`` (h, w) bool, the pixels that vote; ``renders`` per pose (hit (H, W) bool,
     height (H, W) m, smoothed as the view's depth: :func:`depth_spread_px`) over the window
-    grown by ``pad`` pixels on every side."""
+    grown by ``pad`` pixels on every side; ``spread_px`` the depth's smoothing (Gaussian sigma,
+    pixels; 0: per-pixel or no depth)."""
 
     box: tuple[int, int, int, int]
     height: np.ndarray
@@ -61,6 +62,7 @@ class AlignedView:
     region: np.ndarray
     renders: list[tuple[np.ndarray, np.ndarray]]
     pad: int
+    spread_px: float = 0.0
 
 
 def render_heights(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
@@ -262,7 +264,7 @@ def aligned_view(renderers: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.nd
         return view
     return AlignedView(box, height, part_like, region,
                        [(hit, cv2.GaussianBlur(rendered, (0, 0), sigma))
-                        for hit, rendered in renders], pad)
+                        for hit, rendered in renders], pad, sigma)
 
 
 # the spreads (Gaussian sigma, pixels) tried for the depth's smoothing: none (a per-pixel
@@ -315,6 +317,29 @@ def view_votes(scenes: Sequence[o3d.t.geometry.RaycastingScene], poses: Sequence
     return pooled_votes(aligned, len(poses), tolerance_m)
 
 
+def pose_spread_px(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
+                   points_o: np.ndarray, views: Sequence[ViewEvidence], *, align_at_1m_m: float,
+                   tolerance_m: float) -> float:
+    """The largest :attr:`AlignedView.spread_px` of one pose (of the mesh ``scene``, in the
+    fitted view's frame; ``points_o`` its model samples) over the views with depth and a table
+    plane: how far the depth is smoothed where that pose lies (0: per-pixel everywhere)."""
+    from tlessbot_ros.core.pose.silhouette import window
+
+    spread = 0.0
+    for view in views:
+        if view.plane is None or view.depth_m is None:
+            continue
+        T = view.T_view_fit @ np.asarray(T_camera_object, np.float64)
+        pad = shift_px(view.intrinsics, points_o, T, align_at_1m_m)
+        box = window(points_o, [T], view.intrinsics, margin_px=pad + 4)
+        if box is not None:
+            spread = max(spread, aligned_view([(scene, T)], box, pad, view.intrinsics, view.plane,
+                                              rgb=None, depth_m=view.depth_m,
+                                              others=view.others,
+                                              tolerance_m=tolerance_m).spread_px)
+    return spread
+
+
 def shift_px(intrinsics: CameraIntrinsics, points_o: np.ndarray, T_camera_object: np.ndarray,
              align_at_1m_m: float) -> int:
     """The whole pixels that the fit's error in the table plane spans at the distance z of a
@@ -343,5 +368,6 @@ def voting_region(renders: Sequence[tuple[np.ndarray, np.ndarray]], pad: int,
 
 
 __all__ = ['AlignedView', 'aligned_view', 'alignment_score', 'best_shift', 'depth_spread_px',
-           'measured_heights', 'pixel_votes', 'pooled_votes', 'render_heights', 'round_robin',
+           'measured_heights', 'pixel_votes', 'pooled_votes', 'pose_spread_px', 'render_heights',
+           'round_robin',
            'shift_of', 'shift_px', 'shifted', 'undominated', 'view_votes', 'voting_region']

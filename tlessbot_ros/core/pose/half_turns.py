@@ -255,15 +255,24 @@ def _edge_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ra
     (:func:`~.image_edges.edge_winner`), True), or None: ``box_image_edges`` off, or no turn
     does. On a smoothed depth the holes' few millimetres leave the height votes open; their
     rims and the chamfers' creases stay edges of the image."""
+    from tlessbot_ros.core.pose.flat_align import pose_spread_px
     from tlessbot_ros.core.pose.image_edges import edge_winner
 
     if not params.box_image_edges:
+        return None
+    if params.box_edges_smoothed_only and pose_spread_px(
+            mesh, poses[0], obj.model_points.astype(np.float64), views,
+            align_at_1m_m=check.params.align_at_1m_m,
+            tolerance_m=check.params.depth_tolerance_m) <= 0:
+        # a per-pixel depth shows the holes' millimetres: where it leaves the round open, an
+        # image edge is as likely the part's own shading (docs/bench/edge-votes-polarity.md)
         return None
     k = edge_winner(mesh, poses, obj.model_points.astype(np.float64), views,
                     min_z=check.params.align_min_z, align_at_1m_m=check.params.align_at_1m_m,
                     jump_m=params.jump_m, crease_deg=params.crease_deg, edge_px=params.edge_px,
                     # an image edge within edge_px of the outline is the outline's
-                    inner_px=params.box_edge_px + int(np.ceil(params.edge_px)))
+                    inner_px=params.box_edge_px + int(np.ceil(params.edge_px)),
+                    hole_colour=check.params.edge_hole_colour)
     return (k, True) if k > 0 else None
 
 

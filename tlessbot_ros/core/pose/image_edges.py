@@ -31,7 +31,8 @@ if TYPE_CHECKING:
 
 def edge_votes(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray],
                points_o: np.ndarray, views: Sequence[ViewEvidence], *, align_at_1m_m: float,
-               jump_m: float, crease_deg: float, edge_px: float, inner_px: int) -> np.ndarray:
+               jump_m: float, crease_deg: float, edge_px: float, inner_px: int,
+               hole_colour: bool = True) -> np.ndarray:
     """(K, K) int: [i, j] the rendered edge pixels of pose i, over every colour view, inside
     both poses' outlines (holes filled, ``inner_px`` or more from either), more than a pixel
     from every edge of pose j and within ``edge_px`` of an image edge.
@@ -39,16 +40,19 @@ def edge_votes(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray
     Each pose (of the mesh ``scene``; ``points_o`` the model samples that bound it) is
     rendered (:func:`~.turns.rendered_edges`, ``jump_m``, ``crease_deg``) and moved by the
     whole-pixel shift, within what the fit's error spans (``align_at_1m_m`` at 1 m,
-    :func:`~.flat_align.shift_px`), that lays most of its edges on image edges."""
+    :func:`~.flat_align.shift_px`), that lays most of its edges on image edges. With
+    ``hole_colour``, the rims of a pose's through hole that shows the part's colour vote for
+    no pose (:func:`_shut_hole_rims`)."""
     return candidate_edge_votes([(scene, P) for P in poses], points_o, views,
                                 align_at_1m_m=align_at_1m_m, jump_m=jump_m,
-                                crease_deg=crease_deg, edge_px=edge_px, inner_px=inner_px)
+                                crease_deg=crease_deg, edge_px=edge_px, inner_px=inner_px,
+                                hole_colour=hole_colour)
 
 
 def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.ndarray]],
                          points_o: np.ndarray, views: Sequence[ViewEvidence], *,
                          align_at_1m_m: float, jump_m: float, crease_deg: float, edge_px: float,
-                         inner_px: int) -> np.ndarray:
+                         inner_px: int, hole_colour: bool = True) -> np.ndarray:
     """:func:`edge_votes` for candidates that are each a (mesh, pose): a part's look-alikes
     (one hole more, mirrored) at its fitted pose as well as one mesh's turns; ``points_o``
     the model samples that bound them all (look-alikes share their model frame)."""
@@ -76,17 +80,24 @@ def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingSce
             edges = rendered_edges(scene, T_k, view.intrinsics, grown, jump_m=jump_m,
                                    crease_deg=crease_deg)
             dx, dy = _best_shift(edges, on_image, pad)
-            aligned.append((shifted(edges, pad, dx, dy),
-                            shifted(_filled(scene, T_k, view, grown), pad, dx, dy)))
+            aligned.append(tuple(shifted(m, pad, dx, dy)
+                                 for m in (edges, *_silhouette(scene, T_k, view, grown))))
         near = [cv2.dilate(e.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-                for e, _ in aligned]
+                for e, _, _ in aligned]
+        # a rim is evidence of a hole where the hole shows what lies beyond: a shadow's edge
+        # on a closed face can lie where a twin's hole would be (docs/bench/edge-votes-polarity.md)
+        shut = _shut_hole_rims([(filled, hit) for _, filled, hit in aligned],
+                               np.asarray(view.rgb[y0:y0 + h, x0:x0 + w]),
+                               None if view.others is None else
+                               np.asarray(view.others[y0:y0 + h, x0:x0 + w], bool)) \
+            if hole_colour else [np.zeros((h, w), bool)] * count
         for i in range(count):
             for j in range(i + 1, count):
                 inside = cv2.erode((aligned[i][1] & aligned[j][1]).astype(np.uint8),
                                    np.ones((2 * inner_px + 1,) * 2, np.uint8)).astype(bool)
                 inside &= on_image
-                votes[i, j] += np.count_nonzero(aligned[i][0] & inside & ~near[j])
-                votes[j, i] += np.count_nonzero(aligned[j][0] & inside & ~near[i])
+                votes[i, j] += np.count_nonzero(aligned[i][0] & inside & ~near[j] & ~shut[i])
+                votes[j, i] += np.count_nonzero(aligned[j][0] & inside & ~near[i] & ~shut[j])
     return votes
 
 
@@ -104,25 +115,59 @@ def edge_winner(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarra
     return k if k > 0 and clear_margin(int(votes[k, 0]), int(votes[0, k]), min_z) else 0
 
 
-def flat_edge_settings(params: FlatParams) -> dict[str, float]:
+def flat_edge_settings(params: FlatParams) -> dict[str, float | bool]:
     """:func:`edge_votes`' settings for a flat part (``params``' ``edge_vote_px``, its
     alignment): a step of the votes' height tolerance is an edge, a crease of 30° too (the
     turn check's)."""
     return dict(align_at_1m_m=params.align_at_1m_m, jump_m=params.depth_tolerance_m,
                 crease_deg=30.0, edge_px=params.edge_vote_px,
-                inner_px=1 + int(np.ceil(params.edge_vote_px)))
+                inner_px=1 + int(np.ceil(params.edge_vote_px)),
+                hole_colour=params.edge_hole_colour)
 
 
-def _filled(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
-            view: ViewEvidence, box: tuple[int, int, int, int]) -> np.ndarray:
-    """(h, w) bool the pose's silhouette in ``box``, its through holes filled."""
+def _silhouette(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
+                view: ViewEvidence, box: tuple[int, int, int, int]
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(filled, hit), each (h, w) bool: the pose's silhouette in ``box`` with its through
+    holes filled, and the pixels the mesh covers."""
     from scipy.ndimage import binary_fill_holes
 
     from tlessbot_ros.core.pose.silhouette import window_depth
 
     _, _, w, h = box
     _, depth = window_depth(scene, T_camera_object, view.intrinsics, box)
-    return np.asarray(binary_fill_holes(np.isfinite(depth).reshape(h, w)), bool)
+    hit = np.isfinite(depth).reshape(h, w)
+    return np.asarray(binary_fill_holes(hit), bool), hit
+
+
+def _shut_hole_rims(silhouettes: Sequence[tuple[np.ndarray, np.ndarray]], rgb: np.ndarray,
+                    others: np.ndarray | None) -> list[np.ndarray]:
+    """Per pose ((filled, hit) (h, w) bool each, aligned, over the (h, w, 3) ``rgb`` window;
+    ``others`` the pixels of other parts or None): (h, w) bool, the pixels within two of
+    its through holes that look like the part rather than the table around it
+    (:func:`~.silhouette.part_likeness`, more pixels part-like than surroundings-like)."""
+    from tlessbot_ros.core.pose.silhouette import part_likeness
+
+    kernel = np.ones((5, 5), np.uint8)
+    union = np.logical_or.reduce([filled for filled, _ in silhouettes]).astype(np.uint8)
+    part = cv2.erode(np.logical_and.reduce([hit for _, hit in silhouettes]).astype(np.uint8),
+                     kernel).astype(bool)
+    around = cv2.dilate(union, np.ones((13, 13), np.uint8)).astype(bool) & \
+        ~cv2.dilate(union, kernel).astype(bool)
+    if others is not None:
+        part, around = part & ~others, around & ~others
+    holes = [filled & ~hit for filled, hit in silhouettes]
+    likeness = part_likeness(rgb, part, around, np.logical_or.reduce(holes))
+    shut = []
+    for hole in holes:
+        count, labels = cv2.connectedComponents(hole.astype(np.uint8), connectivity=8)
+        closed = np.zeros(hole.shape, np.uint8)
+        for c in range(1, count):
+            seen = likeness[labels == c]
+            if np.count_nonzero(seen > 0) > np.count_nonzero(seen < 0):
+                closed[labels == c] = 1
+        shut.append(cv2.dilate(closed, kernel).astype(bool))
+    return shut
 
 
 def _best_shift(edges: np.ndarray, on_image: np.ndarray, pad: int) -> tuple[int, int]:

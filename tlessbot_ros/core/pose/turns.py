@@ -76,6 +76,8 @@ class TurnParams:
             pixels or more from either (>= 0).
         box_image_edges: a box round the height votes leave open is decided on the image's
             edges inside the outline (:mod:`.image_edges`), by the aligned votes' margin.
+        box_edges_smoothed_only: ... only where the fit measures the depth smoothed
+            (:func:`~.flat_align.pose_spread_px` > 0); on per-pixel depth an open round keeps it.
     """
 
     enabled: bool = True
@@ -101,6 +103,7 @@ class TurnParams:
     box_refine_max_m: float = 0.001
     box_edge_px: int = 1
     box_image_edges: bool = True
+    box_edges_smoothed_only: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 < self.step_deg <= 90.0:
