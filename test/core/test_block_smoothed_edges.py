@@ -76,3 +76,38 @@ def test_a_right_block_on_smoothed_depth_stays(block, yaw_deg):
     scene = check.prepared_cloud(obj, points)
     kept, info = choose_half_turn(check, obj, T_true, scene, views, TurnParams())
     assert rotation_angle_deg(kept[:3, :3], T_true[:3, :3]) < 5.0, info
+
+
+def _edge_round(block, axis: int, kind: str):
+    """The box round's edge vote (``half_turns._edge_winner``) between the true block and its
+    turn about the box's ``axis`` (25° from facing the camera), its depth per pixel (exact)
+    or ``smoothed``: (the vote, the depth's spread measured at the turn)."""
+    from tlessbot_ros.core.pose.flat_align import pose_spread_px
+    from tlessbot_ros.core.pose.half_turns import _edge_winner
+
+    v, f, obj, box = block
+    T_world_object = block_on_a_side(v, 25.0)
+    rgb, clean, mask = side_scene(v, f, T_world_object, noise_m=0.0, shaded=True)
+    depth_mm = clean * 1000.0 if kind == 'exact' else add_depth_noise(
+        clean, float(SIDE.intrinsics.K[0, 0]), np.random.default_rng(3),
+        DepthNoiseParams(kind='smoothed'))
+    T_true, views, _ = side_evidence(rgb, depth_mm.astype(np.float32) / 1000.0, mask,
+                                     T_world_object)
+    S = min(box, key=lambda S: -abs(turn_axis(S) @ np.eye(3)[axis]))
+    check = FlatCheck(Refiner(PoseParams()), FlatParams())
+    poses = [T_true @ S, T_true]
+    spread = pose_spread_px(mesh_scene(obj), poses[0], obj.model_points.astype(float), views,
+                            align_at_1m_m=check.params.align_at_1m_m,
+                            tolerance_m=check.params.depth_tolerance_m)
+    return _edge_winner(check, obj, mesh_scene(obj), poses, views, TurnParams()), spread
+
+
+@pytest.mark.parametrize('axis', [1, 2])
+def test_the_box_round_s_edge_vote_turns_a_fit_only_on_smoothed_depth(block, axis):
+    # per-pixel h8 4100 frame 11 (docs/bench/edge-votes-polarity.md): where a per-pixel
+    # depth leaves the round open, an image edge (there the block's own shading) is no reason
+    # to turn the fit; a smoothed depth hides the holes, and its edges decide
+    exact, exact_spread = _edge_round(block, axis, 'exact')
+    smoothed, smoothed_spread = _edge_round(block, axis, 'smoothed')
+    assert exact_spread == 0.0 and smoothed_spread > 0.0
+    assert exact is None and smoothed == (1, True)

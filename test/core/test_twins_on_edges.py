@@ -11,7 +11,12 @@ import numpy as np
 import pytest
 from side_scene import SIDE, side_scene
 
-from tlessbot_ros.core.common import depth_to_points, make_transform, rotation_about_axis
+from tlessbot_ros.core.common import (
+    depth_to_points,
+    make_transform,
+    rotation_about_axis,
+    transform_points,
+)
 from tlessbot_ros.core.frame import ViewInput
 from tlessbot_ros.core.params import FitParams
 from tlessbot_ros.core.pipeline import PerceptionPipeline
@@ -103,3 +108,38 @@ def test_no_rim_on_the_image_leaves_the_plain_plate_to_the_depth(twins):
     for named in (PLAIN, HOLED):
         [found] = PerceptionPipeline(templates=db).estimate_poses(inputs, labels, {1: (named,)})
         assert found.obj_id == PLAIN
+
+
+def _shadow_across_the_twin_s_hole(inputs, T_true, kind: str):
+    """``inputs`` with a cast shadow (the colour at 55 %) whose edge runs through the centre of
+    the hole that only the HOLED twin has: a straight edge along the image rows, or the round
+    rim of a tube's shadow (per-pixel g 4100 frame 9, docs/bench/edge-votes-polarity.md)."""
+    K = SIDE.intrinsics.K
+    centre, off = transform_points(T_true, np.array([[0.039, 0.025, 0.006],
+                                                     [0.039, 0.031, 0.006]]))
+    u, v = (K @ (centre / centre[2]))[:2]
+    radius = 2.0 * np.linalg.norm((K @ (off / off[2]))[:2] - (u, v))   # 4 hole widths
+    rgb = inputs['side'].rgb.astype(np.float32)
+    rows, cols = np.mgrid[0:rgb.shape[0], 0:rgb.shape[1]]
+    if kind == 'straight':
+        shadow = rows < v
+    else:
+        shadow = np.hypot(cols - u + 0.7 * radius, rows - v + 0.7 * radius) < radius
+    rgb[shadow] *= 0.55
+    return {'side': replace(inputs['side'], rgb=rgb.astype(np.uint8))}
+
+
+@pytest.mark.parametrize('kind', ['straight', 'round'])
+@pytest.mark.parametrize('named', [PLAIN, HOLED])
+def test_a_shadow_s_edge_where_the_twin_s_hole_would_be_does_not_name_it(twins, kind, named):
+    # the twin's hole would show the table; there the image shows the plate's colour (lit or
+    # shadowed), so its rims vote for neither twin (FlatParams.edge_hole_colour); without the
+    # colour test the shadow's edge on the rim names the twin
+    meshes, db = twins
+    inputs, labels, T_true, _ = _frame(meshes, PLAIN)
+    views = _shadow_across_the_twin_s_hole(inputs, T_true, kind)
+    [found] = PerceptionPipeline(templates=db).estimate_poses(views, labels, {1: (named,)})
+    assert found.obj_id == PLAIN
+    blind = replace(FitParams(), flat=replace(FitParams().flat, edge_hole_colour=False))
+    off = PerceptionPipeline(templates=db, fit_params=blind)
+    assert off.estimate_poses(views, labels, {1: (named,)})[0].obj_id == HOLED

@@ -53,8 +53,7 @@ class AlignedView:
     ``part_like`` (h, w) int8 colour likeness (+1 part, -1 surroundings, 0 no colour) and
     ``region`` (h, w) bool, the pixels that vote; ``renders`` per pose (hit (H, W) bool,
     height (H, W) m, smoothed as the view's depth: :func:`depth_spread_px`) over the window
-    grown by ``pad`` pixels on every side; ``spread_px`` the depth's smoothing (Gaussian sigma,
-    pixels; 0: per-pixel or no depth)."""
+    grown by ``pad`` pixels on every side."""
 
     box: tuple[int, int, int, int]
     height: np.ndarray
@@ -62,7 +61,6 @@ class AlignedView:
     region: np.ndarray
     renders: list[tuple[np.ndarray, np.ndarray]]
     pad: int
-    spread_px: float = 0.0
 
 
 def render_heights(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
@@ -264,7 +262,7 @@ def aligned_view(renderers: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.nd
         return view
     return AlignedView(box, height, part_like, region,
                        [(hit, cv2.GaussianBlur(rendered, (0, 0), sigma))
-                        for hit, rendered in renders], pad, sigma)
+                        for hit, rendered in renders], pad)
 
 
 # the spreads (Gaussian sigma, pixels) tried for the depth's smoothing: none (a per-pixel
@@ -320,9 +318,10 @@ def view_votes(scenes: Sequence[o3d.t.geometry.RaycastingScene], poses: Sequence
 def pose_spread_px(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
                    points_o: np.ndarray, views: Sequence[ViewEvidence], *, align_at_1m_m: float,
                    tolerance_m: float) -> float:
-    """The largest :attr:`AlignedView.spread_px` of one pose (of the mesh ``scene``, in the
-    fitted view's frame; ``points_o`` its model samples) over the views with depth and a table
-    plane: how far the depth is smoothed where that pose lies (0: per-pixel everywhere)."""
+    """How far the depth is smoothed where a pose (of the mesh ``scene``, in the fitted view's
+    frame; ``points_o`` its model samples) lies: the largest :func:`depth_spread_px` over the
+    views with depth and a table plane, the pose aligned as it votes, however far it misses
+    the depth (0: per-pixel everywhere)."""
     from tlessbot_ros.core.pose.silhouette import window
 
     spread = 0.0
@@ -332,11 +331,17 @@ def pose_spread_px(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.nd
         T = view.T_view_fit @ np.asarray(T_camera_object, np.float64)
         pad = shift_px(view.intrinsics, points_o, T, align_at_1m_m)
         box = window(points_o, [T], view.intrinsics, margin_px=pad + 4)
-        if box is not None:
-            spread = max(spread, aligned_view([(scene, T)], box, pad, view.intrinsics, view.plane,
-                                              rgb=None, depth_m=view.depth_m,
-                                              others=view.others,
-                                              tolerance_m=tolerance_m).spread_px)
+        if box is None:
+            continue
+        x0, y0, w, h = box
+        render = render_heights(scene, T, view.intrinsics,
+                                (x0 - pad, y0 - pad, w + 2 * pad, h + 2 * pad), view.plane)
+        height = measured_heights(view.depth_m, view.intrinsics, box, view.plane)
+        cut = None if view.others is None else np.asarray(view.others[y0:y0 + h, x0:x0 + w], bool)
+        region = voting_region([render], pad, cut)
+        plain = AlignedView(box, height, np.zeros((h, w), np.int8), region, [render], pad)
+        spread = max(spread, depth_spread_px(height, render, pad, region,
+                                             shift_of(plain, 0, tolerance_m)))
     return spread
 
 
