@@ -133,13 +133,13 @@ def _shadow_across_the_twin_s_hole(inputs, T_true, kind: str):
 @pytest.mark.parametrize('named', [PLAIN, HOLED])
 def test_a_shadow_s_edge_where_the_twin_s_hole_would_be_does_not_name_it(twins, kind, named):
     # the twin's hole would show the table; there the image shows the plate's colour (lit or
-    # shadowed), so its rims vote for neither twin (FlatParams.edge_hole_colour); without the
+    # shadowed), so its rims vote for neither twin (FlatParams.edge_hole_contrast); without the
     # colour test the shadow's edge on the rim names the twin
     meshes, db = twins
     inputs, labels, T_true, _ = _frame(meshes, PLAIN)
     views = _shadow_across_the_twin_s_hole(inputs, T_true, kind)
     [found] = PerceptionPipeline(templates=db).estimate_poses(views, labels, {1: (named,)})
     assert found.obj_id == PLAIN
-    blind = replace(FitParams(), flat=replace(FitParams().flat, edge_hole_colour=False))
+    blind = replace(FitParams(), flat=replace(FitParams().flat, edge_hole_contrast=0.0))
     off = PerceptionPipeline(templates=db, fit_params=blind)
     assert off.estimate_poses(views, labels, {1: (named,)})[0].obj_id == HOLED

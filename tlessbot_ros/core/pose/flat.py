@@ -108,7 +108,8 @@ class FlatParams:
             thin axis by each 1/yaw_turns (or finer) of its listed yaw period (>= 1).
         edge_vote_px: a turn the aligned votes leave open is decided on the image's edges
             inside the outline, within this many pixels (0: not; :mod:`.image_edges`).
-        edge_hole_colour: ... a through hole's rims vote only where it shows the table's colour.
+        edge_hole_contrast: ... a through hole's rims only where most of its pixels differ from
+            the face around it by more than this (RGB distance; 0: always).
     """
 
     enabled: bool = True
@@ -132,7 +133,7 @@ class FlatParams:
     align_min_z: float = 3.0
     yaw_turns: int = 6
     edge_vote_px: float = 1.5
-    edge_hole_colour: bool = True
+    edge_hole_contrast: float = 12.0
 
     def __post_init__(self) -> None:
         if self.flips < 1 or self.candidates < 1 or self.icp_iterations < 1 or \
@@ -144,8 +145,7 @@ class FlatParams:
                              f'got {self.min_share}, {self.iou_weight}, {self.yaw_step_deg}')
         if not 0.0 <= self.flat_ratio <= 1.0 or self.edge_px <= 0 or self.edge_vote_px < 0:
             raise ValueError('flat_ratio must be in [0, 1], edge_px > 0, edge_vote_px >= 0')
-        if self.depth_tolerance_m < 0 or self.depth_min_z < 0 or self.align_at_1m_m < 0 or \
-                self.align_min_z < 0:
+        if min(self.depth_tolerance_m, self.depth_min_z, self.align_at_1m_m, self.align_min_z) < 0:
             raise ValueError(f'depth_tolerance_m, depth_min_z, align_at_1m_m and align_min_z must '
                              f'be >= 0; got {self.depth_tolerance_m}, {self.depth_min_z}, '
                              f'{self.align_at_1m_m}, {self.align_min_z}')

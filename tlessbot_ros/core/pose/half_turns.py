@@ -272,7 +272,7 @@ def _edge_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ra
                     jump_m=params.jump_m, crease_deg=params.crease_deg, edge_px=params.edge_px,
                     # an image edge within edge_px of the outline is the outline's
                     inner_px=params.box_edge_px + int(np.ceil(params.edge_px)),
-                    hole_colour=check.params.edge_hole_colour)
+                    hole_contrast=check.params.edge_hole_contrast)
     return (k, True) if k > 0 else None
 
 

@@ -32,7 +32,7 @@ if TYPE_CHECKING:
 def edge_votes(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray],
                points_o: np.ndarray, views: Sequence[ViewEvidence], *, align_at_1m_m: float,
                jump_m: float, crease_deg: float, edge_px: float, inner_px: int,
-               hole_colour: bool = True) -> np.ndarray:
+               hole_contrast: float = 0.0) -> np.ndarray:
     """(K, K) int: [i, j] the rendered edge pixels of pose i, over every colour view, inside
     both poses' outlines (holes filled, ``inner_px`` or more from either), more than a pixel
     from every edge of pose j and within ``edge_px`` of an image edge.
@@ -41,18 +41,18 @@ def edge_votes(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray
     rendered (:func:`~.turns.rendered_edges`, ``jump_m``, ``crease_deg``) and moved by the
     whole-pixel shift, within what the fit's error spans (``align_at_1m_m`` at 1 m,
     :func:`~.flat_align.shift_px`), that lays most of its edges on image edges. With
-    ``hole_colour``, the rims of a pose's through hole that shows the part's colour vote for
-    no pose (:func:`_shut_hole_rims`)."""
+    ``hole_contrast`` > 0, the rims of a pose's through hole that looks like the face around
+    it vote for no pose (:func:`_shut_hole_rims`)."""
     return candidate_edge_votes([(scene, P) for P in poses], points_o, views,
                                 align_at_1m_m=align_at_1m_m, jump_m=jump_m,
                                 crease_deg=crease_deg, edge_px=edge_px, inner_px=inner_px,
-                                hole_colour=hole_colour)
+                                hole_contrast=hole_contrast)
 
 
 def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.ndarray]],
                          points_o: np.ndarray, views: Sequence[ViewEvidence], *,
                          align_at_1m_m: float, jump_m: float, crease_deg: float, edge_px: float,
-                         inner_px: int, hole_colour: bool = True) -> np.ndarray:
+                         inner_px: int, hole_contrast: float = 0.0) -> np.ndarray:
     """:func:`edge_votes` for candidates that are each a (mesh, pose): a part's look-alikes
     (one hole more, mirrored) at its fitted pose as well as one mesh's turns; ``points_o``
     the model samples that bound them all (look-alikes share their model frame)."""
@@ -73,8 +73,9 @@ def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingSce
         x0, y0, w, h = box
         grown = (x0 - pad, y0 - pad, w + 2 * pad, h + 2 * pad)
         on_image = edge_distance(view.rgb, box) <= edge_px
-        if view.others is not None:   # another part's edges vote for no pose of this one
-            on_image &= ~np.asarray(view.others[y0:y0 + h, x0:x0 + w], bool)
+        cut = None if view.others is None else np.asarray(view.others[y0:y0 + h, x0:x0 + w], bool)
+        if cut is not None:   # another part's edges vote for no pose of this one
+            on_image &= ~cut
         aligned = []
         for (scene, _), T_k in zip(candidates, T):
             edges = rendered_edges(scene, T_k, view.intrinsics, grown, jump_m=jump_m,
@@ -84,13 +85,11 @@ def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingSce
                                  for m in (edges, *_silhouette(scene, T_k, view, grown))))
         near = [cv2.dilate(e.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
                 for e, _, _ in aligned]
-        # a rim is evidence of a hole where the hole shows what lies beyond: a shadow's edge
-        # on a closed face can lie where a twin's hole would be (docs/bench/edge-votes-polarity.md)
-        shut = _shut_hole_rims([(filled, hit) for _, filled, hit in aligned],
-                               np.asarray(view.rgb[y0:y0 + h, x0:x0 + w]),
-                               None if view.others is None else
-                               np.asarray(view.others[y0:y0 + h, x0:x0 + w], bool)) \
-            if hole_colour else [np.zeros((h, w), bool)] * count
+        # a rim is evidence of a hole where the hole looks unlike its face: a shadow's edge on
+        # a closed face can lie where a twin's hole would be (docs/bench/edge-votes-polarity.md)
+        shut = [np.zeros((h, w), bool)] * count if hole_contrast <= 0 else _shut_hole_rims(
+            [(filled, hit) for _, filled, hit in aligned],
+            np.asarray(view.rgb[y0:y0 + h, x0:x0 + w]), cut, hole_contrast)
         for i in range(count):
             for j in range(i + 1, count):
                 inside = cv2.erode((aligned[i][1] & aligned[j][1]).astype(np.uint8),
@@ -122,7 +121,7 @@ def flat_edge_settings(params: FlatParams) -> dict[str, float | bool]:
     return dict(align_at_1m_m=params.align_at_1m_m, jump_m=params.depth_tolerance_m,
                 crease_deg=30.0, edge_px=params.edge_vote_px,
                 inner_px=1 + int(np.ceil(params.edge_vote_px)),
-                hole_colour=params.edge_hole_colour)
+                hole_contrast=params.edge_hole_contrast)
 
 
 def _silhouette(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
@@ -141,32 +140,33 @@ def _silhouette(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarr
 
 
 def _shut_hole_rims(silhouettes: Sequence[tuple[np.ndarray, np.ndarray]], rgb: np.ndarray,
-                    others: np.ndarray | None) -> list[np.ndarray]:
+                    others: np.ndarray | None, contrast: float) -> list[np.ndarray]:
     """Per pose ((filled, hit) (h, w) bool each, aligned, over the (h, w, 3) ``rgb`` window;
     ``others`` the pixels of other parts or None): (h, w) bool, the pixels within two of
-    its through holes that look like the part rather than the table around it
-    (:func:`~.silhouette.part_likeness`, more pixels part-like than surroundings-like)."""
-    from tlessbot_ros.core.pose.silhouette import part_likeness
+    each of its through holes whose pixels look, most of them, like the face around it (a
+    colour within ``contrast`` of one of the face's, 2-4 pixels out).
 
-    kernel = np.ones((5, 5), np.uint8)
-    union = np.logical_or.reduce([filled for filled, _ in silhouettes]).astype(np.uint8)
-    part = cv2.erode(np.logical_and.reduce([hit for _, hit in silhouettes]).astype(np.uint8),
-                     kernel).astype(bool)
-    around = cv2.dilate(union, np.ones((13, 13), np.uint8)).astype(bool) & \
-        ~cv2.dilate(union, kernel).astype(bool)
-    if others is not None:
-        part, around = part & ~others, around & ~others
-    holes = [filled & ~hit for filled, hit in silhouettes]
-    likeness = part_likeness(rgb, part, around, np.logical_or.reduce(holes))
+    A hole shows what lies beyond it or its dark walls, unlike the face it is cut in; a
+    shadow's edge across the face shows the face on both sides, lit or shadowed."""
+    near, inner = np.ones((9, 9), np.uint8), np.ones((5, 5), np.uint8)
+    colour = rgb.astype(np.float32)
     shut = []
-    for hole in holes:
-        count, labels = cv2.connectedComponents(hole.astype(np.uint8), connectivity=8)
-        closed = np.zeros(hole.shape, np.uint8)
+    for filled, hit in silhouettes:
+        count, labels = cv2.connectedComponents((filled & ~hit).astype(np.uint8), connectivity=8)
+        closed = np.zeros(hit.shape, np.uint8)
         for c in range(1, count):
-            seen = likeness[labels == c]
-            if np.count_nonzero(seen > 0) > np.count_nonzero(seen < 0):
-                closed[labels == c] = 1
-        shut.append(cv2.dilate(closed, kernel).astype(bool))
+            hole = (labels == c).astype(np.uint8)
+            face = hit & cv2.dilate(hole, near).astype(bool) & \
+                ~cv2.dilate(hole, inner).astype(bool)
+            if others is not None:
+                face &= ~others
+            if np.count_nonzero(face) < 8:   # too little face seen to tell
+                continue
+            inside = colour[hole.astype(bool)]
+            gap = np.linalg.norm(inside[:, None, :] - colour[face][None, :, :], axis=2).min(axis=1)
+            if 2 * np.count_nonzero(gap <= contrast) > len(inside):
+                closed |= hole
+        shut.append(cv2.dilate(closed, inner).astype(bool))
     return shut
 
 
