@@ -139,12 +139,18 @@ def _silhouette(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarr
     return np.asarray(binary_fill_holes(hit), bool), hit
 
 
+# the share of a hole's pixels (and those next to it) that must look like the face for the
+# hole to count as shut: all but a stray pixel or two of a 4-6 px hole's view through it
+_SHUT_SHARE = 0.9
+
+
 def _shut_hole_rims(silhouettes: Sequence[tuple[np.ndarray, np.ndarray]], rgb: np.ndarray,
                     others: np.ndarray | None, contrast: float) -> list[np.ndarray]:
     """Per pose ((filled, hit) (h, w) bool each, aligned, over the (h, w, 3) ``rgb`` window;
     ``others`` the pixels of other parts or None): (h, w) bool, the pixels within two of
-    each of its through holes whose pixels look, most of them, like the face around it (a
-    colour within ``contrast`` of one of the face's, 2-4 pixels out).
+    each of its through holes that look like the face around it: ``_SHUT_SHARE`` of its
+    pixels and of those next to it a colour within ``contrast`` of one of the face's (2-4
+    pixels out).
 
     A hole shows what lies beyond it or its dark walls, unlike the face it is cut in; a
     shadow's edge across the face shows the face on both sides, lit or shadowed."""
@@ -162,9 +168,13 @@ def _shut_hole_rims(silhouettes: Sequence[tuple[np.ndarray, np.ndarray]], rgb: n
                 face &= ~others
             if np.count_nonzero(face) < 8:   # too little face seen to tell
                 continue
-            inside = colour[hole.astype(bool)]
+            # a pixel beyond the rendered hole too: a rendering a pixel off the image misses
+            # part of a small hole's view through it (a dark part's walls look like its face)
+            seen = cv2.dilate(hole, np.ones((3, 3), np.uint8)).astype(bool) & \
+                (True if others is None else ~others)
+            inside = colour[seen]
             gap = np.linalg.norm(inside[:, None, :] - colour[face][None, :, :], axis=2).min(axis=1)
-            if 2 * np.count_nonzero(gap <= contrast) > len(inside):
+            if np.count_nonzero(gap <= contrast) >= _SHUT_SHARE * len(inside):
                 closed |= hole
         shut.append(cv2.dilate(closed, inner).astype(bool))
     return shut
