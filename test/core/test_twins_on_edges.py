@@ -132,9 +132,9 @@ def _shadow_across_the_twin_s_hole(inputs, T_true, kind: str):
 @pytest.mark.parametrize('kind', ['straight', 'round'])
 @pytest.mark.parametrize('named', [PLAIN, HOLED])
 def test_a_shadow_s_edge_where_the_twin_s_hole_would_be_does_not_name_it(twins, kind, named):
-    # the twin's hole would show the table; there the image shows the plate's colour (lit or
-    # shadowed), so its rims vote for neither twin (FlatParams.edge_hole_contrast); without the
-    # colour test the shadow's edge on the rim names the twin
+    # where the twin's hole would be, the image shows the plate's face (lit or shadowed), so
+    # its rims vote for neither twin (FlatParams.edge_hole_contrast); without that test the
+    # shadow's edge on the rim names the twin
     meshes, db = twins
     inputs, labels, T_true, _ = _frame(meshes, PLAIN)
     views = _shadow_across_the_twin_s_hole(inputs, T_true, kind)

@@ -108,8 +108,8 @@ class FlatParams:
             thin axis by each 1/yaw_turns (or finer) of its listed yaw period (>= 1).
         edge_vote_px: a turn the aligned votes leave open is decided on the image's edges
             inside the outline, within this many pixels (0: not; :mod:`.image_edges`).
-        edge_hole_contrast: ... a through hole's rims only where most of its pixels differ from
-            the face around it by more than this (RGB distance; 0: always).
+        edge_hole_contrast: ... a through hole's rims only where the hole looks unlike the face
+            around it: more than this RGB distance from it (0: always).
     """
 
     enabled: bool = True

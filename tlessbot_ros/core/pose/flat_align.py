@@ -374,5 +374,5 @@ def voting_region(renders: Sequence[tuple[np.ndarray, np.ndarray]], pad: int,
 
 __all__ = ['AlignedView', 'aligned_view', 'alignment_score', 'best_shift', 'depth_spread_px',
            'measured_heights', 'pixel_votes', 'pooled_votes', 'pose_spread_px', 'render_heights',
-           'round_robin',
-           'shift_of', 'shift_px', 'shifted', 'undominated', 'view_votes', 'voting_region']
+           'round_robin', 'shift_of', 'shift_px', 'shifted', 'undominated', 'view_votes',
+           'voting_region']

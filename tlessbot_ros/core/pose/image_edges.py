@@ -114,7 +114,7 @@ def edge_winner(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarra
     return k if k > 0 and clear_margin(int(votes[k, 0]), int(votes[0, k]), min_z) else 0
 
 
-def flat_edge_settings(params: FlatParams) -> dict[str, float | bool]:
+def flat_edge_settings(params: FlatParams) -> dict[str, float]:
     """:func:`edge_votes`' settings for a flat part (``params``' ``edge_vote_px``, its
     alignment): a step of the votes' height tolerance is an edge, a crease of 30° too (the
     turn check's)."""
