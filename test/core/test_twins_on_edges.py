@@ -143,3 +143,12 @@ def test_a_shadow_s_edge_where_the_twin_s_hole_would_be_does_not_name_it(twins, 
     blind = replace(FitParams(), flat=replace(FitParams().flat, edge_hole_contrast=0.0))
     off = PerceptionPipeline(templates=db, fit_params=blind)
     assert off.estimate_poses(views, labels, {1: (named,)})[0].obj_id == HOLED
+
+
+@pytest.mark.parametrize('contrast', [-1.0, -12.0])
+def test_a_negative_hole_contrast_is_refused(contrast):
+    from tlessbot_ros.core.pose.flat import FlatParams
+
+    with pytest.raises(ValueError, match='edge_hole_contrast'):
+        FlatParams(edge_hole_contrast=contrast)
+    assert FlatParams(edge_hole_contrast=0.0).edge_hole_contrast == 0.0

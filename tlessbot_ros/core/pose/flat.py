@@ -145,10 +145,10 @@ class FlatParams:
                              f'got {self.min_share}, {self.iou_weight}, {self.yaw_step_deg}')
         if not 0.0 <= self.flat_ratio <= 1.0 or self.edge_px <= 0 or self.edge_vote_px < 0:
             raise ValueError('flat_ratio must be in [0, 1], edge_px > 0, edge_vote_px >= 0')
-        if min(self.depth_tolerance_m, self.depth_min_z, self.align_at_1m_m, self.align_min_z) < 0:
-            raise ValueError(f'depth_tolerance_m, depth_min_z, align_at_1m_m and align_min_z must '
-                             f'be >= 0; got {self.depth_tolerance_m}, {self.depth_min_z}, '
-                             f'{self.align_at_1m_m}, {self.align_min_z}')
+        if min(self.depth_tolerance_m, self.depth_min_z, self.align_at_1m_m, self.align_min_z,
+               self.edge_hole_contrast) < 0:
+            raise ValueError('depth_tolerance_m, depth_min_z, align_at_1m_m, align_min_z and '
+                             'edge_hole_contrast must be >= 0')
 
 
 @dataclass(frozen=True)
