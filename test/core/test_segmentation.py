@@ -15,6 +15,7 @@ from tlessbot_ros.core.localise import (
     segment,
     split_touching,
 )
+from tlessbot_ros.core.localise.segmentation import inner_markers
 
 # Approximate sRGB of the paper's PLA materials.
 MATERIALS = {'yellow': (225, 215, 150), 'pink': (235, 120, 175), 'black': (35, 35, 40),
@@ -296,3 +297,103 @@ def test_a_light_part_the_watershed_floods_is_kept_whole():
     assert (flooded.labels[140:200, 180:260] > 0).mean() < 0.1   # what the rule is for
     with pytest.raises(ValueError, match='watershed_keep_share'):
         SegmentationParams(watershed_keep_share=1.5)
+
+
+# A stereo-like depth raises the table a pixel or two beyond a part's outline (edge
+# fattening); the mask stays on the colour edge (depth_sure_erode_px,
+# docs/bench/smoothed-false-parts-left.md).
+def _fattened_scene(fattening_px: int):
+    """The blue box of ``_depth_scene`` on a light table, its depth spread ``fattening_px``
+    beyond its outline: rgb, depth, truth, camera."""
+    rgb, depth, truth, cam = _depth_scene((150, 150, 145), (40, 70, 170))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * fattening_px + 1,) * 2)
+    nearest_part = cv2.dilate(np.where(truth, depth, 0).astype(np.float32), kernel)
+    border = cv2.dilate(truth.view(np.uint8), kernel).view(bool) & ~truth
+    depth[border] = nearest_part[border]
+    return rgb, depth, truth, cam
+
+
+def _outside(params: SegmentationParams) -> tuple[int, int, int]:
+    rgb, depth, truth, cam = _fattened_scene(2)
+    seg = segment(rgb, depth_m=depth, intrinsics=cam.intrinsics.K,
+                  T_world_camera=cam.T_world_camera, params=params)
+    mask = seg.labels > 0
+    return seg.count, int((mask & ~truth).sum()), int((truth & ~mask).sum())
+
+
+def test_a_fattened_depth_does_not_fatten_the_mask():
+    count, outside, missing = _outside(SegmentationParams())
+    assert count == 1
+    assert outside <= 10          # a 2 px ring around the box is ~150 px
+    assert missing <= 0.03 * 884  # the box: 884 px
+
+
+def test_without_the_erosion_the_mask_takes_the_fattened_border():
+    # the guard on the test above: the scene does fatten the mask when the markers reach out
+    count, outside, _ = _outside(SegmentationParams(depth_sure_erode_px=0))
+    assert count == 1 and outside > 100
+
+
+def test_inner_markers_keep_a_blob_the_erosion_would_remove():
+    sure = np.zeros((30, 30), bool)
+    sure[5:15, 5:15] = True   # shrinks
+    sure[20, 20:22] = True    # too thin to keep a pixel: kept whole
+    inner = inner_markers(sure, 1)
+    assert inner[20, 20:22].all() and inner[8:12, 8:12].all()
+    assert not inner[5, 5:15].any()
+    assert (inner_markers(sure, 0) == sure).all()
+
+
+def _small_part_on_fattened_depth(x: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, object]:
+    """A 7 x 7 px, 12 mm high blue part at column ``x`` (the cue scale's blocks fall on it
+    differently at odd and even x) on a light table, its depth spread 2 px beyond it:
+    rgb, depth, truth, camera."""
+    from tlessbot_ros.core.common import default_rig
+
+    cam = default_rig(320, 240)['top']
+    R, t = cam.T_world_camera[:3, :3], cam.T_world_camera[:3, 3]
+    rays = np.linalg.inv(cam.intrinsics.K) @ np.vstack([
+        np.mgrid[0:240, 0:320][::-1].reshape(2, -1), np.ones((1, 240 * 320))])
+    along = (R[2] @ rays).reshape(240, 320)
+    truth = np.zeros((240, 320), bool)
+    truth[110:117, x:x + 7] = True
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    raised = cv2.dilate(truth.view(np.uint8), kernel).view(bool)
+    depth = np.where(raised, (0.012 - t[2]) / along, -t[2] / along).astype(np.float32)
+    rng = np.random.default_rng(0)
+    rgb = np.empty((240, 320, 3))
+    rgb[:] = (150, 150, 145)
+    rgb[truth] = (40, 70, 170)
+    rgb = np.clip(rgb + rng.normal(0, 2.0, rgb.shape), 0, 255).astype(np.uint8)
+    depth += rng.normal(0, 0.0007, depth.shape).astype(np.float32)
+    return rgb, depth, truth, cam
+
+
+@pytest.mark.parametrize('x', [150, 151])
+def test_a_small_part_does_not_grow_over_the_table_its_depth_spreads_to(x):
+    rgb, depth, truth, cam = _small_part_on_fattened_depth(x)
+    outside = []
+    for floors in (1.0, 0.0):   # the default, then the trim off (main's growth)
+        seg = segment(rgb, depth_m=depth, intrinsics=cam.intrinsics.K,
+                      T_world_camera=cam.T_world_camera,
+                      params=SegmentationParams(small_blob_candidates_px=80, min_area_px=20,
+                                                small_blob_trim_floors=floors))
+        mask = seg.labels > 0
+        assert (mask & truth).sum() == truth.sum()   # the whole part either way
+        outside.append(int((mask & ~truth).sum()))
+    assert outside[0] <= 3       # its box stays the part's (7 x 7)
+    assert outside[1] > 40       # the guard: without the trim it takes the spread depth
+
+
+def test_table_coloured_marks_the_band_s_colour_only():
+    from tlessbot_ros.core.localise.small_parts import table_coloured
+
+    lab = np.zeros((20, 20, 3), np.float32)
+    lab[:] = (60.0, 0.0, 0.0)
+    lab[8:12, 8:12] = (30.0, 20.0, -20.0)     # the part
+    lab[7, 8:12] = (64.0, 3.0, 0.0)           # the table beside it, within the floors
+    grown = np.zeros((20, 20), bool)
+    grown[7:12, 8:12] = True
+    near = table_coloured(lab, grown, np.array([8.0, 6.0, 6.0], np.float32))
+    assert near[7, 8:12].all() and not near[8:12, 8:12].any()
+    assert not table_coloured(lab, np.ones((20, 20), bool), np.ones(3, np.float32)).any()

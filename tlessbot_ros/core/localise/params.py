@@ -65,6 +65,8 @@ class SegmentationParams:
             share is kept whole (a part with weaker edges than its surroundings; 0..1, 0: off).
         small_blob_candidates_px: a blob smaller than this (px) keeps its candidates' extent,
             not the watershed's contour (0: off; set where :mod:`.part_scale` lowers sizes).
+        small_blob_trim_floors: ... but not the pixels within this many ``grey_floor`` /
+            ``lab_floor`` of the table's colour around it (0: off).
         part_area_fraction: with the parts' sizes, a view keeps blobs down to this fraction
             of the smallest part's expected area there, if below ``min_area_px`` (0..1; 0: off).
         part_width_fraction: ... and opens by at most this fraction of the narrowest part's
@@ -131,6 +133,7 @@ class SegmentationParams:
     thin_min_valid: float = 0.3
     watershed_keep_share: float = 0.0
     small_blob_candidates_px: int = 0
+    small_blob_trim_floors: float = 1.0
     part_area_fraction: float = 0.5
     part_width_fraction: float = 0.5
     whole_parts: tuple[tuple[float, float, float], ...] | None = None
@@ -158,6 +161,10 @@ class SegmentationParams:
         if not 0.0 <= self.watershed_keep_share <= 1.0:
             raise ValueError('need watershed_keep_share in 0..1 (0: off), got '
                              f'{self.watershed_keep_share}')
+        if self.small_blob_trim_floors < 0 or self.depth_sure_erode_px < 0:
+            raise ValueError('need small_blob_trim_floors >= 0 (0: off) and '
+                             f'depth_sure_erode_px >= 0, got {self.small_blob_trim_floors} '
+                             f'and {self.depth_sure_erode_px}')
         if self.colour_edge_floors < 0 or self.colour_edge_ring_px < 1:
             raise ValueError('need colour_edge_floors >= 0 (0: off) and colour_edge_ring_px '
                              f'>= 1, got {self.colour_edge_floors} and '

@@ -42,7 +42,7 @@ from tlessbot_ros.core.localise.cues import (
 from tlessbot_ros.core.localise.instances import instances_at_scale, watershed_refine
 from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.part_scale import whole_part_px
-from tlessbot_ros.core.localise.small_parts import small_blobs_from_depth
+from tlessbot_ros.core.localise.small_parts import small_blobs_from_depth, table_coloured
 from tlessbot_ros.core.localise.thin import thin_instances
 
 if TYPE_CHECKING:
@@ -181,7 +181,7 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         height_m=None if depth_cue is None else depth_cue.height_m)
     if split_by_depth:   # the nearer view: a part a few pixels across, completed by depth
         boxes, areas = _small_blobs_by_depth(labels, boxes, areas, depth_m, intrinsics,
-                                             T_world_camera, depth_cue, params)
+                                             T_world_camera, depth_cue, params, rgb)
     thin = thin_instances(labels, None if depth_cue is None else depth_cue.height_m, params)
     watch.lap('instances')
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
@@ -203,7 +203,8 @@ def _foreground(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray,
     else:
         foreground = candidate
     if params.small_blob_candidates_px > 0:
-        foreground = _small_blobs_whole(foreground, candidate, params.small_blob_candidates_px)
+        foreground = _small_blobs_whole(foreground, candidate, params.small_blob_candidates_px,
+                                        rgb, _trim_floors(params))
     if depth_cue is not None:
         foreground = drop_blobs_without_colour_edge(
             foreground, rgb, _upscale(depth_cue.candidate, rgb.shape),
@@ -225,7 +226,8 @@ def _small_blobs_by_depth(labels: np.ndarray, boxes: np.ndarray, areas: np.ndarr
                           depth_m: np.ndarray | None,
                           intrinsics: CameraIntrinsics | np.ndarray | None,
                           T_world_camera: np.ndarray | None, depth_cue: DepthCue | None,
-                          params: SegmentationParams) -> tuple[np.ndarray, np.ndarray]:
+                          params: SegmentationParams, rgb: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`~tlessbot_ros.core.localise.small_parts.small_blobs_from_depth` where the
     view has depth and the parts' sizes admit small blobs; the boxes and areas."""
     if depth_cue is None or depth_m is None or T_world_camera is None or \
@@ -234,7 +236,8 @@ def _small_blobs_by_depth(labels: np.ndarray, boxes: np.ndarray, areas: np.ndarr
     return small_blobs_from_depth(
         labels, boxes, areas, depth_m, np.asarray(getattr(intrinsics, 'K', intrinsics)),
         T_world_camera, params.small_blob_candidates_px,
-        table_height_m(params, depth_cue.sigma_m), int(np.ceil(1 / params.cue_scale)))
+        table_height_m(params, depth_cue.sigma_m), int(np.ceil(1 / params.cue_scale)),
+        rgb=rgb, floors=_trim_floors(params))
 
 
 def _background_for(rgb: np.ndarray, background: np.ndarray | BackgroundModel | None,
@@ -310,20 +313,46 @@ def inner_markers(sure: np.ndarray, radius: int) -> np.ndarray:
     return inner | (sure & ~kept[blobs])
 
 
-def _small_blobs_whole(foreground: np.ndarray, candidate: np.ndarray,
-                       below_px: int) -> np.ndarray:
+def _trim_floors(params: SegmentationParams) -> np.ndarray | None:
+    """The LAB tolerance within which a pixel a small blob grows over has the table's colour
+    (``small_blob_trim_floors`` x the colour cues' floors), None when that is off."""
+    if params.small_blob_trim_floors <= 0:
+        return None
+    return params.small_blob_trim_floors * np.array(
+        [params.grey_floor, params.lab_floor, params.lab_floor], np.float32)
+
+
+def _small_blobs_whole(foreground: np.ndarray, candidate: np.ndarray, below_px: int,
+                       rgb: np.ndarray | None = None, floors: np.ndarray | None = None
+                       ) -> np.ndarray:
     """``foreground`` with every blob of fewer than ``below_px`` pixels grown to the
     candidates it lies on: the watershed puts a contour on the strongest edge near it, and
     on a part a few pixels across that is often inside the part (its lit face against its
-    shaded side), which cuts it to its lit face."""
+    shaded side), which cuts it to its lit face. With ``rgb`` and ``floors`` (LAB), a grown
+    pixel with the table's colour around the candidates (:func:`table_coloured`) is not
+    kept: the cue scale's blocks and a smoothed depth reach a pixel or two past the part."""
     n, blobs, stats, _ = cv2.connectedComponentsWithStats(foreground.view(np.uint8),
                                                           connectivity=8)
     small = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] < below_px) + 1
     if small.size == 0:
         return foreground
-    _, pieces = cv2.connectedComponents(candidate.view(np.uint8), connectivity=8)
+    _, pieces, boxes, _ = cv2.connectedComponentsWithStats(candidate.view(np.uint8),
+                                                           connectivity=8)
     under = np.unique(pieces[np.isin(blobs, small) & candidate])
-    return foreground | np.isin(pieces, under[under > 0])
+    under = under[under > 0]
+    if rgb is None or floors is None:
+        return foreground | np.isin(pieces, under)
+    out = foreground.copy()
+    H, W = foreground.shape
+    for piece in under:   # in the piece's box grown by the band table_coloured reads
+        x, y, w, h = (int(v) for v in boxes[piece, :4])
+        y0, y1, x0, x1 = max(y - 3, 0), min(y + h + 3, H), max(x - 3, 0), min(x + w + 3, W)
+        grown = pieces[y0:y1, x0:x1] == piece
+        added = grown & ~foreground[y0:y1, x0:x1]
+        if added.any():
+            lab = rgb_to_lab(rgb[y0:y1, x0:x1]).astype(np.float32)
+            out[y0:y1, x0:x1] |= added & ~table_coloured(lab, grown, floors)
+    return out
 
 
 def _blobs_the_watershed_lost(foreground: np.ndarray, candidate: np.ndarray,

@@ -18,19 +18,23 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from tlessbot_ros.core.localise.colour import rgb_to_lab
 from tlessbot_ros.core.localise.cues import height_above_table
 
 
 def small_blobs_from_depth(labels: np.ndarray, boxes: np.ndarray, areas: np.ndarray,
                            depth_m: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray,
-                           below_px: int, table_height_m: float, reach_px: int
+                           below_px: int, table_height_m: float, reach_px: int,
+                           rgb: np.ndarray | None = None, floors: np.ndarray | None = None
                            ) -> tuple[np.ndarray, np.ndarray]:
     """Each instance of fewer than ``below_px`` pixels of ``labels`` ((H, W), changed in
     place) grown by the full-resolution pixels within ``reach_px`` of it (and of no other
     instance) whose depth lies higher than ``table_height_m`` above the table, in the
     pieces that touch it, its holes filled. An instance the depth calls table (none of its
     pixels higher, or fewer than half of those with depth: a shadow, a print) is left as
-    it is.
+    it is. With ``rgb`` and ``floors`` (LAB), a pixel grown is not kept where it has the
+    table's colour around it (:func:`table_coloured`): a smoothed (stereo-like) depth reads
+    the table beside a part higher too.
 
     Returns:
         the (N, 4) boxes and (N,) areas of the instances, updated.
@@ -58,11 +62,29 @@ def small_blobs_from_depth(labels: np.ndarray, boxes: np.ndarray, areas: np.ndar
         # the blob and what the depth calls part beside it
         _, pieces = cv2.connectedComponents((seen | blob).view(np.uint8), connectivity=8)
         new = _filled(pieces == pieces[blob][0]) & ((window == 0) | blob)
+        if rgb is not None and floors is not None:
+            lab = rgb_to_lab(rgb[y0:y1, x0:x1]).astype(np.float32)
+            new &= blob | ~table_coloured(lab, new | blob, floors, others=window > 0)
         window[new] = k + 1
         bx, by, bw, bh = cv2.boundingRect(new.view(np.uint8))
         boxes[k] = (bx + x0, by + y0, bw, bh)
         areas[k] = np.count_nonzero(new)
     return boxes, areas
+
+
+def table_coloured(lab: np.ndarray, grown: np.ndarray, floors: np.ndarray, *,
+                   others: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) bool: the pixels whose LAB colour lies within ``floors`` (per channel) of the
+    median of a 3 px band around ``grown`` (less ``others``): the table's colour there;
+    nothing where the band is empty."""
+    ring = cv2.dilate(grown.view(np.uint8), np.ones((7, 7), np.uint8)).view(bool) & ~grown
+    if others is not None:
+        ring &= ~others
+    if not ring.any():
+        return np.zeros(grown.shape, bool)
+    table = np.median(lab[ring], axis=0)
+    near: np.ndarray = (np.abs(lab - table) <= floors).all(axis=2)
+    return near
 
 
 def _filled(mask: np.ndarray) -> np.ndarray:
@@ -76,4 +98,4 @@ def _filled(mask: np.ndarray) -> np.ndarray:
     return out.view(bool)
 
 
-__all__ = ['small_blobs_from_depth']
+__all__ = ['small_blobs_from_depth', 'table_coloured']
