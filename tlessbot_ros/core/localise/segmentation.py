@@ -310,7 +310,8 @@ def inner_markers(sure: np.ndarray, radius: int) -> np.ndarray:
     inner = eroded(sure, radius)
     count, blobs = cv2.connectedComponents(sure.view(np.uint8), connectivity=8)
     kept = np.bincount(blobs[inner], minlength=count) > 0
-    return inner | (sure & ~kept[blobs])
+    markers: np.ndarray = inner | (sure & ~kept[blobs])
+    return markers
 
 
 def _trim_floors(params: SegmentationParams) -> np.ndarray | None:
@@ -341,8 +342,9 @@ def _small_blobs_whole(foreground: np.ndarray, candidate: np.ndarray, below_px: 
     under = np.unique(pieces[np.isin(blobs, small) & candidate])
     under = under[under > 0]
     if rgb is None or floors is None:
-        return foreground | np.isin(pieces, under)
-    out = foreground.copy()
+        grown_all: np.ndarray = foreground | np.isin(pieces, under)
+        return grown_all
+    out: np.ndarray = foreground.copy()
     H, W = foreground.shape
     for piece in under:   # in the piece's box grown by the band table_coloured reads
         x, y, w, h = (int(v) for v in boxes[piece, :4])
