@@ -43,7 +43,7 @@ class SegmentationParams:
             this above the table plane (world z) are object candidates...
         depth_sure_height_m: ... and higher than this, sure object markers.
         depth_sure_erode_px: the depth's sure markers shrunk by this many cue-scale pixels (a
-            blob that would vanish is kept whole) so that the watershed places the outline.
+            blob that would vanish is kept whole; 0: off) so that the watershed places the outline.
         depth_noise_k: both heights are raised to this many robust deviations of the table's
             measured height (>= 0).
         depth_table_height_m: pixels with valid depth lower than this over the table are table: no
@@ -120,7 +120,7 @@ class SegmentationParams:
     colour_split_min_share: float = 0.12
     depth_min_height_m: float = 0.004
     depth_sure_height_m: float = 0.010
-    depth_sure_erode_px: int = 1
+    depth_sure_erode_px: int = 0
     depth_noise_k: float = 4.0
     depth_table_height_m: float = 0.0025
     depth_filter_px: int = 3
