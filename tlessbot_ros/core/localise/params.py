@@ -42,8 +42,8 @@ class SegmentationParams:
         depth_min_height_m: depth cue: pixels whose back-projected point lies higher than
             this above the table plane (world z) are object candidates...
         depth_sure_height_m: ... and higher than this, sure object markers.
-        depth_sure_erode_px: the depth's sure markers shrunk by this many cue-scale pixels (a
-            blob that would vanish is kept whole; 0: off) so that the watershed places the outline.
+        depth_sure_erode_px: the depth's sure markers shrunk by this many cue-scale pixels, a
+            blob that would vanish kept whole: the watershed places the outline (0: off).
         depth_noise_k: both heights are raised to this many robust deviations of the table's
             measured height (>= 0).
         depth_table_height_m: pixels with valid depth lower than this over the table are table: no
