@@ -9,13 +9,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from tlessbot_ros.core.common import plane_of_frame
 from tlessbot_ros.core.flat_parts import colour_views, flat_check, table_frames
+from tlessbot_ros.core.pose.flat_align import table_noise_m
 from tlessbot_ros.core.pose.flat_turns import mesh_scene
 from tlessbot_ros.core.pose.resting import level_starts, settle
 from tlessbot_ros.core.turn_check import check_turns
 
 if TYPE_CHECKING:
-    from tlessbot_ros.core.frame import PartJob, ViewInput
+    from tlessbot_ros.core.frame import Detection, PartJob, ViewInput
     from tlessbot_ros.core.pipeline import PerceptionPipeline
 
 
@@ -38,7 +40,11 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
         return info   # nothing to try: the ROI cloud is not prepared
     check = flat_check(pipeline)
     scene_c = check.prepared_cloud(obj, job.points)
-    T, info = settle(estimator.refiner, obj, T_free, scene_c, job.T_world_camera, params)
+    noise_m = _table_noise(views, labels, detection, job.T_world_camera) \
+        if params.noise_ratio > 0 else 0.0
+    T, info = settle(estimator.refiner, obj, T_free, scene_c, job.T_world_camera, params,
+                     noise_m=noise_m)
+    info['rest_noise_m'] = noise_m
     if T is None:
         return info
     mesh = mesh_scene(obj)
@@ -55,6 +61,17 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
     fitness = float(estimator.refiner.grid_fitness(T[None], scene_c, obj)[0])
     detection.pose = replace(detection.pose, T_camera_object=T, fitness=fitness)
     return info
+
+
+def _table_noise(views: dict[str, ViewInput], labels: dict[str, np.ndarray],
+                 detection: Detection, T_world_camera: np.ndarray) -> float:
+    """The depth noise shared by neighbouring pixels on the table around ``detection`` in
+    its view (:func:`table_noise_m`; 0 without that view's depth or labels)."""
+    view, label = views.get(detection.view), labels.get(detection.view)
+    if view is None or view.depth_m is None or label is None:
+        return 0.0
+    return table_noise_m(view.depth_m, view.intrinsics, detection.box,
+                         plane_of_frame(T_world_camera), label != 0)
 
 
 def check_resting_and_turns(pipeline: PerceptionPipeline, job: PartJob,

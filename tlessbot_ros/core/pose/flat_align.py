@@ -92,6 +92,35 @@ def measured_heights(depth_m: np.ndarray, intrinsics: CameraIntrinsics,
     return np.where(np.isfinite(z) & (z > 0), height, np.nan)
 
 
+def table_noise_m(depth_m: np.ndarray, intrinsics: CameraIntrinsics,
+                  box: tuple[int, int, int, int], plane: np.ndarray, parts: np.ndarray, *,
+                  ring_px: int = 16, blur_px: float = 3.0) -> float:
+    """The depth noise (m, a robust sigma) that neighbouring pixels share, measured on the
+    bare table around a part: the heights above ``plane`` of the window ``box`` (x, y, w, h)
+    grown by ``ring_px``, outside ``box``, off ``parts`` ((H, W) bool, every part's pixels)
+    and off anything standing, averaged over a Gaussian of ``blur_px``. A per-pixel noise
+    mostly averages out; a smoothed (stereo-like) depth's does not, and it can tilt a small
+    part's fit as a whole. 0 with fewer than 50 such pixels."""
+    x0, y0, w, h = box
+    gx0, gy0 = max(x0 - ring_px, 0), max(y0 - ring_px, 0)
+    gx1 = min(x0 + w + ring_px, depth_m.shape[1])
+    gy1 = min(y0 + h + ring_px, depth_m.shape[0])
+    if gx1 <= gx0 or gy1 <= gy0:
+        return 0.0
+    height = measured_heights(depth_m, intrinsics, (gx0, gy0, gx1 - gx0, gy1 - gy0), plane)
+    table = ~np.asarray(parts[gy0:gy1, gx0:gx1], bool)
+    table[max(y0 - gy0, 0):y0 - gy0 + h, max(x0 - gx0, 0):x0 - gx0 + w] = False
+    with np.errstate(invalid='ignore'):
+        table &= np.abs(height) < _HEIGHT_CAP_M / 2   # NaN (no depth) is no table here
+    weight = cv2.GaussianBlur(table.astype(np.float64), (0, 0), blur_px)
+    total = cv2.GaussianBlur(np.where(table, height, 0.0), (0, 0), blur_px)
+    inner = table & (weight > 0.5)
+    if np.count_nonzero(inner) < 50:
+        return 0.0
+    mean = total[inner] / weight[inner]
+    return float(1.4826 * np.median(np.abs(mean - np.median(mean))))
+
+
 def shifted(array: np.ndarray, pad: int, dx: int, dy: int) -> np.ndarray:
     """The (h, w) window of a map rendered over the window grown by ``pad`` pixels on every
     side, with its content moved by (dx, dy) pixels (|dx|, |dy| <= pad)."""
@@ -374,5 +403,6 @@ def voting_region(renders: Sequence[tuple[np.ndarray, np.ndarray]], pad: int,
 
 __all__ = ['AlignedView', 'aligned_view', 'alignment_score', 'best_shift', 'depth_spread_px',
            'measured_heights', 'pixel_votes', 'pooled_votes', 'pose_spread_px', 'render_heights',
-           'round_robin', 'shift_of', 'shift_px', 'shifted', 'undominated', 'view_votes',
+           'round_robin', 'shift_of', 'shift_px', 'shifted', 'table_noise_m', 'undominated',
+           'view_votes',
            'voting_region']

@@ -54,6 +54,8 @@ class RestingParams:
             table plane, m (> 0).
         tolerance_m: a depth point is explained within this of the surface, m (> 0; about two
             depth-noise widths).
+        noise_ratio: or within this many times the depth noise that neighbouring pixels share
+            (measured on the table around the part) where that is more (>= 0; 0: tolerance_m).
         fitness_margin: a levelled pose is taken when it explains at most this share of the
             depth points fewer than the free fit (0..1).
     """
@@ -64,6 +66,7 @@ class RestingParams:
     candidates: int = 3
     contact_m: float = 0.004
     tolerance_m: float = 0.002
+    noise_ratio: float = 3.0
     fitness_margin: float = 0.02
 
     def __post_init__(self) -> None:
@@ -71,10 +74,11 @@ class RestingParams:
             raise ValueError('need 0 <= min_tilt_deg < max_tilt_deg <= 180 degrees, got '
                              f'{self.min_tilt_deg}, {self.max_tilt_deg}')
         if self.candidates < 1 or self.contact_m <= 0 or self.tolerance_m <= 0 or \
-                not 0 <= self.fitness_margin <= 1:
+                not 0 <= self.fitness_margin <= 1 or self.noise_ratio < 0:
             raise ValueError('candidates must be >= 1, contact_m and tolerance_m > 0, '
-                             f'fitness_margin in 0..1, got {self.candidates}, '
-                             f'{self.contact_m}, {self.tolerance_m}, {self.fitness_margin}')
+                             f'fitness_margin in 0..1, noise_ratio >= 0, got {self.candidates}, '
+                             f'{self.contact_m}, {self.tolerance_m}, {self.fitness_margin}, '
+                             f'{self.noise_ratio}')
 
 
 def stable_directions(obj: ObjectTemplates) -> np.ndarray | None:
@@ -160,8 +164,8 @@ def level_starts(obj: ObjectTemplates, T_world_object: np.ndarray, params: Resti
 
 
 def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
-           scene_c: np.ndarray, T_world_camera: np.ndarray, params: RestingParams
-           ) -> tuple[np.ndarray | None, dict[str, float]]:
+           scene_c: np.ndarray, T_world_camera: np.ndarray, params: RestingParams, *,
+           noise_m: float = 0.0) -> tuple[np.ndarray | None, dict[str, float]]:
     """The fit levelled onto a stable pose of its part, or None (the fit stands).
 
     Args:
@@ -171,13 +175,16 @@ def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
         scene_c: (N, 3) the ROI cloud as the fit saw it (optical frame, m).
         T_world_camera: the table frame (table at world z = 0).
         params: the settings.
+        noise_m: the depth noise neighbouring pixels share around the part (m, a robust sigma;
+            :func:`~tlessbot_ros.core.pose.flat_align.table_noise_m`; 0: unknown).
 
     Returns:
         the levelled pose (None when the part does not sit on the table, rests already,
         has no stable pose near enough, or none fits as well) and what decided:
         ``rest_tilt_deg`` (the fit's angle from the nearest stable pose), ``rest_contact_m``
         (its lowest point's height), ``rest_tried``, ``rest_fitness`` and ``rest_rmse_m``
-        (the free fit's, at ``tolerance_m``), ``rest_best_fitness`` and ``rest_best_rmse_m``
+        (the free fit's, at ``rest_tolerance_m``: ``tolerance_m``, or ``noise_ratio`` times
+        ``noise_m`` where that is more), ``rest_best_fitness`` and ``rest_best_rmse_m``
         (the best levelled pose's) and ``rest_levelled``.
     """
     T_wc = np.asarray(T_world_camera, np.float64)
@@ -190,12 +197,15 @@ def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
     settled, _ = refiner.planar(starts, sub, obj, tau=obj.voxel_size_m)
     T_cw = invert_transform(T_wc)
     poses = np.einsum('ij,kjl->kil', T_cw, settled)
-    fits = [refiner.surface_fit(scene_c, obj, T, inlier_m=params.tolerance_m)
+    # a smoothed depth's shared noise tilts a small part's fit as a whole: a tilt within it
+    # is not measured, so the levelled pose is judged at that noise, not at the per-pixel one
+    tolerance = max(params.tolerance_m, params.noise_ratio * noise_m)
+    fits = [refiner.surface_fit(scene_c, obj, T, inlier_m=tolerance)
             for T in np.concatenate([T_co[None], poses])]
     k = min(range(len(poses)), key=lambda j: (-fits[1 + j][0], fits[1 + j][1]))
     info.update(rest_tried=float(len(starts)), rest_fitness=fits[0][0],
                 rest_best_fitness=fits[1 + k][0], rest_rmse_m=fits[0][1],
-                rest_best_rmse_m=fits[1 + k][1])
+                rest_best_rmse_m=fits[1 + k][1], rest_tolerance_m=tolerance)
     if fits[1 + k][0] < fits[0][0] - params.fitness_margin:
         return None, info
     info['rest_levelled'] = 1.0
