@@ -58,6 +58,11 @@ class RestingParams:
             (measured on the table around the part) where that is more (>= 0; 0: tolerance_m).
         fitness_margin: a levelled pose is taken when it explains at most this share of the
             depth points fewer than the free fit (0..1).
+        edge_yaw_deg: a levelled pose is then turned about the vertical by at most this where
+            its edges lie best on the image's, deg (>= 0; 0: not refined on the image).
+        edge_shift_m: and moved along the table by at most this in x and y, m (>= 0).
+        edge_cap_px: a rendered edge farther than this from the image's edges counts as this
+            far, px (> 0).
     """
 
     enabled: bool = True
@@ -68,17 +73,20 @@ class RestingParams:
     tolerance_m: float = 0.002
     noise_ratio: float = 3.0
     fitness_margin: float = 0.02
+    edge_yaw_deg: float = 6.0
+    edge_shift_m: float = 0.003
+    edge_cap_px: float = 3.0
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_tilt_deg < self.max_tilt_deg <= 180.0:
             raise ValueError('need 0 <= min_tilt_deg < max_tilt_deg <= 180 degrees, got '
                              f'{self.min_tilt_deg}, {self.max_tilt_deg}')
         if self.candidates < 1 or self.contact_m <= 0 or self.tolerance_m <= 0 or \
-                not 0 <= self.fitness_margin <= 1 or self.noise_ratio < 0:
+                not 0 <= self.fitness_margin <= 1 or self.noise_ratio < 0 or \
+                self.edge_yaw_deg < 0 or self.edge_shift_m < 0 or self.edge_cap_px <= 0:
             raise ValueError('candidates must be >= 1, contact_m and tolerance_m > 0, '
-                             f'fitness_margin in 0..1, noise_ratio >= 0, got {self.candidates}, '
-                             f'{self.contact_m}, {self.tolerance_m}, {self.fitness_margin}, '
-                             f'{self.noise_ratio}')
+                             'fitness_margin in 0..1, noise_ratio, edge_yaw_deg and '
+                             f'edge_shift_m >= 0, edge_cap_px > 0, got {self}')
 
 
 def stable_directions(obj: ObjectTemplates) -> np.ndarray | None:
