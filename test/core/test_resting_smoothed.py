@@ -114,3 +114,43 @@ def test_a_plate_the_smoothed_depth_shows_tilted_is_levelled(plate):
 def test_a_negative_noise_ratio_is_refused():
     with pytest.raises(ValueError):
         RestingParams(noise_ratio=-1.0)
+
+
+@pytest.mark.parametrize('yaw_deg, shift_m', [(4.0, 0.0), (-3.0, 0.0015)])
+def test_a_levelled_plate_turned_off_is_turned_back_on_the_image_s_edges(plate, yaw_deg, shift_m):
+    from tlessbot_ros.core.pose.flat import ViewEvidence
+    from tlessbot_ros.core.pose.flat_turns import mesh_scene
+    from tlessbot_ros.core.pose.rest_edges import refine_on_edges
+
+    v, f, obj, T_true = plate
+    rgb, depth, mask = side_scene(v, f, T_true, noise_m=0.0)
+    centre = T_true[:3, :3] @ obj.model_points.mean(axis=0) + T_true[:3, 3]
+    off = make_transform(rotation_about_axis([0, 0, 1], np.radians(yaw_deg)), [0, 0, 0])
+    off[:3, 3] = centre - off[:3, :3] @ centre + [shift_m, 0.0, 0.0]
+    T_cw = np.linalg.inv(SIDE.T_world_camera)
+    evidence = [ViewEvidence(rgb, mask, SIDE.intrinsics, np.eye(4))]
+    T, info = refine_on_edges(mesh_scene(obj), T_cw @ off @ T_true, SIDE.T_world_camera,
+                              obj.model_points.astype(np.float64), evidence, max_yaw_deg=6.0,
+                              max_shift_m=0.003, cap_px=3.0, jump_m=0.002, crease_deg=30.0)
+    assert rotation_angle_deg(T[:3, :3], (T_cw @ T_true)[:3, :3]) < 1.0
+    assert np.linalg.norm(T[:3, 3] - (T_cw @ T_true)[:3, 3]) < 0.001
+    assert info['edge_after_px'] < info['edge_before_px']
+    world = SIDE.T_world_camera @ T   # turned about the vertical only: still level, on the table
+    assert (world[:3, :3] @ T_true[:3, :3].T)[2, 2] == pytest.approx(1.0, abs=1e-9)
+    assert world[2, 3] == pytest.approx(T_true[2, 3], abs=1e-9)
+
+
+def test_no_colour_no_refinement(plate):
+    from tlessbot_ros.core.pose.flat import ViewEvidence
+    from tlessbot_ros.core.pose.flat_turns import mesh_scene
+    from tlessbot_ros.core.pose.rest_edges import refine_on_edges
+
+    v, f, obj, T_true = plate
+    _, _, mask = side_scene(v, f, T_true, noise_m=0.0)
+    T_fit = np.linalg.inv(SIDE.T_world_camera) @ T_true
+    T, info = refine_on_edges(mesh_scene(obj), T_fit, SIDE.T_world_camera,
+                              obj.model_points.astype(np.float64),
+                              [ViewEvidence(None, mask, SIDE.intrinsics, np.eye(4))],
+                              max_yaw_deg=6.0, max_shift_m=0.003, cap_px=3.0, jump_m=0.002,
+                              crease_deg=30.0)
+    assert np.array_equal(T, T_fit) and info['edge_yaw_deg'] == 0.0

@@ -52,11 +52,11 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
     evidence = colour_views(views, labels, detection.instance_id, detection.view,
                             table_frames(pipeline, views))
     if mesh is not None and params.edge_yaw_deg > 0:
-        T, found = refine_on_edges(
+        T, refined = refine_on_edges(
             mesh, T, job.T_world_camera, obj.model_points.astype(np.float64), evidence,
             max_yaw_deg=params.edge_yaw_deg, max_shift_m=params.edge_shift_m,
             cap_px=params.edge_cap_px, jump_m=check.params.depth_tolerance_m, crease_deg=30.0)
-        info.update(found)
+        info.update(refined)
     if mesh is not None and any(v.plane is not None for v in evidence):
         found: dict[str, float] = {}
         check.aligned_winner(obj, [mesh, mesh], [T_free, T], evidence, found)

@@ -47,7 +47,8 @@ class _EdgeViews:
         from tlessbot_ros.core.pose.silhouette import edge_distance, window, window_depth
         from tlessbot_ros.core.pose.turns import rendered_edges
 
-        self.views: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple]] = []
+        self.views: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                               tuple[int, int, int, int]]] = []
         T_fit_world = invert_transform(T_world_fit)
         for view in views:
             if view.rgb is None:
@@ -97,7 +98,8 @@ def _grid(yaw_deg: float, yaw_step_deg: float, shift_m: float, shift_step_m: flo
     yaws = np.radians(np.arange(-yaw_deg, yaw_deg + 1e-9, yaw_step_deg))
     shifts = np.arange(-shift_m, shift_m + 1e-12, shift_step_m)
     a, x, y = np.meshgrid(yaws, shifts, shifts, indexing='ij')
-    return np.stack([a.ravel(), x.ravel(), y.ravel()], axis=-1) + centre
+    moves: np.ndarray = np.stack([a.ravel(), x.ravel(), y.ravel()], axis=-1) + centre
+    return moves
 
 
 def refine_on_edges(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,

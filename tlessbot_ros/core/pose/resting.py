@@ -54,8 +54,8 @@ class RestingParams:
             table plane, m (> 0).
         tolerance_m: a depth point is explained within this of the surface, m (> 0; about two
             depth-noise widths).
-        noise_ratio: or within this many times the depth noise that neighbouring pixels share
-            (measured on the table around the part) where that is more (>= 0; 0: tolerance_m).
+        noise_ratio: or within this many times the depth noise neighbouring pixels share on
+            the table around the part, where more (>= 0; 0: tolerance_m alone).
         fitness_margin: a levelled pose is taken when it explains at most this share of the
             depth points fewer than the free fit (0..1).
         edge_yaw_deg: a levelled pose is then turned about the vertical by at most this where
