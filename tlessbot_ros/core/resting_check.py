@@ -18,6 +18,7 @@ from tlessbot_ros.core.pose.resting import level_starts, settle
 from tlessbot_ros.core.turn_check import check_turns
 
 if TYPE_CHECKING:
+
     from tlessbot_ros.core.frame import Detection, PartJob, ViewInput
     from tlessbot_ros.core.pipeline import PerceptionPipeline
 
@@ -51,12 +52,6 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
     mesh = mesh_scene(obj)
     evidence = colour_views(views, labels, detection.instance_id, detection.view,
                             table_frames(pipeline, views))
-    if mesh is not None and params.edge_yaw_deg > 0:
-        T, refined = refine_on_edges(
-            mesh, T, job.T_world_camera, obj.model_points.astype(np.float64), evidence,
-            max_yaw_deg=params.edge_yaw_deg, max_shift_m=params.edge_shift_m,
-            cap_px=params.edge_cap_px, jump_m=check.params.depth_tolerance_m, crease_deg=30.0)
-        info.update(refined)
     if mesh is not None and any(v.plane is not None for v in evidence):
         found: dict[str, float] = {}
         check.aligned_winner(obj, [mesh, mesh], [T_free, T], evidence, found)
@@ -68,6 +63,40 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
     fitness = float(estimator.refiner.grid_fitness(T[None], scene_c, obj)[0])
     detection.pose = replace(detection.pose, T_camera_object=T, fitness=fitness)
     return info
+
+
+def refine_levelled(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+                    labels: dict[str, np.ndarray], info: dict[str, float]) -> None:
+    """Turn and move ``job``'s levelled pose on the table where its edges lie best on the
+    image's (:func:`refine_on_edges`, ``resting.edge_*``) unless the move explains more than
+    ``fitness_margin`` fewer of its depth points (a neighbour's edges, a shadow, can pull it
+    off its own depth); ``info`` (:func:`check_resting`'s, levelled) gets what decided."""
+    estimator, params = pipeline.pose_estimator, pipeline.fit_params.resting
+    detection = job.detection
+    if estimator is None or detection.pose is None or job.T_world_camera is None or \
+            params.edge_yaw_deg <= 0:
+        return
+    obj = estimator.database[detection.obj_id]
+    mesh = mesh_scene(obj)
+    if mesh is None:
+        return
+    evidence = colour_views(views, labels, detection.instance_id, detection.view)
+    T = detection.pose.T_camera_object
+    moved, found = refine_on_edges(
+        mesh, T, job.T_world_camera, obj.model_points.astype(np.float64), evidence,
+        max_yaw_deg=params.edge_yaw_deg, max_shift_m=params.edge_shift_m,
+        cap_px=params.edge_cap_px, jump_m=params.tolerance_m, crease_deg=30.0)
+    info.update(found)
+    if found['edge_yaw_deg'] == 0.0 and found['edge_shift_m'] == 0.0:
+        return
+    scene_c = flat_check(pipeline).prepared_cloud(obj, job.points)
+    tolerance = info.get('rest_tolerance_m', params.tolerance_m)
+    fits = [estimator.refiner.surface_fit(scene_c, obj, P, inlier_m=tolerance)[0]
+            for P in (T, moved)]
+    info['edge_fitness'] = fits[1]
+    if fits[1] >= fits[0] - params.fitness_margin:
+        fitness = float(estimator.refiner.grid_fitness(moved[None], scene_c, obj)[0])
+        detection.pose = replace(detection.pose, T_camera_object=moved, fitness=fitness)
 
 
 def _table_noise(views: dict[str, ViewInput], labels: dict[str, np.ndarray],
@@ -85,12 +114,16 @@ def check_resting_and_turns(pipeline: PerceptionPipeline, job: PartJob,
                             views: dict[str, ViewInput], labels: dict[str, np.ndarray]) -> None:
     """The resting prior (:func:`check_resting`), then the near-symmetric turns
     (:func:`~tlessbot_ros.core.turn_check.check_turns`: they compare turns of a levelled pose),
-    then the prior again when a turn changed the pose (a refitted half turn may tilt it)."""
-    check_resting(pipeline, job, views, labels)
+    then the prior again when a turn changed the pose (a refitted half turn may tilt it); a
+    pose levelled last is then refined on the image's edges (:func:`refine_levelled`: after
+    the turns, which compare turns of the pose as the depth left it)."""
+    info = check_resting(pipeline, job, views, labels)
     before = job.detection.pose
     check_turns(pipeline, job, views, labels)
     if job.detection.pose is not before:
-        check_resting(pipeline, job, views, labels)
+        info = check_resting(pipeline, job, views, labels)
+    if info is not None and info.get('rest_levelled') == 1.0:
+        refine_levelled(pipeline, job, views, labels, info)
 
 
-__all__ = ['check_resting', 'check_resting_and_turns']
+__all__ = ['check_resting', 'check_resting_and_turns', 'refine_levelled']

@@ -73,7 +73,7 @@ class RestingParams:
     tolerance_m: float = 0.002
     noise_ratio: float = 3.0
     fitness_margin: float = 0.02
-    edge_yaw_deg: float = 6.0
+    edge_yaw_deg: float = 10.0
     edge_shift_m: float = 0.003
     edge_cap_px: float = 3.0
 
