@@ -18,9 +18,14 @@ from tlessbot_ros.core.pose.resting import level_starts, settle
 from tlessbot_ros.core.turn_check import check_turns
 
 if TYPE_CHECKING:
+    import open3d as o3d
 
     from tlessbot_ros.core.frame import Detection, PartJob, ViewInput
     from tlessbot_ros.core.pipeline import PerceptionPipeline
+    from tlessbot_ros.core.pose.database import ObjectTemplates
+    from tlessbot_ros.core.pose.flat import ViewEvidence
+    from tlessbot_ros.core.pose.refinement import Refiner
+    from tlessbot_ros.core.pose.resting import RestingParams
 
 
 def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
@@ -29,17 +34,26 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
     votes of its views (those with a table frame) clearly choose the free fit; the free fit
     becomes the detection's ``second``. Returns what decided (None when not checked: the
     prior off, no fit or no table frame)."""
+    return _level(pipeline, job, views, labels)[0]
+
+
+def _level(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+           labels: dict[str, np.ndarray]) -> tuple[dict[str, float] | None, np.ndarray | None]:
+    """:func:`check_resting`, and the levelled pose refined on the image's edges
+    (:func:`_on_edges`; None when not levelled): the votes weigh it against the free fit, as
+    the pose the part is given at last; the detection gets the levelled pose as the depth
+    left it, for the turn checks."""
     detection = job.detection
     estimator = pipeline.pose_estimator
     params = pipeline.fit_params.resting
     if not params.enabled or estimator is None or detection.pose is None or \
             job.T_world_camera is None:
-        return None
+        return None, None
     obj = estimator.database[detection.obj_id]
     T_free = detection.pose.T_camera_object
     starts, info = level_starts(obj, job.T_world_camera @ T_free, params)
     if not len(starts):
-        return info   # nothing to try: the ROI cloud is not prepared
+        return info, None   # nothing to try: the ROI cloud is not prepared
     check = flat_check(pipeline)
     scene_c = check.prepared_cloud(obj, job.points)
     noise_m = _table_noise(views, labels, detection, job.T_world_camera) \
@@ -48,55 +62,43 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
                      noise_m=noise_m)
     info['rest_noise_m'] = noise_m
     if T is None:
-        return info
+        return info, None
     mesh = mesh_scene(obj)
     evidence = colour_views(views, labels, detection.instance_id, detection.view,
                             table_frames(pipeline, views))
+    refined = T if mesh is None or params.edge_yaw_deg <= 0 else \
+        _on_edges(estimator.refiner, obj, mesh, T, scene_c, job, evidence, params, info)
     if mesh is not None and any(v.plane is not None for v in evidence):
         found: dict[str, float] = {}
-        check.aligned_winner(obj, [mesh, mesh], [T_free, T], evidence, found)
+        check.aligned_winner(obj, [mesh, mesh], [T_free, refined], evidence, found)
         if found.get('align_decided') and found.get('align_winner') == 0.0:
             info['rest_levelled'] = 0.0
             info['rest_votes_kept'] = 1.0
-            return info
+            return info, None
     detection.second = detection.pose
     fitness = float(estimator.refiner.grid_fitness(T[None], scene_c, obj)[0])
     detection.pose = replace(detection.pose, T_camera_object=T, fitness=fitness)
-    return info
+    return info, refined
 
 
-def refine_levelled(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
-                    labels: dict[str, np.ndarray], info: dict[str, float]) -> None:
-    """Turn and move ``job``'s levelled pose on the table where its edges lie best on the
-    image's (:func:`refine_on_edges`, ``resting.edge_*``) unless the move explains more than
-    ``fitness_margin`` fewer of its depth points (a neighbour's edges, a shadow, can pull it
-    off its own depth); ``info`` (:func:`check_resting`'s, levelled) gets what decided."""
-    estimator, params = pipeline.pose_estimator, pipeline.fit_params.resting
-    detection = job.detection
-    if estimator is None or detection.pose is None or job.T_world_camera is None or \
-            params.edge_yaw_deg <= 0:
-        return
-    obj = estimator.database[detection.obj_id]
-    mesh = mesh_scene(obj)
-    if mesh is None:
-        return
-    evidence = colour_views(views, labels, detection.instance_id, detection.view)
-    T = detection.pose.T_camera_object
+def _on_edges(refiner: Refiner, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
+              T: np.ndarray, scene_c: np.ndarray, job: PartJob, evidence: list[ViewEvidence],
+              params: RestingParams, info: dict[str, float]) -> np.ndarray:
+    """The levelled pose ``T`` turned and moved on the table where its edges lie best on the
+    image's (:func:`refine_on_edges`, ``resting.edge_*``), or ``T`` itself when that move
+    explains more than ``fitness_margin`` fewer of its depth points (a neighbour's edges, a
+    shadow, can pull it off its own depth); ``info`` gets what decided."""
+    assert job.T_world_camera is not None
     moved, found = refine_on_edges(
         mesh, T, job.T_world_camera, obj.model_points.astype(np.float64), evidence,
         max_yaw_deg=params.edge_yaw_deg, max_shift_m=params.edge_shift_m,
         cap_px=params.edge_cap_px, jump_m=params.tolerance_m, crease_deg=30.0)
     info.update(found)
     if found['edge_yaw_deg'] == 0.0 and found['edge_shift_m'] == 0.0:
-        return
-    scene_c = flat_check(pipeline).prepared_cloud(obj, job.points)
-    tolerance = info.get('rest_tolerance_m', params.tolerance_m)
-    fits = [estimator.refiner.surface_fit(scene_c, obj, P, inlier_m=tolerance)[0]
-            for P in (T, moved)]
-    info['edge_fitness'] = fits[1]
-    if fits[1] >= fits[0] - params.fitness_margin:
-        fitness = float(estimator.refiner.grid_fitness(moved[None], scene_c, obj)[0])
-        detection.pose = replace(detection.pose, T_camera_object=moved, fitness=fitness)
+        return T
+    fitness, _ = refiner.surface_fit(scene_c, obj, moved, inlier_m=info['rest_tolerance_m'])
+    info['edge_depth_fitness'] = fitness
+    return moved if fitness >= info['rest_best_fitness'] - params.fitness_margin else T
 
 
 def _table_noise(views: dict[str, ViewInput], labels: dict[str, np.ndarray],
@@ -113,17 +115,25 @@ def _table_noise(views: dict[str, ViewInput], labels: dict[str, np.ndarray],
 def check_resting_and_turns(pipeline: PerceptionPipeline, job: PartJob,
                             views: dict[str, ViewInput], labels: dict[str, np.ndarray]) -> None:
     """The resting prior (:func:`check_resting`), then the near-symmetric turns
-    (:func:`~tlessbot_ros.core.turn_check.check_turns`: they compare turns of a levelled pose),
-    then the prior again when a turn changed the pose (a refitted half turn may tilt it); a
-    pose levelled last is then refined on the image's edges (:func:`refine_levelled`: after
-    the turns, which compare turns of the pose as the depth left it)."""
-    info = check_resting(pipeline, job, views, labels)
-    before = job.detection.pose
+    (:func:`~tlessbot_ros.core.turn_check.check_turns`: they compare turns of a levelled pose
+    as the depth left it: a pose refined on the image would outscore its unrefined turns),
+    then the prior again when a turn changed the pose (a refitted half turn may tilt it).
+    A levelled pose that no turn changed is then the one refined on the image's edges."""
+    _, refined = _level(pipeline, job, views, labels)
+    levelled = before = job.detection.pose
     check_turns(pipeline, job, views, labels)
     if job.detection.pose is not before:
-        info = check_resting(pipeline, job, views, labels)
-    if info is not None and info.get('rest_levelled') == 1.0:
-        refine_levelled(pipeline, job, views, labels, info)
+        _, refined = _level(pipeline, job, views, labels)
+        levelled = job.detection.pose
+    pose = job.detection.pose
+    if refined is not None and pose is levelled and pose is not None and \
+            refined is not pose.T_camera_object:
+        estimator = pipeline.pose_estimator
+        assert estimator is not None
+        obj = estimator.database[job.detection.obj_id]
+        scene_c = flat_check(pipeline).prepared_cloud(obj, job.points)
+        fitness = float(estimator.refiner.grid_fitness(refined[None], scene_c, obj)[0])
+        job.detection.pose = replace(pose, T_camera_object=refined, fitness=fitness)
 
 
-__all__ = ['check_resting', 'check_resting_and_turns', 'refine_levelled']
+__all__ = ['check_resting', 'check_resting_and_turns']
