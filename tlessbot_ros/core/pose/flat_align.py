@@ -404,5 +404,4 @@ def voting_region(renders: Sequence[tuple[np.ndarray, np.ndarray]], pad: int,
 __all__ = ['AlignedView', 'aligned_view', 'alignment_score', 'best_shift', 'depth_spread_px',
            'measured_heights', 'pixel_votes', 'pooled_votes', 'pose_spread_px', 'render_heights',
            'round_robin', 'shift_of', 'shift_px', 'shifted', 'table_noise_m', 'undominated',
-           'view_votes',
-           'voting_region']
+           'view_votes', 'voting_region']
