@@ -154,3 +154,37 @@ def test_no_colour_no_refinement(plate):
                               max_yaw_deg=6.0, max_shift_m=0.003, cap_px=3.0, jump_m=0.002,
                               crease_deg=30.0)
     assert np.array_equal(T, T_fit) and info['edge_yaw_deg'] == 0.0
+
+
+def test_a_part_too_small_in_the_image_to_show_a_turn_is_not_refined(plate):
+    from tlessbot_ros.core.pose.flat import ViewEvidence
+    from tlessbot_ros.core.pose.flat_turns import mesh_scene
+    from tlessbot_ros.core.pose.rest_edges import refine_on_edges
+
+    v, f, obj, T_true = plate
+    rgb, _, mask = side_scene(v, f, T_true, noise_m=0.0)
+    centre = T_true[:3, :3] @ obj.model_points.mean(axis=0) + T_true[:3, 3]
+    off = make_transform(rotation_about_axis([0, 0, 1], np.radians(4.0)), [0, 0, 0])
+    off[:3, 3] = centre - off[:3, :3] @ centre
+    T_cw = np.linalg.inv(SIDE.T_world_camera)
+    T_fit = T_cw @ off @ T_true
+    # the plate's outline in the side view, as far as its corners reach from its centre
+    K = SIDE.intrinsics.K
+    corners = (T_fit[:3, :3] @ v.T).T + T_fit[:3, 3]
+    middle = T_fit[:3, :3] @ obj.model_points.mean(axis=0) + T_fit[:3, 3]
+    uv = corners[:, :2] / corners[:, 2:] * K[[0, 1], [0, 1]]
+    farthest = np.max(np.linalg.norm(uv - middle[:2] / middle[2] * K[[0, 1], [0, 1]], axis=1))
+
+    def refined(min_reach_px):
+        return refine_on_edges(mesh_scene(obj), T_fit, SIDE.T_world_camera,
+                               obj.model_points.astype(np.float64),
+                               [ViewEvidence(rgb, mask, SIDE.intrinsics, np.eye(4))],
+                               max_yaw_deg=6.0, max_shift_m=0.003, cap_px=3.0, jump_m=0.002,
+                               crease_deg=30.0, min_reach_px=min_reach_px)
+    T, info = refined(RestingParams().edge_min_reach_px)
+    assert 0.5 * farthest < info['edge_reach_px'] <= farthest + 1.0
+    assert rotation_angle_deg(T[:3, :3], (T_cw @ T_true)[:3, :3]) < 1.0
+    T, info = refined(farthest + 2.0)   # the same plate, were it this small in the image
+    assert np.array_equal(T, T_fit) and info['edge_yaw_deg'] == 0.0
+    with pytest.raises(ValueError):
+        RestingParams(edge_min_reach_px=-1.0)

@@ -92,7 +92,8 @@ def _on_edges(refiner: Refiner, obj: ObjectTemplates, mesh: o3d.t.geometry.Rayca
     moved, found = refine_on_edges(
         mesh, T, job.T_world_camera, obj.model_points.astype(np.float64), evidence,
         max_yaw_deg=params.edge_yaw_deg, max_shift_m=params.edge_shift_m,
-        cap_px=params.edge_cap_px, jump_m=params.tolerance_m, crease_deg=30.0)
+        cap_px=params.edge_cap_px, jump_m=params.tolerance_m, crease_deg=30.0,
+        min_reach_px=params.edge_min_reach_px)
     info.update(found)
     if found['edge_yaw_deg'] == 0.0 and found['edge_shift_m'] == 0.0:
         return T

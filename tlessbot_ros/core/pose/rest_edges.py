@@ -38,18 +38,21 @@ _MARGIN_PX = 16
 class _EdgeViews:
     """Per colour view: the levelled pose's rendered edge points (in the table frame), the
     transform from the table frame into the view, its camera matrix, and the window's capped
-    distance to the image's edges."""
+    distance to the image's edges. A view where the edges reach less than ``min_reach_px``
+    from the part's centre (90th percentile) is left out: a turn of a few degrees moves them
+    by under a pixel there, so the image cannot tell it."""
 
     def __init__(self, scene: o3d.t.geometry.RaycastingScene, T_world_object: np.ndarray,
                  T_world_fit: np.ndarray, points_o: np.ndarray,
                  views: Sequence[ViewEvidence], *, cap_px: float, jump_m: float,
-                 crease_deg: float) -> None:
+                 crease_deg: float, min_reach_px: float = 0.0) -> None:
         from tlessbot_ros.core.pose.silhouette import edge_distance, window, window_depth
         from tlessbot_ros.core.pose.turns import rendered_edges
 
         self.views: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                tuple[int, int, int, int]]] = []
         T_fit_world = invert_transform(T_world_fit)
+        self.reach_px = 0.0
         for view in views:
             if view.rgb is None:
                 continue
@@ -63,6 +66,10 @@ class _EdgeViews:
             rays, depth = window_depth(scene, T, view.intrinsics, box)
             seen = edges & np.isfinite(depth)
             if np.count_nonzero(seen) < 20:
+                continue
+            reach = _reach_px(seen.reshape(box[3], box[2]), box, T, points_o, view.intrinsics.K)
+            self.reach_px = max(self.reach_px, reach)
+            if reach < min_reach_px:
                 continue
             points_view = rays[seen] * depth[seen, None]
             points_world = transform_points(invert_transform(T_view_world), points_view)
@@ -92,6 +99,17 @@ class _EdgeViews:
         return total / max(count, 1)
 
 
+def _reach_px(seen: np.ndarray, box: tuple[int, int, int, int], T_view_object: np.ndarray,
+              points_o: np.ndarray, K: np.ndarray) -> float:
+    """The 90th percentile of the distance (px) from the part's projected centre (its samples'
+    mean at ``T_view_object``) to its ``seen`` (h, w) edge pixels in the window ``box``."""
+    centre = transform_points(T_view_object, points_o.mean(axis=0, keepdims=True))[0]
+    u0 = K[0, 0] * centre[0] / centre[2] + K[0, 2] - box[0]
+    v0 = K[1, 1] * centre[1] / centre[2] + K[1, 2] - box[1]
+    v, u = np.nonzero(seen)
+    return float(np.percentile(np.hypot(u - u0, v - v0), 90))
+
+
 def _grid(yaw_deg: float, yaw_step_deg: float, shift_m: float, shift_step_m: float,
           centre: np.ndarray) -> np.ndarray:
     """(M, 3) moves (yaw rad, x m, y m) on a grid around ``centre`` (3,)."""
@@ -105,8 +123,8 @@ def _grid(yaw_deg: float, yaw_step_deg: float, shift_m: float, shift_step_m: flo
 def refine_on_edges(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarray,
                     T_world_camera: np.ndarray, points_o: np.ndarray,
                     views: Sequence[ViewEvidence], *, max_yaw_deg: float, max_shift_m: float,
-                    cap_px: float, jump_m: float, crease_deg: float
-                    ) -> tuple[np.ndarray, dict[str, float]]:
+                    cap_px: float, jump_m: float, crease_deg: float,
+                    min_reach_px: float = 0.0) -> tuple[np.ndarray, dict[str, float]]:
     """The pose of a part resting on the table turned about the vertical (at most
     ``max_yaw_deg``) and moved along the table (at most ``max_shift_m`` in x and y) where its
     edges lie best on the colour views' edges (see the module).
@@ -120,17 +138,20 @@ def refine_on_edges(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.n
         max_yaw_deg, max_shift_m: the range searched.
         cap_px: a rendered edge point farther than this from an image edge counts as this far.
         jump_m, crease_deg: what is a rendered edge (:func:`~.turns.rendered_edges`).
+        min_reach_px: a view counts only where the part's edges reach this far from its
+            centre in the image (90th percentile, px; 0: every view).
 
     Returns:
-        the refined pose (the given one when no view has colour or no move lays the edges
-        nearer) and ``edge_yaw_deg``, ``edge_shift_m``, ``edge_before_px``, ``edge_after_px``.
+        the refined pose (the given one when no view counts or no move lays the edges
+        nearer) and ``edge_yaw_deg``, ``edge_shift_m``, ``edge_before_px``, ``edge_after_px``,
+        ``edge_reach_px`` (the largest reach over the views with colour).
     """
     T_wc = np.asarray(T_world_camera, np.float64)
     T_wo = T_wc @ np.asarray(T_camera_object, np.float64)
     edge_views = _EdgeViews(scene, T_wo, T_wc, points_o, views, cap_px=cap_px, jump_m=jump_m,
-                            crease_deg=crease_deg)
+                            crease_deg=crease_deg, min_reach_px=min_reach_px)
     info = {'edge_yaw_deg': 0.0, 'edge_shift_m': 0.0, 'edge_before_px': 0.0,
-            'edge_after_px': 0.0}
+            'edge_after_px': 0.0, 'edge_reach_px': edge_views.reach_px}
     if not edge_views.views:
         return np.asarray(T_camera_object, np.float64), info
     centre_w = transform_points(T_wo, points_o.mean(axis=0, keepdims=True))[0]

@@ -63,6 +63,8 @@ class RestingParams:
         edge_shift_m: and moved along the table by at most this in x and y, m (>= 0).
         edge_cap_px: a rendered edge farther than this from the image's edges counts as this
             far, px (> 0).
+        edge_min_reach_px: a view refines a part only where its edges reach this far from its
+            centre in the image, px (>= 0; at 12 a 5 deg turn moves them a pixel).
     """
 
     enabled: bool = True
@@ -76,6 +78,7 @@ class RestingParams:
     edge_yaw_deg: float = 10.0
     edge_shift_m: float = 0.003
     edge_cap_px: float = 3.0
+    edge_min_reach_px: float = 12.0
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_tilt_deg < self.max_tilt_deg <= 180.0:
@@ -83,10 +86,11 @@ class RestingParams:
                              f'{self.min_tilt_deg}, {self.max_tilt_deg}')
         if self.candidates < 1 or self.contact_m <= 0 or self.tolerance_m <= 0 or \
                 not 0 <= self.fitness_margin <= 1 or self.noise_ratio < 0 or \
-                self.edge_yaw_deg < 0 or self.edge_shift_m < 0 or self.edge_cap_px <= 0:
+                min(self.edge_yaw_deg, self.edge_shift_m, self.edge_min_reach_px) < 0 or \
+                self.edge_cap_px <= 0:
             raise ValueError('candidates must be >= 1, contact_m and tolerance_m > 0, '
-                             'fitness_margin in 0..1, noise_ratio, edge_yaw_deg and '
-                             f'edge_shift_m >= 0, edge_cap_px > 0, got {self}')
+                             'fitness_margin in 0..1, noise_ratio, edge_yaw_deg, edge_shift_m '
+                             f'and edge_min_reach_px >= 0, edge_cap_px > 0, got {self}')
 
 
 def stable_directions(obj: ObjectTemplates) -> np.ndarray | None:
