@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field
 
 from tlessbot_ros.core.common.table_plane import TABLE_PLANE_MODES
-from tlessbot_ros.core.pose.flat import FlatParams
+from tlessbot_ros.core.pose.flat_params import FlatParams
 from tlessbot_ros.core.pose.resting import RestingParams
 from tlessbot_ros.core.pose.turns import TurnParams
 

@@ -197,7 +197,7 @@ def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob) -> None:
 def flat_parts(database: TemplateDatabase, fit: FitParams) -> frozenset[int]:
     """The ids of the parts the flat parts' orientation check turns over (``flat``: on, the
     part flat and its mesh kept); their depth in the other views is gathered for it."""
-    from tlessbot_ros.core.pose.flat import is_flat
+    from tlessbot_ros.core.pose.flat_params import is_flat
 
     if not fit.flat.enabled:
         return frozenset()

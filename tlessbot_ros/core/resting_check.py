@@ -38,11 +38,13 @@ def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, V
 
 
 def _level(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
-           labels: dict[str, np.ndarray]) -> tuple[dict[str, float] | None, np.ndarray | None]:
+           labels: dict[str, np.ndarray]
+           ) -> tuple[dict[str, float] | None, tuple[np.ndarray, np.ndarray] | None]:
     """:func:`check_resting`, and the levelled pose refined on the image's edges
-    (:func:`_on_edges`; None when not levelled): the votes weigh it against the free fit, as
-    the pose the part is given at last; the detection gets the levelled pose as the depth
-    left it, for the turn checks."""
+    (:func:`_on_edges`) with the prepared ROI cloud ((N, 3) m, camera frame) it was fitted to
+    (None when not levelled): the votes weigh it against the free fit, as the pose the part
+    is given at last; the detection gets the levelled pose as the depth left it, for the turn
+    checks."""
     detection = job.detection
     estimator = pipeline.pose_estimator
     params = pipeline.fit_params.resting
@@ -78,7 +80,7 @@ def _level(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInpu
     detection.second = detection.pose
     fitness = float(estimator.refiner.grid_fitness(T[None], scene_c, obj)[0])
     detection.pose = replace(detection.pose, T_camera_object=T, fitness=fitness)
-    return info, refined
+    return info, (refined, scene_c)
 
 
 def _on_edges(refiner: Refiner, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
@@ -128,13 +130,13 @@ def check_resting_and_turns(pipeline: PerceptionPipeline, job: PartJob,
         levelled = job.detection.pose
     pose = job.detection.pose
     if refined is not None and pose is levelled and pose is not None and \
-            refined is not pose.T_camera_object:
+            refined[0] is not pose.T_camera_object:
         estimator = pipeline.pose_estimator
         assert estimator is not None
+        T, scene_c = refined
         obj = estimator.database[job.detection.obj_id]
-        scene_c = flat_check(pipeline).prepared_cloud(obj, job.points)
-        fitness = float(estimator.refiner.grid_fitness(refined[None], scene_c, obj)[0])
-        job.detection.pose = replace(pose, T_camera_object=refined, fitness=fitness)
+        fitness = float(estimator.refiner.grid_fitness(T[None], scene_c, obj)[0])
+        job.detection.pose = replace(pose, T_camera_object=T, fitness=fitness)
 
 
 __all__ = ['check_resting', 'check_resting_and_turns']

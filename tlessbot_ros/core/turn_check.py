@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tlessbot_ros.core.flat_parts import colour_views, flat_check, table_frames
-from tlessbot_ros.core.pose.flat import is_flat
+from tlessbot_ros.core.pose.flat_params import is_flat
 from tlessbot_ros.core.pose.flat_turns import mesh_scene
 from tlessbot_ros.core.pose.half_turns import choose_half_turn, self_half_turns
 from tlessbot_ros.core.pose.turns import TurnParams, choose_turn, near_turns

@@ -84,9 +84,9 @@ _HOME = {
     'ImageBox': 'image_box',
     'box_cover': 'image_box',
     'FlatCheck': 'flat',
-    'FlatParams': 'flat',
-    'ViewEvidence': 'flat',
-    'is_flat_mesh': 'flat',
+    'FlatParams': 'flat_params',
+    'ViewEvidence': 'flat_params',
+    'is_flat_mesh': 'flat_params',
     'LookalikeCheck': 'lookalike',
     'MISS_ERROR_M': 'lookalike',
     'Mesh': 'lookalike',
@@ -188,8 +188,8 @@ if TYPE_CHECKING:
         rotation_between,
         view_grid,
     )
-    from tlessbot_ros.core.pose.flat import (  # noqa: F401
-        FlatCheck,
+    from tlessbot_ros.core.pose.flat import FlatCheck  # noqa: F401
+    from tlessbot_ros.core.pose.flat_params import (  # noqa: F401
         FlatParams,
         ViewEvidence,
         is_flat_mesh,

@@ -38,7 +38,7 @@ from tlessbot_ros.core.pose.database import (
     Template,
     TemplateDatabase,
 )
-from tlessbot_ros.core.pose.flat import is_flat_mesh
+from tlessbot_ros.core.pose.flat_params import is_flat_mesh
 from tlessbot_ros.core.pose.lookalike import lookalike_pairs
 
 MIN_VIEWS, MAX_VIEWS = 2, 18
