@@ -122,7 +122,7 @@ def test_detection_matches_bop_groups(tless_models_dir, obj_id):
 
 def test_axis_point_ignores_the_tiny_singular_value_along_the_axis():
     from tlessbot_ros.core.common import make_transform, rotation_about_axis
-    from tlessbot_ros.core.common.symmetry import _axis_point
+    from tlessbot_ros.core.common.symmetry_detect import _axis_point
 
     axis = np.array([1e-4, -2e-4, 1.0])
     centre = np.array([0.01, -0.02, 0.0])

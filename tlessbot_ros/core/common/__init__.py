@@ -69,8 +69,8 @@ _HOME = {
     'SAMPLING_SCHEMES': 'sampling',
     'sample_surface': 'sampling',
     'Symmetries': 'symmetry',
-    'SymmetryParams': 'symmetry',
-    'detect_symmetries': 'symmetry',
+    'SymmetryParams': 'symmetry_detect',
+    'detect_symmetries': 'symmetry_detect',
     'symmetries_from_models_info': 'symmetry',
     'symmetries_to_models_info': 'symmetry',
     'TABLE_PLANE_MODES': 'table_plane',
@@ -167,10 +167,12 @@ if TYPE_CHECKING:
     )
     from tlessbot_ros.core.common.symmetry import (  # noqa: F401
         Symmetries,
-        SymmetryParams,
-        detect_symmetries,
         symmetries_from_models_info,
         symmetries_to_models_info,
+    )
+    from tlessbot_ros.core.common.symmetry_detect import (  # noqa: F401
+        SymmetryParams,
+        detect_symmetries,
     )
     from tlessbot_ros.core.common.sync import (  # noqa: F401
         Item,

@@ -1,6 +1,6 @@
 """A flat part seen along its thin axis: the image of its outline, holes included, and whether a
-rigid transform keeps it (:func:`~tlessbot_ros.core.common.symmetry.detect_symmetries` asks it
-of a flat part's candidate symmetries)."""
+rigid transform keeps it (:func:`~tlessbot_ros.core.common.symmetry_detect.detect_symmetries`
+asks it of a flat part's candidate symmetries)."""
 from __future__ import annotations
 
 import cv2
