@@ -54,8 +54,8 @@ def _level(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInpu
     obj = estimator.database[detection.obj_id]
     T_free = detection.pose.T_camera_object
     starts, info = level_starts(obj, job.T_world_camera @ T_free, params)
-    if not len(starts):
-        return info, None   # nothing to try: the ROI cloud is not prepared
+    if not len(starts):   # nothing to level: the ROI cloud is not prepared
+        return info, _rested_on_edges(pipeline, job, views, labels, info)
     check = flat_check(pipeline)
     scene_c = check.prepared_cloud(obj, job.points)
     noise_m = _table_noise(views, labels, detection, job.T_world_camera) \
@@ -81,6 +81,46 @@ def _level(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInpu
     fitness = float(estimator.refiner.grid_fitness(T[None], scene_c, obj)[0])
     detection.pose = replace(detection.pose, T_camera_object=T, fitness=fitness)
     return info, (refined, scene_c)
+
+
+def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+                     labels: dict[str, np.ndarray], info: dict[str, float]
+                     ) -> tuple[np.ndarray, np.ndarray] | None:
+    """A flat part's fit that rests on a face already (within ``min_tilt_deg``, on the table),
+    refined on the image's edges as a levelled pose is (:func:`_on_edges`;
+    ``resting.edge_rested_flat``): its depth holds its height and tilt, not its yaw. Returns
+    the refined pose with the prepared ROI cloud, or None (not refined, not moved, or the
+    aligned votes of the views clearly keep the fit); ``info`` gets what decided."""
+    estimator, params = pipeline.pose_estimator, pipeline.fit_params.resting
+    assert estimator is not None and job.detection.pose is not None
+    obj = estimator.database[job.detection.obj_id]
+    mesh = mesh_scene(obj)
+    check = flat_check(pipeline)
+    if not params.edge_rested_flat or params.edge_yaw_deg <= 0 or mesh is None or \
+            info['rest_tilt_deg'] > params.min_tilt_deg or \
+            abs(info['rest_contact_m']) > params.contact_m or not check.applies(obj):
+        return None
+    T_fit = job.detection.pose.T_camera_object
+    scene_c = check.prepared_cloud(obj, job.points)
+    noise_m = _table_noise(views, labels, job.detection, job.T_world_camera) \
+        if params.noise_ratio > 0 and job.T_world_camera is not None else 0.0
+    tolerance = max(params.tolerance_m, params.noise_ratio * noise_m)
+    info.update(rest_noise_m=noise_m, rest_tolerance_m=tolerance, rest_best_fitness=float(
+        estimator.refiner.surface_fit(scene_c, obj, T_fit, inlier_m=tolerance)[0]))
+    evidence = colour_views(views, labels, job.detection.instance_id, job.detection.view,
+                            table_frames(pipeline, views))
+    refined = _on_edges(estimator.refiner, obj, mesh, T_fit, scene_c, job, evidence, params,
+                        info)
+    if refined is T_fit:
+        return None
+    if any(v.plane is not None for v in evidence):
+        found: dict[str, float] = {}
+        check.aligned_winner(obj, [mesh, mesh], [T_fit, refined], evidence, found)
+        if found.get('align_decided') and found.get('align_winner') == 0.0:
+            info['rest_votes_kept'] = 1.0
+            return None
+    info['rest_edge_rested'] = 1.0
+    return refined, scene_c
 
 
 def _on_edges(refiner: Refiner, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
