@@ -110,3 +110,62 @@ def side_evidence(rgb: np.ndarray, depth: np.ndarray, mask: np.ndarray, T_world_
                         plane_of_frame(SIDE.T_world_camera), np.zeros_like(mask))
     return np.linalg.inv(SIDE.T_world_camera) @ T_world_object, [view], points
 
+
+RADIUS, THICK = 0.0235, 0.0044           # disc_8f of the held-out family 8: 47 x 4.4 mm
+HOLE_R, HOLE_AT = 0.0019, 0.016          # four 3.8 mm holes 16 mm from the axis
+
+
+def holed_disc_mesh(holes: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """A closed mesh of a disc (vertices m, faces) with a 2 mm bore and ``holes`` round
+    through-holes on a circle: cells of a polar grid (0.5 mm by 2 degrees) with a top, a
+    bottom and a wall where a neighbour is missing, those whose centre lies in a hole left
+    out."""
+    radii = np.linspace(0.001, RADIUS, 46)
+    angles = np.radians(np.arange(0.0, 360.0, 2.0))
+    centres = [HOLE_AT * np.array([np.cos(a), np.sin(a)])
+               for a in 2 * np.pi * np.arange(holes) / max(holes, 1)]
+
+    def kept(i: int, j: int) -> bool:
+        if i < 0 or i >= len(radii) - 1:
+            return False
+        r = (radii[i] + radii[i + 1]) / 2
+        a = angles[j % len(angles)] + np.radians(1.0)
+        p = r * np.array([np.cos(a), np.sin(a)])
+        return all(np.linalg.norm(p - c) > HOLE_R for c in centres)
+
+    vertices: list[np.ndarray] = []
+    faces: list[list[int]] = []
+
+    def quad(corners: list[np.ndarray]) -> None:
+        n = len(vertices)
+        vertices.extend(corners)
+        faces.extend([[n, n + 1, n + 2], [n, n + 2, n + 3]])
+
+    def point(i: int, j: int, z: float) -> np.ndarray:
+        a = angles[j % len(angles)]
+        return np.array([radii[i] * np.cos(a), radii[i] * np.sin(a), z])
+
+    for i in range(len(radii) - 1):
+        for j in range(len(angles)):
+            if not kept(i, j):
+                continue
+            top = [point(i, j, THICK), point(i + 1, j, THICK), point(i + 1, j + 1, THICK),
+                   point(i, j + 1, THICK)]
+            quad(top)
+            quad([p - [0, 0, THICK] for p in top[::-1]])
+            walls = {(0, 1): (i, j - 1), (1, 2): (i + 1, j), (2, 3): (i, j + 1),
+                     (3, 0): (i - 1, j)}   # each edge of the top and the cell beyond it
+            for (a, b), (ni, nj) in walls.items():
+                if kept(ni, nj):
+                    continue
+                pa, pb = top[a], top[b]
+                quad([pa, pa - [0, 0, THICK], pb - [0, 0, THICK], pb])
+    return np.asarray(vertices), np.asarray(faces, np.int64)
+
+
+def yaw_error_deg(T_a: np.ndarray, T_b: np.ndarray, period_deg: float) -> float:
+    """|yaw of T_a against T_b| about the camera's table normal, modulo the period."""
+    R = (SIDE.T_world_camera[:3, :3] @ T_a[:3, :3]) @ (SIDE.T_world_camera[:3, :3]
+                                                       @ T_b[:3, :3]).T
+    yaw = np.degrees(np.arctan2(R[1, 0], R[0, 0]))
+    return float(abs((yaw + period_deg / 2) % period_deg - period_deg / 2))

@@ -6,7 +6,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from side_scene import SIDE, holed_plate, side_scene
+from side_scene import (
+    HOLE_R,
+    RADIUS,
+    SIDE,
+    THICK,
+    holed_disc_mesh,
+    holed_plate,
+    side_scene,
+    yaw_error_deg,
+)
 
 from tlessbot_ros.core.common import (
     make_transform,
@@ -17,57 +26,6 @@ from tlessbot_ros.core.common import (
 )
 from tlessbot_ros.core.pose.database import ObjectTemplates
 from tlessbot_ros.core.pose.flat import FlatParams, ViewEvidence
-
-RADIUS, THICK = 0.0235, 0.0044           # disc_8f of the held-out family 8: 47 x 4.4 mm
-HOLE_R, HOLE_AT = 0.0019, 0.016          # four 3.8 mm holes 16 mm from the axis
-
-
-def _disc(holes: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """A closed mesh of a disc (vertices m, faces) with a 2 mm bore and ``holes`` round
-    through-holes on a circle: cells of a polar grid (0.5 mm by 2 degrees) with a top, a
-    bottom and a wall where a neighbour is missing, those whose centre lies in a hole left
-    out."""
-    radii = np.linspace(0.001, RADIUS, 46)
-    angles = np.radians(np.arange(0.0, 360.0, 2.0))
-    centres = [HOLE_AT * np.array([np.cos(a), np.sin(a)])
-               for a in 2 * np.pi * np.arange(holes) / max(holes, 1)]
-
-    def kept(i: int, j: int) -> bool:
-        if i < 0 or i >= len(radii) - 1:
-            return False
-        r = (radii[i] + radii[i + 1]) / 2
-        a = angles[j % len(angles)] + np.radians(1.0)
-        p = r * np.array([np.cos(a), np.sin(a)])
-        return all(np.linalg.norm(p - c) > HOLE_R for c in centres)
-
-    vertices: list[np.ndarray] = []
-    faces: list[list[int]] = []
-
-    def quad(corners: list[np.ndarray]) -> None:
-        n = len(vertices)
-        vertices.extend(corners)
-        faces.extend([[n, n + 1, n + 2], [n, n + 2, n + 3]])
-
-    def point(i: int, j: int, z: float) -> np.ndarray:
-        a = angles[j % len(angles)]
-        return np.array([radii[i] * np.cos(a), radii[i] * np.sin(a), z])
-
-    for i in range(len(radii) - 1):
-        for j in range(len(angles)):
-            if not kept(i, j):
-                continue
-            top = [point(i, j, THICK), point(i + 1, j, THICK), point(i + 1, j + 1, THICK),
-                   point(i, j + 1, THICK)]
-            quad(top)
-            quad([p - [0, 0, THICK] for p in top[::-1]])
-            walls = {(0, 1): (i, j - 1), (1, 2): (i + 1, j), (2, 3): (i, j + 1),
-                     (3, 0): (i - 1, j)}   # each edge of the top and the cell beyond it
-            for (a, b), (ni, nj) in walls.items():
-                if kept(ni, nj):
-                    continue
-                pa, pb = top[a], top[b]
-                quad([pa, pa - [0, 0, THICK], pb - [0, 0, THICK], pb])
-    return np.asarray(vertices), np.asarray(faces, np.int64)
 
 
 def _templates(vertices: np.ndarray, faces: np.ndarray, period: float) -> ObjectTemplates:
@@ -82,7 +40,7 @@ def _templates(vertices: np.ndarray, faces: np.ndarray, period: float) -> Object
 
 @pytest.fixture(scope='module')
 def holed_disc():
-    vertices, faces = _disc()
+    vertices, faces = holed_disc_mesh()
     return vertices, faces, _templates(vertices, faces, np.pi / 2)
 
 
@@ -96,20 +54,12 @@ def _view(vertices, faces, yaw_deg: float, seed: int = 3):
     return evidence, np.linalg.inv(SIDE.T_world_camera) @ T_world
 
 
-def _yaw_error(T_a: np.ndarray, T_b: np.ndarray, period_deg: float) -> float:
-    """|yaw of T_a against T_b| about the camera's table normal, modulo the period."""
-    R = (SIDE.T_world_camera[:3, :3] @ T_a[:3, :3]) @ (SIDE.T_world_camera[:3, :3]
-                                                       @ T_b[:3, :3]).T
-    yaw = np.degrees(np.arctan2(R[1, 0], R[0, 0]))
-    return float(abs((yaw + period_deg / 2) % period_deg - period_deg / 2))
-
-
 def test_the_disc_mesh_is_closed_and_has_its_holes():
     trimesh = pytest.importorskip('trimesh')
-    vertices, faces = _disc()
+    vertices, faces = holed_disc_mesh()
     mesh = trimesh.Trimesh(vertices, faces, process=True)
     assert mesh.is_watertight
-    plain = trimesh.Trimesh(*_disc(holes=0), process=True)
+    plain = trimesh.Trimesh(*holed_disc_mesh(holes=0), process=True)
     hole_area = 4 * np.pi * HOLE_R ** 2 * THICK
     assert plain.volume - mesh.volume == pytest.approx(hole_area, rel=0.25)
 
@@ -124,10 +74,10 @@ def test_a_disc_is_turned_to_the_yaw_its_holes_show(holed_disc, off_deg):
     evidence, T_true = _view(vertices, faces, 23.0)
     T_fit = T_true @ make_transform(rotation_about_axis([0, 0, 1], np.radians(off_deg)),
                                     [0, 0, 0])
-    assert _yaw_error(T_fit, T_true, 90.0) > 5.0
+    assert yaw_error_deg(T_fit, T_true, 90.0) > 5.0
     T, turned = hole_yaw(obj, raycasting_scene(vertices, faces), T_fit, evidence, FlatParams())
     assert turned != 0.0
-    assert _yaw_error(T, T_true, 90.0) < 2.0
+    assert yaw_error_deg(T, T_true, 90.0) < 2.0
 
 
 def test_a_disc_whose_holes_the_image_does_not_show_keeps_its_pose(holed_disc):
@@ -136,7 +86,7 @@ def test_a_disc_whose_holes_the_image_does_not_show_keeps_its_pose(holed_disc):
     from tlessbot_ros.core.pose.flat_yaw import hole_yaw
 
     vertices, faces, obj = holed_disc
-    evidence, T_true = _view(*_disc(holes=0), 23.0)
+    evidence, T_true = _view(*holed_disc_mesh(holes=0), 23.0)
     T_fit = T_true @ make_transform(rotation_about_axis([0, 0, 1], np.radians(20.0)),
                                     [0, 0, 0])
     T, turned = hole_yaw(obj, raycasting_scene(vertices, faces), T_fit, evidence, FlatParams())
@@ -192,7 +142,7 @@ def test_check_flat_leaves_a_disc_at_the_yaw_its_holes_show(holed_disc):
     views = {'side': ViewInput(rgb, depth, SIDE.intrinsics, SIDE.T_world_camera)}
     check_flat(pipeline, job, views, {'side': mask.astype(np.uint16)})
     assert detection.pose is not None
-    assert _yaw_error(detection.pose.T_camera_object, T_true, 90.0) < 2.0
+    assert yaw_error_deg(detection.pose.T_camera_object, T_true, 90.0) < 2.0
 
 
 def test_a_disc_with_one_hole_is_searched_in_steps_its_hole_resolves():
@@ -202,7 +152,7 @@ def test_a_disc_with_one_hole_is_searched_in_steps_its_hole_resolves():
     # which the hole moves off itself (3.8 / 16 rad, some 14 degrees)
     from tlessbot_ros.core.pose.flat_yaw import feature_turn, hole_yaw
 
-    vertices, faces = _disc(holes=1)
+    vertices, faces = holed_disc_mesh(holes=1)
     obj = _templates(vertices, faces, 2 * np.pi)
     mesh = raycasting_scene(vertices, faces)
     assert 8.0 < np.degrees(feature_turn(obj, mesh, 2 * np.pi)) < 20.0
@@ -210,7 +160,7 @@ def test_a_disc_with_one_hole_is_searched_in_steps_its_hole_resolves():
     T_fit = T_true @ make_transform(rotation_about_axis([0, 0, 1], np.radians(130.0)),
                                     [0, 0, 0])
     T, _ = hole_yaw(obj, mesh, T_fit, evidence, FlatParams())
-    assert _yaw_error(T, T_true, 360.0) < 2.0
+    assert yaw_error_deg(T, T_true, 360.0) < 2.0
 
 
 @pytest.mark.parametrize('off_deg', [-5.5, 4.5])
@@ -227,7 +177,7 @@ def test_a_plate_lying_a_few_degrees_off_is_turned_to_its_yaw(off_deg):
     normal_c = np.linalg.inv(SIDE.T_world_camera)[:3, 2]
     T, turned = hole_yaw(obj, raycasting_scene(vertices, faces), T_fit, evidence,
                          FlatParams(), normal_c)
-    assert turned != 0.0 and _yaw_error(T, T_true, 360.0) < 1.0
+    assert turned != 0.0 and yaw_error_deg(T, T_true, 360.0) < 1.0
     # standing on an edge, a turn about its thin axis would lift it off the table: not tried
     standing = np.linalg.inv(SIDE.T_world_camera) @ make_transform(
         rotation_about_axis([1.0, 0.0, 0.0], np.pi / 2), [0, 0, 0.02])
@@ -259,5 +209,5 @@ def test_the_yaw_search_finds_the_pose_s_shift_on_the_grid_once(monkeypatch):
     normal_c = np.linalg.inv(SIDE.T_world_camera)[:3, 2]
     T, turned = flat_yaw.hole_yaw(obj, raycasting_scene(vertices, faces), T_fit, evidence,
                                   FlatParams(), normal_c)
-    assert turned != 0.0 and _yaw_error(T, T_true, 360.0) < 1.0
+    assert turned != 0.0 and yaw_error_deg(T, T_true, 360.0) < 1.0
     assert len(grids) == len(evidence)

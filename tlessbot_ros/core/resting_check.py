@@ -13,6 +13,7 @@ from tlessbot_ros.core.common import plane_of_frame
 from tlessbot_ros.core.flat_parts import colour_views, flat_check, table_frames
 from tlessbot_ros.core.pose.flat_align import table_noise_m
 from tlessbot_ros.core.pose.flat_turns import mesh_scene
+from tlessbot_ros.core.pose.flat_yaw import hole_yaw_period
 from tlessbot_ros.core.pose.rest_edges import refine_on_edges
 from tlessbot_ros.core.pose.resting import level_starts, settle
 from tlessbot_ros.core.turn_check import check_turns
@@ -86,9 +87,10 @@ def _level(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInpu
 def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
                      labels: dict[str, np.ndarray], info: dict[str, float]
                      ) -> tuple[np.ndarray, np.ndarray] | None:
-    """A flat part's fit that rests on a face already (within ``min_tilt_deg``, on the table),
-    refined on the image's edges as a levelled pose is (:func:`_on_edges`;
-    ``resting.edge_rested_flat``): its depth holds its height and tilt, not its yaw. Returns
+    """A round flat part's fit (a disc with holes, :func:`hole_yaw_period`) that rests on a
+    face already (within ``min_tilt_deg``, on the table), refined on the image's edges as a
+    levelled pose is (:func:`_on_edges`; ``resting.edge_rested_round``): only its holes hold
+    its yaw, and a smoothed depth does not show them. Returns
     the refined pose with the prepared ROI cloud, or None (not refined, not moved, or the
     aligned votes of the views clearly keep the fit); ``info`` gets what decided."""
     estimator, params = pipeline.pose_estimator, pipeline.fit_params.resting
@@ -96,9 +98,10 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
     obj = estimator.database[job.detection.obj_id]
     mesh = mesh_scene(obj)
     check = flat_check(pipeline)
-    if not params.edge_rested_flat or params.edge_yaw_deg <= 0 or mesh is None or \
+    if not params.edge_rested_round or params.edge_yaw_deg <= 0 or mesh is None or \
             info['rest_tilt_deg'] > params.min_tilt_deg or \
-            abs(info['rest_contact_m']) > params.contact_m or not check.applies(obj):
+            abs(info['rest_contact_m']) > params.contact_m or not check.applies(obj) or \
+            hole_yaw_period(obj) <= 0:
         return None
     T_fit = job.detection.pose.T_camera_object
     scene_c = check.prepared_cloud(obj, job.points)

@@ -65,8 +65,8 @@ class RestingParams:
             far, px (> 0).
         edge_min_reach_px: a view refines a part only where its edges reach this far from its
             centre in the image, px (>= 0; at 12 a 5 deg turn moves them a pixel).
-        edge_rested_flat: a flat part's fit that rests on a face already is refined on the
-            image's edges too (its depth holds its tilt, not its yaw).
+        edge_rested_round: a round flat part's fit that rests on a face already is refined on
+            the image's edges too (only its holes hold its yaw).
     """
 
     enabled: bool = True
@@ -81,7 +81,7 @@ class RestingParams:
     edge_shift_m: float = 0.003
     edge_cap_px: float = 3.0
     edge_min_reach_px: float = 12.0
-    edge_rested_flat: bool = True
+    edge_rested_round: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_tilt_deg < self.max_tilt_deg <= 180.0:
