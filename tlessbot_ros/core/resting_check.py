@@ -45,7 +45,8 @@ def _level(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInpu
     (:func:`_on_edges`) with the prepared ROI cloud ((N, 3) m, camera frame) it was fitted to
     (None when not levelled): the votes weigh it against the free fit, as the pose the part
     is given at last; the detection gets the levelled pose as the depth left it, for the turn
-    checks."""
+    checks. A round flat part's fit that rests already comes back refined the same way
+    (:func:`_rested_on_edges`), its pose left as it was for the turn checks."""
     detection = job.detection
     estimator = pipeline.pose_estimator
     params = pipeline.fit_params.resting
@@ -90,9 +91,9 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
     """A round flat part's fit (a disc with holes, :func:`hole_yaw_period`) that rests on a
     face already (within ``min_tilt_deg``, on the table), refined on the image's edges as a
     levelled pose is (:func:`_on_edges`; ``resting.edge_rested_round``): only its holes hold
-    its yaw, and a smoothed depth does not show them. Returns
-    the refined pose with the prepared ROI cloud, or None (not refined, not moved, or the
-    aligned votes of the views clearly keep the fit); ``info`` gets what decided."""
+    its yaw, and a smoothed depth does not show them. Returns the refined pose with the
+    prepared ROI cloud, or None (not refined, not moved, or the aligned votes of the views
+    clearly keep the fit); ``info`` gets what decided."""
     estimator, params = pipeline.pose_estimator, pipeline.fit_params.resting
     assert estimator is not None and job.detection.pose is not None
     obj = estimator.database[job.detection.obj_id]
@@ -164,7 +165,8 @@ def check_resting_and_turns(pipeline: PerceptionPipeline, job: PartJob,
     (:func:`~tlessbot_ros.core.turn_check.check_turns`: they compare turns of a levelled pose
     as the depth left it: a pose refined on the image would outscore its unrefined turns),
     then the prior again when a turn changed the pose (a refitted half turn may tilt it).
-    A levelled pose that no turn changed is then the one refined on the image's edges."""
+    A levelled pose (or a round flat part's resting fit) that no turn changed is then the one
+    refined on the image's edges."""
     _, refined = _level(pipeline, job, views, labels)
     levelled = before = job.detection.pose
     check_turns(pipeline, job, views, labels)
