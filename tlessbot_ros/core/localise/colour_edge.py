@@ -22,6 +22,13 @@ colour be common around it (a pattern's, not one part's): a blob the depth cue d
 is dropped when under ``colour_edge_outline_share`` of its outline steps by the same
 tolerance and its colour covers more than ``COMMON_COLOUR_SHARE`` of the window one part
 length around it (docs/bench/smoothed-localiser.md).
+
+A piece whose outline runs along the squares' own edges for most of its length steps there, and
+one that holds both squares' colours has a median colour common nowhere; but either has only
+the table's colours on both sides of its outline, where a part shows its own. So a blob the
+depth cue does not find is also dropped when at least ``colour_edge_pattern_share`` of its
+pixels have colours common on the table around it (each more than ``COMMON_COLOUR_SHARE`` of
+the window's pixels off every blob; docs/bench/checker-false-parts.md).
 """
 from __future__ import annotations
 
@@ -163,6 +170,31 @@ def _table_piece(lab: np.ndarray, blobs: np.ndarray, box: np.ndarray, i: int,
     if share >= TABLE_COLOUR_SHARE and \
             colour_region_length(lab[around], blobs[around] == i, colour, tolerance) > longest:
         return True
-    return outline_step_share(lab[near], blob, tolerance, OUTLINE_REACH_PX) < \
-        params.colour_edge_outline_share and \
-        colour_share_around(lab[around], blobs[around] == i, tolerance) > COMMON_COLOUR_SHARE
+    if outline_step_share(lab[near], blob, tolerance, OUTLINE_REACH_PX) < \
+            params.colour_edge_outline_share and \
+            colour_share_around(lab[around], blobs[around] == i, tolerance) > COMMON_COLOUR_SHARE:
+        return True
+    return params.colour_edge_pattern_share > 0 and pattern_colour_share(
+        lab[around], blobs[around] == i, blobs[around] == 0, tolerance) >= \
+        params.colour_edge_pattern_share
+
+
+def pattern_colour_share(lab: np.ndarray, blob: np.ndarray, table: np.ndarray,
+                         tolerance: np.ndarray) -> float:
+    """The share of ``blob``'s pixels whose colour is one of the table's own: each LAB channel
+    within ``tolerance`` of the colour of more than ``COMMON_COLOUR_SHARE`` of the ``table``
+    pixels (the window's pixels off every blob). A pattern's piece holds its squares' colours,
+    one or both; a part's colour covers at most its own area. Crops of one window; 0 without
+    table pixels to read."""
+    reference = lab[table]
+    if len(reference) < 5:
+        return 0.0
+    inside = lab[blob]
+    bins = np.floor(inside / tolerance).astype(np.int32)
+    keys, index = np.unique(bins, axis=0, return_inverse=True)
+    common = np.zeros(len(keys), bool)
+    for k, key in enumerate(keys):   # a piece holds a few colours; a part one or two
+        centre = (key + 0.5) * tolerance
+        same = cv2.inRange(reference[:, None, :], centre - tolerance, centre + tolerance)
+        common[k] = np.count_nonzero(same) > COMMON_COLOUR_SHARE * len(reference)
+    return float(np.count_nonzero(common[index.ravel()])) / len(inside)

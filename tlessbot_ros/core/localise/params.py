@@ -85,6 +85,8 @@ class SegmentationParams:
             blob's outline whose colours that test compares.
         colour_edge_outline_share: a blob the depth does not find, whose colour steps on under
             this share of its outline, in a colour common around it: table (0..1; 0: off).
+        colour_edge_pattern_share: a blob the depth does not find, with at least this share of
+            its pixels in colours common on the table around it: table (0..1; 0: off).
 
     ``methods``: 'watershed' adds the grey-level histogram extremes as markers *and* refines the
     union by flooding (without it the union is used as is); 'background' is used only when an
@@ -141,6 +143,7 @@ class SegmentationParams:
     colour_edge_floors: float = 1.0
     colour_edge_ring_px: int = 4
     colour_edge_outline_share: float = 0.5
+    colour_edge_pattern_share: float = 0.7
 
     def __post_init__(self) -> None:
         if self.thin_max_height_m < 0 or not 0.0 <= self.thin_quantile <= 1.0 or \
@@ -169,9 +172,11 @@ class SegmentationParams:
             raise ValueError('need colour_edge_floors >= 0 (0: off) and colour_edge_ring_px '
                              f'>= 1, got {self.colour_edge_floors} and '
                              f'{self.colour_edge_ring_px}')
-        if not 0.0 <= self.colour_edge_outline_share <= 1.0:
-            raise ValueError('colour_edge_outline_share must be in [0, 1] (0: off), got '
-                             f'{self.colour_edge_outline_share}')
+        if not (0.0 <= self.colour_edge_outline_share <= 1.0 and
+                0.0 <= self.colour_edge_pattern_share <= 1.0):
+            raise ValueError('colour_edge_outline_share and colour_edge_pattern_share must be '
+                             f'in [0, 1] (0: off), got {self.colour_edge_outline_share} and '
+                             f'{self.colour_edge_pattern_share}')
         if self.min_area_px < 1 or self.small_blob_candidates_px < 0:
             raise ValueError('need min_area_px >= 1 and small_blob_candidates_px >= 0, got '
                              f'{self.min_area_px} and {self.small_blob_candidates_px}')
