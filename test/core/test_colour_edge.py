@@ -129,7 +129,34 @@ def test_a_raised_piece_of_a_tile_shorter_than_the_parts_is_not_a_part():
 
 def test_the_piece_of_a_tile_is_found_without_the_outline_test():
     # what the test above guards against: the tiles are too short for the region test alone
-    centres = _found_on_tiles(SegmentationParams(whole_parts=PARTS,
-                                                 colour_edge_outline_share=0.0))
+    centres = _found_on_tiles(SegmentationParams(
+        whole_parts=PARTS, colour_edge_outline_share=0.0, colour_edge_pattern_share=0.0))
     assert any(_inside(c, TILE_BUMP) for c in centres)
+    assert sum(_inside(c, STRIP) for c in centres) == 1
+
+
+# A patch raising a whole tile (and a little of the grey around it): the piece's outline is
+# the tile's own edge, so its colour steps all along it as a part's does; but its only colour
+# is one the table shows all around, where a part shows its own.
+WHOLE_TILE = (slice(100, 130), slice(150, 180))
+WHOLE_TILE_BUMP = (slice(97, 133), slice(147, 183))
+
+
+def _whole_tile_raised() -> tuple[np.ndarray, np.ndarray, object]:
+    rgb, _, cam = _tiled_view()
+    return rgb, _depth_of((WHOLE_TILE_BUMP, STRIP, RAISED), cam), cam
+
+
+def test_a_raised_whole_tile_is_not_a_part():
+    centres = _centres(*_whole_tile_raised(), SegmentationParams(whole_parts=PARTS))
+    assert not any(_inside(c, WHOLE_TILE) for c in centres)
+    assert sum(_inside(c, STRIP) for c in centres) == 1
+    assert sum(_inside(c, LOW_STRIP) for c in centres) == 1
+
+
+def test_the_whole_tile_is_found_without_the_pattern_test():
+    # what the test above guards against: its outline steps, so the outline test keeps it
+    centres = _centres(*_whole_tile_raised(), SegmentationParams(
+        whole_parts=PARTS, colour_edge_pattern_share=0.0))
+    assert sum(_inside(c, WHOLE_TILE) for c in centres) == 1
     assert sum(_inside(c, STRIP) for c in centres) == 1
