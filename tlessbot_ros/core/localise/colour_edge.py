@@ -174,27 +174,37 @@ def _table_piece(lab: np.ndarray, blobs: np.ndarray, box: np.ndarray, i: int,
             params.colour_edge_outline_share and \
             colour_share_around(lab[around], blobs[around] == i, tolerance) > COMMON_COLOUR_SHARE:
         return True
-    return params.colour_edge_pattern_share > 0 and pattern_colour_share(
-        lab[around], blobs[around] == i, blobs[around] == 0, tolerance) >= \
-        params.colour_edge_pattern_share
+    share = params.colour_edge_pattern_share
+    return share > 0 and pattern_colour_share(lab[around], blobs[around] == i,
+                                              blobs[around] == 0, tolerance, share) >= share
 
 
 def pattern_colour_share(lab: np.ndarray, blob: np.ndarray, table: np.ndarray,
-                         tolerance: np.ndarray) -> float:
+                         tolerance: np.ndarray, decide_at: float | None = None) -> float:
     """The share of ``blob``'s pixels whose colour is one of the table's own: each LAB channel
     within ``tolerance`` of the colour of more than ``COMMON_COLOUR_SHARE`` of the ``table``
-    pixels (the window's pixels off every blob). A pattern's piece holds its squares' colours,
-    one or both; a part's colour covers at most its own area. Crops of one window; 0 without
-    table pixels to read."""
-    reference = lab[table]
+    pixels (the window's pixels off every blob, every second row and column). A pattern's
+    piece holds its squares' colours, one or both; a part's colour covers at most its own area.
+    With ``decide_at``, counting stops once the share is known to be on one side of it (the
+    value returned is then on that side). Crops of one window; 0 without table to read."""
+    reference = np.ascontiguousarray(lab[::2, ::2][table[::2, ::2]])[:, None, :]
     if len(reference) < 5:
         return 0.0
     inside = lab[blob]
-    bins = np.floor(inside / tolerance).astype(np.int32)
-    keys, index = np.unique(bins, axis=0, return_inverse=True)
-    common = np.zeros(len(keys), bool)
-    for k, key in enumerate(keys):   # a piece holds a few colours; a part one or two
-        centre = (key + 0.5) * tolerance
-        same = cv2.inRange(reference[:, None, :], centre - tolerance, centre + tolerance)
-        common[k] = np.count_nonzero(same) > COMMON_COLOUR_SHARE * len(reference)
-    return float(np.count_nonzero(common[index.ravel()])) / len(inside)
+    bins = np.floor(inside / tolerance).astype(np.int64) + 1024   # colours as bin numbers
+    keys, counts = np.unique((bins[:, 0] * 4096 + bins[:, 1]) * 4096 + bins[:, 2],
+                             return_counts=True)
+    need = COMMON_COLOUR_SHARE * len(reference)
+    left = len(inside)
+    common = 0
+    for k in np.argsort(-counts):   # the blob's main colours first
+        key = int(keys[k])
+        centre = (np.array([key // 4096 ** 2, key // 4096 % 4096, key % 4096]) - 1024 + 0.5
+                  ) * tolerance
+        same = cv2.inRange(reference, centre - tolerance, centre + tolerance)
+        common += int(counts[k]) if np.count_nonzero(same) > need else 0
+        left -= int(counts[k])
+        if decide_at is not None and (common >= decide_at * len(inside) or
+                                      common + left < decide_at * len(inside)):
+            break
+    return common / len(inside)
