@@ -1,8 +1,11 @@
-"""Cues of the foreground blobs the outline rule keeps (the pipeline's own parameters): for
-every blob the depth cue finds on under half of it, whether it lies on a part or bare table,
-and the share of its pixels whose colour is one of the depth-read table's colours around it
-(the window one part length around, each LAB channel within the colour cues' floors), and its
-median height against the table's noise around it. docs/bench/checker-false-parts.md.
+"""The cues of every foreground blob that the depth cue finds on under half of it, with the
+pipeline's own parameters (``key=value`` changes them; ``colour_edge_pattern_share=0`` shows
+the blobs main's rules keep): whether it lies on a part (>= 30 % on a ground-truth visible
+mask) or bare table (< 5 %), its area, depth share, outline step share and common colour (the
+outline rule's values), its pattern share (``colour_edge.pattern_colour_share``), and its
+median height, the table's median height and 1.48 MAD around it (the window one part length
+around, off every blob) and the first's distance from the second in the third.
+docs/bench/checker-false-parts.md.
 
     python scripts/checker_piece_cues.py SCENES TEMPLATES [VIEW] [key=value ...]
 """
@@ -28,79 +31,72 @@ from tlessbot_ros.core.pose import TemplateDatabase
 
 sys.path.insert(0, str(Path(__file__).parent))
 from outline_step_cues import window  # noqa: E402
-from table_false_parts_cues import OFF_PART, ON_PART, segmentations, truth_mask, two_view_frames  # noqa: E402,E501
+from table_false_parts_cues import (  # noqa: E402
+    OFF_PART,
+    ON_PART,
+    segmentations,
+    truth_mask,
+    two_view_frames,
+)
+
+COLUMNS = ('frame', 'view', 'label', 'area', 'depth_share', 'step', 'common', 'pattern',
+           'h_mm', 'table_mm', 'noise_mm', 'z')
 
 
-def palette_share(lab, blob, table, tol):
-    """Share of blob pixels whose colour some 1 % of the table pixels share (within tol)."""
-    seen = lab[table]
-    if len(seen) < 50:
-        return float('nan')
-    bins = np.floor(seen / (tol / 2)).astype(int)
-    keys = {}
-    for b in map(tuple, bins):
-        keys[b] = keys.get(b, 0) + 1
-    need = 0.01 * len(seen)
-    px = np.floor(lab[blob] / (tol / 2)).astype(int)
-    offs = [(a, b, c) for a in (-2, -1, 0, 1, 2) for b in (-2, -1, 0, 1, 2) for c in (-2, -1, 0, 1, 2)]
-    hits = 0
-    cache = {}
-    for p in map(tuple, px):
-        if p not in cache:
-            cache[p] = sum(keys.get((p[0] + a, p[1] + b, p[2] + c), 0) for a, b, c in offs) >= need
-        hits += cache[p]
-    return hits / max(len(px), 1)
+def blob_rows(image, seg, params) -> list[tuple]:
+    """The rows of ``seg``'s foreground blobs of at least half ``min_area_px`` that the depth
+    cue finds on under half of them."""
+    tol = params.colour_edge_floors * np.array([params.grey_floor, params.lab_floor,
+                                                params.lab_floor])
+    longest = max((extent[2] for extent in params.whole_parts or ()), default=0.0)
+    lab = rgb_to_lab(image.rgb)
+    height = height_above_table(image.depth_m, np.asarray(image.intrinsics.K),
+                                image.T_world_camera)
+    depth = cv2.resize(seg.cues['depth'].view(np.uint8), image.rgb.shape[1::-1],
+                       interpolation=cv2.INTER_NEAREST).astype(bool)
+    truth = truth_mask(image)
+    count, blobs, stats, _ = cv2.connectedComponentsWithStats(seg.foreground.view(np.uint8),
+                                                              connectivity=8)
+    rows = []
+    for i in range(1, count):
+        near = window(stats[i, :4], OUTLINE_REACH_PX + 4, blobs.shape)
+        blob = blobs[near] == i
+        if stats[i, cv2.CC_STAT_AREA] < params.min_area_px // 2 or depth[near][blob].mean() >= 0.5:
+            continue
+        around = window(stats[i, :4], int(np.ceil(longest)) + 1, blobs.shape)
+        on = truth[near][blob].mean()
+        off_blobs = blobs[around] == 0
+        table = height[around][off_blobs & np.isfinite(height[around])]
+        level = np.median(table)
+        noise = 1.48 * np.median(np.abs(table - level))
+        top = np.nanmedian(height[near][blob])
+        label = 'part' if on >= ON_PART else 'table' if on < OFF_PART else 'mixed'
+        rows.append((image.im_id, label,
+                     stats[i, cv2.CC_STAT_AREA], depth[near][blob].mean(),
+                     outline_step_share(lab[near], blob, tol, OUTLINE_REACH_PX),
+                     colour_share_around(lab[around], blobs[around] == i, tol),
+                     pattern_colour_share(lab[around], blobs[around] == i, off_blobs, tol),
+                     1e3 * top, 1e3 * level, 1e3 * noise, (top - level) / noise))
+    return rows
 
 
-def main(argv):
+def main(argv: list[str]) -> int:
     scenes, templates = argv[:2]
     only = argv[2] if len(argv) > 2 and '=' not in argv[2] else None
-    extra = dict(a.split('=') for a in argv[2:] if '=' in a)
+    changes = dict(a.split('=', 1) for a in argv[2:] if '=' in a)
+    base = SegmentationParams()
+    params = SegmentationParams(**{k: type(getattr(base, k))(v) for k, v in changes.items()})
     pipeline = None
-    print('frame\tview\tlabel\tarea\tdepth_share\tstep\tpalette\th_mm\ttable_mm\tnoise_mm\tz\tcommon\tpattern')
+    print('\t'.join(COLUMNS))
     for images, views, rig in two_view_frames(scenes):
         if pipeline is None:
-            kw = {k: type(getattr(SegmentationParams(), k))(v) for k, v in extra.items()}
             pipeline = PerceptionPipeline(rig=rig, templates=TemplateDatabase.load(templates),
-                                          segmentation=SegmentationParams(**kw))
+                                          segmentation=params)
         for v, (seg, kw) in segmentations(pipeline, views).items():
-            if only and v != only:
-                continue
-            image, params = images[v], kw['params']
-            tol = params.colour_edge_floors * np.array([params.grey_floor, params.lab_floor, params.lab_floor])
-            longest = max((e[2] for e in params.whole_parts or ()), default=0.0)
-            lab = rgb_to_lab(image.rgb)
-            height = height_above_table(image.depth_m, np.asarray(image.intrinsics.K), image.T_world_camera)
-            depth = cv2.resize(seg.cues['depth'].view(np.uint8), image.rgb.shape[1::-1],
-                               interpolation=cv2.INTER_NEAREST).astype(bool)
-            truth = truth_mask(image)
-            count, blobs, stats, _ = cv2.connectedComponentsWithStats(seg.foreground.view(np.uint8), connectivity=8)
-            for i in range(1, count):
-                if stats[i, cv2.CC_STAT_AREA] < params.min_area_px // 2:
-                    continue
-                near = window(stats[i, :4], OUTLINE_REACH_PX + 4, blobs.shape)
-                around = window(stats[i, :4], int(np.ceil(longest)) + 1, blobs.shape)
-                blob = blobs[near] == i
-                dshare = depth[near][blob].mean()
-                if dshare >= 0.5:
-                    continue
-                on = truth[near][blob].mean()
-                label = 'part' if on >= ON_PART else 'table' if on < OFF_PART else 'mixed'
-                h = height[around]
-                ok = np.isfinite(h) & (blobs[around] == 0)
-                tab = h[ok]
-                tmed = np.median(tab) if len(tab) else np.nan
-                noise = 1.48 * np.median(np.abs(tab - tmed)) if len(tab) else np.nan
-                hb = height[near][blob]
-                hmed = np.nanmedian(hb) if np.isfinite(hb).any() else np.nan
-                pal = palette_share(lab[around], blobs[around] == i, ok, tol)
-                print(f'{image.im_id}\t{v}\t{label}\t{stats[i, cv2.CC_STAT_AREA]}\t{dshare:.2f}'
-                      f'\t{outline_step_share(lab[near], blob, tol, OUTLINE_REACH_PX):.2f}'
-                      f'\t{pal:.2f}\t{1e3 * hmed:.1f}\t{1e3 * tmed:.1f}\t{1e3 * noise:.2f}'
-                      f'\t{(hmed - tmed) / noise:.1f}'
-                      f'\t{colour_share_around(lab[around], blobs[around] == i, tol):.2f}'
-                      f'\t{pattern_colour_share(lab[around], blobs[around] == i, blobs[around] == 0, tol):.2f}',
-                      flush=True)
+            if only is None or v == only:
+                for frame, *row in blob_rows(images[v], seg, kw['params']):
+                    print('\t'.join([str(frame), v] + [f'{x:.2f}' if isinstance(x, float)
+                                                       else str(x) for x in row]), flush=True)
     return 0
 
 
