@@ -26,9 +26,11 @@ length around it (docs/bench/smoothed-localiser.md).
 A piece whose outline runs along the squares' own edges for most of its length steps there, and
 one that holds both squares' colours has a median colour common nowhere; but either has only
 the table's colours on both sides of its outline, where a part shows its own. So a blob the
-depth cue does not find is also dropped when at least ``colour_edge_pattern_share`` of its
+depth cue finds on no pixel is also dropped when at least ``colour_edge_pattern_share`` of its
 pixels have colours common on the table around it (each more than ``COMMON_COLOUR_SHARE`` of
-the window's pixels off every blob; docs/bench/checker-false-parts.md).
+the window's pixels off every blob): a noise patch between the table and candidate levels
+reaches the latter nowhere, a part lying on a square of its colour does in places
+(docs/bench/checker-false-parts.md).
 """
 from __future__ import annotations
 
@@ -151,16 +153,17 @@ def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
         return foreground
     lab = rgb_to_lab(rgb)
     drop = [i for i in tested if _table_piece(lab, blobs, stats[i, :4], int(i), depth_table,
-                                              longest, tolerance, params)]
+                                              longest, tolerance, params, found[i] == 0)]
     return foreground & ~np.isin(blobs, drop) if drop else foreground
 
 
 def _table_piece(lab: np.ndarray, blobs: np.ndarray, box: np.ndarray, i: int,
                  depth_table: np.ndarray, longest: float, tolerance: np.ndarray,
-                 params: SegmentationParams) -> bool:
+                 params: SegmentationParams, depth_free: bool) -> bool:
     """Whether blob ``i`` of ``blobs`` (its ``box``) is a piece of the table's pattern: of
     the colour of the table around it in a region longer than any part, or without a colour
-    step along most of its outline in a colour common around it (module doc)."""
+    step along most of its outline in a colour common around it, or, where no pixel of it is
+    a depth candidate (``depth_free``), mostly in colours common on the table (module doc)."""
     near = _window(box, params.colour_edge_ring_px + 1, blobs.shape)
     crop = blobs[near]
     blob = crop == i
@@ -175,7 +178,7 @@ def _table_piece(lab: np.ndarray, blobs: np.ndarray, box: np.ndarray, i: int,
             colour_share_around(lab[around], blobs[around] == i, tolerance) > COMMON_COLOUR_SHARE:
         return True
     share = params.colour_edge_pattern_share
-    return share > 0 and pattern_colour_share(lab[around], blobs[around] == i,
+    return depth_free and share > 0 and pattern_colour_share(lab[around], blobs[around] == i,
                                               blobs[around] == 0, tolerance, share) >= share
 
 
