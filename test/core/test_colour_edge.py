@@ -160,3 +160,23 @@ def test_the_whole_tile_is_found_without_the_pattern_test():
         whole_parts=PARTS, colour_edge_pattern_share=0.0))
     assert sum(_inside(c, WHOLE_TILE) for c in centres) == 1
     assert sum(_inside(c, STRIP) for c in centres) == 1
+
+
+# A plate of the tiles' own colour lying on the tiled table, 3.5 mm high but for a raised band
+# above the depth cue's candidate level: its colour is the pattern's, but the depth finds a
+# part in places, which a noise patch between the two levels never reaches.
+PLATE = (slice(185, 225), slice(240, 300))
+PLATE_BAND = (slice(185, 195), slice(240, 300))
+BAND_M = 0.006
+
+
+def test_a_plate_of_the_tiles_colour_that_the_depth_finds_in_places_is_kept():
+    rgb, _, cam = _tiled_view()
+    rgb[PLATE] = np.clip(70 + np.random.default_rng(2).normal(0, 2.0, rgb[PLATE].shape), 0, 255)
+    depth = _depth_of((STRIP, RAISED, PLATE), cam)
+    band = _depth_of((PLATE_BAND,), cam)
+    closer = _depth_of((), cam) - band   # how much nearer the band's 3.5 mm put it
+    depth[PLATE_BAND] -= closer[PLATE_BAND] * (BAND_M / BUMP_M - 1)
+    centres = _centres(rgb, depth, cam, SegmentationParams(whole_parts=PARTS))
+    assert sum(_inside(c, PLATE) for c in centres) == 1
+    assert sum(_inside(c, STRIP) for c in centres) == 1
