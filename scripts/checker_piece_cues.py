@@ -95,8 +95,9 @@ def main(argv: list[str]) -> int:
         for v, (seg, kw) in segmentations(pipeline, views).items():
             if only is None or v == only:
                 for frame, *row in blob_rows(images[v], seg, kw['params']):
-                    print('\t'.join([str(frame), v] + [f'{x:.2f}' if isinstance(x, (float, np.floating))
-                                                       else str(x) for x in row]), flush=True)
+                    cells = [f'{x:.2f}' if isinstance(x, (float, np.floating)) else str(x)
+                             for x in row]
+                    print('\t'.join([str(frame), v] + cells), flush=True)
     return 0
 
 
