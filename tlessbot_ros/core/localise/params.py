@@ -61,6 +61,8 @@ class SegmentationParams:
             thin part, kept whole, m (>= 0; 0: off).
         thin_quantile: the quantile of a blob's valid heights compared (0..1).
         thin_min_valid: share of a blob's pixels with depth needed to call it thin (0..1).
+        thin_lift_height_m: a colour blob that is thin and whose median height reaches this is
+            not vetoed by the depth's table pixels: its top lies in the noise, m (0: off).
         watershed_keep_share: a candidate blob of which the watershed keeps less than this
             share is kept whole (a part with weaker edges than its surroundings; 0..1, 0: off).
         small_blob_candidates_px: a blob smaller than this (px) keeps its candidates' extent,
@@ -133,6 +135,7 @@ class SegmentationParams:
     thin_max_height_m: float = 0.008
     thin_quantile: float = 0.75
     thin_min_valid: float = 0.3
+    thin_lift_height_m: float = 0.0015
     watershed_keep_share: float = 0.0
     small_blob_candidates_px: int = 0
     small_blob_trim_floors: float = 1.0
@@ -151,6 +154,9 @@ class SegmentationParams:
             raise ValueError('need thin_max_height_m >= 0 (0: off) and thin_quantile, '
                              f'thin_min_valid in 0..1, got {self.thin_max_height_m}, '
                              f'{self.thin_quantile}, {self.thin_min_valid}')
+        if self.thin_lift_height_m < 0:
+            raise ValueError('thin_lift_height_m must be >= 0 m (0: off), got '
+                             f'{self.thin_lift_height_m}')
         unknown = set(self.methods) - set(METHODS)
         if unknown or not self.methods:
             raise ValueError(f'methods must be a non-empty subset of {METHODS}, '

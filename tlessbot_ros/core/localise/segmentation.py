@@ -43,7 +43,7 @@ from tlessbot_ros.core.localise.instances import instances_at_scale, watershed_r
 from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.part_scale import whole_part_px
 from tlessbot_ros.core.localise.small_parts import small_blobs_from_depth, table_coloured
-from tlessbot_ros.core.localise.thin import thin_instances
+from tlessbot_ros.core.localise.thin import raised_thin_blobs, thin_instances
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.common import CameraIntrinsics
@@ -273,18 +273,22 @@ def _union_of_cues(small: np.ndarray, lab: np.ndarray, bgm: BackgroundModel | No
     candidates, union of the sure-object masks)."""
     # Pixels where colour evidence is not trusted: cast shadows, and table seen by depth.
     shadow = None if bgm is None else shadow_mask(lab, bgm.lab, params)
-    veto = shadow
-    if depth_cue is not None:
-        veto = depth_cue.table if veto is None else veto | depth_cue.table
     masks: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for name, cue in COLOUR_CUES:
         if name in params.methods:
-            cand, sure = cue(small, lab, bgm, params)
-            if veto is not None:
-                cand &= ~veto
-                sure &= ~veto
-            masks[name] = cand, sure
+            masks[name] = cue(small, lab, bgm, params)
             watch.lap(f'cue_{name}')
+    if depth_cue is not None and masks:   # a thin part's pixels at table height stay (thin.py)
+        lifted = raised_thin_blobs(np.logical_or.reduce([c for c, _ in masks.values()]),
+                                   depth_cue.height_m, params)
+        depth_cue.table &= ~lifted
+    veto = shadow
+    if depth_cue is not None:
+        veto = depth_cue.table if veto is None else veto | depth_cue.table
+    if veto is not None:
+        for cand, sure in masks.values():
+            cand &= ~veto
+            sure &= ~veto
     if 'background' in params.methods and bgm is not None:
         cand = background_change(lab, bgm.lab, params, shadow=shadow)
         if depth_cue is not None:

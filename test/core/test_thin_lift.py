@@ -1,0 +1,85 @@
+"""The depth's veto leaves a thin part whole where its top lies in the depth's noise
+(``SegmentationParams.thin_lift_height_m``, :func:`~tlessbot_ros.core.localise.thin.
+raised_thin_blobs`)."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from tlessbot_ros.core.localise import SegmentationParams, segment
+from tlessbot_ros.core.localise.thin import raised_thin_blobs
+
+
+def _correlated_noise(shape: tuple[int, int], sigma_m: float, blur_px: float,
+                      rng: np.random.Generator) -> np.ndarray:
+    """Noise spread over ``blur_px`` (a stereo camera's), ``sigma_m`` per pixel."""
+    noise = cv2.GaussianBlur(rng.normal(0, 1, shape).astype(np.float32), (0, 0), blur_px)
+    return (noise * (sigma_m / noise.std())).astype(np.float32)
+
+
+def _strip_scene(seed: int = 0):
+    """Side view (640x480) of a dark strip 80 x 16 x 3 mm on a light table, its depth spread
+    and noisy as a stereo camera's: rgb, depth_m, truth, camera."""
+    from tlessbot_ros.core.common import MeshRenderer, default_rig, make_transform
+
+    cam = default_rig(640, 480)['side']
+    v = np.array([[x, y, z] for x in (-0.04, 0.04) for y in (-0.008, 0.008)
+                  for z in (0, 0.003)])
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    renderer = MeshRenderer()
+    renderer.add_mesh(v, f, make_transform(np.eye(3), [0.0, 0.0, 0.0]))
+    res = renderer.render(cam.intrinsics, cam.T_world_camera)
+    truth = res.instance == 0
+    h, w = truth.shape
+    rays = np.linalg.inv(cam.intrinsics.K) @ np.vstack([
+        np.mgrid[0:h, 0:w][::-1].reshape(2, -1), np.ones((1, h * w))])
+    R, t = cam.T_world_camera[:3, :3], cam.T_world_camera[:3, 3]
+    table_z = (-t[2] / (R[2] @ rays)).reshape(h, w).astype(np.float32)
+    depth = np.where(truth, res.depth_m, table_z).astype(np.float32)
+    rng = np.random.default_rng(seed)
+    depth = cv2.GaussianBlur(depth, (0, 0), 3.0)   # the part's step spread to the table
+    depth += _correlated_noise(depth.shape, 0.0013, 3.0, rng)
+    rgb = np.empty((h, w, 3))
+    rgb[:] = (190, 188, 180)
+    rgb[truth] = (45, 45, 50)
+    rgb = np.clip(rgb + rng.normal(0, 2.0, rgb.shape), 0, 255).astype(np.uint8)
+    return rgb, depth, truth, cam
+
+
+def _best_iou(labels: np.ndarray, truth: np.ndarray) -> float:
+    best = 0.0
+    for k in range(1, int(labels.max(initial=0)) + 1):
+        region = labels == k
+        best = max(best, (region & truth).sum() / (region | truth).sum())
+    return best
+
+
+def test_a_thin_strip_in_the_depth_s_noise_is_found_whole() -> None:
+    rgb, depth, truth, cam = _strip_scene()
+    args = dict(depth_m=depth, intrinsics=cam.intrinsics, T_world_camera=cam.T_world_camera)
+    off = segment(rgb, params=SegmentationParams(thin_lift_height_m=0.0), **args)
+    assert _best_iou(off.labels, truth) < 0.6   # the veto cuts it where it reads as table
+    seg = segment(rgb, **args)
+    assert seg.count == 1
+    assert _best_iou(seg.labels, truth) > 0.8
+
+
+def test_raised_thin_blobs_keeps_thin_parts_only() -> None:
+    rng = np.random.default_rng(3)
+    height = rng.normal(0, 0.0013, (60, 90)).astype(np.float32)   # the table, noisy
+    candidate = np.zeros(height.shape, bool)
+    candidate[5:15, 5:40] = True              # a thin part: 2 mm, many pixels below 2.5 mm
+    height[5:15, 5:40] += 0.002
+    candidate[30:45, 5:30] = True             # a shadow or a table-coloured piece: 0 mm
+    candidate[30:45, 50:80] = True            # a tall part: 30 mm
+    height[30:45, 50:80] += 0.03
+    candidate[50:58, 50:80] = True            # a thin part without depth
+    height[50:58, 50:80] = np.nan
+    params = SegmentationParams()
+    lifted = raised_thin_blobs(candidate, height, params)
+    assert lifted[5:15, 5:40].all()
+    assert not lifted[30:, :].any() and not lifted[~candidate].any()
+    off = SegmentationParams(thin_lift_height_m=0.0)
+    assert not raised_thin_blobs(candidate, height, off).any()
+    assert not raised_thin_blobs(candidate, None, params).any()
