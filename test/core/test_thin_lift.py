@@ -3,6 +3,8 @@
 raised_thin_blobs`)."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 
@@ -56,11 +58,16 @@ def _best_iou(labels: np.ndarray, truth: np.ndarray) -> float:
 
 
 def test_a_thin_strip_in_the_depth_s_noise_is_found_whole() -> None:
+    from tlessbot_ros.core.localise.part_scale import view_segmentation
+
     rgb, depth, truth, cam = _strip_scene()
     args = dict(depth_m=depth, intrinsics=cam.intrinsics, T_world_camera=cam.T_world_camera)
-    off = segment(rgb, params=SegmentationParams(thin_lift_height_m=0.0), **args)
+    extents = np.array([[0.08, 0.016, 0.003], [0.044, 0.044, 0.006]])   # a strip, a disc
+    params = view_segmentation(SegmentationParams(), extents, cam.intrinsics.K,
+                               cam.T_world_camera)
+    off = segment(rgb, params=replace(params, thin_lift_height_m=0.0), **args)
     assert _best_iou(off.labels, truth) < 0.6   # the veto cuts it where it reads as table
-    seg = segment(rgb, **args)
+    seg = segment(rgb, params=params, **args)
     assert seg.count == 1
     assert _best_iou(seg.labels, truth) > 0.8
 
@@ -76,10 +83,24 @@ def test_raised_thin_blobs_keeps_thin_parts_only() -> None:
     height[30:45, 50:80] += 0.03
     candidate[50:58, 50:80] = True            # a thin part without depth
     height[50:58, 50:80] = np.nan
-    params = SegmentationParams()
-    lifted = raised_thin_blobs(candidate, height, params)
+    table = ~np.isnan(height) & (height < 0.0025)   # the veto: many of the thin part's pixels
+    params = SegmentationParams(whole_parts=((0.08, 600.0, 80.0),))   # sizes at full scale
+    lifted = raised_thin_blobs(candidate, height, table, params)
     assert lifted[5:15, 5:40].all()
     assert not lifted[30:, :].any() and not lifted[~candidate].any()
     off = SegmentationParams(thin_lift_height_m=0.0)
-    assert not raised_thin_blobs(candidate, height, off).any()
-    assert not raised_thin_blobs(candidate, None, params).any()
+    assert not raised_thin_blobs(candidate, height, table, off).any()
+    assert not raised_thin_blobs(candidate, None, table, params).any()
+
+
+def test_two_thin_parts_the_table_divides_stay_divided() -> None:
+    height = np.zeros((40, 90), np.float32)
+    candidate = np.zeros(height.shape, bool)
+    candidate[10:30, 5:85] = True      # two plates 3 mm high, touching across a gap of table
+    height[10:30, 5:44] = height[10:30, 46:85] = 0.003
+    table = height < 0.0025
+    lifted = raised_thin_blobs(candidate, height, table, SegmentationParams())
+    assert not lifted.any()
+    height[10:30, 44:46] = 0.003       # one plate: no gap
+    lifted = raised_thin_blobs(candidate, height, height < 0.0025, SegmentationParams())
+    assert lifted[10:30, 5:85].all()

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.localise.params import SegmentationParams
+from tlessbot_ros.core.localise.part_scale import could_be_whole
 
 
 def is_thin(blob: np.ndarray, height_m: np.ndarray | None, origin: tuple[int, int],
@@ -65,20 +66,24 @@ def thin_instances(labels: np.ndarray, height_m: np.ndarray | None,
 
 
 def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
-                      params: SegmentationParams) -> np.ndarray:
+                      table: np.ndarray, params: SegmentationParams) -> np.ndarray:
     """(h, w) bool: the 8-connected blobs of ``candidate`` that are thin parts raised above
     the table as a whole: thin (:func:`is_thin`'s test) and their median valid height at
-    least ``thin_lift_height_m``; all False without depth or with either rule off.
+    least ``thin_lift_height_m``, unless the table pixels divide the blob into two pieces
+    that could each be a part (two thin parts touching: the gap between them is table);
+    all False without depth or with either rule off.
 
     One pixel's height cannot tell a thin part from the table where the noise is as high as
     the part; the median of a blob's hundreds of pixels can (a table-coloured piece or a cast
     shadow reads about 0; a blob holding a taller part is not thin).
 
     Args:
-        candidate: (h, w) bool colour candidates, before the depth's veto.
+        candidate: (h, w) bool colour candidates at ``params.cue_scale``, before the veto.
         height_m: (h, w) float height above the table (metres, NaN = invalid), or None.
+        table: (h, w) bool the depth's table pixels (the veto).
         params: ``thin_lift_height_m``, ``thin_max_height_m``, ``thin_quantile``,
-            ``thin_min_valid``.
+            ``thin_min_valid``; ``whole_parts``, ``min_area_px`` and ``cue_scale`` for the
+            pieces.
     """
     out = np.zeros(candidate.shape, bool)
     if height_m is None or params.thin_lift_height_m <= 0 or params.thin_max_height_m <= 0:
@@ -105,5 +110,26 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
         (quantile(0.5) >= params.thin_lift_height_m) & \
         (quantile(params.thin_quantile) < params.thin_max_height_m)
     raised[0] = False
+    for k in np.flatnonzero(raised):
+        raised[k] = not _divided_into_parts(labels == k, table, params)
     lifted: np.ndarray = raised[labels]
     return lifted
+
+
+def _divided_into_parts(blob: np.ndarray, table: np.ndarray, params: SegmentationParams
+                        ) -> bool:
+    """Whether ``table`` leaves two or more pieces of ``blob`` (cue scale) that could each be
+    a whole part (:func:`~tlessbot_ros.core.localise.part_scale.could_be_whole`, at least
+    ``min_area_px``) at full resolution."""
+    rows, cols = np.nonzero(blob)
+    window = np.s_[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
+    rest = (blob[window] & ~table[window]).view(np.uint8)
+    count, pieces = cv2.connectedComponents(rest, connectivity=8)
+    up = 1.0 / params.cue_scale
+    parts = 0
+    for k in range(1, count):
+        piece = cv2.resize((pieces == k).view(np.uint8), None, fx=up, fy=up,
+                           interpolation=cv2.INTER_NEAREST) > 0
+        if np.count_nonzero(piece) >= params.min_area_px and could_be_whole(piece, params):
+            parts += 1
+    return parts >= 2
