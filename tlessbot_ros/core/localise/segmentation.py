@@ -281,7 +281,7 @@ def _union_of_cues(small: np.ndarray, lab: np.ndarray, bgm: BackgroundModel | No
     if depth_cue is not None and masks:   # a thin part's pixels at table height stay (thin.py)
         lifted = raised_thin_blobs(np.logical_or.reduce([c for c, _ in masks.values()]),
                                    depth_cue.height_m, depth_cue.table, params)
-        depth_cue.table &= ~_part_coloured(lifted, lab, params)
+        depth_cue.table &= ~lifted
     veto = shadow
     if depth_cue is not None:
         veto = depth_cue.table if veto is None else veto | depth_cue.table
@@ -316,20 +316,6 @@ def inner_markers(sure: np.ndarray, radius: int) -> np.ndarray:
     kept = np.bincount(blobs[inner], minlength=count) > 0
     markers: np.ndarray = inner | (sure & ~kept[blobs])
     return markers
-
-
-def _part_coloured(lifted: np.ndarray, lab: np.ndarray, params: SegmentationParams
-                   ) -> np.ndarray:
-    """``lifted`` (cue scale) less, per blob, its pixels within the colour cues' floors of the
-    table's colour around it (:func:`table_coloured`): a through-hole or a gap between two
-    parts shows the table, whose depth the veto may still trust."""
-    floors = np.array([params.grey_floor, params.lab_floor, params.lab_floor], np.float32)
-    count, blobs = cv2.connectedComponents(lifted.view(np.uint8), connectivity=8)
-    kept: np.ndarray = lifted.copy()
-    for k in range(1, count):
-        blob = blobs == k
-        kept[blob & table_coloured(lab, blob, floors)] = False
-    return kept
 
 
 def _trim_floors(params: SegmentationParams) -> np.ndarray | None:
