@@ -69,7 +69,8 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
                       table: np.ndarray, params: SegmentationParams) -> np.ndarray:
     """(h, w) bool: the 8-connected blobs of ``candidate`` that are thin parts raised above
     the table as a whole: thin (:func:`is_thin`'s test) and their median valid height at
-    least ``thin_lift_height_m``, unless the table pixels divide the blob into two pieces
+    least ``thin_lift_height_m``, where the table pixels take ``thin_lift_min_share`` of its
+    inside (less: the depth resolves it), unless they divide the blob into two pieces
     that could each be a part (two thin parts touching: the gap between them is table);
     all False without depth or with either rule off.
 
@@ -81,9 +82,9 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
         candidate: (h, w) bool colour candidates at ``params.cue_scale``, before the veto.
         height_m: (h, w) float height above the table (metres, NaN = invalid), or None.
         table: (h, w) bool the depth's table pixels (the veto).
-        params: ``thin_lift_height_m``, ``thin_max_height_m``, ``thin_quantile``,
-            ``thin_min_valid``; ``whole_parts``, ``min_area_px`` and ``cue_scale`` for the
-            pieces.
+        params: ``thin_lift_height_m``, ``thin_lift_min_share``, ``thin_max_height_m``,
+            ``thin_quantile``, ``thin_min_valid``; ``whole_parts``, ``min_area_px`` and
+            ``cue_scale`` for the pieces.
     """
     out = np.zeros(candidate.shape, bool)
     if height_m is None or params.thin_lift_height_m <= 0 or params.thin_max_height_m <= 0:
@@ -110,8 +111,12 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
         (quantile(0.5) >= params.thin_lift_height_m) & \
         (quantile(params.thin_quantile) < params.thin_max_height_m)
     raised[0] = False
-    for k in np.flatnonzero(raised):
-        raised[k] = not _divided_into_parts(labels == k, table, params)
+    for k in np.flatnonzero(raised):   # where the veto takes little, the depth resolves it
+        blob = labels == k
+        inside = cv2.erode(blob.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+        raised[k] = np.count_nonzero(table & inside) >= \
+            params.thin_lift_min_share * max(np.count_nonzero(inside), 1) and \
+            not _divided_into_parts(blob, table, params)
     lifted: np.ndarray = raised[labels]
     return lifted
 
