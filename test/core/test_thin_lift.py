@@ -91,6 +91,9 @@ def test_raised_thin_blobs_keeps_thin_parts_only() -> None:
     off = SegmentationParams(thin_lift_height_m=0.0)
     assert not raised_thin_blobs(candidate, height, table, off).any()
     assert not raised_thin_blobs(candidate, None, table, params).any()
+    resolved = height.copy()
+    resolved[5:15, 5:40] = 0.003       # the depth sees all of it: nothing to lift
+    assert not raised_thin_blobs(candidate, resolved, resolved < 0.0025, params)[5:15].any()
 
 
 def test_two_thin_parts_the_table_divides_stay_divided() -> None:
@@ -101,6 +104,7 @@ def test_two_thin_parts_the_table_divides_stay_divided() -> None:
     table = height < 0.0025
     lifted = raised_thin_blobs(candidate, height, table, SegmentationParams())
     assert not lifted.any()
-    height[10:30, 44:46] = 0.003       # one plate: no gap
+    height[10:30, 44:46] = 0.003       # one plate: no gap; a quarter of it reads as table
+    height[10:30:2, 5:85:2] = 0.002
     lifted = raised_thin_blobs(candidate, height, height < 0.0025, SegmentationParams())
     assert lifted[10:30, 5:85].all()

@@ -115,7 +115,7 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
         blob = labels == k
         inside = cv2.erode(blob.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
         raised[k] = np.count_nonzero(table & inside) >= \
-            params.thin_lift_min_share * max(np.count_nonzero(inside), 1) and \
+            params.thin_lift_min_share * max(int(np.count_nonzero(inside)), 1) and \
             not _divided_into_parts(blob, table, params)
     lifted: np.ndarray = raised[labels]
     return lifted
