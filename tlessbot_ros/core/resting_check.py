@@ -15,7 +15,7 @@ from tlessbot_ros.core.pose.flat_align import table_noise_m
 from tlessbot_ros.core.pose.flat_turns import mesh_scene
 from tlessbot_ros.core.pose.flat_yaw import hole_yaw_period
 from tlessbot_ros.core.pose.rest_edges import refine_on_edges
-from tlessbot_ros.core.pose.resting import level_starts, settle
+from tlessbot_ros.core.pose.resting import level_starts, rest_tolerance_m, settle
 from tlessbot_ros.core.turn_check import check_turns
 
 if TYPE_CHECKING:
@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.frame import Detection, PartJob, ViewInput
     from tlessbot_ros.core.pipeline import PerceptionPipeline
     from tlessbot_ros.core.pose.database import ObjectTemplates
-    from tlessbot_ros.core.pose.flat import ViewEvidence
+    from tlessbot_ros.core.pose.flat import FlatCheck, ViewEvidence
     from tlessbot_ros.core.pose.refinement import Refiner
     from tlessbot_ros.core.pose.resting import RestingParams
 
@@ -60,8 +60,7 @@ def _level(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInpu
         return info, _rested_on_edges(pipeline, job, views, labels, info)
     check = flat_check(pipeline)
     scene_c = check.prepared_cloud(obj, job.points)
-    noise_m = _table_noise(views, labels, detection, job.T_world_camera) \
-        if params.noise_ratio > 0 else 0.0
+    noise_m = _table_noise(views, labels, detection, job.T_world_camera, params)
     T, info = settle(estimator.refiner, obj, T_free, scene_c, job.T_world_camera, params,
                      noise_m=noise_m)
     info['rest_noise_m'] = noise_m
@@ -72,13 +71,10 @@ def _level(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInpu
                             table_frames(pipeline, views))
     refined = T if mesh is None or params.edge_yaw_deg <= 0 else \
         _on_edges(estimator.refiner, obj, mesh, T, scene_c, job, evidence, params, info)
-    if mesh is not None and any(v.plane is not None for v in evidence):
-        found: dict[str, float] = {}
-        check.aligned_winner(obj, [mesh, mesh], [T_free, refined], evidence, found)
-        if found.get('align_decided') and found.get('align_winner') == 0.0:
-            info['rest_levelled'] = 0.0
-            info['rest_votes_kept'] = 1.0
-            return info, None
+    if mesh is not None and _votes_keep(check, obj, mesh, T_free, refined, evidence):
+        info['rest_levelled'] = 0.0
+        info['rest_votes_kept'] = 1.0
+        return info, None
     detection.second = detection.pose
     fitness = float(estimator.refiner.grid_fitness(T[None], scene_c, obj)[0])
     detection.pose = replace(detection.pose, T_camera_object=T, fitness=fitness)
@@ -96,19 +92,19 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
     clearly keep the fit); ``info`` gets what decided."""
     estimator, params = pipeline.pose_estimator, pipeline.fit_params.resting
     assert estimator is not None and job.detection.pose is not None
+    if not params.edge_rested_round or params.edge_yaw_deg <= 0 or \
+            info['rest_tilt_deg'] > params.min_tilt_deg or \
+            abs(info['rest_contact_m']) > params.contact_m:
+        return None
     obj = estimator.database[job.detection.obj_id]
     mesh = mesh_scene(obj)
     check = flat_check(pipeline)
-    if not params.edge_rested_round or params.edge_yaw_deg <= 0 or mesh is None or \
-            info['rest_tilt_deg'] > params.min_tilt_deg or \
-            abs(info['rest_contact_m']) > params.contact_m or not check.applies(obj) or \
-            hole_yaw_period(obj) <= 0:
+    if mesh is None or not check.applies(obj) or hole_yaw_period(obj) <= 0:
         return None
     T_fit = job.detection.pose.T_camera_object
     scene_c = check.prepared_cloud(obj, job.points)
-    noise_m = _table_noise(views, labels, job.detection, job.T_world_camera) \
-        if params.noise_ratio > 0 and job.T_world_camera is not None else 0.0
-    tolerance = max(params.tolerance_m, params.noise_ratio * noise_m)
+    noise_m = _table_noise(views, labels, job.detection, job.T_world_camera, params)
+    tolerance = rest_tolerance_m(params, noise_m)
     info.update(rest_noise_m=noise_m, rest_tolerance_m=tolerance, rest_best_fitness=float(
         estimator.refiner.surface_fit(scene_c, obj, T_fit, inlier_m=tolerance)[0]))
     evidence = colour_views(views, labels, job.detection.instance_id, job.detection.view,
@@ -117,12 +113,9 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
                         info)
     if refined is T_fit:
         return None
-    if any(v.plane is not None for v in evidence):
-        found: dict[str, float] = {}
-        check.aligned_winner(obj, [mesh, mesh], [T_fit, refined], evidence, found)
-        if found.get('align_decided') and found.get('align_winner') == 0.0:
-            info['rest_votes_kept'] = 1.0
-            return None
+    if _votes_keep(check, obj, mesh, T_fit, refined, evidence):
+        info['rest_votes_kept'] = 1.0
+        return None
     info['rest_edge_rested'] = 1.0
     return refined, scene_c
 
@@ -148,12 +141,27 @@ def _on_edges(refiner: Refiner, obj: ObjectTemplates, mesh: o3d.t.geometry.Rayca
     return moved if fitness >= info['rest_best_fitness'] - params.fitness_margin else T
 
 
+def _votes_keep(check: FlatCheck, obj: ObjectTemplates,
+                mesh: o3d.t.geometry.RaycastingScene, T_kept: np.ndarray, T_new: np.ndarray,
+                evidence: list[ViewEvidence]) -> bool:
+    """Whether the aligned height and colour votes of the views with a table frame clearly
+    choose the pose ``T_kept`` over ``T_new`` (:meth:`~.flat.FlatCheck.aligned_winner`)."""
+    if not any(v.plane is not None for v in evidence):
+        return False
+    found: dict[str, float] = {}
+    check.aligned_winner(obj, [mesh, mesh], [T_kept, T_new], evidence, found)
+    return bool(found.get('align_decided')) and found.get('align_winner') == 0.0
+
+
 def _table_noise(views: dict[str, ViewInput], labels: dict[str, np.ndarray],
-                 detection: Detection, T_world_camera: np.ndarray) -> float:
+                 detection: Detection, T_world_camera: np.ndarray | None,
+                 params: RestingParams) -> float:
     """The depth noise shared by neighbouring pixels on the table around ``detection`` in
-    its view (:func:`table_noise_m`; 0 without that view's depth or labels)."""
+    its view (:func:`table_noise_m`; 0 when ``params.noise_ratio`` does not use it, or
+    without a table frame or that view's depth or labels)."""
     view, label = views.get(detection.view), labels.get(detection.view)
-    if view is None or view.depth_m is None or label is None:
+    if params.noise_ratio <= 0 or T_world_camera is None or view is None or \
+            view.depth_m is None or label is None:
         return 0.0
     return table_noise_m(view.depth_m, view.intrinsics, detection.box,
                          plane_of_frame(T_world_camera), label != 0)

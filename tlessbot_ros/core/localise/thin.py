@@ -11,8 +11,8 @@ colour cues, confirmed by the few millimetres the depth does see. The two-view f
 side blob that is one thin part whole too (the top camera, farther away, breaks thin parts
 up more often than it separates them).
 
-Where the depth's noise reaches the part's own height (a stereo camera's smoothed depth reads
-a 3 mm strip 16 mm wide at 1-3 mm, the table around it at up to 3 mm), many of the part's
+Where the depth's noise reaches the part's own height (a stereo camera's smoothed depth on a
+strip a few millimetres thick; docs/bench/smoothed-parts-missed.md), many of the part's
 pixels read as table, and the depth's veto would cut its colour blob into pieces or remove it.
 :func:`raised_thin_blobs` finds the colour blobs that are thin parts standing clear of the
 table as a whole (their median height), which the veto then leaves alone.

@@ -178,6 +178,12 @@ def level_starts(obj: ObjectTemplates, T_world_object: np.ndarray, params: Resti
     return levelled(T_wo, nearest[order], points_o, centre_o), info
 
 
+def rest_tolerance_m(params: RestingParams, noise_m: float) -> float:
+    """How near its surface a depth point must lie to be explained (m): ``tolerance_m``, or
+    ``noise_ratio`` times the depth noise ``noise_m`` around the part where that is more."""
+    return max(params.tolerance_m, params.noise_ratio * noise_m)
+
+
 def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
            scene_c: np.ndarray, T_world_camera: np.ndarray, params: RestingParams, *,
            noise_m: float = 0.0) -> tuple[np.ndarray | None, dict[str, float]]:
@@ -214,7 +220,7 @@ def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
     poses = np.einsum('ij,kjl->kil', T_cw, settled)
     # a smoothed depth's shared noise tilts a small part's fit as a whole: a tilt within it
     # is not measured, so the levelled pose is judged at that noise, not at the per-pixel one
-    tolerance = max(params.tolerance_m, params.noise_ratio * noise_m)
+    tolerance = rest_tolerance_m(params, noise_m)
     fits = [refiner.surface_fit(scene_c, obj, T, inlier_m=tolerance)
             for T in np.concatenate([T_co[None], poses])]
     k = min(range(len(poses)), key=lambda j: (-fits[1 + j][0], fits[1 + j][1]))
@@ -227,5 +233,6 @@ def settle(refiner: Refiner, obj: ObjectTemplates, T_camera_object: np.ndarray,
     return poses[k], info
 
 
-__all__ = ['RestingParams', 'contact_points', 'level_starts', 'levelled', 'settle',
+__all__ = ['RestingParams', 'contact_points', 'level_starts', 'levelled', 'rest_tolerance_m',
+           'settle',
            'stable_directions', 'stable_offsets']
