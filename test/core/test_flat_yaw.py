@@ -11,6 +11,7 @@ from side_scene import (
     RADIUS,
     SIDE,
     THICK,
+    holed_disc_database,
     holed_disc_mesh,
     holed_plate,
     side_scene,
@@ -115,21 +116,13 @@ def test_check_flat_leaves_a_disc_at_the_yaw_its_holes_show(holed_disc):
     from types import SimpleNamespace
 
     from tlessbot_ros.core.common import depth_to_points
-    from tlessbot_ros.core.common.symmetry import Symmetries
     from tlessbot_ros.core.flat_parts import check_flat
     from tlessbot_ros.core.frame import Detection, PartJob, ViewInput
     from tlessbot_ros.core.params import FitParams
-    from tlessbot_ros.core.pose import PoseCandidate, PoseEstimator, build_database
+    from tlessbot_ros.core.pose import PoseCandidate, PoseEstimator
 
     vertices, faces, _ = holed_disc
-    quarter = tuple(make_transform(rotation_about_axis([0, 0, 1], k * np.pi / 2), [0, 0, 0])
-                    for k in range(4))
-    flipped = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi), [0, 0, THICK])
-    db = build_database([(1, vertices, faces, [(np.eye(4), 0.5), (flipped, 0.5)], None)],
-                        intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera,
-                        symmetries={1: Symmetries(discrete=quarter)})
-    T_world = make_transform(rotation_about_axis([0, 0, 1], np.radians(23.0)),
-                             [0.004, -0.006, 0.0])
+    db, T_world = holed_disc_database(vertices, faces)
     rgb, depth, mask = side_scene(vertices, faces, T_world, noise_m=0.0005, seed=3)
     points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
     T_true = np.linalg.inv(SIDE.T_world_camera) @ T_world

@@ -9,7 +9,14 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from side_scene import SIDE, THICK, holed_disc_mesh, holed_plate, side_scene, yaw_error_deg
+from side_scene import (
+    SIDE,
+    holed_disc_database,
+    holed_disc_mesh,
+    holed_plate,
+    side_scene,
+    yaw_error_deg,
+)
 
 from tlessbot_ros.core.common import (
     depth_to_points,
@@ -18,7 +25,6 @@ from tlessbot_ros.core.common import (
     rotation_about_axis,
     rotation_angle_deg,
 )
-from tlessbot_ros.core.common.symmetry import Symmetries
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.params import FitParams
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
@@ -34,14 +40,7 @@ def disc():
     """The 47 x 4.4 mm disc with four 3.8 mm holes (a quarter-turn period) lying on its face,
     and the 60 x 40 x 4 mm holed plate: each (its templates, its true ``T_world_object``)."""
     vertices, faces = holed_disc_mesh()
-    quarter = tuple(make_transform(rotation_about_axis([0, 0, 1], k * np.pi / 2), [0, 0, 0])
-                    for k in range(4))
-    flipped = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi), [0, 0, THICK])
-    db = build_database([(1, vertices, faces, [(np.eye(4), 0.5), (flipped, 0.5)], None)],
-                        intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera,
-                        symmetries={1: Symmetries(discrete=quarter)})
-    T_world = make_transform(rotation_about_axis([0, 0, 1], np.radians(23.0)),
-                             [0.004, -0.006, 0.0])
+    db, T_world = holed_disc_database(vertices, faces)
     return db, vertices, faces, T_world
 
 

@@ -23,6 +23,7 @@ def _strip_scene(seed: int = 0):
     """Side view (640x480) of a dark strip 80 x 16 x 3 mm on a light table, its depth spread
     and noisy as a stereo camera's: rgb, depth_m, truth, camera."""
     from tlessbot_ros.core.common import MeshRenderer, default_rig, make_transform
+    from tlessbot_ros.sim.shading import table_depth
 
     cam = default_rig(640, 480)['side']
     v = np.array([[x, y, z] for x in (-0.04, 0.04) for y in (-0.008, 0.008)
@@ -34,10 +35,7 @@ def _strip_scene(seed: int = 0):
     res = renderer.render(cam.intrinsics, cam.T_world_camera)
     truth = res.instance == 0
     h, w = truth.shape
-    rays = np.linalg.inv(cam.intrinsics.K) @ np.vstack([
-        np.mgrid[0:h, 0:w][::-1].reshape(2, -1), np.ones((1, h * w))])
-    R, t = cam.T_world_camera[:3, :3], cam.T_world_camera[:3, 3]
-    table_z = (-t[2] / (R[2] @ rays)).reshape(h, w).astype(np.float32)
+    table_z = table_depth(cam.intrinsics, cam.T_world_camera)
     depth = np.where(truth, res.depth_m, table_z).astype(np.float32)
     rng = np.random.default_rng(seed)
     depth = cv2.GaussianBlur(depth, (0, 0), 3.0)   # the part's step spread to the table
