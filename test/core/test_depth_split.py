@@ -188,8 +188,8 @@ def test_pieces_meeting_by_a_neck_are_apart_but_tied() -> None:
     # Two solid pieces whose only contact is a neck narrower than the seam test can read
     # (a rod entering a handle, two parts meeting at a corner): kept apart in the side
     # segmentation, tied so the fusion lets the top view decide.
+    from tlessbot_ros.core.localise.blob_split import depth_pieces
     from tlessbot_ros.core.localise.cues import Surfaces
-    from tlessbot_ros.core.localise.instances import _depth_pieces
 
     blob = np.zeros((40, 70), bool)
     blob[10:30, 5:30] = blob[10:30, 40:65] = True
@@ -197,7 +197,7 @@ def test_pieces_meeting_by_a_neck_are_apart_but_tied() -> None:
     blob[19:21, 30:40] = True                  # the neck, 2 px wide, lower than the pieces
     surfaces = Surfaces(solid, np.zeros_like(blob), np.where(blob, 0.7, 0.0).astype(np.float32))
     params = SegmentationParams(depth_split_min_px=50)
-    pieces, ties = _depth_pieces(blob, surfaces, None, params)
+    pieces, ties = depth_pieces(blob, surfaces, None, params)
     assert len(pieces) == 2 and ties == [0, 0]
     blob[15:25, 30:40] = True                  # a wide contact showing no table: one part
-    assert len(_depth_pieces(blob, surfaces, None, params)[0]) == 1
+    assert len(depth_pieces(blob, surfaces, None, params)[0]) == 1

@@ -11,12 +11,12 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.common import Rig, pixel_counts, transform_points
+from tlessbot_ros.core.localise.blob_split import fill_from_nearest
 from tlessbot_ros.core.localise.fusion_result import (
     FusionParams,
     FusionResult,
     instances_from_labels,
 )
-from tlessbot_ros.core.localise.instances import fill_from_nearest
 from tlessbot_ros.core.localise.part_scale import mask_length_px
 from tlessbot_ros.core.localise.segmentation import Segmentation
 from tlessbot_ros.core.localise.table_gap import apart_by_table
