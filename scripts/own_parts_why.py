@@ -61,11 +61,14 @@ def main() -> None:
     ap.add_argument('models', type=Path)
     ap.add_argument('estimates', type=Path)
     ap.add_argument('--flat-mm', type=float, default=6.0)
+    ap.add_argument('--list', choices=('lying', 'standing', 'tilted'),
+                    help='also print each flat part of this attitude that is not ok')
     args = ap.parse_args()
     info = json.loads((args.models / 'models_info.json').read_text())
     estimates = _estimates(args.estimates)
     per_part: dict[int, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     flat: dict[str, list[int]] = defaultdict(lambda: [0, 0])
+    flat_outcomes: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     turns = {k: [S[:3, :3] for S in symmetries_from_models_info(v).transforms(
         step_rad=np.radians(1))] for k, v in info.items()}
     for scene in sorted((args.scenes / 'test_side').iterdir()):
@@ -88,6 +91,9 @@ def main() -> None:
                                 else 'tilted')
                     flat[attitude][0] += 1
                     flat[attitude][1] += outcome == 'ok'
+                    flat_outcomes[attitude][outcome] += 1
+                    if attitude == args.list and outcome != 'ok':
+                        print(f'  scene={scene.name} im={im} obj={key} {outcome}')
     total: dict[str, int] = defaultdict(int)
     for obj_id, counts in sorted(per_part.items()):
         print(f'obj {obj_id:3d}: ' + ', '.join(f'{k} {v}' for k, v in sorted(counts.items())))
@@ -95,7 +101,8 @@ def main() -> None:
             total[k] += v
     print('all: ' + ', '.join(f'{k} {v}' for k, v in sorted(total.items())))
     for attitude, (n, ok) in sorted(flat.items()):
-        print(f'flat parts {attitude}: {ok} of {n} ({ok / n:.3f})')
+        print(f'flat parts {attitude}: {ok} of {n} ({ok / n:.3f}); ' + ', '.join(
+            f'{k} {v}' for k, v in sorted(flat_outcomes[attitude].items()) if k != 'ok'))
 
 
 if __name__ == '__main__':
