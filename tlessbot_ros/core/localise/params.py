@@ -65,6 +65,8 @@ class SegmentationParams:
             not vetoed by the depth's table pixels: its top lies in the noise, m (0: off).
         thin_lift_min_share: ... where those table pixels take at least this share of its
             inside (0..1).
+        thin_lift_resolved_k: ... but for its pixels this many table-noise deviations below
+            its median height: the depth sees them lower than the part (>= 0; 0: off).
         watershed_keep_share: a candidate blob of which the watershed keeps less than this
             share is kept whole (a part with weaker edges than its surroundings; 0..1, 0: off).
         small_blob_candidates_px: a blob smaller than this (px) keeps its candidates' extent,
@@ -139,6 +141,7 @@ class SegmentationParams:
     thin_min_valid: float = 0.3
     thin_lift_height_m: float = 0.0015
     thin_lift_min_share: float = 0.1
+    thin_lift_resolved_k: float = 2.0
     watershed_keep_share: float = 0.0
     small_blob_candidates_px: int = 0
     small_blob_trim_floors: float = 1.0
@@ -157,10 +160,12 @@ class SegmentationParams:
             raise ValueError('need thin_max_height_m >= 0 (0: off) and thin_quantile, '
                              f'thin_min_valid in 0..1, got {self.thin_max_height_m}, '
                              f'{self.thin_quantile}, {self.thin_min_valid}')
-        if self.thin_lift_height_m < 0 or not 0.0 <= self.thin_lift_min_share <= 1.0:
-            raise ValueError('need thin_lift_height_m >= 0 m (0: off) and thin_lift_min_share '
-                             f'in 0..1, got {self.thin_lift_height_m} and '
-                             f'{self.thin_lift_min_share}')
+        if self.thin_lift_height_m < 0 or not 0.0 <= self.thin_lift_min_share <= 1.0 or \
+                self.thin_lift_resolved_k < 0:
+            raise ValueError('need thin_lift_height_m >= 0 m (0: off), thin_lift_min_share '
+                             'in 0..1 and thin_lift_resolved_k >= 0 (0: off), got '
+                             f'{self.thin_lift_height_m}, {self.thin_lift_min_share} and '
+                             f'{self.thin_lift_resolved_k}')
         unknown = set(self.methods) - set(METHODS)
         if unknown or not self.methods:
             raise ValueError(f'methods must be a non-empty subset of {METHODS}, '

@@ -66,25 +66,33 @@ def thin_instances(labels: np.ndarray, height_m: np.ndarray | None,
 
 
 def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
-                      table: np.ndarray, params: SegmentationParams) -> np.ndarray:
+                      table: np.ndarray, params: SegmentationParams, *,
+                      noise_m: float = 0.0) -> np.ndarray:
     """(h, w) bool: the 8-connected blobs of ``candidate`` that are thin parts raised above
     the table as a whole: thin (:func:`is_thin`'s test) and their median valid height at
     least ``thin_lift_height_m``, where the table pixels take ``thin_lift_min_share`` of its
     inside (less: the depth resolves it), unless they divide the blob into two pieces
     that could each be a part (two thin parts touching: the gap between them is table);
-    all False without depth or with either rule off.
+    all False without depth or with either rule off. A blob's pixels that read more than
+    ``thin_lift_resolved_k`` deviations ``noise_m`` below its median are left out (and
+    count as resolved in that share): the depth tells them from the part's top.
 
     One pixel's height cannot tell a thin part from the table where the noise is as high as
     the part; the median of a blob's hundreds of pixels can (a table-coloured piece or a cast
-    shadow reads about 0; a blob holding a taller part is not thin).
+    shadow reads about 0; a blob holding a taller part is not thin). Where the part stands
+    clear of the noise (a nut 6 mm high on a per-pixel depth), a pixel reading far below it
+    is not the part's top: the bore or the table seen past its edge, which would move the
+    outline the pose is fitted to.
 
     Args:
         candidate: (h, w) bool colour candidates at ``params.cue_scale``, before the veto.
         height_m: (h, w) float height above the table (metres, NaN = invalid), or None.
         table: (h, w) bool the depth's table pixels (the veto).
-        params: ``thin_lift_height_m``, ``thin_lift_min_share``, ``thin_max_height_m``,
-            ``thin_quantile``, ``thin_min_valid``; ``whole_parts``, ``min_area_px`` and
-            ``cue_scale`` for the pieces.
+        params: ``thin_lift_height_m``, ``thin_lift_min_share``, ``thin_lift_resolved_k``,
+            ``thin_max_height_m``, ``thin_quantile``, ``thin_min_valid``; ``whole_parts``,
+            ``min_area_px`` and ``cue_scale`` for the pieces.
+        noise_m: the table's robust height deviation (m; ``DepthCue.sigma_m``), 0: unknown
+            (no pixel is resolved).
     """
     out = np.zeros(candidate.shape, bool)
     if height_m is None or params.thin_lift_height_m <= 0 or params.thin_max_height_m <= 0:
@@ -111,14 +119,30 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
         (quantile(0.5) >= params.thin_lift_height_m) & \
         (quantile(params.thin_quantile) < params.thin_max_height_m)
     raised[0] = False
+    resolved = _resolved_below(labels, quantile(0.5), height_m, table, params, noise_m)
+    unresolved = table & ~resolved
     for k in np.flatnonzero(raised):   # where the veto takes little, the depth resolves it
         blob = labels == k
         inside = cv2.erode(blob.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
-        raised[k] = np.count_nonzero(table & inside) >= \
+        raised[k] = np.count_nonzero(unresolved & inside) >= \
             params.thin_lift_min_share * max(int(np.count_nonzero(inside)), 1) and \
             not _divided_into_parts(blob, table, params)
-    lifted: np.ndarray = raised[labels]
+    lifted: np.ndarray = raised[labels] & ~resolved
     return lifted
+
+
+def _resolved_below(labels: np.ndarray, medians: np.ndarray, height_m: np.ndarray,
+                    table: np.ndarray, params: SegmentationParams, noise_m: float
+                    ) -> np.ndarray:
+    """(h, w) bool: the ``table`` pixels of the blobs ``labels`` (1..N) whose height reads
+    more than ``thin_lift_resolved_k`` x ``noise_m`` below their blob's median ``medians[k]``
+    (none where either is 0)."""
+    reach = params.thin_lift_resolved_k * noise_m
+    if reach <= 0:
+        return np.zeros(labels.shape, bool)
+    with np.errstate(invalid='ignore'):
+        below: np.ndarray = table & (labels > 0) & (height_m < medians[labels] - reach)
+    return below
 
 
 def _divided_into_parts(blob: np.ndarray, table: np.ndarray, params: SegmentationParams
