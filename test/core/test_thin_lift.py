@@ -106,3 +106,65 @@ def test_two_thin_parts_the_table_divides_stay_divided() -> None:
     height[10:30:2, 5:85:2] = 0.002
     lifted = raised_thin_blobs(candidate, height, height < 0.0025, SegmentationParams())
     assert lifted[10:30, 5:85].all()
+
+
+def _washer_scene(seed: int):
+    """Side view (640x480) of a dark washer 6 mm high, 24 px across with a bore 10 px across,
+    on a light table, per-pixel depth (0.9 mm noise): the bore shows its dark wall while the
+    depth reads the table there. rgb, depth_m, ring, bore, camera."""
+    from tlessbot_ros.core.common import default_rig
+    from tlessbot_ros.sim.shading import table_depth
+
+    cam = default_rig(640, 480)['side']
+    rng = np.random.default_rng(seed)
+    rows, cols = np.mgrid[:480, :640]
+    squared = (rows - 240) ** 2 + (cols - 320) ** 2
+    bore = squared <= 5 ** 2
+    ring = (squared <= 12 ** 2) & ~bore
+    tilt = abs(cam.T_world_camera[2, 2])   # the height along the ray, roughly
+    depth = table_depth(cam.intrinsics, cam.T_world_camera) - np.where(ring, 0.006 / tilt, 0)
+    depth = (depth + rng.normal(0, 0.0009, depth.shape)).astype(np.float32)
+    rgb = np.clip(rng.normal(185, 2, (480, 640, 3)), 0, 255)
+    rgb[ring | bore] = (45, 45, 50)
+    return rgb.astype(np.uint8), depth, ring, bore, cam
+
+
+def test_a_washer_s_bore_that_reads_table_keeps_the_veto() -> None:
+    from tlessbot_ros.core.localise.part_scale import view_segmentation
+
+    for seed in range(2):
+        rgb, depth, ring, bore, cam = _washer_scene(seed)
+        args = dict(depth_m=depth, intrinsics=cam.intrinsics, T_world_camera=cam.T_world_camera)
+        params = view_segmentation(SegmentationParams(), np.array([[0.016, 0.016, 0.006]]),
+                                   cam.intrinsics.K, cam.T_world_camera)
+        seg = segment(rgb, params=params, **args)
+        assert seg.count == 1 and np.mean(seg.labels[ring] > 0) > 0.8
+        assert np.mean(seg.labels[bore] > 0) < 0.2   # as without the lift
+        every = segment(rgb, params=replace(params, thin_lift_resolved_k=0.0), **args)
+        assert np.mean(every.labels[bore] > 0) > 0.8   # the lift took the bore in
+
+
+def test_only_pixels_the_depth_resolves_below_the_part_keep_the_veto() -> None:
+    rng = np.random.default_rng(5)
+    height = rng.normal(0, 0.0009, (40, 60)).astype(np.float32)
+    candidate = np.zeros(height.shape, bool)
+    candidate[10:30, 10:30] = True          # a part 3.5 mm high with a bore reading table
+    height[10:30, 10:30] += 0.0035
+    height[17:23, 17:23] -= 0.0035
+    candidate[10:30, 40:56] = True          # a strip 2 mm high: its low pixels in the noise
+    height[10:30, 40:56] += 0.002
+    table = height < 0.0025
+    params = SegmentationParams(whole_parts=((0.08, 600.0, 80.0),))   # sizes at full scale
+    lifted = raised_thin_blobs(candidate, height, table, params, noise_m=0.0009)
+    part = candidate[:, :30].copy()
+    part[17:23, 17:23] = False
+    assert not lifted[17:23, 17:23].any() and lifted[:, :30][part].mean() > 0.95
+    assert lifted[10:30, 40:56].mean() > 0.95
+    for off in (replace(params, thin_lift_resolved_k=0.0), None):   # the rule off; no noise
+        every = raised_thin_blobs(candidate, height, table, off or params,
+                                  noise_m=0.0009 if off else 0.0)
+        assert every[10:30, 10:30].all() and every[10:30, 40:56].all()
+    # a part that stands clear of the noise but for its bore: nothing left to lift
+    height[10:30, 10:30] += 0.002
+    assert not raised_thin_blobs(candidate, height, height < 0.0025, params,
+                                 noise_m=0.0009)[:, :30].any()
