@@ -17,7 +17,6 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.localise import segmentation as segmentation_module
-from tlessbot_ros.core.localise.cues import depth_cue
 from tlessbot_ros.core.pipeline import PerceptionPipeline
 from tlessbot_ros.core.pose import TemplateDatabase
 
@@ -35,7 +34,7 @@ def lifted_records(pipeline: PerceptionPipeline, views: dict) -> list[tuple]:
         lifted = original(candidate, height_m, table, params, **kw)
         every = original(candidate, height_m, table,
                          replace(params, thin_lift_resolved_k=0.0), **kw)
-        sigma = 0.0 if height_m is None else depth_cue(height_m, params).sigma_m
+        sigma = kw.get('noise_m', 0.0)
         calls.append((candidate.copy(), height_m, table.copy(), every, lifted, sigma))
         return lifted
     segmentation_module.raised_thin_blobs = spy
@@ -57,23 +56,22 @@ def truth_ids(image, shape: tuple[int, int]) -> np.ndarray:
     return ids
 
 
-def _eroded(mask: np.ndarray) -> np.ndarray:
-    return cv2.erode(mask.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
-
-
-def _report_blobs(index: int, name: str, ids: np.ndarray, height: np.ndarray,
-                  table: np.ndarray, every: np.ndarray, lifted: np.ndarray, sigma: float,
-                  depths: dict) -> None:
-    """One line per lifted blob of a view (main's lift), its freed pixels into ``depths``."""
-    freed_rule = table & _eroded(lifted)   # as segmentation.py lifts the veto
-    count, labels = cv2.connectedComponents(every.view(np.uint8), connectivity=8)
-    inner = _eroded(every)
+def _report_blobs(index: int, name: str, ids: np.ndarray, candidate: np.ndarray,
+                  height: np.ndarray, table: np.ndarray, every: np.ndarray,
+                  lifted: np.ndarray, sigma: float, depths: dict) -> None:
+    """One line per lifted blob of a view (without the rule), its freed pixels into
+    ``depths``."""
+    freed_rule = table & lifted
+    count, labels = cv2.connectedComponents(candidate.view(np.uint8), connectivity=8)
     for k in range(1, count):
         blob = labels == k
-        freed = blob & inner & table
+        freed = blob & every & table
         if not freed.any():
             continue
-        median = float(np.nanmedian(height[blob]))
+        valid = np.sort(height[blob][np.isfinite(height[blob])])
+        if not valid.size:
+            continue
+        median = float(valid[(valid.size - 1) // 2])   # the lower median, as thin.py's
         owners = np.bincount(ids[blob & ~table], minlength=1)
         owner = int(np.argmax(owners[1:]) + 1) if owners[1:].any() else 0
         z = (median - height[freed]) / max(sigma, 1e-4)
@@ -107,8 +105,9 @@ def main(argv: list[str]) -> int:
         calls = lifted_records(pipeline, views)
         for name, (cand, height, table, every, lifted, sigma) in zip(('top', 'side'), calls):
             ids = truth_ids(images[name], cand.shape)
-            _report_blobs(index, name, ids, height, table, every, lifted, sigma, depths)
-    print('view\tobj\tfreed px (main)\tfreed px (rule)\tz quantiles 0.1-0.9 (main\'s)')
+            _report_blobs(index, name, ids, cand, height, table, every, lifted, sigma,
+                          depths)
+    print('view\tobj\tfreed px (main)\tfreed px (rule)\tz quantiles 0.1-0.9 (without the rule)')
     for (name, obj), rows in sorted(depths.items()):
         z = np.array([r[0] for r in rows])
         kept = sum(r[1] for r in rows)

@@ -282,7 +282,7 @@ def _union_of_cues(small: np.ndarray, lab: np.ndarray, bgm: BackgroundModel | No
         lifted = raised_thin_blobs(np.logical_or.reduce([c for c, _ in masks.values()]),
                                    depth_cue.height_m, depth_cue.table, params,
                                    noise_m=depth_cue.sigma_m)
-        depth_cue.table &= ~eroded(lifted, 1)   # its rim keeps the veto: the table around it
+        depth_cue.table &= ~lifted
     veto = shadow
     if depth_cue is not None:
         veto = depth_cue.table if veto is None else veto | depth_cue.table

@@ -22,6 +22,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from tlessbot_ros.core.localise.cues import eroded
 from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.part_scale import could_be_whole
 
@@ -68,14 +69,16 @@ def thin_instances(labels: np.ndarray, height_m: np.ndarray | None,
 def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
                       table: np.ndarray, params: SegmentationParams, *,
                       noise_m: float = 0.0) -> np.ndarray:
-    """(h, w) bool: the 8-connected blobs of ``candidate`` that are thin parts raised above
-    the table as a whole: thin (:func:`is_thin`'s test) and their median valid height at
-    least ``thin_lift_height_m``, where the table pixels take ``thin_lift_min_share`` of its
-    inside (less: the depth resolves it), unless they divide the blob into two pieces
-    that could each be a part (two thin parts touching: the gap between them is table);
-    all False without depth or with either rule off. A blob's pixels that read more than
-    ``thin_lift_resolved_k`` deviations ``noise_m`` below its median are left out (and
-    count as resolved in that share): the depth tells them from the part's top.
+    """(h, w) bool: the pixels where the depth's veto is lifted: the 8-connected blobs of
+    ``candidate`` that are thin parts raised above the table as a whole, but for their rim
+    (one pixel, 4-connected: the table around a small part stays out of its mask). Raised: thin
+    (:func:`is_thin`'s test) and their median valid height at least ``thin_lift_height_m``,
+    where the table pixels take ``thin_lift_min_share`` of its inside (less: the depth
+    resolves it), unless they divide the blob into two pieces that could each be a part (two
+    thin parts touching: the gap between them is table); all False without depth or with
+    either rule off. A blob's pixels that read more than ``thin_lift_resolved_k`` deviations
+    ``noise_m`` below its median are left out too (and count as resolved in that share): the
+    depth tells them from the part's top.
 
     One pixel's height cannot tell a thin part from the table where the noise is as high as
     the part; the median of a blob's hundreds of pixels can (a table-coloured piece or a cast
@@ -127,7 +130,7 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
         raised[k] = np.count_nonzero(unresolved & inside) >= \
             params.thin_lift_min_share * max(int(np.count_nonzero(inside)), 1) and \
             not _divided_into_parts(blob, table, params)
-    lifted: np.ndarray = raised[labels] & ~resolved
+    lifted: np.ndarray = eroded(raised[labels], 1) & ~resolved
     return lifted
 
 
