@@ -76,9 +76,9 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
     where the table pixels take ``thin_lift_min_share`` of its inside (less: the depth
     resolves it), unless they divide the blob into two pieces that could each be a part (two
     thin parts touching: the gap between them is table); all False without depth or with
-    either rule off. A blob's pixels that read more than ``thin_lift_resolved_k`` deviations
-    ``noise_m`` below its median are left out too (and count as resolved in that share): the
-    depth tells them from the part's top.
+    either rule off. A raised blob's pixels that read more than ``thin_lift_resolved_k``
+    deviations ``noise_m`` below its median are left out too: the depth tells them from the
+    part's top.
 
     One pixel's height cannot tell a thin part from the table where the noise is as high as
     the part; the median of a blob's hundreds of pixels can (a table-coloured piece or a cast
@@ -122,14 +122,13 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
         (quantile(0.5) >= params.thin_lift_height_m) & \
         (quantile(params.thin_quantile) < params.thin_max_height_m)
     raised[0] = False
-    resolved = _resolved_below(labels, quantile(0.5), height_m, table, params, noise_m)
-    unresolved = table & ~resolved
     for k in np.flatnonzero(raised):   # where the veto takes little, the depth resolves it
         blob = labels == k
         inside = cv2.erode(blob.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
-        raised[k] = np.count_nonzero(unresolved & inside) >= \
+        raised[k] = np.count_nonzero(table & inside) >= \
             params.thin_lift_min_share * max(int(np.count_nonzero(inside)), 1) and \
             not _divided_into_parts(blob, table, params)
+    resolved = _resolved_below(labels, quantile(0.5), height_m, table, params, noise_m)
     lifted: np.ndarray = eroded(raised[labels], 1) & ~resolved
     return lifted
 
