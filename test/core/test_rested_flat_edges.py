@@ -55,15 +55,16 @@ def plate():
                                     [0.0, 0.0, 0.0]) @ flat
 
 
-def _checked(part, fit: FitParams) -> tuple[np.ndarray, np.ndarray]:
-    """The part's fit turned ``TURN_DEG`` about the vertical through its centre (still level
+def _checked(part, fit: FitParams, turn_deg: float = TURN_DEG
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """The part's fit turned ``turn_deg`` about the vertical through its centre (still level
     and on the table, so the prior finds it resting already) after the resting prior and the
     turn checks: (that pose, the true ``T_camera_object``)."""
     db, vertices, faces, T_world = part
     rgb, depth, mask = side_scene(vertices, faces, T_world, noise_m=0.0005, seed=3)
     points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
     centre = T_world[:3, :3] @ db[1].model_points.mean(axis=0) + T_world[:3, 3]
-    turn = make_transform(rotation_about_axis([0, 0, 1], np.radians(TURN_DEG)), [0, 0, 0])
+    turn = make_transform(rotation_about_axis([0, 0, 1], np.radians(turn_deg)), [0, 0, 0])
     turn[:3, 3] = centre - turn[:3, :3] @ centre
     T_cw = np.linalg.inv(SIDE.T_world_camera)
     ys, xs = np.nonzero(mask)
@@ -88,6 +89,16 @@ def test_a_resting_disc_turned_off_is_turned_back_on_the_image_s_edges(disc):
     assert yaw_error_deg(T, T_true, 90.0) < 1.5
     world, true_world = SIDE.T_world_camera @ T, SIDE.T_world_camera @ T_true
     assert (world[:3, :3] @ true_world[:3, :3].T)[2, 2] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_a_resting_disc_far_off_in_yaw_is_searched_over_its_period(disc):
+    # 30 deg off: beyond edge_yaw_deg, within half the quarter-turn period
+    T, T_true = _checked(disc, FitParams(), 30.0)
+    assert yaw_error_deg(T, T_true, 90.0) < 2.5
+    fit = FitParams()
+    fit = replace(fit, resting=replace(fit.resting, edge_round_period=False))
+    T, T_true = _checked(disc, fit, 30.0)
+    assert yaw_error_deg(T, T_true, 90.0) > 15.0   # at most edge_yaw_deg nearer
 
 
 def test_without_the_setting_a_resting_disc_keeps_its_yaw(disc):

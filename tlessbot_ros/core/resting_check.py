@@ -109,8 +109,10 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
         estimator.refiner.surface_fit(scene_c, obj, T_fit, inlier_m=tolerance)[0]))
     evidence = colour_views(views, labels, job.detection.instance_id, job.detection.view,
                             table_frames(pipeline, views))
+    reach_deg = max(params.edge_yaw_deg, np.degrees(hole_yaw_period(obj)) / 2) \
+        if params.edge_round_period else params.edge_yaw_deg
     refined = _on_edges(estimator.refiner, obj, mesh, T_fit, scene_c, job, evidence, params,
-                        info)
+                        info, max_yaw_deg=reach_deg)
     if refined is T_fit:
         return None
     if _votes_keep(check, obj, mesh, T_fit, refined, evidence):
@@ -122,15 +124,18 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
 
 def _on_edges(refiner: Refiner, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
               T: np.ndarray, scene_c: np.ndarray, job: PartJob, evidence: list[ViewEvidence],
-              params: RestingParams, info: dict[str, float]) -> np.ndarray:
+              params: RestingParams, info: dict[str, float], *,
+              max_yaw_deg: float | None = None) -> np.ndarray:
     """The levelled pose ``T`` turned and moved on the table where its edges lie best on the
     image's (:func:`refine_on_edges`, ``resting.edge_*``), or ``T`` itself when that move
     explains more than ``fitness_margin`` fewer of its depth points (a neighbour's edges, a
-    shadow, can pull it off its own depth); ``info`` gets what decided."""
+    shadow, can pull it off its own depth); ``info`` gets what decided. ``max_yaw_deg``:
+    the turn searched either way (None: ``edge_yaw_deg``)."""
     assert job.T_world_camera is not None
     moved, found = refine_on_edges(
         mesh, T, job.T_world_camera, obj.model_points.astype(np.float64), evidence,
-        max_yaw_deg=params.edge_yaw_deg, max_shift_m=params.edge_shift_m,
+        max_yaw_deg=params.edge_yaw_deg if max_yaw_deg is None else max_yaw_deg,
+        max_shift_m=params.edge_shift_m,
         cap_px=params.edge_cap_px, jump_m=params.tolerance_m, crease_deg=30.0,
         min_reach_px=params.edge_min_reach_px)
     info.update(found)

@@ -67,6 +67,8 @@ class RestingParams:
             centre in the image, px (>= 0; at 12 a 5 deg turn moves them a pixel).
         edge_rested_round: a round flat part's fit that rests on a face already is refined on
             the image's edges too (only its holes hold its yaw).
+        edge_round_period: ... turned by up to half its listed yaw period either way, where
+            that is more than ``edge_yaw_deg`` (its fitted yaw may be any turn off).
     """
 
     enabled: bool = True
@@ -82,6 +84,7 @@ class RestingParams:
     edge_cap_px: float = 3.0
     edge_min_reach_px: float = 12.0
     edge_rested_round: bool = True
+    edge_round_period: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_tilt_deg < self.max_tilt_deg <= 180.0:
