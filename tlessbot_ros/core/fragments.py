@@ -16,7 +16,9 @@ A piece is also a fragment of a neighbour whose fit explains it (``explains``, s
 :mod:`tlessbot_ros.core.one_part`): one part the fusion divided, fitted whole on one piece.
 A dropped piece that its keeper's fit explains is in :attr:`FragmentFilter.kept_by`, so its
 region can join the keeper (a piece dropped for its fitted centre alone keeps its region: two
-thin parts on top of each other fit one pose).
+thin parts on top of each other fit one pose). So is a piece that one fit of both explains
+(``joins``, :mod:`tlessbot_ros.core.piece_union`: two halves of a part, each fitted over its
+own half), asked only while the keeper is not yet handed to ``publish`` (it takes that fit).
 """
 from __future__ import annotations
 
@@ -70,14 +72,20 @@ class FragmentFilter(Generic[D]):
             (0: keep everything).
         explains: ``explains(a, b)``: whether ``a``'s fit explains ``b``'s depth points (both
             fitted neighbours); None: centres only.
+        joins: ``joins(keeper, piece)``: whether one fit of both explains each (``keeper``
+            then takes it); asked of neighbours neither fit explains. None: never.
     """
 
     def __init__(self, pieces: Sequence[tuple[D, np.ndarray, str, int, float]],
                  publish: Callable[[D], None], *, overlap: float,
-                 explains: Callable[[D, D], bool] | None = None) -> None:
+                 explains: Callable[[D, D], bool] | None = None,
+                 joins: Callable[[D, D], bool] | None = None) -> None:
         self._publish = publish
         self._overlap = float(overlap)
         self._explains = explains
+        self._joins = joins
+        self._published: set[int] = set()   # ids of the detections handed to publish
+        self._joins_asked: dict[tuple[int, int], bool] = {}
         self._lock = threading.Lock()
         self.dropped: list[D] = []
         # id(dropped detection) -> the detection whose fit explains it
@@ -102,6 +110,7 @@ class FragmentFilter(Generic[D]):
             piece.centre = None if centre is None else np.asarray(centre, np.float64)
             piece.score = float(score)
             ready = self._decide_ready()
+            self._published.update(id(kept) for kept in ready)
         for kept in ready:
             self._publish(kept)
 
@@ -115,7 +124,8 @@ class FragmentFilter(Generic[D]):
             piece.decided = True
             if (keeper := self._fragment_of(piece)) is not None:
                 self.dropped.append(piece.detection)
-                if self._explains is not None and self._explains(keeper, piece.detection):
+                if self._explains is not None and self._explains(keeper, piece.detection) or \
+                        self._joined(keeper, piece.detection):
                     self.kept_by[id(piece.detection)] = keeper
             else:
                 kept.append(piece.detection)
@@ -141,7 +151,19 @@ class FragmentFilter(Generic[D]):
             if (explained or np.linalg.norm(other.centre - piece.centre) < limit) and \
                     not _better(piece, other):
                 return other.detection
+            if not explained and not _better(piece, other) and \
+                    self._joined(other.detection, piece.detection):
+                return other.detection
         return None
+
+    def _joined(self, keeper: D, piece: D) -> bool:
+        """``joins(keeper, piece)`` (asked once) while ``keeper`` is not yet published."""
+        if self._joins is None or id(keeper) in self._published:
+            return False
+        key = (id(keeper), id(piece))
+        if key not in self._joins_asked:
+            self._joins_asked[key] = self._joins(keeper, piece)
+        return self._joins_asked[key]
 
 
 def _better(a: _Piece[Any], b: _Piece[Any]) -> bool:
@@ -153,7 +175,8 @@ def _better(a: _Piece[Any], b: _Piece[Any]) -> bool:
 
 def fragment_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None],
                     database: TemplateDatabase, overlap: float,
-                    explains: Callable[[Detection, Detection], bool] | None = None
+                    explains: Callable[[Detection, Detection], bool] | None = None,
+                    joins: Callable[[Detection, Detection], bool] | None = None
                     ) -> FragmentFilter[Detection]:
     """The :class:`FragmentFilter` of one frame's parts (``PartJob`` items): ROI centroids in
     the world (camera frame without a table frame), first-class diameters from ``database``."""
@@ -165,4 +188,4 @@ def fragment_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None
             centroid = transform_points(job.T_world_camera, centroid[None])[0]
         pieces.append((job.detection, centroid, frame, len(job.points),
                        database[job.candidates[0]].diameter_m))
-    return FragmentFilter(pieces, publish, overlap=overlap, explains=explains)
+    return FragmentFilter(pieces, publish, overlap=overlap, explains=explains, joins=joins)

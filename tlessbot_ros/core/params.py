@@ -135,6 +135,9 @@ class FitParams:
             mask's depth points is unknown (0..1; 0: off; never in box mode: a box holds others).
         unknown_without_fit: a part with depth but no fit (fewer than ``min_roi_points``
             points) is unknown too (off: it keeps the classifier's name).
+        join_refit_cover: two touching pieces neither fit explains are one part when one fit
+            of both covers this share of each one's depth points (0..1; 0: off).
+        join_refit_gap_px: pieces of one view at most this many pixels apart touch (>= 0).
         split_unexplained: a connected piece of a region's depth points (at least
             ``min_roi_points``) that its fit leaves unexplained is fitted as a part of its own.
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
@@ -180,6 +183,8 @@ class FitParams:
     unknown_below_cover: float = 0.5
     unknown_without_fit: bool = False
     split_unexplained: bool = True
+    join_refit_cover: float = 0.8
+    join_refit_gap_px: int = 3
     fit_rank_coverage_weight: float = 0.0
     flat: FlatParams = field(default_factory=FlatParams)
     turns: TurnParams = field(default_factory=TurnParams)
@@ -211,6 +216,9 @@ class FitParams:
                f'(a fitness; 0: off), got {self.unknown_below_fitness}')
         _check(0 <= self.unknown_below_cover <= 1, 'unknown_below_cover must be in 0..1 '
                f'(a share; 0: off), got {self.unknown_below_cover}')
+        _check(0 <= self.join_refit_cover <= 1 and self.join_refit_gap_px >= 0,
+               'join_refit_cover must be in 0..1 (a share; 0: off) and join_refit_gap_px >= 0, '
+               f'got {self.join_refit_cover}, {self.join_refit_gap_px}')
         _check(self.fit_rank_coverage_weight >= 0, 'fit_rank_coverage_weight must be >= 0 '
                f'(0: off), got {self.fit_rank_coverage_weight}')
         _check(self.lookalike_tolerance_m > 0, 'lookalike_tolerance_m must be > 0 m (e.g. '

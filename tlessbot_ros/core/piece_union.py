@@ -1,0 +1,135 @@
+"""Two touching pieces of one part that neither piece's fit explains are fitted together once
+(issue 41).
+
+The localiser can cut a part in two touching pieces (a flat plate or a disc with holes, a
+strip whose middle reads near the table on a stereo camera's smoothed depth), each about half
+of it. Each piece is then fitted as the whole part, placed over its own half: the other half
+lies outside the posed model's outline, so neither fit explains the other's points
+(:mod:`tlessbot_ros.core.one_part`), and the part is reported twice, or once with a second,
+unknown box left over.
+
+So the fragment filter (:mod:`tlessbot_ros.core.fragments`) asks, of two neighbouring fitted
+pieces of one view whose regions touch (at most ``FitParams.join_refit_gap_px`` apart) and
+that neither fit explains, whether one fit of both pieces' points explains each piece: its
+outline covers at least ``join_refit_cover`` of each piece's depth points and at least
+``unknown_below_fitness`` of those lie on its surface. Two parts side by side fail that (one
+model covers one of them), one part's two halves pass it. The better piece keeps the joint
+fit and the other piece's region joins it (:func:`~tlessbot_ros.core.one_part.join_pieces`).
+The joint fit runs the pipeline's whole fit (the flat parts' checks, the resting prior) on
+the labels with the two regions joined.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import fields, replace
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from tlessbot_ros.core.flat_parts import check_fitted_part
+from tlessbot_ros.core.frame import Detection, PartJob
+from tlessbot_ros.core.part_fit import outline_shares
+from tlessbot_ros.core.recognise import UNKNOWN_ID
+from tlessbot_ros.core.resting_check import check_resting_and_turns
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
+
+# two pieces whose points span more than this times their class's diameter are not one part
+# (the depth's flying pixels at a part's rim reach a little past it)
+SPAN_SLACK = 1.1
+# the fields of a detection the joint fit does not fill in (they name its region)
+_REGION_FIELDS = ('instance_id', 'view', 'box', 'class_score', 'class_margin')
+
+
+def union_joiner(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
+                 labels: dict[str, np.ndarray], jobs: Sequence[PartJob]
+                 ) -> Callable[[Detection, Detection], bool] | None:
+    """``joins(keeper, piece)`` for the fragment filter (see the module): whether one fit of
+    both detections' depth points explains each of them; when it does, ``keeper`` takes that
+    fit. None when off (``join_refit_cover`` 0) or without an estimator."""
+    params, estimator = pipeline.fit_params, pipeline.pose_estimator
+    if estimator is None or params.join_refit_cover <= 0:
+        return None
+    by_detection = {id(job.detection): job for job in jobs}
+
+    def explains_each(fitted: Detection, clouds: Sequence[np.ndarray]) -> bool:
+        if fitted.pose is None or fitted.obj_id == UNKNOWN_ID:
+            return False
+        for points in clouds:
+            share, covered = outline_shares(params, points, fitted.obj_id, fitted.pose,
+                                            estimator)
+            if share < params.unknown_below_fitness or covered < params.join_refit_cover:
+                return False
+        return True
+
+    def joins(keeper: Detection, piece: Detection) -> bool:
+        job, other = by_detection[id(keeper)], by_detection[id(piece)]
+        image = labels.get(keeper.view)
+        if keeper.view != piece.view or image is None or keeper.pose is None or \
+                piece.pose is None or not regions_touch(image, keeper.instance_id,
+                                                        piece.instance_id,
+                                                        params.join_refit_gap_px):
+            return False
+        joined = joint_job(job, other)
+        if span_m(joined.points) > SPAN_SLACK * max(estimator.database[c].diameter_m
+                                                    for c in joined.candidates):
+            return False   # longer than the part: two parts
+        one_region = {view: np.where(im == piece.instance_id, keeper.instance_id,
+                                     im).astype(im.dtype) for view, im in labels.items()}
+        pipeline.fit_part(joined)   # then the checks the pipeline runs after each fit
+        check_fitted_part(pipeline, joined, views, one_region)
+        check_resting_and_turns(pipeline, joined, views, one_region)
+        if not explains_each(joined.detection, (job.points, other.points)):
+            return False
+        adopt(keeper, joined.detection)
+        return True
+    return joins
+
+
+def joint_job(job: PartJob, other: PartJob) -> PartJob:
+    """One job of two pieces of one view: ``job``'s detection (a copy, unfitted) over both
+    regions' boxes, both ROI clouds, both pieces' fitted classes (``job``'s first)."""
+    a, b = job.detection, other.detection
+    x0, y0 = min(a.box[0], b.box[0]), min(a.box[1], b.box[1])
+    x1 = max(a.box[0] + a.box[2], b.box[0] + b.box[2])
+    y1 = max(a.box[1] + a.box[3], b.box[1] + b.box[3])
+    detection = replace(a, box=(x0, y0, x1 - x0, y1 - y0), pose=None, second=None,
+                        turned_over=False, n_points=len(job.points) + len(other.points))
+    classes = tuple(dict.fromkeys(c for c in (a.obj_id, b.obj_id) if c != UNKNOWN_ID))
+    return PartJob(detection, np.vstack([job.points, other.points]),
+                   classes or job.candidates, job.T_world_camera, job.more_views,
+                   job.box_camera)
+
+
+def span_m(points: np.ndarray) -> float:
+    """A lower bound of the largest distance between two of ``points`` ((N, 3) m), at least
+    half of it: the point farthest from the first's farthest point."""
+    if len(points) < 2:
+        return 0.0
+    far = points[np.argmax(np.linalg.norm(points - points[0], axis=1))]
+    return float(np.linalg.norm(points - far, axis=1).max())
+
+
+def adopt(keeper: Detection, fitted: Detection) -> None:
+    """``keeper`` takes ``fitted``'s class and poses (its region's fields stay its own)."""
+    for f in fields(Detection):
+        if f.name not in _REGION_FIELDS:
+            setattr(keeper, f.name, getattr(fitted, f.name))
+
+
+def regions_touch(image: np.ndarray, a: int, b: int, gap_px: int) -> bool:
+    """Whether instances ``a`` and ``b`` of a label image have at most ``gap_px`` pixels
+    between them (0: 8-neighbours)."""
+    where = np.nonzero((image == a) | (image == b))
+    if not where[0].size:
+        return False
+    y0, x0 = max(int(where[0].min()) - 1, 0), max(int(where[1].min()) - 1, 0)
+    crop = image[y0:int(where[0].max()) + 2, x0:int(where[1].max()) + 2]
+    size = 2 * max(0, int(gap_px)) + 3
+    grown = cv2.dilate((crop == a).astype(np.uint8), np.ones((size, size), np.uint8))
+    return bool((grown.astype(bool) & (crop == b)).any())
+
+
+__all__ = ['adopt', 'joint_job', 'regions_touch', 'span_m', 'union_joiner']
