@@ -11,7 +11,8 @@ the scored view that two or more instances each hold at least a sixth of: the pa
 per piece (largest first) its pixels, the share of the part it holds, the share of its own
 pixels off the part and whether it is matched, whether the two largest pieces touch (8-
 neighbours) and the gap between them (px), and from the pose stage's fragment filter: whether
-the two were neighbours there, their fitted centres' distance over the smaller fitted
+the two were neighbours there (or which was divided off a fitted region after the fit,
+``two_parts.split_off``), their fitted centres' distance over the smaller fitted
 diameter, and whether each one's fit explains the other's points (with that fit's share of
 the other's points near its surface and inside its outline, ``one_part.explainer``).
 """
@@ -23,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tlessbot_ros.core import one_part, pipeline
+from tlessbot_ros.core import one_part, pipeline, two_parts
 from tlessbot_ros.core.part_fit import outline_shares
 from tlessbot_ros.tools.support import eval_scoring
 
@@ -61,6 +62,12 @@ class _Trace:
             return out
         return traced
 
+    def split_off(self, *args, **kwargs):
+        piece = _original_split_off(*args, **kwargs)
+        if piece is not None:
+            self.current.setdefault('divided', set()).add(piece.detection.instance_id)
+        return piece
+
     def join(self, arbiter, detections, labels):
         pieces = {}
         for p in arbiter._pieces:
@@ -82,6 +89,7 @@ class _Trace:
 
 _original_explainer = one_part.explainer
 _original_join = pipeline.join_pieces
+_original_split_off = two_parts.split_off
 
 
 def _gap_px(a: np.ndarray, b: np.ndarray) -> float:
@@ -121,6 +129,9 @@ def split_rows(image, labels: np.ndarray, boxes: list, matched: dict[int, int],
         info = record.get('pieces', {})
         pa, pb = info.get(ia), info.get(ib)
         neighbours = 'n/a' if pa is None or pb is None else str(ib in pa['neighbours'])
+        divided = [i for i in (ia, ib) if i in record.get('divided', ())]
+        if divided:   # divided off its region after the fit (two_parts.split_off)
+            neighbours = 'divided ' + ','.join(map(str, divided))
         centre_d = 'n/a'
         if pa and pb and pa['centre'] is not None and pb['centre'] is not None:
             d = float(np.linalg.norm(pa['centre'] - pb['centre']))
@@ -138,6 +149,7 @@ def main(argv: list[str]) -> int:
     trace = _Trace()
     one_part.explainer = trace.explainer
     pipeline.join_pieces = trace.join
+    two_parts.split_off = trace.split_off
     original = eval_scoring.frame_breakdown
     rows: list[tuple] = []
     causes: list[tuple] = []

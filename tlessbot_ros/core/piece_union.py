@@ -90,17 +90,18 @@ def union_joiner(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
 
 def joint_job(job: PartJob, other: PartJob) -> PartJob:
     """One job of two pieces of one view: ``job``'s detection (a copy, unfitted) over both
-    regions' boxes, both ROI clouds, both pieces' fitted classes (``job``'s first)."""
+    regions' boxes, both ROI clouds; its candidates both pieces' fitted classes (``job``'s
+    first), then their own candidates (a half of a part can fit a wrong class best)."""
     a, b = job.detection, other.detection
     x0, y0 = min(a.box[0], b.box[0]), min(a.box[1], b.box[1])
     x1 = max(a.box[0] + a.box[2], b.box[0] + b.box[2])
     y1 = max(a.box[1] + a.box[3], b.box[1] + b.box[3])
     detection = replace(a, box=(x0, y0, x1 - x0, y1 - y0), pose=None, second=None,
                         turned_over=False, n_points=len(job.points) + len(other.points))
-    classes = tuple(dict.fromkeys(c for c in (a.obj_id, b.obj_id) if c != UNKNOWN_ID))
-    return PartJob(detection, np.vstack([job.points, other.points]),
-                   classes or job.candidates, job.T_world_camera, job.more_views,
-                   job.box_camera)
+    classes = tuple(dict.fromkeys(c for c in (a.obj_id, b.obj_id, *job.candidates,
+                                              *other.candidates) if c != UNKNOWN_ID))
+    return PartJob(detection, np.vstack([job.points, other.points]), classes,
+                   job.T_world_camera, job.more_views, job.box_camera)
 
 
 def span_m(points: np.ndarray) -> float:
