@@ -2,6 +2,7 @@
 pieces and what the joining rules saw. docs/bench/smoothed-split-parts.md.
 
     python scripts/split_parts_why.py TSV -- EVALUATE ARGUMENTS...
+    python scripts/split_parts_why.py --summary TSV [TSV...]   # rows per cause, per file
 
 (also writes ``false_box_causes.py``'s table of every false box to TSV's name with
 ``_causes.tsv``, and the scored view's labels to ``_labels.npz``, from the same run.)
@@ -144,7 +145,35 @@ def split_rows(image, labels: np.ndarray, boxes: list, matched: dict[int, int],
     return rows
 
 
+def cause(row: dict[str, str]) -> str:
+    """A split part's cause (docs/bench/smoothed-split-parts.md): a piece mostly on another
+    part (``mixed``), a piece divided off after the fit (``divided``), a piece with no fit in
+    the fragment filter (``unfitted``), else two fits neither explaining the other, their
+    regions touching (``touching``, within 3 px) or not (``apart``)."""
+    offs = [float(p.split('/off')[1].split('/')[0]) for p in row['pieces'].split()]
+    if max(offs[:2]) >= 0.5:
+        return 'mixed'
+    if row['neighbours'].startswith('divided'):
+        return 'divided'
+    if row['explains_ab'] == '-' or row['neighbours'] == 'n/a':
+        return 'unfitted'
+    return 'touching' if float(row['gap_px']) <= 4.0 else 'apart'
+
+
+def summary(paths: list[str]) -> None:
+    names = ('mixed', 'divided', 'unfitted', 'touching', 'apart')
+    print('file\t' + '\t'.join(names))
+    for path in paths:
+        with open(path) as rows:
+            head = rows.readline().rstrip('\n').split('\t')
+            found = [cause(dict(zip(head, line.rstrip('\n').split('\t')))) for line in rows]
+        print(path + '\t' + '\t'.join(str(found.count(n)) for n in names))
+
+
 def main(argv: list[str]) -> int:
+    if argv[0] == '--summary':
+        summary(argv[1:])
+        return 0
     path, rest = argv[0], argv[argv.index('--') + 1:]
     trace = _Trace()
     one_part.explainer = trace.explainer

@@ -12,8 +12,10 @@ So the fragment filter (:mod:`tlessbot_ros.core.fragments`) asks, of two neighbo
 pieces of one view whose regions touch (at most ``FitParams.join_refit_gap_px`` apart) and
 that neither fit explains, whether one fit of both pieces' points explains each piece: its
 outline covers at least ``join_refit_cover`` of each piece's depth points and at least
-``unknown_below_fitness`` of those lie on its surface. Two parts side by side fail that (one
-model covers one of them), one part's two halves pass it. The better piece keeps the joint
+``unknown_below_fitness`` of those lie on its surface, and no fewer than the piece's own fit
+explains, but for ``verify_overrule_margin``. Two parts side by side fail that (one model
+covers one of them, or a larger part's model covers both but explains each worse than its
+own fit), one part's two halves pass it. The better piece keeps the joint
 fit and the other piece's region joins it (:func:`~tlessbot_ros.core.one_part.join_pieces`).
 The joint fit runs the pipeline's whole fit (the flat parts' checks, the resting prior) on
 the labels with the two regions joined.
@@ -54,13 +56,21 @@ def union_joiner(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
         return None
     by_detection = {id(job.detection): job for job in jobs}
 
-    def explains_each(fitted: Detection, clouds: Sequence[np.ndarray]) -> bool:
-        if fitted.pose is None or fitted.obj_id == UNKNOWN_ID:
-            return False
-        for points in clouds:
-            share, covered = outline_shares(params, points, fitted.obj_id, fitted.pose,
-                                            estimator)
-            if share < params.unknown_below_fitness or covered < params.join_refit_cover:
+    def share(detection: Detection, points: np.ndarray) -> tuple[float, float]:
+        if detection.pose is None or detection.obj_id == UNKNOWN_ID:
+            return 0.0, 0.0
+        return outline_shares(params, points, detection.obj_id, detection.pose, estimator)
+
+    def explains_each(fitted: Detection, pieces: Sequence[PartJob]) -> bool:
+        """Whether ``fitted`` covers ``join_refit_cover`` of each piece's points and explains
+        them as well as the piece's own fit, but for ``verify_overrule_margin`` (two parts
+        side by side: one model explains them worse than each one's own)."""
+        for piece in pieces:
+            explained, covered = share(fitted, piece.points)
+            own = share(piece.detection, piece.points)[0]
+            if explained < max(params.unknown_below_fitness,
+                               own - params.verify_overrule_margin) or \
+                    covered < params.join_refit_cover:
                 return False
         return True
 
@@ -81,7 +91,7 @@ def union_joiner(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
         pipeline.fit_part(joined)   # then the checks the pipeline runs after each fit
         check_fitted_part(pipeline, joined, views, one_region)
         check_resting_and_turns(pipeline, joined, views, one_region)
-        if not explains_each(joined.detection, (job.points, other.points)):
+        if not explains_each(joined.detection, (job, other)):
             return False
         adopt(keeper, joined.detection)
         return True

@@ -374,8 +374,7 @@ class PerceptionPipeline:
         Returns:
             the detections in instance order, fragments left out.
         """
-        database = pose_stage(self.pose_estimator).database
-        detections, jobs = [], []
+        database, detections, jobs = pose_stage(self.pose_estimator).database, [], []
         done = on_detection or (lambda detection: None)
         counts, boxes = label_stats(labels)
         for instance in instance_ids(counts):
