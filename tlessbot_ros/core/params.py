@@ -136,7 +136,7 @@ class FitParams:
         unknown_without_fit: a part with depth but no fit (fewer than ``min_roi_points``
             points) is unknown too (off: it keeps the classifier's name).
         join_refit_cover: two touching pieces neither fit explains are one part when one fit
-            of both covers this share of each one's depth points (0..1; 0: off).
+            of both covers this share of each one's points, and they of its outline (0: off).
         join_refit_gap_px: pieces of one view at most this many pixels apart touch (>= 0).
         split_unexplained: a connected piece of a region's depth points (at least
             ``min_roi_points``) that its fit leaves unexplained is fitted as a part of its own.

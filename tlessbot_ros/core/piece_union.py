@@ -15,10 +15,10 @@ outline covers at least ``join_refit_cover`` of each piece's depth points and at
 ``unknown_below_fitness`` of those lie on its surface, and no fewer than the piece's own fit
 explains, but for ``verify_overrule_margin``. Two parts side by side fail that (one model
 covers one of them, or a larger part's model covers both but explains each worse than its
-own fit), one part's two halves pass it. And the joint fit's part must be seen where it is
-fitted, as a part divided off a region must (:func:`~tlessbot_ros.core.two_parts.seen_share`:
-the joined region covers ``MIN_COVERAGE`` of its silhouette): a larger part's model laid over
-two small parts side by side lies mostly on the table. The better piece keeps the joint
+own fit), one part's two halves pass it. And the other way round, the joined region must
+cover ``join_refit_cover`` of the joint fit's silhouette
+(:func:`~tlessbot_ros.core.two_parts.seen_share`): a larger part's model laid over two small
+parts side by side lies partly on the table. The better piece keeps the joint
 fit and the other piece's region joins it (:func:`~tlessbot_ros.core.one_part.join_pieces`).
 The joint fit runs the pipeline's whole fit (the flat parts' checks, the resting prior) on
 the labels with the two regions joined.
@@ -37,7 +37,7 @@ from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.part_fit import outline_shares
 from tlessbot_ros.core.recognise import UNKNOWN_ID
 from tlessbot_ros.core.resting_check import check_resting_and_turns
-from tlessbot_ros.core.two_parts import MIN_COVERAGE, seen_share
+from tlessbot_ros.core.two_parts import seen_share
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
@@ -96,7 +96,8 @@ def union_joiner(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
         check_fitted_part(pipeline, joined, views, one_region)
         check_resting_and_turns(pipeline, joined, views, one_region)
         if not explains_each(joined.detection, (job, other)) or seen_share(
-                pipeline, joined, views[keeper.view], one_region[keeper.view]) < MIN_COVERAGE:
+                pipeline, joined, views[keeper.view],
+                one_region[keeper.view]) < params.join_refit_cover:
             return False   # (a larger part's model over two small ones lies on the table)
         adopt(keeper, joined.detection)
         return True
