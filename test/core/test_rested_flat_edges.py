@@ -55,16 +55,18 @@ def plate():
                                     [0.0, 0.0, 0.0]) @ flat
 
 
-def _checked(part, fit: FitParams, turn_deg: float = TURN_DEG
+def _checked(part, fit: FitParams, turn_deg: float = TURN_DEG, tilt_deg: float = 0.0
              ) -> tuple[np.ndarray, np.ndarray]:
     """The part's fit turned ``turn_deg`` about the vertical through its centre (still level
-    and on the table, so the prior finds it resting already) after the resting prior and the
+    and on the table, so the prior finds it resting already; or tilted ``tilt_deg`` about a
+    level axis through its centre, so the prior levels it) after the resting prior and the
     turn checks: (that pose, the true ``T_camera_object``)."""
     db, vertices, faces, T_world = part
     rgb, depth, mask = side_scene(vertices, faces, T_world, noise_m=0.0005, seed=3)
     points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
     centre = T_world[:3, :3] @ db[1].model_points.mean(axis=0) + T_world[:3, 3]
-    turn = make_transform(rotation_about_axis([0, 0, 1], np.radians(turn_deg)), [0, 0, 0])
+    turn = make_transform(rotation_about_axis([1, 0, 0], np.radians(tilt_deg))
+                          @ rotation_about_axis([0, 0, 1], np.radians(turn_deg)), [0, 0, 0])
     turn[:3, 3] = centre - turn[:3, :3] @ centre
     T_cw = np.linalg.inv(SIDE.T_world_camera)
     ys, xs = np.nonzero(mask)
@@ -98,6 +100,18 @@ def test_a_resting_disc_far_off_in_yaw_is_searched_over_its_period(disc):
     fit = FitParams()
     fit = replace(fit, resting=replace(fit.resting, edge_round_period=False))
     T, T_true = _checked(disc, fit, 30.0)
+    assert yaw_error_deg(T, T_true, 90.0) > 15.0   # at most edge_yaw_deg nearer
+
+
+def test_a_tilted_disc_far_off_in_yaw_is_levelled_and_searched_over_its_period(disc):
+    # tilted 6 deg: the prior levels it (not resting already), then the edges turn it
+    T, T_true = _checked(disc, FitParams(), 30.0, tilt_deg=6.0)
+    assert yaw_error_deg(T, T_true, 90.0) < 2.5
+    world, true_world = SIDE.T_world_camera @ T, SIDE.T_world_camera @ T_true
+    assert (world[:3, :3] @ true_world[:3, :3].T)[2, 2] == pytest.approx(1.0, abs=1e-6)
+    fit = FitParams()
+    fit = replace(fit, resting=replace(fit.resting, edge_round_levelled=False))
+    T, T_true = _checked(disc, fit, 30.0, tilt_deg=6.0)
     assert yaw_error_deg(T, T_true, 90.0) > 15.0   # at most edge_yaw_deg nearer
 
 

@@ -13,7 +13,7 @@ from tlessbot_ros.core.common import plane_of_frame
 from tlessbot_ros.core.flat_parts import colour_views, flat_check, table_frames
 from tlessbot_ros.core.pose.flat_align import table_noise_m
 from tlessbot_ros.core.pose.flat_turns import mesh_scene
-from tlessbot_ros.core.pose.flat_yaw import hole_yaw_period
+from tlessbot_ros.core.pose.flat_yaw import hole_yaw_period, thin_axis
 from tlessbot_ros.core.pose.rest_edges import refine_on_edges
 from tlessbot_ros.core.pose.resting import level_starts, rest_tolerance_m, settle
 from tlessbot_ros.core.turn_check import check_turns
@@ -27,6 +27,10 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.pose.flat import FlatCheck, ViewEvidence
     from tlessbot_ros.core.pose.refinement import Refiner
     from tlessbot_ros.core.pose.resting import RestingParams
+
+# a disc's thin axis within this of the vertical lies on a face; beyond, it stands on its rim
+# (its stable poses are one or the other: 0 or 90 deg)
+_LYING_AXIS_DEG = 45.0
 
 
 def check_resting(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
@@ -69,8 +73,11 @@ def _level(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInpu
     mesh = mesh_scene(obj)
     evidence = colour_views(views, labels, detection.instance_id, detection.view,
                             table_frames(pipeline, views))
+    reach_deg = _round_reach_deg(check, obj, job.T_world_camera @ T, params) \
+        if params.edge_round_levelled else params.edge_yaw_deg
     refined = T if mesh is None or params.edge_yaw_deg <= 0 else \
-        _on_edges(estimator.refiner, obj, mesh, T, scene_c, job, evidence, params, info)
+        _on_edges(estimator.refiner, obj, mesh, T, scene_c, job, evidence, params, info,
+                  max_yaw_deg=reach_deg)
     if mesh is not None and _votes_keep(check, obj, mesh, T_free, refined, evidence):
         info['rest_levelled'] = 0.0
         info['rest_votes_kept'] = 1.0
@@ -109,8 +116,7 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
         estimator.refiner.surface_fit(scene_c, obj, T_fit, inlier_m=tolerance)[0]))
     evidence = colour_views(views, labels, job.detection.instance_id, job.detection.view,
                             table_frames(pipeline, views))
-    reach_deg = max(params.edge_yaw_deg, np.degrees(hole_yaw_period(obj)) / 2) \
-        if params.edge_round_period else params.edge_yaw_deg
+    reach_deg = _round_reach_deg(check, obj, job.T_world_camera @ T_fit, params)
     refined = _on_edges(estimator.refiner, obj, mesh, T_fit, scene_c, job, evidence, params,
                         info, max_yaw_deg=reach_deg)
     if refined is T_fit:
@@ -120,6 +126,22 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
         return None
     info['rest_edge_rested'] = 1.0
     return refined, scene_c
+
+
+def _round_reach_deg(check: FlatCheck, obj: ObjectTemplates, T_world_object: np.ndarray,
+                     params: RestingParams) -> float:
+    """How far either way the edge refinement turns a pose about the vertical (deg): half the
+    listed yaw period of a round flat part lying on a face (its thin axis within 45 deg of the
+    vertical; ``edge_round_period``) where that is more than ``edge_yaw_deg``, else
+    ``edge_yaw_deg``. A disc standing on its rim turns about a level axis: a turn about the
+    vertical is not its period's."""
+    period = hole_yaw_period(obj) if params.edge_round_period and check.applies(obj) else 0.0
+    if period <= 0:
+        return params.edge_yaw_deg
+    thin_world = T_world_object[:3, :3] @ thin_axis(obj)
+    if abs(float(thin_world[2])) < np.cos(np.radians(_LYING_AXIS_DEG)):
+        return params.edge_yaw_deg
+    return max(params.edge_yaw_deg, float(np.degrees(period)) / 2)
 
 
 def _on_edges(refiner: Refiner, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,

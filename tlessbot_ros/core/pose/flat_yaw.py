@@ -67,6 +67,12 @@ def hole_yaw_period(obj: ObjectTemplates) -> float:
     return period if period > 0 and _outline(obj)[4] >= ROUND_SHARE else 0.0
 
 
+def thin_axis(obj: ObjectTemplates) -> np.ndarray:
+    """(3,) a flat part's thin axis in its own frame (:func:`~.flat_turns.outline_frame`):
+    the axis a round one's holes turn about."""
+    return _outline(obj)[3]
+
+
 def _outline(obj: ObjectTemplates) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                              float]:
     """:func:`~.flat_turns.outline_frame` of the part's samples (cached on the part)."""
@@ -249,4 +255,4 @@ def hole_yaw(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
     return search.pose(nearest), float(np.degrees(nearest))
 
 
-__all__ = ['feature_turn', 'hole_yaw', 'hole_yaw_period']
+__all__ = ['feature_turn', 'hole_yaw', 'hole_yaw_period', 'thin_axis']

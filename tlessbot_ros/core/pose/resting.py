@@ -69,6 +69,8 @@ class RestingParams:
             the image's edges too (only its holes hold its yaw).
         edge_round_period: ... turned by up to half its listed yaw period either way, where
             that is more than ``edge_yaw_deg`` (its fitted yaw may be any turn off).
+        edge_round_levelled: ... and so is one levelled onto a face (a tilted fit's yaw is
+            no better held).
     """
 
     enabled: bool = True
@@ -85,6 +87,7 @@ class RestingParams:
     edge_min_reach_px: float = 12.0
     edge_rested_round: bool = True
     edge_round_period: bool = True
+    edge_round_levelled: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_tilt_deg < self.max_tilt_deg <= 180.0:
