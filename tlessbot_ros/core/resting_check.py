@@ -73,11 +73,11 @@ def _level(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInpu
     mesh = mesh_scene(obj)
     evidence = colour_views(views, labels, detection.instance_id, detection.view,
                             table_frames(pipeline, views))
-    reach_deg, axis_w = _round_reach(check, obj, job.T_world_camera @ T, params) \
-        if params.edge_round_levelled else (params.edge_yaw_deg, None)
+    reach_deg = _round_reach_deg(check, obj, job.T_world_camera @ T, params) \
+        if params.edge_round_levelled else params.edge_yaw_deg
     refined = T if mesh is None or params.edge_yaw_deg <= 0 else \
         _on_edges(estimator.refiner, obj, mesh, T, scene_c, job, evidence, params, info,
-                  max_yaw_deg=reach_deg, axis_w=axis_w)
+                  max_yaw_deg=reach_deg)
     if mesh is not None and _votes_keep(check, obj, mesh, T_free, refined, evidence):
         info['rest_levelled'] = 0.0
         info['rest_votes_kept'] = 1.0
@@ -116,9 +116,9 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
         estimator.refiner.surface_fit(scene_c, obj, T_fit, inlier_m=tolerance)[0]))
     evidence = colour_views(views, labels, job.detection.instance_id, job.detection.view,
                             table_frames(pipeline, views))
-    reach_deg, axis_w = _round_reach(check, obj, job.T_world_camera @ T_fit, params)
+    reach_deg = _round_reach_deg(check, obj, job.T_world_camera @ T_fit, params)
     refined = _on_edges(estimator.refiner, obj, mesh, T_fit, scene_c, job, evidence, params,
-                        info, max_yaw_deg=reach_deg, axis_w=axis_w)
+                        info, max_yaw_deg=reach_deg)
     if refined is T_fit:
         return None
     if _votes_keep(check, obj, mesh, T_fit, refined, evidence):
@@ -128,43 +128,38 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
     return refined, scene_c
 
 
-def _round_reach(check: FlatCheck, obj: ObjectTemplates, T_world_object: np.ndarray,
-                 params: RestingParams) -> tuple[float, np.ndarray | None]:
-    """How far either way the edge refinement turns a pose (deg), and about which axis in
-    the table frame (None: the vertical): a round flat part (``edge_round_period``) turns by
-    half its listed yaw period where that is more than ``edge_yaw_deg``, about the vertical
-    when it lies on a face (its thin axis within ``_LYING_AXIS_DEG`` of it), about its own
-    thin axis when it stands on its rim (``edge_round_standing``): there its holes turn."""
+def _round_reach_deg(check: FlatCheck, obj: ObjectTemplates, T_world_object: np.ndarray,
+                     params: RestingParams) -> float:
+    """How far either way the edge refinement turns a pose about the vertical (deg): half the
+    listed yaw period of a round flat part lying on a face (its thin axis within 45 deg of the
+    vertical; ``edge_round_period``) where that is more than ``edge_yaw_deg``, else
+    ``edge_yaw_deg``. A disc standing on its rim turns about a level axis: a turn about the
+    vertical is not its period's."""
     period = hole_yaw_period(obj) if params.edge_round_period and check.applies(obj) else 0.0
     if period <= 0:
-        return params.edge_yaw_deg, None
-    reach = max(params.edge_yaw_deg, float(np.degrees(period)) / 2)
+        return params.edge_yaw_deg
     thin_world = T_world_object[:3, :3] @ thin_axis(obj)
-    if abs(float(thin_world[2])) >= np.cos(np.radians(_LYING_AXIS_DEG)):
-        return reach, None
-    if params.edge_round_standing:
-        return reach, thin_world / np.linalg.norm(thin_world)
-    return params.edge_yaw_deg, None
+    if abs(float(thin_world[2])) < np.cos(np.radians(_LYING_AXIS_DEG)):
+        return params.edge_yaw_deg
+    return max(params.edge_yaw_deg, float(np.degrees(period)) / 2)
 
 
 def _on_edges(refiner: Refiner, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
               T: np.ndarray, scene_c: np.ndarray, job: PartJob, evidence: list[ViewEvidence],
               params: RestingParams, info: dict[str, float], *,
-              max_yaw_deg: float | None = None, axis_w: np.ndarray | None = None
-              ) -> np.ndarray:
+              max_yaw_deg: float | None = None) -> np.ndarray:
     """The levelled pose ``T`` turned and moved on the table where its edges lie best on the
     image's (:func:`refine_on_edges`, ``resting.edge_*``), or ``T`` itself when that move
     explains more than ``fitness_margin`` fewer of its depth points (a neighbour's edges, a
     shadow, can pull it off its own depth); ``info`` gets what decided. ``max_yaw_deg``:
-    the turn searched either way (None: ``edge_yaw_deg``); ``axis_w``: the axis turned about
-    (:func:`refine_on_edges`; None: the vertical)."""
+    the turn searched either way (None: ``edge_yaw_deg``)."""
     assert job.T_world_camera is not None
     moved, found = refine_on_edges(
         mesh, T, job.T_world_camera, obj.model_points.astype(np.float64), evidence,
         max_yaw_deg=params.edge_yaw_deg if max_yaw_deg is None else max_yaw_deg,
         max_shift_m=params.edge_shift_m,
         cap_px=params.edge_cap_px, jump_m=params.tolerance_m, crease_deg=30.0,
-        min_reach_px=params.edge_min_reach_px, axis_w=axis_w)
+        min_reach_px=params.edge_min_reach_px)
     info.update(found)
     if found['edge_yaw_deg'] == 0.0 and found['edge_shift_m'] == 0.0:
         return T

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tlessbot_ros.core.common import invert_transform, rotation_about_axis, transform_points
+from tlessbot_ros.core.common import invert_transform, transform_points
 
 if TYPE_CHECKING:
     import open3d as o3d
@@ -77,28 +77,17 @@ class _EdgeViews:
             self.views.append((points_world, T_view_world, view.intrinsics.K, distance, box))
         self.cap = cap_px
 
-    def scores(self, moves: np.ndarray, centre_w: np.ndarray,
-               axis_w: np.ndarray | None = None) -> np.ndarray:
+    def scores(self, moves: np.ndarray, centre_w: np.ndarray) -> np.ndarray:
         """(M,) mean capped distance (px) of the edge points moved by each of ``moves`` (M, 3)
-        (yaw rad about the vertical through ``centre_w``, or about the unit ``axis_w`` (3,)
-        through it, x m, y m) over every view."""
+        (yaw rad about the vertical through ``centre_w``, x m, y m) over every view."""
         total = np.zeros(len(moves))
         count = 0
         cos, sin = np.cos(moves[:, 0]), np.sin(moves[:, 0])
         for points_w, T_view_world, K, distance, (x0, y0, w, h) in self.views:
-            if axis_w is None:
-                rel = points_w[:, :2] - centre_w[:2]
-                x = cos[:, None] * rel[:, 0] - sin[:, None] * rel[:, 1] + centre_w[0] + \
-                    moves[:, 1:2]
-                y = sin[:, None] * rel[:, 0] + cos[:, None] * rel[:, 1] + centre_w[1] + \
-                    moves[:, 2:3]
-                moved = np.stack([x, y, np.broadcast_to(points_w[:, 2], x.shape)], axis=-1)
-            else:   # Rodrigues: the part along the axis stays, the rest turns
-                rel3 = points_w - centre_w
-                along = np.outer(rel3 @ axis_w, axis_w)
-                moved = centre_w + along + cos[:, None, None] * (rel3 - along) + \
-                    sin[:, None, None] * np.cross(axis_w, rel3)
-                moved[..., :2] += moves[:, None, 1:3]
+            rel = points_w[:, :2] - centre_w[:2]
+            x = cos[:, None] * rel[:, 0] - sin[:, None] * rel[:, 1] + centre_w[0] + moves[:, 1:2]
+            y = sin[:, None] * rel[:, 0] + cos[:, None] * rel[:, 1] + centre_w[1] + moves[:, 2:3]
+            moved = np.stack([x, y, np.broadcast_to(points_w[:, 2], x.shape)], axis=-1)
             cam = moved @ T_view_world[:3, :3].T + T_view_world[:3, 3]
             u = np.rint(K[0, 0] * cam[..., 0] / cam[..., 2] + K[0, 2]).astype(np.int64) - x0
             v = np.rint(K[1, 1] * cam[..., 1] / cam[..., 2] + K[1, 2]).astype(np.int64) - y0
@@ -135,8 +124,7 @@ def refine_on_edges(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.n
                     T_world_camera: np.ndarray, points_o: np.ndarray,
                     views: Sequence[ViewEvidence], *, max_yaw_deg: float, max_shift_m: float,
                     cap_px: float, jump_m: float, crease_deg: float,
-                    min_reach_px: float = 0.0, axis_w: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, dict[str, float]]:
+                    min_reach_px: float = 0.0) -> tuple[np.ndarray, dict[str, float]]:
     """The pose of a part resting on the table turned about the vertical (at most
     ``max_yaw_deg``) and moved along the table (at most ``max_shift_m`` in x and y) where its
     edges lie best on the colour views' edges (see the module).
@@ -152,8 +140,6 @@ def refine_on_edges(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.n
         jump_m, crease_deg: what is a rendered edge (:func:`~.turns.rendered_edges`).
         min_reach_px: a view counts only where the part's edges reach this far from its
             centre in the image (90th percentile, px; 0: every view).
-        axis_w: (3,) a unit axis in the table frame to turn about instead of the vertical
-            (a disc standing on its rim: its own axis), through the part's centre.
 
     Returns:
         the refined pose (the given one when no view counts or no move lays the edges
@@ -172,9 +158,9 @@ def refine_on_edges(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.n
     zero = np.zeros((1, 3))
     before = float(edge_views.scores(zero, centre_w)[0])
     coarse = _grid(max_yaw_deg, 1.0, max_shift_m, max_shift_m / 3, zero[0])
-    best = coarse[int(np.argmin(edge_views.scores(coarse, centre_w, axis_w)))]
+    best = coarse[int(np.argmin(edge_views.scores(coarse, centre_w)))]
     fine = _grid(0.75, 0.25, max_shift_m / 3, max_shift_m / 12, best)
-    fine_scores = edge_views.scores(fine, centre_w, axis_w)
+    fine_scores = edge_views.scores(fine, centre_w)
     k = int(np.argmin(fine_scores))
     info.update(edge_before_px=before, edge_after_px=float(fine_scores[k]))
     if fine_scores[k] >= before:
@@ -182,10 +168,7 @@ def refine_on_edges(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.n
     yaw, dx, dy = fine[k]
     info.update(edge_yaw_deg=float(np.degrees(yaw)), edge_shift_m=float(np.hypot(dx, dy)))
     move = np.eye(4)
-    if axis_w is None:
-        move[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-    else:
-        move[:3, :3] = rotation_about_axis(axis_w, yaw)
+    move[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
     move[:3, 3] = centre_w - move[:3, :3] @ centre_w + np.array([dx, dy, 0.0])
     return invert_transform(T_wc) @ move @ T_wo, info
 

@@ -71,8 +71,6 @@ class RestingParams:
             that is more than ``edge_yaw_deg`` (its fitted yaw may be any turn off).
         edge_round_levelled: ... and so is one levelled onto a face (a tilted fit's yaw is
             no better held).
-        edge_round_standing: a round flat part standing on its rim is turned about its own
-            axis instead of the vertical (its holes turn there; off: edge_yaw_deg about it).
     """
 
     enabled: bool = True
@@ -90,7 +88,6 @@ class RestingParams:
     edge_rested_round: bool = True
     edge_round_period: bool = True
     edge_round_levelled: bool = True
-    edge_round_standing: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_tilt_deg < self.max_tilt_deg <= 180.0:
