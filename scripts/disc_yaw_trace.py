@@ -47,8 +47,9 @@ def refine(scene, T, T_world_camera, points_o, views, **kw):
         # the edges' score at the truth: the search's own score from that pose, not moved
         scored = REFINE(scene, gt.T_camera_object, T_world_camera, points_o, views, **still)
         at_truth = f"{scored[1]['edge_before_px']:.3f}"
-    print(f'   search ±{kw["max_yaw_deg"]:.0f}°: turn {found["edge_yaw_deg"]:.2f}° shift '
-          f'{1e3 * found["edge_shift_m"]:.1f} mm, candidate {_err(obj_id, moved)}; edges px: fit '
+    about = 'the vertical' if kw.get('axis_w') is None else 'its axis'
+    print(f'   search ±{kw["max_yaw_deg"]:.0f}° about {about}: turn '
+          f'{found["edge_yaw_deg"]:.2f}° shift {1e3 * found["edge_shift_m"]:.1f} mm, candidate {_err(obj_id, moved)}; edges px: fit '
           f'{found["edge_before_px"]:.3f}, candidate {found["edge_after_px"]:.3f}, truth '
           f'{at_truth}; reach {found["edge_reach_px"]:.0f} px', flush=True)
     return moved, found
@@ -78,9 +79,9 @@ def _wanted(pipeline, obj_id):
     return hole_yaw_period(pipeline.pose_estimator.database[obj_id]) > 0
 
 
-def on_edges(refiner, obj, mesh, T, scene_c, job, evidence, params, info, *, max_yaw_deg=None):
-    moved = ON_EDGES(refiner, obj, mesh, T, scene_c, job, evidence, params, info,
-                     max_yaw_deg=max_yaw_deg)
+def on_edges(refiner, obj, mesh, T, scene_c, job, evidence, params, info, **kw):
+    moved = ON_EDGES(refiner, obj, mesh, T, scene_c, job, evidence, params, info, **kw)
+    max_yaw_deg = kw.get('max_yaw_deg')
     if STATE.get('obj_id') is None:
         return moved
     STATE['edges'].append((max_yaw_deg, _err(job.detection.obj_id, T),
