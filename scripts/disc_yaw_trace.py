@@ -47,9 +47,8 @@ def refine(scene, T, T_world_camera, points_o, views, **kw):
         # the edges' score at the truth: the search's own score from that pose, not moved
         scored = REFINE(scene, gt.T_camera_object, T_world_camera, points_o, views, **still)
         at_truth = f"{scored[1]['edge_before_px']:.3f}"
-    about = 'the vertical' if kw.get('axis_w') is None else 'its axis'
-    print(f'   search ±{kw["max_yaw_deg"]:.0f}° about {about}: turn '
-          f'{found["edge_yaw_deg"]:.2f}° shift {1e3 * found["edge_shift_m"]:.1f} mm, candidate {_err(obj_id, moved)}; edges px: fit '
+    print(f'   search ±{kw["max_yaw_deg"]:.0f}°: turn {found["edge_yaw_deg"]:.2f}° shift '
+          f'{1e3 * found["edge_shift_m"]:.1f} mm, candidate {_err(obj_id, moved)}; edges px: fit '
           f'{found["edge_before_px"]:.3f}, candidate {found["edge_after_px"]:.3f}, truth '
           f'{at_truth}; reach {found["edge_reach_px"]:.0f} px', flush=True)
     return moved, found
