@@ -106,7 +106,7 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
     obj = estimator.database[job.detection.obj_id]
     mesh = mesh_scene(obj)
     check = flat_check(pipeline)
-    if mesh is None or not check.applies(obj) or hole_yaw_period(obj) <= 0:
+    if mesh is None or not _round_part(check, obj, params):
         return None
     T_fit = job.detection.pose.T_camera_object
     scene_c = check.prepared_cloud(obj, job.points)
@@ -128,6 +128,12 @@ def _rested_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str
     return refined, scene_c
 
 
+def _round_part(check: FlatCheck, obj: ObjectTemplates, params: RestingParams) -> bool:
+    """Whether ``obj`` is a round part whose holes alone hold its yaw (:func:`hole_yaw_period`):
+    a flat one, or a thicker one (a flange) with ``edge_round_thick``."""
+    return hole_yaw_period(obj) > 0 and (params.edge_round_thick or check.applies(obj))
+
+
 def _round_reach_deg(check: FlatCheck, obj: ObjectTemplates, T_world_object: np.ndarray,
                      params: RestingParams) -> float:
     """How far either way the edge refinement turns a pose about the vertical (deg): half the
@@ -135,7 +141,8 @@ def _round_reach_deg(check: FlatCheck, obj: ObjectTemplates, T_world_object: np.
     vertical; ``edge_round_period``) where that is more than ``edge_yaw_deg``, else
     ``edge_yaw_deg``. A disc standing on its rim turns about a level axis: a turn about the
     vertical is not its period's."""
-    period = hole_yaw_period(obj) if params.edge_round_period and check.applies(obj) else 0.0
+    period = hole_yaw_period(obj) if params.edge_round_period and \
+        _round_part(check, obj, params) else 0.0
     if period <= 0:
         return params.edge_yaw_deg
     thin_world = T_world_object[:3, :3] @ thin_axis(obj)

@@ -71,6 +71,8 @@ class RestingParams:
             that is more than ``edge_yaw_deg`` (its fitted yaw may be any turn off).
         edge_round_levelled: ... and so is one levelled onto a face (a tilted fit's yaw is
             no better held).
+        edge_round_thick: a round part with holes that is not flat (a flange) is refined as
+            a round flat part is.
     """
 
     enabled: bool = True
@@ -88,6 +90,7 @@ class RestingParams:
     edge_rested_round: bool = True
     edge_round_period: bool = True
     edge_round_levelled: bool = True
+    edge_round_thick: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_tilt_deg < self.max_tilt_deg <= 180.0:
