@@ -115,6 +115,17 @@ def test_a_tilted_disc_far_off_in_yaw_is_levelled_and_searched_over_its_period(d
     assert yaw_error_deg(T, T_true, 90.0) > 15.0   # at most edge_yaw_deg nearer
 
 
+def test_a_round_part_too_thick_to_be_flat_is_searched_as_well(disc):
+    # the disc counted as thick (a flange: flat.flat_ratio below its 4.4 / 47 mm)
+    fit = FitParams()
+    fit = replace(fit, flat=replace(fit.flat, flat_ratio=0.05))
+    T, T_true = _checked(disc, fit, 30.0)
+    assert yaw_error_deg(T, T_true, 90.0) < 2.5
+    fit = replace(fit, resting=replace(fit.resting, edge_round_thick=False))
+    T, T_true = _checked(disc, fit, 30.0)
+    assert yaw_error_deg(T, T_true, 90.0) > 15.0
+
+
 def test_without_the_setting_a_resting_disc_keeps_its_yaw(disc):
     T, T_true = _checked(disc, _off(FitParams(), False))
     assert yaw_error_deg(T, T_true, 90.0) == pytest.approx(TURN_DEG, abs=0.1)
