@@ -2,7 +2,9 @@
 within ``resting.min_tilt_deg``) but is turned a few degrees about its axis: only its holes
 hold its yaw, and a smoothed depth does not show them, so the resting prior refines it on the
 image's edges as it does a pose it levelled (``resting.edge_rested_round``; off, the fit stays
-as it was). A plate, whose outline holds its yaw, is left as it rests."""
+as it was). A plate, whose outline holds its yaw, is left as it rests. The same disc tilted
+(levelled by the prior) or counted too thick to be flat (a flange) is searched over half its
+period too (``resting.edge_round_levelled``, ``resting.edge_round_thick``)."""
 from __future__ import annotations
 
 from dataclasses import replace
