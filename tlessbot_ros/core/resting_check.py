@@ -137,10 +137,10 @@ def _round_part(check: FlatCheck, obj: ObjectTemplates, params: RestingParams) -
 def _round_reach_deg(check: FlatCheck, obj: ObjectTemplates, T_world_object: np.ndarray,
                      params: RestingParams) -> float:
     """How far either way the edge refinement turns a pose about the vertical (deg): half the
-    listed yaw period of a round flat part lying on a face (its thin axis within 45 deg of the
-    vertical; ``edge_round_period``) where that is more than ``edge_yaw_deg``, else
-    ``edge_yaw_deg``. A disc standing on its rim turns about a level axis: a turn about the
-    vertical is not its period's."""
+    listed yaw period of a round part (:func:`_round_part`) lying on a face (its thin axis
+    within ``_LYING_AXIS_DEG`` of the vertical; ``edge_round_period``) where that is more than
+    ``edge_yaw_deg``, else ``edge_yaw_deg``. A disc standing on its rim turns about a level
+    axis: a turn about the vertical is not its period's."""
     period = hole_yaw_period(obj) if params.edge_round_period and \
         _round_part(check, obj, params) else 0.0
     if period <= 0:
