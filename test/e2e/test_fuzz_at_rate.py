@@ -43,6 +43,7 @@ RECOVERY_S = 3.0
 # Nor are the replay's first seconds: in one fresh-clone CI run on a quiet host only 6 of the 13
 # clean frames were answered (15 of 17 after the garbage), where other runs answer all of them.
 WARM_S = 8.0
+MIN_REFERENCE_ANSWERED = 4   # clean frames answered, at least
 RIGHT_TOLERANCE = 0.15      # share of parts right in the answered frames, against clean
 ANSWERED_TOLERANCE = 0.35   # share of good frames answered after the garbage, against clean
 # RSS may grow while garbage flows (the allocator keeps freed buffers up to its trim threshold,
@@ -89,7 +90,9 @@ def test_good_frames_are_still_answered_right(fuzz_run):
                 for node, values in fuzz.result.diagnostics.items()}
     evidence = (answered_timeline(fuzz), counters, scores)   # the short ones first
     assert clean.frames and garbage.frames and after.frames, evidence
-    assert clean.answered_share > 0.5, evidence   # the reference itself must be meaningful
+    # the reference must hold answered frames to compare with; how many of them a host answers
+    # at GOOD_FPS is its speed (7 of 14 on a CI run beside a second one), not the subject
+    assert clean.answered >= MIN_REFERENCE_ANSWERED, evidence
     assert garbage.answered > 0, evidence
     assert garbage.answered_recall >= clean.answered_recall - RIGHT_TOLERANCE, evidence
     assert after.answered_share >= clean.answered_share - ANSWERED_TOLERANCE, evidence
