@@ -2,8 +2,8 @@
 pipeline's own parameters (``key=value`` changes them; ``colour_edge_pattern_share=0`` shows
 the blobs main's rules keep): whether it lies on a part (>= 30 % on a ground-truth visible
 mask) or bare table (< 5 %), its area, depth share, outline step share and common colour (the
-outline rule's values), its pattern share (``colour_edge.pattern_colour_share``), and its
-median height, the table's median height and 1.48 MAD around it (the window one part length
+outline rule's values), its pattern share (``colour_edge.pattern_colour_share``; with the
+squares' blurred edges, ``blend_pattern_share`` within 1, 2 and 3 px), and its median height, the table's median height and 1.48 MAD around it (the window one part length
 around, off every blob) and the first's distance from the second in the third.
 docs/bench/checker-false-parts.md.
 
@@ -21,6 +21,7 @@ from tlessbot_ros.core.localise import SegmentationParams
 from tlessbot_ros.core.localise.colour import rgb_to_lab
 from tlessbot_ros.core.localise.colour_edge import (
     OUTLINE_REACH_PX,
+    blend_pattern_share,
     colour_share_around,
     outline_step_share,
     pattern_colour_share,
@@ -39,8 +40,9 @@ from table_false_parts_cues import (  # noqa: E402
     two_view_frames,
 )
 
+BLEND_REACH_PX = (1, 2, 3)
 COLUMNS = ('frame', 'view', 'label', 'area', 'depth_share', 'step', 'common', 'pattern',
-           'h_mm', 'table_mm', 'noise_mm', 'z')
+           'blend1', 'blend2', 'blend3', 'h_mm', 'table_mm', 'noise_mm', 'z')
 
 
 def blob_rows(image, seg, params) -> list[tuple]:
@@ -76,6 +78,8 @@ def blob_rows(image, seg, params) -> list[tuple]:
                      outline_step_share(lab[near], blob, tol, OUTLINE_REACH_PX),
                      colour_share_around(lab[around], blobs[around] == i, tol),
                      pattern_colour_share(lab[around], blobs[around] == i, off_blobs, tol),
+                     *(blend_pattern_share(lab[around], blobs[around] == i, off_blobs, tol, r)
+                       for r in BLEND_REACH_PX),
                      1e3 * top, 1e3 * level, 1e3 * noise, (top - level) / noise))
     return rows
 

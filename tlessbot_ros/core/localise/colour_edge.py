@@ -56,6 +56,9 @@ OUTLINE_REACH_PX = 2
 # around it has it: a pattern's squares cover a large share of any window (a checker half of
 # it), a part's colour at most the part's own area (under a tenth of that window).
 COMMON_COLOUR_SHARE = 0.2
+# The table's common colours are looked for among its most common colour bins, this many (a
+# pattern has a few colours; each common one fills a good share of the bins' pixels).
+COMMON_BINS_TRIED = 8
 
 
 def rings(blob: np.ndarray, others: np.ndarray, ring_px: int
@@ -178,8 +181,14 @@ def _table_piece(lab: np.ndarray, blobs: np.ndarray, box: np.ndarray, i: int,
             colour_share_around(lab[around], blobs[around] == i, tolerance) > COMMON_COLOUR_SHARE:
         return True
     share = params.colour_edge_pattern_share
-    return depth_free and share > 0 and pattern_colour_share(lab[around], blobs[around] == i,
-                                              blobs[around] == 0, tolerance, share) >= share
+    if not depth_free or share <= 0:
+        return False
+    if pattern_colour_share(lab[around], blobs[around] == i, blobs[around] == 0, tolerance,
+                            share) >= share:
+        return True
+    return params.colour_edge_blend_px > 0 and blend_pattern_share(
+        lab[around], blobs[around] == i, blobs[around] == 0, tolerance,
+        params.colour_edge_blend_px) >= share
 
 
 def pattern_colour_share(lab: np.ndarray, blob: np.ndarray, table: np.ndarray,
@@ -211,3 +220,56 @@ def pattern_colour_share(lab: np.ndarray, blob: np.ndarray, table: np.ndarray,
                                       common + left < decide_at * len(inside)):
             break
     return common / len(inside)
+
+
+def common_colours(lab: np.ndarray, table: np.ndarray, tolerance: np.ndarray) -> np.ndarray:
+    """(K, 3) LAB colours that more than ``COMMON_COLOUR_SHARE`` of the ``table`` pixels (every
+    second row and column) lie within ``tolerance`` of: the pattern's colours, at most one per
+    tolerance box, tried in order of the most common bins one tolerance wide."""
+    reference = lab[::2, ::2][table[::2, ::2]].astype(np.float64)
+    if len(reference) < 5:
+        return np.zeros((0, 3))
+    keys, counts = np.unique(np.floor(reference / tolerance).astype(np.int64), axis=0,
+                             return_counts=True)
+    kept: list[np.ndarray] = []
+    for k in np.argsort(-counts)[:COMMON_BINS_TRIED]:
+        centre = (keys[k] + 0.5) * tolerance
+        if any(np.all(np.abs(centre - c) <= tolerance) for c in kept):
+            continue
+        within = np.all(np.abs(reference - centre) <= tolerance, axis=1)
+        if np.count_nonzero(within) > COMMON_COLOUR_SHARE * len(reference):
+            kept.append(centre)
+    return np.array(kept).reshape(-1, 3)
+
+
+def blend_pattern_share(lab: np.ndarray, blob: np.ndarray, table: np.ndarray,
+                        tolerance: np.ndarray, reach_px: int) -> float:
+    """The share of ``blob``'s pixels in one of the table's common colours
+    (:func:`common_colours`) or between two of them (within ``tolerance`` of the line from one
+    to the other) where pixels of both lie within ``reach_px``: a square's edge, blurred by the
+    lens and the sensor, has colours neither square has. A part whose colour lies between two
+    of the table's has it inside its outline too, away from the squares' colours. Crops of one
+    window; 0 without table to read."""
+    colours = common_colours(lab, table, tolerance)
+    if not len(colours) or not blob.any():
+        return 0.0
+    scaled, centres = lab[blob] / tolerance, colours / tolerance
+    pattern = np.zeros(len(scaled), bool)
+    for centre in centres:
+        pattern |= np.all(np.abs(scaled - centre) <= 1.0, axis=1)
+    if len(centres) < 2 or pattern.all():
+        return float(pattern.mean())
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach_px + 1, 2 * reach_px + 1))
+    near = [cv2.dilate(cv2.inRange(lab, c - tolerance, c + tolerance), kernel)[blob] > 0
+            for c in colours]
+    for a in range(len(centres)):
+        for b in range(a + 1, len(centres)):
+            between = np.flatnonzero(near[a] & near[b] & ~pattern)
+            if not len(between):
+                continue
+            step = centres[b] - centres[a]
+            t = np.clip((scaled[between] - centres[a]) @ step / (step @ step), 0.0, 1.0)
+            on_line = np.all(np.abs(scaled[between] - centres[a] - t[:, None] * step) <= 1.0,
+                             axis=1)
+            pattern[between[on_line]] = True
+    return float(pattern.mean())

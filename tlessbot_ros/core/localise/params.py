@@ -93,6 +93,8 @@ class SegmentationParams:
             this share of its outline, in a colour common around it: table (0..1; 0: off).
         colour_edge_pattern_share: a blob the depth does not find, with at least this share of
             its pixels in colours common on the table around it: table (0..1; 0: off).
+        colour_edge_blend_px: that share also counts pixels between two common colours within
+            this many px of both (a square's blurred edge; 0: off).
 
     ``methods``: 'watershed' adds the grey-level histogram extremes as markers *and* refines the
     union by flooding (without it the union is used as is); 'background' is used only when an
@@ -153,6 +155,7 @@ class SegmentationParams:
     colour_edge_ring_px: int = 4
     colour_edge_outline_share: float = 0.5
     colour_edge_pattern_share: float = 0.7
+    colour_edge_blend_px: int = 2
 
     def __post_init__(self) -> None:
         if self.thin_max_height_m < 0 or not 0.0 <= self.thin_quantile <= 1.0 or \
@@ -187,6 +190,9 @@ class SegmentationParams:
             raise ValueError('need colour_edge_floors >= 0 (0: off) and colour_edge_ring_px '
                              f'>= 1, got {self.colour_edge_floors} and '
                              f'{self.colour_edge_ring_px}')
+        if self.colour_edge_blend_px < 0:
+            raise ValueError('need colour_edge_blend_px >= 0 (0: off), got '
+                             f'{self.colour_edge_blend_px}')
         if not (0.0 <= self.colour_edge_outline_share <= 1.0 and
                 0.0 <= self.colour_edge_pattern_share <= 1.0):
             raise ValueError('colour_edge_outline_share and colour_edge_pattern_share must be '
