@@ -5,6 +5,7 @@ of a thin part whose top the depth reads as table around them
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from tlessbot_ros.core.localise import SegmentationParams, segment
 
@@ -180,3 +181,50 @@ def test_a_plate_of_the_tiles_colour_that_the_depth_finds_in_places_is_kept():
     centres = _centres(rgb, depth, cam, SegmentationParams(whole_parts=PARTS))
     assert sum(_inside(c, PLATE) for c in centres) == 1
     assert sum(_inside(c, STRIP) for c in centres) == 1
+
+
+# A checker whose squares' edges are blurred (a lens, a sensor): a raised piece along a dark
+# square's edge holds the square's colour and the edge's blends of it with the table's, none
+# of them one part's; a grey part lying across such an edge, of a colour between the two, has
+# it inside its outline too, away from the squares' colours.
+EDGE_PIECE = (slice(55, 75), slice(126, 132))   # the tile at columns 100-129 ends at 130
+GREY_PART = (slice(150, 170), slice(170, 190))  # across the tile edge at column 180
+
+
+def _blurred_tiles_with(params: SegmentationParams) -> np.ndarray:
+    """What ``drop_blobs_without_colour_edge`` keeps of the edge piece and the grey part, both
+    found by colour alone (no depth candidate) on the blurred dark tiles."""
+    import cv2
+
+    from tlessbot_ros.core.localise.colour_edge import drop_blobs_without_colour_edge
+
+    rows, cols = np.mgrid[0:240, 0:320]
+    rgb = np.empty((240, 320, 3))
+    rgb[:] = (200, 200, 195)
+    rgb[((rows % TILE_PITCH) < TILE_PX) & ((cols % TILE_PITCH) < TILE_PX)] = (70, 70, 75)
+    rgb = cv2.GaussianBlur(rgb, (0, 0), 1.0)
+    rgb[GREY_PART] = (135, 135, 135)
+    rgb = np.clip(rgb + np.random.default_rng(1).normal(0, 2.0, rgb.shape), 0, 255)
+    foreground = np.zeros((240, 320), bool)
+    foreground[EDGE_PIECE] = foreground[GREY_PART] = True
+    return drop_blobs_without_colour_edge(foreground, rgb.astype(np.uint8),
+                                          np.zeros_like(foreground), ~foreground, params)
+
+
+def test_a_piece_along_a_blurred_square_edge_is_not_a_part():
+    kept = _blurred_tiles_with(SegmentationParams(whole_parts=PARTS))
+    assert not kept[EDGE_PIECE].any()
+    assert kept[GREY_PART].all()
+
+
+def test_the_edge_piece_is_kept_without_the_blends():
+    # what the test above guards against: a third of the piece is the edge's blends, so under
+    # colour_edge_pattern_share of it has the squares' own colours
+    kept = _blurred_tiles_with(SegmentationParams(whole_parts=PARTS, colour_edge_blend_px=0))
+    assert kept[EDGE_PIECE].all()
+    assert kept[GREY_PART].all()
+
+
+def test_the_blend_reach_must_not_be_negative():
+    with pytest.raises(ValueError, match='colour_edge_blend_px'):
+        SegmentationParams(colour_edge_blend_px=-1)
