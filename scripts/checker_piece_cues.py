@@ -3,9 +3,10 @@ pipeline's own parameters (``key=value`` changes them; ``colour_edge_pattern_sha
 the blobs main's rules keep): whether it lies on a part (>= 30 % on a ground-truth visible
 mask) or bare table (< 5 %), its area, depth share, outline step share and common colour (the
 outline rule's values), its pattern share (``colour_edge.pattern_colour_share``; with the
-squares' blurred edges, ``blend_pattern_share`` within 1, 2 and 3 px), and its median height, the table's median height and 1.48 MAD around it (the window one part length
-around, off every blob) and the first's distance from the second in the third.
-docs/bench/checker-false-parts.md.
+squares' blurred edges, ``blend_pattern_share`` within 1, 2 and 3 px), and its median height,
+the table's median height and 1.48 MAD around it (the window one part length around, off
+every blob) and the first's distance from the second in the third.
+docs/bench/checker-false-parts.md, docs/bench/smoothed-false-parts-now.md.
 
     python scripts/checker_piece_cues.py SCENES TEMPLATES [VIEW] [key=value ...]
 """

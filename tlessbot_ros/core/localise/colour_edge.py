@@ -229,11 +229,14 @@ def common_colours(lab: np.ndarray, table: np.ndarray, tolerance: np.ndarray) ->
     reference = lab[::2, ::2][table[::2, ::2]].astype(np.float64)
     if len(reference) < 5:
         return np.zeros((0, 3))
-    keys, counts = np.unique(np.floor(reference / tolerance).astype(np.int64), axis=0,
+    bins = np.floor(reference / tolerance).astype(np.int64) + 1024   # colours as bin numbers
+    keys, counts = np.unique((bins[:, 0] * 4096 + bins[:, 1]) * 4096 + bins[:, 2],
                              return_counts=True)
     kept: list[np.ndarray] = []
     for k in np.argsort(-counts)[:COMMON_BINS_TRIED]:
-        centre = (keys[k] + 0.5) * tolerance
+        key = int(keys[k])
+        centre = (np.array([key // 4096 ** 2, key // 4096 % 4096, key % 4096]) - 1024 + 0.5
+                  ) * tolerance
         if any(np.all(np.abs(centre - c) <= tolerance) for c in kept):
             continue
         within = np.all(np.abs(reference - centre) <= tolerance, axis=1)
@@ -259,9 +262,12 @@ def blend_pattern_share(lab: np.ndarray, blob: np.ndarray, table: np.ndarray,
         pattern |= np.all(np.abs(scaled - centre) <= 1.0, axis=1)
     if len(centres) < 2 or pattern.all():
         return float(pattern.mean())
+    rows, cols = np.nonzero(blob)   # only the blob's box and its reach are looked at
+    box = (slice(max(int(rows.min()) - reach_px, 0), int(rows.max()) + reach_px + 1),
+           slice(max(int(cols.min()) - reach_px, 0), int(cols.max()) + reach_px + 1))
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach_px + 1, 2 * reach_px + 1))
-    near = [cv2.dilate(cv2.inRange(lab, c - tolerance, c + tolerance), kernel)[blob] > 0
-            for c in colours]
+    near = [cv2.dilate(cv2.inRange(lab[box], c - tolerance, c + tolerance), kernel)[blob[box]]
+            > 0 for c in colours]
     for a in range(len(centres)):
         for b in range(a + 1, len(centres)):
             between = np.flatnonzero(near[a] & near[b] & ~pattern)
