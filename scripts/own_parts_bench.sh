@@ -71,14 +71,21 @@ eval)
   ;;
 why)
   OUT=$1; SEED=$2; k=$3
-  "$PY" scripts/own_parts_why.py "$SCENES/$SEED-$k" "$BENCH/parts/$k/models" \
-    "$OUT/$SEED/$k/estimates.csv"
+  # T has no parts folder: its scenes folder holds models_info.json
+  models=$BENCH/parts/$k/models; [ "$k" = T ] && models=$SCENES/$SEED-$k
+  "$PY" scripts/own_parts_why.py "$SCENES/$SEED-$k" "$models" "$OUT/$SEED/$k/estimates.csv"
   ;;
 none)
   OUT=$1; SEED=$2; k=$3
-  "$PY" scripts/own_parts_none.py "$SCENES/$SEED-$k" "$BENCH/parts/$k/models" \
-    "$OUT/$SEED/$k/estimates.csv" --manifest "$BENCH/parts/$k/manifest.json" \
-    --templates "$BENCH/parts/$k/templates.npz" --rerun --classifier "$BENCH/parts/$k/classifier.npz"
+  if [ "$k" = T ]; then   # the packaged classifier and templates; T-LESS lists no manifest
+    more=("$SCENES/$SEED-$k" --templates tlessbot_ros/data/templates.npz
+          --classifier tlessbot_ros/data/classifier.npz)
+  else
+    more=("$BENCH/parts/$k/models" --manifest "$BENCH/parts/$k/manifest.json"
+          --templates "$BENCH/parts/$k/templates.npz" --classifier "$BENCH/parts/$k/classifier.npz")
+  fi
+  "$PY" scripts/own_parts_none.py "$SCENES/$SEED-$k" "${more[0]}" \
+    "$OUT/$SEED/$k/estimates.csv" "${more[@]:1}" --rerun
   ;;
 resolvable)
   OUT=$1; SEED=$2; shift 2
