@@ -141,7 +141,7 @@ class FitParams:
         split_unexplained: a connected piece of a region's depth points (at least
             ``min_roi_points``) that its fit leaves unexplained is fitted as a part of its own.
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
-            visible surface (>= 0; 0: off).
+            visible surface: a larger part explains a small one's points (>= 0; 0: off).
         flat: flat parts: the face that is up (depth and colour image), the yaw and a look-alike
             (image) (:class:`~tlessbot_ros.core.pose.FlatParams`).
         turns: parts that are not flat: a near-symmetric turn of the fit that the colour image
@@ -185,7 +185,7 @@ class FitParams:
     split_unexplained: bool = True
     join_refit_cover: float = 0.8
     join_refit_gap_px: int = 3
-    fit_rank_coverage_weight: float = 0.0
+    fit_rank_coverage_weight: float = 0.1
     flat: FlatParams = field(default_factory=FlatParams)
     turns: TurnParams = field(default_factory=TurnParams)
     resting: RestingParams = field(default_factory=RestingParams)

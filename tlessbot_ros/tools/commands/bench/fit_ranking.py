@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='fit_rank_min_fitness: unknown below (default 0 = off)')
     parser.add_argument('--coverage-weight', type=float,
                         default=FitParams.fit_rank_coverage_weight,
-                        help='fit_rank_coverage_weight (default 0 = off)')
+                        help='fit_rank_coverage_weight (default: the pipeline default; 0 = off)')
     parser.add_argument('--limit', type=int, help='at most N frames')
     parser.add_argument('--out', type=Path, default=Path('reports/fit-ranking'))
 
