@@ -62,6 +62,7 @@ class _Estimator:
     def __init__(self, fitness):
         self.fitness = fitness
         self.params = SimpleNamespace(fallback=False)
+        self.database = {i: SimpleNamespace(lookalikes=()) for i in (1, 2, 3)}   # no twins
 
     def estimate(self, points, obj_id, **options):
         if obj_id not in self.fitness:

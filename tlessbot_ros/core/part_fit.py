@@ -14,6 +14,7 @@ from tlessbot_ros.core.pose import (
     LookalikeCheck,
     PoseCandidate,
     PoseEstimator,
+    PoseResult,
     TemplateDatabase,
     inside_outline,
 )
@@ -51,7 +52,8 @@ def fit_part(estimator: PoseEstimator, params: FitParams, job: PartJob) -> None:
         # another class overrules the classifier's first only by a clear margin
         margin = params.verify_overrule_margin if winner is not None and \
             detection.class_rank == 0 else 0.0
-        if best_value is None or value > best_value + margin:
+        shift = _twin_coverage(estimator, params, obj_id, result.best, winner)
+        if best_value is None or value - shift > best_value + margin:
             best_value, winner = value, result
             detection.obj_id, detection.class_rank = obj_id, rank
         if rank == 0 and result.best.fitness >= params.verify_accept_fitness:
@@ -158,6 +160,18 @@ def _verify_fitness(estimator: PoseEstimator, params: FitParams, sample: np.ndar
     return estimator.refiner.surface_fit(sample, estimator.database[obj_id],
                                          best.T_camera_object,
                                          inlier_m=params.verify_inlier_m)[0]
+
+
+def _twin_coverage(estimator: PoseEstimator, params: FitParams, obj_id: int,
+                   best: PoseCandidate, winner: PoseResult | None) -> float:
+    """``fit_rank_coverage_weight`` x (the coverage of class ``obj_id`` at ``best`` - the
+    current ``winner``'s) when the two are listed look-alikes, else 0: twins share one outline,
+    so their coverages differ by noise, which must not break their tie (the classifier's
+    order does, and the look-alike checks after the fit)."""
+    if winner is None or winner.best is None or params.fit_rank_coverage_weight == 0 or \
+            winner.obj_id not in estimator.database[obj_id].lookalikes:
+        return 0.0
+    return params.fit_rank_coverage_weight * (best.coverage - winner.best.coverage)
 
 
 def _verify_value(estimator: PoseEstimator, params: FitParams, sample: np.ndarray, obj_id: int,
