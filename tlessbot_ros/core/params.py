@@ -141,7 +141,7 @@ class FitParams:
         split_unexplained: a connected piece of a region's depth points (at least
             ``min_roi_points``) that its fit leaves unexplained is fitted as a part of its own.
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
-            visible surface: a larger part explains a small one's points (>= 0; 0: off).
+            visible surface, but against their look-alike twin (>= 0; 0: off).
         flat: flat parts: the face that is up (depth and colour image), the yaw and a look-alike
             (image) (:class:`~tlessbot_ros.core.pose.FlatParams`).
         turns: parts that are not flat: a near-symmetric turn of the fit that the colour image
