@@ -122,3 +122,63 @@ def test_a_piece_joins_only_a_keeper_not_yet_published():
     assert published == [c]
     later.fitted(e, np.array([0.13, 0, 0]), 0.09, 0.7)
     assert later.kept_by.get(id(d)) is not c
+
+
+def test_touching_pieces_are_asked_whatever_their_centroids_distance():
+    """Two halves whose ROI centroids lie farther apart than half their summed diameters (one
+    half with a table piece attached) are neighbours when their regions touch, so ``joins``
+    is asked; pieces that do not touch stay apart (main's code: never asked)."""
+    a, b, c = _Detection(1), _Detection(2), _Detection(3)
+    asked, published = [], []
+
+    def joins(keeper, piece):
+        asked.append((keeper.instance_id, piece.instance_id))
+        return True
+    arbiter = FragmentFilter([(a, np.zeros(3), 'world', 500, 0.09),
+                              (b, np.array([0.10, 0, 0]), 'world', 400, 0.09),
+                              (c, np.array([-0.10, 0, 0]), 'world', 400, 0.09)],
+                             published.append, overlap=0.5, explains=lambda x, y: False,
+                             joins=joins, touching=lambda x, y: {x, y} == {a, b})
+    arbiter.fitted(b, np.array([0.03, 0, 0]), 0.09, 0.8)
+    arbiter.fitted(c, np.array([-0.10, 0, 0]), 0.09, 0.8)
+    arbiter.fitted(a, np.zeros(3), 0.09, 0.9)
+    assert asked == [(1, 2)]
+    assert published == [c, a] and arbiter.dropped == [b] and arbiter.kept_by == {id(b): a}
+
+
+def test_a_piece_left_unknown_joins_the_touching_part_whose_fit_of_both_explains_it():
+    """A piece with no pose (named unknown) touching a fitted one: one fit of both explains
+    each, so the piece joins it (main's code: kept as an unknown box); a piece that touches
+    nothing, or one the joint fit does not explain, stays."""
+    a, b, c, d = _Detection(1), _Detection(2), _Detection(3), _Detection(4)
+    published = []
+    touching = {frozenset((1, 2)), frozenset((1, 3))}
+    arbiter = FragmentFilter([(a, np.zeros(3), 'world', 900, 0.09),
+                              (b, np.array([0.02, 0, 0]), 'world', 300, 0.09),
+                              (c, np.array([-0.02, 0, 0]), 'world', 300, 0.09),
+                              (d, np.array([0.0, 0.03, 0]), 'world', 300, 0.09)],
+                             published.append, overlap=0.5, explains=lambda x, y: False,
+                             joins=lambda keeper, piece: piece is b,
+                             touching=lambda x, y: frozenset((x.instance_id, y.instance_id))
+                             in touching)
+    for piece in (b, c, d):
+        arbiter.fitted(piece, None, 0.0, -np.inf)
+    arbiter.fitted(a, np.zeros(3), 0.09, 0.9)
+    assert sorted(p.instance_id for p in published) == [1, 3, 4]
+    assert arbiter.dropped == [b] and arbiter.kept_by == {id(b): a}
+
+
+def test_two_touching_unknown_pieces_are_asked_once_the_larger_keeping():
+    a, b = _Detection(1), _Detection(2)
+    asked, published = [], []
+
+    def joins(keeper, piece):
+        asked.append((keeper.instance_id, piece.instance_id))
+        return True
+    arbiter = FragmentFilter([(a, np.zeros(3), 'world', 300, 0.09),
+                              (b, np.array([0.10, 0, 0]), 'world', 600, 0.09)],
+                             published.append, overlap=0.5, explains=lambda x, y: False,
+                             joins=joins, touching=lambda x, y: True)
+    arbiter.fitted(a, None, 0.0, -np.inf)
+    arbiter.fitted(b, None, 0.0, -np.inf)
+    assert asked == [(2, 1)] and published == [b] and arbiter.kept_by == {id(a): b}

@@ -74,12 +74,15 @@ class FragmentFilter(Generic[D]):
             fitted neighbours); None: centres only.
         joins: ``joins(keeper, piece)``: whether one fit of both explains each (``keeper``
             then takes it); asked of neighbours neither fit explains. None: never.
+        touching: ``touching(a, b)``: pieces whose regions touch are neighbours too, and a
+            piece with no pose is asked to join them. None: centroids only.
     """
 
     def __init__(self, pieces: Sequence[tuple[D, np.ndarray, str, int, float]],
                  publish: Callable[[D], None], *, overlap: float,
                  explains: Callable[[D, D], bool] | None = None,
-                 joins: Callable[[D, D], bool] | None = None) -> None:
+                 joins: Callable[[D, D], bool] | None = None,
+                 touching: Callable[[D, D], bool] | None = None) -> None:
         self._publish = publish
         self._overlap = float(overlap)
         self._explains = explains
@@ -93,11 +96,22 @@ class FragmentFilter(Generic[D]):
         self._pieces = [_Piece(d, frame, np.asarray(c, np.float64), int(n), float(diam))
                         for d, c, frame, n, diam in pieces]
         self._index = {id(p.detection): k for k, p in enumerate(self._pieces)}
+        self._touching = touching
         for a, piece in enumerate(self._pieces):
-            piece.neighbours = [b for b, other in enumerate(self._pieces) if b != a
-                                and self._overlap > 0 and other.frame == piece.frame
-                                and np.linalg.norm(other.centroid - piece.centroid)
-                                < 0.5 * (other.diameter_m + piece.diameter_m)]
+            for b in range(a + 1, len(self._pieces)):
+                if self._neighbours(piece, self._pieces[b]):
+                    piece.neighbours.append(b)
+                    self._pieces[b].neighbours.append(a)
+
+    def _neighbours(self, piece: _Piece[D], other: _Piece[D]) -> bool:
+        """Whether two pieces could overlap: ROI centroids within half their summed diameters,
+        or (``touching``) regions that touch: a part's two halves, one of them off the part,
+        can have centroids farther apart than that."""
+        if self._overlap <= 0 or other.frame != piece.frame:
+            return False
+        return bool(np.linalg.norm(other.centroid - piece.centroid)
+                    < 0.5 * (other.diameter_m + piece.diameter_m)) or \
+            self._touching is not None and self._touching(piece.detection, other.detection)
 
     def fitted(self, detection: D, centre: np.ndarray | None, diameter_m: float,
                score: float) -> None:
@@ -134,9 +148,10 @@ class FragmentFilter(Generic[D]):
     def _fragment_of(self, piece: _Piece[D]) -> D | None:
         """The neighbour this piece is a fragment of, if any: one whose fit explains it where
         its own fit does not explain the other, or one that fits better and sits on its
-        fitted centre or (each explaining the other) is the same part."""
+        fitted centre or (each explaining the other) is the same part. A piece with no pose
+        is one only of a touching neighbour whose joint fit explains each."""
         if piece.centre is None:
-            return None
+            return self._unfitted_joins(piece)
         explains = self._explains or (lambda a, b: False)
         for b in piece.neighbours:
             other = self._pieces[b]
@@ -152,6 +167,19 @@ class FragmentFilter(Generic[D]):
                     not _better(piece, other):
                 return other.detection
             if not explained and not _better(piece, other) and \
+                    self._joined(other.detection, piece.detection):
+                return other.detection
+        return None
+
+    def _unfitted_joins(self, piece: _Piece[D]) -> D | None:
+        """The first neighbour touching ``piece`` (no pose: named unknown) that one fit of both
+        explains (``joins``), if any: a fitted one, or a better unknown one (more points)."""
+        if self._touching is None:
+            return None
+        for b in piece.neighbours:
+            other = self._pieces[b]
+            if (other.centre is not None or _better(other, piece)) and \
+                    self._touching(other.detection, piece.detection) and \
                     self._joined(other.detection, piece.detection):
                 return other.detection
         return None
@@ -176,7 +204,8 @@ def _better(a: _Piece[Any], b: _Piece[Any]) -> bool:
 def fragment_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None],
                     database: TemplateDatabase, overlap: float,
                     explains: Callable[[Detection, Detection], bool] | None = None,
-                    joins: Callable[[Detection, Detection], bool] | None = None
+                    joins: Callable[[Detection, Detection], bool] | None = None,
+                    touching: Callable[[Detection, Detection], bool] | None = None
                     ) -> FragmentFilter[Detection]:
     """The :class:`FragmentFilter` of one frame's parts (``PartJob`` items): ROI centroids in
     the world (camera frame without a table frame), first-class diameters from ``database``."""
@@ -188,4 +217,5 @@ def fragment_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None
             centroid = transform_points(job.T_world_camera, centroid[None])[0]
         pieces.append((job.detection, centroid, frame, len(job.points),
                        database[job.candidates[0]].diameter_m))
-    return FragmentFilter(pieces, publish, overlap=overlap, explains=explains, joins=joins)
+    return FragmentFilter(pieces, publish, overlap=overlap, explains=explains, joins=joins,
+                          touching=touching)

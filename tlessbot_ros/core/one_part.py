@@ -32,13 +32,15 @@ from tlessbot_ros.core.recognise import UNKNOWN_ID
 
 def one_part_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None],
                     params: FitParams, estimator: PoseEstimator | None, overlap: float,
-                    joins: Callable[[Detection, Detection], bool] | None = None
+                    joins: Callable[[Detection, Detection], bool] | None = None,
+                    touching: Callable[[Detection, Detection], bool] | None = None
                     ) -> FragmentFilter[Detection]:
     """The frame's fragment filter (:func:`~tlessbot_ros.core.fragments.fragment_filter`,
     ``overlap``) that also drops a piece another part's fit explains (:func:`explainer`), or
-    one fit of both explains (``joins``, :mod:`tlessbot_ros.core.piece_union`)."""
+    one fit of both explains (``joins`` of ``touching`` pieces,
+    :mod:`tlessbot_ros.core.piece_union`)."""
     return fragment_filter(jobs, publish, pose_stage(estimator).database, overlap,
-                           explainer(params, estimator, jobs), joins)
+                           explainer(params, estimator, jobs), joins, touching)
 
 
 def explainer(params: FitParams, estimator: PoseEstimator | None, jobs: Sequence[PartJob]

@@ -138,6 +138,8 @@ class FitParams:
         join_refit_cover: two touching pieces neither fit explains are one part when one fit
             of both covers this share of each one's points, and they of its outline (0: off).
         join_refit_gap_px: pieces of one view at most this many pixels apart touch (>= 0).
+        join_refit_touching: touching pieces are neighbours whatever their centroids' distance,
+            and a piece with no pose (unknown) is joined too (off: fitted neighbours only).
         split_unexplained: a connected piece of a region's depth points (at least
             ``min_roi_points``) that its fit leaves unexplained is fitted as a part of its own.
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
@@ -185,6 +187,7 @@ class FitParams:
     split_unexplained: bool = True
     join_refit_cover: float = 0.8
     join_refit_gap_px: int = 3
+    join_refit_touching: bool = True
     fit_rank_coverage_weight: float = 0.1
     flat: FlatParams = field(default_factory=FlatParams)
     turns: TurnParams = field(default_factory=TurnParams)

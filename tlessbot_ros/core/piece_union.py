@@ -22,6 +22,12 @@ parts side by side lies partly on the table. The better piece keeps the joint
 fit and the other piece's region joins it (:func:`~tlessbot_ros.core.one_part.join_pieces`).
 The joint fit runs the pipeline's whole fit (the flat parts' checks, the resting prior) on
 the labels with the two regions joined.
+
+With ``join_refit_touching`` (:func:`touch_test`) touching pieces are asked whatever their
+ROI centroids' distance (a half with a shadow or a table piece attached lies far from the
+other's centroid), and so is a piece whose own fit was refused (unknown, no pose; both pieces
+may be): the joint fit must then cover and explain its points by the same shares, its own fit
+counting nothing.
 """
 from __future__ import annotations
 
@@ -40,6 +46,7 @@ from tlessbot_ros.core.resting_check import check_resting_and_turns
 from tlessbot_ros.core.two_parts import seen_share
 
 if TYPE_CHECKING:
+    from tlessbot_ros.core.params import FitParams
     from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 
 # two pieces whose points span more than this times their class's diameter are not one part
@@ -81,10 +88,11 @@ def union_joiner(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
     def joins(keeper: Detection, piece: Detection) -> bool:
         job, other = by_detection[id(keeper)], by_detection[id(piece)]
         image = labels.get(keeper.view)
-        if keeper.view != piece.view or image is None or keeper.pose is None or \
-                piece.pose is None or not regions_touch(image, keeper.instance_id,
-                                                        piece.instance_id,
-                                                        params.join_refit_gap_px):
+        if keeper.view != piece.view or image is None or \
+                not all(d.pose is not None or params.join_refit_touching and
+                        d.obj_id == UNKNOWN_ID for d in (keeper, piece)) or \
+                not regions_touch(image, keeper.instance_id, piece.instance_id,
+                                  params.join_refit_gap_px):
             return False
         joined = joint_job(job, other)
         if span_m(joined.points) > SPAN_SLACK * max(estimator.database[c].diameter_m
@@ -102,6 +110,28 @@ def union_joiner(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
         adopt(keeper, joined.detection)
         return True
     return joins
+
+
+def touch_test(params: FitParams, labels: dict[str, np.ndarray]
+               ) -> Callable[[Detection, Detection], bool] | None:
+    """``touching(a, b)`` for the fragment filter: whether two detections' regions of one
+    view of ``labels`` touch (``join_refit_gap_px``). None when joining or
+    ``join_refit_touching`` is off."""
+    if params.join_refit_cover <= 0 or not params.join_refit_touching:
+        return None
+
+    def touching(a: Detection, b: Detection) -> bool:
+        image, gap = labels.get(a.view), params.join_refit_gap_px
+        return a.view == b.view and image is not None and boxes_near(a.box, b.box, gap) and \
+            regions_touch(image, a.instance_id, b.instance_id, gap)
+    return touching
+
+
+def boxes_near(a: Sequence[int], b: Sequence[int], gap_px: int) -> bool:
+    """Whether two (x, y, w, h) boxes lie at most ``gap_px`` + 1 pixels apart on both axes
+    (regions farther apart cannot touch)."""
+    return all(a[k] <= b[k] + b[k + 2] + gap_px + 1 and b[k] <= a[k] + a[k + 2] + gap_px + 1
+               for k in (0, 1))
 
 
 def joint_job(job: PartJob, other: PartJob) -> PartJob:
@@ -149,4 +179,5 @@ def regions_touch(image: np.ndarray, a: int, b: int, gap_px: int) -> bool:
     return bool((grown.astype(bool) & (crop == b)).any())
 
 
-__all__ = ['adopt', 'joint_job', 'regions_touch', 'span_m', 'union_joiner']
+__all__ = ['adopt', 'boxes_near', 'joint_job', 'regions_touch', 'span_m', 'touch_test',
+           'union_joiner']

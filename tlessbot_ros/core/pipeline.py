@@ -90,7 +90,7 @@ from tlessbot_ros.core.part_fit import (
     unknown_last,
     warm_up_checks,
 )
-from tlessbot_ros.core.piece_union import union_joiner
+from tlessbot_ros.core.piece_union import touch_test, union_joiner
 from tlessbot_ros.core.pose import (
     PoseEstimator,
     PoseParams,
@@ -412,7 +412,8 @@ class PerceptionPipeline:
         last, pieces = split_then(self, views, labels, jobs, last, done, box_mode=box_mode)
         arbiter = one_part_filter(jobs, last, self.fit_params, self.pose_estimator,
                                   0.0 if box_mode else self.fit_params.fragment_overlap,
-                                  union_joiner(self, views, labels, jobs))
+                                  union_joiner(self, views, labels, jobs),
+                                  touch_test(self.fit_params, labels))
 
         def fitted(job: PartJob) -> None:
             check_fitted_part(self, job, views, labels)   # every view: not in a worker
