@@ -368,8 +368,7 @@ class PerceptionPipeline:
                 fitted in parallel complete in any order). A fragment of a larger part
                 (``fragment_overlap``) is never handed over, and a smaller piece only once its
                 larger neighbours are fitted, so the result does not depend on that order.
-            fitter: runs the parts' fits (e.g. several at once in worker processes); by
-                default they run one after the other here, through :meth:`fit_part`.
+            fitter: runs the parts' fits (e.g. in worker processes); default: here, in turn.
 
         Returns:
             the detections in instance order, fragments left out.
