@@ -81,6 +81,7 @@ def test_a_part_that_nothing_fits_well_enough_is_unknown(part21):
 
 def test_off_by_default_the_candidates_are_those_of_before():
     assert ClassifyParams().fit_rank_below_margin == 0 and FitParams().fit_rank_min_fitness == 0
+    assert FitParams().fit_rank_coverage_weight == 0
     assert ranking_depth(3, 0.0, 8, 30) == 3
     pipeline = PerceptionPipeline(classifier=_unsure_classifier(7, 4, margin=0.0))
     ranked = [7, 4, 9, 11, 12]

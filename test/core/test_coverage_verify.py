@@ -35,6 +35,7 @@ def _named(first, fits, twins=(), **options):
     second = LARGE if first == SMALL else SMALL
     job = PartJob(Detection(1, first, 'side', (0, 0, 1, 1)), np.zeros((50, 3)),
                   (first, second), None)
+    options = {'fit_rank_coverage_weight': 0.1, **options}   # the weight is off by default
     fit_part(_Estimator(fits, twins), FitParams(verify_inlier_m=0.0, **options), job)
     return job.detection.obj_id
 
