@@ -191,6 +191,16 @@ def _table_piece(lab: np.ndarray, blobs: np.ndarray, box: np.ndarray, i: int,
         params.colour_edge_blend_px) >= share
 
 
+def colour_bins(colours: np.ndarray, tolerance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bins one ``tolerance`` wide that (N, 3) LAB ``colours`` fall in: ((K, 3) bin
+    centres, (K,) pixel counts), each bin once."""
+    bins = np.floor(colours / tolerance).astype(np.int64) + 1024   # colours as bin numbers
+    keys, counts = np.unique((bins[:, 0] * 4096 + bins[:, 1]) * 4096 + bins[:, 2],
+                             return_counts=True)
+    index = np.stack([keys // 4096 ** 2, keys // 4096 % 4096, keys % 4096], axis=1)
+    return (index - 1024 + 0.5) * tolerance, counts
+
+
 def pattern_colour_share(lab: np.ndarray, blob: np.ndarray, table: np.ndarray,
                          tolerance: np.ndarray, decide_at: float | None = None) -> float:
     """The share of ``blob``'s pixels whose colour is one of the table's own: each LAB channel
@@ -203,16 +213,12 @@ def pattern_colour_share(lab: np.ndarray, blob: np.ndarray, table: np.ndarray,
     if len(reference) < 5:
         return 0.0
     inside = lab[blob]
-    bins = np.floor(inside / tolerance).astype(np.int64) + 1024   # colours as bin numbers
-    keys, counts = np.unique((bins[:, 0] * 4096 + bins[:, 1]) * 4096 + bins[:, 2],
-                             return_counts=True)
+    centres, counts = colour_bins(inside, tolerance)
     need = COMMON_COLOUR_SHARE * len(reference)
     left = len(inside)
     common = 0
     for k in np.argsort(-counts):   # the blob's main colours first
-        key = int(keys[k])
-        centre = (np.array([key // 4096 ** 2, key // 4096 % 4096, key % 4096]) - 1024 + 0.5
-                  ) * tolerance
+        centre = centres[k]
         same = cv2.inRange(reference, centre - tolerance, centre + tolerance)
         common += int(counts[k]) if np.count_nonzero(same) > need else 0
         left -= int(counts[k])
@@ -229,14 +235,10 @@ def common_colours(lab: np.ndarray, table: np.ndarray, tolerance: np.ndarray) ->
     reference = lab[::2, ::2][table[::2, ::2]].astype(np.float64)
     if len(reference) < 5:
         return np.zeros((0, 3))
-    bins = np.floor(reference / tolerance).astype(np.int64) + 1024   # colours as bin numbers
-    keys, counts = np.unique((bins[:, 0] * 4096 + bins[:, 1]) * 4096 + bins[:, 2],
-                             return_counts=True)
+    centres, counts = colour_bins(reference, tolerance)
     kept: list[np.ndarray] = []
     for k in np.argsort(-counts)[:COMMON_BINS_TRIED]:
-        key = int(keys[k])
-        centre = (np.array([key // 4096 ** 2, key // 4096 % 4096, key % 4096]) - 1024 + 0.5
-                  ) * tolerance
+        centre = centres[k]
         if any(np.all(np.abs(centre - c) <= tolerance) for c in kept):
             continue
         within = np.all(np.abs(reference - centre) <= tolerance, axis=1)
