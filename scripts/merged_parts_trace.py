@@ -49,6 +49,7 @@ def _hook() -> None:
     def fused(*args, **kw):
         out = fuse(*args, **kw)
         record['fused'] = {k: v.copy() for k, v in out.labels.items()}
+        record['pred'] = None if out.predicted_side is None else out.predicted_side.copy()
         return out
 
     pipeline_module.segment, pipeline_module.fuse_views = seg, fused
@@ -144,6 +145,25 @@ def _gap_px(a: np.ndarray, b: np.ndarray) -> float:
     return float(dist[b].min()) if b.any() else np.inf
 
 
+def _gap_lit(a: np.ndarray, b: np.ndarray, parts: np.ndarray,
+             fused: np.ndarray) -> str:
+    """The share of the gap's pixels (within 5 px of both masks, on no part) within 2 colour
+    floors (16 L, 12 a / b) of the nearest pixel on no part and in no region, and their count."""
+    import cv2
+    from scipy import ndimage
+    near = [cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3) <= 5 for m in (a, b)]
+    gap = near[0] & near[1] & ~parts
+    if not gap.any():
+        return '-'
+    off = cv2.erode((~parts & (fused == 0)).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    if not off.any():
+        return '-'
+    blurred = rgb_to_lab(cv2.blur(record['rgb'], (3, 3)))
+    iy, ix = ndimage.distance_transform_edt(~off, return_distances=False, return_indices=True)
+    lit = (np.abs(blurred - blurred[iy, ix]) <= np.array([16.0, 12.0, 12.0])).all(axis=2)
+    return f'{lit[gap].mean():.2f}/{int(gap.sum())}'
+
+
 def _found(result, views, side, k: int) -> bool:
     gt = side.gt[k]
     centre = (side.T_world_camera @ gt.T_camera_object)[:3, 3]
@@ -162,6 +182,8 @@ def main() -> None:
     ap.add_argument('parts', type=Path)
     ap.add_argument('--frames', type=int, nargs='*')
     ap.add_argument('--tsv', type=Path)
+    ap.add_argument('--pipeline-param', action='append', metavar='NAME=VALUE',
+                    help='a pipeline stage parameter, as tlessbot evaluate takes it')
     args = ap.parse_args()
     _hook()
     database = TemplateDatabase.load(args.parts / 'templates.npz')
@@ -178,7 +200,9 @@ def main() -> None:
         if pipeline is None:
             rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
                        for v, im in by_view.items()})
-            pipeline = PerceptionPipeline(rig=rig, classifier=model, templates=database)
+            from tlessbot_ros.tools.support.overrides import stage_overrides
+            pipeline = PerceptionPipeline(rig=rig, classifier=model, templates=database,
+                                          **stage_overrides(args.pipeline_param))
         record.clear()
         views = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera)
                  for v, im in by_view.items()}
@@ -188,6 +212,9 @@ def main() -> None:
         for inst, before, reason, _ in record.get('calls', []):
             calls.setdefault(inst, []).append(f'{names.get(before, before)}: {reason}')
         lab = rgb_to_lab(side.rgb)
+        record['rgb'] = side.rgb
+        parts = np.logical_or.reduce([g.mask for g in side.gt if g.mask is not None]
+                                     + [np.zeros(side.rgb.shape[:2], bool)])
         T_table = pipeline.table_frames[SIDE].T_world_camera if SIDE in pipeline.table_frames \
             else None
         for k, gt in enumerate(side.gt):
@@ -224,6 +251,9 @@ def main() -> None:
                             f'{"F" if other.obj_id in flat else "t"}',
                     'side_seg': _same(record[SIDE], mask, o_mask),
                     'top_seg': same_top, 'top_fused': same_top_fused,
+                    'top_pred': '-' if record['pred'] is None else
+                    _same(record['pred'], mask, o_mask),
+                    'gap_lit': _gap_lit(mask, o_mask, parts, fused),
                     'split': ' | '.join(calls.get(inst, ['no split_off call'])),
                     'still': _majority(final, mask) == _majority(final, o_mask),
                     'found': _found(result, views, side, k),

@@ -17,6 +17,7 @@ from tlessbot_ros.core.localise.fusion_result import (
     FusionResult,
     instances_from_labels,
 )
+from tlessbot_ros.core.localise.gap_colour import apart_by_gap_colour
 from tlessbot_ros.core.localise.part_scale import mask_length_px
 from tlessbot_ros.core.localise.segmentation import Segmentation
 from tlessbot_ros.core.localise.table_gap import apart_by_table
@@ -196,6 +197,12 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
             split_ids.update(divided)
     if params.table_divides and side.table_seen is not None:
         next_id = apart_by_table(side_labels, blobs, pred, side, next_id)
+    if params.gap_table_floors > 0 and side_rgb is not None and n_top > 0:
+        next_id, divided = apart_by_gap_colour(
+            side_labels, top_labels, pred, top, side, side_rgb, next_id,
+            floors=params.gap_table_floors * side.colour_floors, band_px=params.gap_band_px,
+            min_piece_px=max(side.whole_part_px(), params.min_visible_px))
+        split_ids.update(divided)
     next_id = _place_fragments(side_labels, blobs, stats, fragments, side, next_id)
     timings['split'] = (time.perf_counter() - t1) * 1e3
     labels = {'top': top_labels, 'side': side_labels}

@@ -38,6 +38,9 @@ class FusionParams:
             (:mod:`.thin`) beside a part that is not.
         table_divides: side blobs that one top blob predicts get ids of their own where
             every path between them in the side image crosses the table seen (:mod:`.table_gap`).
+        gap_table_floors: a side region is divided along a gap within this many colour floors of
+            the table's colour, where the top view sees two parts (:mod:`.gap_colour`; 0: off).
+        gap_band_px: the widest such gap, as the radius of a disc (px, >= 1).
         box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
             in a side box.
     """
@@ -57,12 +60,17 @@ class FusionParams:
     keep_depth_splits: bool = True
     keep_thin_beside_tall: bool = True
     table_divides: bool = True
+    gap_table_floors: float = 2.0
+    gap_band_px: int = 4
 
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:
             raise ValueError(f'method must be one of {FUSION_METHODS}, got {self.method!r}')
         if self.pixel_step < 1:
             raise ValueError(f'pixel_step must be >= 1, got {self.pixel_step}')
+        if self.gap_table_floors < 0 or self.gap_band_px < 1:
+            raise ValueError('gap_table_floors must be >= 0 and gap_band_px >= 1, got '
+                             f'{self.gap_table_floors} and {self.gap_band_px}')
         if not 0.0 <= self.min_overlap_fraction <= 1.0:
             raise ValueError('min_overlap_fraction must be in [0, 1], got '
                              f'{self.min_overlap_fraction}')

@@ -66,6 +66,8 @@ class Segmentation:
             > 0 (two parts whose seam the depth shows), 0 = not divided by depth.
         table_seen: (H, W) bool pixels whose own valid depth lies at table height (no
             filter: a gap of a few pixels between two parts shows), None without depth.
+        colour_floors: (3,) the colour cues' smallest cut-offs in LAB (``grey_floor``,
+            ``lab_floor``, ``lab_floor``): the unit of a colour difference in this view.
         cues: per-method bool candidate masks at ``params.cue_scale`` (for inspection).
         timings_ms: wall time per stage in milliseconds: 'lab' (conversion), 'depth',
             'cue_<method>' per colour cue, 'cues' (the union), 'watershed', 'instances' and
@@ -80,6 +82,8 @@ class Segmentation:
     thin: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     table_seen: np.ndarray | None = None
     whole_parts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    colour_floors: np.ndarray = field(default_factory=lambda: _colour_floors(
+        SegmentationParams()))
     cues: dict[str, np.ndarray] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
 
@@ -187,7 +191,13 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     return Segmentation(labels=labels, boxes=boxes, areas=areas, foreground=foreground,
                         depth_groups=groups, thin=thin, cues=cues, timings_ms=watch.total(),
                         table_seen=_table_seen(depth_cue, params, rgb.shape),
-                        whole_parts=np.array(params.whole_parts or (), float).reshape(-1, 3))
+                        whole_parts=np.array(params.whole_parts or (), float).reshape(-1, 3),
+                        colour_floors=_colour_floors(params))
+
+
+def _colour_floors(params: SegmentationParams) -> np.ndarray:
+    """(3,) float32 (``grey_floor``, ``lab_floor``, ``lab_floor``) of ``params``."""
+    return np.array([params.grey_floor, params.lab_floor, params.lab_floor], np.float32)
 
 
 def _foreground(rgb: np.ndarray, candidate: np.ndarray, sure: np.ndarray,
@@ -324,8 +334,7 @@ def _trim_floors(params: SegmentationParams) -> np.ndarray | None:
     (``small_blob_trim_floors`` x the colour cues' floors), None when that is off."""
     if params.small_blob_trim_floors <= 0:
         return None
-    return params.small_blob_trim_floors * np.array(
-        [params.grey_floor, params.lab_floor, params.lab_floor], np.float32)
+    return params.small_blob_trim_floors * _colour_floors(params)
 
 
 def _small_blobs_whole(foreground: np.ndarray, candidate: np.ndarray, below_px: int,

@@ -1,0 +1,165 @@
+"""A fused side region that a table-coloured gap divides where the top view sees two parts.
+
+A stereo camera matches a window of its two images, so where the window straddles a part's
+edge the table beside it takes the part's depth: a gap of a few pixels between two parts is
+filled, the depth calls it a part, and the side segmentation gives the two parts one blob
+(often one instance). The colour image still shows the table in the gap where it is lit.
+
+The gap's colour alone is not enough to divide a blob: a shading line across one part, a
+part lying on a tile of its own colour, look alike. So the rule acts only where the other
+view agrees: after the fusion, in each side region of one id, the pixels within ``floors``
+(per LAB channel) of the nearest table pixel outside every blob are **table-coloured**; those
+in bands narrower than a disc of ``band_px`` px (an opening; at least 3 px wide) are taken out.
+Where that leaves two or more **pieces** that could each be a part (``min_piece_px`` pixels, a
+disc of ``band_px`` inside, under half of them table-coloured, a median colour unlike the
+band's), and the top view's own blobs (their predicted side regions, before the fusion
+joined any) hold different pieces, the region is divided along the band: each pixel to the
+nearest piece, the piece of the region's own top blob keeps its id, each other piece takes
+its top blob back (a new id in both views, or the id of that blob's instance when it has no
+side pixels).
+
+It acts only on a region the fusion gave one id, so where the side view, the depth or the
+top view's prediction already had the parts apart nothing moves. The table is read where it
+lies (the nearest table pixel, not a median of the table around the blob), so a checkered
+or grained table of any colour works; a part of the table's colour is never a piece (its
+pixels are table-coloured), nor is a dark part across a dark tile (its colour is the band's).
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from tlessbot_ros.core.localise.blob_split import fill_from_nearest
+from tlessbot_ros.core.localise.colour import rgb_to_lab
+from tlessbot_ros.core.localise.instances import boxes_from_labels
+
+if TYPE_CHECKING:
+    from tlessbot_ros.core.localise.segmentation import Segmentation
+
+
+def apart_by_gap_colour(side_labels: np.ndarray, top_labels: np.ndarray, pred: np.ndarray,
+                        top: Segmentation, side: Segmentation, side_rgb: np.ndarray,
+                        next_id: int, *, floors: np.ndarray, band_px: int,
+                        min_piece_px: float) -> tuple[int, set[int]]:
+    """Divide the fused side regions that a table-coloured gap and the top view's own blobs
+    both divide (see the module).
+
+    Args:
+        side_labels: (H, W) uint16 fused side labels, changed in place.
+        top_labels: (H', W') uint16 fused top labels, changed in place (a piece given back to
+            its top blob takes that blob's pixels here).
+        pred: (H, W) predicted side regions of the top segmentation's own blobs (their ids
+            as in ``top.labels``).
+        top, side: the two views' segmentations (``top.labels``: the top view's own blobs;
+            ``side.labels``: what lies outside every side blob).
+        side_rgb: (H, W, 3) uint8 side image.
+        next_id: the first free id.
+        floors: (3,) LAB tolerance (L, a, b) of a table-coloured pixel.
+        band_px: the widest band of table colour that is a gap (radius of the opening, px).
+        min_piece_px: the smallest piece that can be a part (px).
+
+    Returns:
+        The next free id, and the ids of the regions divided (old and new).
+    """
+    divided: set[int] = set()
+    boxes, areas = boxes_from_labels(side_labels)
+    H, W = side_labels.shape
+    margin = 2 * band_px + 3
+    for k in (1 + np.flatnonzero(areas >= 2 * min_piece_px)).tolist():
+        x, y, w, h = (int(v) for v in boxes[k - 1])
+        window = (slice(max(y - margin, 0), min(y + h + margin, H)),
+                  slice(max(x - margin, 0), min(x + w + margin, W)))
+        region = side_labels[window] == k
+        off = (side_labels[window] == 0) & (side.labels[window] == 0)
+        groups = _gap_pieces(region, off, side_rgb[window], pred[window], floors, band_px,
+                             min_piece_px)
+        if groups is None:
+            continue
+        owners, grouped = groups
+        kept = owners.index(k) if k in owners else int(np.argmax(
+            [np.count_nonzero((grouped == g + 1) & (pred[window] == k))
+             for g in range(len(owners))]))
+        out = side_labels[window]
+        for g, blob_id in enumerate(owners):
+            if g == kept:
+                continue
+            new = _given_back(blob_id, k, top, top_labels, side_labels)
+            if new == 0:
+                new, next_id = next_id, next_id + 1
+                top_labels[(top.labels == blob_id) & (top_labels == k)] = new
+            out[grouped == g + 1] = new
+            divided.update((k, new))
+    return next_id, divided
+
+
+def _given_back(blob_id: int, k: int, top: Segmentation, top_labels: np.ndarray,
+                side_labels: np.ndarray) -> int:
+    """The fused id of top blob ``blob_id`` when it is an instance of its own with no side
+    pixels (a piece of region ``k`` joins it), else 0 (a new id)."""
+    ids = top_labels[top.labels == blob_id]
+    ids = ids[ids > 0]
+    if not ids.size:
+        return 0
+    fused = int(np.bincount(ids).argmax())
+    if fused == k or np.any(side_labels == fused):
+        return 0
+    return fused
+
+
+def _gap_pieces(region: np.ndarray, off: np.ndarray, rgb: np.ndarray, pred: np.ndarray,
+                floors: np.ndarray, band_px: int, min_piece_px: float
+                ) -> tuple[list[int], np.ndarray] | None:
+    """The top blobs that hold the pieces of one region, and the region's pixels grouped by
+    them ((h, w) int32, group ``g + 1`` for the ``g``-th blob), or None where no
+    table-coloured band leaves two pieces held by different top blobs (all cut to the
+    region's window; ``off``: the pixels outside every blob)."""
+    reference = cv2.erode(off.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+    if not reference.any():
+        return None
+    lab = rgb_to_lab(cv2.blur(rgb, (3, 3)))
+    nearest = ndimage.distance_transform_edt(~reference, return_distances=False,
+                                             return_indices=True)
+    table_like = region & (np.abs(lab - lab[nearest[0], nearest[1]]) <= floors).all(axis=2)
+    band = _opened(table_like, 1) & ~_opened(table_like, band_px)
+    if not band.any():
+        return None
+    count, parts = cv2.connectedComponents((region & ~band).view(np.uint8), connectivity=8)
+    band_colour = np.median(lab[band], axis=0)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
+    owners: list[int] = []
+    grouped = np.zeros(region.shape, np.int32)
+    for c in range(1, count):
+        piece = parts == c
+        size = np.count_nonzero(piece)
+        if size < min_piece_px or 2 * np.count_nonzero(piece & table_like) >= size or \
+                not cv2.erode(piece.view(np.uint8), disc).any() or \
+                (np.abs(np.median(lab[piece], axis=0) - band_colour) <= floors).all():
+            continue
+        held = pred[piece]
+        held = held[held > 0]
+        if not held.size:
+            continue
+        blob_id = int(np.bincount(held).argmax())
+        if 3 * np.count_nonzero(held == blob_id) < size:
+            continue   # the top view's prediction holds too little of it to tell
+        if blob_id not in owners:
+            owners.append(blob_id)
+        grouped[piece] = owners.index(blob_id) + 1
+    if len(owners) < 2:
+        return None
+    fill_from_nearest(grouped, region & (grouped == 0))
+    grouped[~region] = 0
+    return owners, grouped
+
+
+def _opened(mask: np.ndarray, radius: int) -> np.ndarray:
+    """``mask`` opened by a disc of ``radius`` px."""
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    opened: np.ndarray = cv2.morphologyEx(mask.view(np.uint8), cv2.MORPH_OPEN, disc).view(bool)
+    return opened
+
+
+__all__ = ['apart_by_gap_colour']
