@@ -201,7 +201,8 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
         next_id, divided = apart_by_gap_colour(
             side_labels, top_labels, pred, top, side, side_rgb, next_id,
             floors=params.gap_table_floors * side.colour_floors, band_px=params.gap_band_px,
-            min_piece_px=max(side.whole_part_px(), params.min_visible_px))
+            min_piece_px=max(side.whole_part_px(), params.min_visible_px),
+            side_instances=params.gap_side_instances)
         split_ids.update(divided)
     next_id = _place_fragments(side_labels, blobs, stats, fragments, side, next_id)
     timings['split'] = (time.perf_counter() - t1) * 1e3

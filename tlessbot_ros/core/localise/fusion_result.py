@@ -41,6 +41,8 @@ class FusionParams:
         gap_table_floors: a side region is divided along a gap within this many colour floors of
             the table's colour, where the top view sees two parts (:mod:`.gap_colour`; 0: off).
         gap_band_px: the widest such gap, as the radius of a disc (px, >= 1).
+        gap_side_instances: two instances of the side segmentation stand in for the top
+            view's two parts there.
         box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
             in a side box.
     """
@@ -62,6 +64,7 @@ class FusionParams:
     table_divides: bool = True
     gap_table_floors: float = 2.0
     gap_band_px: int = 4
+    gap_side_instances: bool = True
 
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:

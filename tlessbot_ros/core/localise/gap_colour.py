@@ -43,9 +43,11 @@ if TYPE_CHECKING:
 def apart_by_gap_colour(side_labels: np.ndarray, top_labels: np.ndarray, pred: np.ndarray,
                         top: Segmentation, side: Segmentation, side_rgb: np.ndarray,
                         next_id: int, *, floors: np.ndarray, band_px: int,
-                        min_piece_px: float) -> tuple[int, set[int]]:
-    """Divide the fused side regions that a table-coloured gap and the top view's own blobs
-    both divide (see the module).
+                        min_piece_px: float, side_instances: bool = True
+                        ) -> tuple[int, set[int]]:
+    """Divide the fused side regions that a table-coloured gap divides where the top view's
+    own blobs, or the side segmentation's own instances (``side_instances``), hold the pieces
+    apart too (see the module).
 
     Args:
         side_labels: (H, W) uint16 fused side labels, changed in place.
@@ -54,12 +56,13 @@ def apart_by_gap_colour(side_labels: np.ndarray, top_labels: np.ndarray, pred: n
         pred: (H, W) predicted side regions of the top segmentation's own blobs (their ids
             as in ``top.labels``).
         top, side: the two views' segmentations (``top.labels``: the top view's own blobs;
-            ``side.labels``: what lies outside every side blob).
+            ``side.labels``: the side view's own instances).
         side_rgb: (H, W, 3) uint8 side image.
         next_id: the first free id.
         floors: (3,) LAB tolerance (L, a, b) of a table-coloured pixel.
         band_px: the widest band of table colour that is a gap (radius of the opening, px).
         min_piece_px: the smallest piece that can be a part (px).
+        side_instances: whether two side instances stand in for two top blobs.
 
     Returns:
         The next free id, and the ids of the regions divided (old and new).
@@ -73,26 +76,38 @@ def apart_by_gap_colour(side_labels: np.ndarray, top_labels: np.ndarray, pred: n
         window = (slice(max(y - margin, 0), min(y + h + margin, H)),
                   slice(max(x - margin, 0), min(x + w + margin, W)))
         region = side_labels[window] == k
+        holders = [pred[window]] + ([side.labels[window]] if side_instances else [])
+        if not any(_two_hold(m[region], min_piece_px / 3) for m in holders):
+            continue   # neither view has two parts here: the gap's colour alone divides nothing
         off = (side_labels[window] == 0) & (side.labels[window] == 0)
-        groups = _gap_pieces(region, off, side_rgb[window], pred[window], floors, band_px,
+        groups = _gap_pieces(region, off, side_rgb[window], holders, floors, band_px,
                              min_piece_px)
         if groups is None:
             continue
-        owners, grouped = groups
-        kept = owners.index(k) if k in owners else int(np.argmax(
-            [np.count_nonzero((grouped == g + 1) & (pred[window] == k))
-             for g in range(len(owners))]))
+        keys, grouped = groups
+        kept = int(np.argmax([np.count_nonzero((grouped == g + 1) & (pred[window] == k))
+                              for g in range(len(keys))]))
+        blobs = [key[0] for key in keys]
         out = side_labels[window]
-        for g, blob_id in enumerate(owners):
+        for g, (blob_id, _) in enumerate(keys):
             if g == kept:
                 continue
-            new = _given_back(blob_id, k, top, top_labels, side_labels)
+            new = 0
+            own_blob = blob_id > 0 and blobs.count(blob_id) == 1 and blob_id != k
+            if own_blob:   # the top view's own blob of this piece
+                new = _given_back(blob_id, k, top, top_labels, side_labels)
             if new == 0:
                 new, next_id = next_id, next_id + 1
-                top_labels[(top.labels == blob_id) & (top_labels == k)] = new
+                if own_blob:
+                    top_labels[(top.labels == blob_id) & (top_labels == k)] = new
             out[grouped == g + 1] = new
             divided.update((k, new))
     return next_id, divided
+
+
+def _two_hold(ids: np.ndarray, least_px: float) -> bool:
+    """Whether two or more non-zero ids each hold ``least_px`` of ``ids``."""
+    return bool(np.count_nonzero(np.bincount(ids[ids > 0]) >= least_px) >= 2)
 
 
 def _given_back(blob_id: int, k: int, top: Segmentation, top_labels: np.ndarray,
@@ -109,13 +124,14 @@ def _given_back(blob_id: int, k: int, top: Segmentation, top_labels: np.ndarray,
     return fused
 
 
-def _gap_pieces(region: np.ndarray, off: np.ndarray, rgb: np.ndarray, pred: np.ndarray,
-                floors: np.ndarray, band_px: int, min_piece_px: float
-                ) -> tuple[list[int], np.ndarray] | None:
-    """The top blobs that hold the pieces of one region, and the region's pixels grouped by
-    them ((h, w) int32, group ``g + 1`` for the ``g``-th blob), or None where no
-    table-coloured band leaves two pieces held by different top blobs (all cut to the
-    region's window; ``off``: the pixels outside every blob)."""
+def _gap_pieces(region: np.ndarray, off: np.ndarray, rgb: np.ndarray,
+                holders: list[np.ndarray], floors: np.ndarray, band_px: int,
+                min_piece_px: float) -> tuple[list[tuple[int, ...]], np.ndarray] | None:
+    """The pieces of one region that a table-coloured band leaves, grouped by what holds
+    each (its top blob in ``holders[0]``, its side instance in ``holders[1]`` when given:
+    the id holding a third of it, 0 for none): the groups' keys and the region's pixels by
+    group ((h, w) int32, ``g + 1`` for ``keys[g]``); None where fewer than two groups are
+    left (all cut to the region's window; ``off``: the pixels outside every blob)."""
     reference = cv2.erode(off.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
     if not reference.any():
         return None
@@ -129,7 +145,7 @@ def _gap_pieces(region: np.ndarray, off: np.ndarray, rgb: np.ndarray, pred: np.n
     count, parts = cv2.connectedComponents((region & ~band).view(np.uint8), connectivity=8)
     band_colour = np.median(lab[band], axis=0)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
-    owners: list[int] = []
+    keys: list[tuple[int, ...]] = []
     grouped = np.zeros(region.shape, np.int32)
     for c in range(1, count):
         piece = parts == c
@@ -138,21 +154,26 @@ def _gap_pieces(region: np.ndarray, off: np.ndarray, rgb: np.ndarray, pred: np.n
                 not cv2.erode(piece.view(np.uint8), disc).any() or \
                 (np.abs(np.median(lab[piece], axis=0) - band_colour) <= floors).all():
             continue
-        held = pred[piece]
-        held = held[held > 0]
-        if not held.size:
-            continue
-        blob_id = int(np.bincount(held).argmax())
-        if 3 * np.count_nonzero(held == blob_id) < size:
-            continue   # the top view's prediction holds too little of it to tell
-        if blob_id not in owners:
-            owners.append(blob_id)
-        grouped[piece] = owners.index(blob_id) + 1
-    if len(owners) < 2:
+        key = tuple(_holder(m[piece], size) for m in holders)
+        if not any(key):
+            continue   # no view's own region holds it: nothing tells whose it is
+        if key not in keys:
+            keys.append(key)
+        grouped[piece] = keys.index(key) + 1
+    if len(keys) < 2:
         return None
     fill_from_nearest(grouped, region & (grouped == 0))
     grouped[~region] = 0
-    return owners, grouped
+    return keys, grouped
+
+
+def _holder(ids: np.ndarray, size: int) -> int:
+    """The id that holds a third of a piece of ``size`` px (``ids``: its pixels'), else 0."""
+    ids = ids[ids > 0]
+    if not ids.size:
+        return 0
+    best = int(np.bincount(ids).argmax())
+    return best if 3 * np.count_nonzero(ids == best) >= size else 0
 
 
 def _opened(mask: np.ndarray, radius: int) -> np.ndarray:
