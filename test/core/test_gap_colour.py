@@ -84,6 +84,43 @@ def test_no_division_without_a_table_coloured_gap_or_the_top_views_two_parts() -
     assert len(_fused(top, side, rgb_light).instances) == 1
 
 
+def _two_side_instances(side: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """The side blob as the side segmentation's touching-object separation gives it: two
+    instances, the gap's pixels to the nearer part."""
+    columns = np.arange(W)[None, :]
+    cut = (np.flatnonzero((pred == 1).any(axis=0)).max() +
+           np.flatnonzero((pred == 2).any(axis=0)).min()) // 2
+    return np.where(side > 0, np.where(columns <= cut, 1, 2), 0)
+
+
+def test_two_side_instances_with_a_table_coloured_seam_stay_apart() -> None:
+    # the top view, farther away, sees one blob; the side segmentation has two instances
+    top, side, rgb, pred = _scene()
+    one_top = np.where(top > 0, 1, 0)
+    two = _two_side_instances(side, pred)
+    assert len(_fused(one_top, two, rgb, thin=False, gap_table_floors=0.0).instances) == 1
+    result = _fused(one_top, two, rgb, thin=False)
+    assert len(result.instances) == 2
+    labels = result.labels['side']
+    assert all(np.unique(labels[pred == k]).size == 1 for k in (1, 2))   # each part whole
+    assert labels[pred == 1][0] != labels[pred == 2][0]
+    # a gap that a shadow bridges across a few rows: no band divides it, but the seam
+    # between the two instances is still mostly the table's colour
+    gap = (side > 0) & (pred == 0)
+    rows = np.flatnonzero(gap.any(axis=1))
+    bridged = rgb.copy()
+    bridged[rows[len(rows) // 2 - 2:len(rows) // 2 + 2]] = np.where(
+        gap[rows[len(rows) // 2 - 2:len(rows) // 2 + 2], :, None], PART,
+        bridged[rows[len(rows) // 2 - 2:len(rows) // 2 + 2]])
+    assert len(_fused(one_top, two, bridged, thin=False).instances) == 2
+    assert len(_fused(one_top, np.where(two > 0, 1, 0), bridged, thin=False).instances) == 1
+    # without the table's colour between them (one part in two instances), or with the
+    # side instances' evidence off: one part
+    dark = _scene(gap_colour=PART)[2]
+    assert len(_fused(one_top, two, dark, thin=False).instances) == 1
+    assert len(_fused(one_top, two, rgb, thin=False, gap_side_instances=False).instances) == 1
+
+
 def test_regions_the_fusion_already_has_apart_do_not_move() -> None:
     # a side instance that is not thin: the top view's two predictions divide it already
     top, side, rgb, _ = _scene()

@@ -80,8 +80,13 @@ def apart_by_gap_colour(side_labels: np.ndarray, top_labels: np.ndarray, pred: n
         if not any(_two_hold(m[region], min_piece_px / 3) for m in holders):
             continue   # neither view has two parts here: the gap's colour alone divides nothing
         off = (side_labels[window] == 0) & (side.labels[window] == 0)
-        groups = _gap_pieces(region, off, side_rgb[window], holders, floors, band_px,
-                             min_piece_px)
+        coloured = _table_coloured(region, off, side_rgb[window], floors)
+        if coloured is None:
+            continue
+        groups = _gap_pieces(region, *coloured, holders, floors, band_px, min_piece_px)
+        if groups is None and side_instances:
+            groups = _seam_pieces(region, *coloured, side.labels[window], floors, band_px,
+                                  min_piece_px)
         if groups is None:
             continue
         keys, grouped = groups
@@ -124,14 +129,10 @@ def _given_back(blob_id: int, k: int, top: Segmentation, top_labels: np.ndarray,
     return fused
 
 
-def _gap_pieces(region: np.ndarray, off: np.ndarray, rgb: np.ndarray,
-                holders: list[np.ndarray], floors: np.ndarray, band_px: int,
-                min_piece_px: float) -> tuple[list[tuple[int, ...]], np.ndarray] | None:
-    """The pieces of one region that a table-coloured band leaves, grouped by what holds
-    each (its top blob in ``holders[0]``, its side instance in ``holders[1]`` when given:
-    the id holding a third of it, 0 for none): the groups' keys and the region's pixels by
-    group ((h, w) int32, ``g + 1`` for ``keys[g]``); None where fewer than two groups are
-    left (all cut to the region's window; ``off``: the pixels outside every blob)."""
+def _table_coloured(region: np.ndarray, off: np.ndarray, rgb: np.ndarray,
+                    floors: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The window's LAB (3 x 3 blur) and the region's pixels within ``floors`` of the nearest
+    pixel more than 1 px outside every blob (``off``: outside every blob); None without one."""
     reference = cv2.erode(off.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
     if not reference.any():
         return None
@@ -139,6 +140,17 @@ def _gap_pieces(region: np.ndarray, off: np.ndarray, rgb: np.ndarray,
     nearest = ndimage.distance_transform_edt(~reference, return_distances=False,
                                              return_indices=True)
     table_like = region & (np.abs(lab - lab[nearest[0], nearest[1]]) <= floors).all(axis=2)
+    return lab, table_like
+
+
+def _gap_pieces(region: np.ndarray, lab: np.ndarray, table_like: np.ndarray,
+                holders: list[np.ndarray], floors: np.ndarray, band_px: int,
+                min_piece_px: float) -> tuple[list[tuple[int, ...]], np.ndarray] | None:
+    """The pieces of one region that a table-coloured band leaves, grouped by what holds
+    each (its top blob in ``holders[0]``, its side instance in ``holders[1]`` when given:
+    the id holding a third of it, 0 for none): the groups' keys and the region's pixels by
+    group ((h, w) int32, ``g + 1`` for ``keys[g]``); None where fewer than two groups are
+    left (all cut to the region's window; ``lab``, ``table_like``: :func:`_table_coloured`)."""
     band = _opened(table_like, 1) & ~_opened(table_like, band_px)
     if not band.any():
         return None
@@ -165,6 +177,51 @@ def _gap_pieces(region: np.ndarray, off: np.ndarray, rgb: np.ndarray,
     fill_from_nearest(grouped, region & (grouped == 0))
     grouped[~region] = 0
     return keys, grouped
+
+
+def _seam_pieces(region: np.ndarray, lab: np.ndarray, table_like: np.ndarray,
+                 own: np.ndarray, floors: np.ndarray, band_px: int, min_piece_px: float
+                 ) -> tuple[list[tuple[int, ...]], np.ndarray] | None:
+    """The side instances (``own``, cut to the window) of one region that a seam of the
+    table's colour keeps apart: two instances of ``min_piece_px`` each whose seam (the
+    region's pixels within ``band_px`` of both) is mostly table-coloured, and whose own
+    median colours are both unlike the seam's, are apart; every other touching pair is one
+    part. Keys and grouped pixels as :func:`_gap_pieces` gives them (the key ``(0, id)``),
+    None where fewer than two groups are left."""
+    ids, sizes = np.unique(own[region], return_counts=True)
+    ids = ids[(ids > 0) & (sizes >= min_piece_px)]
+    if ids.size < 2:
+        return None
+    near = [cv2.distanceTransform((own != i).view(np.uint8), cv2.DIST_L2, 3) <= band_px
+            for i in ids]
+    medians = [np.median(lab[region & (own == i)], axis=0) for i in ids]
+    root = list(range(ids.size))
+
+    def find(a: int) -> int:
+        while root[a] != a:
+            a = root[a]
+        return a
+
+    for a in range(ids.size):
+        for b in range(a + 1, ids.size):
+            seam = region & near[a] & near[b]
+            if np.count_nonzero(seam) < 2 * band_px:
+                continue   # not touching
+            coloured = seam & table_like
+            apart = 2 * np.count_nonzero(coloured) > np.count_nonzero(seam) and all(
+                (np.abs(m - np.median(lab[coloured], axis=0)) > floors).any()
+                for m in (medians[a], medians[b]))
+            if not apart:
+                root[find(b)] = find(a)
+    roots = sorted({find(a) for a in range(ids.size)})
+    if len(roots) < 2:
+        return None
+    grouped = np.zeros(region.shape, np.int32)
+    for a in range(ids.size):
+        grouped[region & (own == ids[a])] = roots.index(find(a)) + 1
+    fill_from_nearest(grouped, region & (grouped == 0))
+    grouped[~region] = 0
+    return [(0, int(ids[r])) for r in roots], grouped
 
 
 def _holder(ids: np.ndarray, size: int) -> int:
