@@ -38,11 +38,10 @@ class FusionParams:
             (:mod:`.thin`) beside a part that is not.
         table_divides: side blobs that one top blob predicts get ids of their own where
             every path between them in the side image crosses the table seen (:mod:`.table_gap`).
-        gap_table_floors: a side region is divided along a gap within this many colour floors of
-            the table's colour, where the top view sees two parts (:mod:`.gap_colour`; 0: off).
+        gap_table_floors: a fused side region is divided along a gap within this many colour
+            floors of the table where the views' own regions have two parts (0: off).
         gap_band_px: the widest such gap, as the radius of a disc (px, >= 1).
-        gap_side_instances: two instances of the side segmentation stand in for the top
-            view's two parts there.
+        gap_side_instances: two side instances count as two parts there, as two top blobs do.
         box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
             in a side box.
     """

@@ -1,28 +1,36 @@
-"""A fused side region that a table-coloured gap divides where the top view sees two parts.
+"""A fused side region that a table-coloured gap divides where the views' own regions see
+two parts there.
 
 A stereo camera matches a window of its two images, so where the window straddles a part's
 edge the table beside it takes the part's depth: a gap of a few pixels between two parts is
-filled, the depth calls it a part, and the side segmentation gives the two parts one blob
-(often one instance). The colour image still shows the table in the gap where it is lit.
+filled, the depth calls it a part, and the side segmentation gives the two parts one blob.
+The top view, farther away, mostly sees them as one blob too, so the fusion joins them. The
+colour image still shows the table in the gap where it is lit.
 
-The gap's colour alone is not enough to divide a blob: a shading line across one part, a
-part lying on a tile of its own colour, look alike. So the rule acts only where the other
-view agrees: after the fusion, in each side region of one id, the pixels within ``floors``
-(per LAB channel) of the nearest table pixel outside every blob are **table-coloured**; those
-in bands narrower than a disc of ``band_px`` px (an opening; at least 3 px wide) are taken out.
-Where that leaves two or more **pieces** that could each be a part (``min_piece_px`` pixels, a
-disc of ``band_px`` inside, under half of them table-coloured, a median colour unlike the
-band's), and the top view's own blobs (their predicted side regions, before the fusion
-joined any) hold different pieces, the region is divided along the band: each pixel to the
-nearest piece, the piece of the region's own top blob keeps its id, each other piece takes
-its top blob back (a new id in both views, or the id of that blob's instance when it has no
-side pixels).
+The gap's colour alone is not enough to divide a region: a shading line across one part, a
+part lying on a tile of its own colour, look alike. So the rule acts only where another cue
+has two parts there. After the fusion, in each side region of one id, the pixels within
+``floors`` (per LAB channel) of the nearest pixel outside every blob are **table-coloured**.
 
-It acts only on a region the fusion gave one id, so where the side view, the depth or the
-top view's prediction already had the parts apart nothing moves. The table is read where it
-lies (the nearest table pixel, not a median of the table around the blob), so a checkered
-or grained table of any colour works; a part of the table's colour is never a piece (its
-pixels are table-coloured), nor is a dark part across a dark tile (its colour is the band's).
+* Those in bands narrower than a disc of ``band_px`` px (an opening; at least 3 px wide) are
+  taken out. Where that leaves two or more **pieces** that could each be a part
+  (``min_piece_px`` pixels, a disc of ``band_px`` inside, under half of them table-coloured,
+  a median colour unlike the band's) and different top blobs (their predicted side regions,
+  before the fusion joined any) or different side instances hold them, the region is
+  divided along the band, each pixel to the nearest piece.
+* Else, two side instances of the region (the side segmentation's touching-object
+  separation) stay apart where the seam between them (the pixels within ``band_px`` of
+  both) is mostly table-coloured and neither instance has the seam's colour.
+
+The piece holding most of the region's own prediction keeps its id; a piece that its own
+top blob holds takes that blob back (a new id in both views, or the id of the blob's
+instance when it has no side pixels); any other piece gets a new id, seen from the side.
+
+It acts only on a region the fusion gave one id, so where the side depth or the top view's
+prediction already had the parts apart nothing moves. The table is read where it lies (the
+nearest table pixel, not a median of the table around the blob), so a checkered or grained
+table of any colour works; a part of the table's colour is never a piece (its pixels are
+table-coloured), nor is a dark part across a dark tile (its colour is the gap's).
 """
 from __future__ import annotations
 
@@ -152,7 +160,7 @@ def _gap_pieces(region: np.ndarray, lab: np.ndarray, table_like: np.ndarray,
     group ((h, w) int32, ``g + 1`` for ``keys[g]``); None where fewer than two groups are
     left (all cut to the region's window; ``lab``, ``table_like``: :func:`_table_coloured`)."""
     band = _opened(table_like, 1) & ~_opened(table_like, band_px)
-    if not band.any():
+    if not band.any() or not _open_to_table(band, ~ndimage.binary_fill_holes(region)):
         return None
     count, parts = cv2.connectedComponents((region & ~band).view(np.uint8), connectivity=8)
     band_colour = np.median(lab[band], axis=0)
@@ -185,15 +193,19 @@ def _seam_pieces(region: np.ndarray, lab: np.ndarray, table_like: np.ndarray,
     """The side instances (``own``, cut to the window) of one region that a seam of the
     table's colour keeps apart: two instances of ``min_piece_px`` each whose seam (the
     region's pixels within ``band_px`` of both) is mostly table-coloured, and whose own
-    median colours are both unlike the seam's, are apart; every other touching pair is one
-    part. Keys and grouped pixels as :func:`_gap_pieces` gives them (the key ``(0, id)``),
-    None where fewer than two groups are left."""
+    median colours are both unlike the seam's, are apart where they touch (two instances
+    of one blob) and the seam opens onto the table; every other pair is one part. Keys and
+    grouped pixels as :func:`_gap_pieces` gives them (the key ``(0, id)``), None where
+    fewer than two groups are left."""
     ids, sizes = np.unique(own[region], return_counts=True)
     ids = ids[(ids > 0) & (sizes >= min_piece_px)]
     if ids.size < 2:
         return None
     near = [cv2.distanceTransform((own != i).view(np.uint8), cv2.DIST_L2, 3) <= band_px
             for i in ids]
+    outside = ~ndimage.binary_fill_holes(region)
+    touching = [cv2.dilate((own == i).astype(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+                for i in ids]
     medians = [np.median(lab[region & (own == i)], axis=0) for i in ids]
     root = list(range(ids.size))
 
@@ -205,12 +217,12 @@ def _seam_pieces(region: np.ndarray, lab: np.ndarray, table_like: np.ndarray,
     for a in range(ids.size):
         for b in range(a + 1, ids.size):
             seam = region & near[a] & near[b]
-            if np.count_nonzero(seam) < 2 * band_px:
-                continue   # not touching
             coloured = seam & table_like
-            apart = 2 * np.count_nonzero(coloured) > np.count_nonzero(seam) and all(
+            # two instances of one blob (apart ones are the fusion's own: apart_by_table)
+            apart = np.any(seam & (own == ids[a]) & touching[b]) and \
+                2 * np.count_nonzero(coloured) > np.count_nonzero(seam) and all(
                 (np.abs(m - np.median(lab[coloured], axis=0)) > floors).any()
-                for m in (medians[a], medians[b]))
+                for m in (medians[a], medians[b])) and _open_to_table(coloured, outside)
             if not apart:
                 root[find(b)] = find(a)
     roots = sorted({find(a) for a in range(ids.size)})
@@ -222,6 +234,14 @@ def _seam_pieces(region: np.ndarray, lab: np.ndarray, table_like: np.ndarray,
     fill_from_nearest(grouped, region & (grouped == 0))
     grouped[~region] = 0
     return [(0, int(ids[r])) for r in roots], grouped
+
+
+def _open_to_table(gap: np.ndarray, outside: np.ndarray) -> bool:
+    """Whether a gap's pixels reach the table outside the region (``outside``: beyond its
+    outline, holes filled): a gap between two parts opens onto the table at its ends, a slot
+    or a hole through one part is closed by the part around it."""
+    reach = cv2.dilate(gap.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+    return bool(np.any(reach & outside))
 
 
 def _holder(ids: np.ndarray, size: int) -> int:
