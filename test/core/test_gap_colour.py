@@ -114,6 +114,11 @@ def test_two_side_instances_with_a_table_coloured_seam_stay_apart() -> None:
         bridged[rows[len(rows) // 2 - 2:len(rows) // 2 + 2]])
     assert len(_fused(one_top, two, bridged, thin=False).instances) == 2
     assert len(_fused(one_top, np.where(two > 0, 1, 0), bridged, thin=False).instances) == 1
+    # two instances that do not touch (two blobs, or one part the cues broke up around
+    # lost pixels): the fusion's own business (apart_by_table), not a seam
+    apart = two.copy()
+    apart[(side > 0) & (pred == 0)] = 0
+    assert len(_fused(one_top, apart, rgb, thin=False).instances) == 1
     # without the table's colour between them (one part in two instances), or with the
     # side instances' evidence off: one part
     dark = _scene(gap_colour=PART)[2]
