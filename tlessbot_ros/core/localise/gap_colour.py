@@ -169,7 +169,7 @@ def _gap_pieces(region: np.ndarray, lab: np.ndarray, table_like: np.ndarray,
     grouped = np.zeros(region.shape, np.int32)
     for c in range(1, count):
         piece = parts == c
-        size = np.count_nonzero(piece)
+        size = int(np.count_nonzero(piece))
         if size < min_piece_px or 2 * np.count_nonzero(piece & table_like) >= size or \
                 not cv2.erode(piece.view(np.uint8), disc).any() or \
                 (np.abs(np.median(lab[piece], axis=0) - band_colour) <= floors).all():
