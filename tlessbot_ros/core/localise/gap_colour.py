@@ -12,15 +12,18 @@ part lying on a tile of its own colour, look alike. So the rule acts only where 
 has two parts there. After the fusion, in each side region of one id, the pixels within
 ``floors`` (per LAB channel) of the nearest pixel outside every blob are **table-coloured**.
 
-* Those in bands narrower than a disc of ``band_px`` px (an opening; at least 3 px wide) are
-  taken out. Where that leaves two or more **pieces** that could each be a part
+* Those in bands narrower than a disc of ``band_px`` px (an opening; at least 3 px wide)
+  that reach the region's outline are taken out (a gap between two parts opens onto the
+  table; a slot or a hole through one part is closed by it). Where that leaves two or more **pieces** that could each be a part
   (``min_piece_px`` pixels, a disc of ``band_px`` inside, under half of them table-coloured,
   a median colour unlike the band's) and different top blobs (their predicted side regions,
   before the fusion joined any) or different side instances hold them, the region is
   divided along the band, each pixel to the nearest piece.
-* Else, two side instances of the region (the side segmentation's touching-object
-  separation) stay apart where the seam between them (the pixels within ``band_px`` of
-  both) is mostly table-coloured and neither instance has the seam's colour.
+* Else, two side instances of one blob in the region (the side segmentation's
+  touching-object separation) stay apart where the seam between them (the pixels within
+  ``band_px`` of both) is mostly table-coloured, reaches the outline, and neither instance
+  has the seam's colour. Two instances that do not touch are left as the fusion has them:
+  what lies between them may be a part's pixels the cues lost, not the table.
 
 The piece holding most of the region's own prediction keeps its id; a piece that its own
 top blob holds takes that blob back (a new id in both views, or the id of the blob's
