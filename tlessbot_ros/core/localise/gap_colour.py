@@ -14,11 +14,12 @@ has two parts there. After the fusion, in each side region of one id, the pixels
 
 * Those in bands narrower than a disc of ``band_px`` px (an opening; at least 3 px wide)
   that reach the region's outline are taken out (a gap between two parts opens onto the
-  table; a slot or a hole through one part is closed by it). Where that leaves two or more **pieces** that could each be a part
-  (``min_piece_px`` pixels, a disc of ``band_px`` inside, under half of them table-coloured,
-  a median colour unlike the band's) and different top blobs (their predicted side regions,
-  before the fusion joined any) or different side instances hold them, the region is
-  divided along the band, each pixel to the nearest piece.
+  table; a slot or a hole through one part is closed by it). Where that leaves two or more
+  **pieces** that could each be a part (``min_piece_px`` pixels, a disc of ``band_px``
+  inside, under half of them table-coloured, a median colour unlike the band's) and
+  different top blobs (their predicted side regions, before the fusion joined any) or
+  different side instances hold them, the region is divided along the band, each pixel to
+  the nearest piece.
 * Else, two side instances of one blob in the region (the side segmentation's
   touching-object separation) stay apart where the seam between them (the pixels within
   ``band_px`` of both) is mostly table-coloured, reaches the outline, and neither instance
