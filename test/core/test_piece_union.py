@@ -2,6 +2,8 @@
 of both explains each (issue 41, core/piece_union.py)."""
 from __future__ import annotations
 
+from itertools import permutations
+
 import numpy as np
 import pytest
 import trimesh
@@ -95,7 +97,8 @@ class _Detection:
 
 def test_a_piece_joins_only_a_keeper_not_yet_published():
     """``joins`` is asked of a worse neighbour neither fit explains, while its keeper waits;
-    a keeper already handed to ``publish`` keeps its own fit (its piece is a part of its own)."""
+    a keeper waits for its neighbours' neighbours too (main's code: handed to ``publish``
+    while its piece waited for a third part, so the piece stayed a part of its own)."""
     a, b = _Detection(1), _Detection(2)
     asked, published = [], []
 
@@ -118,10 +121,10 @@ def test_a_piece_joins_only_a_keeper_not_yet_published():
                            published.append, overlap=0.5, explains=lambda x, y: False,
                            joins=joins)
     later.fitted(c, np.zeros(3), 0.09, 0.9)
-    later.fitted(d, np.array([0.06, 0, 0]), 0.09, 0.8)   # c out; d waits for e
-    assert published == [c]
+    later.fitted(d, np.array([0.06, 0, 0]), 0.09, 0.8)   # d waits for e, so c waits for d
+    assert published == []
     later.fitted(e, np.array([0.13, 0, 0]), 0.09, 0.7)
-    assert later.kept_by.get(id(d)) is not c
+    assert later.kept_by.get(id(d)) is c
 
 
 def test_touching_pieces_are_asked_whatever_their_centroids_distance():
@@ -182,3 +185,26 @@ def test_two_touching_unknown_pieces_are_asked_once_the_larger_keeping():
     arbiter.fitted(a, None, 0.0, -np.inf)
     arbiter.fitted(b, None, 0.0, -np.inf)
     assert asked == [(2, 1)] and published == [b] and arbiter.kept_by == {id(a): b}
+
+
+
+def test_a_join_does_not_depend_on_when_a_third_part_touching_the_piece_is_fitted():
+    """Two halves of one part (1, 2; one fit of both explains each) and a third part (3)
+    touching the smaller half only: in every completion order the half joins the larger one
+    and the third part goes out alone (main's code: when 1 and 2 were fitted before 3, 1 was
+    handed to ``publish`` while 2 waited for 3, and 2 stayed a part of its own)."""
+    fits = {1: (np.zeros(3), 0.9), 2: (np.array([0.12, 0, 0]), 0.8),
+            3: (np.array([0.24, 0, 0]), 0.85)}
+    for order in permutations(fits):
+        d = {i: _Detection(i) for i in fits}
+        published = []
+        arbiter = FragmentFilter(
+            [(d[i], fits[i][0], 'world', points, 0.09) for i, points in ((1, 600), (2, 300),
+                                                                         (3, 500))],
+            published.append, overlap=0.5, explains=lambda x, y: False,
+            joins=lambda keeper, piece: {keeper.instance_id, piece.instance_id} == {1, 2},
+            touching=lambda x, y: {x.instance_id, y.instance_id} in ({1, 2}, {2, 3}))
+        for i in order:
+            arbiter.fitted(d[i], fits[i][0], 0.09, fits[i][1])
+        assert sorted(p.instance_id for p in published) == [1, 3], order
+        assert arbiter.dropped == [d[2]] and arbiter.kept_by == {id(d[2]): d[1]}, order

@@ -7,10 +7,12 @@ so of two detections whose fitted centres lie closer than ``overlap`` x the smal
 the one that fits worse (pose fitness, then fewer ROI points) is a fragment of the other.
 
 The pose stage publishes each part as soon as it is fitted, and parts fitted in worker
-processes complete in any order; the answer must not depend on that order. So a detection is
-decided once it and every detection that could overlap it (ROI centroids within half their
-summed diameters) are fitted: a part with no such neighbour goes out at once, neighbours
-together when the last of them is fitted.
+processes complete in any order; the answer must not depend on that order. So detections that
+could overlap (ROI centroids within half their summed diameters), and the detections those
+could overlap in turn, are decided together, in instance order, once the last of them is
+fitted: a part with no such neighbour goes out at once. (Deciding a piece as soon as its own
+neighbours are fitted would hand a keeper to ``publish`` before a neighbour's piece that
+waits for a third part could join it: the join would depend on which was fitted first.)
 
 A piece is also a fragment of a neighbour whose fit explains it (``explains``, see
 :mod:`tlessbot_ros.core.one_part`): one part the fusion divided, fitted whole on one piece.
@@ -52,6 +54,7 @@ class _Piece(Generic[D]):
     points: int           # ROI points
     diameter_m: float     # of its first class candidate
     neighbours: list[int] = field(default_factory=list)
+    group: list[int] = field(default_factory=list)   # the pieces decided with it
     centre: np.ndarray | None = None
     score: float = -np.inf   # pose fitness
     fitted_diameter_m: float = 0.0
@@ -102,6 +105,11 @@ class FragmentFilter(Generic[D]):
                 if self._neighbours(piece, self._pieces[b]):
                     piece.neighbours.append(b)
                     self._pieces[b].neighbours.append(a)
+        for a, piece in enumerate(self._pieces):
+            if not piece.group:
+                group = _connected(self._pieces, a)
+                for k in group:
+                    self._pieces[k].group = group
 
     def _neighbours(self, piece: _Piece[D], other: _Piece[D]) -> bool:
         """Whether two pieces could overlap: ROI centroids within half their summed diameters,
@@ -129,11 +137,10 @@ class FragmentFilter(Generic[D]):
             self._publish(kept)
 
     def _decide_ready(self) -> list[D]:
-        """Decide every fitted piece whose neighbours are all fitted."""
+        """Decide every piece whose group (its neighbours, theirs in turn...) is all fitted."""
         kept = []
         for piece in self._pieces:
-            if piece.decided or not piece.done or \
-                    not all(self._pieces[b].done for b in piece.neighbours):
+            if piece.decided or not all(self._pieces[b].done for b in piece.group):
                 continue
             piece.decided = True
             if (keeper := self._fragment_of(piece)) is not None:
@@ -192,6 +199,17 @@ class FragmentFilter(Generic[D]):
         if key not in self._joins_asked:
             self._joins_asked[key] = self._joins(keeper, piece)
         return self._joins_asked[key]
+
+
+def _connected(pieces: Sequence[_Piece[Any]], start: int) -> list[int]:
+    """The indices of the pieces ``start`` reaches over neighbours, ascending."""
+    group, todo = {start}, [start]
+    while todo:
+        for b in pieces[todo.pop()].neighbours:
+            if b not in group:
+                group.add(b)
+                todo.append(b)
+    return sorted(group)
 
 
 def _better(a: _Piece[Any], b: _Piece[Any]) -> bool:
