@@ -366,9 +366,8 @@ class PerceptionPipeline:
             on_detection: called with each detection as soon as it is complete, so a node
                 can publish a part's pose without waiting for the rest of the frame (parts
                 fitted in parallel complete in any order). A fragment of a larger part
-                (``fragment_overlap``) is never handed over, and a part only once the parts it
-                could overlap or touch, and theirs in turn, are fitted, so the result does
-                not depend on that order.
+                (``fragment_overlap``) is never handed over, and a part only once those it could
+                overlap or touch (theirs too) are fitted: the result does not depend on order.
             fitter: runs the parts' fits (e.g. in worker processes); default: here, in turn.
 
         Returns:
