@@ -99,6 +99,7 @@ from tlessbot_ros.core.pose import (
     roi_cloud,
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
+from tlessbot_ros.core.region_trim import trim_to_fits
 from tlessbot_ros.core.resting_check import check_resting_and_turns
 from tlessbot_ros.core.turn_check import warm_up_turns
 from tlessbot_ros.core.two_parts import split_then
@@ -425,7 +426,10 @@ class PerceptionPipeline:
                 fitted(job)
         else:
             fitter.fit_all(jobs, self.fit_part, fitted)
-        return join_pieces(arbiter, detections, labels) + pieces   # one_part.py, two_parts.py
+        found = join_pieces(arbiter, detections, labels) + pieces   # one_part.py, two_parts.py
+        if not box_mode:   # a region trimmed to its fit: region_trim.py
+            trim_to_fits(self, views, labels, found)
+        return found
 
     def _lookalike_views(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
                          counts: dict[str, np.ndarray], boxes: dict[str, np.ndarray],
