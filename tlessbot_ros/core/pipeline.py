@@ -426,10 +426,10 @@ class PerceptionPipeline:
                 fitted(job)
         else:
             fitter.fit_all(jobs, self.fit_part, fitted)
-        found = join_pieces(arbiter, detections, labels) + pieces   # one_part.py, two_parts.py
+        kept = join_pieces(arbiter, detections, labels) + pieces   # one_part.py, two_parts.py
         if not box_mode:   # a region trimmed to its fit: region_trim.py
-            trim_to_fits(self, views, labels, found)
-        return found
+            trim_to_fits(self, views, labels, kept)
+        return kept
 
     def _lookalike_views(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
                          counts: dict[str, np.ndarray], boxes: dict[str, np.ndarray],

@@ -81,8 +81,9 @@ def pose_in_view(views: dict[str, ViewInput], detection: Detection, name: str
     if view is None or fitted is None or view.T_world_camera is None or \
             fitted.T_world_camera is None:
         return None
-    return np.linalg.inv(view.T_world_camera) @ fitted.T_world_camera @ \
+    T: np.ndarray = np.linalg.inv(view.T_world_camera) @ fitted.T_world_camera @ \
         detection.pose.T_camera_object
+    return T
 
 
 def near_outline(obj: ObjectTemplates, T_camera_object: np.ndarray, view: ViewInput,
