@@ -4,10 +4,9 @@ docs/bench/smoothed-false-parts-now.md (2026-12-06, seventh session).
 
     python scripts/trim_to_fit_sweep.py TSV [--margins 2,3,4] [--seen 0.5,0.8] -- EVALUATE ARGS...
 
-Runs ``tlessbot evaluate`` (its own figures are those of the given arguments: run it with the
-trim off to read main's boxes beside every setting) and, after each frame's pose stage, trims
-a copy of the labels at each setting; the trim moves no pose, so each setting's boxes are
-scored against the frame's ground truth as ``evaluate`` scores them (IoU >= 0.7, greedy).
+Runs ``tlessbot evaluate`` with the trim off (main's boxes, its own figures) and, after each
+frame's pose stage, trims a copy of the labels at each setting; the trim moves no pose, so
+each setting's boxes are scored against the frame's ground truth as ``evaluate`` scores them (IoU >= 0.7, greedy).
 Writes one row per setting to TSV: margin_px, min_seen ('off' for the run's own boxes),
 frames, false boxes, false boxes a frame, detected and named right (top-1) over the targets,
 and the false boxes by ``false_box_causes.py``'s causes.
@@ -45,8 +44,7 @@ def main(argv: list[str]) -> int:
 
     trimmed: dict[int, tuple[np.ndarray, dict]] = {}   # id(side labels): (them, {setting: ..})
 
-    def spy_trim(pipeline, views, labels, detections, **kw):
-        trim_to_fits(pipeline, views, labels, detections, **kw)
+    def spy_trim(pipeline, views, labels, detections, **kw):   # the run itself: trim off
         if 'side' not in labels:
             return
         by_setting = {}
