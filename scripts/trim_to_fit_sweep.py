@@ -6,7 +6,8 @@ docs/bench/smoothed-false-parts-now.md (2026-12-06, seventh session).
 
 Runs ``tlessbot evaluate`` with the trim off (main's boxes, its own figures) and, after each
 frame's pose stage, trims a copy of the labels at each setting; the trim moves no pose, so
-each setting's boxes are scored against the frame's ground truth as ``evaluate`` scores them (IoU >= 0.7, greedy).
+each setting's boxes are scored against the frame's ground truth as ``evaluate`` scores
+them (IoU >= 0.7, greedy).
 Writes one row per setting to TSV: margin_px, min_seen ('off' for the run's own boxes),
 frames, false boxes, false boxes a frame, detected and named right (top-1) over the targets,
 and the false boxes by ``false_box_causes.py``'s causes.
