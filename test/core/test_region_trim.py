@@ -58,9 +58,9 @@ def test_a_shadow_attached_to_a_part_is_trimmed_off_its_region(plate_with_a_shad
     outline: trimmed, the box the plate's (main's code: the region and box keep the band)."""
     db, views, plate, region = plate_with_a_shadow
     assert box_iou(mask_box(region), mask_box(plate)) < 0.7   # the band widens the box
-    kept, labels = _found(db, views, region)                  # the rule off (main)
+    kept, labels = _found(db, views, region, trim_to_fit_px=0)   # the rule off (main)
     assert np.array_equal(labels > 0, region)
-    found, labels = _found(db, views, region, trim_to_fit_px=3)
+    found, labels = _found(db, views, region)
     assert len(found) == 1 and found[0].pose is not None
     T_world = SIDE.T_world_camera @ found[0].pose.T_camera_object
     assert np.linalg.norm(T_world[:2, 3] - T_TRUE[:2, 3]) < 0.005
@@ -83,5 +83,6 @@ def test_a_fit_off_its_region_trims_nothing(plate_with_a_shadow):
 
 
 def test_trim_to_fit_px_must_not_be_negative():
+    assert FitParams().trim_to_fit_px == 3
     with pytest.raises(ValueError, match='trim_to_fit_px must be >= 0'):
         FitParams(trim_to_fit_px=-1)

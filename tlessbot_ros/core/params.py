@@ -190,7 +190,7 @@ class FitParams:
     join_refit_cover: float = 0.8
     join_refit_gap_px: int = 3
     join_refit_touching: bool = True
-    trim_to_fit_px: int = 0
+    trim_to_fit_px: int = 3
     fit_rank_coverage_weight: float = 0.0
     flat: FlatParams = field(default_factory=FlatParams)
     turns: TurnParams = field(default_factory=TurnParams)
