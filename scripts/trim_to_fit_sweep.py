@@ -10,13 +10,14 @@ each setting's boxes are scored against the frame's ground truth as ``evaluate``
 them (IoU >= 0.7, greedy).
 Writes one row per setting to TSV: margin_px, min_seen ('off' for the run's own boxes),
 frames, false boxes, false boxes a frame, detected and named right (top-1) over the targets,
-and the false boxes by ``false_box_causes.py``'s causes.
+the false boxes by ``false_box_causes.py``'s causes, and the trim's process CPU ms a frame.
 """
 from __future__ import annotations
 
 import argparse
 import copy
 import sys
+import time
 from collections import Counter
 
 import numpy as np
@@ -44,6 +45,7 @@ def main(argv: list[str]) -> int:
     from tlessbot_ros.core.region_trim import trim_to_fits
 
     trimmed: dict[int, tuple[np.ndarray, dict]] = {}   # id(side labels): (them, {setting: ..})
+    cpu_ms: dict[tuple[int, float], float] = {}   # each setting's trims, process CPU ms
 
     def spy_trim(pipeline, views, labels, detections, **kw):   # the run itself: trim off
         if 'side' not in labels:
@@ -51,7 +53,10 @@ def main(argv: list[str]) -> int:
         by_setting = {}
         for margin, seen in settings:
             copies, boxes = dict(labels), [copy.copy(d) for d in detections]
+            t0 = time.process_time()
             trim_to_fits(pipeline, views, copies, boxes, margin_px=margin, min_seen=seen)
+            cpu_ms[(margin, seen)] = cpu_ms.get((margin, seen), 0.0) + \
+                1e3 * (time.process_time() - t0)
             by_setting[(margin, seen)] = copies['side']
         trimmed[id(labels['side'])] = (labels['side'], by_setting)
     pipeline_module.trim_to_fits = spy_trim
@@ -76,14 +81,15 @@ def main(argv: list[str]) -> int:
         eval_scoring.frame_breakdown = original
     with open(args.tsv, 'w') as out:
         out.write('\t'.join(('margin_px', 'min_seen', 'frames', 'false', 'fp_frame', 'detected',
-                             'top1', *DETAILS)) + '\n')
+                             'top1', *DETAILS, 'trim_cpu_ms_frame')) + '\n')
         for key, c in totals.items():
             margin, seen = ('off', 'off') if key == 'off' else key
             n, t = max(1, c['frames']), max(1, c['targets'])
             out.write('\t'.join(str(v) for v in (
                 margin, seen, c['frames'], c['false'], f"{c['false'] / n:.2f}",
                 f"{c['detected'] / t:.3f}", f"{c['top1'] / t:.3f}",
-                *(c[d] for d in DETAILS))) + '\n')
+                *(c[d] for d in DETAILS),
+                f'{cpu_ms.get(key, 0.0) / n:.1f}' if key != 'off' else '')) + '\n')
     return int(code or 0)
 
 
