@@ -48,8 +48,8 @@ def main(argv: list[str]) -> int:
     cpu_ms: dict[tuple[int, float], float] = {}   # each setting's trims, process CPU ms
 
     def spy_trim(pipeline, views, labels, detections, **kw):   # the run itself: trim off
-        if 'side' not in labels:
-            return
+        if 'side' not in labels or kw.get('box_mode'):
+            return detections
         by_setting = {}
         for margin, seen in settings:
             copies, boxes = dict(labels), [copy.copy(d) for d in detections]
@@ -59,6 +59,7 @@ def main(argv: list[str]) -> int:
                 1e3 * (time.process_time() - t0)
             by_setting[(margin, seen)] = copies['side']
         trimmed[id(labels['side'])] = (labels['side'], by_setting)
+        return detections
     pipeline_module.trim_to_fits = spy_trim
 
     totals: dict[object, Counter] = {}

@@ -371,8 +371,7 @@ class PerceptionPipeline:
                 overlap or touch (theirs too) are fitted: the result does not depend on order.
             fitter: runs the parts' fits (e.g. in worker processes); default: here, in turn.
 
-        Returns:
-            the detections in instance order, fragments left out.
+        Returns: the detections in instance order, fragments left out (regions: trimmed).
         """
         database, detections, jobs = pose_stage(self.pose_estimator).database, [], []
         done = on_detection or (lambda detection: None)
@@ -427,9 +426,7 @@ class PerceptionPipeline:
         else:
             fitter.fit_all(jobs, self.fit_part, fitted)
         kept = join_pieces(arbiter, detections, labels) + pieces   # one_part.py, two_parts.py
-        if not box_mode:   # a region trimmed to its fit: region_trim.py
-            trim_to_fits(self, views, labels, kept)
-        return kept
+        return trim_to_fits(self, views, labels, kept, box_mode=box_mode)   # region_trim.py
 
     def _lookalike_views(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
                          counts: dict[str, np.ndarray], boxes: dict[str, np.ndarray],

@@ -19,7 +19,6 @@ changed.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import cv2
@@ -42,16 +41,17 @@ MIN_SEEN = 0.8
 
 
 def trim_to_fits(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
-                 labels: dict[str, np.ndarray], detections: Sequence[Detection], *,
-                 margin_px: int | None = None, min_seen: float = MIN_SEEN) -> None:
-    """Trim each fitted detection's region in every view of ``labels`` to the pixels within
-    ``margin_px`` (default ``FitParams.trim_to_fit_px``; 0: off) of its fitted silhouette
-    there, where the region covers ``min_seen`` of it (see the module). ``labels``' arrays
-    are replaced, not written into; each trimmed detection's ``box`` follows its region in
-    its view."""
+                 labels: dict[str, np.ndarray], detections: list[Detection], *,
+                 box_mode: bool = False, margin_px: int | None = None,
+                 min_seen: float = MIN_SEEN) -> list[Detection]:
+    """``detections``, each fitted one's region in every view of ``labels`` trimmed to the
+    pixels within ``margin_px`` (default ``FitParams.trim_to_fit_px``; 0: off) of its fitted
+    silhouette there, where the region covers ``min_seen`` of it (see the module); nothing in
+    ``box_mode`` (a region is the part's given box). ``labels``' arrays are replaced, not
+    written into; each trimmed detection's ``box`` follows its region in its view."""
     margin = pipeline.fit_params.trim_to_fit_px if margin_px is None else margin_px
-    if margin <= 0 or pipeline.pose_estimator is None:
-        return
+    if margin <= 0 or box_mode or pipeline.pose_estimator is None:
+        return detections
     database = pose_stage(pipeline.pose_estimator).database
     for detection in detections:
         if detection.pose is None or detection.obj_id == UNKNOWN_ID or \
@@ -68,6 +68,7 @@ def trim_to_fits(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
                 labels[name] = np.where(region & ~near, 0, image).astype(image.dtype)
         if detection.view in labels:
             detection.box = mask_box(labels[detection.view] == detection.instance_id)
+    return detections
 
 
 def pose_in_view(views: dict[str, ViewInput], detection: Detection, name: str
