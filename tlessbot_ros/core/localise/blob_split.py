@@ -13,6 +13,8 @@ Every function works on one blob's crop (bool mask with a one-pixel border); the
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import cv2
 import numpy as np
 
@@ -208,3 +210,21 @@ def fill_from_nearest(labels: np.ndarray, holes: np.ndarray) -> np.ndarray:
     lut[nearest[ys, xs]] = labels[ys, xs]
     labels[holes] = lut[nearest[holes]]
     return labels
+
+
+def pair_roots(count: int, together: Callable[[int, int], bool]) -> list[int]:
+    """Group ``count`` items by pairs: ``together(a, b)`` (a < b, asked once per pair in
+    order) puts a and b in one group. Returns each item's group root, an item index; the
+    roots, sorted, number the groups."""
+    root = list(range(count))
+
+    def find(a: int) -> int:
+        while root[a] != a:
+            a = root[a]
+        return a
+
+    for a in range(count):
+        for b in range(a + 1, count):
+            if together(a, b):
+                root[find(b)] = find(a)
+    return [find(a) for a in range(count)]

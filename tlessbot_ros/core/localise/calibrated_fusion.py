@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.common import Rig, pixel_counts, transform_points
-from tlessbot_ros.core.localise.blob_split import fill_from_nearest
+from tlessbot_ros.core.localise.blob_split import fill_from_nearest, pair_roots
 from tlessbot_ros.core.localise.fusion_result import (
     FusionParams,
     FusionResult,
@@ -230,25 +230,18 @@ def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
         return []
     groups = side.depth_groups[ids - 1]
     thin = side.thin[ids - 1] if len(side.thin) >= ids.max() else np.zeros(ids.size, bool)
-    root = list(range(ids.size))
+    def together(a: int, b: int) -> bool:
+        by_depth = params.keep_depth_splits and groups[a] > 0 and groups[b] > 0 and \
+            groups[a] != groups[b]
+        by_height = params.keep_thin_beside_tall and thin[a] != thin[b]
+        return not (by_depth or by_height)
 
-    def find(a: int) -> int:
-        while root[a] != a:
-            a = root[a]
-        return a
-
-    for a in range(ids.size):
-        for b in range(a + 1, ids.size):
-            by_depth = params.keep_depth_splits and groups[a] > 0 and groups[b] > 0 and \
-                groups[a] != groups[b]
-            by_height = params.keep_thin_beside_tall and thin[a] != thin[b]
-            if not (by_depth or by_height):
-                root[find(b)] = find(a)
-    roots = sorted({find(a) for a in range(ids.size)})
+    root_of = pair_roots(ids.size, together)
+    roots = sorted(set(root_of))
     if len(roots) < 2:
         return []
     piece_of = np.zeros(int(own.max()) + 1, np.int32)
-    piece_of[ids] = [roots.index(find(a)) + 1 for a in range(ids.size)]
+    piece_of[ids] = [roots.index(root_of[a]) + 1 for a in range(ids.size)]
     grouped = np.where(blob, piece_of[own], 0)
     holes = blob & (grouped == 0)
     if holes.any():

@@ -44,8 +44,9 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from tlessbot_ros.core.localise.blob_split import fill_from_nearest
+from tlessbot_ros.core.localise.blob_split import fill_from_nearest, pair_roots
 from tlessbot_ros.core.localise.colour import rgb_to_lab
+from tlessbot_ros.core.localise.cues import opened
 from tlessbot_ros.core.localise.instances import boxes_from_labels
 
 if TYPE_CHECKING:
@@ -163,7 +164,7 @@ def _gap_pieces(region: np.ndarray, lab: np.ndarray, table_like: np.ndarray,
     the id holding a third of it, 0 for none): the groups' keys and the region's pixels by
     group ((h, w) int32, ``g + 1`` for ``keys[g]``); None where fewer than two groups are
     left (all cut to the region's window; ``lab``, ``table_like``: :func:`_table_coloured`)."""
-    band = _opened(table_like, 1) & ~_opened(table_like, band_px)
+    band = opened(table_like, 1) & ~opened(table_like, band_px)
     if not band.any() or not _open_to_table(band, ~ndimage.binary_fill_holes(region)):
         return None
     count, parts = cv2.connectedComponents((region & ~band).view(np.uint8), connectivity=8)
@@ -211,30 +212,23 @@ def _seam_pieces(region: np.ndarray, lab: np.ndarray, table_like: np.ndarray,
     touching = [cv2.dilate((own == i).astype(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
                 for i in ids]
     medians = [np.median(lab[region & (own == i)], axis=0) for i in ids]
-    root = list(range(ids.size))
+    def together(a: int, b: int) -> bool:
+        seam = region & near[a] & near[b]
+        coloured = seam & table_like
+        # two instances of one blob (apart ones are the fusion's own: apart_by_table)
+        apart = np.any(seam & (own == ids[a]) & touching[b]) and \
+            2 * np.count_nonzero(coloured) > np.count_nonzero(seam) and all(
+            (np.abs(m - np.median(lab[coloured], axis=0)) > floors).any()
+            for m in (medians[a], medians[b])) and _open_to_table(coloured, outside)
+        return not apart
 
-    def find(a: int) -> int:
-        while root[a] != a:
-            a = root[a]
-        return a
-
-    for a in range(ids.size):
-        for b in range(a + 1, ids.size):
-            seam = region & near[a] & near[b]
-            coloured = seam & table_like
-            # two instances of one blob (apart ones are the fusion's own: apart_by_table)
-            apart = np.any(seam & (own == ids[a]) & touching[b]) and \
-                2 * np.count_nonzero(coloured) > np.count_nonzero(seam) and all(
-                (np.abs(m - np.median(lab[coloured], axis=0)) > floors).any()
-                for m in (medians[a], medians[b])) and _open_to_table(coloured, outside)
-            if not apart:
-                root[find(b)] = find(a)
-    roots = sorted({find(a) for a in range(ids.size)})
+    root_of = pair_roots(ids.size, together)
+    roots = sorted(set(root_of))
     if len(roots) < 2:
         return None
     grouped = np.zeros(region.shape, np.int32)
     for a in range(ids.size):
-        grouped[region & (own == ids[a])] = roots.index(find(a)) + 1
+        grouped[region & (own == ids[a])] = roots.index(root_of[a]) + 1
     fill_from_nearest(grouped, region & (grouped == 0))
     grouped[~region] = 0
     return [(0, int(ids[r])) for r in roots], grouped
@@ -255,13 +249,6 @@ def _holder(ids: np.ndarray, size: int) -> int:
         return 0
     best = int(np.bincount(ids).argmax())
     return best if 3 * np.count_nonzero(ids == best) >= size else 0
-
-
-def _opened(mask: np.ndarray, radius: int) -> np.ndarray:
-    """``mask`` opened by a disc of ``radius`` px."""
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-    opened: np.ndarray = cv2.morphologyEx(mask.view(np.uint8), cv2.MORPH_OPEN, disc).view(bool)
-    return opened
 
 
 __all__ = ['apart_by_gap_colour']
