@@ -33,8 +33,10 @@ def part21(part21_seen_from_the_side):
 
 
 def _fit(pipeline: PerceptionPipeline, views, labels, obj_id: int):
-    """The pose stage on the part, its class given (as the classifier would hand it over)."""
-    [detection] = pipeline.estimate_poses(views, labels, {1: (obj_id,)})
+    """The pose stage on the part, its class given (as the classifier would hand it over).
+    A copy of ``labels``: the stage trims its regions to their fits, and the fixtures serve
+    every test of the module."""
+    [detection] = pipeline.estimate_poses(views, dict(labels), {1: (obj_id,)})
     return detection
 
 
@@ -90,7 +92,7 @@ def test_fit_ranking_floor_keeps_its_meaning(part21):
     pipeline = PerceptionPipeline(templates=db, fit_params=FitParams(
         **OFF, fit_rank_min_fitness=1.0))
     assert _fit(pipeline, views, labels, 21).obj_id == 21   # one candidate: untouched
-    [detection] = pipeline.estimate_poses(views, labels, {1: (5, 21)})
+    [detection] = pipeline.estimate_poses(views, dict(labels), {1: (5, 21)})
     assert detection.obj_id == UNKNOWN_ID
 
 

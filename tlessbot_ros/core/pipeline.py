@@ -357,7 +357,8 @@ class PerceptionPipeline:
         Args:
             views: per view, the depth, intrinsics and extrinsics (each part is fitted in its
                 view's table frame, :meth:`table_frame`: without one, by the fallback).
-            labels: instance label images per view (box mode: filled boxes, table dropped).
+            labels: instance label images per view (box mode: filled boxes, table dropped);
+                each view's image is replaced by its regions trimmed to their fits.
             classes: {instance: obj_id} or {instance: (obj_id, ...)} candidates best first
                 (see :class:`ClassGuess`); 0 and ids without templates are skipped, an
                 instance without any is skipped. Several candidates are verified by their
