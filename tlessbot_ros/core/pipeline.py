@@ -357,8 +357,7 @@ class PerceptionPipeline:
         Args:
             views: per view, the depth, intrinsics and extrinsics (each part is fitted in its
                 view's table frame, :meth:`table_frame`: without one, by the fallback).
-            labels: instance label images per view (box mode: filled boxes, table dropped);
-                each view's image is replaced by its regions trimmed to their fits.
+            labels: label images per view (box mode: boxes, table dropped); trimmed to fits.
             classes: {instance: obj_id} or {instance: (obj_id, ...)} candidates best first
                 (see :class:`ClassGuess`); 0 and ids without templates are skipped, an
                 instance without any is skipped. Several candidates are verified by their
