@@ -228,3 +228,10 @@ def pair_roots(count: int, together: Callable[[int, int], bool]) -> list[int]:
             if together(a, b):
                 root[find(b)] = find(a)
     return [find(a) for a in range(count)]
+
+
+def padded_window(box: np.ndarray, pad: int, shape: tuple[int, ...]) -> tuple[slice, slice]:
+    """The rows and columns of an (x, y, w, h) box grown by ``pad`` px, within ``shape``."""
+    x, y, w, h = (int(v) for v in box)
+    return (slice(max(y - pad, 0), min(y + h + pad, shape[0])),
+            slice(max(x - pad, 0), min(x + w + pad, shape[1])))

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.common import Rig, pixel_counts, transform_points
-from tlessbot_ros.core.localise.blob_split import fill_from_nearest, pair_roots
+from tlessbot_ros.core.localise.blob_split import fill_from_nearest, padded_window, pair_roots
 from tlessbot_ros.core.localise.fusion_result import (
     FusionParams,
     FusionResult,
@@ -325,11 +325,8 @@ def _place_fragments(side_labels: np.ndarray, blobs: np.ndarray, stats: np.ndarr
     (``side.longest_part_px``: a thin part whose middle the cues lost comes out in pieces),
     else is a part of its own (a new id from ``next_id``). Returns the next free id."""
     reach = max(1, int(np.sqrt(side.whole_part_px())))
-    H, W = side_labels.shape
     for b in fragments:
-        x, y, w, h = (int(v) for v in stats[b, :4])
-        window = (slice(max(y - reach, 0), min(y + h + reach, H)),
-                  slice(max(x - reach, 0), min(x + w + reach, W)))
+        window = padded_window(stats[b, :4], reach, side_labels.shape)
         blob = blobs[window] == b
         near = side_labels[window]
         if near.any():

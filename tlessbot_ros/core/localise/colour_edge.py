@@ -37,6 +37,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from tlessbot_ros.core.localise.blob_split import padded_window
 from tlessbot_ros.core.localise.colour import rgb_to_lab
 from tlessbot_ros.core.localise.params import SegmentationParams
 
@@ -123,12 +124,6 @@ def colour_share_around(lab: np.ndarray, blob: np.ndarray, tolerance: np.ndarray
     return float(np.count_nonzero(same)) / max(blob.size - int(np.count_nonzero(blob)), 1)
 
 
-def _window(box: np.ndarray, pad: int, shape: tuple[int, ...]) -> tuple[slice, slice]:
-    """The rows and columns of an (x, y, w, h) box grown by ``pad``, within ``shape``."""
-    x, y, w, h = (int(v) for v in box)
-    return (slice(max(y - pad, 0), min(y + h + pad, shape[0])),
-            slice(max(x - pad, 0), min(x + w + pad, shape[1])))
-
 
 def drop_blobs_without_colour_edge(foreground: np.ndarray, rgb: np.ndarray,
                                    depth_candidate: np.ndarray, depth_table: np.ndarray,
@@ -167,10 +162,10 @@ def _table_piece(lab: np.ndarray, blobs: np.ndarray, box: np.ndarray, i: int,
     the colour of the table around it in a region longer than any part, or without a colour
     step along most of its outline in a colour common around it, or, where no pixel of it is
     a depth candidate (``depth_free``), mostly in colours common on the table (module doc)."""
-    near = _window(box, params.colour_edge_ring_px + 1, blobs.shape)
+    near = padded_window(box, params.colour_edge_ring_px + 1, blobs.shape)
     crop = blobs[near]
     blob = crop == i
-    around = _window(box, int(np.ceil(longest)) + 1, blobs.shape)
+    around = padded_window(box, int(np.ceil(longest)) + 1, blobs.shape)
     share, colour = table_colour_share(lab[near], blob, (crop > 0) & ~blob, depth_table[near],
                                        params.colour_edge_ring_px, tolerance)
     if share >= TABLE_COLOUR_SHARE and \

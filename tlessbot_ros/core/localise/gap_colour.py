@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from tlessbot_ros.core.localise.blob_split import fill_from_nearest, pair_roots
+from tlessbot_ros.core.localise.blob_split import fill_from_nearest, padded_window, pair_roots
 from tlessbot_ros.core.localise.colour import rgb_to_lab
 from tlessbot_ros.core.localise.cues import opened
 from tlessbot_ros.core.localise.instances import boxes_from_labels
@@ -82,12 +82,9 @@ def apart_by_gap_colour(side_labels: np.ndarray, top_labels: np.ndarray, pred: n
     """
     divided: set[int] = set()
     boxes, areas = boxes_from_labels(side_labels)
-    H, W = side_labels.shape
     margin = 2 * band_px + 3
     for k in (1 + np.flatnonzero(areas >= 2 * min_piece_px)).tolist():
-        x, y, w, h = (int(v) for v in boxes[k - 1])
-        window = (slice(max(y - margin, 0), min(y + h + margin, H)),
-                  slice(max(x - margin, 0), min(x + w + margin, W)))
+        window = padded_window(boxes[k - 1], margin, side_labels.shape)
         region = side_labels[window] == k
         holders = [pred[window]] + ([side.labels[window]] if side_instances else [])
         if not any(_two_hold(m[region], min_piece_px / 3) for m in holders):
