@@ -2,6 +2,9 @@
 split of a blob and the fusion that keeps the side view's depth split."""
 from __future__ import annotations
 
+from dataclasses import replace
+
+import cv2
 import numpy as np
 
 from tlessbot_ros.core.common import MeshRenderer, default_rig, make_transform
@@ -201,3 +204,51 @@ def test_pieces_meeting_by_a_neck_are_apart_but_tied() -> None:
     assert len(pieces) == 2 and ties == [0, 0]
     blob[15:25, 30:40] = True                  # a wide contact showing no table: one part
     assert len(depth_pieces(blob, surfaces, None, params)[0]) == 1
+
+
+def _three_side_instances(rig):
+    """Two top blobs side by side, and the side view's region of them cut in three
+    instances: the first under the first blob's prediction, the second and third under the
+    second's (the second reaching a little under the first's)."""
+    top = np.zeros((H, W), np.int32)
+    top[100:130, 140:160] = 1
+    top[100:130, 160:190] = 2
+    pred = predict_side_regions(lift_top_blobs(top, rig), rig)
+    cols = np.arange(W)[None, :]
+    end_first = int(np.nonzero((pred == 1).any(axis=0))[0].max())
+    xs_second = np.nonzero((pred == 2).any(axis=0))[0]
+    third_from = int(np.percentile(xs_second[xs_second > end_first], 40))
+    # one side blob: the predictions, and the few columns between them the top left out
+    region = cv2.morphologyEx((pred > 0).astype(np.uint8), cv2.MORPH_CLOSE,
+                              np.ones((1, 9), np.uint8)) > 0
+    side = np.zeros((H, W), np.int32)
+    side[region] = 1
+    side[region & (cols > end_first - 3)] = 2
+    side[region & (cols >= third_from)] = 3
+    return top, side, pred
+
+
+def test_side_instances_the_top_gives_two_parts_stay_apart_in_a_depth_piece() -> None:
+    # The side depth divides the blob in two pieces: instances 1 + 2 (one depth group) and
+    # 3. The top view's predictions give instance 1 to its first blob, 2 and 3 to its second,
+    # which overlaps instance 3 most: before, instance 2 went with instance 1.
+    rig = default_rig(W, H)
+    top, side, pred = _three_side_instances(rig)
+    share = [np.count_nonzero((side == 2) & (pred == k)) for k in (1, 2)]
+    assert share[1] > share[0] > 0   # the second instance is mostly the second blob's
+    whole = 0.5 * min(np.count_nonzero(side == k) for k in (1, 2, 3))
+
+    def fused(**params) -> list[int]:
+        top_seg, side_seg = (replace(_segmentation(labels, groups),
+                                     whole_parts=np.array([[0.1, whole, 1000.0]]))
+                             for labels, groups in ((top, [0, 0]), (side, [1, 1, 2])))
+        labels = fuse_views(top_seg, side_seg, rig=rig, params=FusionParams(**params)
+                            ).labels['side']
+        return [int(np.bincount(labels[side == k]).argmax()) for k in (1, 2, 3)]
+
+    first, second, third = fused()
+    assert len({first, second, third}) == 3 and min(first, second, third) > 0
+    first, second, third = fused(whole_pieces_apart=False)   # a fragment of the second
+    assert first != second == third
+    first, second, third = fused(keep_apart_by_prediction=False)   # as before
+    assert first == second != third

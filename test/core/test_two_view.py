@@ -226,3 +226,27 @@ def test_a_side_piece_the_top_misses_joins_the_part_beside_it() -> None:
     assert part == piece > 0
     part, piece = outcome['too long']
     assert 0 < part != piece > 0   # no part is that long: the piece stays apart
+
+
+
+def test_top_blobs_of_other_colours_over_a_thin_side_instance_are_two_parts() -> None:
+    # Two plates 5 mm thick touching end to end: the side segmentation holds them as one
+    # thin instance, the top view as two blobs. Of one colour they are fragments of one part
+    # (the top breaks thin parts up); of two colours, two parts.
+    plates = [(-0.03, 0.0, 0, 0.06, 0.04, 0.005), (0.03, 0.0, 0, 0.06, 0.04, 0.005)]
+
+    def side_ids(colours, **params) -> int:
+        rig, views = _render(plates, colours)
+        top = views['top'][2] + 1
+        side = (views['side'][2] >= 0).astype(np.int32)
+        seg = segment(views['top'][0], background=views['top'][1])
+        top_seg = _relabelled(seg, top, 0.0)
+        side_seg = replace(_relabelled(seg, side, 0.0), thin=np.array([True]))
+        result = fuse_views(top_seg, side_seg, rig=rig, depth_top_m=views['top'][3],
+                            side_rgb=views['side'][0], params=FusionParams(**params))
+        return int(np.count_nonzero(np.unique(result.labels['side'][side > 0])))
+
+    two_colours = [BLUE[0], (200, 120, 40)]
+    assert side_ids(two_colours) == 2
+    assert side_ids(two_colours, thin_join_colour_floors=0.0) == 1   # as before
+    assert side_ids(BLUE[:2]) == 1

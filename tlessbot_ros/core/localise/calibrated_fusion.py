@@ -12,6 +12,7 @@ import numpy as np
 
 from tlessbot_ros.core.common import Rig, pixel_counts, transform_points
 from tlessbot_ros.core.localise.blob_split import fill_from_nearest, padded_window, pair_roots
+from tlessbot_ros.core.localise.colour import rgb_to_lab
 from tlessbot_ros.core.localise.fusion_result import (
     FusionParams,
     FusionResult,
@@ -157,23 +158,21 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
     kernel = cv2.getStructuringElement(
         cv2.MORPH_ELLIPSE, (2 * params.seed_erode_px + 1, 2 * params.seed_erode_px + 1))
     for b in range(1, n_blobs):
-        owners = [k for k in range(1, n_top + 1)
-                  if overlap[b, k] >= params.min_overlap_px
-                  and pred_area[k] >= params.min_visible_px
-                  and overlap[b, k] >= params.min_overlap_fraction * pred_area[k]]
+        owners = _predicted_owners(overlap[b], pred_area, int(stats[b, cv2.CC_STAT_AREA]),
+                                   params)
         # Work in the blob's box plus a 1-pixel margin instead of the whole image: a few small
         # parts cover a few % of it.
         x, y, w, h = (int(v) for v in stats[b, :4])
         window = (slice(max(y - 1, 0), y + h + 1), slice(max(x - 1, 0), x + w + 1))
         blob = blobs[window] == b
         out = side_labels[window]
-        if not owners and n_top > 0:
-            # A fragment (e.g. of a dark part on a dark square) lying inside one prediction.
-            best = int(np.argmax(overlap[b, 1:])) + 1
-            if overlap[b, best] >= params.fragment_fraction * stats[b, cv2.CC_STAT_AREA]:
-                owners = [best]
         if len(owners) > 1 and _one_side_instance(blob, side.labels[window]):
             owners = _join_top_fragments(owners, overlap[b], top, top_labels, heights)
+        if len(owners) > 1:
+            owners = _join_thin_fragments(
+                blob, side, window, owners, top_labels, overlap[b],
+                None if side_rgb is None else side_rgb[window], pred[window],
+                params.thin_join_colour_floors * side.colour_floors)
         if not owners and params.drop_unpredicted:
             continue
         if not owners and n_top > 0 and stats[b, cv2.CC_STAT_AREA] < side.whole_part_px():
@@ -186,13 +185,13 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
                 if j:
                     out[blob & (own == j)] = next_id
                     next_id += 1
-        elif len(owners) > 1 and _join_thin_fragments(blob, side, window, owners, top_labels):
-            out[blob] = owners[0]
         else:
-            pieces = _side_pieces_of_blob(blob, side.labels[window], side, params) or [blob]
+            pieces = _side_pieces_of_blob(blob, side.labels[window], side, params,
+                                          pred[window], owners) or [blob]
             ids, next_id, divided = _label_pieces(
                 pieces, owners, pred[window], None if side_rgb is None else side_rgb[window],
-                kernel, next_id, side.whole_part_px())
+                kernel, next_id, side.whole_part_px(),
+                whole_piece_apart=params.whole_pieces_apart)
             out[blob] = ids[blob]
             split_ids.update(divided)
     if params.table_divides and side.table_seen is not None:
@@ -212,8 +211,27 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
                         timings_ms=timings)
 
 
+def _predicted_owners(overlap: np.ndarray, pred_area: np.ndarray, area: int,
+                      params: FusionParams) -> list[int]:
+    """The top blobs whose predictions hold a side blob of ``area`` pixels (``overlap``: its
+    row of the overlap table, by predicted id; ``pred_area``: each prediction's pixels), or,
+    when none does, the one it lies in for ``fragment_fraction`` of it or more."""
+    n_top = len(overlap) - 1
+    owners = [k for k in range(1, n_top + 1)
+              if overlap[k] >= params.min_overlap_px
+              and pred_area[k] >= params.min_visible_px
+              and overlap[k] >= params.min_overlap_fraction * pred_area[k]]
+    if not owners and n_top > 0:
+        # A fragment (e.g. of a dark part on a dark square) lying inside one prediction.
+        best = int(np.argmax(overlap[1:])) + 1
+        if overlap[best] >= params.fragment_fraction * area:
+            owners = [best]
+    return owners
+
+
 def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
-                         params: FusionParams) -> list[np.ndarray]:
+                         params: FusionParams, pred: np.ndarray | None = None,
+                         owners: list[int] | None = None) -> list[np.ndarray]:
     """The pieces of one side blob, seen as one part from the top, that the side view tells
     apart: one bool mask per piece (the blob's pixels of no instance join the nearest piece);
     none unless there are two or more, each of ``min_visible_px`` pixels.
@@ -221,25 +239,35 @@ def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
     Two of the side segmentation's instances in the blob stay apart when the depth split
     divided them (different depth groups, ``keep_depth_splits``), or when one is a thin part
     and the other is not (``keep_thin_beside_tall``): a plate or a strip lying against a
-    taller part, which the top view, farther away, sees as one blob. Every other pair of
-    instances in the blob is one part. ``blob`` and ``own`` (the side segmentation's labels)
-    are cut to the blob's window."""
+    taller part, which the top view, farther away, sees as one blob. With
+    ``keep_apart_by_prediction``, so do two instances that the top view's predictions
+    ``pred`` give to two of its parts ``owners`` (each instance's most overlapping owner):
+    both views have them apart. Every other pair of instances in the blob is one part.
+    ``blob``, ``own`` (the side segmentation's labels) and ``pred`` are cut to the blob's
+    window."""
     ids = np.unique(own[blob])
     ids = ids[(ids > 0) & (ids <= len(side.depth_groups))]
     if ids.size < 2:
         return []
     groups = side.depth_groups[ids - 1]
     thin = side.thin[ids - 1] if len(side.thin) >= ids.max() else np.zeros(ids.size, bool)
+    owner_of = np.zeros(ids.size, int)
+
     def together(a: int, b: int) -> bool:
         by_depth = params.keep_depth_splits and groups[a] > 0 and groups[b] > 0 and \
             groups[a] != groups[b]
         by_height = params.keep_thin_beside_tall and thin[a] != thin[b]
-        return not (by_depth or by_height)
+        by_view = owner_of[a] > 0 and owner_of[b] > 0 and owner_of[a] != owner_of[b]
+        return not (by_depth or by_height or by_view)
 
     root_of = pair_roots(ids.size, together)
-    roots = sorted(set(root_of))
-    if len(roots) < 2:
+    if len(set(root_of)) < 2:
         return []
+    if params.keep_apart_by_prediction and pred is not None and owners:
+        # (a blob of one piece is divided among its owners by the watershed; pieces are not)
+        owner_of = _instance_owners(blob, own, ids, pred, owners)
+        root_of = pair_roots(ids.size, together)
+    roots = sorted(set(root_of))
     piece_of = np.zeros(int(own.max()) + 1, np.int32)
     piece_of[ids] = [roots.index(root_of[a]) + 1 for a in range(ids.size)]
     grouped = np.where(blob, piece_of[own], 0)
@@ -252,15 +280,33 @@ def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
     return pieces
 
 
+def _instance_owners(blob: np.ndarray, own: np.ndarray, ids: np.ndarray, pred: np.ndarray,
+                     owners: list[int]) -> np.ndarray:
+    """(len(ids),) int: for each side instance of ``ids`` in the blob, the owner whose
+    prediction covers half of it or more (0: none does)."""
+    out = np.zeros(ids.size, int)
+    if len(owners) < 2:
+        return out
+    for a, j in enumerate(ids):
+        inside = pred[blob & (own == j)]
+        counts = [np.count_nonzero(inside == k) for k in owners]
+        if 2 * max(counts) >= inside.size:
+            out[a] = owners[int(np.argmax(counts))]
+    return out
+
+
 def _label_pieces(pieces: list[np.ndarray], owners: list[int], pred: np.ndarray,
                   rgb: np.ndarray | None, kernel: np.ndarray, next_id: int,
-                  whole_px: float = 0.0) -> tuple[np.ndarray, int, set[int]]:
+                  whole_px: float = 0.0, *,
+                  whole_piece_apart: bool = False) -> tuple[np.ndarray, int, set[int]]:
     """Ids for the pieces of one side blob (:func:`_side_pieces_of_blob`, or the blob whole)
     held by the top view's predictions ``owners``: each owner goes to the piece it overlaps
     most; a piece with one owner takes its id, a piece with several is divided among them
     (:func:`_divide_among_owners`). A piece with none is a part of its own (a new id, from
     ``next_id``) beside one owner, the fragment of the owner it overlaps most beside several
-    or when it is smaller than the smallest whole part, ``whole_px`` (no part fits it).
+    or when it is smaller than the smallest whole part, ``whole_px`` (no part fits it). With
+    ``whole_piece_apart`` a piece no smaller than that (``whole_px`` > 0: the parts known) is a
+    part of its own beside several owners too.
 
     Returns:
         (the window's int32 ids, the next free id, the owners whose part was divided).
@@ -271,7 +317,9 @@ def _label_pieces(pieces: list[np.ndarray], owners: list[int], pred: np.ndarray,
     divided: set[int] = set(owners) if len(pieces) > 1 else set()
     for j, piece in enumerate(pieces):
         mine = [k for k in owners if most[k] == j]
-        if not mine and (len(owners) > 1 or np.count_nonzero(piece) < whole_px):
+        small = np.count_nonzero(piece) < whole_px
+        whole = whole_piece_apart and whole_px > 0 and not small   # (0: parts unknown)
+        if not mine and (small or (len(owners) > 1 and not whole)):
             # the top view has told the parts of this blob apart: a piece it gives none of
             # them is a fragment of the one it overlaps most
             mine = [max(owners, key=lambda k: np.count_nonzero(piece & (pred == k)))]
@@ -343,17 +391,40 @@ def _place_fragments(side_labels: np.ndarray, blobs: np.ndarray, stats: np.ndarr
 
 
 def _join_thin_fragments(blob: np.ndarray, side: Segmentation, window: tuple[slice, slice],
-                         owners: list[int], top_labels: np.ndarray) -> bool:
-    """A side blob that the side segmentation keeps as one thin part: the top view, farther
-    away, breaks a thin part up where the side view does not (a dark plate on dark squares),
-    so its several owners are fragments of that part and take the first owner's id in the top
-    labels (True)."""
+                         owners: list[int], top_labels: np.ndarray, overlap: np.ndarray,
+                         rgb: np.ndarray | None, pred: np.ndarray,
+                         floors: np.ndarray) -> list[int]:
+    """The owners of a side blob left once those that are fragments of one thin part are
+    joined. A side blob that the side segmentation keeps as one thin part: the top view,
+    farther away, breaks a thin part up where the side view does not (a dark plate on dark
+    squares), so its several owners are fragments of that part and take the first one's id in
+    the top labels. But an owner whose side pixels (the blob under its prediction; ``rgb`` and
+    ``pred`` cut to the window) differ from those of the owner that overlaps the blob most in
+    median colour by more than ``floors`` (LAB, any channel; all 0: off) is a part of its
+    own: a part has one colour, two touching thin parts need not."""
     own = np.unique(side.labels[window][blob])
     own = own[(own > 0) & (own <= len(side.thin))]
     if own.size != 1 or not side.thin[own - 1].all():
-        return False
-    top_labels[np.isin(top_labels, owners[1:])] = owners[0]
-    return True
+        return owners
+    first = max(owners, key=lambda k: int(overlap[k]))
+    apart = _other_colours(blob, owners, first, rgb, pred, floors) \
+        if rgb is not None and np.any(floors > 0) else []
+    fragments = [k for k in owners if k not in apart]
+    top_labels[np.isin(top_labels, fragments[1:])] = fragments[0]
+    return fragments[:1] + apart
+
+
+def _other_colours(blob: np.ndarray, owners: list[int], first: int, rgb: np.ndarray,
+                   pred: np.ndarray, floors: np.ndarray) -> list[int]:
+    """The owners whose pixels of the blob (under their prediction) differ in median LAB
+    colour from those of ``first`` by more than ``floors`` in any channel."""
+    lab = rgb_to_lab(rgb)
+    under = {k: blob & (pred == k) for k in owners}
+    if not under[first].any():
+        return []
+    reference = np.median(lab[under[first]], axis=0)
+    return [k for k in owners if k != first and under[k].any()
+            and (np.abs(np.median(lab[under[k]], axis=0) - reference) > floors).any()]
 
 
 def _divide_among_owners(blob: np.ndarray, pred: np.ndarray, owners: list[int],

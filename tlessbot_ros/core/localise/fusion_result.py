@@ -36,6 +36,12 @@ class FusionParams:
             keeps its pieces apart (new ids).
         keep_thin_beside_tall: ... and so does one whose side segmentation holds a thin part
             (:mod:`.thin`) beside a part that is not.
+        thin_join_colour_floors: top blobs over one thin side instance are fragments of one
+            part unless their side colours differ by more than this many colour floors (0: off).
+        keep_apart_by_prediction: two side instances of one blob that the top view's
+            predictions give to two of its blobs stay apart.
+        whole_pieces_apart: a piece of a side blob that no top blob takes and that could be a
+            whole part is a part of its own beside several top blobs too, as beside one.
         table_divides: side blobs that one top blob predicts get ids of their own where
             every path between them in the side image crosses the table seen (:mod:`.table_gap`).
         gap_table_floors: a fused side region is divided along a gap within this many colour
@@ -60,6 +66,9 @@ class FusionParams:
     drop_unpredicted: bool = False
     keep_depth_splits: bool = True
     keep_thin_beside_tall: bool = True
+    thin_join_colour_floors: float = 2.0
+    keep_apart_by_prediction: bool = True
+    whole_pieces_apart: bool = True
     table_divides: bool = True
     gap_table_floors: float = 2.0
     gap_band_px: int = 4
@@ -70,6 +79,9 @@ class FusionParams:
             raise ValueError(f'method must be one of {FUSION_METHODS}, got {self.method!r}')
         if self.pixel_step < 1:
             raise ValueError(f'pixel_step must be >= 1, got {self.pixel_step}')
+        if self.thin_join_colour_floors < 0:
+            raise ValueError('thin_join_colour_floors must be >= 0 (0: off), got '
+                             f'{self.thin_join_colour_floors}')
         if self.gap_table_floors < 0 or self.gap_band_px < 1:
             raise ValueError('gap_table_floors must be >= 0 and gap_band_px >= 1, got '
                              f'{self.gap_table_floors} and {self.gap_band_px}')
