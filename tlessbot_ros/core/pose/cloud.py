@@ -273,18 +273,76 @@ def estimate_normals(points: np.ndarray, *, radius_m: float, max_nn: int = 30,
 
 def fit_plane(points: np.ndarray, *, distance_m: float = 0.003, iterations: int = 200,
               seed: int | None = 0) -> tuple[np.ndarray, np.ndarray]:
-    """RANSAC plane: returns ((4,) plane a, b, c, d with unit normal, ax + by + cz + d = 0;
-    (N,) bool inlier mask). ``seed`` seeds Open3D's global random generator when not None."""
-    points = _check_points(points)
+    """RANSAC plane (Fischler and Bolles 1981) through point triples drawn with ``seed``.
+
+    Every one of the ``iterations`` triples is scored (inliers closer than ``distance_m``, then
+    their RMS distance; the first triple wins a tie), so the answer depends on the points and
+    the seed alone: Open3D's ``segment_plane`` hands its triples to threads in the order they
+    ask and stops on a confidence, and gave different planes between runs of one input.
+
+    Args:
+        points: (N, 3) points, N >= 3, metres.
+        distance_m: inlier distance from the plane.
+        iterations: triples tried.
+        seed: the generator's seed (None: fresh entropy, a different draw per call).
+
+    Returns:
+        (4,) plane ``a, b, c, d`` with unit normal (``ax + by + cz + d = 0``), fitted by least
+        squares to the best triple's inliers; (N,) bool mask of those inliers (all False and a
+        zero plane when every triple is degenerate).
+    """
+    points = np.asarray(_check_points(points), np.float64)
     if len(points) < 3:
         raise ValueError(f'need at least 3 points to fit a plane, got {len(points)}')
-    if seed is not None:
-        o3d.utility.random.seed(int(seed))
-    plane, index = to_o3d(points).segment_plane(distance_threshold=float(distance_m),
-                                                ransac_n=3, num_iterations=int(iterations))
-    inliers = np.zeros(len(points), bool)
-    inliers[np.asarray(index, dtype=np.int64)] = True
-    return np.asarray(plane, dtype=np.float64), inliers
+    triples = _distinct_triples(np.random.default_rng(seed), len(points), int(iterations))
+    a, b, c = (points[triples[:, k]] for k in range(3))
+    normals = np.cross(b - a, c - a)
+    length = np.linalg.norm(normals, axis=1)
+    valid = length > 1e-12
+    normals = normals[valid] / length[valid, None]
+    offsets = -np.einsum('ij,ij->i', normals, a[valid])
+    best, best_key = -1, (0, 0.0)
+    # blocks of triples keep the (triples, N) distance table small on large clouds
+    block = max(1, 2_000_000 // len(points))
+    for start in range(0, len(normals), block):
+        distance = np.abs(normals[start:start + block] @ points.T + offsets[start:start + block,
+                                                                            None])
+        inside = distance < distance_m
+        count = inside.sum(axis=1)
+        most = np.flatnonzero(count == count.max())   # ties on count: the lower RMS, the first
+        rms = np.sqrt(np.where(inside[most], distance[most] ** 2, 0.0).sum(axis=1))
+        k = int(np.argmin(rms))
+        if count[most[k]] > best_key[0] or count[most[k]] == best_key[0] > 0 and \
+                rms[k] < best_key[1]:
+            best, best_key = start + int(most[k]), (int(count[most[k]]), float(rms[k]))
+    if best < 0:
+        return np.zeros(4), np.zeros(len(points), bool)
+    inliers = np.abs(points @ normals[best] + offsets[best]) < distance_m
+    return _least_squares_plane(points[inliers], normals[best]), inliers
+
+
+def _distinct_triples(rng: np.random.Generator, n: int, count: int) -> np.ndarray:
+    """(count, 3) int64 indices into ``n`` points, three distinct ones a row, each triple
+    uniform over the n (n - 1) (n - 2) ordered choices."""
+    first = rng.integers(0, n, count)
+    second = rng.integers(0, n - 1, count)
+    second += second >= first
+    third = rng.integers(0, n - 2, count)
+    low, high = np.minimum(first, second), np.maximum(first, second)
+    third += third >= low
+    third += third >= high
+    return np.stack([first, second, third], axis=1)
+
+
+def _least_squares_plane(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """(4,) the plane through the centroid of (M, 3) ``points`` normal to their direction of
+    least spread, its normal on the side of ``normal``."""
+    centre = points.mean(axis=0)
+    centred = points - centre
+    _, vectors = np.linalg.eigh(centred.T @ centred)   # eigenvalues ascending
+    fitted = vectors[:, 0] if len(points) >= 3 else normal
+    fitted = fitted if float(fitted @ normal) >= 0 else -fitted
+    return np.array([*fitted, -float(fitted @ centre)])
 
 
 def subtract_background(scene: np.ndarray, background: np.ndarray, *,
