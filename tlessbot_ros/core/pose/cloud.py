@@ -275,15 +275,17 @@ def fit_plane(points: np.ndarray, *, distance_m: float = 0.003, iterations: int 
               seed: int | None = 0) -> tuple[np.ndarray, np.ndarray]:
     """RANSAC plane (Fischler and Bolles 1981) through point triples drawn with ``seed``.
 
-    Every one of the ``iterations`` triples is scored (inliers closer than ``distance_m``, then
-    their RMS distance; the first triple wins a tie), so the answer depends on the points and
-    the seed alone: Open3D's ``segment_plane`` hands its triples to threads in the order they
-    ask and stops on a confidence, and gave different planes between runs of one input.
+    Open3D's ``segment_plane``, taken in turn: triples are scored in the order drawn (more
+    inliers closer than ``distance_m``, then a lower RMS distance, beats the best so far), and
+    the search stops once the best's inlier share makes a better triple unlikely
+    (:data:`PLANE_CONFIDENCE`). Open3D hands the triples to threads in the order they ask,
+    which gave different planes between runs of one input; here the answer depends on the
+    points and the seed alone.
 
     Args:
         points: (N, 3) points, N >= 3, metres.
         distance_m: inlier distance from the plane.
-        iterations: triples tried.
+        iterations: triples drawn at most.
         seed: the generator's seed (None: fresh entropy, a different draw per call).
 
     Returns:
@@ -298,27 +300,51 @@ def fit_plane(points: np.ndarray, *, distance_m: float = 0.003, iterations: int 
     a, b, c = (points[triples[:, k]] for k in range(3))
     normals = np.cross(b - a, c - a)
     length = np.linalg.norm(normals, axis=1)
-    valid = length > 1e-12
+    valid = length > 1e-12   # three points on a line: no plane, not counted as a try
     normals = normals[valid] / length[valid, None]
     offsets = -np.einsum('ij,ij->i', normals, a[valid])
-    best, best_key = -1, (0, 0.0)
-    # blocks of triples keep the (triples, N) distance table small on large clouds
-    block = max(1, 2_000_000 // len(points))
+    search = _PlaneSearch(len(points), len(normals))
+    # blocks of triples: the search usually stops within the first few dozen
+    block = max(1, min(32, 2_000_000 // len(points)))
     for start in range(0, len(normals), block):
-        distance = np.abs(normals[start:start + block] @ points.T + offsets[start:start + block,
-                                                                            None])
+        distance = np.abs(normals[start:start + block] @ points.T
+                          + offsets[start:start + block, None])
         inside = distance < distance_m
-        count = inside.sum(axis=1)
-        most = np.flatnonzero(count == count.max())   # ties on count: the lower RMS, the first
-        rms = np.sqrt(np.where(inside[most], distance[most] ** 2, 0.0).sum(axis=1))
-        k = int(np.argmin(rms))
-        if count[most[k]] > best_key[0] or count[most[k]] == best_key[0] > 0 and \
-                rms[k] < best_key[1]:
-            best, best_key = start + int(most[k]), (int(count[most[k]]), float(rms[k]))
+        if search.take(inside.sum(axis=1), np.where(inside, distance ** 2, 0.0).sum(axis=1)):
+            break
+    best = search.best
     if best < 0:
         return np.zeros(4), np.zeros(len(points), bool)
     inliers = np.abs(points @ normals[best] + offsets[best]) < distance_m
     return _least_squares_plane(points[inliers], normals[best]), inliers
+
+
+PLANE_CONFIDENCE = 0.99999999
+"""Open3D's ``segment_plane`` default: the search stops after ``log(1 - c) / log(1 - w^3)``
+triples, ``w`` the best inlier share so far."""
+
+
+class _PlaneSearch:
+    """The best of the triples taken in turn (inlier count, then the RMS of the inliers'
+    distances) up to the confidence stop; ``best`` -1: none has an inlier yet."""
+
+    def __init__(self, n_points: int, n_triples: int) -> None:
+        self.n_points, self.tried, self.stop = n_points, 0, float(n_triples)
+        self.best, self.count, self.rms = -1, 0, 0.0
+
+    def take(self, count: np.ndarray, squares: np.ndarray) -> bool:
+        """The next triples' inlier counts and summed squared distances; True: stop."""
+        for k in range(len(count)):
+            if self.tried > self.stop:
+                return True
+            rms = float(np.sqrt(squares[k] / max(int(count[k]), 1)))
+            if count[k] > self.count or count[k] == self.count > 0 and rms < self.rms:
+                self.best, self.count, self.rms = self.tried, int(count[k]), rms
+                share = self.count / self.n_points
+                self.stop = 0.0 if share >= 1.0 else min(
+                    np.log(1.0 - PLANE_CONFIDENCE) / np.log(1.0 - share ** 3), self.stop)
+            self.tried += 1
+        return self.tried > self.stop
 
 
 def _distinct_triples(rng: np.random.Generator, n: int, count: int) -> np.ndarray:
