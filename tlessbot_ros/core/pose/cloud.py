@@ -342,7 +342,7 @@ class _PlaneSearch:
                 self.best, self.count, self.rms = self.tried, int(count[k]), rms
                 share = self.count / self.n_points
                 self.stop = 0.0 if share >= 1.0 else min(
-                    np.log(1.0 - PLANE_CONFIDENCE) / np.log(1.0 - share ** 3), self.stop)
+                    np.log1p(-PLANE_CONFIDENCE) / np.log1p(-share ** 3), self.stop)
             self.tried += 1
         return self.tried > self.stop
 
