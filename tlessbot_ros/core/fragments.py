@@ -21,6 +21,8 @@ region can join the keeper (a piece dropped for its fitted centre alone keeps it
 thin parts on top of each other fit one pose). So is a piece that one fit of both explains
 (``joins``, :mod:`tlessbot_ros.core.piece_union`: two halves of a part, each fitted over its
 own half), asked only while the keeper is not yet handed to ``publish`` (it takes that fit).
+A piece whose region is a band along a fitted neighbour's edge (``band``,
+:mod:`tlessbot_ros.core.edge_bands`) is dropped first, its region in :attr:`erased`.
 """
 from __future__ import annotations
 
@@ -79,14 +81,19 @@ class FragmentFilter(Generic[D]):
             then takes it); asked of neighbours neither fit explains. None: never.
         touching: ``touching(a, b)``: pieces whose regions touch are neighbours too, and a
             piece with no pose is asked to join them. None: centroids only.
+        band: ``band(piece, other)``: whether ``piece``'s region is a band along fitted
+            ``other``'s edge: dropped, its id in :attr:`erased`. None: never.
     """
 
     def __init__(self, pieces: Sequence[tuple[D, np.ndarray, str, int, float]],
                  publish: Callable[[D], None], *, overlap: float,
                  explains: Callable[[D, D], bool] | None = None,
                  joins: Callable[[D, D], bool] | None = None,
-                 touching: Callable[[D, D], bool] | None = None) -> None:
+                 touching: Callable[[D, D], bool] | None = None,
+                 band: Callable[[D, D], bool] | None = None) -> None:
         self._publish = publish
+        self._band = band
+        self.erased: set[int] = set()   # ids of dropped pieces that are a neighbour's edge
         self._overlap = float(overlap)
         self._explains = explains
         self._joins = joins
@@ -143,14 +150,28 @@ class FragmentFilter(Generic[D]):
             if piece.decided or not all(self._pieces[b].done for b in piece.group):
                 continue
             piece.decided = True
-            if (keeper := self._fragment_of(piece)) is not None:
+            if (keeper := self._edge_of(piece) or self._fragment_of(piece)) is not None:
                 self.dropped.append(piece.detection)
+                if id(piece.detection) in self.erased:
+                    continue
                 if self._explains is not None and self._explains(keeper, piece.detection) or \
                         self._joined(keeper, piece.detection):
                     self.kept_by[id(piece.detection)] = keeper
             else:
                 kept.append(piece.detection)
         return kept
+
+    def _edge_of(self, piece: _Piece[D]) -> D | None:
+        """The first fitted neighbour whose edge ``piece``'s region is a band along
+        (``band``), if any; the piece is then in :attr:`erased`."""
+        if self._band is None:
+            return None
+        for b in piece.neighbours:
+            other = self._pieces[b]
+            if other.centre is not None and self._band(piece.detection, other.detection):
+                self.erased.add(id(piece.detection))
+                return other.detection
+        return None
 
     def _fragment_of(self, piece: _Piece[D]) -> D | None:
         """The neighbour this piece is a fragment of, if any: one whose fit explains it where
@@ -223,7 +244,8 @@ def fragment_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None
                     database: TemplateDatabase, overlap: float,
                     explains: Callable[[Detection, Detection], bool] | None = None,
                     joins: Callable[[Detection, Detection], bool] | None = None,
-                    touching: Callable[[Detection, Detection], bool] | None = None
+                    touching: Callable[[Detection, Detection], bool] | None = None,
+                    band: Callable[[Detection, Detection], bool] | None = None
                     ) -> FragmentFilter[Detection]:
     """The :class:`FragmentFilter` of one frame's parts (``PartJob`` items): ROI centroids in
     the world (camera frame without a table frame), first-class diameters from ``database``."""
@@ -236,4 +258,4 @@ def fragment_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None
         pieces.append((job.detection, centroid, frame, len(job.points),
                        database[job.candidates[0]].diameter_m))
     return FragmentFilter(pieces, publish, overlap=overlap, explains=explains, joins=joins,
-                          touching=touching)
+                          touching=touching, band=band)

@@ -22,6 +22,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from tlessbot_ros.core.common import mask_box, transform_points
+from tlessbot_ros.core.edge_bands import band_test
 from tlessbot_ros.core.fragments import FragmentFilter, fragment_filter
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.params import FitParams
@@ -33,14 +34,18 @@ from tlessbot_ros.core.recognise import UNKNOWN_ID
 def one_part_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None],
                     params: FitParams, estimator: PoseEstimator | None, overlap: float,
                     joins: Callable[[Detection, Detection], bool] | None = None,
-                    touching: Callable[[Detection, Detection], bool] | None = None
+                    touching: Callable[[Detection, Detection], bool] | None = None, *,
+                    labels: dict[str, np.ndarray] | None = None
                     ) -> FragmentFilter[Detection]:
     """The frame's fragment filter (:func:`~tlessbot_ros.core.fragments.fragment_filter`,
     ``overlap``) that also drops a piece another part's fit explains (:func:`explainer`), or
     one fit of both explains (``joins`` of ``touching`` pieces,
-    :mod:`tlessbot_ros.core.piece_union`)."""
+    :mod:`tlessbot_ros.core.piece_union`), or (with the frame's ``labels``) a band of them
+    along a fitted part's edge (``FitParams.edge_band_px``, :mod:`.edge_bands`)."""
+    band = band_test(params.edge_band_px, labels) if labels is not None and overlap > 0 \
+        else None
     return fragment_filter(jobs, publish, pose_stage(estimator).database, overlap,
-                           explainer(params, estimator, jobs), joins, touching)
+                           explainer(params, estimator, jobs), joins, touching, band)
 
 
 def explainer(params: FitParams, estimator: PoseEstimator | None, jobs: Sequence[PartJob]
@@ -89,10 +94,14 @@ def join_pieces(arbiter: FragmentFilter[Detection], detections: Sequence[Detecti
     """``detections`` less the fragments ``arbiter`` dropped; each dropped piece that another
     detection's fit explains (``arbiter.kept_by``) joins it in every view of ``labels`` (its
     arrays are replaced, not written into), and that detection's box grows to the joined
-    region in its view."""
+    region in its view; a piece that is a neighbour's edge (``arbiter.erased``) is erased."""
     dropped = {id(d) for d in arbiter.dropped}
     joined: list[Detection] = []
     for piece in arbiter.dropped:
+        if id(piece) in arbiter.erased:
+            for view, image in labels.items():
+                labels[view] = np.where(image == piece.instance_id, 0, image).astype(image.dtype)
+            continue
         keeper = arbiter.kept_by.get(id(piece))
         seen = {id(piece)}
         while keeper is not None and id(keeper) in dropped and id(keeper) not in seen:

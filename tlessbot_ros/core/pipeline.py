@@ -412,7 +412,7 @@ class PerceptionPipeline:
         arbiter = one_part_filter(jobs, last, self.fit_params, self.pose_estimator,
                                   0.0 if box_mode else self.fit_params.fragment_overlap,
                                   union_joiner(self, views, labels, jobs),
-                                  touch_test(self.fit_params, labels))
+                                  touch_test(self.fit_params, labels), labels=labels)
 
         def fitted(job: PartJob) -> None:
             check_fitted_part(self, job, views, labels)   # every view: not in a worker
