@@ -7,10 +7,14 @@ stage fits a thin part to it (a strip beside a tube) or puts a second box on the
 Such a band hugs its part: every pixel of it lies within a few pixels of the part's region.
 A part of its own lying beside another shows its own width, however it lies.
 
-So the fragment filter (:mod:`tlessbot_ros.core.fragments`) drops a piece whose region in its
-own view lies, every pixel of it, within ``FitParams.edge_band_px`` of a larger neighbour's
-region there, when that neighbour is fitted (a pose and a class); the piece is not reported
-and its region is erased in every view (:func:`~tlessbot_ros.core.one_part.join_pieces`).
+Where the band is in the part's own region, the part's fit leaves it unexplained, and the
+division after the fit (:func:`~tlessbot_ros.core.two_parts.split_off`) would make it a part
+of its own: a piece whose every pixel lies within ``FitParams.edge_band_px`` of the rest of
+the region is not divided off (the trim then cuts the band from the part's region). Where the
+localiser found it apart, the fragment filter (:mod:`tlessbot_ros.core.fragments`) drops a
+piece whose region in its own view lies within that width of a larger neighbour's region
+there, when that neighbour is fitted (a pose and a class); the piece is not reported and its
+region is erased in every view (:func:`~tlessbot_ros.core.one_part.join_pieces`).
 """
 from __future__ import annotations
 
@@ -41,9 +45,9 @@ def band_test(band_px: int, labels: dict[str, np.ndarray]
 
 def is_edge_band(image: np.ndarray, piece: int, anchor: int, band_px: int) -> bool:
     """Whether every pixel of label ``piece`` of ``image`` ((H, W) ints) lies within
-    ``band_px`` pixels of label ``anchor``, which holds more pixels."""
+    ``band_px`` pixels of label ``anchor``, which holds more pixels (``band_px`` 0: never)."""
     where = np.nonzero(image == piece)
-    if not where[0].size:
+    if not where[0].size or band_px <= 0:
         return False
     y0, x0 = max(int(where[0].min()) - band_px, 0), max(int(where[1].min()) - band_px, 0)
     crop = image[y0:int(where[0].max()) + band_px + 1, x0:int(where[1].max()) + band_px + 1]

@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.common import depth_to_points, mask_box, transform_points
+from tlessbot_ros.core.edge_bands import is_edge_band
 from tlessbot_ros.core.flat_parts import check_fitted_part
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.part_fit import outline_shares, pose_stage, unknown_last
@@ -226,6 +227,9 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
         fitted.detection.box = mask_box(mask)
     if seen_share(pipeline, piece, view, divided[detection.view]) < MIN_COVERAGE:
         return None   # a part hidden or seen through where it is fitted: not seen (module)
+    if is_edge_band(divided[detection.view], piece.detection.instance_id,
+                    detection.instance_id, pipeline.fit_params.edge_band_px):
+        return None   # the part's own blurred edge, left out by its fit (core/edge_bands.py)
     labels.update(divided)
     job.points, job.candidates = rest.points, rest.candidates
     vars(detection).update(vars(rest.detection))
