@@ -70,3 +70,4 @@ def test_the_band_width_is_checked():
     with pytest.raises(ValueError, match='edge_band_px'):
         FitParams(edge_band_px=-1)
     assert FitParams().edge_band_px == 6
+
