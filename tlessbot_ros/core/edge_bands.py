@@ -10,11 +10,12 @@ A part of its own lying beside another shows its own width, however it lies.
 Where the band is in the part's own region, the part's fit leaves it unexplained, and the
 division after the fit (:func:`~tlessbot_ros.core.two_parts.split_off`) would make it a part
 of its own: a piece whose every pixel lies within ``FitParams.edge_band_px`` of the rest of
-the region is not divided off (the trim then cuts the band from the part's region). Where the
-localiser found it apart, the fragment filter (:mod:`tlessbot_ros.core.fragments`) drops a
-piece whose region in its own view lies within that width of a larger neighbour's region
-there, when that neighbour is fitted (a pose and a class); the piece is not reported and its
-region is erased in every view (:func:`~tlessbot_ros.core.one_part.join_pieces`).
+the region is erased there, not reported (the rest is refitted on its own pixels as after any
+division). Where the localiser found it apart, the fragment filter
+(:mod:`tlessbot_ros.core.fragments`) drops a piece whose region in its own view lies within
+that width of a larger neighbour's region there, when that neighbour is fitted (a pose and a
+class); the piece is not reported and its region is erased in every view
+(:func:`~tlessbot_ros.core.one_part.join_pieces`).
 """
 from __future__ import annotations
 

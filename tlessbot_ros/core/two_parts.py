@@ -187,7 +187,9 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
     and that does not touch the regions ``apart_from`` (pieces just divided off this region,
     in the fitted view: their fits, made on part of their pixels, can leave a rim of their
     own in the rest): ``labels`` are then divided and ``job`` (its points, box, class and
-    pose) refitted on what is left; else None and nothing changed."""
+    pose) refitted on what is left; else None and nothing changed. A piece that is a band
+    along the rest's edge (``FitParams.edge_band_px``) is erased instead, the rest divided
+    and refitted all the same, and None returned."""
     if not pipeline.flat_ids:   # no flat part: the depth's seams divide touching parts
         return None
     pieces = piece_in_views(pipeline, job, views, labels)
@@ -227,13 +229,16 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
         fitted.detection.box = mask_box(mask)
     if seen_share(pipeline, piece, view, divided[detection.view]) < MIN_COVERAGE:
         return None   # a part hidden or seen through where it is fitted: not seen (module)
-    if is_edge_band(divided[detection.view], piece.detection.instance_id,
-                    detection.instance_id, pipeline.fit_params.edge_band_px):
-        return None   # the part's own blurred edge, left out by its fit (core/edge_bands.py)
+    edge = piece.detection.instance_id if is_edge_band(
+        divided[detection.view], piece.detection.instance_id, detection.instance_id,
+        pipeline.fit_params.edge_band_px) else None
+    if edge is not None:   # the part's own blurred edge, left out by its fit (edge_bands.py)
+        divided = {name: np.where(image == edge, 0, image).astype(image.dtype)
+                   for name, image in divided.items()}
     labels.update(divided)
     job.points, job.candidates = rest.points, rest.candidates
     vars(detection).update(vars(rest.detection))
-    return piece
+    return piece if edge is None else None
 
 
 def touches(mask: np.ndarray, labels: np.ndarray, instances: Sequence[int]) -> bool:
