@@ -76,24 +76,33 @@ def box_rows(image, labels: np.ndarray, boxes: list, matched: dict[int, int],
     return rows
 
 
-def main(argv: list[str]) -> int:
-    path, rest = argv[0], argv[argv.index('--') + 1:]
+def evaluate_seeing_frames(rest: list[str], on_frame) -> int:
+    """``tlessbot evaluate REST``, calling ``on_frame(image, labels, boxes, matched)`` with each
+    frame's scoring inputs (``eval_scoring.frame_breakdown``'s, which it does not change).
+    Returns evaluate's exit code."""
     original = eval_scoring.frame_breakdown
-    rows: list[tuple] = []
-    labels_by_frame: dict[str, np.ndarray] = {}
 
     def spy(image, labels, boxes, matched, **kw):
-        out = original(image, labels, boxes, matched, **kw)
-        labels_by_frame[f'frame{image.im_id}'] = labels
-        order = _fp_order(image, labels, boxes, matched)
-        rows.extend(box_rows(image, labels, boxes, matched, order))
-        return out
+        on_frame(image, labels, boxes, matched)
+        return original(image, labels, boxes, matched, **kw)
     eval_scoring.frame_breakdown = spy
     from tlessbot_ros.tools.cli import main as cli_main
     try:
-        code = cli_main(['evaluate', *rest])
+        return cli_main(['evaluate', *rest])
     finally:
         eval_scoring.frame_breakdown = original
+
+
+def main(argv: list[str]) -> int:
+    path, rest = argv[0], argv[argv.index('--') + 1:]
+    rows: list[tuple] = []
+    labels_by_frame: dict[str, np.ndarray] = {}
+
+    def seen(image, labels, boxes, matched):
+        labels_by_frame[f'frame{image.im_id}'] = labels
+        order = _fp_order(image, labels, boxes, matched)
+        rows.extend(box_rows(image, labels, boxes, matched, order))
+    code = evaluate_seeing_frames(rest, seen)
     np.savez_compressed(path.rsplit('.', 1)[0] + '_labels.npz', **labels_by_frame)
     with open(path, 'w') as out:
         out.write('\t'.join(COLUMNS) + '\n')

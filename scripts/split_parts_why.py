@@ -27,7 +27,6 @@ import numpy as np
 
 from tlessbot_ros.core import one_part, pipeline, two_parts
 from tlessbot_ros.core.part_fit import outline_shares
-from tlessbot_ros.tools.support import eval_scoring
 
 COLUMNS = ('frame', 'obj', 'part_px', 'pieces', 'matched', 'touch', 'gap_px', 'neighbours',
            'centre_d', 'explains_ab', 'explains_ba', 'named')
@@ -179,23 +178,16 @@ def main(argv: list[str]) -> int:
     one_part.explainer = trace.explainer
     pipeline.join_pieces = trace.join
     two_parts.split_off = trace.split_off
-    original = eval_scoring.frame_breakdown
     rows: list[tuple] = []
     causes: list[tuple] = []
     labels_by_frame: dict[str, np.ndarray] = {}
 
-    def spy(image, labels, boxes, matched, **kw):
+    def seen(image, labels, boxes, matched):
         labels_by_frame[f'frame{image.im_id}'] = labels
         rows.extend(split_rows(image, labels, boxes, matched, trace.record_for(labels)))
         order = false_box_causes._fp_order(image, labels, boxes, matched)
         causes.extend(false_box_causes.box_rows(image, labels, boxes, matched, order))
-        return original(image, labels, boxes, matched, **kw)
-    eval_scoring.frame_breakdown = spy
-    from tlessbot_ros.tools.cli import main as cli_main
-    try:
-        code = cli_main(['evaluate', *rest])
-    finally:
-        eval_scoring.frame_breakdown = original
+    code = false_box_causes.evaluate_seeing_frames(rest, seen)
     _write(path, COLUMNS, rows)
     np.savez_compressed(path.rsplit('.', 1)[0] + '_labels.npz', **labels_by_frame)
     _write(path.rsplit('.', 1)[0] + '_causes.tsv', false_box_causes.COLUMNS, causes)

@@ -26,7 +26,7 @@ from tlessbot_ros.core.common import mask_box
 from tlessbot_ros.tools.support import eval_scoring
 
 sys.path.insert(0, __file__.rsplit('/', 1)[0])
-from false_box_causes import _fp_order, box_rows  # noqa: E402
+from false_box_causes import _fp_order, box_rows, evaluate_seeing_frames  # noqa: E402
 
 DETAILS = ('fattened', 'shrunk', 'split', 'duplicate', 'merged', 'table, flat', 'table, raised',
            'barely visible part')
@@ -63,23 +63,15 @@ def main(argv: list[str]) -> int:
     pipeline_module.trim_to_fits = spy_trim
 
     totals: dict[object, Counter] = {}
-    original = eval_scoring.frame_breakdown
 
-    def spy(image, labels, boxes, matched, **kw):
-        out = original(image, labels, boxes, matched, **kw)
+    def seen(image, labels, boxes, matched):
         variants = {'off': labels}
         classes = {int(i): b[4] for i, b in zip((i for i in np.unique(labels) if i), boxes)}
         if id(labels) in trimmed:
             variants.update(trimmed[id(labels)][1])
         for key, lab in variants.items():
             add(totals.setdefault(key, Counter()), image, lab, classes)
-        return out
-    eval_scoring.frame_breakdown = spy
-    from tlessbot_ros.tools.cli import main as cli_main
-    try:
-        code = cli_main(['evaluate', *rest])
-    finally:
-        eval_scoring.frame_breakdown = original
+    code = evaluate_seeing_frames(rest, seen)
     with open(args.tsv, 'w') as out:
         out.write('\t'.join(('margin_px', 'min_seen', 'frames', 'false', 'fp_frame', 'detected',
                              'top1', *DETAILS, 'trim_cpu_ms_frame')) + '\n')
