@@ -60,4 +60,11 @@ def is_edge_band(image: np.ndarray, piece: int, anchor: int, band_px: int) -> bo
     return not (own & ~near).any()
 
 
-__all__ = ['band_test', 'is_edge_band']
+def without_label(images: dict[str, np.ndarray], instance: int) -> dict[str, np.ndarray]:
+    """New label images ((H, W) ints per view, their dtype kept) with ``instance`` erased
+    (set to 0); ``images`` is not written into."""
+    return {view: np.where(image == instance, 0, image).astype(image.dtype)
+            for view, image in images.items()}
+
+
+__all__ = ['band_test', 'is_edge_band', 'without_label']

@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from tlessbot_ros.core.common import mask_box, transform_points
-from tlessbot_ros.core.edge_bands import band_test
+from tlessbot_ros.core.edge_bands import band_test, without_label
 from tlessbot_ros.core.fragments import FragmentFilter, fragment_filter
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.params import FitParams
@@ -99,8 +99,7 @@ def join_pieces(arbiter: FragmentFilter[Detection], detections: Sequence[Detecti
     joined: list[Detection] = []
     for piece in arbiter.dropped:
         if id(piece) in arbiter.erased:
-            for view, image in labels.items():
-                labels[view] = np.where(image == piece.instance_id, 0, image).astype(image.dtype)
+            labels.update(without_label(labels, piece.instance_id))
             continue
         keeper = arbiter.kept_by.get(id(piece))
         seen = {id(piece)}

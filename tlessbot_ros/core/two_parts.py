@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core.common import depth_to_points, mask_box, transform_points
-from tlessbot_ros.core.edge_bands import is_edge_band
+from tlessbot_ros.core.edge_bands import is_edge_band, without_label
 from tlessbot_ros.core.flat_parts import check_fitted_part
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.part_fit import outline_shares, pose_stage, unknown_last
@@ -233,8 +233,7 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
         divided[detection.view], piece.detection.instance_id, detection.instance_id,
         pipeline.fit_params.edge_band_px) else None
     if edge is not None:   # the part's own blurred edge, left out by its fit (edge_bands.py)
-        divided = {name: np.where(image == edge, 0, image).astype(image.dtype)
-                   for name, image in divided.items()}
+        divided = without_label(divided, edge)
     labels.update(divided)
     job.points, job.candidates = rest.points, rest.candidates
     vars(detection).update(vars(rest.detection))

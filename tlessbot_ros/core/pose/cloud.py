@@ -278,9 +278,8 @@ def fit_plane(points: np.ndarray, *, distance_m: float = 0.003, iterations: int 
     Open3D's ``segment_plane``, taken in turn: triples are scored in the order drawn (more
     inliers closer than ``distance_m``, then a lower RMS distance, beats the best so far), and
     the search stops once the best's inlier share makes a better triple unlikely
-    (:data:`PLANE_CONFIDENCE`). Open3D hands the triples to threads in the order they ask,
-    which gave different planes between runs of one input; here the answer depends on the
-    points and the seed alone.
+    (:data:`PLANE_CONFIDENCE`). Taken in turn, not on threads that draw triples in the order
+    they ask, so the answer is a function of the points and the seed alone.
 
     Args:
         points: (N, 3) points, N >= 3, metres.
