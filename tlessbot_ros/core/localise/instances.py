@@ -29,6 +29,7 @@ from tlessbot_ros.core.common import label_boxes
 from tlessbot_ros.core.localise.blob_split import (
     colour_pieces,
     depth_pieces,
+    lightness_pieces,
     split_at_distance_cores,
     watershed_padded,
 )
@@ -144,7 +145,7 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
     # pieces[i]: the blob's pieces (y0, x0, [(bool mask in the crop, depth group)]);
     # absent: the blob stays whole.
     pieces: dict[int, tuple[int, int, list[tuple[np.ndarray, int]]]] = {}
-    n_groups = 0
+    n_groups, n_lightness = 0, _LIGHTNESS_GROUPS
     # A blob narrower than twice the smallest split depth has a distance transform below it.
     deep = 2.0 * params.split_min_depth_px
     for i in big if params.split_touching else ():
@@ -165,13 +166,9 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
             group = 0
             if len(set(ties)) > 1:   # pieces told apart by no seam share their group
                 group = n_groups + 1 + tie
-            by_colour = [depth_piece] if crop is None or params.colour_split_delta <= 0 else \
-                colour_pieces(depth_piece, crop, params)
-            if surfaces is not None:   # (the side view: the top one sees thin parts small)
-                by_colour = join_pieces_no_part_fits(by_colour, params)
-            more, n_groups = _cores_of_pieces(
-                by_colour, crop, thin, None if surfaces is None else
-                surfaces.depth_m[y0:y1, x0:x1], params, group, n_groups)
+            more, n_groups, n_lightness = _pieces_of_depth_piece(
+                depth_piece, crop, thin, None if surfaces is None else
+                surfaces.depth_m[y0:y1, x0:x1], params, group, (n_groups, n_lightness))
             found += more
         n_groups += len(by_depth) if len(set(ties)) > 1 else 0
         if len(found) > 1:
@@ -204,6 +201,52 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
         labels[y0:y0 + f.shape[0], x0:x0 + f.shape[1]][f] = k
     return (labels, np.array(boxes, np.int32).reshape(-1, 4),
             np.array(areas, np.int64), np.array(groups, np.int32))
+
+
+def _pieces_of_depth_piece(piece: np.ndarray, crop: np.ndarray | None, thin: bool,
+                           depth_m: np.ndarray | None, params: SegmentationParams, group: int,
+                           used: tuple[int, int]
+                           ) -> tuple[list[tuple[np.ndarray, int]], int, int]:
+    """One piece of a depth split (or a blob whole; a crop's mask) divided by colour, by
+    lightness and at its distance cores, each with its depth group, and the depth and
+    lightness groups used so far (``used`` before). ``depth_m``: the crop's depth, in the view
+    split by depth (the side one), else None."""
+    n_groups, n_lightness = used
+    by_colour = [piece] if crop is None or params.colour_split_delta <= 0 else \
+        colour_pieces(piece, crop, params)
+    if depth_m is not None:   # (the side view: the top one sees thin parts small)
+        by_colour = join_pieces_no_part_fits(by_colour, params)
+    by_lightness, n_lightness = _by_lightness(by_colour, crop, params, group, n_lightness)
+    found: list[tuple[np.ndarray, int]] = []
+    for part, part_group in by_lightness:
+        more, n_groups = _cores_of_pieces([part], crop, thin, depth_m, params, part_group,
+                                          n_groups)
+        found += more
+    return found, n_groups, n_lightness
+
+
+def _by_lightness(pieces: list[np.ndarray], crop: np.ndarray | None,
+                  params: SegmentationParams, group: int, first_group: int
+                  ) -> tuple[list[tuple[np.ndarray, int]], int]:
+    """The pieces of a blob (a crop's masks) each with its depth group ``group``, those of
+    two lightnesses divided (:func:`~tlessbot_ros.core.localise.blob_split.lightness_pieces`)
+    into halves that are each a group of its own, from ``first_group`` on: the two-view
+    fusion keeps them apart as it keeps a depth split (the top view, which sees both parts
+    as one blob, would join them again). Returns them and the next free group."""
+    out: list[tuple[np.ndarray, int]] = []
+    for piece in pieces:
+        halves = [piece] if crop is None else lightness_pieces(piece, crop, params)
+        if len(halves) == 1:
+            out.append((piece, group))
+            continue
+        for half in halves:
+            out.append((half, first_group))
+            first_group += 1
+    return out, first_group
+
+
+# The lightness halves' groups start here, past any depth split's of one image.
+_LIGHTNESS_GROUPS = 1 << 20
 
 
 def _cores_of_pieces(pieces: list[np.ndarray], crop: np.ndarray | None, thin: bool,

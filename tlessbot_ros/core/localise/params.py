@@ -39,6 +39,8 @@ class SegmentationParams:
             x100) is divided first (>= 0; 0: off).
         colour_split_min_share: smallest share of the blob for a colour piece (so specular
             highlights do not become parts).
+        lightness_split_ratio: a blob whose two lightness clusters' median L differ by more
+            than this factor is divided when each piece could be a whole part (0: off).
         depth_min_height_m: depth cue: pixels whose back-projected point lies higher than
             this above the table plane (world z) are object candidates...
         depth_sure_height_m: ... and higher than this, sure object markers.
@@ -128,6 +130,7 @@ class SegmentationParams:
     cue_scale: float = 0.5
     colour_split_delta: float = 25.0
     colour_split_min_share: float = 0.12
+    lightness_split_ratio: float = 0.0
     depth_min_height_m: float = 0.004
     depth_sure_height_m: float = 0.010
     depth_sure_erode_px: int = 0
@@ -190,6 +193,9 @@ class SegmentationParams:
             raise ValueError('need colour_edge_floors >= 0 (0: off) and colour_edge_ring_px '
                              f'>= 1, got {self.colour_edge_floors} and '
                              f'{self.colour_edge_ring_px}')
+        if self.lightness_split_ratio != 0 and self.lightness_split_ratio <= 1:
+            raise ValueError('lightness_split_ratio must be 0 (off) or above 1, got '
+                             f'{self.lightness_split_ratio}')
         if self.colour_edge_blend_px < 0:
             raise ValueError('need colour_edge_blend_px >= 0 (0: off), got '
                              f'{self.colour_edge_blend_px}')
