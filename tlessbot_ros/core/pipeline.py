@@ -258,7 +258,8 @@ class PerceptionPipeline:
         else:
             top, side = seg(TOP), seg(SIDE)
         return fuse_views(top, side, rig=self.rig, side_rgb=views[SIDE].rgb,
-                          depth_top_m=views[TOP].depth_m, params=self.fusion)
+                          depth_top_m=views[TOP].depth_m, params=self.fusion,
+                          top_rgb=views[TOP].rgb)
 
     # ---------------------------------------------------------------------------- stage 2
     def classify(self, rgb: dict[str, np.ndarray], labels: dict[str, np.ndarray], *,

@@ -20,7 +20,6 @@ import numpy as np
 
 from tlessbot_ros.core.localise.cues import Surfaces, opened
 from tlessbot_ros.core.localise.params import SegmentationParams
-from tlessbot_ros.core.localise.part_scale import whole_part_px
 
 
 def watershed_padded(image: np.ndarray, markers: np.ndarray) -> np.ndarray:
@@ -75,57 +74,6 @@ def colour_pieces(blob: np.ndarray, rgb: np.ndarray, params: SegmentationParams,
     if depth >= 1:
         return pieces
     return [q for p in pieces for q in colour_pieces(p, rgb, params, depth + 1)]
-
-
-def lightness_pieces(blob: np.ndarray, rgb: np.ndarray, params: SegmentationParams
-                     ) -> list[np.ndarray]:
-    """Divide a blob of two parts alike in chroma but not in lightness (a white block against
-    a black bracket, a grey disc against a dark tube), which :func:`colour_pieces` cannot
-    tell apart: 2-means on CIE-LAB L, kept when the clusters' median L differ by more than
-    ``lightness_split_ratio`` (shading divides the light a face reflects by a few at most)
-    and each piece is as large as the smallest whole part of the set
-    (:func:`.part_scale.whole_part_px`; the parts must be known: a piece of a part partly
-    hidden is smaller than the part). ``[blob]`` otherwise. Bool masks of the blob's crop."""
-    if params.lightness_split_ratio <= 0 or not params.whole_parts:
-        return [blob]
-    lightness = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab)[..., 0][blob].astype(np.float32)
-    min_piece = max(params.min_area_px, int(params.colour_split_min_share * len(lightness)))
-    if len(lightness) < 2 * min_piece:
-        return [blob]
-    sample = np.ascontiguousarray(lightness[::max(1, len(lightness) // 800)].reshape(-1, 1))
-    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
-    cv2.setRNGSeed(0)
-    _, _, centres = cv2.kmeans(sample, 2, None, criteria, 1,  # type: ignore[call-overload]
-                               cv2.KMEANS_PP_CENTERS)
-    cut = float(centres.mean())
-    dark, light = lightness[lightness < cut], lightness[lightness >= cut]
-    if min(dark.size, light.size) < min_piece or \
-            float(np.median(light)) <= params.lightness_split_ratio * max(
-                float(np.median(dark)), _DARKEST_L):
-        return [blob]
-    cluster = np.zeros(blob.shape, np.int32)
-    cluster[blob] = np.where(lightness >= cut, 2, 1)
-    seeds = np.zeros(blob.shape, np.int32)
-    n_seeds = 0
-    for c in (1, 2):
-        m = opened((cluster == c), 1).view(np.uint8)
-        n, comp, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
-        largest = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA])) if n > 1 else 0
-        if largest and stats[largest, cv2.CC_STAT_AREA] >= min_piece:
-            n_seeds += 1
-            seeds[comp == largest] = n_seeds
-    if n_seeds < 2:
-        return [blob]
-    owner = fill_from_nearest(seeds, blob & (seeds == 0))
-    pieces = [owner == k for k in (1, 2)]
-    smallest_part_px = whole_part_px(params.whole_parts)
-    if min(cv2.countNonZero(p.view(np.uint8)) for p in pieces) < smallest_part_px:
-        return [blob]
-    return pieces
-
-
-# The darkest lightness (OpenCV's 8-bit L) a ratio is taken against: below it, the noise.
-_DARKEST_L = 10.0
 
 
 def split_at_distance_cores(blob: np.ndarray, rgb: np.ndarray | None,

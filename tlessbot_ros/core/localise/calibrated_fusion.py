@@ -5,6 +5,7 @@ divided by a watershed seeded with them."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import cast
 
 import cv2
@@ -19,6 +20,8 @@ from tlessbot_ros.core.localise.fusion_result import (
     instances_from_labels,
 )
 from tlessbot_ros.core.localise.gap_colour import apart_by_gap_colour
+from tlessbot_ros.core.localise.instances import LIGHTNESS_GROUPS
+from tlessbot_ros.core.localise.lightness import top_check
 from tlessbot_ros.core.localise.part_scale import mask_length_px
 from tlessbot_ros.core.localise.segmentation import Segmentation
 from tlessbot_ros.core.localise.table_gap import apart_by_table
@@ -133,7 +136,8 @@ def _side_prediction(top_labels: np.ndarray, side_shape: tuple[int, ...], rig: R
 
 def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
                       depth_top_m: np.ndarray | None, side_rgb: np.ndarray | None,
-                      params: FusionParams, top_name: str, side_name: str) -> FusionResult:
+                      params: FusionParams, top_name: str, side_name: str,
+                      *, top_rgb: np.ndarray | None = None) -> FusionResult:
     """The ``'calibrated'`` fusion of a top and a side segmentation (``fuse_views``)."""
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -186,8 +190,9 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
                     out[blob & (own == j)] = next_id
                     next_id += 1
         else:
+            check = top_check(top_rgb, top_labels, owners, params.lightness_top_ratio)
             pieces = _side_pieces_of_blob(blob, side.labels[window], side, params,
-                                          pred[window], owners) or [blob]
+                                          pred[window], owners, check) or [blob]
             ids, next_id, divided = _label_pieces(
                 pieces, owners, pred[window], None if side_rgb is None else side_rgb[window],
                 kernel, next_id, side.whole_part_px(),
@@ -231,7 +236,8 @@ def _predicted_owners(overlap: np.ndarray, pred_area: np.ndarray, area: int,
 
 def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
                          params: FusionParams, pred: np.ndarray | None = None,
-                         owners: list[int] | None = None) -> list[np.ndarray]:
+                         owners: list[int] | None = None,
+                         lit_apart: Callable[[], bool] | None = None) -> list[np.ndarray]:
     """The pieces of one side blob, seen as one part from the top, that the side view tells
     apart: one bool mask per piece (the blob's pixels of no instance join the nearest piece);
     none unless there are two or more, each of ``min_visible_px`` pixels.
@@ -244,12 +250,16 @@ def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
     ``pred`` give to two of its parts ``owners`` (each instance's most overlapping owner):
     both views have them apart. Every other pair of instances in the blob is one part.
     ``blob``, ``own`` (the side segmentation's labels) and ``pred`` are cut to the blob's
-    window."""
+    window. Lightness halves (their groups from ``LIGHTNESS_GROUPS``) count as a depth split
+    where ``lit_apart`` (None: always) says the top view shows two lightnesses too."""
     ids = np.unique(own[blob])
     ids = ids[(ids > 0) & (ids <= len(side.depth_groups))]
     if ids.size < 2:
         return []
     groups = side.depth_groups[ids - 1]
+    lit = groups >= LIGHTNESS_GROUPS
+    if lit.any() and lit_apart is not None and not lit_apart():
+        groups = np.where(lit, 0, groups)   # one part the top sees alike: a shaded face
     thin = side.thin[ids - 1] if len(side.thin) >= ids.max() else np.zeros(ids.size, bool)
     owner_of = np.zeros(ids.size, int)
 

@@ -48,6 +48,8 @@ class FusionParams:
             floors of the table where the views' own regions have two parts (0: off).
         gap_band_px: the widest such gap, as the radius of a disc (px, >= 1).
         gap_side_instances: two side instances count as two parts there, as two top blobs do.
+        lightness_top_ratio: a side blob's lightness halves stay apart only where the top
+            view's blobs over it hold two lightnesses this many times apart (0: no check).
         box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
             in a side box.
     """
@@ -73,6 +75,7 @@ class FusionParams:
     gap_table_floors: float = 2.0
     gap_band_px: int = 4
     gap_side_instances: bool = True
+    lightness_top_ratio: float = 2.0
 
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:

@@ -29,11 +29,11 @@ from tlessbot_ros.core.common import label_boxes
 from tlessbot_ros.core.localise.blob_split import (
     colour_pieces,
     depth_pieces,
-    lightness_pieces,
     split_at_distance_cores,
     watershed_padded,
 )
 from tlessbot_ros.core.localise.cues import Surfaces, depth_cue
+from tlessbot_ros.core.localise.lightness import lightness_pieces
 from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.part_scale import join_pieces_no_part_fits, several_parts
 from tlessbot_ros.core.localise.thin import is_thin
@@ -145,7 +145,7 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
     # pieces[i]: the blob's pieces (y0, x0, [(bool mask in the crop, depth group)]);
     # absent: the blob stays whole.
     pieces: dict[int, tuple[int, int, list[tuple[np.ndarray, int]]]] = {}
-    n_groups, n_lightness = 0, _LIGHTNESS_GROUPS
+    n_groups, n_lightness = 0, LIGHTNESS_GROUPS
     # A blob narrower than twice the smallest split depth has a distance transform below it.
     deep = 2.0 * params.split_min_depth_px
     for i in big if params.split_touching else ():
@@ -229,7 +229,7 @@ def _by_lightness(pieces: list[np.ndarray], crop: np.ndarray | None,
                   params: SegmentationParams, group: int, first_group: int
                   ) -> tuple[list[tuple[np.ndarray, int]], int]:
     """The pieces of a blob (a crop's masks) each with its depth group ``group``, those of
-    two lightnesses divided (:func:`~tlessbot_ros.core.localise.blob_split.lightness_pieces`)
+    two lightnesses divided (:func:`~tlessbot_ros.core.localise.lightness.lightness_pieces`)
     into halves that are each a group of its own, from ``first_group`` on: the two-view
     fusion keeps them apart as it keeps a depth split (the top view, which sees both parts
     as one blob, would join them again). Returns them and the next free group."""
@@ -246,7 +246,7 @@ def _by_lightness(pieces: list[np.ndarray], crop: np.ndarray | None,
 
 
 # The lightness halves' groups start here, past any depth split's of one image.
-_LIGHTNESS_GROUPS = 1 << 20
+LIGHTNESS_GROUPS = 1 << 20
 
 
 def _cores_of_pieces(pieces: list[np.ndarray], crop: np.ndarray | None, thin: bool,

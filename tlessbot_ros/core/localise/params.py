@@ -130,7 +130,7 @@ class SegmentationParams:
     cue_scale: float = 0.5
     colour_split_delta: float = 25.0
     colour_split_min_share: float = 0.12
-    lightness_split_ratio: float = 0.0
+    lightness_split_ratio: float = 8.0
     depth_min_height_m: float = 0.004
     depth_sure_height_m: float = 0.010
     depth_sure_erode_px: int = 0

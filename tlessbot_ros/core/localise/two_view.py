@@ -50,7 +50,7 @@ from tlessbot_ros.core.localise.segmentation import Segmentation
 def fuse_views(top: Segmentation, side: Segmentation, *, rig: Rig | None = None,
                depth_top_m: np.ndarray | None = None, side_rgb: np.ndarray | None = None,
                params: FusionParams = FusionParams(), top_name: str = 'top',
-               side_name: str = 'side') -> FusionResult:
+               side_name: str = 'side', top_rgb: np.ndarray | None = None) -> FusionResult:
     """Give each object one id in both views (paper's Algorithm 1 or the calibrated fusion).
 
     Args:
@@ -60,6 +60,7 @@ def fuse_views(top: Segmentation, side: Segmentation, *, rig: Rig | None = None,
         depth_top_m: optional (H, W) float32 top depth in metres (0 / NaN invalid), aligned to
             the top colour image; improves the lifting of top blobs.
         side_rgb: optional (H, W, 3) uint8 side image; the split follows its edges.
+        top_rgb: optional (H, W, 3) uint8 top image (``lightness_top_ratio``).
         params: see :class:`FusionParams`.
         top_name, side_name: camera names in ``rig``.
 
@@ -76,7 +77,7 @@ def fuse_views(top: Segmentation, side: Segmentation, *, rig: Rig | None = None,
             result = _algorithm1(top, side, rig, params, top_name, side_name)
         else:
             result = calibrated_fusion(top, side, rig, depth_top_m, side_rgb, params, top_name,
-                                 side_name)
+                                       side_name, top_rgb=top_rgb)
     result.timings_ms['total'] = (time.perf_counter() - t0) * 1e3
     return result
 
