@@ -198,7 +198,8 @@ class PoseEstimator:
                 return result
             scene = self._prepare(points_c, obj, 1.0, timings, scenes)
         candidates = self._fallback_path(scene, obj, candidates, timings, method=method,
-                                         after_table=use_table, start=start)
+                                         after_table=use_table, start=start,
+                                         T_world_camera=T_world_camera)
         if box is not None:   # the fallback's candidates weighed as the table path's
             for candidate, cover in zip(candidates, box_cover(
                     np.array([c.T_camera_object for c in candidates]), obj, box)):
@@ -211,16 +212,18 @@ class PoseEstimator:
 
     def _fallback_path(self, scene: np.ndarray, obj: ObjectTemplates,
                        candidates: list[PoseCandidate], timings: dict[str, float], *,
-                       method: str, after_table: bool, start: float) -> list[PoseCandidate]:
+                       method: str, after_table: bool, start: float,
+                       T_world_camera: np.ndarray | None = None) -> list[PoseCandidate]:
         """The table path's ``candidates`` with the fallback's (view grid or RANSAC), ranked;
-        ``after_table``: the table path ran first and its fit was poor (bounded fallback)."""
+        ``after_table``: the table path ran first and its fit was poor (bounded fallback);
+        ``T_world_camera``: the table frame, if known (the view grid drops the table by it)."""
         p = self.params
         t0 = time.perf_counter()
         if method == 'table' and p.fallback_method == 'views':
             candidates = self._rank(candidates + fallback_candidates(
                 scene, obj, timings, params=p, refiner=self.refiner,
                 starts=np.array([c.T_camera_object for c in candidates[:2]]).reshape(-1, 4, 4),
-                deadline=self._deadline(start)))
+                deadline=self._deadline(start), T_world_camera=T_world_camera))
             timings['fallback'] = 1e3 * (time.perf_counter() - t0)
         else:
             indices, max_iteration, deadline = None, p.ransac_max_iteration, None

@@ -9,8 +9,12 @@ for a few % of the ROI points (docs/bench/fallback.md), so RANSAC needs 10^5 dra
 search does a fixed, small amount of work instead, coarse to fine:
 
 0. **Clutter.** Up to ``fallback_drop_planes`` RANSAC planes wider than the part
-   (``fallback_plane_width`` diameters) leave the ROI: the table that a box ROI holds without
-   a table frame would drag every view's centroid off the part.
+   (``fallback_plane_width`` diameters) leave the ROI: the table that a box ROI holds
+   would drag every view's centroid off the part. With a table frame the first of them is
+   the table itself, not searched: the points within ``fallback_table_band`` plane
+   distances of it, or below it, when they spread wider than the part (RANSAC may settle on
+   a near-equal plane beside the table's, one that cuts a face of the part or leaves a strip
+   of table, and the part's pose turns on which).
 1. **A grid of views, scored at once.** The object's rotations are sampled as a camera sees
    them: ``fallback_directions`` viewing directions spread evenly over the sphere (a
    Fibonacci lattice) times ``fallback_in_plane_steps`` turns about the line of sight. Each
@@ -240,7 +244,8 @@ def _unique_modulo(R: np.ndarray, symmetries: np.ndarray, *, tolerance_rad: floa
 def fallback_candidates(scene_c: np.ndarray, obj: ObjectTemplates, timings: dict[str, float],
                         *, params: PoseParams, refiner: Refiner,
                         starts: np.ndarray | None = None,
-                        deadline: float | None = None) -> list[PoseCandidate]:
+                        deadline: float | None = None,
+                        T_world_camera: np.ndarray | None = None) -> list[PoseCandidate]:
     """The bounded fallback's candidates for one object (see the module docstring).
 
     Args:
@@ -254,6 +259,8 @@ def fallback_candidates(scene_c: np.ndarray, obj: ObjectTemplates, timings: dict
             table path's best).
         deadline: a ``time.perf_counter()`` value after which the near-symmetry turns are
             skipped.
+        T_world_camera: (4, 4) the camera in a world frame whose z = 0 plane is the table,
+            when known: the table leaves the ROI by its height (step 0).
 
     Returns:
         scored candidates (method 'views'), best first; empty when the ROI has fewer than 10
@@ -265,7 +272,7 @@ def fallback_candidates(scene_c: np.ndarray, obj: ObjectTemplates, timings: dict
     p = params
     t0 = time.perf_counter()
     if p.fallback_drop_planes:
-        scene_c = _without_wide_planes(scene_c, obj, p)
+        scene_c = without_clutter(scene_c, obj, p, T_world_camera)
         if len(scene_c) < 10:
             return []
     T_coarse = _coarse_poses(scene_c, obj, p, refiner)
@@ -298,13 +305,38 @@ def fallback_candidates(scene_c: np.ndarray, obj: ObjectTemplates, timings: dict
     return sorted(out, key=lambda c: (-c.score, c.inlier_rmse_m))
 
 
-def _without_wide_planes(scene_c: np.ndarray, obj: ObjectTemplates, p: PoseParams
-                         ) -> np.ndarray:
-    """The ROI without up to ``fallback_drop_planes`` planes wider than
-    ``fallback_plane_width`` times the part's diameter: a box ROI without a table frame holds
-    the table around the part, which would drag the views' centroids off it, while any two
-    points of the part lie within its diameter, so none of its own faces is dropped."""
-    for _ in range(p.fallback_drop_planes):
+def without_clutter(scene_c: np.ndarray, obj: ObjectTemplates, p: PoseParams,
+                    T_world_camera: np.ndarray | None = None) -> np.ndarray:
+    """The (S, 3) camera-frame ROI without the table and up to ``fallback_drop_planes`` wide
+    planes in all (step 0 of the module docstring).
+
+    With ``T_world_camera`` (4, 4), the camera in a world frame whose z = 0 plane is the
+    table, and ``fallback_table_band`` > 0, the table is the first plane and known: the
+    points less than ``fallback_table_band * cloud.plane_distance_m`` above it (those below
+    it included: no part is there) leave when they spread wider than
+    ``fallback_plane_width`` part diameters, as a searched plane would, and the search looks
+    for the others only (a box wall). Without it, every plane is searched
+    (:func:`_without_wide_planes`).
+    """
+    planes = p.fallback_drop_planes
+    if T_world_camera is not None and p.fallback_table_band > 0 and planes:
+        T = np.asarray(T_world_camera, np.float64)
+        near = scene_c @ T[2, :3] + T[2, 3] < p.fallback_table_band * p.cloud.plane_distance_m
+        # As a searched plane, the table leaves only where the ROI holds it (wider than the
+        # part): the rim of a part seen without the table around it stays.
+        if near.sum() >= 3 and _spread(scene_c[near]) > p.fallback_plane_width * obj.diameter_m:
+            scene_c = scene_c[~near]
+        planes -= 1
+    return _without_wide_planes(scene_c, obj, p, planes)
+
+
+def _without_wide_planes(scene_c: np.ndarray, obj: ObjectTemplates, p: PoseParams,
+                         planes: int) -> np.ndarray:
+    """The ROI without up to ``planes`` planes wider than ``fallback_plane_width`` times the
+    part's diameter: a box ROI without a table frame holds the table around the part, which
+    would drag the views' centroids off it, while any two points of the part lie within its
+    diameter, so none of its own faces is dropped."""
+    for _ in range(planes):
         if len(scene_c) < 20:
             break
         _, inliers = fit_plane(scene_c, distance_m=p.cloud.plane_distance_m,

@@ -80,6 +80,8 @@ class PoseParams:
             first (>= 0; 0: off).
         fallback_plane_width: 'views': only planes wider than this many part diameters are
             removed (> 0).
+        fallback_table_band: 'views' with a table frame: drop the points this many
+            plane_distance_m near or below the table, not a searched plane (>= 0; 0: off).
         ransac_distance_voxels: SAC-IA: inlier distance of the RANSAC registration, template
             voxels.
         ransac_edge_length: SAC-IA: edge-length similarity of the correspondence check (0..1).
@@ -105,8 +107,12 @@ class PoseParams:
     occlusion shifts by a few voxels, so its first ICP steps use twice
     ``fallback_icp_distance_voxels``. ``fallback_drop_planes`` removes RANSAC planes
     (``cloud.plane_distance_m``) wider than ``fallback_plane_width`` times the part's diameter
-    (no face of a part is wider): the table in a box ROI without a table frame. The ``ransac_*``
-    settings are SAC-IA's (algo-notes §C.4).
+    (no face of a part is wider): the table in a box ROI without a table frame. With a table
+    frame the first of them is the table itself, known rather than searched: the points within
+    ``fallback_table_band`` times ``cloud.plane_distance_m`` of it, or below it, leave the ROI
+    where they spread wider than ``fallback_plane_width`` diameters (a plane searched by RANSAC
+    may be a near-equal neighbour of the table's, and which one is found turns the pose). The
+    ``ransac_*`` settings are SAC-IA's (algo-notes §C.4).
     """
 
     method: str = 'table'
@@ -149,6 +155,7 @@ class PoseParams:
     fallback_fine_iterations: int = 16
     fallback_drop_planes: int = 1
     fallback_plane_width: float = 1.0
+    fallback_table_band: float = 0.0
     ransac_distance_voxels: float = 1.5
     ransac_edge_length: float = 0.9
     ransac_mutual_filter: bool = True
@@ -180,6 +187,9 @@ class PoseParams:
                                                    self.fallback_turned) < 0:
             raise ValueError('fallback_coarse_points must be >= 10; fallback_icp_iterations, '
                              'fallback_fine_iterations and fallback_turned >= 0')
+        if self.fallback_table_band < 0:
+            raise ValueError('fallback_table_band must be >= 0 (0: search the table as any '
+                             f'plane; 1: one plane_distance_m), got {self.fallback_table_band}')
         if self.fallback_drop_planes < 0 or self.fallback_plane_width <= 0:
             raise ValueError('fallback_drop_planes must be >= 0 and fallback_plane_width > 0 '
                              f'(1: the part diameter), got {self.fallback_drop_planes}, '
