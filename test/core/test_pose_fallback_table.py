@@ -85,3 +85,17 @@ def test_a_part_seen_without_the_table_keeps_its_rim():
     part = np.concatenate([points[is_plate], rim @ T_camera_world[:3, :3].T
                            + T_camera_world[:3, 3]])
     assert len(without_clutter(part, PART, KNOWN, SIDE.T_world_camera)) == len(part)
+
+
+def test_a_wall_beside_the_known_table_is_searched_as_a_second_plane():
+    points, is_plate = _plate_on_table(SIDE.T_world_camera)
+    y, z = np.meshgrid(np.arange(-0.07, 0.07, 0.003), np.arange(0.01, 0.1, 0.003))
+    wall_w = np.stack([np.full(y.size, 0.07), y.ravel(), z.ravel()], axis=1)
+    T_camera_world = np.linalg.inv(SIDE.T_world_camera)
+    wall = wall_w @ T_camera_world[:3, :3].T + T_camera_world[:3, 3]
+    scene = np.concatenate([points[is_plate], wall])
+    # The known table is the first plane: with one plane the wall stays, with two it leaves.
+    assert len(without_clutter(scene, PART, KNOWN, SIDE.T_world_camera)) == len(scene)
+    two = without_clutter(scene, PART, replace(KNOWN, fallback_drop_planes=2),
+                          SIDE.T_world_camera)
+    assert len(two) == is_plate.sum()
