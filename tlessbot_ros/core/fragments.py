@@ -22,7 +22,9 @@ thin parts on top of each other fit one pose). So is a piece that one fit of bot
 (``joins``, :mod:`tlessbot_ros.core.piece_union`: two halves of a part, each fitted over its
 own half), asked only while the keeper is not yet handed to ``publish`` (it takes that fit).
 A piece whose region is a band along a fitted neighbour's edge (``band``,
-:mod:`tlessbot_ros.core.edge_bands`) is dropped first, its region in :attr:`erased`.
+:mod:`tlessbot_ros.core.edge_bands`) is dropped first, its region in :attr:`erased`. A piece
+whose fit fills the same space as a better neighbour's fit of its class (``same``,
+:mod:`tlessbot_ros.core.same_part`) is one part fitted twice: dropped, its region joins it.
 """
 from __future__ import annotations
 
@@ -83,6 +85,8 @@ class FragmentFilter(Generic[D]):
             piece with no pose is asked to join them. None: centroids only.
         band: ``band(piece, other)``: whether ``piece``'s region is a band along fitted
             ``other``'s edge: dropped, its id in :attr:`erased`. None: never.
+        same: ``same(a, b)``: whether two fitted neighbours are one part fitted twice (the
+            worse is dropped, its region joins the better). None: never.
     """
 
     def __init__(self, pieces: Sequence[tuple[D, np.ndarray, str, int, float]],
@@ -90,9 +94,11 @@ class FragmentFilter(Generic[D]):
                  explains: Callable[[D, D], bool] | None = None,
                  joins: Callable[[D, D], bool] | None = None,
                  touching: Callable[[D, D], bool] | None = None,
-                 band: Callable[[D, D], bool] | None = None) -> None:
+                 band: Callable[[D, D], bool] | None = None,
+                 same: Callable[[D, D], bool] | None = None) -> None:
         self._publish = publish
         self._band = band
+        self._same = same
         self.erased: set[int] = set()   # ids of dropped pieces that are a neighbour's edge
         self._overlap = float(overlap)
         self._explains = explains
@@ -155,6 +161,7 @@ class FragmentFilter(Generic[D]):
                 if id(piece.detection) in self.erased:
                     continue
                 if self._explains is not None and self._explains(keeper, piece.detection) or \
+                        self._same_part(keeper, piece.detection) or \
                         self._joined(keeper, piece.detection):
                     self.kept_by[id(piece.detection)] = keeper
             else:
@@ -191,13 +198,18 @@ class FragmentFilter(Generic[D]):
                 if explained:   # only the other's fit explains both: this is its piece
                     return other.detection
                 continue
-            if (explained or np.linalg.norm(other.centre - piece.centre) < limit) and \
+            if (explained or np.linalg.norm(other.centre - piece.centre) < limit or
+                    self._same_part(piece.detection, other.detection)) and \
                     not _better(piece, other):
                 return other.detection
             if not explained and not _better(piece, other) and \
                     self._joined(other.detection, piece.detection):
                 return other.detection
         return None
+
+    def _same_part(self, a: D, b: D) -> bool:
+        """``same(a, b)``: both fitted, one part fitted twice (False without ``same``)."""
+        return self._same is not None and self._same(a, b)
 
     def _unfitted_joins(self, piece: _Piece[D]) -> D | None:
         """The first neighbour touching ``piece`` (no pose: named unknown) that one fit of both
@@ -245,7 +257,8 @@ def fragment_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None
                     explains: Callable[[Detection, Detection], bool] | None = None,
                     joins: Callable[[Detection, Detection], bool] | None = None,
                     touching: Callable[[Detection, Detection], bool] | None = None,
-                    band: Callable[[Detection, Detection], bool] | None = None
+                    band: Callable[[Detection, Detection], bool] | None = None,
+                    same: Callable[[Detection, Detection], bool] | None = None
                     ) -> FragmentFilter[Detection]:
     """The :class:`FragmentFilter` of one frame's parts (``PartJob`` items): ROI centroids in
     the world (camera frame without a table frame), first-class diameters from ``database``."""
@@ -258,4 +271,4 @@ def fragment_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None
         pieces.append((job.detection, centroid, frame, len(job.points),
                        database[job.candidates[0]].diameter_m))
     return FragmentFilter(pieces, publish, overlap=overlap, explains=explains, joins=joins,
-                          touching=touching, band=band)
+                          touching=touching, band=band, same=same)

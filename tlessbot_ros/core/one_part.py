@@ -29,6 +29,7 @@ from tlessbot_ros.core.params import FitParams
 from tlessbot_ros.core.part_fit import outline_shares, pose_stage
 from tlessbot_ros.core.pose import PoseEstimator
 from tlessbot_ros.core.recognise import UNKNOWN_ID
+from tlessbot_ros.core.same_part import same_part_test
 
 
 def one_part_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None],
@@ -41,11 +42,14 @@ def one_part_filter(jobs: Sequence[PartJob], publish: Callable[[Detection], None
     ``overlap``) that also drops a piece another part's fit explains (:func:`explainer`), or
     one fit of both explains (``joins`` of ``touching`` pieces,
     :mod:`tlessbot_ros.core.piece_union`), or (with the frame's ``labels``) a band of them
-    along a fitted part's edge (``FitParams.edge_band_px``, :mod:`.edge_bands`)."""
+    along a fitted part's edge (``FitParams.edge_band_px``, :mod:`.edge_bands`), or one whose
+    fit fills the same space as a better fit of its class (``FitParams.same_part_share``,
+    :mod:`.same_part`)."""
     band = band_test(params.edge_band_px, labels) if labels is not None and overlap > 0 \
         else None
+    same = same_part_test(params.same_part_share, estimator, jobs) if overlap > 0 else None
     return fragment_filter(jobs, publish, pose_stage(estimator).database, overlap,
-                           explainer(params, estimator, jobs), joins, touching, band)
+                           explainer(params, estimator, jobs), joins, touching, band, same)
 
 
 def explainer(params: FitParams, estimator: PoseEstimator | None, jobs: Sequence[PartJob]

@@ -144,6 +144,8 @@ class FitParams:
             of the fitted outline, where it covers most of that outline (0: off).
         edge_band_px: a region whose every pixel lies within this many pixels of a larger
             fitted part's region is that part's blurred edge: dropped, px (0: off).
+        same_part_share: two fitted neighbours of one class each with this share of its model in
+            the other's are one part fitted twice: the worse joins the better (0..1; 0: off).
         split_unexplained: a connected piece of a region's depth points (at least
             ``min_roi_points``) that its fit leaves unexplained is fitted as a part of its own.
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
@@ -194,6 +196,7 @@ class FitParams:
     join_refit_touching: bool = True
     trim_to_fit_px: int = 3
     edge_band_px: int = 6
+    same_part_share: float = 0.3
     fit_rank_coverage_weight: float = 0.0
     flat: FlatParams = field(default_factory=FlatParams)
     turns: TurnParams = field(default_factory=TurnParams)
@@ -230,6 +233,8 @@ class FitParams:
                f'got {self.join_refit_cover}, {self.join_refit_gap_px}')
         _check(self.edge_band_px >= 0, 'edge_band_px must be >= 0 (0: off), got '
                f'{self.edge_band_px}')
+        _check(0 <= self.same_part_share <= 1, 'same_part_share must be in 0..1 (a share; '
+               f'0: off), got {self.same_part_share}')
         _check(self.trim_to_fit_px >= 0, 'trim_to_fit_px must be >= 0 (0: off), got '
                f'{self.trim_to_fit_px}')
         _check(self.fit_rank_coverage_weight >= 0, 'fit_rank_coverage_weight must be >= 0 '
