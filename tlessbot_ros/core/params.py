@@ -144,8 +144,8 @@ class FitParams:
             of the fitted outline, where it covers most of that outline (0: off).
         edge_band_px: a region whose every pixel lies within this many pixels of a larger
             fitted part's region is that part's blurred edge: dropped, px (0: off).
-        same_part_share: two fitted neighbours of one class each with this share of its model in
-            the other's are one part fitted twice: the worse joins the better (0..1; 0: off).
+        same_part_share: two fits of one class each this share inside the other are one part:
+            the worse joins the better (0..1; 0: off).
         split_unexplained: a connected piece of a region's depth points (at least
             ``min_roi_points``) that its fit leaves unexplained is fitted as a part of its own.
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
