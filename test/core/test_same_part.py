@@ -5,13 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from side_scene import SIDE
+from side_scene import SIDE, TABLE
 
-from tlessbot_ros.core.common import make_transform, rotation_about_axis
+from tlessbot_ros.core.common import MeshRenderer, make_transform, rotation_about_axis
 from tlessbot_ros.core.fragments import FragmentFilter
 from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.one_part import join_pieces
 from tlessbot_ros.core.params import FitParams
+from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 from tlessbot_ros.core.pose import PoseCandidate, PoseEstimator, build_database
 from tlessbot_ros.core.same_part import same_part_test, shared_share
 
@@ -99,3 +100,37 @@ def test_same_part_share_is_a_share():
     assert FitParams().same_part_share == 0.3
     with pytest.raises(ValueError, match='same_part_share must be in 0..1'):
         FitParams(same_part_share=1.5)
+
+
+def test_a_strip_cut_in_two_halves_is_one_part_by_the_space_its_fits_share():
+    """A strip 90 x 16 x 4 mm whose region is cut at its middle column, with the joint refit
+    off (piece_union.py): each half is fitted as the whole strip over itself, two parts on
+    main's code; the two fits share the strip's space, so they are one part with one region
+    (the worse half joins the better)."""
+    box = trimesh.creation.box(bounds=np.array(((-0.045, -0.008, 0), (0.045, 0.008, 0.004))))
+    vertices, faces = np.asarray(box.vertices), np.asarray(box.faces, np.int64)
+    flipped = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi), [0, 0, 0.004])
+    db = build_database([(1, vertices, faces, [(np.eye(4), 0.5), (flipped, 0.5)], None)],
+                        intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera)
+    T_true = make_transform(rotation_about_axis([0, 0, 1], np.radians(60)), [0.004, -0.006, 0])
+    renderer = MeshRenderer()
+    renderer.add_mesh(*TABLE)
+    renderer.add_mesh(vertices, faces, T_true)
+    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
+    labels = (view.instance >= 1).astype(np.uint16)
+    labels[:, int(np.median(np.nonzero(labels)[1])):] *= 2
+    rgb = np.full(labels.shape + (3,), 120, np.uint8)
+    rgb[labels > 0] = (70, 100, 190)
+    noise = np.random.default_rng(1).normal(0.0, 0.0005, labels.shape)
+    depth = np.where(view.depth_m > 0, view.depth_m + noise, 0).astype(np.float32)
+    views = {'side': ViewInput(rgb, depth, SIDE.intrinsics, SIDE.T_world_camera)}
+
+    def found(image, **fit):
+        pipeline = PerceptionPipeline(templates=db, fit_params=FitParams(**fit))
+        return pipeline.estimate_poses(views, image, {1: (1,), 2: (1,)})
+    off = {'side': labels.copy()}
+    assert len(found(off, join_refit_cover=0.0, same_part_share=0.0)) == 2
+    joined = {'side': labels.copy()}
+    kept = found(joined, join_refit_cover=0.0)
+    assert len(kept) == 1 and kept[0].pose is not None
+    assert np.array_equal(joined['side'] == kept[0].instance_id, labels > 0)

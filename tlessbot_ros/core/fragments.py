@@ -161,8 +161,8 @@ class FragmentFilter(Generic[D]):
                 if id(piece.detection) in self.erased:
                     continue
                 if self._explains is not None and self._explains(keeper, piece.detection) or \
-                        self._same_part(keeper, piece.detection) or \
-                        self._joined(keeper, piece.detection):
+                        self._joined(keeper, piece.detection) or \
+                        self._same_part(keeper, piece.detection):
                     self.kept_by[id(piece.detection)] = keeper
             else:
                 kept.append(piece.detection)
@@ -198,12 +198,14 @@ class FragmentFilter(Generic[D]):
                 if explained:   # only the other's fit explains both: this is its piece
                     return other.detection
                 continue
-            if (explained or np.linalg.norm(other.centre - piece.centre) < limit or
-                    self._same_part(piece.detection, other.detection)) and \
+            if (explained or np.linalg.norm(other.centre - piece.centre) < limit) and \
                     not _better(piece, other):
                 return other.detection
             if not explained and not _better(piece, other) and \
                     self._joined(other.detection, piece.detection):
+                return other.detection
+            # after the joint fit, which refits both pieces where it holds
+            if not _better(piece, other) and self._same_part(piece.detection, other.detection):
                 return other.detection
         return None
 
