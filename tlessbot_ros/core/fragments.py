@@ -18,13 +18,15 @@ A piece is also a fragment of a neighbour whose fit explains it (``explains``, s
 :mod:`tlessbot_ros.core.one_part`): one part the fusion divided, fitted whole on one piece.
 A dropped piece that its keeper's fit explains is in :attr:`FragmentFilter.kept_by`, so its
 region can join the keeper (a piece dropped for its fitted centre alone keeps its region: two
-thin parts on top of each other fit one pose). So is a piece that one fit of both explains
-(``joins``, :mod:`tlessbot_ros.core.piece_union`: two halves of a part, each fitted over its
-own half), asked only while the keeper is not yet handed to ``publish`` (it takes that fit).
+thin parts on top of each other fit one pose; unless ``same`` below holds). So is a piece
+that one fit of both explains (``joins``, :mod:`tlessbot_ros.core.piece_union`: two halves of
+a part, each fitted over its own half), asked only while the keeper is not yet handed to
+``publish`` (it takes that fit).
 A piece whose region is a band along a fitted neighbour's edge (``band``,
 :mod:`tlessbot_ros.core.edge_bands`) is dropped first, its region in :attr:`erased`. A piece
 whose fit fills the same space as a better neighbour's fit of its class (``same``,
-:mod:`tlessbot_ros.core.same_part`) is one part fitted twice: dropped, its region joins it.
+:mod:`tlessbot_ros.core.same_part`; asked after ``joins``) is one part fitted twice: dropped,
+its region joins it.
 """
 from __future__ import annotations
 
