@@ -1,10 +1,9 @@
-"""Two fits of one class that fill the same space are one part, fitted twice (issue 41).
+"""Two fits of one class that fill the same space are one part, fitted twice.
 
-On smoothed depth the localiser sometimes cuts one part in two touching regions, and each
-region is fitted as the whole part placed over its own half. The two fitted models then fill
-much of the same space: the fragment filter's centre test misses them when the fits lie
-0.5-0.8 diameters apart, and neither fit explains the other's points when each covers only
-its half. Two rigid parts cannot fill the same space, so two fits of one class that do are
+Where the localiser cuts one part into two touching regions, each region can be fitted as
+the whole part placed over its own half. The two fitted models then fill much of the same
+space, yet their centres may lie too far apart for the fragment filter's centre test, and
+neither fit explains the other's points when each covers only its half. Two rigid parts cannot fill the same space, so two fits of one class that do are
 the same part: the worse one is a fragment of the better, and its region joins it (one part,
 one region, one box).
 
