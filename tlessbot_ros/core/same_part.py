@@ -3,9 +3,9 @@
 Where the localiser cuts one part into two touching regions, each region can be fitted as
 the whole part placed over its own half. The two fitted models then fill much of the same
 space, yet their centres may lie too far apart for the fragment filter's centre test, and
-neither fit explains the other's points when each covers only its half. Two rigid parts cannot fill the same space, so two fits of one class that do are
-the same part: the worse one is a fragment of the better, and its region joins it (one part,
-one region, one box).
+neither fit explains the other's points when each covers only its half. Two rigid parts
+cannot fill the same space, so two fits of one class that do are the same part: the worse one
+is a fragment of the better, and its region joins it (one part, one region, one box).
 
 How much of the space two posed models share is read on the models' surface samples: a
 sample of one lies in the other when it is inside it (behind its nearest surface sample, by
