@@ -65,8 +65,9 @@ def _posed(database: TemplateDatabase, job: PartJob) -> tuple[np.ndarray, np.nda
     T = detection.pose.T_camera_object
     if job.T_world_camera is not None:
         T = job.T_world_camera @ T
-    points = transform_points(T, obj.model_points.astype(np.float64))
-    normals = obj.model_normals.astype(np.float64) @ T[:3, :3].T
+    model_normals, model_points = obj.model_arrays_float64()
+    points = transform_points(T, model_points)
+    normals = model_normals @ T[:3, :3].T
     return points, normals
 
 

@@ -30,6 +30,17 @@ def watershed_padded(image: np.ndarray, markers: np.ndarray) -> np.ndarray:
     return padded[1:-1, 1:-1]
 
 
+def two_means(sample: np.ndarray) -> np.ndarray:
+    """(2, D) float32 centres of OpenCV's 2-means (k-means++, seeded: the same answer for the
+    same (N, D) float32 ``sample``, a contiguous array of at most ~800 rows)."""
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
+    cv2.setRNGSeed(0)
+    # (OpenCV's stubs want arrays where None has it allocate the output)
+    _, _, centres = cv2.kmeans(sample, 2, None, criteria, 1,  # type: ignore[call-overload]
+                               cv2.KMEANS_PP_CENTERS)
+    return np.asarray(centres, np.float32)
+
+
 def colour_pieces(blob: np.ndarray, rgb: np.ndarray, params: SegmentationParams,
                    depth: int = 0) -> list[np.ndarray]:
     """Divide a blob made of parts of different materials by 2-means on shading-invariant
@@ -46,11 +57,7 @@ def colour_pieces(blob: np.ndarray, rgb: np.ndarray, params: SegmentationParams,
     sample = np.ascontiguousarray(feats[::max(1, len(feats) // 800)])
     if sample.std(axis=0).max() < params.colour_split_delta / 4:
         return [blob]
-    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
-    cv2.setRNGSeed(0)
-    # (OpenCV's stubs want arrays where None has it allocate the output)
-    _, _, centres = cv2.kmeans(sample, 2, None, criteria, 1,  # type: ignore[call-overload]
-                               cv2.KMEANS_PP_CENTERS)
+    centres = two_means(sample)
     if float(np.linalg.norm(centres[0] - centres[1])) < params.colour_split_delta:
         return [blob]
     which = (np.sum((feats - centres[1]) ** 2, axis=1)

@@ -15,7 +15,7 @@ from functools import partial
 import cv2
 import numpy as np
 
-from tlessbot_ros.core.localise.blob_split import fill_from_nearest
+from tlessbot_ros.core.localise.blob_split import fill_from_nearest, two_means
 from tlessbot_ros.core.localise.cues import opened
 from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.part_scale import whole_part_px
@@ -70,11 +70,7 @@ def _lightness_cut(lightness: np.ndarray) -> float:
     """The boundary of the 2-means clusters of (N,) float32 lightness values (at most ~800
     of them clustered)."""
     sample = np.ascontiguousarray(lightness[::max(1, len(lightness) // 800)].reshape(-1, 1))
-    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5)
-    cv2.setRNGSeed(0)
-    _, _, centres = cv2.kmeans(sample, 2, None, criteria, 1,  # type: ignore[call-overload]
-                               cv2.KMEANS_PP_CENTERS)
-    return float(centres.mean())
+    return float(two_means(sample).mean())
 
 
 def lightness_ratio(lightness: np.ndarray, cut: float | None = None, *,
