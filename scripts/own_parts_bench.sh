@@ -6,6 +6,8 @@
 #   scripts/own_parts_bench.sh BENCH smoothed DIR SEED SET...   # the same scenes with smoothed,
 #                                  stereo-like depth (simulate --depth-model smoothed) in
 #                                  DIR/SEED-SET; score them with SCENES=DIR ... eval OUT SEED SET
+#   scripts/own_parts_bench.sh BENCH pile DIR SEED SET...   # crowded scenes: 8-12 parts a frame,
+#                                  dropped into piles, smoothed depth, in DIR/SEED-SET (SCENES=DIR)
 #   scripts/own_parts_bench.sh BENCH why OUT SEED SET       # each part's outcome by cause
 #   scripts/own_parts_bench.sh BENCH none OUT SEED SET      # each "none" part by cause (rerun)
 #   scripts/own_parts_bench.sh BENCH resolvable OUT SEED SET...  # 5 cm / 5° over the parts the
@@ -46,14 +48,17 @@ make)
     ln -sfn "$BENCH/run/$seed-$k/$k/scenes" "$BENCH/scenes/$seed-$k"
   done; done
   ;;
-smoothed)
-  # as `bench own-parts` simulates a set (its --parts-min/max and T-LESS ids), smoothed depth
+smoothed|pile)
+  # as `bench own-parts` simulates a set (its --parts-min/max and T-LESS ids), smoothed depth;
+  # pile: more parts a frame, dropped onto each other
   DIR=$1; SEED=$2; shift 2
+  crowd=(--parts-min 3 --parts-max 8)
+  [ "$what" = pile ] && crowd=(--parts-min 8 --parts-max 12 --pile)
   for k in "$@"; do
     if [ "$k" = T ]; then models=(--models "$SHARED/data/tless_models_cad_stl" --ids 2 5 8 11 14 19 25 30)
     else models=(--models "$BENCH/parts/$k/models"); fi
     cli simulate "${models[@]}" --out "$DIR/$SEED-$k" --frames 20 --seed "$SEED" \
-      --parts-min 3 --parts-max 8 --depth-model smoothed --no-progress
+      "${crowd[@]}" --depth-model smoothed --no-progress
   done
   ;;
 eval)
