@@ -87,8 +87,8 @@ def limit_blas_threads() -> int | None:
     The stages already run in parallel, one process each, on a few cores. OpenBLAS's worker
     threads spin while they wait for work, so a node that multiplies a few mid-sized matrices
     per frame (the classifier's feature map) kept most of a core busy and slowed the other
-    stages: graph p95 159.5 against 120.8 ms in paired 60 s runs, classifier 65 against 21 %
-    of a core (README). The environment variables also reach worker processes started later.
+    stages (paired runs: docs/design.md, "How frames flow"). The environment variables also reach
+    worker processes started later.
 
     Returns:
         The thread limit applied, or None when one of ``BLAS_THREAD_VARIABLES`` was set.

@@ -4,10 +4,9 @@ The localiser can segment its two views in two threads and the pose estimator ca
 a worker process beside its own thread. That shortens a frame when the other cores are idle
 (a graph at 2 frames/s, lock-step replays, a graph whose entrance runs one frame at a time). In
 a graph whose stages all work at once they are not: the second thread or process then only
-adds contention, hand-offs and a copy of the work's inputs (paired 60 s runs at 30 frames/s on
-2 cores, docs/bench/backpressure.md: with both off, 1.29-1.39 x the frames processed and
-0.74-0.80 x the p95 latency on a host busy with other work). :class:`SpareCpu` measures, per
-stage, whether a core was free while that stage worked, so a stage can decide per frame.
+adds contention, hand-offs and a copy of the work's inputs (docs/bench/backpressure.md).
+:class:`SpareCpu` measures, per stage, whether a core was free while that stage worked, so a
+stage can decide per frame.
 
 The figure comes from the kernel's CPU time counters (``/proc/stat``, Linux), read when a
 frame's work starts and when it ends, and from the stage's own CPU time over the same spans

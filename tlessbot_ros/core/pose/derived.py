@@ -1,8 +1,8 @@
 """What the pose stage derives from a template database before its first frame, as arrays.
 
 Building every object's nearest-sample grid and every template's normals and FPFH takes most
-of a pose node's start (about 15 s of 17 on a 2-core machine: FPFH of 276 templates 11 s, 23
-grids 5 s), and the pose worker process does it again. :func:`derived_arrays` exports them
+of a pose node's start (docs/bench/results-2026-12-04.md), and the pose worker process does it
+again. :func:`derived_arrays` exports them
 (building what is missing) and :func:`restore_derived` puts them back into a freshly loaded
 database, so a second start reads ~50 MB instead (where they are kept is
 :mod:`tlessbot_ros.io.cache`'s business). Restored values are the built ones, bit for bit.
