@@ -22,7 +22,8 @@ from tlessbot_ros.core.localise.fusion_result import (
 from tlessbot_ros.core.localise.gap_colour import apart_by_gap_colour
 from tlessbot_ros.core.localise.instances import LIGHTNESS_GROUPS
 from tlessbot_ros.core.localise.lightness import top_check
-from tlessbot_ros.core.localise.part_scale import mask_length_px
+from tlessbot_ros.core.localise.part_length import longer_than_parts
+from tlessbot_ros.core.localise.part_scale import holds_whole_part, mask_length_px
 from tlessbot_ros.core.localise.segmentation import Segmentation
 from tlessbot_ros.core.localise.table_gap import apart_by_table
 
@@ -192,7 +193,7 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
         else:
             check = top_check(top_rgb, top_labels, owners, params.lightness_top_ratio)
             pieces = _side_pieces_of_blob(blob, side.labels[window], side, params,
-                                          pred[window], owners, check) or [blob]
+                                          pred[window], owners, check, window) or [blob]
             ids, next_id, divided = _label_pieces(
                 pieces, owners, pred[window], None if side_rgb is None else side_rgb[window],
                 kernel, next_id, side.whole_part_px(),
@@ -237,7 +238,8 @@ def _predicted_owners(overlap: np.ndarray, pred_area: np.ndarray, area: int,
 def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
                          params: FusionParams, pred: np.ndarray | None = None,
                          owners: list[int] | None = None,
-                         lit_apart: Callable[[], bool] | None = None) -> list[np.ndarray]:
+                         lit_apart: Callable[[], bool] | None = None,
+                         window: tuple[slice, slice] | None = None) -> list[np.ndarray]:
     """The pieces of one side blob, seen as one part from the top, that the side view tells
     apart: one bool mask per piece (the blob's pixels of no instance join the nearest piece);
     none unless there are two or more, each of ``min_visible_px`` pixels.
@@ -251,7 +253,12 @@ def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
     both views have them apart. Every other pair of instances in the blob is one part.
     ``blob``, ``own`` (the side segmentation's labels) and ``pred`` are cut to the blob's
     window. Lightness halves (their groups from ``LIGHTNESS_GROUPS``) count as a depth split
-    where ``lit_apart`` (None: always) says the top view shows two lightnesses too."""
+    where ``lit_apart`` (None: always) says the top view shows two lightnesses too. With
+    ``apart_longer_than_parts``, two instances that together lie longer on the table than any
+    part (:mod:`.part_length`; ``window``: the blob's window in the image) stay apart
+    too, and with ``apart_each_whole`` two that could each be a whole part, where one top
+    blob is over them all (``owners``): in a pile the top view, farther away, sees touching
+    parts as one blob."""
     ids = np.unique(own[blob])
     ids = ids[(ids > 0) & (ids <= len(side.depth_groups))]
     if ids.size < 2:
@@ -262,13 +269,32 @@ def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
         groups = np.where(lit, 0, groups)   # one part the top sees alike: a shaded face
     thin = side.thin[ids - 1] if len(side.thin) >= ids.max() else np.zeros(ids.size, bool)
     owner_of = np.zeros(ids.size, int)
+    too_long: dict[tuple[int, int], bool] = {}
+    one_owner = owners is not None and len(owners) == 1   # (several: their predictions decide)
+    origin = (0, 0) if window is None else (window[0].start or 0, window[1].start or 0)
+    whole = [one_owner and params.apart_each_whole > 0 and len(side.whole_parts) > 0 and
+             holds_whole_part(blob & (own == j), side.whole_parts, params.apart_each_whole)
+             for j in ids]
+
+    def by_size(a: int) -> bool:
+        return bool(whole[a])
+
+    def by_length(a: int, b: int) -> bool:   # (asked again after owner_of: kept)
+        if not one_owner:
+            return False
+        if (a, b) not in too_long:
+            too_long[a, b] = longer_than_parts(
+                side.depth, side.whole_parts, params.apart_longer_than_parts,
+                blob & np.isin(own, ids[[a, b]]), origin)
+        return too_long[a, b]
 
     def together(a: int, b: int) -> bool:
         by_depth = params.keep_depth_splits and groups[a] > 0 and groups[b] > 0 and \
             groups[a] != groups[b]
         by_height = params.keep_thin_beside_tall and thin[a] != thin[b]
         by_view = owner_of[a] > 0 and owner_of[b] > 0 and owner_of[a] != owner_of[b]
-        return not (by_depth or by_height or by_view)
+        return not (by_depth or by_height or by_view or by_size(a) and by_size(b)
+                    or by_length(a, b))
 
     root_of = pair_roots(ids.size, together)
     if len(set(root_of)) < 2:

@@ -50,6 +50,10 @@ class FusionParams:
         gap_side_instances: two side instances count as two parts there, as two top blobs do.
         lightness_top_ratio: a side blob's lightness halves stay apart only where the top
             view's blobs over it hold two lightnesses this many times apart (0: no check).
+        apart_longer_than_parts: two side instances of one blob stay apart where together
+            they lie longer on the table than this many times the longest part (0: off).
+        apart_each_whole: ... and where each holds this many times the pixels of the smallest
+            whole part as long as it looks (:mod:`.part_scale`; 0: off).
         box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
             in a side box.
     """
@@ -76,6 +80,8 @@ class FusionParams:
     gap_band_px: int = 4
     gap_side_instances: bool = True
     lightness_top_ratio: float = 2.0
+    apart_longer_than_parts: float = 1.1
+    apart_each_whole: float = 1.0
 
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:
@@ -88,6 +94,12 @@ class FusionParams:
         if self.gap_table_floors < 0 or self.gap_band_px < 1:
             raise ValueError('gap_table_floors must be >= 0 and gap_band_px >= 1, got '
                              f'{self.gap_table_floors} and {self.gap_band_px}')
+        if self.apart_longer_than_parts != 0 and self.apart_longer_than_parts < 1:
+            raise ValueError('apart_longer_than_parts must be 0 (off) or at least 1, got '
+                             f'{self.apart_longer_than_parts}')
+        if self.apart_each_whole < 0:
+            raise ValueError(f'apart_each_whole must be >= 0 (0: off), got '
+                             f'{self.apart_each_whole}')
         if not 0.0 <= self.min_overlap_fraction <= 1.0:
             raise ValueError('min_overlap_fraction must be in [0, 1], got '
                              f'{self.min_overlap_fraction}')

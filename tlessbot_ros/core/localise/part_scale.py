@@ -125,8 +125,16 @@ def mask_length_px(mask: np.ndarray) -> float:
 def could_be_whole(piece: np.ndarray, params: SegmentationParams) -> bool:
     """Whether a piece (bool mask) is as large as a whole part as long as it is can be
     (:func:`~tlessbot_ros.core.localise.part_scale.whole_part_px`); True without the parts."""
+    return holds_whole_part(piece, params.whole_parts)
+
+
+def holds_whole_part(piece: np.ndarray,
+                     whole_parts: np.ndarray | tuple[tuple[float, float, float], ...] | None,
+                     factor: float = 1.0) -> bool:
+    """Whether a piece (bool mask) holds ``factor`` times the smallest whole part as long as
+    it looks (:func:`whole_part_px` of ``whole_parts``); True without the parts."""
     return cv2.countNonZero(np.ascontiguousarray(piece, np.uint8)) >= \
-        whole_part_px(params.whole_parts, 0.0, mask_length_px(piece))
+        factor * whole_part_px(whole_parts, 0.0, mask_length_px(piece))
 
 
 def join_pieces_no_part_fits(pieces: list[np.ndarray], params: SegmentationParams
@@ -233,6 +241,6 @@ def _sized(params: SegmentationParams, extents: tuple[float, ...], K: tuple[floa
                    largest_part_px_m2=largest)
 
 
-__all__ = ['could_be_whole', 'join_pieces_no_part_fits', 'largest_part_px_m2',
+__all__ = ['could_be_whole', 'holds_whole_part', 'join_pieces_no_part_fits', 'largest_part_px_m2',
            'longest_part_px', 'mask_length_px', 'part_view_areas', 'part_view_size',
            'several_parts', 'view_segmentation', 'whole_part_px']

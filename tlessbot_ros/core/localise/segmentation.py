@@ -41,6 +41,7 @@ from tlessbot_ros.core.localise.cues import (
 )
 from tlessbot_ros.core.localise.instances import instances_at_scale, watershed_refine
 from tlessbot_ros.core.localise.params import SegmentationParams
+from tlessbot_ros.core.localise.part_length import ViewDepth
 from tlessbot_ros.core.localise.part_scale import whole_part_px
 from tlessbot_ros.core.localise.small_parts import small_blobs_from_depth, table_coloured
 from tlessbot_ros.core.localise.thin import raised_thin_blobs, thin_instances
@@ -68,6 +69,8 @@ class Segmentation:
             filter: a gap of a few pixels between two parts shows), None without depth.
         colour_floors: (3,) the colour cues' smallest cut-offs in LAB (``grey_floor``,
             ``lab_floor``, ``lab_floor``): the unit of a colour difference in this view.
+        depth: the view's depth and camera, to measure a region on the table
+            (:mod:`.part_length`); None without depth, and in a view not split by depth.
         cues: per-method bool candidate masks at ``params.cue_scale`` (for inspection).
         timings_ms: wall time per stage in milliseconds: 'lab' (conversion), 'depth',
             'cue_<method>' per colour cue, 'cues' (the union), 'watershed', 'instances' and
@@ -84,6 +87,7 @@ class Segmentation:
     whole_parts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     colour_floors: np.ndarray = field(default_factory=lambda: _colour_floors(
         SegmentationParams()))
+    depth: ViewDepth | None = None
     cues: dict[str, np.ndarray] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
 
@@ -192,7 +196,19 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
                         depth_groups=groups, thin=thin, cues=cues, timings_ms=watch.total(),
                         table_seen=_table_seen(depth_cue, params, rgb.shape),
                         whole_parts=np.array(params.whole_parts or (), float).reshape(-1, 3),
-                        colour_floors=_colour_floors(params))
+                        colour_floors=_colour_floors(params),
+                        depth=_view_depth(depth_m, intrinsics, T_world_camera, params)
+                        if split_by_depth and depth_cue is not None else None)
+
+
+def _view_depth(depth_m: np.ndarray | None, intrinsics: CameraIntrinsics | np.ndarray | None,
+                T_world_camera: np.ndarray | None, params: SegmentationParams
+                ) -> ViewDepth | None:
+    """The view's :class:`~.part_length.ViewDepth` (None without depth or camera)."""
+    if depth_m is None or intrinsics is None or T_world_camera is None:
+        return None
+    return ViewDepth(depth_m, np.asarray(getattr(intrinsics, 'K', intrinsics), np.float64),
+                     np.asarray(T_world_camera, np.float64), params.depth_min_height_m)
 
 
 def _colour_floors(params: SegmentationParams) -> np.ndarray:

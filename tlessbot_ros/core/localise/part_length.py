@@ -1,0 +1,78 @@
+"""How long a region of one view is on the table, in metres, from that view's depth: a region
+longer than the longest part of the set holds several parts.
+
+The parts' largest extents are known (``SegmentationParams.whole_parts``); the image length of
+a region is not enough to compare with them, since a part's image length depends on where it
+lies and how it is turned. Its depth, lifted into the table frame, gives the region's points;
+their spread along their main direction on the table (between the ``_TAIL`` and the
+``1 - _TAIL`` quantiles, so the few mixed pixels a stereo-like depth puts beyond a part's
+outline do not count) is a length that a whole part cannot exceed by more than that noise.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# The share of a region's points left out at each end of its length.
+_TAIL = 0.01
+# The fewest points a length is read from.
+_MIN_POINTS = 30
+
+
+@dataclass(frozen=True)
+class ViewDepth:
+    """One view's depth and camera, to lift the pixels of a region into the table frame.
+
+    Attributes:
+        depth_m: (H, W) float depth in metres (0 / NaN invalid), aligned to the labels.
+        K: (3, 3) the camera's intrinsics.
+        T_world_camera: (4, 4) the camera's pose in the table frame (z up, table at z = 0).
+        min_height_m: points lower than this above the table are table, not part.
+    """
+
+    depth_m: np.ndarray
+    K: np.ndarray
+    T_world_camera: np.ndarray
+    min_height_m: float = 0.004
+
+    def table_xy(self, mask: np.ndarray, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+        """(N, 2) float64 table-frame x, y (m) of the valid pixels of ``mask`` (a bool crop
+        whose first pixel is ``origin`` = (row, column) of the image) higher than
+        ``min_height_m`` above the table."""
+        ys, xs = np.nonzero(mask)
+        ys, xs = ys + origin[0], xs + origin[1]
+        z = np.nan_to_num(np.asarray(self.depth_m[ys, xs], np.float64), nan=0.0, posinf=0.0)
+        ok = z > 0
+        K = self.K
+        cam = np.column_stack([(xs[ok] - K[0, 2]) * z[ok] / K[0, 0],
+                               (ys[ok] - K[1, 2]) * z[ok] / K[1, 1], z[ok]])
+        world = cam @ self.T_world_camera[:3, :3].T + self.T_world_camera[:3, 3]
+        raised: np.ndarray = world[world[:, 2] > self.min_height_m, :2]
+        return raised
+
+
+def table_length_m(xy: np.ndarray) -> float:
+    """The length (m) of (N, 2) table points along their main direction, between the
+    ``_TAIL`` and ``1 - _TAIL`` quantiles; 0 with fewer than ``_MIN_POINTS`` points."""
+    if len(xy) < _MIN_POINTS:
+        return 0.0
+    centred = xy - xy.mean(axis=0)
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)
+    along = centred @ axes[0]
+    low, high = np.quantile(along, [_TAIL, 1.0 - _TAIL])
+    return float(high - low)
+
+
+def longer_than_parts(depth: ViewDepth | None, whole_parts: np.ndarray, ratio: float,
+                      mask: np.ndarray, origin: tuple[int, int] = (0, 0)) -> bool:
+    """Whether the region ``mask`` (a bool crop at ``origin``) is longer on the table than
+    ``ratio`` times the longest part (``whole_parts[:, 0]``, m): several parts. False without
+    the view's depth, the parts or a ratio (0: off)."""
+    if depth is None or ratio <= 0 or not len(whole_parts):
+        return False
+    longest = float(np.max(whole_parts[:, 0]))
+    return table_length_m(depth.table_xy(mask, origin)) > ratio * longest
+
+
+__all__ = ['ViewDepth', 'longer_than_parts', 'table_length_m']
