@@ -458,6 +458,42 @@ def test_the_depth_turn_may_not_overturn_what_the_aligned_votes_ranked_lower():
     assert not check.ranked_lower(T1, T0)           # the other way round it ranked higher
 
 
+def test_the_depth_turn_compares_the_turn_with_the_pose_refitted_alike():
+    # a strip 80 x 16 x 3 mm whose faces differ only by a 6 mm notch at one corner, its pose
+    # right but 2 mm off in the table plane (as an image step may leave it): each turn is
+    # refitted to the depth, and against the pose as it is the refit alone wins the vote;
+    # against the pose refitted alike the turn keeps only what its face changes, and loses
+    from dataclasses import replace
+
+    from tlessbot_ros.core.pose.flat import FlatParams
+
+    v, f = _boxes(((0, 0, 0), (0.08, 0.010, 0.003)), ((0, 0.010, 0), (0.074, 0.016, 0.003)))
+    flipped = make_transform(rotation_about_axis([1.0, 0.0, 0.0], np.pi), [0, 0.016, 0.003])
+    db = build_database([(1, v, f, [(np.eye(4), 0.5), (flipped, 0.5)], None)],
+                        intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera)
+    obj = db[1]
+    T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(25)), [0, 0, 0])
+    _, depth, mask = _scene(v, f, T_world_object, noise_m=0.0005, seed=2)
+    points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
+    T_camera_world = np.linalg.inv(SIDE.T_world_camera)
+    T_true = T_camera_world @ T_world_object
+    slid = make_transform(np.eye(3), [0.002, 0.002, 0.0])
+    T_right = T_camera_world @ slid @ T_world_object
+    T_wrong = T_camera_world @ slid @ T_world_object @ flipped
+    as_it_is = FlatCheck(Refiner(PoseParams()), replace(FlatParams(), depth_refit_both=False))
+    turned, _ = as_it_is.depth_turn(obj, T_right, points, T_world_camera=SIDE.T_world_camera)
+    assert turned is not None and rotation_angle_deg(turned[:3, :3], T_true[:3, :3]) > 90
+    check = FlatCheck(Refiner(PoseParams()))
+    assert check.params.depth_refit_both
+    kept, vote = check.depth_turn(obj, T_right, points, T_world_camera=SIDE.T_world_camera)
+    assert kept is None and vote == 0.0
+    # the wrong face is still turned back
+    turned, vote = check.depth_turn(obj, T_wrong, points, T_world_camera=SIDE.T_world_camera)
+    assert turned is not None and vote > 0
+    assert rotation_angle_deg(turned[:3, :3], T_true[:3, :3]) < 5.0
+    assert np.linalg.norm(turned[:3, 3] - T_true[:3, 3]) < 0.002
+
+
 # ------------------------------------------------------------------- level on the table
 @pytest.mark.parametrize('standing', [False, True])
 def test_a_flat_part_the_depth_leaves_rolled_is_levelled_on_the_table(standing):

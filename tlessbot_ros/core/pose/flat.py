@@ -28,9 +28,9 @@ the fitted pose's polish, and :func:`~.flat_turns.refine_yaw` checks the yaw on 
 Unless the aligned votes decided, the depth has the last word (:meth:`FlatCheck.depth_turn`):
 the final pose turned by half a turn about each principal axis of the mesh, each refitted to
 the ROI cloud, is ray-cast along the part's depth pixels in every view, and a turn that
-explains more of them by a clear margin (:func:`~.lookalike.pooled_vote`, within
-``depth_tolerance_m``, ``depth_min_z``; a pixel the mesh misses, where a hole is, expects the
-table behind it) replaces it.
+explains more of them than the pose refitted alike (``depth_refit_both``) by a clear margin
+(:func:`~.lookalike.pooled_vote`, within ``depth_tolerance_m``, ``depth_min_z``; a pixel the
+mesh misses, where a hole is, expects the table behind it) replaces it.
 
 Poses are ``T_camera_object`` (4, 4) float64, metres, optical frame.
 """
@@ -349,8 +349,9 @@ class FlatCheck:
         principal box), each refitted to the ROI cloud point-to-plane
         (:func:`~.flat_turns.refit_to_surface`), replaces it when it explains the depth of
         every view better by a clear margin (with the table frame ``T_world_camera``, a pixel
-        the mesh misses expects the table, :func:`~.lookalike.depth_errors`). Returns (the
-        turned pose or None, its vote)."""
+        the mesh misses expects the table, :func:`~.lookalike.depth_errors`) than the pose
+        refitted alike (``depth_refit_both``; else the pose as it is). Returns (the turned
+        pose or None, its vote)."""
         from tlessbot_ros.core.pose.lookalike import depth_errors, pooled_vote, view_planes
 
         mesh = mesh_scene(obj)
@@ -366,7 +367,10 @@ class FlatCheck:
                    if len(points)]
         if not clouds3:
             return None, 0.0
-        own = [depth_errors(mesh, T @ T0, points, plane) for T, points, plane in clouds3]
+        # the incumbent gets the refit each turn gets: a turn wins on the face it shows, not
+        # on the refit's slide onto the depth (smoothed depth, a pose the image moved)
+        incumbent = refit_to_surface(obj, T0, points_c) if self.params.depth_refit_both else T0
+        own = [depth_errors(mesh, T @ incumbent, points, plane) for T, points, plane in clouds3]
         best: np.ndarray | None = None
         best_vote = 0.0
         for turn in turns:

@@ -47,6 +47,8 @@ class FlatParams:
             this, m (>= 0).
         depth_min_z: the depth vote overturns the pose only with a surplus above this many
             coin-toss deviations (>= 0).
+        depth_refit_both: the depth vote compares each turn with the pose refitted to the
+            depth as the turn is, not with the pose as it is.
         align_at_1m_m: each pose's rendering is aligned to the view by shifts that cover the
             fit's error in the table plane, this at 1 m, growing with distance², m (>= 0).
         align_min_z: a turned pose wins the aligned vote only with a surplus above this many
@@ -76,6 +78,7 @@ class FlatParams:
     yaw_min_gain: float = 0.02
     depth_tolerance_m: float = 0.002
     depth_min_z: float = 2.0
+    depth_refit_both: bool = True
     align_at_1m_m: float = 0.010
     align_min_z: float = 3.0
     yaw_turns: int = 6
