@@ -237,3 +237,51 @@ def test_the_last_labelling_gives_what_no_fit_explains_to_the_nearer_part(touchi
     out = reassigned(pipeline, bumped['side'], labels, *jobs, final=True)
     assert np.all(out[patch] == 2)
     assert [len(job.points) for job in jobs] == before
+
+
+@pytest.fixture(scope='module')
+def two_blocks():
+    """Two blocks 40 x 30 x 20 mm with a 10 mm step on top (no flat part), lying side by side
+    on the table 1 mm apart, one region (label 1) holding both, as a pile merges them; the
+    database knows the block alone (id 2)."""
+    trimesh = pytest.importorskip('trimesh')
+    boxes = [((0, 0, 0), (0.04, 0.03, 0.01)), ((0, 0, 0.01), (0.025, 0.03, 0.02))]
+    mesh = trimesh.util.concatenate([trimesh.creation.box(
+        extents=np.subtract(hi, lo), transform=make_transform(np.eye(3), np.add(lo, hi) / 2))
+        for lo, hi in boxes])
+    v, f = np.asarray(mesh.vertices) - [0.02, 0.015, 0.0], np.asarray(mesh.faces)
+    db = build_database([(2, v, f, [(np.eye(4), 1.0)], None)],
+                        intrinsics=SIDE.intrinsics, T_world_camera=SIDE.T_world_camera)
+    turn = rotation_about_axis([0, 0, 1], np.radians(25))
+    poses = [make_transform(turn, [-0.03, 0.0, 0.0]),
+             make_transform(turn, turn @ np.array([0.041, 0.0, 0.0]) + [-0.03, 0.0, 0.0])]
+    renderer = MeshRenderer()
+    renderer.add_mesh(*TABLE)
+    for T in poses:
+        renderer.add_mesh(v, f, T)
+    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
+    first, second = view.instance == 1, view.instance == 2
+    assert first.sum() > 500 and second.sum() > 500
+    rng = np.random.default_rng(0)
+    depth = (view.depth_m + rng.normal(0, 0.0005, first.shape) * (view.depth_m > 0)).astype(
+        np.float32)
+    rgb = np.full((*first.shape, 3), 120, np.uint8)
+    rgb[first | second] = (70, 100, 190)
+    views = {'side': ViewInput(rgb, depth, SIDE.intrinsics, SIDE.T_world_camera)}
+    return db, views, (first | second).astype(np.uint16), first, second
+
+
+def test_two_thick_parts_in_one_region_are_divided_with_split_thick_parts(two_blocks):
+    """Piles (issue 41): thick parts that touch are one region where no depth seam parts
+    them; with ``split_thick_parts`` the division after the fit runs for them too."""
+    db, views, region, first, second = two_blocks
+    off = PerceptionPipeline(templates=db, pose=POSE)
+    assert off.fit_params.split_thick_parts is False
+    assert len(off.estimate_poses(views, {'side': region.copy()}, {1: (2,)})) == 1
+    labels = {'side': region.copy()}
+    found = PerceptionPipeline(templates=db, pose=POSE,
+                               fit_params=FitParams(split_thick_parts=True)).estimate_poses(
+        views, labels, {1: (2,)})
+    assert len(found) == 2 and all(d.obj_id == 2 and d.pose is not None for d in found)
+    for part in (first, second):   # each block has a region of its own
+        assert max(np.mean(labels['side'][part] == d.instance_id) for d in found) > 0.8

@@ -148,6 +148,8 @@ class FitParams:
             the worse joins the better (0..1; 0: off).
         split_unexplained: a connected piece of a region's depth points (at least
             ``min_roi_points``) that its fit leaves unexplained is fitted as a part of its own.
+        split_thick_parts: that division also where neither side is a flat part (off: only
+            where one is; thick parts are left to the depth's seams).
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
             visible surface, but against their look-alike twin (>= 0; 0: off).
         flat: flat parts: the face that is up (depth and colour image), the yaw and a look-alike
@@ -191,6 +193,7 @@ class FitParams:
     unknown_below_cover: float = 0.5
     unknown_without_fit: bool = False
     split_unexplained: bool = True
+    split_thick_parts: bool = False
     join_refit_cover: float = 0.8
     join_refit_gap_px: int = 3
     join_refit_touching: bool = True

@@ -190,7 +190,8 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
     pose) refitted on what is left; else None and nothing changed. A piece that is a band
     along the rest's edge (``FitParams.edge_band_px``) is erased instead, the rest divided
     and refitted all the same, and None returned."""
-    if not pipeline.flat_ids:   # no flat part: the depth's seams divide touching parts
+    thick_too = pipeline.fit_params.split_thick_parts
+    if not pipeline.flat_ids and not thick_too:   # the depth's seams divide thick parts
         return None
     pieces = piece_in_views(pipeline, job, views, labels)
     detection = job.detection
@@ -209,7 +210,8 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
         return None   # a part found in a region of its own too
     rest = divided_job(pipeline, job, views, divided, detection.instance_id)
     if rest is None or not fits_alone(pipeline, rest) or not apart(pipeline, piece, rest) or \
-            not {piece.detection.obj_id, rest.detection.obj_id} & pipeline.flat_ids:
+            not thick_too and not {piece.detection.obj_id, rest.detection.obj_id} & \
+            pipeline.flat_ids:
         return None
     view = views[detection.view]
     divided[detection.view] = reassigned(pipeline, view, divided[detection.view], rest, piece)
