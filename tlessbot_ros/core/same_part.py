@@ -54,7 +54,8 @@ def shared_share(points_a: np.ndarray, normals_a: np.ndarray, points_b: np.ndarr
     return float(np.count_nonzero(inside | (on_surface & same_facing)) / len(points_a))
 
 
-def _posed(database: TemplateDatabase, job: PartJob) -> tuple[np.ndarray, np.ndarray] | None:
+def posed_samples(database: TemplateDatabase, job: PartJob
+                  ) -> tuple[np.ndarray, np.ndarray] | None:
     """A fitted job's model samples and normals in its fragment-filter frame (the world where
     it has a table frame, else its camera), or None: no pose or no known class."""
     detection = job.detection
@@ -92,7 +93,7 @@ def same_part_test(min_share: float, estimator: PoseEstimator | None,
         if job_a is not None and job_b is not None and a.obj_id == b.obj_id and \
                 (job_a.T_world_camera is not None) == (job_b.T_world_camera is not None) and \
                 (job_a.T_world_camera is not None or a.view == b.view):
-            posed_a, posed_b = _posed(database, job_a), _posed(database, job_b)
+            posed_a, posed_b = posed_samples(database, job_a), posed_samples(database, job_b)
             if posed_a is not None and posed_b is not None:
                 spacing = database[a.obj_id].sample_spacing_m()
                 answer = min(shared_share(*posed_a, *posed_b, spacing),
@@ -102,4 +103,4 @@ def same_part_test(min_share: float, estimator: PoseEstimator | None,
     return same
 
 
-__all__ = ['same_part_test', 'shared_share']
+__all__ = ['posed_samples', 'same_part_test', 'shared_share']

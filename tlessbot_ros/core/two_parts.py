@@ -46,6 +46,7 @@ from tlessbot_ros.core.pose import inside_outline, roi_cloud
 from tlessbot_ros.core.pose.silhouette import silhouette, window
 from tlessbot_ros.core.recognise import UNKNOWN_ID
 from tlessbot_ros.core.resting_check import check_resting_and_turns
+from tlessbot_ros.core.same_part import posed_samples, shared_share
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.frame import ViewInput
@@ -209,9 +210,10 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
     if any(same_place(pipeline, piece, other) for other in others if other is not job):
         return None   # a part found in a region of its own too
     rest = divided_job(pipeline, job, views, divided, detection.instance_id)
-    if rest is None or not fits_alone(pipeline, rest) or not apart(pipeline, piece, rest) or \
-            not thick_too and not {piece.detection.obj_id, rest.detection.obj_id} & \
-            pipeline.flat_ids:
+    if rest is None or not fits_alone(pipeline, rest) or not apart(pipeline, piece, rest):
+        return None
+    if not {piece.detection.obj_id, rest.detection.obj_id} & pipeline.flat_ids and \
+            (not thick_too or fill_one_space(pipeline, piece, rest)):
         return None
     view = views[detection.view]
     divided[detection.view] = reassigned(pipeline, view, divided[detection.view], rest, piece)
@@ -385,6 +387,21 @@ def apart(pipeline: PerceptionPipeline, a: PartJob, b: PartJob) -> bool:
         if share >= p.unknown_below_fitness and covered >= p.unknown_below_cover:
             return False
     return True
+
+
+def fill_one_space(pipeline: PerceptionPipeline, a: PartJob, b: PartJob) -> bool:
+    """Whether either fitted model has ``FitParams.same_part_share`` of its surface samples
+    inside the other (:func:`~tlessbot_ros.core.same_part.shared_share`): two rigid parts
+    cannot, so the piece is a part of the rest's, left out by a fit a little off (a thick
+    part's piece, which the depth's seams do not bound)."""
+    database = pose_stage(pipeline.pose_estimator).database
+    posed = [posed_samples(database, job) for job in (a, b)]
+    if posed[0] is None or posed[1] is None or pipeline.fit_params.same_part_share <= 0:
+        return False
+    spacing = max(database[job.detection.obj_id].sample_spacing_m() for job in (a, b))
+    return max(shared_share(*posed[0], *posed[1], spacing),
+               shared_share(*posed[1], *posed[0], spacing)) >= \
+        pipeline.fit_params.same_part_share
 
 
 def same_place(pipeline: PerceptionPipeline, a: PartJob, b: PartJob) -> bool:
