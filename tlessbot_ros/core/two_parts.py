@@ -212,8 +212,8 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
     rest = divided_job(pipeline, job, views, divided, detection.instance_id)
     if rest is None or not fits_alone(pipeline, rest) or not apart(pipeline, piece, rest):
         return None
-    if not {piece.detection.obj_id, rest.detection.obj_id} & pipeline.flat_ids and \
-            (not thick_too or fill_one_space(pipeline, piece, rest)):
+    if not thick_too and not {piece.detection.obj_id, rest.detection.obj_id} & \
+            pipeline.flat_ids:
         return None
     view = views[detection.view]
     divided[detection.view] = reassigned(pipeline, view, divided[detection.view], rest, piece)
@@ -233,6 +233,9 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
         fitted.detection.box = mask_box(mask)
     if seen_share(pipeline, piece, view, divided[detection.view]) < MIN_COVERAGE:
         return None   # a part hidden or seen through where it is fitted: not seen (module)
+    if not {piece.detection.obj_id, rest.detection.obj_id} & pipeline.flat_ids and (
+            same_place(pipeline, piece, rest) or fill_one_space(pipeline, piece, rest)):
+        return None   # thick, and the refits put the piece back on the rest's part
     edge = piece.detection.instance_id if is_edge_band(
         divided[detection.view], piece.detection.instance_id, detection.instance_id,
         pipeline.fit_params.edge_band_px) else None
