@@ -11,19 +11,19 @@ their frames are run again). The pipeline runs as ``tlessbot evaluate`` does, wi
 labels (the regions the pose stage gets), every fit and the fragment filter's decisions
 recorded. Per far part:
 
-- ``twins``: how many parts of its class the frame holds; ``twin_posed``: every pose of its
-  class lies within 5 cm of one of its twins (the part itself got none);
+- ``twins``: how many other parts of its class the frame holds; ``twin_posed``: every pose of
+  its class lies within 5 cm of one of its twins (the part itself got none);
 - ``region``: the fused region over most of its pixels in the view it is best seen in:
   ``alone`` (>= 60 % of the region is the part, it covers >= 50 % of the part), ``fragment``
   (mostly the part, under half of it), ``with twin`` / ``with other`` (one more part
   >= 20 % of it), ``several`` (two more), ``other`` (mostly another part), ``none``;
-- ``fits``: each fit made on that region (class, distance of its centre to the part and to
-  the nearest other part, kept / dropped by the fragment filter and why);
-- ``cause``: the first of: ``no region``, ``region merged`` (with twin / other / several, one
-  pose), ``named other`` (its own region fitted as another class), ``dropped`` (a fit of its
-  class within 5 cm dropped by the fragment filter), ``pose off`` (its own region fitted as
-  its class, the pose > 5 cm off), ``no fit``; ``named other (its class offered)``: its class
-  was among the region's candidates, the fit named another.
+- ``fits``: each fit made on that region (class [candidates], distance of its centre to the
+  part / the nearest other part and its distance, kept / dropped by the fragment filter);
+- ``cause``: the first that holds: ``no region``; ``dropped`` (a fit of its class within 5 cm
+  dropped by the fragment filter); ``region KIND`` (the region is not the part's alone);
+  ``named other`` (its own region fitted as another class; ``(its class offered)``: its class
+  was among the candidates); ``no fit``; ``pose off`` (its own region fitted as its class,
+  the pose > 5 cm off).
 """
 from __future__ import annotations
 
