@@ -22,14 +22,12 @@ from pathlib import Path
 import numpy as np
 
 import tlessbot_ros.core.flat_parts as fp
-from tlessbot_ros.core.common import SIDE, TOP, rotation_angle_deg
-from tlessbot_ros.core.pipeline import ViewInput
+from tlessbot_ros.core.common import TOP, rotation_angle_deg
 from tlessbot_ros.core.pose import PoseParams, TemplateDatabase, lookalike
 from tlessbot_ros.core.pose import flat as flat_module
 from tlessbot_ros.core.pose.flat_turns import mesh_scene, principal_half_turns, refit_to_surface
 from tlessbot_ros.core.recognise import LinearClassifier
-from tlessbot_ros.io.bop import read_split
-from tlessbot_ros.tools.support.eval_frames import _first_pipeline
+from tlessbot_ros.tools.support.eval_frames import _first_pipeline, two_view_frames
 from tlessbot_ros.tools.support.overrides import stage_overrides
 
 STATE: dict = {}
@@ -104,13 +102,9 @@ def main() -> None:
     flat_module.FlatCheck.depth_turn = traced_depth_turn
     templates = TemplateDatabase.load(args.parts / 'templates.npz')
     classifier = LinearClassifier.load(args.parts / 'classifier.npz')
-    readers = {v: read_split(args.scenes, f'test_{v}') for v in (TOP, SIDE)}
     STATE['out'] = args.out.open('w')
     pipeline = None
-    for images in zip(*readers.values()):
-        if frames and images[0].im_id not in frames:
-            continue
-        by_view = dict(zip((TOP, SIDE), images))
+    for by_view, inputs in two_view_frames(args.scenes, frames or None):
 
         def truth(obj_id, T0, by_view=by_view):
             parts = [g.T_camera_object for g in by_view[STATE['view']].gt if g.obj_id == obj_id]
@@ -118,9 +112,7 @@ def main() -> None:
             return near if near is not None and \
                 np.linalg.norm(near[:3, 3] - T0[:3, 3]) < 0.02 else None
 
-        STATE.update(frame=images[0].im_id, truth=truth)
-        inputs = {v: ViewInput(i.rgb, i.depth_m, i.intrinsics, i.T_world_camera)
-                  for v, i in by_view.items()}
+        STATE.update(frame=by_view[TOP].im_id, truth=truth)
         if pipeline is None:
             pipeline = _first_pipeline(by_view, classifier=classifier, templates=templates,
                                        pose=PoseParams(), **stage_overrides(None))

@@ -37,11 +37,12 @@ from pathlib import Path
 import numpy as np
 
 from tlessbot_ros.core import pipeline as pipeline_module
-from tlessbot_ros.core.common import SIDE, TOP, CameraMount, Rig
-from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
+from tlessbot_ros.core.common import SIDE, TOP
+from tlessbot_ros.core.pipeline import PerceptionPipeline
 from tlessbot_ros.core.pose import TemplateDatabase
 from tlessbot_ros.core.recognise import LinearClassifier
-from tlessbot_ros.io.bop import read_split
+from tlessbot_ros.tools.support.eval_frames import _first_pipeline, two_view_frames
+from tlessbot_ros.tools.support.overrides import stage_overrides
 
 record: dict = {}
 PACKAGED = Path(__file__).resolve().parents[1] / 'tlessbot_ros' / 'data'
@@ -225,21 +226,14 @@ def main() -> None:
     _hook()
     database, model, names = _load(args.parts)
     pipeline, rows = None, []
-    readers = [read_split(args.scenes, f'test_{v}') for v in (TOP, SIDE)]
-    for top, side in zip(*readers):
-        if (side.scene_id, side.im_id) not in far or \
-                args.frames is not None and side.im_id not in args.frames:
+    for by_view, views in two_view_frames(args.scenes, args.frames):
+        top, side = by_view[TOP], by_view[SIDE]
+        if (side.scene_id, side.im_id) not in far:
             continue
-        by_view = {TOP: top, SIDE: side}
         if pipeline is None:
-            from tlessbot_ros.tools.support.overrides import stage_overrides
-            rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera)
-                       for v, im in by_view.items()})
-            pipeline = PerceptionPipeline(rig=rig, classifier=model, templates=database,
-                                          **stage_overrides(args.pipeline_param))
+            pipeline = _first_pipeline(by_view, classifier=model, templates=database,
+                                       **stage_overrides(args.pipeline_param))
         record.clear()
-        views = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera)
-                 for v, im in by_view.items()}
         result = pipeline.process(views)
         for k in far[(side.scene_id, side.im_id)]:
             rows.append(_trace_part(k, side, top, views, result, names))

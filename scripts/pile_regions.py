@@ -33,9 +33,9 @@ import numpy as np
 
 from tlessbot_ros.core import pipeline as pipeline_module
 from tlessbot_ros.core.common import SIDE, TOP, CameraMount, Rig
-from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
+from tlessbot_ros.core.pipeline import PerceptionPipeline
 from tlessbot_ros.core.pose import TemplateDatabase
-from tlessbot_ros.io.bop import read_split
+from tlessbot_ros.tools.support.eval_frames import two_view_frames
 from tlessbot_ros.tools.support.overrides import stage_overrides
 
 SHARE = 0.2
@@ -137,14 +137,9 @@ def main() -> None:
     rows: list[list[dict]] = [[] for _ in settings]
     false, regions = [0] * len(settings), [0] * len(settings)
     differ = []
-    readers = [read_split(args.scenes, f'test_{v}') for v in (TOP, SIDE)]
-    for top, side in zip(*readers):
-        if args.frames is not None and side.im_id not in args.frames:
-            continue
-        by_view = {TOP: top, SIDE: side}
+    for by_view, views in two_view_frames(args.scenes, args.frames):
+        top, side = by_view[TOP], by_view[SIDE]
         pipelines = pipelines or [_pipeline(by_view, database, o) for o in settings]
-        views = {v: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera)
-                 for v, im in by_view.items()}
         labels = []
         for n, pipeline in enumerate(pipelines):
             record.clear()

@@ -5,7 +5,7 @@ variants) and the ROS graph on a bag. Each yields (image, FrameOutput) pairs for
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import replace
 from pathlib import Path
 
@@ -103,6 +103,22 @@ def _pose_workers(templates_path: Path, pose_params, fit_params, count: int):
         workers.close()
         raise TlessbotError(f'pose workers did not start: {"; ".join(workers.errors)}')
     return workers
+
+
+def two_view_frames(scenes: Path, frames: Collection[int] | None = None
+                    ) -> Iterator[tuple[dict, dict]]:
+    """Each frame of a two-view dataset (``test_top`` and ``test_side``), or those whose image
+    id is in ``frames``: (the BOP images by view, the pipeline's ``ViewInput`` by view)."""
+    from tlessbot_ros.core.pipeline import ViewInput
+    from tlessbot_ros.io.bop import read_split
+
+    readers = [read_split(scenes, f'test_{view}') for view in (TOP, SIDE)]
+    for images in zip(*readers):
+        if frames is not None and images[0].im_id not in frames:
+            continue
+        by_view = dict(zip((TOP, SIDE), images))
+        yield by_view, {view: ViewInput(im.rgb, im.depth_m, im.intrinsics, im.T_world_camera)
+                        for view, im in by_view.items()}
 
 
 def _check_frame(dataset: Path, images, scored, two_view: bool) -> None:
