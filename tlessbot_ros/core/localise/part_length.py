@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tlessbot_ros.core.common import depth_to_points, transform_points
+
 # The share of a region's points left out at each end of its length.
 _TAIL = 0.01
 # The fewest points a length is read from.
@@ -40,14 +42,14 @@ class ViewDepth:
         """(N, 2) float64 table-frame x, y (m) of the valid pixels of ``mask`` (a bool crop
         whose first pixel is ``origin`` = (row, column) of the image) higher than
         ``min_height_m`` above the table."""
-        ys, xs = np.nonzero(mask)
-        ys, xs = ys + origin[0], xs + origin[1]
-        z = np.nan_to_num(np.asarray(self.depth_m[ys, xs], np.float64), nan=0.0, posinf=0.0)
-        ok = z > 0
-        K = self.K
-        cam = np.column_stack([(xs[ok] - K[0, 2]) * z[ok] / K[0, 0],
-                               (ys[ok] - K[1, 2]) * z[ok] / K[1, 1], z[ok]])
-        world = cam @ self.T_world_camera[:3, :3].T + self.T_world_camera[:3, 3]
+        row0, col0 = origin
+        rows, cols = mask.shape
+        K = np.array(self.K, np.float64)   # the crop's camera: the principal point moves
+        K[0, 2] -= col0
+        K[1, 2] -= row0
+        cam, _ = depth_to_points(self.depth_m[row0:row0 + rows, col0:col0 + cols], K,
+                                 mask=mask)
+        world = transform_points(self.T_world_camera, cam.astype(np.float64))
         raised: np.ndarray = world[world[:, 2] > self.min_height_m, :2]
         return raised
 
