@@ -72,6 +72,19 @@ def posed_samples(database: TemplateDatabase, job: PartJob
     return points, normals
 
 
+def shared_shares(database: TemplateDatabase, job_a: PartJob, job_b: PartJob
+                  ) -> tuple[float, float] | None:
+    """(a's share in b, b's share in a) of two fitted jobs' model surfaces
+    (:func:`shared_share`, at the coarser of their sample spacings), or None where either has
+    no pose or no known class."""
+    posed_a, posed_b = posed_samples(database, job_a), posed_samples(database, job_b)
+    if posed_a is None or posed_b is None:
+        return None
+    spacing = max(database[job.detection.obj_id].sample_spacing_m() for job in (job_a, job_b))
+    return (shared_share(*posed_a, *posed_b, spacing),
+            shared_share(*posed_b, *posed_a, spacing))
+
+
 def same_part_test(min_share: float, estimator: PoseEstimator | None,
                    jobs: Sequence[PartJob]) -> Callable[[Detection, Detection], bool] | None:
     """``same(a, b)`` for the fragment filter: ``a`` and ``b`` are fitted as one class, in
@@ -93,14 +106,11 @@ def same_part_test(min_share: float, estimator: PoseEstimator | None,
         if job_a is not None and job_b is not None and a.obj_id == b.obj_id and \
                 (job_a.T_world_camera is not None) == (job_b.T_world_camera is not None) and \
                 (job_a.T_world_camera is not None or a.view == b.view):
-            posed_a, posed_b = posed_samples(database, job_a), posed_samples(database, job_b)
-            if posed_a is not None and posed_b is not None:
-                spacing = database[a.obj_id].sample_spacing_m()
-                answer = min(shared_share(*posed_a, *posed_b, spacing),
-                             shared_share(*posed_b, *posed_a, spacing)) >= min_share
+            shares = shared_shares(database, job_a, job_b)
+            answer = shares is not None and min(shares) >= min_share
         cache[key] = answer
         return answer
     return same
 
 
-__all__ = ['posed_samples', 'same_part_test', 'shared_share']
+__all__ = ['posed_samples', 'same_part_test', 'shared_share', 'shared_shares']

@@ -46,7 +46,7 @@ from tlessbot_ros.core.pose import inside_outline, roi_cloud
 from tlessbot_ros.core.pose.silhouette import silhouette, window
 from tlessbot_ros.core.recognise import UNKNOWN_ID
 from tlessbot_ros.core.resting_check import check_resting_and_turns
-from tlessbot_ros.core.same_part import posed_samples, shared_share
+from tlessbot_ros.core.same_part import shared_shares
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.frame import ViewInput
@@ -397,14 +397,11 @@ def fill_one_space(pipeline: PerceptionPipeline, a: PartJob, b: PartJob) -> bool
     inside the other (:func:`~tlessbot_ros.core.same_part.shared_share`): two rigid parts
     cannot, so the piece is a part of the rest's, left out by a fit a little off (a thick
     part's piece, which the depth's seams do not bound)."""
-    database = pose_stage(pipeline.pose_estimator).database
-    posed = [posed_samples(database, job) for job in (a, b)]
-    if posed[0] is None or posed[1] is None or pipeline.fit_params.same_part_share <= 0:
+    share = pipeline.fit_params.same_part_share
+    if share <= 0:
         return False
-    spacing = max(database[job.detection.obj_id].sample_spacing_m() for job in (a, b))
-    return max(shared_share(*posed[0], *posed[1], spacing),
-               shared_share(*posed[1], *posed[0], spacing)) >= \
-        pipeline.fit_params.same_part_share
+    shares = shared_shares(pose_stage(pipeline.pose_estimator).database, a, b)
+    return shares is not None and max(shares) >= share
 
 
 def same_place(pipeline: PerceptionPipeline, a: PartJob, b: PartJob) -> bool:

@@ -276,10 +276,7 @@ def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
              holds_whole_part(blob & (own == j), side.whole_parts, params.apart_each_whole)
              for j in ids]
 
-    def by_size(a: int) -> bool:
-        return bool(whole[a])
-
-    def by_length(a: int, b: int) -> bool:   # (asked again after owner_of: kept)
+    def by_length(a: int, b: int) -> bool:   # cached: asked again for the same pair
         if not one_owner:
             return False
         if (a, b) not in too_long:
@@ -293,7 +290,7 @@ def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
             groups[a] != groups[b]
         by_height = params.keep_thin_beside_tall and thin[a] != thin[b]
         by_view = owner_of[a] > 0 and owner_of[b] > 0 and owner_of[a] != owner_of[b]
-        return not (by_depth or by_height or by_view or by_size(a) and by_size(b)
+        return not (by_depth or by_height or by_view or whole[a] and whole[b]
                     or by_length(a, b))
 
     root_of = pair_roots(ids.size, together)
