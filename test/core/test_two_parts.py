@@ -33,6 +33,26 @@ TABLE = (np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64),
          np.array([[0, 1, 2], [0, 2, 3]]))
 
 
+def _side_scene(parts, min_px: int):
+    """Parts [(vertices, faces, T_world_object)] rendered on the table by the side camera:
+    their masks (instances 1, 2, ..., each asserted over ``min_px`` pixels) and the side
+    view (depth with 0.5 mm noise, blue parts on a grey table)."""
+    renderer = MeshRenderer()
+    renderer.add_mesh(*TABLE)
+    for vertices, faces, T in parts:
+        renderer.add_mesh(vertices, faces, T)
+    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
+    masks = [view.instance == k for k in range(1, len(parts) + 1)]
+    assert all(m.sum() > min_px for m in masks)
+    rng = np.random.default_rng(0)
+    depth = (view.depth_m + rng.normal(0, 0.0005, masks[0].shape) * (view.depth_m > 0)).astype(
+        np.float32)
+    region = np.logical_or.reduce(masks)
+    rgb = np.full((*region.shape, 3), 120, np.uint8)
+    rgb[region] = (70, 100, 190)
+    return masks, {'side': ViewInput(rgb, depth, SIDE.intrinsics, SIDE.T_world_camera)}
+
+
 def _plate():
     """A plate 80 x 50 x 4 mm with a 15 mm notch at one corner (a flat part)."""
     trimesh = pytest.importorskip('trimesh')
@@ -58,21 +78,9 @@ def touching():
     turn = rotation_about_axis([0, 0, 1], np.radians(25))
     poses = [make_transform(turn, [-0.06, 0.0, 0.0]),
              make_transform(turn, turn @ np.array([0.081, 0.0, 0.0]) + [-0.06, 0.0, 0.0])]
-    renderer = MeshRenderer()
-    renderer.add_mesh(*TABLE)
-    for T in poses:
-        renderer.add_mesh(v, f, T)
-    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
-    first, second = view.instance == 1, view.instance == 2
-    assert first.sum() > 500 and second.sum() > 500
+    (first, second), views = _side_scene([(v, f, T) for T in poses], 500)
     assert (np.roll(second, 1, 0) & first).any() or (np.roll(second, -1, 0) & first).any() or \
         (np.roll(second, 1, 1) & first).any() or (np.roll(second, -1, 1) & first).any()
-    rng = np.random.default_rng(0)
-    depth = (view.depth_m + rng.normal(0, 0.0005, first.shape) * (view.depth_m > 0)).astype(
-        np.float32)
-    rgb = np.full((*first.shape, 3), 120, np.uint8)
-    rgb[first | second] = (70, 100, 190)
-    views = {'side': ViewInput(rgb, depth, SIDE.intrinsics, SIDE.T_world_camera)}
     truth = [SIDE.T_camera_world @ T for T in poses]
     return db, views, (first | second).astype(np.uint16), first, second, truth
 
@@ -147,20 +155,8 @@ def in_a_row():
     parts = [(bv, bf, make_transform(turn, turn @ np.array([-0.016, 0.02, 0.01]) + shift)),
              (v, f, make_transform(turn, shift)),
              (bv, bf, make_transform(turn, turn @ np.array([0.096, 0.015, 0.01]) + shift))]
-    renderer = MeshRenderer()
-    renderer.add_mesh(*TABLE)
-    for vertices, faces, T in parts:
-        renderer.add_mesh(vertices, faces, T)
-    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
-    masks = [view.instance == k for k in (1, 2, 3)]
-    assert all(m.sum() > 300 for m in masks)
-    rng = np.random.default_rng(0)
-    depth = (view.depth_m + rng.normal(0, 0.0005, masks[0].shape) * (view.depth_m > 0)).astype(
-        np.float32)
+    masks, views = _side_scene(parts, 300)
     region = np.logical_or.reduce(masks)
-    rgb = np.full((*region.shape, 3), 120, np.uint8)
-    rgb[region] = (70, 100, 190)
-    views = {'side': ViewInput(rgb, depth, SIDE.intrinsics, SIDE.T_world_camera)}
     return db, views, region.astype(np.uint16), masks, [SIDE.T_camera_world @ T
                                                         for *_, T in parts]
 
@@ -261,19 +257,7 @@ def two_blocks():
     turn = rotation_about_axis([0, 0, 1], np.radians(25))
     poses = [make_transform(turn, [-0.03, 0.0, 0.0]),
              make_transform(turn, turn @ np.array([0.041, 0.0, 0.0]) + [-0.03, 0.0, 0.0])]
-    renderer = MeshRenderer()
-    renderer.add_mesh(*TABLE)
-    for T in poses:
-        renderer.add_mesh(v, f, T)
-    view = renderer.render(SIDE.intrinsics, SIDE.T_world_camera)
-    first, second = view.instance == 1, view.instance == 2
-    assert first.sum() > 500 and second.sum() > 500
-    rng = np.random.default_rng(0)
-    depth = (view.depth_m + rng.normal(0, 0.0005, first.shape) * (view.depth_m > 0)).astype(
-        np.float32)
-    rgb = np.full((*first.shape, 3), 120, np.uint8)
-    rgb[first | second] = (70, 100, 190)
-    views = {'side': ViewInput(rgb, depth, SIDE.intrinsics, SIDE.T_world_camera)}
+    (first, second), views = _side_scene([(v, f, T) for T in poses], 500)
     return db, views, (first | second).astype(np.uint16), first, second
 
 
