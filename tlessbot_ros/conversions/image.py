@@ -149,8 +149,8 @@ def image_to_rgb(msg: Any) -> np.ndarray:
 def _mm_to_metres(depth_mm: np.ndarray) -> np.ndarray:
     """(H, W) uint16 millimetres -> (H, W) float32 metres ``float32(v) * float32(0.001)``, NaN
     for 0, in one pass (numba multiplies float32 by float32 in float32, as numpy does; a
-    65536-entry look-up table through ``np.take`` gave the same bits at eight times the cost:
-    the indices were first widened to an int64 copy of the frame)."""
+    65536-entry look-up table through ``np.take`` gives the same bits but first widens the
+    indices to an int64 copy of the frame: docs/bench/code-figures.md)."""
     height, width = depth_mm.shape
     out = np.empty((height, width), np.float32)
     scale = np.float32(0.001)

@@ -1,8 +1,8 @@
 """sensor_msgs/Image straight from and to CDR bytes, without rclpy message objects.
 
 Image topics carry megabytes per message. Turning CDR into an rclpy ``Image`` copies the pixels
-twice (into C, then into a Python ``array``), and publishing one serialises it again: about
-2.5 ms for a 640×480 16UC3 class image, 1.2 ms to read it back. Here the pixels are copied
+twice (into C, then into a Python ``array``), and publishing one serialises it again (timed
+in docs/design.md, docs/bench/code-figures.md). Here the pixels are copied
 once when a message is built, and not at all when one is read: :func:`image_from_cdr` returns
 a duck-typed Image whose ``data`` is a read-only view of the received bytes, which every reader
 in this package accepts. ``Publisher.publish(bytes)`` sends such bytes as they are.

@@ -12,19 +12,18 @@ frame N+1 while the later stages work on frame N (pipelining).
 A refused frame is not dropped at once: the newest one waits at the entrance (one slot,
 ``hold_newest``) and is taken as soon as a slot frees, unless a newer frame replaces it first.
 At a camera rate the graph can follow on average, a frame that arrives while a slow one is
-still being fitted is then answered a little later instead of lost (a replay at 2 frames/s
-lost 1-3 of 15 frames per run on a busy host without it); at a rate it cannot follow, all but
-the newest frame are still dropped here, and the one that waits is at most one camera period
-old when it is taken.
+still being fitted is then answered a little later instead of lost
+(docs/bench/free-running.md); at a rate it cannot follow, all but the newest frame are still
+dropped here, and the one that waits is at most one camera period old when it is taken.
 
 A second frame in flight pays only where a core is free for it: on two cores, with the camera
 drivers or a replay taking a third of one, the localiser segmenting frame N+1 while the pose
-estimator fits frame N made every stage run at about half its speed alone (30 fps, paired
-runs: one frame in flight gave 0.57 x the p95 latency for 0.91 x the frames). So a frame beyond
-the first is admitted only while ``pipeline_min_spare_cores`` of the host were idle lately, or
-while the camera's frames come no faster than the graph's average stage works (a bag at its
-recorded 2 frames/s on a busy host: each frame is worth answering, and a refused one would be
-lost: one slot cost up to 4 of 15 frames there). On a host with cores to spare the graph
+estimator fits frame N made every stage run at about half its speed alone, so that one frame
+in flight had the lower latency for nearly as many frames (docs/bench/backpressure.md). So a
+frame beyond the first is admitted only while ``pipeline_min_spare_cores`` of the host were
+idle lately, or while the camera's frames come no faster than the graph's average stage works
+(a bag at its recorded 2 frames/s on a busy host: each frame is worth answering, and a refused
+one would be lost; docs/bench/code-figures.md). On a host with cores to spare the graph
 pipelines at any rate; on a busy or small one at 30 fps it does not.
 
 An outcome may never come (the last stage restarted, a message was lost, the pairing dropped

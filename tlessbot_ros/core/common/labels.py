@@ -92,9 +92,10 @@ def _words(labels: np.ndarray) -> np.ndarray:
 @njit(cache=True, nogil=True)
 def _look_up_labelled(labels: np.ndarray, table: np.ndarray, words: np.ndarray) -> np.ndarray:
     """(H, W) labels and an (L, k) uint16 table -> (H, W, k) uint16: ``table[label]`` where
-    the label is not 0, else 0. One pass; the numpy way (flatnonzero, gather, scatter, over
-    every channel) took four times as long on a 640×480 frame. With ``words`` (the labels 4
-    a uint64 word, :func:`_words`) 4 background pixels are passed over with one test."""
+    the label is not 0, else 0. One pass, because the numpy way (flatnonzero, gather, scatter,
+    over every channel) walks the frame once per step (docs/bench/code-figures.md). With
+    ``words`` (the labels 4 a uint64 word, :func:`_words`) 4 background pixels are passed
+    over with one test."""
     height, width = labels.shape
     channels = table.shape[1]
     out = np.zeros((height, width, channels), np.uint16)
@@ -147,8 +148,8 @@ def _decode_kernel(flat: np.ndarray, words: np.ndarray) -> tuple[np.ndarray, np.
 
     Background (0 in every channel) is most of a frame: with ``words``, ``flat``'s bytes as
     (N k / 4,) uint64 (N a multiple of 4; empty: not used), pixels 4b..4b+3 are words
-    kb..kb+k-1, and 4 background pixels are passed over with k tests (a 640x480 16UC3 image:
-    ~0.1 ms, against 1.1 ms pixel by pixel and ~1.7 ms for numpy passes over every channel).
+    kb..kb+k-1, and 4 background pixels are passed over with k tests instead of 4 k
+    (docs/bench/stage-cpu.md, docs/bench/code-figures.md).
     """
     n, k = flat.shape
     instances = np.zeros(n, np.uint16)
@@ -220,7 +221,7 @@ def _label_boxes(labels: np.ndarray, size: int, words: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`label_boxes` of an (H, W) image of labels < ``size``; with ``words`` (the
     labels 4 a uint64 word, :func:`_words`) 4 background pixels are passed over with one
-    test (a 640x480 frame of parts: 0.13 ms, against 0.9 ms pixel by pixel)."""
+    test, since most of a frame is background (docs/bench/code-figures.md)."""
     height, width = labels.shape
     counts = np.zeros(size, np.int64)
     low = np.full((size, 2), np.iinfo(np.int32).max, np.int32)   # first column, row

@@ -11,8 +11,8 @@ from numba import njit
 def count_inliers(points: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
                   limits: np.ndarray) -> np.ndarray:
     """(H,) number of the (N, 3) points within ``limits`` (N,) of each of the H planes
-    (``normals`` (H, 3), ``offsets`` (H,)). One pass, no (N, H) temporaries and no BLAS (whose
-    threads spin against the other stages' on a loaded machine: 10+ ms instead of 1)."""
+    (``normals`` (H, 3), ``offsets`` (H,)). One pass, no (N, H) temporaries and no BLAS, whose
+    threads spin against the other stages' on a loaded machine (docs/bench/code-figures.md)."""
     counts = np.zeros(normals.shape[0], np.int64)
     # Coordinates as contiguous columns and a branch-free count: the loop vectorises (4x).
     x = np.ascontiguousarray(points[:, 0])

@@ -12,7 +12,7 @@ rig's frame can be checked against what its camera sees.
   noise of a stereo camera (sigma = ``noise_at_1m_m`` * z², the D415's 2 mm at 1 m), the plane
   facing the camera that holds most points (with a rig: among those near the rig's table),
   refitted by least squares on its inliers. Parts standing on the table, holes, NaN and zeros
-  are outliers or skipped. About 2 ms for a 640x480 view.
+  are outliers or skipped. Its cost per view: docs/bench/table-plane.md.
 * :class:`TablePlaneTracker`: smooths a fixed camera's plane over frames; resets on a jump.
 * :func:`table_frame_from_plane`: a ``T_world_camera`` whose z = 0 is the plane; its yaw and the
   origin on the table are arbitrary (the foot of the camera centre), which is all the table
