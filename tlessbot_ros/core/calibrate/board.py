@@ -217,9 +217,8 @@ def _refine_window(corners: np.ndarray, ids: np.ndarray, board: BoardSpec) -> in
     between a corner and the markers of its two white squares, or 0 if unknown.
 
     OpenCV refines ChArUco corners in a window that can reach the markers' edges, whose
-    asymmetric pattern pulls a corner by ~0.1 px (measured on synthetic views: 0.12 px rms
-    against 0.06 px once refined inside the gap; the side camera's pose error fell from 1.4 to
-    0.1 mm). The gap, ``(square - marker) / 2`` on the board, is measured in the image from
+    asymmetric pattern pulls a corner off its place (docs/bench/board-calibration.md). The
+    gap, ``(square - marker) / 2`` on the board, is measured in the image from
     the spacing of neighbouring corners (the smaller of rows and columns, for foreshortening).
     """
     per_row = board.squares_x - 1

@@ -1,5 +1,5 @@
 """What one frame gives the scene calibration: per view, its table plane and the part points
-above it, grouped into blobs (:func:`observe_view`, ~1-2 ms a view)."""
+above it, grouped into blobs (:func:`observe_view`; its cost: docs/bench/rig-calibration.md)."""
 from __future__ import annotations
 
 from collections.abc import Sequence

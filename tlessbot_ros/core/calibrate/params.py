@@ -18,8 +18,8 @@ class SceneCalibrationParams:
     Attributes:
         point_spacing_m: depth pixels are sampled about this far apart on the table (a stride
             per view from its focal length and distance: 3 px for the top D415 at 1.1 m, 4 px
-            for the side one at 0.64 m; 3 mm cost twice the time, no better on synthetic
-            scenes).
+            for the side one at 0.64 m; denser costs time for no gain on synthetic scenes,
+            docs/bench/code-figures.md).
         min_height_m: a point is a part's when it is higher above the table than this and than
             ``height_sigmas`` times the depth noise at its distance.
         height_sigmas: ... (noise: ``plane.noise_at_1m_m`` times z squared, z in metres).
@@ -43,8 +43,7 @@ class SceneCalibrationParams:
         icp_face_tilt_deg: only side points whose surface (normal of their neighbours) is
             within this of horizontal are fitted (90: all, the default): the top camera sees
             little of the walls the side camera sees, but on noisy depth the normals cost more
-            than they bring (synthetic boxes, 4 scenes of 8 frames: 0.03-0.20 deg with all
-            points, 0.05-0.28 with 45 deg).
+            than they bring (docs/bench/code-figures.md).
         icp_height_weight: heights count this much in the fine fit's nearest-neighbour
             distance (the top view's depth noise is mostly vertical, and the fit moves nothing
             vertically).

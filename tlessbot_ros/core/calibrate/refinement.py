@@ -1,10 +1,11 @@
 """What a running localiser does with the rig the scene shows (``rig_refinement.*``).
 
 :class:`RigRefiner` wraps a :class:`~tlessbot_ros.core.calibrate.scene.SceneCalibrator` for a
-stream of frames: it observes each frame (about 2 ms), solves when there is something new to
-learn (each of the first frames that bring parts seen by both views until the estimate is
-confident, then every ``solve_every_frames`` such frames), and says which rig the two-view
-fusion should use and how far the configured one is from what the cameras see.
+stream of frames: it observes each frame (cheap: docs/bench/rig-calibration.md), solves when
+there is something new to learn (each of the first frames that bring parts seen by both views
+until the estimate is confident, then every ``solve_every_frames`` such frames), and says
+which rig the two-view fusion should use and how far the configured one is from what the
+cameras see.
 
 Deterministic by design: the solve runs in the frame's own thread, before that frame is fused,
 so a replay gives the same labels whatever the timing (#19); its cost is spread over the

@@ -9,10 +9,11 @@ in-plane transform, lie on the surfaces the other view sees.
 
 :class:`SceneCalibrator` accumulates cheap per-frame observations and solves occasionally:
 
-1. *Observation* (:func:`observe_view`, ~1-2 ms a view): every few pixels of the aligned depth
-   (about ``point_spacing_m`` apart on the table), those above the table by more than the
-   depth noise are part points, grouped into blobs by connected components in the image. Each
-   frame keeps per view its plane, its part points (camera frame) and their blob.
+1. *Observation* (:func:`observe_view`, docs/bench/rig-calibration.md for its cost): every few
+   pixels of the aligned depth (about ``point_spacing_m`` apart on the table), those above the
+   table by more than the depth noise are part points, grouped into blobs by connected
+   components in the image. Each frame keeps per view its plane, its part points (camera
+   frame) and their blob.
 2. *Planes*: the median plane of each view over the frames kept, the camera levelled on it
    about its own centre (:func:`~.inplane.level_camera_on_plane`), so each view's points get
    heights over the table and x, y near the prior's.

@@ -8,9 +8,10 @@ the 60×60 crop throws away. Where a region has no usable depth the shape part i
 its training mean (``shape_fill``), so it adds a constant and the HOG decides alone.
 
 Prediction does not use scikit-learn: the fitted one-vs-rest weights are kept as a (D, C) matrix
-(with the feature standardisation folded in) and ``argmax(x @ W + b)`` takes about 0.01 ms per
-crop instead of 0.3 ms for ``predict``. The margin between the best and second-best class score
-is the confidence; a crop whose margin is below ``reject_margin`` is labelled ``UNKNOWN_ID``.
+(with the feature standardisation folded in) and ``argmax(x @ W + b)`` takes a fraction of the
+time of scikit-learn's ``predict`` per crop (docs/bench/code-figures.md). The margin between
+the best and second-best class score is the confidence; a crop whose margin is below
+``reject_margin`` is labelled ``UNKNOWN_ID``.
 
 A model may also put an RBF feature map
 (:mod:`~tlessbot_ros.core.recognise.feature_map`, Nyström) in

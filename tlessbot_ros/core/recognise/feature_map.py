@@ -5,13 +5,13 @@ The linear models of the paper (SGD, Perceptron, PA-I, PA-II) stay linear, but t
 ``l_j``, where ``P (x - mu)`` standardises the descriptor and projects it on its first principal
 axes. With the whitening of the Nyström method [1] (``K_LL^{-1/2}``, folded into the stored
 weights), ``phi(x) . phi(y)`` approximates the Gaussian kernel, so a linear model on ``phi``
-approximates a kernel SVM. On HOG + shape descriptors of simulated table scenes the packaged
-model (k = 256 axes, M = 4000 landmarks) gets 93.3 % of held-out crops, where the best linear
-model got 90.1 % and an exact RBF SVM 95.8 % of a similar set (README, Recognition).
+approximates a kernel SVM, which separates the look-alike classes better than one hyperplane
+per class (k = 256 axes, M = 4000 landmarks in the packaged model; its accuracy against the
+linear models and an exact SVM: docs/design.md, Recognition; docs/bench/recognition-models.md).
 
 Cost at prediction: a (N, D) @ (D, k) and a (N, k) @ (k, M) product and M exponentials per
-crop (D = 1655: ~1.4 M multiply-adds); with it, normalise + HOG + shape + predict measured
-0.63 ms per crop (``tlessbot bench recognition``).
+crop (D = 1655: ~1.4 M multiply-adds); the time per crop is what ``tlessbot bench recognition``
+measures (docs/bench/code-figures.md).
 
 References:
     [1] C. Williams, M. Seeger, "Using the Nyström method to speed up kernel machines",
@@ -94,7 +94,8 @@ def _rbf(points: np.ndarray, landmarks_t: np.ndarray, landmark_sq: np.ndarray,
 
 def _half_precision(values: np.ndarray) -> np.ndarray:
     """float32 values rounded to float16 precision, so that the model file can store them
-    as float16 without loss (it halves the file; scores move by < 2 % of their mean size)."""
+    as float16 without loss (it halves the file; what it does to the scores:
+    docs/bench/code-figures.md)."""
     return np.asarray(values).astype(np.float16).astype(np.float32)
 
 

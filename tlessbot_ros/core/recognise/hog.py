@@ -6,9 +6,9 @@ little: with a mask the object is contrast-stretched into ``[object_floor, 1]`` 
 background is set to 0, so the silhouette and the shading edges carry the class. The HOG is
 Dalal and Triggs' [1] with unsigned gradients, ``cell_px`` cells, ``bins`` orientation bins and
 L2-Hys normalisation over blocks of 2×2 cells with a one-cell stride; the paper's choice is cells
-of 6×6 px and 4 bins (§3.2, Fig. 10). OpenCV's ``cv2.HOGDescriptor`` is used because it is about
-25× faster than ``skimage.feature.hog`` (0.1 ms against 2.5 ms per 60×60 crop); the two are not
-numerically identical, so train and test with this module only.
+of 6×6 px and 4 bins (§3.2, Fig. 10). OpenCV's ``cv2.HOGDescriptor`` is used because it takes a
+fraction of ``skimage.feature.hog``'s time per crop (docs/bench/code-figures.md); the two are
+not numerically identical, so train and test with this module only.
 
 References:
     [1] N. Dalal and B. Triggs, "Histograms of oriented gradients for human detection",

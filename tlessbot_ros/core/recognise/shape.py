@@ -1,7 +1,7 @@
 """Metric shape features of a part from the aligned depth of its region (our addition to §3.2).
 
 The paper's HOG sees a crop resized to 60×60 px, so the physical size of the part is lost and
-23 similar textureless parts are hard to separate linearly (45.8 % top-1 in simulation). The
+23 similar textureless parts are hard to separate linearly (docs/bench/code-figures.md). The
 cell knows more: the aligned depth of every crop and the camera's pose on the table (world z = 0
 is the table plane, z up). From the region's valid depth pixels, back-projected to the world
 frame, this module computes a fixed-length vector of
@@ -106,8 +106,9 @@ def region_points_world(depth_m: np.ndarray, mask: np.ndarray, K: np.ndarray,
         K: (3, 3) camera matrix; any invertible matrix (e.g. after a shear of the image).
         T_world_camera: (4, 4) optical frame -> world (table) frame.
         max_points: keep the region's pixels on an even square grid (every k-th row and
-            column of its box) of at most about this many pixels; 0 keeps all. 400 points keep
-            the shape vector stable (see the README) and the step well under 0.1 ms.
+            column of its box) of at most about this many pixels; 0 keeps all. A few hundred
+            points describe a region's shape as well as all of them, at a fraction of the cost
+            (docs/bench/code-figures.md).
         box: optional (x, y, width, height) pixel box that holds the whole mask; only this
             window is read (saves scanning the full frame).
 

@@ -41,7 +41,7 @@ class ClassifierParams:
     Attributes:
         kind: one of ``KINDS``.
         epochs: passes over the training set (each shuffled); 10 by default: with 5, SGD
-            had not settled (84.9 against 81.0 % for 5-epoch PA-II on 568 simulated crops).
+            had not settled (docs/bench/code-figures.md).
         batch_size: samples per ``partial_fit`` call (the mini-batch).
         alpha: L2 regularisation of ``'sgd'`` (scikit-learn's ``alpha``).
         pa_c: aggressiveness C of PA-I / PA-II (scikit-learn's ``eta0``).
@@ -52,7 +52,7 @@ class ClassifierParams:
         hog_weight: with shape (or box-size) features, the standardised HOG block is
             multiplied by this fixed factor before learning (a fixed map, folded into the stored
             weights): the rendered-vs-scene domain gap is larger for HOG than for the metric
-            features, and a low weight keeps it from drowning them (measured in the README).
+            features, and a low weight keeps it from drowning them (docs/bench/code-figures.md).
         average: keep the average of the weights over all updates (averaged SGD; for
             'perceptron' the averaged perceptron) instead of the last ones: less noisy
             weights, which carry better from the rendered training crops to the scenes.
@@ -154,7 +154,7 @@ class OnlineTrainer:
 
         Used for the feature-map models: on their Nyström features the averaged learners
         reach much better weights through ``fit`` than through many mini-batch
-        ``partial_fit`` calls (PA-I: 93.9 against 88.1 % of held-out scene crops, README).
+        ``partial_fit`` calls (docs/design.md, Recognition).
         """
         labels = np.asarray(labels, dtype=np.int64)
         unknown = np.setdiff1d(labels, self.class_ids)
