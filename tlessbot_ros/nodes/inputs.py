@@ -20,11 +20,12 @@ executor's wait set altogether (:class:`GatedCallbackGroup`): their messages the
 in the DDS history, where newer ones replace older ones at no cost to Python, and
 :meth:`TwoViewInputs.reopen` reads what waited once the gate opens and passes on only its newest
 complete frame. Taking each message through rclpy's SingleThreadedExecutor costs far more
-than its bytes (the executor rebuilds its wait set for every message taken): 1-2 ms for each
-of six topics at 30 fps. rclpy's EventsExecutor (``sync.executor: events``, the default) has
-no such turn and ignores callback groups: it delivers every message, and those that come while
-the gate is closed are kept as the DDS history would keep them (the QoS depth per topic, the
-newest) and read the same way when it opens.
+than its bytes: the executor rebuilds its wait set for every message taken
+(docs/bench/backpressure.md, docs/bench/code-figures.md). rclpy's EventsExecutor
+(``sync.executor: events``, the default) has no such turn and ignores callback groups: it
+delivers every message, and those that come while the gate is closed are kept as the DDS
+history would keep them (the QoS depth per topic, the newest) and read the same way when it
+opens.
 """
 from __future__ import annotations
 

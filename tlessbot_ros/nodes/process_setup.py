@@ -45,9 +45,8 @@ def keep_freed_buffers(*, mmap_threshold: int = 32 << 20, trim_threshold: int = 
     Every received image (0.6-0.9 MiB) passes through a few freshly allocated buffers (the
     middleware's copy, the serialised bytes, numpy arrays). By default glibc maps blocks this
     large with mmap, or trims the heap once they are freed, so each message pays for new
-    zero-filled pages: measured here (4 camera topics at 30 fps into one process), 1.5-1.7 ms
-    of CPU per image, against 0.75-0.84 ms with this setting. Memory freed stays with the
-    process, up to ``trim_threshold`` bytes above what it uses.
+    zero-filled pages (docs/design.md, docs/bench/code-figures.md). Memory freed stays with
+    the process, up to ``trim_threshold`` bytes above what it uses.
 
     Does nothing (returns False) off glibc or when the user set MALLOC_MMAP_THRESHOLD_ or
     MALLOC_TRIM_THRESHOLD_ (mallopt would override their choice).

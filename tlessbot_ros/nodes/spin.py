@@ -113,8 +113,8 @@ def exit_without_teardown(code: int) -> NoReturn:
     handlers, flush the output, and exit without clearing every imported module.
 
     That clearing (scikit-learn, SciPy, Open3D, numba, OpenCV objects, one by one) is most of
-    a node's stop: under half a second on a quiet host, but more than the 5 s ``ros2 launch``
-    waits after SIGINT before it escalates to SIGTERM on a loaded one.
+    a node's stop, and on a loaded host it can outlast the 5 s ``ros2 launch`` waits after
+    SIGINT before it escalates to SIGTERM (docs/bench/code-figures.md).
     """
     import atexit
     import os

@@ -1,7 +1,7 @@
 """A robot arm hiding part of one camera's view: the synthetic occluder of the two-view tests.
 
 On a flat table, the side camera (70° to the table) sees almost every part: one part rarely
-hides another (the lowest side visibility in tightly clustered simulated scenes is above 80 %).
+hides another, even in tightly clustered simulated scenes (docs/bench/code-figures.md).
 In the cell, what hides a part from one camera is the arm reaching over the table. This module
 paints such an arm into one view of a simulated frame after rendering: a straight link of
 constant width that enters from the top image border and ends past a chosen part, at a fixed

@@ -151,8 +151,8 @@ class GraphProcesses:
         """SIGINT every child (as Ctrl-C would), then SIGTERM / SIGKILL stragglers.
 
         A node stopped by SIGINT finishes the frame in hand and stops its worker processes
-        first; with the 2-core machine at a load average of 17 the pose estimator once took
-        more than 10 s, hence the generous wait.
+        first, which on a heavily loaded host can take many seconds
+        (docs/bench/time-and-shutdown.md), hence the generous wait.
         """
         for child in self.children.values():
             if child.poll() is None:

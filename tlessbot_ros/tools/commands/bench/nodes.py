@@ -17,8 +17,8 @@ per frame (this process and its children: the pose estimator's worker counts).
 ``--idle-before-ms`` waits that long before each stage's frame, as a stage in the graph waits
 for its input between frames, and ``--idle-busy`` spins through the wait instead of sleeping.
 Against the back-to-back default, the first shows what a frame costs after the host's cores
-went idle; the second, that the wait itself (not the pause in the work) is what costs
-(docs/bench/backpressure.md, eighteenth session).
+went idle; the second, whether the wait itself (not the pause in the work) is what costs
+(docs/bench/backpressure.md).
 """
 from __future__ import annotations
 

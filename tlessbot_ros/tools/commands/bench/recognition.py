@@ -249,8 +249,8 @@ def crop_pose_stage(model, templates, frames, min_pixels: int, scores: np.ndarra
     the crops whose first class has a look-alike are fitted, with that class, for the check.
     Returns the classes and the ms of the pose stage of each fitted crop.
 
-    (Fitting every crop's best three classes, top-view crops too, gets 88-89 % of the crops of
-    300 scenes: a top view's cloud, mostly one face, fits many parts.)"""
+    (Top-view crops are fitted only when the classifier is unsure, because a top view's
+    cloud, mostly one face, fits many parts: docs/bench/code-figures.md.)"""
     from tlessbot_ros.core.pipeline import ClassifyParams, PerceptionPipeline, ViewInput
 
     pipeline = PerceptionPipeline(classifier=model, templates=templates,
