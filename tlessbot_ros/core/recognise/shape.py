@@ -107,7 +107,7 @@ def region_points_world(depth_m: np.ndarray, mask: np.ndarray, K: np.ndarray,
         T_world_camera: (4, 4) optical frame -> world (table) frame.
         max_points: keep the region's pixels on an even square grid (every k-th row and
             column of its box) of at most about this many pixels; 0 keeps all. A few hundred
-            points describe a region's shape as well as all of them, at a fraction of the cost
+            points keep the shape vector stable at a fraction of the cost of all of them
             (docs/bench/code-figures.md).
         box: optional (x, y, width, height) pixel box that holds the whole mask; only this
             window is read (saves scanning the full frame).
