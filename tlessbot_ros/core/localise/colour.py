@@ -76,8 +76,9 @@ def rgb_to_hed(rgb: np.ndarray, *, dark_level: int = 0) -> np.ndarray:
 def rgb_to_lab(rgb: np.ndarray) -> np.ndarray:
     """CIE-LAB (D65) of an RGB image: (H, W, 3) float32, L in [0, 100], a and b signed.
 
-    Computed by OpenCV's 8-bit conversion (4x faster than float input here) and rescaled, so
-    values are quantised to 100/255 in L and 1 in a, b.
+    Computed by OpenCV's 8-bit conversion, which is cheaper than its float input, and
+    rescaled, so values are quantised to 100/255 in L and 1 in a, b
+    (docs/bench/code-figures.md).
     """
     rgb = check_rgb(rgb)
     lab8 = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab)

@@ -331,7 +331,7 @@ def instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarra
 @lru_cache(maxsize=8)
 def _scaled_params(params: SegmentationParams, s: float) -> SegmentationParams:
     """``params`` with its sizes for an image scaled by ``s`` (made once per settings: the
-    dataclass's checks cost ~0.1 ms a frame)."""
+    dataclass's checks would otherwise run on every frame)."""
     whole = None if params.whole_parts is None else \
         tuple((a, px * s * s, look * s) for a, px, look in params.whole_parts)
     largest = None if params.largest_part_px_m2 is None else params.largest_part_px_m2 * s * s

@@ -1,8 +1,8 @@
 """Colour segmentation of textureless parts on a table: watershed, HED, CIE-LAB, background.
 
-This is the paper's §3.1 (Sensors 2020, "Marker-less 3D object recognition and 6D pose
-estimation for homogeneous textureless objects") built from OpenCV operations so that one
-640x480 view takes about 10 ms. :func:`segment` runs the stages of the sibling modules:
+This is the paper's §3.1 (Sensors 2020, "Marker-less 3D object recognition and 6D pose estimation
+for homogeneous textureless objects") built from OpenCV operations, so that a view costs
+milliseconds (docs/bench/stage-cpu.md). :func:`segment` runs the stages of the sibling modules:
 
 * :mod:`~tlessbot_ros.core.localise.colour`: HED colour deconvolution and CIE-LAB at the cue
   scale, histogram background peaks and trend removal;

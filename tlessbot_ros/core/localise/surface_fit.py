@@ -1,11 +1,11 @@
 """Robust quadratic surface fit of a small image grid (numba), for removing uneven lighting.
 
-:func:`~tlessbot_ros.core.localise.remove_trend` fits z = c0 + c1 x + c2 y + c3 x² + c4 xy
-+ c5 y² to a subsampled channel by least squares, twice more without the samples beyond 2.5
-robust standard deviations (the parts on the table). It runs six times per view; written with
-numpy, each pass spends most of its ~0.2 ms in call overhead on a few thousand samples. This
-kernel does the passes in one call, through the 6×6 normal equations (x and y span
-[-0.5, 0.5], so they are well conditioned; the coefficients equal lstsq's to ~1e-12).
+:func:`~tlessbot_ros.core.localise.remove_trend` fits z = c0 + c1 x + c2 y + c3 x² + c4 xy + c5 y²
+to a subsampled channel by least squares, twice more without the samples beyond 2.5 robust standard
+deviations (the parts on the table). It runs six times per view; written with numpy, each pass
+spends most of its time in call overhead on a few thousand samples (docs/bench/code-figures.md).
+This kernel does the passes in one call, through the 6×6 normal equations (x and y span [-0.5,
+0.5], so they are well conditioned; the coefficients equal lstsq's to ~1e-12).
 """
 from __future__ import annotations
 

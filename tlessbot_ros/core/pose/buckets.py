@@ -2,9 +2,9 @@
 
 Scoring a pose asks, for a few hundred scene points, for the nearest model sample closer than a
 voxel, and, for the visible model samples, whether a scene point lies within two voxels. A
-KD-tree answers in ~0.2 ms per call, most of it call overhead for these small sets; points
-sorted into cubic buckets whose edge is at least the search radius answer the same question by
-scanning the 27 buckets around the query, in a few tens of µs. The answers equal
+KD-tree's answer costs mostly call overhead for these small sets; points sorted into cubic
+buckets whose edge is at least the search radius answer the same question by scanning the 27
+buckets around the query, in one compiled call (docs/bench/code-figures.md). The answers equal
 ``scipy.spatial.cKDTree.query(..., k=1, distance_upper_bound=r)``: a neighbour counts when its
 distance is strictly below ``r``; with none, the distance is inf and the index ``len(points)``
 (equidistant neighbours may be resolved differently).

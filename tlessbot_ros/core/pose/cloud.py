@@ -2,8 +2,8 @@
 
 RGB-D to cloud, box crop, the paper's background subtraction (stored background cloud added to the
 scene, planes removed with RANSAC, background dropped), statistical outlier removal (k = 50, run
-after the voxel grid: 8 ms instead of 37 ms on 2 cores, algo-notes §B.1), the ROI cloud of an
-instance mask on depth aligned to colour, voxel downsampling, normals oriented towards the
+after the voxel grid, on fewer points: algo-notes §B.1, docs/bench/code-figures.md), the ROI cloud
+of an instance mask on depth aligned to colour, voxel downsampling, normals oriented towards the
 camera and FPFH descriptors (Rusu et al. 2009).
 
 Points are (N, 3) arrays in metres in the frame of the depth image (optical frame: x right, y

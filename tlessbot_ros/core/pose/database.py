@@ -5,7 +5,7 @@ Each object gets N partial views (2–18, default 12; built by
 resting on the table in a stable pose, or captured from real turntable clouds. A template stores
 its voxelised cloud and the pose of the object in the template's camera frame; its normals
 (facing the camera) and FPFH features (Rusu 2009) are computed on first use by the RANSAC path
-and kept in memory, never stored (format version 2: FPFH was 90 % of a version-1 file). Per
+and kept in memory, never stored (format version 2: they made most of a version-1 file). Per
 object the database also keeps what the fast table-plane path of
 :mod:`tlessbot_ros.core.pose.estimator` needs: surface samples with normals, the stable poses
 on the table, and the yaw period of each stable pose (its rotational symmetry about the table
@@ -129,7 +129,7 @@ class ObjectTemplates:
 
     def features(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Normals (N, 3) and FPFH (N, 33) float32 of template ``index``, computed on the first
-        call (~5-15 ms per template) and kept on the template."""
+        call and kept on the template."""
         template = self.templates[index]
         voxel = self.voxel_size_m
         if template.normals is None:
@@ -275,8 +275,8 @@ class TemplateDatabase:
                            f'{sorted(self.objects)}') from None
 
     def precompute_features(self, ids: Iterable[int] | None = None) -> None:
-        """Compute every template's normals and FPFH now (about 5-15 ms per template) instead of
-        on first use, so the first RANSAC fallback of an object is not slower than later ones."""
+        """Compute every template's normals and FPFH now instead of on first use, so the first
+        RANSAC fallback of an object is not slower than later ones."""
         for obj_id in (self.objects if ids is None else ids):
             obj = self[obj_id]
             for index in range(len(obj.templates)):

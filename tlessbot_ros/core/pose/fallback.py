@@ -150,7 +150,7 @@ def turn_axes(points: np.ndarray) -> list[np.ndarray]:
 def near_symmetries(obj: ObjectTemplates, *, exact_ratio: float = 1.35,
                     near_ratio: float = 2.5) -> NearSymmetries:
     """The object's near and exact symmetries among turns about its axes (built once per
-    object and kept: ~20 ms).
+    object and kept).
 
     Candidates: turns by multiples of 45° about the object frame's axes and the surface's
     principal axes, through the surface centroid. A turn is judged by the median distance of

@@ -182,8 +182,8 @@ def _full_equations(R: np.ndarray, t: np.ndarray, points: np.ndarray, origin: np
 
     The camera-frame row [ (R m) x (R n), R n ] is B j with j = [ m x n, n ] (object frame)
     and B = diag(R, R), so A = B (sum j j^T) B^T and b = B (sum j r): the sums need no
-    rotation per point, one per pose at the end (about 0.6x the time of rotating every row,
-    the 6-DOF ICP's main cost; equal up to rounding)."""
+    rotation per point, one per pose at the end (rotating every row was the 6-DOF ICP's main
+    cost; equal up to rounding; docs/bench/code-figures.md)."""
     K, N = R.shape[0], points.shape[0]
     A = np.zeros((K, 6, 6))
     b = np.zeros((K, 6))
@@ -256,9 +256,9 @@ def gauss_newton(R: np.ndarray, t: np.ndarray, points: np.ndarray, origin: np.nd
             fewer than 6 points in range, is left as it is until the correspondence distance
             changes (0: every pose runs all I). Each pose then ends where it would alone,
             and costs only its own steps: stopping the batch once every pose had settled
-            ran ~29 of 30 polish steps on average (40 % of poses never settle: 2-cycles
-            between grid correspondences, free turns about a symmetry axis) and skipped
-            the closer distance when all settled at the first.
+            ran nearly every polish step (some poses never settle: 2-cycles between grid
+            correspondences, free turns about a symmetry axis) and skipped the closer
+            distance when all settled at the first (docs/bench/code-figures.md).
 
     Returns:
         (R, t) refined copies.

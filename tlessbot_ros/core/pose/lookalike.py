@@ -1,10 +1,10 @@
 """Look-alike parts: pairs whose surfaces nearly coincide, and whether a view shows the difference.
 
-T-LESS has pairs of parts that share one model frame and almost all of their surface (obj_21/22
-and obj_25/26: 93-95 % of each surface within 2 mm of the other's; they differ in features of
-5-15 mm that rise 2-11 mm). Lying on the table with those features down, or turned away from a
-camera, the two parts look the same in that view: no single-view classifier can tell them
-apart there, whatever its features. :func:`visible_difference` measures, for a view whose
+T-LESS has pairs of parts that share one model frame and almost all of their surface (obj_21/22 and
+obj_25/26: nearly all of each surface within 2 mm of the other's; they differ in small features a
+few millimetres high; docs/bench/code-figures.md). Lying on the table with those features down, or
+turned away from a camera, the two parts look the same in that view: no single-view classifier can
+tell them apart there, whatever its features. :func:`visible_difference` measures, for a view whose
 ground-truth pose is known, the share of the part's visible pixels where the look-alike would
 show another depth; the recognition benchmark uses it to report accuracy on the crops that do
 show the difference (the analogue, for classes, of BOP's visible-surface discrepancy).
@@ -221,8 +221,7 @@ class MeshScenes:
 
     def warm_up(self, ids: Iterable[int]) -> None:
         """Build the scenes of ``ids`` now and cast a ray into each: Open3D builds a scene's
-        BVH at its first query, 15 ms for a T-LESS part, which the first frame with that part
-        paid (4 ms on later frames)."""
+        BVH at its first query, which the first frame with that part would otherwise pay."""
         one_ray = o3d_tensor(np.array([[0, 0, -1, 0, 0, 1]], np.float32))
         for obj_id in ids:
             self[obj_id].cast_rays(one_ray)
@@ -243,11 +242,8 @@ class LookalikeCheck:
         min_z: a look-alike overturns the fitted class only by a clear margin of pixels
             (:func:`clear_margin`); 0: by any.
 
-    ``tlessbot bench recognition`` (simulated crops, each on its own view; the check run at the
-    pose fitted for the classifier's class): 94.5-95.3 % of all crops against 92.4-93.7 % for
-    the classifier alone (568, 2624 and 2595 crops). At the ground-truth pose the same check
-    would name 96.8 and 97.2 % (2694 and 2646 development crops, against 94.6 and 95.0 % at the
-    fitted pose): the fitted pose is what limits it.
+    The check runs at the pose fitted for the classifier's class, so the fitted pose limits
+    what it can tell (``tlessbot bench recognition``; figures in docs/bench/code-figures.md).
     """
 
     def __init__(self, meshes: Mapping[int, Mesh], lookalikes: Mapping[int, tuple[int, ...]],
