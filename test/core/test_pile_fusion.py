@@ -6,6 +6,7 @@ import numpy as np
 from tlessbot_ros.core.localise.calibrated_fusion import _side_pieces_of_blob
 from tlessbot_ros.core.localise.fusion_result import FusionParams
 from tlessbot_ros.core.localise.part_length import ViewDepth, longer_than_parts, table_length_m
+from tlessbot_ros.core.localise.part_scale import shared_border_ratio
 from tlessbot_ros.core.localise.segmentation import Segmentation
 
 # a camera 1 m above the table looking straight down (x right, y towards -y of the table)
@@ -14,11 +15,14 @@ T_DOWN = np.array([[1.0, 0, 0, 0], [0, -1.0, 0, 0], [0, 0, -1.0, 1.0], [0, 0, 0,
 
 
 def _two_halves(whole_px: float, longest_m: float = 0.05,
-                depth: ViewDepth | None = None) -> tuple[np.ndarray, Segmentation]:
-    """A side blob cut in two 400 px instances at distance cores (no depth group), the
-    parts' smallest whole blob ``whole_px`` and largest extent ``longest_m``."""
-    labels = np.zeros((40, 60), np.uint16)
-    labels[10:30, 10:30], labels[10:30, 30:50] = 1, 2
+                depth: ViewDepth | None = None,
+                labels: np.ndarray | None = None) -> tuple[np.ndarray, Segmentation]:
+    """A side blob cut in two instances at distance cores (no depth group; by default two
+    400 px squares side by side), the parts' smallest whole blob ``whole_px`` and largest
+    extent ``longest_m``."""
+    if labels is None:
+        labels = np.zeros((40, 60), np.uint16)
+        labels[10:30, 10:30], labels[10:30, 30:50] = 1, 2
     seg = Segmentation(labels=labels, boxes=np.array([[10, 10, 20, 20], [30, 10, 20, 20]],
                                                      np.int32),
                        areas=np.array([400, 400], np.int64), foreground=labels > 0,
@@ -69,3 +73,22 @@ def test_a_region_on_the_table_has_the_length_of_its_long_side() -> None:
     # the table itself, and no depth: no length
     assert table_length_m(ViewDepth(np.full((40, 60), 1.0), K, T_DOWN).table_xy(mask)) == 0.0
     assert not longer_than_parts(None, np.array([[0.01, 1.0, 1.0]]), 1.1, mask)
+
+
+def test_two_part_sized_pieces_cut_across_one_part_are_one_part() -> None:
+    # a bar 36 px tall cut across its 24 px width: two 36 x 12 px halves meeting along 36 px
+    labels = np.zeros((40, 60), np.uint16)
+    labels[2:38, 18:30], labels[2:38, 30:42] = 1, 2
+    blob, side = _two_halves(whole_px=300.0, labels=labels)
+    assert shared_border_ratio(labels == 1, labels == 2) >= 36 / np.sqrt(36 * 12)
+    assert _side_pieces_of_blob(blob, side.labels, side, FusionParams(), owners=[1]) == []
+    # with the guard off, each half could be a whole part: apart (main's rule)
+    off = FusionParams(whole_cut_border=0.0)
+    assert len(_side_pieces_of_blob(blob, side.labels, side, off, owners=[1])) == 2
+    # two squares that touch along 8 px of their sides: two parts in a pile, still apart
+    labels = np.zeros((40, 60), np.uint16)
+    labels[2:22, 10:30], labels[14:34, 30:50] = 1, 2
+    blob, side = _two_halves(whole_px=300.0, labels=labels)
+    assert shared_border_ratio(labels == 1, labels == 2) < 0.5
+    assert len(_side_pieces_of_blob(blob, side.labels, side, FusionParams(), owners=[1])) == 2
+    assert shared_border_ratio(labels == 1, np.zeros_like(labels, bool)) == 0.0

@@ -23,7 +23,11 @@ from tlessbot_ros.core.localise.gap_colour import apart_by_gap_colour
 from tlessbot_ros.core.localise.instances import LIGHTNESS_GROUPS
 from tlessbot_ros.core.localise.lightness import top_check
 from tlessbot_ros.core.localise.part_length import longer_than_parts
-from tlessbot_ros.core.localise.part_scale import holds_whole_part, mask_length_px
+from tlessbot_ros.core.localise.part_scale import (
+    holds_whole_part,
+    mask_length_px,
+    shared_border_ratio,
+)
 from tlessbot_ros.core.localise.segmentation import Segmentation
 from tlessbot_ros.core.localise.table_gap import apart_by_table
 
@@ -255,10 +259,10 @@ def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
     window. Lightness halves (their groups from ``LIGHTNESS_GROUPS``) count as a depth split
     where ``lit_apart`` (None: always) says the top view shows two lightnesses too. With
     ``apart_longer_than_parts``, two instances that together lie longer on the table than any
-    part (:mod:`.part_length`; ``window``: the blob's window in the image) stay apart
-    too, and with ``apart_each_whole`` two that could each be a whole part, where one top
-    blob is over them all (``owners``): in a pile the top view, farther away, sees touching
-    parts as one blob."""
+    part (:mod:`.part_length`; ``window``: the blob's window in the image) stay apart too,
+    and with ``apart_each_whole`` two that could each be a whole part, where one top blob is
+    over them all (``owners``; in a pile the top view, farther away, sees touching parts as
+    one blob), unless they meet along ``whole_cut_border`` (one part cut across)."""
     ids = np.unique(own[blob])
     ids = ids[(ids > 0) & (ids <= len(side.depth_groups))]
     if ids.size < 2:
@@ -285,13 +289,17 @@ def _side_pieces_of_blob(blob: np.ndarray, own: np.ndarray, side: Segmentation,
                 blob & np.isin(own, ids[[a, b]]), origin)
         return too_long[a, b]
 
+    def each_whole(a: int, b: int) -> bool:   # ... unless they meet as one part cut across
+        return whole[a] and whole[b] and not (
+            params.whole_cut_border > 0 and shared_border_ratio(
+                blob & (own == ids[a]), blob & (own == ids[b])) >= params.whole_cut_border)
+
     def together(a: int, b: int) -> bool:
         by_depth = params.keep_depth_splits and groups[a] > 0 and groups[b] > 0 and \
             groups[a] != groups[b]
         by_height = params.keep_thin_beside_tall and thin[a] != thin[b]
         by_view = owner_of[a] > 0 and owner_of[b] > 0 and owner_of[a] != owner_of[b]
-        return not (by_depth or by_height or by_view or whole[a] and whole[b]
-                    or by_length(a, b))
+        return not (by_depth or by_height or by_view or by_length(a, b) or each_whole(a, b))
 
     root_of = pair_roots(ids.size, together)
     if len(set(root_of)) < 2:

@@ -54,6 +54,8 @@ class FusionParams:
             they lie longer on the table than this many times the longest part (0: off).
         apart_each_whole: ... and where each holds this many times the pixels of the smallest
             whole part as long as it looks (:mod:`.part_scale`; 0: off).
+        whole_cut_border: ... but not where they meet along this many times the square root of
+            the smaller's pixels: one part cut across (``shared_border_ratio``; 0: off).
         box_margin_px: Algorithm 1: tolerance when testing whether a carried foot point lies
             in a side box.
     """
@@ -82,6 +84,7 @@ class FusionParams:
     lightness_top_ratio: float = 2.0
     apart_longer_than_parts: float = 1.1
     apart_each_whole: float = 1.0
+    whole_cut_border: float = 1.5
 
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:
@@ -97,9 +100,9 @@ class FusionParams:
         if self.apart_longer_than_parts != 0 and self.apart_longer_than_parts < 1:
             raise ValueError('apart_longer_than_parts must be 0 (off) or at least 1, got '
                              f'{self.apart_longer_than_parts}')
-        if self.apart_each_whole < 0:
-            raise ValueError(f'apart_each_whole must be >= 0 (0: off), got '
-                             f'{self.apart_each_whole}')
+        if self.apart_each_whole < 0 or self.whole_cut_border < 0:
+            raise ValueError('apart_each_whole and whole_cut_border must be >= 0 (0: off), got '
+                             f'{self.apart_each_whole} and {self.whole_cut_border}')
         if not 0.0 <= self.min_overlap_fraction <= 1.0:
             raise ValueError('min_overlap_fraction must be in [0, 1], got '
                              f'{self.min_overlap_fraction}')

@@ -137,6 +137,21 @@ def holds_whole_part(piece: np.ndarray,
         factor * whole_part_px(whole_parts, 0.0, mask_length_px(piece))
 
 
+def shared_border_ratio(a: np.ndarray, b: np.ndarray) -> float:
+    """How long two bool masks meet: the pixels of either that touch the other (8-neighbours;
+    the larger count) over the square root of the smaller mask's pixels. A cut across one
+    part's body runs across the smaller piece's width (about 1 and more); two parts touching
+    meet along a stretch of their outlines (mostly less). 0 where either is empty."""
+    a8, b8 = np.ascontiguousarray(a, np.uint8), np.ascontiguousarray(b, np.uint8)
+    smaller = min(cv2.countNonZero(a8), cv2.countNonZero(b8))
+    if smaller == 0:
+        return 0.0
+    ring = np.ones((3, 3), np.uint8)
+    touching = max(cv2.countNonZero(cv2.bitwise_and(a8, cv2.dilate(b8, ring))),
+                   cv2.countNonZero(cv2.bitwise_and(b8, cv2.dilate(a8, ring))))
+    return float(touching / np.sqrt(smaller))
+
+
 def join_pieces_no_part_fits(pieces: list[np.ndarray], params: SegmentationParams
                              ) -> list[np.ndarray]:
     """The pieces of one blob (bool masks of one crop), each piece that no part fits whole
