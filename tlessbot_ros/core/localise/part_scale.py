@@ -140,8 +140,8 @@ def holds_whole_part(piece: np.ndarray,
 def shared_border_ratio(a: np.ndarray, b: np.ndarray) -> float:
     """How long two bool masks meet: the pixels of either that touch the other (8-neighbours;
     the larger count) over the square root of the smaller mask's pixels. A cut across one
-    part's body runs across the smaller piece's width (about 1 and more); two parts touching
-    meet along a stretch of their outlines (mostly less). 0 where either is empty."""
+    part's body runs across the smaller piece's whole width; two parts touching mostly meet
+    along a short stretch of their outlines. 0 where either is empty."""
     a8, b8 = np.ascontiguousarray(a, np.uint8), np.ascontiguousarray(b, np.uint8)
     smaller = min(cv2.countNonZero(a8), cv2.countNonZero(b8))
     if smaller == 0:
