@@ -335,6 +335,7 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'edge_band_px',   # #41: a band along a fitted part's edge is no part
         'same_part_share',   # #41: two fits of one class in the same space are one part
         'split_thick_parts',   # #41: piles: the division after the fit for thick parts too
+        'split_refit_below',   # #41: piles: a badly explained region refitted on its halves
         'turns',   # #41: near-symmetric turns told apart by the colour image
         'resting',   # #41: a fit on the table levelled onto a stable pose of its part
         'table_clearance_noise',   # #41: box mode, the clearance from the table's noise

@@ -1,6 +1,7 @@
 """Two parts found as one region are two parts after the fit (issue 41, core/two_parts.py): the
 connected piece of the region's depth that the first fit leaves unexplained is divided off,
-fitted, and kept as a part of its own."""
+fitted, and kept as a part of its own; a region its fit explains badly is refitted on its
+halves first (core/refit_halves.py)."""
 from __future__ import annotations
 
 import cv2
@@ -18,6 +19,7 @@ from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.params import FitParams
 from tlessbot_ros.core.pipeline import PerceptionPipeline, ViewInput
 from tlessbot_ros.core.pose import PoseCandidate, PoseParams, build_database, roi_cloud
+from tlessbot_ros.core.refit_halves import explained_share, split_badly_explained, two_halves
 from tlessbot_ros.core.two_parts import (
     MIN_COVERAGE,
     fill_one_space,
@@ -244,8 +246,8 @@ def test_the_last_labelling_gives_what_no_fit_explains_to_the_nearer_part(touchi
 @pytest.fixture(scope='module')
 def two_blocks():
     """Two blocks 40 x 30 x 20 mm with a 10 mm step on top (no flat part), lying side by side
-    on the table 1 mm apart, one region (label 1) holding both, as a pile merges them; the
-    database knows the block alone (id 2)."""
+    on the table 1 mm apart, one region (label 1) holding both, as a pile merges them, and
+    their true poses (camera frame); the database knows the block alone (id 2)."""
     trimesh = pytest.importorskip('trimesh')
     boxes = [((0, 0, 0), (0.04, 0.03, 0.01)), ((0, 0, 0.01), (0.025, 0.03, 0.02))]
     mesh = trimesh.util.concatenate([trimesh.creation.box(
@@ -258,13 +260,14 @@ def two_blocks():
     poses = [make_transform(turn, [-0.03, 0.0, 0.0]),
              make_transform(turn, turn @ np.array([0.041, 0.0, 0.0]) + [-0.03, 0.0, 0.0])]
     (first, second), views = _side_scene([(v, f, T) for T in poses], 500)
-    return db, views, (first | second).astype(np.uint16), first, second
+    truth = [SIDE.T_camera_world @ T for T in poses]
+    return db, views, (first | second).astype(np.uint16), first, second, truth
 
 
 def test_two_thick_parts_in_one_region_are_divided_with_split_thick_parts(two_blocks):
     """Piles (issue 41): thick parts that touch are one region where no depth seam parts
     them; with ``split_thick_parts`` the division after the fit runs for them too."""
-    db, views, region, first, second = two_blocks
+    db, views, region, first, second, _ = two_blocks
     off = PerceptionPipeline(templates=db, pose=POSE)
     assert off.fit_params.split_thick_parts is False
     assert len(off.estimate_poses(views, {'side': region.copy()}, {1: (2,)})) == 1
@@ -293,3 +296,62 @@ def test_a_piece_inside_the_rest_s_fit_is_no_part_of_its_own(two_blocks):
 
     assert fill_one_space(pipeline, fitted(0.0), fitted(0.006))
     assert not fill_one_space(pipeline, fitted(0.0), fitted(0.041))
+
+
+# ------------------------------------ a fit between two parts: refitted on the region's halves
+def _between(labels: np.ndarray, views, truth) -> PartJob:
+    """The region fitted once as one block straddling the seam: halfway between the two."""
+    mask = labels == 1
+    T = truth[0].copy()
+    T[:3, 3] = (truth[0][:3, 3] + truth[1][:3, 3]) / 2
+    detection = Detection(1, 2, 'side', mask_box(mask), pose=PoseCandidate(T, 0.5, 0.002))
+    return PartJob(detection, roi_cloud(views['side'].depth_m, mask, SIDE.intrinsics), (2,),
+                   SIDE.T_world_camera)
+
+
+def test_the_halves_are_the_two_parts(two_blocks):
+    db, views, region, first, second, truth = two_blocks
+    halves = two_halves(region > 0, views['side'].depth_m, SIDE.intrinsics.K,
+                        SIDE.T_world_camera)
+    assert halves is not None
+    for half in halves:   # each half lies on one block
+        assert max(np.mean(first[half]), np.mean(second[half])) > 0.9
+
+
+def test_a_fit_between_two_parts_is_divided_into_both(two_blocks):
+    """The fit between the blocks explains under half the region: refitted on its halves, the
+    better half's block leaves the other out, which is divided off; each block ends with its
+    own region and a pose on it. Off by default (and with ``split_thick_parts`` off, the
+    division after the first fit never runs for two thick parts)."""
+    db, views, region, first, second, truth = two_blocks
+    labels = {'side': region.copy()}
+    pipeline = PerceptionPipeline(templates=db, pose=POSE,
+                                  fit_params=FitParams(split_refit_below=0.7))
+    job = _between(labels['side'], views, truth)
+    assert explained_share(pipeline, job) < 0.7
+    off = PerceptionPipeline(templates=db, pose=POSE)
+    assert split_badly_explained(off, _between(labels['side'], views, truth), views,
+                                 {'side': region.copy()}) is None
+    piece = split_badly_explained(pipeline, job, views, labels)
+    assert piece is not None
+    found = [job.detection, piece.detection]
+    for part, T in zip((first, second), truth):
+        gaps = [np.linalg.norm(d.pose.T_camera_object[:3, 3] - T[:3, 3]) for d in found]
+        assert min(gaps) < 0.01
+        owner = found[int(np.argmin(gaps))]
+        assert np.mean(labels['side'][part] == owner.instance_id) > 0.8
+
+
+def test_a_part_fitted_well_is_not_refitted(two_blocks):
+    """A fit on one block alone explains its region: nothing is refitted or divided."""
+    db, views, region, first, second, truth = two_blocks
+    labels = {'side': first.astype(np.uint16)}
+    pipeline = PerceptionPipeline(templates=db, pose=POSE,
+                                  fit_params=FitParams(split_refit_below=0.7))
+    mask = labels['side'] == 1
+    detection = Detection(1, 2, 'side', mask_box(mask), pose=PoseCandidate(truth[0], 0.9, 0.001))
+    job = PartJob(detection, roi_cloud(views['side'].depth_m, mask, SIDE.intrinsics), (2,),
+                  SIDE.T_world_camera)
+    assert explained_share(pipeline, job) >= 0.7
+    assert split_badly_explained(pipeline, job, views, labels) is None
+    assert np.array_equal(job.detection.pose.T_camera_object, truth[0])

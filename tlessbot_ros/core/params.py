@@ -150,6 +150,8 @@ class FitParams:
             ``min_roi_points``) that its fit leaves unexplained is fitted as a part of its own.
         split_thick_parts: that division also where neither side is a flat part (off: only
             where one is; thick parts are left to the depth's seams).
+        split_refit_below: a region whose fit explains less than this share of its depth points
+            is fitted again on each half, and the better half's fit divides it (0..1; 0: off).
         fit_rank_coverage_weight: candidates also gain this times their coverage of the model's
             visible surface, but against their look-alike twin (>= 0; 0: off).
         flat: flat parts: the face that is up (depth and colour image), the yaw and a look-alike
@@ -194,6 +196,7 @@ class FitParams:
     unknown_without_fit: bool = False
     split_unexplained: bool = True
     split_thick_parts: bool = False
+    split_refit_below: float = 0.0
     join_refit_cover: float = 0.8
     join_refit_gap_px: int = 3
     join_refit_touching: bool = True
@@ -238,6 +241,8 @@ class FitParams:
                f'{self.edge_band_px}')
         _check(0 <= self.same_part_share <= 1, 'same_part_share must be in 0..1 (a share; '
                f'0: off), got {self.same_part_share}')
+        _check(0 <= self.split_refit_below <= 1, 'split_refit_below must be in 0..1 (a share; '
+               f'0: off), got {self.split_refit_below}')
         _check(self.trim_to_fit_px >= 0, 'trim_to_fit_px must be >= 0 (0: off), got '
                f'{self.trim_to_fit_px}')
         _check(self.fit_rank_coverage_weight >= 0, 'fit_rank_coverage_weight must be >= 0 '

@@ -153,6 +153,9 @@ def split_then(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
     a part of its own is appended to, once judged and published; ``labels`` then give it its
     own instance id in every view that shows it (arrays replaced, not written into). Off
     (``judge`` itself) with ``FitParams.split_unexplained`` off or in ``box_mode``."""
+    # refit_halves builds on this module
+    from tlessbot_ros.core.refit_halves import split_badly_explained
+
     found = [] if found is None else found
     if box_mode or not pipeline.fit_params.split_unexplained:
         return judge, found
@@ -165,8 +168,11 @@ def split_then(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
         # leaves both ends out, and one piece is divided off at a time
         while detection.pose is not None and detection.obj_id != UNKNOWN_ID and \
                 job.T_world_camera is not None:
-            piece = split_off(pipeline, job, views, labels, list(by_detection.values()),
+            others = list(by_detection.values())
+            piece = split_off(pipeline, job, views, labels, others,
                               apart_from=[p.detection.instance_id for p in pieces])
+            if piece is None and not pieces:   # a fit between two parts (refit_halves.py)
+                piece = split_badly_explained(pipeline, job, views, labels, others)
             if piece is None:
                 break
             by_detection[id(piece.detection)] = piece
@@ -182,7 +188,8 @@ def split_then(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
 
 def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
               labels: dict[str, np.ndarray], others: Sequence[PartJob] = (), *,
-              apart_from: Sequence[int] = ()) -> PartJob | None:
+              apart_from: Sequence[int] = (), thick_too: bool | None = None
+              ) -> PartJob | None:
     """The piece of ``job``'s region that its fit leaves unexplained, fitted, when it is a
     part (see the module) that none of ``others`` (the frame's fitted parts) sits on already
     and that does not touch the regions ``apart_from`` (pieces just divided off this region,
@@ -190,8 +197,10 @@ def split_off(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewI
     own in the rest): ``labels`` are then divided and ``job`` (its points, box, class and
     pose) refitted on what is left; else None and nothing changed. A piece that is a band
     along the rest's edge (``FitParams.edge_band_px``) is erased instead, the rest divided
-    and refitted all the same, and None returned."""
-    thick_too = pipeline.fit_params.split_thick_parts
+    and refitted all the same, and None returned. ``thick_too``: divide where neither side
+    is flat (default ``FitParams.split_thick_parts``)."""
+    if thick_too is None:
+        thick_too = pipeline.fit_params.split_thick_parts
     if not pipeline.flat_ids and not thick_too:   # the depth's seams divide thick parts
         return None
     pieces = piece_in_views(pipeline, job, views, labels)
