@@ -9,7 +9,8 @@ does; each region's first fit (before any division) is recorded with the share o
 region's depth points it explains (inside its outline, within ``verify_inlier_m`` of its
 surface, :func:`~tlessbot_ros.core.two_parts.explained`; and within twice that), and the
 ground-truth parts over the region (in the fitted view: each part whose visible mask holds at
-least a fifth of the region's pixels). Printed: the explained share by the number of parts.
+least a fifth of the region's pixels). Printed: the first fit's explained share (3 mm) of the
+regions over one part and over two or more, and how many lie below 0.5 ... 0.8.
 """
 from __future__ import annotations
 
@@ -116,12 +117,18 @@ def main() -> None:
     lines = ['\t'.join(keys)] + ['\t'.join(str(r[k]) for k in keys) for r in rows]
     if args.tsv:
         args.tsv.write_text('\n'.join(lines) + '\n')
-    for n in sorted({r['parts'] for r in rows}):
-        e = np.array([r['expl3'] for r in rows if r['parts'] == n and np.isfinite(r['expl3'])])
+    firsts, seen = [], set()   # a region refitted (joined, divided) counts once: its first fit
+    for r in rows:
+        if (r['im'], r['view'], r['inst']) not in seen and np.isfinite(r['expl3']):
+            seen.add((r['im'], r['view'], r['inst']))
+            firsts.append(r)
+    for label, many in (('one part', False), ('two or more', True)):
+        e = np.array([r['expl3'] for r in firsts if r['parts'] > 0 and (r['parts'] > 1) == many])
         if len(e):
-            q = np.percentile(e, [10, 25, 50, 75, 90])
-            print(f'parts {n}: {len(e)} fits, explained (3 mm) p10/25/50/75/90 '
-                  + ' '.join(f'{x:.2f}' for x in q), file=sys.stderr)
+            q = np.percentile(e, [10, 50, 90])
+            below = ' '.join(f'<{t}: {np.count_nonzero(e < t)}' for t in (0.5, 0.6, 0.7, 0.8))
+            print(f'{label}: {len(e)} regions, explained (3 mm) p10/50/90 '
+                  + ' '.join(f'{x:.2f}' for x in q) + f'; {below}', file=sys.stderr)
 
 
 if __name__ == '__main__':

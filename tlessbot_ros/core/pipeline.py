@@ -99,10 +99,10 @@ from tlessbot_ros.core.pose import (
     roi_cloud,
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
+from tlessbot_ros.core.refit_halves import split_or_refit
 from tlessbot_ros.core.region_trim import trim_to_fits
 from tlessbot_ros.core.resting_check import check_resting_and_turns
 from tlessbot_ros.core.turn_check import warm_up_turns
-from tlessbot_ros.core.two_parts import split_then
 
 _REPLACEABLE = frozenset({'rig', 'classifier', 'localise_params', 'classify_params',
                           'fit_params', 'segmentation', 'fusion', 'pose', 'part_extents_m'})
@@ -409,7 +409,7 @@ class PerceptionPipeline:
             done(detection)
         # a ground-truth box is one part, never a fragment (piled keys' boxes overlap)
         last = unknown_last(self.fit_params, jobs, done, self.pose_estimator, box_mode=box_mode)
-        last, pieces = split_then(self, views, labels, jobs, last, done, box_mode=box_mode)
+        last, pieces = split_or_refit(self, views, labels, jobs, last, done, box_mode=box_mode)
         arbiter = one_part_filter(jobs, last, self.fit_params, self.pose_estimator,
                                   0.0 if box_mode else self.fit_params.fragment_overlap,
                                   union_joiner(self, views, labels, jobs),

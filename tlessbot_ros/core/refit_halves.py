@@ -18,16 +18,16 @@ too), with all its checks; where it divides nothing, the region keeps its first 
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tlessbot_ros.core.common import depth_to_points, mask_box, transform_points
-from tlessbot_ros.core.frame import PartJob
+from tlessbot_ros.core.frame import Detection, PartJob
 from tlessbot_ros.core.part_fit import pose_stage
 from tlessbot_ros.core.recognise import UNKNOWN_ID
-from tlessbot_ros.core.two_parts import divided_job, explained, fits_alone, split_off
+from tlessbot_ros.core.two_parts import divided_job, explained, fits_alone, split_off, split_then
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.frame import ViewInput
@@ -140,4 +140,15 @@ def split_badly_explained(pipeline: PerceptionPipeline, job: PartJob,
     return piece
 
 
-__all__ = ['better_half', 'explained_share', 'split_badly_explained', 'two_halves']
+def split_or_refit(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
+                   labels: dict[str, np.ndarray], jobs: Sequence[PartJob],
+                   judge: Callable[[Detection], None], publish: Callable[[Detection], None], *,
+                   box_mode: bool = False) -> tuple[Callable[[Detection], None], list[Detection]]:
+    """:func:`~tlessbot_ros.core.two_parts.split_then` with :func:`split_badly_explained` as
+    its second try where the first division finds no piece."""
+    return split_then(pipeline, views, labels, jobs, judge, publish, box_mode=box_mode,
+                      second_try=split_badly_explained)
+
+
+__all__ = ['better_half', 'explained_share', 'split_badly_explained', 'split_or_refit',
+           'two_halves']

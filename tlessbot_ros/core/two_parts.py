@@ -53,6 +53,10 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.pipeline import PerceptionPipeline
     from tlessbot_ros.core.pose import ObjectTemplates, Refiner
 
+# a second way to divide a region, given the frame's fitted parts (refit_halves.py)
+SecondTry = Callable[['PerceptionPipeline', PartJob, dict[str, 'ViewInput'],
+                      dict[str, np.ndarray], Sequence[PartJob]], 'PartJob | None']
+
 # A piece is a part only when its points cover at least this share of its fitted model's
 # surface that faces the camera: the share of a part that must be visible for it to count
 # as seen (the BOP targets' visib_fract >= 0.3).
@@ -146,16 +150,16 @@ def piece_in_views(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, 
 def split_then(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
                labels: dict[str, np.ndarray], jobs: Sequence[PartJob],
                judge: Callable[[Detection], None], publish: Callable[[Detection], None], *,
-               box_mode: bool = False, found: list[Detection] | None = None
+               box_mode: bool = False, found: list[Detection] | None = None,
+               second_try: SecondTry | None = None
                ) -> tuple[Callable[[Detection], None], list[Detection]]:
     """``judge`` (the unknown rule, then ``publish``) behind the division of each kept part's
     region (see the module), and the list (``found``, or a new one) that each piece kept as
     a part of its own is appended to, once judged and published; ``labels`` then give it its
     own instance id in every view that shows it (arrays replaced, not written into). Off
-    (``judge`` itself) with ``FitParams.split_unexplained`` off or in ``box_mode``."""
-    # refit_halves builds on this module
-    from tlessbot_ros.core.refit_halves import split_badly_explained
-
+    (``judge`` itself) with ``FitParams.split_unexplained`` off or in ``box_mode``.
+    ``second_try(pipeline, job, views, labels, others)``: asked for a piece where the first
+    division finds none (:func:`~tlessbot_ros.core.refit_halves.split_badly_explained`)."""
     found = [] if found is None else found
     if box_mode or not pipeline.fit_params.split_unexplained:
         return judge, found
@@ -171,8 +175,8 @@ def split_then(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
             others = list(by_detection.values())
             piece = split_off(pipeline, job, views, labels, others,
                               apart_from=[p.detection.instance_id for p in pieces])
-            if piece is None and not pieces:   # a fit between two parts (refit_halves.py)
-                piece = split_badly_explained(pipeline, job, views, labels, others)
+            if piece is None and not pieces and second_try is not None:
+                piece = second_try(pipeline, job, views, labels, others)
             if piece is None:
                 break
             by_detection[id(piece.detection)] = piece
@@ -182,7 +186,7 @@ def split_then(pipeline: PerceptionPipeline, views: dict[str, ViewInput],
             found.append(piece.detection)
             split_then(pipeline, views, labels, list(by_detection.values()), unknown_last(
                 pipeline.fit_params, [piece], publish, pipeline.pose_estimator), publish,
-                found=found)[0](piece.detection)
+                found=found, second_try=second_try)[0](piece.detection)
     return divided, found
 
 
