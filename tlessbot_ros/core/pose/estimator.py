@@ -72,10 +72,9 @@ def after_polish(polished: list[PoseCandidate], margin: float) -> list[PoseCandi
     on clear evidence: more ROI points explained. The score's coverage term cannot be that
     evidence: it comes from a back-face test that ignores self-occlusion, so a pose turned by
     ~180° (90° for a part with a 180° symmetry) can cover more than the right pose while it
-    explains fewer points (obj_07 on simulated D415 depth: coverage 0.83 against 0.65, fitness
-    0.91 against 0.95); and between two converged near-equal fits (fitness 0.971 against
-    0.973, obj_25 on the demo bag) neither term tells them apart. In box mode the fitness is
-    weighed by the box's cover (:attr:`PoseCandidate.box_fitness`).
+    explains fewer points; and between two converged near-equal fits neither term tells them
+    apart (examples: docs/bench/code-figures.md). In box mode the fitness is weighed by the
+    box's cover (:attr:`PoseCandidate.box_fitness`).
     """
     ranked = PoseEstimator._rank(polished)
     if margin >= 1.0 or len(polished) < 2:
@@ -114,7 +113,7 @@ class PoseEstimator:
         """Build every per-object cache now (nearest-point grids, KD-trees, scoring subsets, the
         fallback's view grid, every meshed part's stable poses, and with ``features`` the
         templates' FPFH), so the first frame
-        that shows an object is not slower than the next: about 0.5 s per object, once. Each
+        that shows an object is not slower than the next (a cost paid once per object). Each
         object's first template cloud is run through :meth:`estimate` with the template
         camera's pose."""
         ids = sorted(self.database.objects) if obj_ids is None else list(obj_ids)
