@@ -21,9 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from own_parts_none import none_parts  # noqa: E402
-from own_parts_why import _estimates, _outcome  # noqa: E402
-
-from tlessbot_ros.core.common.symmetry import symmetries_from_models_info  # noqa: E402
+from own_parts_why import _estimates, _outcome, side_parts, symmetry_turns  # noqa: E402
 
 FLAT_CELLS = ('4100:g', '4242:g', '4343:g', '4100:h7', '4242:h7', '4100:h8', '4242:h8')
 NAMES = {'tilt<5': 'yaw', 'tilt5-20': 'tilt', 'tilt20-100': 'tilt', 'tilt>100': 'over',
@@ -34,32 +32,25 @@ def lying_outcomes(scenes: Path, models: Path, estimates: Path, flat_mm: float
                    ) -> dict[tuple[int, int, int], tuple[int, str]]:
     """(scene, im, gt index) -> (obj, cause) of every flat part lying on a face."""
     info = json.loads((models / 'models_info.json').read_text())
-    turns = {k: [S[:3, :3] for S in symmetries_from_models_info(v).transforms(
-        step_rad=np.radians(1))] for k, v in info.items()}
+    turns = symmetry_turns(info)
     est = _estimates(estimates)
     nones = {(r['scene'], r['im'], r['gt']): r['cause']
              for r in none_parts(scenes, estimates, 0.015)}
     out = {}
-    for scene in sorted((scenes / 'test_side').iterdir()):
-        gt = json.loads((scene / 'scene_gt.json').read_text())
-        cameras = json.loads((scene / 'scene_camera.json').read_text())
-        for im, parts in gt.items():
-            up_c = np.array(cameras[im]['cam_R_w2c']).reshape(3, 3) @ np.array([0, 0, 1.0])
-            for k, part in enumerate(parts):
-                key = str(part['obj_id'])
-                size = np.array([info[key][f'size_{a}'] for a in 'xyz'])
-                if size.min() > flat_mm:
-                    continue
-                R_gt = np.array(part['cam_R_m2c']).reshape(3, 3)
-                thin = R_gt @ np.eye(3)[int(np.argmin(size))]
-                if np.degrees(np.arccos(min(1.0, abs(float(thin @ up_c))))) >= 20:
-                    continue
-                found = est.get((int(scene.name), int(im), part['obj_id']), [])
-                outcome = _outcome(found, R_gt, np.array(part['cam_t_m2c']) / 1000,
-                                   turns[key], up_c)
-                where = (int(scene.name), int(im), k)
-                cause = nones[where] if outcome == 'none' else NAMES[outcome]
-                out[where] = (part['obj_id'], cause)
+    for scene, im, k, part, up_c in side_parts(scenes):
+        key = str(part['obj_id'])
+        size = np.array([info[key][f'size_{a}'] for a in 'xyz'])
+        if size.min() > flat_mm:
+            continue
+        R_gt = np.array(part['cam_R_m2c']).reshape(3, 3)
+        thin = R_gt @ np.eye(3)[int(np.argmin(size))]
+        if np.degrees(np.arccos(min(1.0, abs(float(thin @ up_c))))) >= 20:
+            continue
+        found = est.get((scene, im, part['obj_id']), [])
+        outcome = _outcome(found, R_gt, np.array(part['cam_t_m2c']) / 1000, turns[key], up_c)
+        where = (scene, im, k)
+        cause = nones[where] if outcome == 'none' else NAMES[outcome]
+        out[where] = (part['obj_id'], cause)
     return out
 
 

@@ -15,9 +15,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from own_parts_why import _estimates, _outcome  # noqa: E402
-
-from tlessbot_ros.core.common.symmetry import symmetries_from_models_info  # noqa: E402
+from own_parts_why import _estimates, _outcome, symmetry_turns  # noqa: E402
 
 
 def _table(title: str, rows: dict[str, dict[str, int]]) -> None:
@@ -33,8 +31,7 @@ def main(scenes: Path, models: Path, estimates_csv: Path) -> None:
     info = json.loads((models / 'models_info.json').read_text())
     drawn = json.loads((scenes / 'other_renderer.json').read_text())
     estimates = _estimates(estimates_csv)
-    turns = {k: [S[:3, :3] for S in symmetries_from_models_info(v).transforms(
-        step_rad=np.radians(1))] for k, v in info.items()}
+    turns = symmetry_turns(info)
     folder = scenes / 'test_side' / '000000'
     gt = json.loads((folder / 'scene_gt.json').read_text())
     cameras = json.loads((folder / 'scene_camera.json').read_text())

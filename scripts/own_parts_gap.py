@@ -30,9 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from own_parts_none import none_parts  # noqa: E402
-from own_parts_why import _estimates, _outcome  # noqa: E402
-
-from tlessbot_ros.core.common.symmetry import symmetries_from_models_info  # noqa: E402
+from own_parts_why import _estimates, _outcome, symmetry_turns  # noqa: E402
 
 CAUSES = ('twin', 'named', 'merged', 'missed', 'other', 'upside', 'tilt', 'yaw')
 
@@ -55,8 +53,7 @@ def lost_parts(scenes: Path, models: Path, estimates: Path, manifest: Path,
                flat_mm: float) -> tuple[int, int, list[dict]]:
     """(parts, ok, one row per lost part: im, obj, cause, attitude)."""
     info = json.loads((models / 'models_info.json').read_text())
-    turns = {k: [S[:3, :3] for S in symmetries_from_models_info(v).transforms(
-        step_rad=np.radians(1))] for k, v in info.items()}
+    turns = symmetry_turns(info)
     twins = _lookalikes(manifest)
     none_cause = {}
     for r in none_parts(scenes, estimates, 0.015):

@@ -18,6 +18,7 @@ import argparse
 import csv
 import json
 from collections import defaultdict
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +56,25 @@ def _outcome(candidates: list[np.ndarray], R_gt: np.ndarray, t_gt: np.ndarray,
             'tilt20-100' if tilt < 100 else 'tilt>100')
 
 
+def symmetry_turns(info: dict) -> dict[str, list[np.ndarray]]:
+    """models_info.json's entries -> each part's symmetry rotations, (3, 3) each (a continuous
+    axis in 1 deg steps)."""
+    return {k: [S[:3, :3] for S in symmetries_from_models_info(v).transforms(
+        step_rad=np.radians(1))] for k, v in info.items()}
+
+
+def side_parts(scenes: Path) -> Iterator[tuple[int, int, int, dict, np.ndarray]]:
+    """Every ground-truth part of the scored camera (``test_side``): (scene id, image id, index
+    in the image, its scene_gt entry, the table's up direction (3,) in that camera)."""
+    for scene in sorted((scenes / 'test_side').iterdir()):
+        gt = json.loads((scene / 'scene_gt.json').read_text())
+        cameras = json.loads((scene / 'scene_camera.json').read_text())
+        for im, parts in gt.items():
+            up_c = np.array(cameras[im]['cam_R_w2c']).reshape(3, 3) @ np.array([0, 0, 1.0])
+            for k, part in enumerate(parts):
+                yield int(scene.name), int(im), k, part, up_c
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('scenes', type=Path)
@@ -69,31 +89,24 @@ def main() -> None:
     per_part: dict[int, dict[str, int]] = defaultdict(lambda: defaultdict(int))
     flat: dict[str, list[int]] = defaultdict(lambda: [0, 0])
     flat_outcomes: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
-    turns = {k: [S[:3, :3] for S in symmetries_from_models_info(v).transforms(
-        step_rad=np.radians(1))] for k, v in info.items()}
-    for scene in sorted((args.scenes / 'test_side').iterdir()):
-        gt = json.loads((scene / 'scene_gt.json').read_text())
-        cameras = json.loads((scene / 'scene_camera.json').read_text())
-        for im, parts in gt.items():
-            up_c = np.array(cameras[im]['cam_R_w2c']).reshape(3, 3) @ np.array([0, 0, 1.0])
-            for part in parts:
-                key = str(part['obj_id'])
-                R_gt = np.array(part['cam_R_m2c']).reshape(3, 3)
-                t_gt = np.array(part['cam_t_m2c']) / 1000
-                found = estimates.get((int(scene.name), int(im), part['obj_id']), [])
-                outcome = _outcome(found, R_gt, t_gt, turns[key], up_c)
-                per_part[part['obj_id']][outcome] += 1
-                size = np.array([info[key][f'size_{a}'] for a in 'xyz'])
-                if size.min() <= args.flat_mm:
-                    thin = R_gt @ np.eye(3)[int(np.argmin(size))]
-                    angle = np.degrees(np.arccos(min(1.0, abs(float(thin @ up_c)))))
-                    attitude = ('lying' if angle < 20 else 'standing' if angle > 70
-                                else 'tilted')
-                    flat[attitude][0] += 1
-                    flat[attitude][1] += outcome == 'ok'
-                    flat_outcomes[attitude][outcome] += 1
-                    if attitude == args.list and outcome != 'ok':
-                        print(f'  scene={scene.name} im={im} obj={key} {outcome}')
+    turns = symmetry_turns(info)
+    for scene, im, _, part, up_c in side_parts(args.scenes):
+        key = str(part['obj_id'])
+        R_gt = np.array(part['cam_R_m2c']).reshape(3, 3)
+        t_gt = np.array(part['cam_t_m2c']) / 1000
+        found = estimates.get((scene, im, part['obj_id']), [])
+        outcome = _outcome(found, R_gt, t_gt, turns[key], up_c)
+        per_part[part['obj_id']][outcome] += 1
+        size = np.array([info[key][f'size_{a}'] for a in 'xyz'])
+        if size.min() <= args.flat_mm:
+            thin = R_gt @ np.eye(3)[int(np.argmin(size))]
+            angle = np.degrees(np.arccos(min(1.0, abs(float(thin @ up_c)))))
+            attitude = 'lying' if angle < 20 else 'standing' if angle > 70 else 'tilted'
+            flat[attitude][0] += 1
+            flat[attitude][1] += outcome == 'ok'
+            flat_outcomes[attitude][outcome] += 1
+            if attitude == args.list and outcome != 'ok':
+                print(f'  scene={scene:06d} im={im} obj={key} {outcome}')
     total: dict[str, int] = defaultdict(int)
     for obj_id, counts in sorted(per_part.items()):
         print(f'obj {obj_id:3d}: ' + ', '.join(f'{k} {v}' for k, v in sorted(counts.items())))
