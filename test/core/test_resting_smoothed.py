@@ -57,12 +57,13 @@ def _tilted(obj, T_world_object: np.ndarray, angle_deg: float) -> np.ndarray:
     return T
 
 
-def _smoothed_view(plate, noise_m: float):
-    """The side camera's depth of the plate shown 5° tilted (as a smoothed depth's shared
-    noise can show it) with ``noise_m`` of shared noise: (depth, part mask, the part's box,
-    its ROI cloud as the fit sees it, its free fit 7° tilted, T_camera_object)."""
+def _smoothed_view(plate, noise_m: float, shown_deg: float = SHOWN_DEG,
+                   fit_deg: float = FIT_DEG):
+    """The side camera's depth of the plate shown ``shown_deg`` tilted (as a smoothed depth's
+    shared noise can show it) with ``noise_m`` of shared noise: (depth, part mask, the part's
+    box, its ROI cloud as the fit sees it, its free fit ``fit_deg`` tilted, T_camera_object)."""
     v, f, obj, T_true = plate
-    T_shown = _tilted(obj, T_true, SHOWN_DEG)
+    T_shown = _tilted(obj, T_true, shown_deg)
     _, depth, mask = side_scene(v, f, T_shown, noise_m=0.0)
     depth = np.where(depth > 0, depth + _shared_noise(depth.shape, noise_m, 4.0), 0)
     depth = depth.astype(np.float32)
@@ -70,7 +71,7 @@ def _smoothed_view(plate, noise_m: float):
     box = (int(xs.min()), int(ys.min()), int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1)
     points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
     scene_c = voxel_downsample(points, obj.voxel_size_m)[0]
-    T_fit = np.linalg.inv(SIDE.T_world_camera) @ _tilted(obj, T_true, FIT_DEG)
+    T_fit = np.linalg.inv(SIDE.T_world_camera) @ _tilted(obj, T_true, fit_deg)
     return depth, mask, box, scene_c, T_fit
 
 
@@ -193,16 +194,8 @@ def test_a_part_too_small_in_the_image_to_show_a_turn_is_not_refined(plate):
 def _settled(plate, shown_deg: float, fit_deg: float, params: RestingParams):
     """``settle`` on the side camera's smoothed depth (1.5 mm of shared noise) of the plate
     shown ``shown_deg`` tilted, from a free fit ``fit_deg`` tilted."""
-    v, f, obj, T_true = plate
-    T_shown = _tilted(obj, T_true, shown_deg)
-    _, depth, mask = side_scene(v, f, T_shown, noise_m=0.0)
-    depth = np.where(depth > 0, depth + _shared_noise(depth.shape, 0.0015, 4.0), 0)
-    depth = depth.astype(np.float32)
-    ys, xs = np.nonzero(mask)
-    box = (int(xs.min()), int(ys.min()), int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1)
-    points, _ = depth_to_points(depth, SIDE.intrinsics.K, mask=mask)
-    scene_c = voxel_downsample(points, obj.voxel_size_m)[0]
-    T_fit = np.linalg.inv(SIDE.T_world_camera) @ _tilted(obj, T_true, fit_deg)
+    obj = plate[2]
+    depth, mask, box, scene_c, T_fit = _smoothed_view(plate, 0.0015, shown_deg, fit_deg)
     noise = table_noise_m(depth, SIDE.intrinsics, box, plane_of_frame(SIDE.T_world_camera),
                           mask)
     return settle(Refiner(PoseParams()), obj, T_fit, scene_c, SIDE.T_world_camera, params,
