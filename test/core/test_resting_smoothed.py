@@ -61,7 +61,8 @@ def _smoothed_view(plate, noise_m: float, shown_deg: float = SHOWN_DEG,
                    fit_deg: float = FIT_DEG):
     """The side camera's depth of the plate shown ``shown_deg`` tilted (as a smoothed depth's
     shared noise can show it) with ``noise_m`` of shared noise: (depth, part mask, the part's
-    box, its ROI cloud as the fit sees it, its free fit ``fit_deg`` tilted, T_camera_object)."""
+    box, its ROI cloud as the fit sees it, and its free fit ``fit_deg`` tilted as
+    T_camera_object)."""
     v, f, obj, T_true = plate
     T_shown = _tilted(obj, T_true, shown_deg)
     _, depth, mask = side_scene(v, f, T_shown, noise_m=0.0)

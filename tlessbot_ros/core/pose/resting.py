@@ -81,8 +81,9 @@ class RestingParams:
     candidates: int = 3
     contact_m: float = 0.004
     tolerance_m: float = 0.002
-    # a part's own smoothed depth reads noisier than the table's around it: at 3 the free
-    # fit of a lying plate, tilted by that noise, still explains more of it than the level one
+    # a part's own smoothed depth reads noisier than the table's around it, and a lying
+    # plate's free fit, tilted by that noise, explains more of it than the level pose unless
+    # the tolerance leaves room for that difference
     noise_ratio: float = 4.0
     fitness_margin: float = 0.02
     edge_yaw_deg: float = 10.0
