@@ -250,3 +250,33 @@ def test_top_blobs_of_other_colours_over_a_thin_side_instance_are_two_parts() ->
     assert side_ids(two_colours) == 2
     assert side_ids(two_colours, thin_join_colour_floors=0.0) == 1   # as before
     assert side_ids(BLUE[:2]) == 1
+
+
+def test_top_fragments_of_a_thin_part_against_a_taller_one_are_one_part() -> None:
+    # A plate 5 mm thick against a block 40 mm tall: the side segmentation holds them as a
+    # thin instance and a tall one in one blob (kept apart), the top view breaks the plate
+    # into two blobs. Of one colour they are fragments of the plate; of two colours (two
+    # plates touching end to end), two parts.
+    parts = [(-0.03, 0.0, 0, 0.06, 0.04, 0.005), (0.03, 0.0, 0, 0.06, 0.04, 0.005),
+             (0.08, 0.0, 0, 0.04, 0.04, 0.04)]
+
+    def plate_ids(colours, **params) -> int:
+        rig, views = _render(parts, colours)
+        top = views['top'][2] + 1    # the plates' two halves: two top blobs
+        truth = views['side'][2]
+        side = np.where(truth == 2, 2, 1) * (truth >= 0)   # the plates one instance
+        seg = segment(views['top'][0], background=views['top'][1])
+        side_seg = replace(_relabelled(seg, side, 0.0), thin=np.array([True, False]))
+        result = fuse_views(_relabelled(seg, top, 0.0), side_seg, rig=rig,
+                            depth_top_m=views['top'][3], side_rgb=views['side'][0],
+                            params=FusionParams(**params))
+        ids = result.labels['side']
+        block = np.unique(ids[side == 2])
+        plates = np.unique(ids[side == 1])
+        assert not set(block[block > 0]) & set(plates[plates > 0])   # the block apart
+        return int(np.count_nonzero(plates))
+
+    one_colour = BLUE[:2] + [(200, 120, 40)]
+    assert plate_ids(one_colour) == 1
+    assert plate_ids(one_colour, thin_join_pieces=False) == 2   # as before: cut in two
+    assert plate_ids([BLUE[0], (40, 160, 60), (200, 120, 40)]) == 2

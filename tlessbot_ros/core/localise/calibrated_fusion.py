@@ -13,7 +13,6 @@ import numpy as np
 
 from tlessbot_ros.core.common import Rig, pixel_counts, transform_points
 from tlessbot_ros.core.localise.blob_split import fill_from_nearest, padded_window, pair_roots
-from tlessbot_ros.core.localise.colour import rgb_to_lab
 from tlessbot_ros.core.localise.fusion_result import (
     FusionParams,
     FusionResult,
@@ -30,6 +29,10 @@ from tlessbot_ros.core.localise.part_scale import (
 )
 from tlessbot_ros.core.localise.segmentation import Segmentation
 from tlessbot_ros.core.localise.table_gap import apart_by_table
+from tlessbot_ros.core.localise.thin_fragments import (
+    join_thin_fragments,
+    join_thin_fragments_of_pieces,
+)
 
 
 # --------------------------------------------------------------------------- calibrated
@@ -177,11 +180,11 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
         out = side_labels[window]
         if len(owners) > 1 and _one_side_instance(blob, side.labels[window]):
             owners = _join_top_fragments(owners, overlap[b], top, top_labels, heights)
+        rgb_window = None if side_rgb is None else side_rgb[window]
+        floors = params.thin_join_colour_floors * side.colour_floors
         if len(owners) > 1:
-            owners = _join_thin_fragments(
-                blob, side, window, owners, top_labels, overlap[b],
-                None if side_rgb is None else side_rgb[window], pred[window],
-                params.thin_join_colour_floors * side.colour_floors)
+            owners = join_thin_fragments(blob, side, window, owners, top_labels, overlap[b],
+                                         rgb_window, pred[window], floors)
         if not owners and params.drop_unpredicted:
             continue
         if not owners and n_top > 0 and stats[b, cv2.CC_STAT_AREA] < side.whole_part_px():
@@ -198,8 +201,12 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
             check = top_check(top_rgb, top_labels, owners, params.lightness_top_ratio)
             pieces = _side_pieces_of_blob(blob, side.labels[window], side, params,
                                           pred[window], owners, check, window) or [blob]
+            if params.thin_join_pieces:
+                owners = join_thin_fragments_of_pieces(pieces, side, window, owners,
+                                                       top_labels, rgb_window, pred[window],
+                                                       floors)
             ids, next_id, divided = _label_pieces(
-                pieces, owners, pred[window], None if side_rgb is None else side_rgb[window],
+                pieces, owners, pred[window], rgb_window,
                 kernel, next_id, side.whole_part_px(),
                 whole_piece_apart=params.whole_pieces_apart)
             out[blob] = ids[blob]
@@ -429,43 +436,6 @@ def _place_fragments(side_labels: np.ndarray, blobs: np.ndarray, stats: np.ndarr
         near[blob] = next_id
         next_id += 1
     return next_id
-
-
-def _join_thin_fragments(blob: np.ndarray, side: Segmentation, window: tuple[slice, slice],
-                         owners: list[int], top_labels: np.ndarray, overlap: np.ndarray,
-                         rgb: np.ndarray | None, pred: np.ndarray,
-                         floors: np.ndarray) -> list[int]:
-    """The owners of a side blob left once those that are fragments of one thin part are
-    joined. A side blob that the side segmentation keeps as one thin part: the top view,
-    farther away, breaks a thin part up where the side view does not (a dark plate on dark
-    squares), so its several owners are fragments of that part and take the first one's id in
-    the top labels. But an owner whose side pixels (the blob under its prediction; ``rgb`` and
-    ``pred`` cut to the window) differ from those of the owner that overlaps the blob most in
-    median colour by more than ``floors`` (LAB, any channel; all 0: off) is a part of its
-    own: a part has one colour, two touching thin parts need not."""
-    own = np.unique(side.labels[window][blob])
-    own = own[(own > 0) & (own <= len(side.thin))]
-    if own.size != 1 or not side.thin[own - 1].all():
-        return owners
-    first = max(owners, key=lambda k: int(overlap[k]))
-    apart = _other_colours(blob, owners, first, rgb, pred, floors) \
-        if rgb is not None and np.any(floors > 0) else []
-    fragments = [k for k in owners if k not in apart]
-    top_labels[np.isin(top_labels, fragments[1:])] = fragments[0]
-    return fragments[:1] + apart
-
-
-def _other_colours(blob: np.ndarray, owners: list[int], first: int, rgb: np.ndarray,
-                   pred: np.ndarray, floors: np.ndarray) -> list[int]:
-    """The owners whose pixels of the blob (under their prediction) differ in median LAB
-    colour from those of ``first`` by more than ``floors`` in any channel."""
-    lab = rgb_to_lab(rgb)
-    under = {k: blob & (pred == k) for k in owners}
-    if not under[first].any():
-        return []
-    reference = np.median(lab[under[first]], axis=0)
-    return [k for k in owners if k != first and under[k].any()
-            and (np.abs(np.median(lab[under[k]], axis=0) - reference) > floors).any()]
 
 
 def _divide_among_owners(blob: np.ndarray, pred: np.ndarray, owners: list[int],
