@@ -190,13 +190,8 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
         if not owners and n_top > 0 and stats[b, cv2.CC_STAT_AREA] < side.whole_part_px():
             fragments.append(b)   # no part fits it, the top does not see it: placed last
             continue
-        if not owners:
-            # Not predicted from the top: keep the side segmentation's own instances.
-            own = side.labels[window]
-            for j in np.unique(own[blob]):
-                if j:
-                    out[blob & (own == j)] = next_id
-                    next_id += 1
+        if not owners:   # not predicted from the top: the side segmentation's own instances
+            next_id = _own_instances(out, blob, side.labels[window], next_id)
         else:
             check = top_check(top_rgb, top_labels, owners, params.lightness_top_ratio)
             pieces = _side_pieces_of_blob(blob, side.labels[window], side, params,
@@ -226,6 +221,16 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
     return FusionResult(labels=labels, method='calibrated', predicted_side=pred,
                         instances=instances_from_labels(top_labels, side_labels, split_ids),
                         timings_ms=timings)
+
+
+def _own_instances(out: np.ndarray, blob: np.ndarray, own: np.ndarray, next_id: int) -> int:
+    """Give each side instance of ``own`` (labels) in ``blob`` a new id in ``out`` (the
+    window's fused labels), from ``next_id``; returns the next free id."""
+    for j in np.unique(own[blob]):
+        if j:
+            out[blob & (own == j)] = next_id
+            next_id += 1
+    return next_id
 
 
 def _predicted_owners(overlap: np.ndarray, pred_area: np.ndarray, area: int,

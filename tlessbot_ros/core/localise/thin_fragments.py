@@ -26,13 +26,14 @@ def join_thin_fragments(blob: np.ndarray, side: Segmentation, window: tuple[slic
                         rgb: np.ndarray | None, pred: np.ndarray,
                         floors: np.ndarray) -> list[int]:
     """The owners of a side blob (or of a piece of one; ``blob`` a bool mask of the window) left
-    once those that are fragments of one thin part are joined. A side blob that the side segmentation keeps as one thin part: the top view,
-    farther away, breaks a thin part up where the side view does not (a dark plate on dark
-    squares), so its several owners are fragments of that part and take the first one's id in
-    the top labels. But an owner whose side pixels (the blob under its prediction; ``rgb`` and
-    ``pred`` cut to the window) differ from those of the owner that overlaps the blob most in
-    median colour by more than ``floors`` (LAB, any channel; all 0: off) is a part of its
-    own: a part has one colour, two touching thin parts need not."""
+    once those that are fragments of one thin part are joined. A side blob that the side
+    segmentation keeps as one thin part: the top view, farther away, breaks a thin part up
+    where the side view does not (a dark plate on dark squares), so its several owners are
+    fragments of that part and take the first one's id in the top labels. But an owner whose
+    side pixels (the blob under its prediction; ``rgb`` and ``pred`` cut to the window) differ
+    from those of the owner that overlaps the blob most in median colour by more than
+    ``floors`` (LAB, any channel; all 0: off) is a part of its own: a part has one colour, two
+    touching thin parts need not."""
     own = np.unique(side.labels[window][blob])
     own = own[(own > 0) & (own <= len(side.thin))]
     if own.size != 1 or not side.thin[own - 1].all():
