@@ -105,8 +105,8 @@ def parts_by_cause(fused_side: np.ndarray, side_seg: np.ndarray, top_seg: np.nda
     return rows, false, len(size)
 
 
-def _pipeline(by_view: dict, database: TemplateDatabase, overrides: list[str]
-              ) -> PerceptionPipeline:
+def localiser_pipeline(by_view: dict, database: TemplateDatabase, overrides: list[str]
+                       ) -> PerceptionPipeline:
     rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera) for v, im in by_view.items()})
     return PerceptionPipeline(rig=rig, part_extents_m=database.extents_m(),
                               **stage_overrides(overrides))
@@ -120,13 +120,20 @@ def _totals(name: str, rows: list[dict], false: int, regions: int) -> str:
             f'; regions {regions}, on no part {false}; merged (side seg/top seg) {dict(merged)}')
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+def localiser_arguments(description: str) -> argparse.ArgumentParser:
+    """The arguments of a script that localises a scenes folder: SCENES TEMPLATES
+    [--frames] [--tsv] [--pipeline-param]."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument('scenes', type=Path)
     ap.add_argument('templates', type=Path)
     ap.add_argument('--frames', type=int, nargs='*')
     ap.add_argument('--tsv', type=Path)
     ap.add_argument('--pipeline-param', action='append', default=[], metavar='NAME=VALUE')
+    return ap
+
+
+def main() -> None:
+    ap = localiser_arguments(__doc__.split('\n')[0])
     ap.add_argument('--against', action='append', default=[], metavar='NAME=VALUE')
     args = ap.parse_args()
     _hook()
@@ -139,7 +146,7 @@ def main() -> None:
     differ = []
     for by_view, views in two_view_frames(args.scenes, args.frames):
         top, side = by_view[TOP], by_view[SIDE]
-        pipelines = pipelines or [_pipeline(by_view, database, o) for o in settings]
+        pipelines = pipelines or [localiser_pipeline(by_view, database, o) for o in settings]
         labels = []
         for n, pipeline in enumerate(pipelines):
             record.clear()

@@ -24,7 +24,6 @@ cell is scored with (the parts' sizes). Runs ``PerceptionPipeline.localise`` onl
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -32,12 +31,11 @@ import cv2
 import numpy as np
 
 from tlessbot_ros.core import pipeline as pipeline_module
-from tlessbot_ros.core.common import SIDE, TOP, CameraMount, Rig
+from tlessbot_ros.core.common import SIDE, TOP
 from tlessbot_ros.core.localise.part_scale import holds_whole_part, shared_border_ratio
 from tlessbot_ros.core.pipeline import PerceptionPipeline
 from tlessbot_ros.core.pose import TemplateDatabase
 from tlessbot_ros.tools.support.eval_frames import two_view_frames
-from tlessbot_ros.tools.support.overrides import stage_overrides
 
 SIXTH = 1 / 6
 ABLATIONS = {'depth': ['depth_split_jump=0'], 'colour': ['colour_split_delta=0'],
@@ -45,6 +43,8 @@ ABLATIONS = {'depth': ['depth_split_jump=0'], 'colour': ['colour_split_delta=0']
              'all': ['split_touching=false'], 'table': ['table_divides=false'],
              'gap': ['gap_table_floors=0']}
 record: dict = {}
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from pile_regions import localiser_arguments, localiser_pipeline  # noqa: E402  (beside this one)
 
 
 def _hook() -> None:
@@ -77,21 +77,8 @@ def _top_seg(labels: np.ndarray, mask: np.ndarray | None) -> str:
     return 'split' if is_split(labels, mask) else 'one'
 
 
-def _pipeline(by_view: dict, database: TemplateDatabase, overrides: list[str]
-              ) -> PerceptionPipeline:
-    rig = Rig({v: CameraMount(v, im.intrinsics, im.T_world_camera) for v, im in by_view.items()})
-    return PerceptionPipeline(rig=rig, part_extents_m=database.extents_m(),
-                              **stage_overrides(overrides))
-
-
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    ap.add_argument('scenes', type=Path)
-    ap.add_argument('templates', type=Path)
-    ap.add_argument('--frames', type=int, nargs='*')
-    ap.add_argument('--tsv', type=Path)
-    ap.add_argument('--pipeline-param', action='append', default=[], metavar='NAME=VALUE')
-    args = ap.parse_args()
+    args = localiser_arguments(__doc__.split('\n')[0]).parse_args()
     _hook()
     database = TemplateDatabase.load(args.templates)
     pipelines: dict[str, PerceptionPipeline] = {}
@@ -99,7 +86,7 @@ def main() -> None:
     for by_view, views in two_view_frames(args.scenes, args.frames):
         side, top = by_view[SIDE], by_view[TOP]
         if not pipelines:
-            pipelines = {name: _pipeline(by_view, database, args.pipeline_param + extra)
+            pipelines = {name: localiser_pipeline(by_view, database, args.pipeline_param + extra)
                          for name, extra in [('base', [])] + list(ABLATIONS.items())}
         record.clear()
         fused = pipelines['base'].localise(views).labels[SIDE]
