@@ -277,6 +277,6 @@ def test_top_fragments_of_a_thin_part_against_a_taller_one_are_one_part() -> Non
         return int(np.count_nonzero(plates))
 
     one_colour = BLUE[:2] + [(200, 120, 40)]
-    assert plate_ids(one_colour) == 1
-    assert plate_ids(one_colour, thin_join_pieces=False) == 2   # as before: cut in two
-    assert plate_ids([BLUE[0], (40, 160, 60), (200, 120, 40)]) == 2
+    assert plate_ids(one_colour, thin_join_pieces=True) == 1
+    assert plate_ids(one_colour) == 2   # off by default: cut in two, as before
+    assert plate_ids([BLUE[0], (40, 160, 60), (200, 120, 40)], thin_join_pieces=True) == 2

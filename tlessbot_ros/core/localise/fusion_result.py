@@ -39,7 +39,7 @@ class FusionParams:
         thin_join_colour_floors: top blobs over one thin side instance are fragments of one
             part unless their side colours differ by more than this many colour floors (0: off).
         thin_join_pieces: ... over a piece of a side blob that is one thin side instance too
-            (a plate against a taller part, kept apart from it).
+            (a plate against a taller part, kept apart from it; off by default).
         keep_apart_by_prediction: two side instances of one blob that the top view's
             predictions give to two of its blobs stay apart.
         whole_pieces_apart: a piece of a side blob that no top blob takes and that could be a
@@ -77,7 +77,7 @@ class FusionParams:
     keep_depth_splits: bool = True
     keep_thin_beside_tall: bool = True
     thin_join_colour_floors: float = 2.0
-    thin_join_pieces: bool = True
+    thin_join_pieces: bool = False
     keep_apart_by_prediction: bool = True
     whole_pieces_apart: bool = True
     table_divides: bool = True
