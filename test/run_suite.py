@@ -9,8 +9,12 @@ ended is the one that hung. It kills what that run left behind (its process grou
 pytest again on the tests not run yet, the hung one among them, once. A test that hangs twice
 fails the run; every hang is listed at the end, with the stacks above it.
 
-Usage: ``python test/run_suite.py [pytest arguments]``; the exit status is pytest's, or 1 when
-an earlier part of the run failed or a test hung twice.
+A pytest process that a signal ends after its last test (an abort at interpreter exit) fails
+the run: it is reported, not run again.
+
+Usage: ``python test/run_suite.py [pytest arguments]``; the exit status is pytest's (128 + the
+signal's number when one ended it), or 1 when an earlier part of the run failed or a test hung
+twice.
 """
 from __future__ import annotations
 
@@ -85,6 +89,10 @@ def main(args: list[str]) -> int:
         print(f'run_suite: hung {count}x, {outcome}: {nodeid}', flush=True)
     if code == 5 and hangs:   # the last run had nothing left but what was deselected
         code = 0
+    if code < 0:   # every test ended, then a signal ended pytest: it died at its exit
+        print(f'run_suite: pytest was ended by {signal.Signals(-code).name} after its last '
+              'test ended: a thread still in native code at interpreter exit?', flush=True)
+        code = 128 - code   # the shell's status for a process a signal ended
     return code if code or not failed else 1
 
 

@@ -1,4 +1,5 @@
-"""test/run_suite.py: a test that hangs costs one test, not the run; hanging twice fails it."""
+"""test/run_suite.py: a test that hangs costs one test, not the run; hanging twice fails it; an
+abort at pytest's exit fails it, named."""
 from __future__ import annotations
 
 import subprocess
@@ -54,3 +55,24 @@ def test_a_test_that_hangs_twice_fails_the_run_and_the_rest_still_runs(tmp_path)
     assert result.returncode == 1, out
     assert 'hung 2x, FAILED: hung twice' in out
     assert '1 passed, 2 deselected' in out   # test_after ran in the third process
+
+
+ABORTS_AT_EXIT = """
+import atexit, os
+
+
+def test_passes_and_leaves_an_abort_for_the_exit():
+    atexit.register(os.abort)   # as a thread cut off in C++ at interpreter exit does
+"""
+
+
+def test_an_abort_at_pytests_exit_fails_the_run_and_is_named(tmp_path):
+    (tmp_path / 'test_suite.py').write_text(ABORTS_AT_EXIT)
+    result = subprocess.run(
+        [sys.executable, str(RUN_SUITE), '-p', 'no:cacheprovider', '--rootdir', str(tmp_path),
+         '-c', '/dev/null', str(tmp_path)],
+        capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    out = result.stdout + result.stderr
+    assert result.returncode == 134, out   # 128 + SIGABRT, as a shell reports it
+    assert '1 passed' in out and 'ended by SIGABRT after its last test ended' in out
+    assert 'HUNG' not in out   # not taken for a hang, not run again

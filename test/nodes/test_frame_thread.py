@@ -1,6 +1,6 @@
 """A stage node's frame thread: the warm-up runs where the frames will (so the first frame
 finds that thread's memory grown and buffers made), tools run jobs there between frames, and
-a node destroyed during its warm-up does not wait for it."""
+a node destroyed during its warm-up does not wait for it; the interpreter's exit does."""
 from __future__ import annotations
 
 import threading
@@ -85,3 +85,55 @@ def test_a_node_destroyed_during_its_warm_up_does_not_wait_and_never_gets_ready(
     node._worker.join(10.0)
     assert not node._worker.is_alive()
     assert not node.ready.is_set()            # it saw the node stopping: no subscriptions
+
+
+
+# A frame thread still in OpenCV (numba's compiler is alike) while the interpreter exits.
+_EXIT_DURING_A_JOB = """
+import sys
+import threading
+
+import cv2
+import numpy as np
+
+from tlessbot_ros.nodes.frame_worker import FrameWorker
+
+worker = FrameWorker('exit_probe', handle=lambda views: None, before_frame=lambda: None)
+started = threading.Event()
+image = np.zeros((1000, 1000), np.uint8)
+
+
+def work_past_the_exit():   # the node was destroyed during its warm-up
+    started.set()
+    threading.main_thread().join()   # returns once the interpreter's exit has begun
+    for _ in range(50):
+        cv2.connectedComponentsWithStats(image)   # each call releases the GIL
+    print('job finished', flush=True)
+
+
+def work_until_stopped():   # a node never destroyed
+    started.set()
+    while not worker.stopping:
+        cv2.connectedComponentsWithStats(image)
+    print('job finished', flush=True)
+
+
+worker.on_frame_thread(work_until_stopped if sys.argv[1] == 'never' else work_past_the_exit)
+started.wait()
+if sys.argv[1] == 'during_its_job':
+    worker.stop(join=False)   # what destroying a node during its warm-up does
+"""
+
+
+@pytest.mark.parametrize('destroyed', ['during_its_job', 'never'])
+def test_the_process_exits_after_the_frame_threads_job_not_during_it(destroyed):
+    """Cut off at exit, the thread never finishes its job, or the process aborts (SIGABRT,
+    "FATAL: exception not rethrown") when OpenCV's binding catches the thread's unwind."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    done = subprocess.run([sys.executable, '-c', _EXIT_DURING_A_JOB, destroyed], cwd=repo,
+                          capture_output=True, text=True, timeout=300)
+    assert (done.returncode, done.stdout) == (0, 'job finished\n'), done.stderr[-2000:]

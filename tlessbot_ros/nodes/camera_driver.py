@@ -40,6 +40,7 @@ from tlessbot_ros.conversions.topics import (
 from tlessbot_ros.errors import DeviceError
 from tlessbot_ros.nodes.common import RESULT_QOS, message_class, run_node
 from tlessbot_ros.nodes.diagnostics import ERROR, OK, diagnostic_array
+from tlessbot_ros.nodes.exit_wait import wait_at_exit
 from tlessbot_ros.nodes.parameters import AT_ONCE, LiveParameters
 from tlessbot_ros.sensors.realsense import RealSenseCamera, RealSenseParams
 
@@ -91,6 +92,7 @@ class CameraDriverNode(Node):
         self._thread = threading.Thread(target=self._capture_loop, daemon=True)
         self.create_timer(1.0, self._publish_diagnostics)
         self._thread.start()
+        wait_at_exit(self._thread, stop=self._stop.set)   # it reads in pyrealsense2's C++
 
     def _capture_loop(self) -> None:
         """Open, read and publish until shutdown; on DeviceError report and retry."""

@@ -7,6 +7,10 @@ released together at a time jump are all kept, in order. Jobs (the warm-up, a to
 on the same thread before the next frame (:meth:`FrameWorker.on_frame_thread`).
 
 Without a worker thread a frame is processed on the caller's (executor) thread at once.
+
+An interpreter's exit waits for the job or frame in hand on these threads
+(:mod:`~tlessbot_ros.nodes.exit_wait`): a daemon thread still in OpenCV or numba's compiler when
+the interpreter finalises aborts the process.
 """
 from __future__ import annotations
 
@@ -16,8 +20,10 @@ import traceback
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
+from functools import partial
 from typing import Any
 
+from tlessbot_ros.nodes.exit_wait import wait_at_exit
 from tlessbot_ros.nodes.inputs import Views
 
 
@@ -48,6 +54,7 @@ class FrameWorker:
         if threaded:
             self.thread = threading.Thread(target=self._work, name=name, daemon=True)
             self.thread.start()
+            wait_at_exit(self.thread, stop=partial(self.stop, join=False))
 
     def submit(self, views: Views, *, held: bool = False) -> Views | None:
         """Hand over an admitted frame; returns the pending frame it replaced (dropped), if
@@ -70,8 +77,10 @@ class FrameWorker:
         (cancelled if the worker stops first). Without a thread, on a thread of its own."""
         done: Future = Future()
         if self.thread is None:
-            threading.Thread(target=_run_job, args=(job, done), daemon=True,
-                             name=f'{self._name}_job').start()
+            thread = threading.Thread(target=_run_job, args=(job, done), daemon=True,
+                                      name=f'{self._name}_job')
+            thread.start()
+            wait_at_exit(thread)
             return done
         with self.lock:
             if self.stopping:

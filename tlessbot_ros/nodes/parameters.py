@@ -47,6 +47,7 @@ from tlessbot_ros.nodes.common import (
     declare_parameter,
     parameter_value,
 )
+from tlessbot_ros.nodes.exit_wait import wait_at_exit
 
 FRAME, AT_ONCE = 'frame', 'at once'
 HOW_IT_APPLIES = {FRAME: '(live: a change applies from the next frame)',
@@ -199,9 +200,11 @@ class LiveParameters:
             return
         group.generation += 1
         if group.warm is not None:
-            threading.Thread(target=self._warm_then_queue,
-                             args=(group, candidate, group.generation), daemon=True,
-                             name=f'{self.node.get_name()}_parameter_warm_up').start()
+            thread = threading.Thread(target=self._warm_then_queue,
+                                      args=(group, candidate, group.generation), daemon=True,
+                                      name=f'{self.node.get_name()}_parameter_warm_up')
+            thread.start()
+            wait_at_exit(thread)
         else:
             with self._lock:
                 self._pending[group] = candidate

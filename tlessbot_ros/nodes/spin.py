@@ -9,6 +9,7 @@ from typing import Any, NoReturn
 from rclpy.node import Node
 
 from tlessbot_ros.core.common.sync import EXECUTORS
+from tlessbot_ros.nodes.exit_wait import forget_threads
 from tlessbot_ros.nodes.process_setup import init_ros, limit_blas_threads
 from tlessbot_ros.nodes.signals import (
     ignore_interrupts_while_stopping,
@@ -120,6 +121,7 @@ def exit_without_teardown(code: int) -> NoReturn:
     import os
     import sys
 
+    forget_threads()   # os._exit ends every thread without unwinding it: none is waited for
     atexit._run_exitfuncs()   # what a normal exit runs first (logging's flush among them)
     for stream in (sys.stdout, sys.stderr):
         try:

@@ -324,7 +324,8 @@ class StageNode(Node):
 
     def destroy_node(self) -> None:
         # A node not ready yet has no frame to finish: Ctrl-C during the warm-up does not wait
-        # for it (it stops at its end, seeing the worker stopping).
+        # for it here (it stops at its end, seeing the worker stopping); an interpreter's exit
+        # does (nodes/exit_wait.py).
         self.worker.stop(join=self.ready.is_set())
         super().destroy_node()
 
