@@ -23,9 +23,9 @@ import threading
 import time
 from collections.abc import Callable
 
-# Long enough for a warm-up that compiles every numba kernel on a loaded host; launch's own
-# SIGTERM-then-SIGKILL escalation still ends a node that is asked to stop sooner.
-EXIT_WAIT_S = 120.0
+# Long enough for the warm-ups of several stages that compile every numba kernel at once on
+# a loaded host; a thread stuck for longer is left to be cut off.
+EXIT_WAIT_S = 300.0
 
 _lock = threading.Lock()
 _threads: list[tuple[threading.Thread, Callable[[], None] | None]] = []
