@@ -29,24 +29,21 @@ EXIT_WAIT_S = 300.0
 
 _lock = threading.Lock()
 _threads: list[tuple[threading.Thread, Callable[[], None] | None]] = []
-_hook_registered = False
 
 
 def wait_at_exit(thread: threading.Thread, stop: Callable[[], None] | None = None) -> None:
     """Have the interpreter's exit call ``stop`` (when given: it must ask ``thread`` to end
     and return at once) and then wait for the started ``thread`` to end.
 
-    The exit function is registered at the first call, after the modules whose threads it
-    waits for were imported, so that it runs before their own exit functions (:mod:`atexit`
-    runs them last in, first out).
+    The exit function is registered again at each call, after the modules the thread runs
+    were imported, so that it runs before their own exit functions (numba's among them:
+    :mod:`atexit` runs them last in, first out).
     """
-    global _hook_registered
     with _lock:
         _threads[:] = [(t, s) for t, s in _threads if t.is_alive()]
         _threads.append((thread, stop))
-        if not _hook_registered:
-            atexit.register(finish_threads)
-            _hook_registered = True
+        atexit.unregister(finish_threads)
+        atexit.register(finish_threads)
 
 
 def finish_threads(timeout_s: float = EXIT_WAIT_S) -> None:
