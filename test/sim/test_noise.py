@@ -1,7 +1,12 @@
 import numpy as np
 import pytest
 
-from tlessbot_ros.sim.noise import DepthNoiseParams, add_depth_noise, stereo_shadow
+from tlessbot_ros.sim.noise import (
+    DepthNoiseParams,
+    add_depth_noise,
+    spread_depth_kind,
+    stereo_shadow,
+)
 
 
 def test_sigma_grows_with_z_squared():
@@ -49,3 +54,14 @@ def test_edges_and_highlights_make_holes():
     assert (out[:, :20] == 0).mean() > 0.5
     assert (out[:, 25:45] == 0).mean() < 0.01
 
+
+
+@pytest.mark.parametrize('share', [0.0, 0.25, 0.5, 0.8, 1.0])
+def test_spread_depth_kind_gives_the_share_spread_evenly(share):
+    kinds = [spread_depth_kind(k, share) for k in range(100)]
+    assert kinds.count('smoothed') == round(100 * share)
+    # any 10 consecutive items hold the share to within one
+    for start in range(0, 91):
+        assert abs(kinds[start:start + 10].count('smoothed') - 10 * share) <= 1
+    with pytest.raises(ValueError, match='smoothed_share'):
+        spread_depth_kind(0, -0.1)

@@ -84,3 +84,29 @@ def test_samples_carry_depth_and_pose(models):
                                     sample.T_world_camera)
         if len(plate) > 50:
             assert abs(np.median(plate[:, 2])) < 0.003
+
+
+def _rough_share(sample) -> float:
+    """Share of horizontally neighbouring part pixels whose depths differ (1 mm steps)."""
+    d = sample.depth_m
+    both = (d[:, 1:] > 0) & (d[:, :-1] > 0) & sample.mask[:, 1:] & sample.mask[:, :-1]
+    return float((d[:, 1:] != d[:, :-1])[both].mean())
+
+
+def test_a_share_of_the_views_gets_stereo_like_depth(models):
+    plain = TurntableParams(step_deg=90, positions=1, augmentations=0)
+    mixed = TurntableParams(step_deg=90, positions=1, augmentations=0,
+                            smoothed_depth_share=0.5)
+    before = list(Turntable(models, params=plain, seed=3).views(5, 0))
+    after = list(Turntable(models, params=mixed, seed=3).views(5, 0))
+    assert [s.depth_kind for s in before] == ['per_pixel'] * 4
+    assert [s.depth_kind for s in after] == ['per_pixel', 'smoothed'] * 2
+    for old, new in zip(before, after):
+        # the same view, only its depth model differs
+        assert np.array_equal(old.rgb, new.rgb) and np.array_equal(old.mask, new.mask)
+        if new.depth_kind == 'per_pixel':
+            assert np.array_equal(old.depth_m, new.depth_m)
+        else:   # smoothed: neighbours mostly share a depth step, per-pixel noise does not
+            assert _rough_share(new) < 0.8 * _rough_share(old)
+    with pytest.raises(ValueError, match='smoothed_depth_share'):
+        TurntableParams(smoothed_depth_share=1.5)

@@ -75,6 +75,17 @@ class DepthNoiseParams:
             raise ValueError(f'unknown depth kind {self.kind!r}; choose from {DEPTH_KINDS}')
 
 
+def spread_depth_kind(index: int, smoothed_share: float) -> str:
+    """The depth kind of item ``index`` (a training view or scene, 0, 1, 2, ...) when a share
+    ``smoothed_share`` (0-1) of the items gets the 'smoothed' kind, spread evenly over the
+    indices: item k is smoothed when ``floor((k + 1) * share) > floor(k * share)``. Depends on
+    the index alone, so it draws no random numbers and any subset of items keeps its kinds."""
+    if not 0.0 <= smoothed_share <= 1.0:
+        raise ValueError(f'smoothed_share must be in [0, 1], got {smoothed_share}')
+    smoothed = int((index + 1) * smoothed_share) > int(index * smoothed_share)
+    return 'smoothed' if smoothed else 'per_pixel'
+
+
 def depth_sigma_m(depth_m: np.ndarray, params: DepthNoiseParams) -> np.ndarray:
     """Axial standard deviation (metres) at depth ``depth_m`` (any shape) before slant/scale."""
     return depth_m ** 2 * params.sigma_subpixel / (params.ir_focal_px * params.baseline_m)

@@ -45,7 +45,12 @@ from tlessbot_ros.core.common import (
     transform_points,
 )
 from tlessbot_ros.io.models import ObjectModel, stable_poses
-from tlessbot_ros.sim.noise import DepthNoiseParams, add_depth_noise
+from tlessbot_ros.sim.noise import (
+    DEPTH_KINDS,
+    DepthNoiseParams,
+    add_depth_noise,
+    spread_depth_kind,
+)
 
 
 @dataclass(frozen=True)
@@ -70,6 +75,8 @@ class TurntableParams:
             lie).
         depth_noise_scale: scale of the simulator's D415 depth noise model on the rendered
             depth (0 = clean depth).
+        smoothed_depth_share: share of the views (0-1, spread evenly over positions and
+            steps) whose depth is the stereo-like 'smoothed' kind; the rest are per-pixel.
     """
 
     positions: int = 4
@@ -87,6 +94,7 @@ class TurntableParams:
     noise_sigma: tuple[float, float] = (1.0, 5.0)
     min_pose_probability: float = 0.0
     depth_noise_scale: float = 1.0
+    smoothed_depth_share: float = 0.0
 
     def __post_init__(self) -> None:
         if self.positions < 1:
@@ -102,6 +110,9 @@ class TurntableParams:
             raise ValueError(f'distance_m must satisfy 0 < min <= max, got {self.distance_m}')
         if not 0.0 < self.zoom[0] <= self.zoom[1]:
             raise ValueError(f'zoom must satisfy 0 < min <= max, got {self.zoom}')
+        if not 0.0 <= self.smoothed_depth_share <= 1.0:
+            raise ValueError('smoothed_depth_share must be in [0, 1], got '
+                             f'{self.smoothed_depth_share}')
 
     @property
     def steps(self) -> int:
@@ -125,7 +136,7 @@ class TurntableSample:
         augmentation: 0 for the plain view, 1.. for augmented copies.
         depth_m: (h, w) float32 D415-like noisy z-depth of the window in metres (the part and
             the plate, which is the table plane z = 0), 0 = invalid; warped with the image in
-            augmented copies.
+            augmented copies. Its kind (``DepthNoiseParams.kind``) is ``depth_kind``.
         K: (3, 3) camera matrix of the window (for augmented copies, the warp composed with
             the intrinsics, so ``K⁻¹ [u, v, 1]ᵀ`` is still the viewing ray of pixel (u, v)).
         T_world_camera: (4, 4) camera pose in the plate (table) frame.
@@ -140,6 +151,7 @@ class TurntableSample:
     depth_m: np.ndarray | None = None
     K: np.ndarray | None = None
     T_world_camera: np.ndarray | None = None
+    depth_kind: str = 'per_pixel'
 
 
 # PLA looks of the paper's parts (light-yellow translucent, shiny pink, black, blue) and a few
@@ -238,7 +250,8 @@ class Turntable:
         self.params = params
         self.seed = int(seed)
         self._full = d415_intrinsics(params.width, params.height)
-        self._noise = replace(DepthNoiseParams(), scale=params.depth_noise_scale)
+        per_pixel = replace(DepthNoiseParams(), scale=params.depth_noise_scale)
+        self._noise = {kind: replace(per_pixel, kind=kind) for kind in DEPTH_KINDS}
 
     def __len__(self) -> int:
         return len(self.models) * self.params.views_per_object()
@@ -269,16 +282,18 @@ class Turntable:
             renderer, corners, centre = placed[pose_index]
             angle = step * p.step_deg
             T_world_camera = self._camera(angle, centre, rng)
-            rgb, mask, depth, K = self._render(renderer, corners, T_world_camera, rng)
+            kind = spread_depth_kind(position * p.steps + step, p.smoothed_depth_share)
+            rgb, mask, depth, K = self._render(renderer, corners, T_world_camera, rng,
+                                               self._noise[kind])
             if not mask.any():
                 continue
             yield TurntableSample(obj_id, rgb, mask, position, angle, 0, depth, K,
-                                  T_world_camera)
+                                  T_world_camera, kind)
             for copy in range(1, p.augmentations + 1):
                 aug_rgb, aug_mask, aug_depth, aug_K = augment_view(rgb, mask, p, rng, depth,
                                                                    K)
                 yield TurntableSample(obj_id, aug_rgb, aug_mask, position, angle, copy,
-                                      aug_depth, aug_K, T_world_camera)
+                                      aug_depth, aug_K, T_world_camera, kind)
 
     def samples(self, obj_ids: Sequence[int] | None = None) -> Iterator[TurntableSample]:
         """Every sample of the chosen objects (default all), object by object."""
@@ -302,7 +317,8 @@ class Turntable:
         return look_at(eye, target, up)
 
     def _render(self, renderer: MeshRenderer, corners_w: np.ndarray, T_world_camera: np.ndarray,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                rng: np.random.Generator, noise: DepthNoiseParams
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Colour, silhouette, noisy depth (part on the plate) and K of the part's window."""
         full = self._full
         uv = project_points(transform_points(invert_transform(T_world_camera), corners_w),
@@ -328,8 +344,7 @@ class Turntable:
         colour += rng.normal(0.0, rng.uniform(*self.params.noise_sigma) / 255.0, colour.shape)
         rgb = (np.clip(colour, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
         depth = np.where(hit, result.depth_m, _plane_depth(K, (h, w), T_world_camera))
-        depth_mm = add_depth_noise(depth.astype(np.float32), float(K[0, 0]), rng,
-                                   self._noise)
+        depth_mm = add_depth_noise(depth.astype(np.float32), float(K[0, 0]), rng, noise)
         return rgb, hit, depth_mm.astype(np.float32) / 1000.0, K
 
 

@@ -32,7 +32,10 @@ Several learners can share one rendering pass: --classifier all (or sgd,pa1) wri
 --features ours (the default in CAD mode) appends metric shape features from the rendered,
 D415-noised depth of each view (heights above the plate, footprint, height map; see
 tlessbot_ros.core.recognise.shape) to the HOG; --features paper keeps the paper's HOG
-only.
+only. --smoothed-share F renders a share F of the turntable views and of the --scenes with
+the stereo-like 'smoothed' depth a real RealSense gives (tlessbot_ros.sim.stereo_depth)
+instead of the per-pixel noise, so the shape features are also learnt as a real camera's
+depth shows them.
 Image folders have no depth, so they always give paper-feature models.
 
 From labelled capture bags (tlessbot capture; docs/capture.md), alone or mixed with CAD
@@ -132,6 +135,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--scenes', type=int, default=0,
                         help='also train on the crops of this many simulated two-view scenes '
                              '(CAD mode, ours features; 0 = turntable only, the paper)')
+    parser.add_argument('--smoothed-share', type=float, metavar='F',
+                        help="share (0-1) of the turntable views and --scenes rendered with "
+                             "the stereo-like 'smoothed' depth, the rest per-pixel (default: "
+                             "the recipe's, else TurntableParams.smoothed_depth_share)")
     parser.add_argument('--seed', type=int, default=0, help='rendering and training seed')
     parser.add_argument('--workers', type=int, default=0, metavar='N',
                         help='render the --scenes in N processes (default 0: the idle cores, at '
@@ -188,12 +195,13 @@ def sample_shape(sample, shape: ShapeParams) -> np.ndarray:
 
 def turntable_features(models_dir: Path, hog: HogParams, *, ids: list[int] | None,
                        steps_deg: float, positions: int, augmentations: int,
-                       seed: int, shape: ShapeParams | None = None
-                       ) -> tuple[np.ndarray, np.ndarray]:
+                       seed: int, shape: ShapeParams | None = None,
+                       smoothed_share: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Render the turntable and describe every crop: ((N, D) float32, (N,) int64 ids).
 
     D is the HOG length, plus ``shape.feature_dim`` shape values (NaN = no usable depth) when
-    ``shape`` is given.
+    ``shape`` is given. A share ``smoothed_share`` (0-1) of the views has the stereo-like
+    'smoothed' depth (``TurntableParams.smoothed_depth_share``).
     """
     from tqdm import tqdm
 
@@ -204,7 +212,7 @@ def turntable_features(models_dir: Path, hog: HogParams, *, ids: list[int] | Non
     if len(models) < 2:
         raise TlessbotError(f'need at least 2 models to train, found {len(models)}')
     params = TurntableParams(positions=positions, step_deg=steps_deg,
-                             augmentations=augmentations)
+                             augmentations=augmentations, smoothed_depth_share=smoothed_share)
     table = Turntable(models, params=params, seed=seed)
     hog_dim = hog.feature_dim
     features = np.empty((len(table), hog_dim + (shape.feature_dim if shape else 0)),
@@ -280,7 +288,11 @@ def apply_recipe(args: argparse.Namespace) -> argparse.Namespace:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from tlessbot_ros.sim.turntable import TurntableParams
+
     args = apply_recipe(args)
+    if args.smoothed_share is None:   # the default lives in the turntable's parameters
+        args.smoothed_share = TurntableParams.smoothed_depth_share
     kinds = parse_kinds(args.classifier)
     try:  # settings are checked before minutes of rendering
         cad_clutter = args.models is not None and args.recipe == 'clutter'
@@ -291,6 +303,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError('--copies must be >= 1')
         if args.workers < 0:
             raise ValueError('--workers must be >= 0 (0: the idle cores)')
+        if not 0.0 <= args.smoothed_share <= 1.0:
+            raise ValueError(f'--smoothed-share must be in [0, 1], got {args.smoothed_share}')
         learners = {kind: ClassifierParams(
             kind=kind, epochs=args.epochs, alpha=args.alpha, pa_c=args.pa_c,
             average=args.average,
@@ -388,16 +402,19 @@ def cad_features(args: argparse.Namespace, hog: HogParams, shape: ShapeParams | 
     else:
         features, labels = turntable_features(
             args.models, hog, ids=args.ids, steps_deg=args.steps_deg, positions=args.positions,
-            augmentations=args.augmentations, seed=args.seed, shape=shape)
+            augmentations=args.augmentations, seed=args.seed, shape=shape,
+            smoothed_share=args.smoothed_share)
         source = {'source': 'turntable', 'steps_deg': args.steps_deg,
-                  'positions': args.positions, 'augmentations': args.augmentations}
+                  'positions': args.positions, 'augmentations': args.augmentations,
+                  'smoothed_share': args.smoothed_share}
     if args.scenes:
         if shape is None:
             raise TlessbotError('--scenes needs --features ours')
         more, more_labels = scene_features(args.models, hog, shape, ids=args.ids,
                                            scenes=args.scenes,
                                            seed=args.seed + SCENE_SEED_OFFSET,
-                                           workers=args.workers)
+                                           workers=args.workers,
+                                           smoothed_share=args.smoothed_share)
         features = np.vstack([features, more])
         labels = np.concatenate([labels, more_labels])
         source.update(scenes=args.scenes, scene_crops=len(more_labels))

@@ -3,7 +3,10 @@ rendered over worker processes.
 
 Every scene is drawn from its own random stream (the simulator's seed and the scene's index),
 so scene k is the same whichever process renders it; the crops are put back in scene order, so
-the features, and the classifier trained on them, do not depend on the number of workers.
+the features, and the classifier trained on them, do not depend on the number of workers. A
+share of the scenes, spread evenly over their indices
+(:func:`~tlessbot_ros.sim.noise.spread_depth_kind`), can have the stereo-like 'smoothed' depth:
+the same parts, table and light, another depth model.
 """
 from __future__ import annotations
 
@@ -41,12 +44,17 @@ def default_workers(window_s: float = 0.5) -> int:
     return max(1, min(cpus, _MAX_WORKERS))
 
 
-def _start(models_dir: str, ids, seed: int, hog, shape, min_pixels: int) -> None:
+def _start(models_dir: str, ids, seed: int, hog, shape, min_pixels: int,
+           smoothed_share: float) -> None:
     from tlessbot_ros.io.models import load_models
-    from tlessbot_ros.sim.simulator import Simulator
+    from tlessbot_ros.sim.noise import DEPTH_KINDS, DepthNoiseParams
+    from tlessbot_ros.sim.simulator import SimParams, Simulator
 
-    _worker.update(simulator=Simulator(load_models(Path(models_dir), ids), seed=seed),
-                   hog=hog, shape=shape, min_pixels=min_pixels)
+    models = load_models(Path(models_dir), ids)
+    simulators = {kind: Simulator(models, params=SimParams(noise=DepthNoiseParams(kind=kind)),
+                                  seed=seed) for kind in DEPTH_KINDS}
+    _worker.update(simulators=simulators, hog=hog, shape=shape, min_pixels=min_pixels,
+                   smoothed_share=smoothed_share)
 
 
 def _describe(indices: list[int]) -> list[tuple[np.ndarray, list[int]]]:
@@ -57,10 +65,12 @@ def _describe(indices: list[int]) -> list[tuple[np.ndarray, list[int]]]:
         region_points_world,
         shape_features_batch,
     )
+    from tlessbot_ros.sim.noise import spread_depth_kind
 
-    simulator, hog, shape = _worker['simulator'], _worker['hog'], _worker['shape']
+    hog, shape = _worker['hog'], _worker['shape']
     out = []
     for index in indices:
+        simulator = _worker['simulators'][spread_depth_kind(index, _worker['smoothed_share'])]
         features, labels = [], []
         for view in simulator.frame(index).views.values():
             parts = [g for g in view.gt if g.px_count_visib >= _worker['min_pixels']]
@@ -79,12 +89,13 @@ def _describe(indices: list[int]) -> list[tuple[np.ndarray, list[int]]]:
 
 
 def scene_features(models_dir: Path, hog, shape, *, ids: list[int] | None, scenes: int,
-                   seed: int, min_pixels: int = 100, workers: int = 1
-                   ) -> tuple[np.ndarray, np.ndarray]:
+                   seed: int, min_pixels: int = 100, workers: int = 1,
+                   smoothed_share: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Describe every part (>= ``min_pixels`` visible) of ``scenes`` simulated two-view
     frames (simulator seed ``seed``), in both views: ((N, D) float32 HOG + shape, NaN where
     the depth is unusable; (N,) int64 ids), the same for any number of ``workers``
-    (processes; 1: this one; 0: :func:`default_workers`)."""
+    (processes; 1: this one; 0: :func:`default_workers`). A share ``smoothed_share`` (0-1)
+    of the scenes has the 'smoothed' depth kind, the rest the per-pixel one."""
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
@@ -92,7 +103,7 @@ def scene_features(models_dir: Path, hog, shape, *, ids: list[int] | None, scene
 
     chunks = [list(range(k, min(k + _CHUNK, scenes))) for k in range(0, scenes, _CHUNK)]
     workers = workers or default_workers()
-    setup = (str(models_dir), ids, seed, hog, shape, min_pixels)
+    setup = (str(models_dir), ids, seed, hog, shape, min_pixels, smoothed_share)
     results: list = []
     with tqdm(total=scenes, desc='scenes', unit='frame') as bar:
         if workers <= 1 or len(chunks) < 2:
