@@ -67,6 +67,7 @@ def test_train_several_learners_from_images(tless_models_dir, tmp_path):
     (['--cell', '7'], 'multiple of cell_px'),
     (['--alpha', '0'], 'alpha'),
     (['--copies', '0'], 'copies'),
+    (['--smoothed-share', '1.5'], 'smoothed-share'),
 ])
 def test_user_errors(tmp_path, capsys, extra, message):
     (tmp_path / 'imgs').mkdir()
@@ -142,3 +143,20 @@ def test_packaged_recipe_is_named_and_given_options_win():
     plain = train.apply_recipe(parser.parse_args(['--models', 'm', '--out', 'c.npz']))
     assert (plain.scenes, plain.classifier, plain.recipe) == \
         (0, parser.get_default('classifier'), 'clutter')
+
+
+def test_smoothed_share_defaults_to_the_turntables_and_a_given_one_wins():
+    import argparse
+
+    from tlessbot_ros.sim.turntable import TurntableParams
+    from tlessbot_ros.tools.commands import train
+
+    parser = argparse.ArgumentParser()
+    train.add_arguments(parser)
+    for recipe in ('packaged', 'clutter'):
+        args = train.apply_recipe(parser.parse_args(
+            ['--models', 'm', '--out', 'c.npz', '--recipe', recipe]))
+        assert args.smoothed_share == TurntableParams.smoothed_depth_share
+    given = train.apply_recipe(parser.parse_args(
+        ['--models', 'm', '--out', 'c.npz', '--recipe', 'packaged', '--smoothed-share', '0.5']))
+    assert given.smoothed_share == 0.5

@@ -277,22 +277,24 @@ def image_folder_features(folder: Path, hog: HogParams) -> tuple[np.ndarray, np.
 
 
 def apply_recipe(args: argparse.Namespace) -> argparse.Namespace:
-    """``args`` with ``args.recipe``'s value for every option left at its default."""
+    """``args`` with ``args.recipe``'s value for every option left at its default, and
+    ``TurntableParams.smoothed_depth_share`` for ``--smoothed-share`` where neither sets it."""
+    from tlessbot_ros.sim.turntable import TurntableParams
+
     defaults = argparse.ArgumentParser()
     add_arguments(defaults)
     values = {key: value for key, value in RECIPES.get(args.recipe or '', {}).items()
               if key == 'recipe' or getattr(args, key) == defaults.get_default(key)}
-    return argparse.Namespace(**{**vars(args), **values})
+    merged = argparse.Namespace(**{**vars(args), **values})
+    if merged.smoothed_share is None:   # its default lives in the turntable's parameters
+        merged.smoothed_share = TurntableParams.smoothed_depth_share
+    return merged
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from tlessbot_ros.sim.turntable import TurntableParams
-
     args = apply_recipe(args)
-    if args.smoothed_share is None:   # the default lives in the turntable's parameters
-        args.smoothed_share = TurntableParams.smoothed_depth_share
     kinds = parse_kinds(args.classifier)
     try:  # settings are checked before minutes of rendering
         cad_clutter = args.models is not None and args.recipe == 'clutter'
