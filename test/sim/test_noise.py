@@ -5,6 +5,7 @@ from tlessbot_ros.sim.noise import (
     DepthNoiseParams,
     add_depth_noise,
     spread_depth_kind,
+    stereo_region,
     stereo_shadow,
 )
 
@@ -65,3 +66,19 @@ def test_spread_depth_kind_gives_the_share_spread_evenly(share):
         assert abs(kinds[start:start + 10].count('smoothed') - 10 * share) <= 1
     with pytest.raises(ValueError, match='smoothed_share'):
         spread_depth_kind(0, -0.1)
+
+
+def test_stereo_region_takes_the_raised_ring_around_the_part():
+    from tlessbot_ros.core.common import look_at
+
+    K = np.array([[600.0, 0, 40], [0, 600.0, 30], [0, 0, 1]])
+    T = look_at(np.array([0.0, 0.0, 0.8]), np.zeros(3), np.array([0.0, 1.0, 0.0]))
+    depth = np.full((60, 80), 0.8, np.float32)          # the table, seen from straight above
+    part = np.zeros((60, 80), bool)
+    part[20:40, 30:50] = True
+    depth[part] = 0.79                                   # a 10 mm block
+    depth[19, 30:50] = 0.79                              # the fattened edge above it
+    region = stereo_region(part, depth, K, T, grow_px=1)
+    assert region[part].all() and region[19, 30:50].all()
+    assert region.sum() == part.sum() + 20               # the table stays out
+    assert np.array_equal(stereo_region(part, depth, K, T, grow_px=0), part)

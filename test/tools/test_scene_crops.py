@@ -36,8 +36,12 @@ def test_a_share_of_the_scenes_has_stereo_like_depth(models):
     plain = scene_features(models, HogParams(), ShapeParams(), **options)
     mixed = scene_features(models, HogParams(), ShapeParams(), smoothed_share=0.5, **options)
     assert np.array_equal(plain[1], mixed[1])   # the same scenes, the same parts seen
-    hog_dim = HogParams().feature_dim
-    assert np.array_equal(plain[0][:, :hog_dim], mixed[0][:, :hog_dim])
-    # scenes 1 and 3 are smoothed: some of their parts' shape features change, not all crops'
+    # scenes 1 and 3 are smoothed: some of their parts' descriptors change, not all crops'
     same = np.all(np.isclose(plain[0], mixed[0], equal_nan=True), axis=1)
     assert 0 < int((~same).sum()) < len(same)
+    # with the masks as they are, only the depth's shape values change, never the HOG
+    kept = scene_features(models, HogParams(), ShapeParams(), smoothed_share=0.5, region_px=0,
+                          **options)
+    hog_dim = HogParams().feature_dim
+    assert np.array_equal(plain[0][:, :hog_dim], kept[0][:, :hog_dim])
+    assert not np.array_equal(plain[0][:, hog_dim:], kept[0][:, hog_dim:], equal_nan=True)

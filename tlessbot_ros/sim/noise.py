@@ -86,6 +86,33 @@ def spread_depth_kind(index: int, smoothed_share: float) -> str:
     return 'smoothed' if smoothed else 'per_pixel'
 
 
+def stereo_region(mask: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
+                  T_world_camera: np.ndarray, *, grow_px: int = 1,
+                  min_height_m: float = 0.002) -> np.ndarray:
+    """A part's region as a localiser cuts it from stereo-like depth: ``mask`` grown by up to
+    ``grow_px`` pixels into the table around it wherever the depth stands more than
+    ``min_height_m`` above the table (the fattened edge gives the table beside a part the
+    part's disparity, :mod:`~tlessbot_ros.sim.stereo_depth`).
+
+    Args:
+        mask: (H, W) bool visible silhouette of the part.
+        depth_m: (H, W) float z-depth in metres, 0 = invalid.
+        K: (3, 3) camera matrix of the image; T_world_camera: (4, 4) camera pose on the table
+            (world z = 0 is the table, z up).
+
+    Returns:
+        (H, W) bool region, a superset of ``mask``.
+    """
+    from tlessbot_ros.core.localise.cues import height_above_table
+
+    if grow_px <= 0:
+        return mask
+    size = 2 * int(grow_px) + 1
+    ring = cv2.dilate(mask.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
+    high = np.nan_to_num(height_above_table(depth_m, K, T_world_camera), nan=-1.0)
+    return np.asarray(mask | (ring & (high > min_height_m)))
+
+
 def depth_sigma_m(depth_m: np.ndarray, params: DepthNoiseParams) -> np.ndarray:
     """Axial standard deviation (metres) at depth ``depth_m`` (any shape) before slant/scale."""
     return depth_m ** 2 * params.sigma_subpixel / (params.ir_focal_px * params.baseline_m)

@@ -50,6 +50,7 @@ from tlessbot_ros.sim.noise import (
     DepthNoiseParams,
     add_depth_noise,
     spread_depth_kind,
+    stereo_region,
 )
 
 
@@ -77,6 +78,8 @@ class TurntableParams:
             depth (0 = clean depth).
         smoothed_depth_share: share of the views (0-1, spread evenly over positions and
             steps) whose depth is the stereo-like 'smoothed' kind; the rest are per-pixel.
+        smoothed_region_px: a smoothed view's silhouette grows by up to this many pixels
+            (0-3) where its depth rises above the plate, as a localiser's region does.
     """
 
     positions: int = 4
@@ -95,6 +98,7 @@ class TurntableParams:
     min_pose_probability: float = 0.0
     depth_noise_scale: float = 1.0
     smoothed_depth_share: float = 0.0
+    smoothed_region_px: int = 1
 
     def __post_init__(self) -> None:
         if self.positions < 1:
@@ -110,6 +114,9 @@ class TurntableParams:
             raise ValueError(f'distance_m must satisfy 0 < min <= max, got {self.distance_m}')
         if not 0.0 < self.zoom[0] <= self.zoom[1]:
             raise ValueError(f'zoom must satisfy 0 < min <= max, got {self.zoom}')
+        if not 0 <= self.smoothed_region_px <= 3:
+            raise ValueError(f'smoothed_region_px must be in [0, 3], got '
+                             f'{self.smoothed_region_px}')
         if not 0.0 <= self.smoothed_depth_share <= 1.0:
             raise ValueError('smoothed_depth_share must be in [0, 1], got '
                              f'{self.smoothed_depth_share}')
@@ -287,6 +294,9 @@ class Turntable:
                                                self._noise[kind])
             if not mask.any():
                 continue
+            if kind == 'smoothed':
+                mask = stereo_region(mask, depth, K, T_world_camera,
+                                     grow_px=p.smoothed_region_px)
             yield TurntableSample(obj_id, rgb, mask, position, angle, 0, depth, K,
                                   T_world_camera, kind)
             for copy in range(1, p.augmentations + 1):

@@ -45,7 +45,7 @@ def default_workers(window_s: float = 0.5) -> int:
 
 
 def _start(models_dir: str, ids, seed: int, hog, shape, min_pixels: int,
-           smoothed_share: float) -> None:
+           smoothed_share: float, region_px: int) -> None:
     from tlessbot_ros.io.models import load_models
     from tlessbot_ros.sim.noise import DEPTH_KINDS, DepthNoiseParams
     from tlessbot_ros.sim.simulator import SimParams, Simulator
@@ -54,23 +54,25 @@ def _start(models_dir: str, ids, seed: int, hog, shape, min_pixels: int,
     simulators = {kind: Simulator(models, params=SimParams(noise=DepthNoiseParams(kind=kind)),
                                   seed=seed) for kind in DEPTH_KINDS}
     _worker.update(simulators=simulators, hog=hog, shape=shape, min_pixels=min_pixels,
-                   smoothed_share=smoothed_share)
+                   smoothed_share=smoothed_share, region_px=region_px)
 
 
 def _describe(indices: list[int]) -> list[tuple[np.ndarray, list[int]]]:
     """Per scene of ``indices``: ((n, D) float32 HOG + shape of its parts in both views, their
     ids)."""
+    from tlessbot_ros.core.common import mask_box
     from tlessbot_ros.core.recognise import (
         describe_regions,
         region_points_world,
         shape_features_batch,
     )
-    from tlessbot_ros.sim.noise import spread_depth_kind
+    from tlessbot_ros.sim.noise import spread_depth_kind, stereo_region
 
     hog, shape = _worker['hog'], _worker['shape']
     out = []
     for index in indices:
-        simulator = _worker['simulators'][spread_depth_kind(index, _worker['smoothed_share'])]
+        kind = spread_depth_kind(index, _worker['smoothed_share'])
+        simulator = _worker['simulators'][kind]
         features, labels = [], []
         for view in simulator.frame(index).views.values():
             parts = [g for g in view.gt if g.px_count_visib >= _worker['min_pixels']]
@@ -79,6 +81,10 @@ def _describe(indices: list[int]) -> list[tuple[np.ndarray, list[int]]]:
             masks = [g.mask_visib for g in parts]
             boxes = [g.bbox_visib for g in parts]
             depth_m = view.depth_mm.astype(np.float32) / 1000.0
+            if kind == 'smoothed':   # the part's region as the localiser cuts it
+                masks = [stereo_region(m, depth_m, view.intrinsics.K, view.T_world_camera,
+                                       grow_px=_worker['region_px']) for m in masks]
+                boxes = [mask_box(m) for m in masks]
             points = [region_points_world(depth_m, m, view.intrinsics.K, view.T_world_camera,
                                           box=b) for m, b in zip(masks, boxes)]
             features.append(np.hstack([describe_regions(view.rgb, boxes, masks, params=hog),
@@ -90,12 +96,14 @@ def _describe(indices: list[int]) -> list[tuple[np.ndarray, list[int]]]:
 
 def scene_features(models_dir: Path, hog, shape, *, ids: list[int] | None, scenes: int,
                    seed: int, min_pixels: int = 100, workers: int = 1,
-                   smoothed_share: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                   smoothed_share: float = 0.0, region_px: int = 1
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Describe every part (>= ``min_pixels`` visible) of ``scenes`` simulated two-view
     frames (simulator seed ``seed``), in both views: ((N, D) float32 HOG + shape, NaN where
     the depth is unusable; (N,) int64 ids), the same for any number of ``workers``
     (processes; 1: this one; 0: :func:`default_workers`). A share ``smoothed_share`` (0-1)
-    of the scenes has the 'smoothed' depth kind, the rest the per-pixel one."""
+    of the scenes has the 'smoothed' depth kind, the rest the per-pixel one; their parts'
+    masks grow by up to ``region_px`` where the depth rises (``stereo_region``)."""
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
@@ -103,7 +111,7 @@ def scene_features(models_dir: Path, hog, shape, *, ids: list[int] | None, scene
 
     chunks = [list(range(k, min(k + _CHUNK, scenes))) for k in range(0, scenes, _CHUNK)]
     workers = workers or default_workers()
-    setup = (str(models_dir), ids, seed, hog, shape, min_pixels, smoothed_share)
+    setup = (str(models_dir), ids, seed, hog, shape, min_pixels, smoothed_share, region_px)
     results: list = []
     with tqdm(total=scenes, desc='scenes', unit='frame') as bar:
         if workers <= 1 or len(chunks) < 2:
