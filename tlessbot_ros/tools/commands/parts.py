@@ -24,7 +24,11 @@ from pathlib import Path
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from tlessbot_ros.sim.noise import DEPTH_KINDS
     from tlessbot_ros.tools.commands.train import RECIPE_CHOICES
-    from tlessbot_ros.tools.support.parts_build import CHECK_FRAMES, DEFAULT_RECIPE
+    from tlessbot_ros.tools.support.parts_build import (
+        CHECK_FRAMES,
+        DEFAULT_RECIPE,
+        BuildOptions,
+    )
 
     sub = parser.add_subparsers(dest='action', required=True, metavar='ACTION')
     build = sub.add_parser('build', help='CAD folder -> parts folder',
@@ -50,6 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     build.add_argument('--seed', type=int, default=0,
                        help="seed of the classifier's training and the self-check's scenes "
                             '(default 0)')
+    build.add_argument('--smoothed-share', type=float, default=BuildOptions.smoothed_share,
+                       metavar='F', help="share (0-1) of the classifier's training views and "
+                       "scenes with the stereo-like depth a real RealSense gives (train "
+                       f'--smoothed-share; default {BuildOptions.smoothed_share:g})')
     build.add_argument('--retrain', action='store_true',
                        help='train the classifier even if one was trained before from the '
                             'same CAD files and settings (kept in the start-up cache)')
@@ -99,10 +107,12 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.check_frames < 0:
         raise TlessbotError('--check-frames must be >= 0')
+    if not 0.0 <= args.smoothed_share <= 1.0:
+        raise TlessbotError(f'--smoothed-share must be in [0, 1], got {args.smoothed_share}')
     options = BuildOptions(units=args.units, config=args.config,
                            recipe=None if args.recipe == 'defaults' else args.recipe,
                            check_frames=args.check_frames, check_depth=args.check_depth,
-                           seed=args.seed,
+                           seed=args.seed, smoothed_share=args.smoothed_share,
                            train_args=args.train_arg, reuse_classifier=not args.retrain)
     # SIGTERM (kill, timeout) as Ctrl-C: the half-built folder is removed, the children end
     previous = signal.signal(signal.SIGTERM, _interrupt)

@@ -47,6 +47,9 @@ class BuildOptions:
     seed: int = 0
     train_args: list[str] = field(default_factory=list)
     reuse_classifier: bool = True
+    # share of the classifier's training views and scenes with stereo-like depth
+    # (train --smoothed-share, 0-1), so it names parts on a real RealSense's smoothed depth
+    smoothed_share: float = 0.5
 
 
 # the build step that readies the pose stage's start-up caches of the new templates
@@ -90,8 +93,11 @@ def classifier_cache_path(fingerprint: str, options: BuildOptions) -> Path:
 
     from tlessbot_ros.io.cache import cache_dir
 
-    key = json.dumps([CLASSIFIER_CACHE_VERSION, fingerprint, options.recipe, options.seed,
-                      options.train_args])
+    settings = [CLASSIFIER_CACHE_VERSION, fingerprint, options.recipe, options.seed,
+                options.train_args]
+    if options.smoothed_share:   # without it, the key of the classifiers trained before it
+        settings.append(options.smoothed_share)
+    key = json.dumps(settings)
     return cache_dir() / 'classifiers' / f'{hashlib.sha256(key.encode()).hexdigest()[:24]}.npz'
 
 
@@ -107,7 +113,8 @@ def _train_classifier(out: Path, options: BuildOptions, fingerprint: str) -> Non
         return
     recipe = ['--recipe', options.recipe] if options.recipe else []
     run_tool('train', '--models', str(out / parts_io.MODELS), '--out', str(target), '--seed',
-             str(options.seed), *recipe, *options.train_args)
+             str(options.seed), *recipe, '--smoothed-share', f'{options.smoothed_share:g}',
+             *options.train_args)
     try:   # atomic: a build beside this one never reads half a file
         cached.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=cached.parent, suffix='.npz',
@@ -301,6 +308,7 @@ def build_parts(cad: Path, out: Path, options: BuildOptions, *, check: bool = Tr
         shutil.rmtree(out)
     out.mkdir(parents=True)
     manifest = {'units': options.units, 'recipe': options.recipe or 'train defaults',
+                'smoothed_share': options.smoothed_share,
                 'fingerprint': parts_io.cad_fingerprint(cad_list, units=options.units),
                 'rig': parts_io.rig_summary(rig), 'source': str(cad)}
     started = time.perf_counter()
@@ -405,10 +413,12 @@ def template_code_fingerprint(root: Path | None = None) -> str:
 
 def parts_cache_name(cad: Path, options: BuildOptions, *, code: str | None = None) -> str:
     """The cache folder's name of ``cad``'s parts: the CAD files' content and units, the code
-    that makes templates (``code``: its fingerprint, this package's by default), the recipe."""
+    that makes templates (``code``: its fingerprint, this package's by default), the recipe
+    and the share of smoothed training depth."""
     fingerprint = parts_io.cad_fingerprint(parts_io.cad_parts(cad), units=options.units)
     code = code or template_code_fingerprint()
-    return f'{fingerprint[:16]}-{code[:8]}_{options.recipe or "defaults"}'
+    smoothed = f'_smoothed{options.smoothed_share:g}' if options.smoothed_share else ''
+    return f'{fingerprint[:16]}-{code[:8]}_{options.recipe or "defaults"}{smoothed}'
 
 
 def cached_parts(cad: Path, options: BuildOptions, *, classifier: bool = True
