@@ -392,8 +392,6 @@ def cad_features(args: argparse.Namespace, hog: HogParams, shape: ShapeParams | 
                  ) -> tuple[np.ndarray, np.ndarray, dict]:
     """(features, labels, source info) of CAD training: the cluttered recipe (default) or
     the paper's turntable, plus the crops of ``--scenes`` simulated scenes."""
-    from tlessbot_ros.sim.turntable import TurntableParams
-
     if args.recipe == 'clutter':
         features, labels = clutter_features(
             args.models, hog, ids=args.ids, steps_deg=args.steps_deg, positions=args.positions,
@@ -418,8 +416,7 @@ def cad_features(args: argparse.Namespace, hog: HogParams, shape: ShapeParams | 
                                            scenes=args.scenes,
                                            seed=args.seed + SCENE_SEED_OFFSET,
                                            workers=args.workers,
-                                           smoothed_share=args.smoothed_share,
-                                           region_px=TurntableParams.smoothed_region_px)
+                                           smoothed_share=args.smoothed_share)
         features = np.vstack([features, more])
         labels = np.concatenate([labels, more_labels])
         source.update(scenes=args.scenes, scene_crops=len(more_labels))

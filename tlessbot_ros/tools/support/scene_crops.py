@@ -96,14 +96,15 @@ def _describe(indices: list[int]) -> list[tuple[np.ndarray, list[int]]]:
 
 def scene_features(models_dir: Path, hog, shape, *, ids: list[int] | None, scenes: int,
                    seed: int, min_pixels: int = 100, workers: int = 1,
-                   smoothed_share: float = 0.0, region_px: int = 1
+                   smoothed_share: float = 0.0, region_px: int | None = None
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Describe every part (>= ``min_pixels`` visible) of ``scenes`` simulated two-view
     frames (simulator seed ``seed``), in both views: ((N, D) float32 HOG + shape, NaN where
     the depth is unusable; (N,) int64 ids), the same for any number of ``workers``
     (processes; 1: this one; 0: :func:`default_workers`). A share ``smoothed_share`` (0-1)
     of the scenes has the 'smoothed' depth kind, the rest the per-pixel one; their parts'
-    masks grow by up to ``region_px`` where the depth rises (``stereo_region``)."""
+    masks grow by up to ``region_px`` where the depth rises (``stereo_region``; None: the
+    turntable's ``smoothed_region_px``)."""
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
@@ -111,6 +112,10 @@ def scene_features(models_dir: Path, hog, shape, *, ids: list[int] | None, scene
 
     chunks = [list(range(k, min(k + _CHUNK, scenes))) for k in range(0, scenes, _CHUNK)]
     workers = workers or default_workers()
+    if region_px is None:
+        from tlessbot_ros.sim.turntable import TurntableParams
+
+        region_px = TurntableParams.smoothed_region_px
     setup = (str(models_dir), ids, seed, hog, shape, min_pixels, smoothed_share, region_px)
     results: list = []
     with tqdm(total=scenes, desc='scenes', unit='frame') as bar:
