@@ -49,7 +49,7 @@ def test_the_cache_name_holds_the_cad_content_and_the_code(tmp_path):
     assert name == parts_cache_name(cad, options, code='a' * 64)
     assert name != parts_cache_name(cad, options, code='b' * 64)
     # a folder built with another share of smoothed training depth is another folder
-    other_depth = BuildOptions(smoothed_share=0.0)
+    other_depth = BuildOptions(smoothed_share=0.5)
     assert name != parts_cache_name(cad, other_depth, code='a' * 64)
     (cad / 'plate.stl').write_bytes(_box_stl(scale=2.0))
     assert name != parts_cache_name(cad, options, code='a' * 64)

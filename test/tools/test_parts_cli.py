@@ -66,7 +66,7 @@ def test_the_cached_classifier_is_keyed_by_what_trains_it_not_the_rig(tmp_path, 
                   classifier_cache_path('abc', BuildOptions(seed=1)),
                   classifier_cache_path('abc', BuildOptions(recipe=None)),
                   classifier_cache_path('abc', BuildOptions(train_args=['--scenes=200'])),
-                  classifier_cache_path('abc', BuildOptions(smoothed_share=0.0))):
+                  classifier_cache_path('abc', BuildOptions(smoothed_share=0.5))):
         assert other != base
 
 

@@ -48,8 +48,8 @@ class BuildOptions:
     train_args: list[str] = field(default_factory=list)
     reuse_classifier: bool = True
     # share of the classifier's training views and scenes with stereo-like depth
-    # (train --smoothed-share, 0-1), so it names parts on a real RealSense's smoothed depth
-    smoothed_share: float = 0.5
+    # (train --smoothed-share, 0-1; 0: per-pixel depth only)
+    smoothed_share: float = 0.0
 
 
 # the build step that readies the pose stage's start-up caches of the new templates
