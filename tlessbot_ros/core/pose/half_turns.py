@@ -203,7 +203,9 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
     fit's own error of a degree or two, shared by its turns, leaves the holes of the right
     turn beside the imaged ones, and their few votes fall under the margin. Where the
     refined round is open too, the poses as they are vote on the image's edges inside the
-    outline (:func:`_edge_winner`)."""
+    outline (:func:`_edge_winner`); where no edge names a turn either, with
+    ``box_agreed_turn``, a turn that wins every duel of both rounds, the poses as they are and
+    refined, is taken: the two rounds agree on a direction that neither shows by the margin."""
     from tlessbot_ros.core.pose.flat_align import round_robin
     from tlessbot_ros.core.pose.image_refine import refine_on_image
     from tlessbot_ros.core.pose.lookalike import clear_margin
@@ -244,7 +246,19 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
         return 0, True   # the refined views rule every turn out
     # the poses as they are: a turn refined on the image lays its rims over whatever edges it
     # meets, and would win on them (docs/bench/smoothed-turns.md)
-    return _edge_winner(check, obj, mesh, poses, views, params) or (k, False)
+    edges = _edge_winner(check, obj, mesh, poses, views, params)
+    if edges is not None:
+        return edges
+    # each round short of the margin by the fit's own error, both naming one turn duel by duel
+    agreed = params.box_agreed_turn and k > 0 and votes is not None and \
+        len(votes) == len(poses) and _wins_every_duel(votes, k) and _wins_every_duel(refined, k)
+    return k, agreed
+
+
+def _wins_every_duel(votes: np.ndarray, k: int) -> bool:
+    """Whether pose ``k`` has more pixels for it than against it in each of its duels
+    (``votes`` (N, N) [i, j]: pixels for i against j)."""
+    return all(int(votes[k, j]) > int(votes[j, k]) for j in range(len(votes)) if j != k)
 
 
 def _edge_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
