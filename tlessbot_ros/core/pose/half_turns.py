@@ -249,10 +249,24 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
     edges = _edge_winner(check, obj, mesh, poses, views, params)
     if edges is not None:
         return edges
-    # each round short of the margin by the fit's own error, both naming one turn duel by duel
+    # each round short of the margin by the fit's own error, both naming one turn duel by duel;
+    # a smoothed depth shows no holes, and its two rounds agree by chance
     agreed = params.box_agreed_turn and k > 0 and votes is not None and \
-        len(votes) == len(poses) and _wins_every_duel(votes, k) and _wins_every_duel(refined, k)
+        len(votes) == len(poses) and _wins_every_duel(votes, k) and \
+        _wins_every_duel(refined, k) and not _measures_smoothed(check, obj, mesh, poses[0], views)
     return k, agreed
+
+
+def _measures_smoothed(check: FlatCheck, obj: ObjectTemplates,
+                       mesh: o3d.t.geometry.RaycastingScene, pose: np.ndarray,
+                       views: Sequence[ViewEvidence]) -> bool:
+    """Whether the depth at ``pose`` measures smoothed (:func:`~.flat_align.pose_spread_px`
+    > 0): a stereo-like depth that fills a block's holes."""
+    from tlessbot_ros.core.pose.flat_align import pose_spread_px
+
+    return pose_spread_px(mesh, pose, obj.model_points.astype(np.float64), views,
+                          align_at_1m_m=check.params.align_at_1m_m,
+                          tolerance_m=check.params.depth_tolerance_m) > 0
 
 
 def _wins_every_duel(votes: np.ndarray, k: int) -> bool:
@@ -269,15 +283,12 @@ def _edge_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ra
     (:func:`~.image_edges.edge_winner`), True), or None: ``box_image_edges`` off, or no turn
     does. On a smoothed depth the holes' few millimetres leave the height votes open; their
     rims and the chamfers' creases stay edges of the image."""
-    from tlessbot_ros.core.pose.flat_align import pose_spread_px
     from tlessbot_ros.core.pose.image_edges import edge_winner
 
     if not params.box_image_edges:
         return None
-    if params.box_edges_smoothed_only and pose_spread_px(
-            mesh, poses[0], obj.model_points.astype(np.float64), views,
-            align_at_1m_m=check.params.align_at_1m_m,
-            tolerance_m=check.params.depth_tolerance_m) <= 0:
+    if params.box_edges_smoothed_only and not _measures_smoothed(check, obj, mesh, poses[0],
+                                                                 views):
         # a per-pixel depth shows the holes' millimetres: where it leaves the round open, an
         # image edge is as likely the part's own shading (docs/bench/edge-votes-polarity.md)
         return None
