@@ -78,8 +78,8 @@ class TurnParams:
             edges inside the outline (:mod:`.image_edges`), by the aligned votes' margin.
         box_edges_smoothed_only: ... only where the fit measures the depth smoothed
             (:func:`~.flat_align.pose_spread_px` > 0); on per-pixel depth an open round keeps it.
-        box_agreed_turn: a round still open takes the turn that wins every duel both as the
-            poses are and refined on the image (False: the fit stays).
+        box_agreed_turn: a round still open on per-pixel depth takes the turn that wins every
+            duel both as the poses are and refined on the image (False: the fit stays).
     """
 
     enabled: bool = True
@@ -106,7 +106,7 @@ class TurnParams:
     box_edge_px: int = 1
     box_image_edges: bool = True
     box_edges_smoothed_only: bool = True
-    box_agreed_turn: bool = True
+    box_agreed_turn: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 < self.step_deg <= 90.0:
