@@ -33,6 +33,13 @@ VARIANTS = (
     ('default, perceptron', ['--classifier', 'perceptron']),
     ('default, pa1', ['--classifier', 'pa1']),
     ('default, pa2', ['--classifier', 'pa2']),
+    ('default, seed 2', ['--seed', '2']),
+    ('default + half the views on smoothed depth', ['--smoothed-share', '0.5']),
+    ('default + half the views on smoothed depth, seed 1', ['--smoothed-share', '0.5',
+                                                            '--seed', '1']),
+    ('default + half the views on smoothed depth, seed 2', ['--smoothed-share', '0.5',
+                                                            '--seed', '2']),
+    ('default + every view on smoothed depth', ['--smoothed-share', '1']),
 )
 
 

@@ -46,6 +46,32 @@ def test_train_from_cad_in_clutter_by_default(tless_models_dir, tmp_path):
     assert not plain.uses_depth
 
 
+def test_clutter_recipe_reads_shape_from_smoothed_depth_for_its_share(tless_models_dir):
+    """--smoothed-share reaches the clutter recipe's turntable: the shape part of the features
+    changes for the smoothed views, and a share of 0 gives the per-pixel recipe's features."""
+    from tlessbot_ros.core.recognise import HogParams, ShapeParams
+    from tlessbot_ros.tools.commands.train import sample_shape
+    from tlessbot_ros.tools.support.train_clutter import ClutterRecipe, clutter_features
+
+    shape = ShapeParams()
+    hog = HogParams(crop_mode='box', box_size=True)
+    recipe = ClutterRecipe(copies=1, shape_drop=0.0)
+
+    def features(**share):
+        return clutter_features(tless_models_dir, hog, ids=[5, 19], steps_deg=120, positions=1,
+                                seed=4, recipe=recipe, shape_dim=shape.feature_dim,
+                                shape_of=lambda sample: sample_shape(sample, shape), **share)
+
+    plain, labels = features()
+    zero, _ = features(smoothed_share=0.0)
+    smoothed, smoothed_labels = features(smoothed_share=1.0)
+    np.testing.assert_array_equal(zero, plain)
+    np.testing.assert_array_equal(smoothed_labels, labels)
+    shape_columns = slice(hog.feature_dim, None)
+    changed = ~np.isclose(smoothed[:, shape_columns], plain[:, shape_columns], equal_nan=True)
+    assert changed.any(axis=1).all()   # every view's shape vector reads the other depth
+
+
 def test_train_several_learners_from_images(tless_models_dir, tmp_path):
     from tlessbot_ros.io.models import load_models
 

@@ -398,9 +398,11 @@ def cad_features(args: argparse.Namespace, hog: HogParams, shape: ShapeParams | 
             seed=args.seed,
             recipe=dataclasses.replace(recipe_with(args.clutter_param), copies=args.copies),
             shape_of=None if shape is None else (lambda sample: sample_shape(sample, shape)),
-            shape_dim=0 if shape is None else shape.feature_dim)
+            shape_dim=0 if shape is None else shape.feature_dim,
+            smoothed_share=args.smoothed_share)
         source = {'source': 'clutter', 'steps_deg': args.steps_deg,
-                  'positions': args.positions, 'copies': args.copies}
+                  'positions': args.positions, 'copies': args.copies,
+                  'smoothed_share': args.smoothed_share}
     else:
         features, labels = turntable_features(
             args.models, hog, ids=args.ids, steps_deg=args.steps_deg, positions=args.positions,

@@ -50,12 +50,15 @@ def clutter_features(models_dir: Path, hog: HogParams, *, ids: list[int] | None,
                      steps_deg: float, positions: int, seed: int,
                      recipe: ClutterRecipe = ClutterRecipe(),
                      shape_of: Callable[[object], np.ndarray] | None = None,
-                     shape_dim: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                     shape_dim: int = 0, smoothed_share: float = 0.0
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Render, clutter and describe: ((N, D) float32, (N,) int64 ids).
 
     D is ``hog.feature_dim`` (the HOG, and the box size with ``hog.box_size``) plus
     ``shape_dim`` values from ``shape_of(sample)`` (the shape
-    vector of the clean turntable view, NaN where its depth is unusable) when given.
+    vector of the clean turntable view, NaN where its depth is unusable) when given. A share
+    ``smoothed_share`` (0-1) of the views has the stereo-like 'smoothed' depth
+    (``TurntableParams.smoothed_depth_share``) that the shape vectors are read from.
     """
     from tqdm import tqdm
 
@@ -69,7 +72,8 @@ def clutter_features(models_dir: Path, hog: HogParams, *, ids: list[int] | None,
         raise TlessbotError(f'need at least 2 models to train, found {len(models)}')
     table = Turntable(models, params=TurntableParams(
         positions=positions, step_deg=steps_deg, augmentations=0,
-        distance_m=recipe.distance_m, elevation_deg=recipe.elevation_deg), seed=seed)
+        distance_m=recipe.distance_m, elevation_deg=recipe.elevation_deg,
+        smoothed_depth_share=smoothed_share), seed=seed)
     targets, shapes, focal = [], [], []
     for sample in tqdm(table.samples(), total=len(table), desc='render', unit='view'):
         distance = float(np.linalg.norm(sample.T_world_camera[:3, 3]))
