@@ -5,7 +5,13 @@ import numpy as np
 
 from tlessbot_ros.core.localise.calibrated_fusion import _side_pieces_of_blob
 from tlessbot_ros.core.localise.fusion_result import FusionParams
-from tlessbot_ros.core.localise.part_length import ViewDepth, longer_than_parts, table_length_m
+from tlessbot_ros.core.localise.part_length import (
+    ViewDepth,
+    fits_a_part,
+    longer_than_parts,
+    table_extents_m,
+    table_length_m,
+)
 from tlessbot_ros.core.localise.part_scale import shared_border_ratio
 from tlessbot_ros.core.localise.segmentation import Segmentation
 
@@ -73,6 +79,20 @@ def test_a_region_on_the_table_has_the_length_of_its_long_side() -> None:
     # the table itself, and no depth: no length
     assert table_length_m(ViewDepth(np.full((40, 60), 1.0), K, T_DOWN).table_xy(mask)) == 0.0
     assert not longer_than_parts(None, np.array([[0.01, 1.0, 1.0]]), 1.1, mask)
+
+
+def test_a_thin_region_fits_a_part_no_shorter_and_no_narrower_than_it() -> None:
+    # a camera 1 m above the table looking down: 50 x 10 px on the table is 9.8 x 2 cm
+    H_table = K @ np.linalg.inv(T_DOWN)[:3][:, [0, 1, 3]]
+    mask = np.zeros((40, 60), bool)
+    mask[15:25, 5:55] = True
+    length, width = table_extents_m(np.argwhere(mask)[:, ::-1] / 500.0)
+    assert abs(length - 0.098) < 0.003 and abs(width - 0.019) < 0.003
+    assert fits_a_part(mask, (0, 0), H_table, ((0.1, 0.02), (0.04, 0.04)), 1.2)
+    assert fits_a_part(mask[:, :30], (0, 30), H_table, ((0.05, 0.02),), 1.2)
+    # too long for the plate, too wide for the wire; and the same turned on the table
+    assert not fits_a_part(mask, (0, 0), H_table, ((0.07, 0.05), (0.2, 0.01)), 1.2)
+    assert not fits_a_part(mask.T, (0, 0), H_table, ((0.07, 0.05), (0.2, 0.01)), 1.2)
 
 
 def test_two_part_sized_pieces_cut_across_one_part_are_one_part() -> None:

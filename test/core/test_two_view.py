@@ -252,31 +252,68 @@ def test_top_blobs_of_other_colours_over_a_thin_side_instance_are_two_parts() ->
     assert side_ids(BLUE[:2]) == 1
 
 
+def _thin_beside_tall(parts, colours, params: FusionParams) -> tuple[np.ndarray, np.ndarray]:
+    """The fused side labels and the side truth (-1 background) of ``parts`` rendered in
+    ``colours``: each part its own top blob, the side segmentation holding the last part as
+    a tall instance and all the others as one thin instance beside it."""
+    rig, views = _render(parts, colours)
+    truth = views['side'][2]
+    tall = len(parts) - 1
+    side = np.where(truth == tall, 2, 1) * (truth >= 0)
+    seg = segment(views['top'][0], background=views['top'][1])
+    side_seg = replace(_relabelled(seg, side, 0.0), thin=np.array([True, False]))
+    result = fuse_views(_relabelled(seg, views['top'][2] + 1, 0.0), side_seg, rig=rig,
+                        depth_top_m=views['top'][3], side_rgb=views['side'][0], params=params)
+    ids = result.labels['side']
+    block = np.unique(ids[side == 2])
+    thin = np.unique(ids[side == 1])
+    assert not set(block[block > 0]) & set(thin[thin > 0])   # the tall part apart
+    return ids, truth
+
+
+def _ids_of(ids: np.ndarray, mask: np.ndarray) -> set[int]:
+    values = np.unique(ids[mask])
+    return set(values[values > 0].tolist())
+
+
+def _most(ids: np.ndarray, mask: np.ndarray) -> int:
+    """The id that holds most of ``mask`` (0: none)."""
+    return int(np.bincount(ids[mask].ravel()).argmax()) if mask.any() else 0
+
+
 def test_top_fragments_of_a_thin_part_against_a_taller_one_are_one_part() -> None:
-    # A plate 5 mm thick against a block 40 mm tall: the side segmentation holds them as a
-    # thin instance and a tall one in one blob (kept apart), the top view breaks the plate
-    # into two blobs. Of one colour they are fragments of the plate; of two colours (two
-    # plates touching end to end), two parts.
+    # A plate 120 x 40 x 5 mm against a block 40 mm tall: the side segmentation holds them
+    # as a thin instance and a tall one in one blob (kept apart), the top view breaks the
+    # plate into two blobs. Of one colour they are fragments of the plate; of two colours
+    # (two plates touching end to end), two parts.
     parts = [(-0.03, 0.0, 0, 0.06, 0.04, 0.005), (0.03, 0.0, 0, 0.06, 0.04, 0.005),
              (0.08, 0.0, 0, 0.04, 0.04, 0.04)]
+    known = FusionParams().with_parts(np.array([[0.12, 0.04, 0.005], [0.04, 0.04, 0.04]]))
 
-    def plate_ids(colours, **params) -> int:
-        rig, views = _render(parts, colours)
-        top = views['top'][2] + 1    # the plates' two halves: two top blobs
-        truth = views['side'][2]
-        side = np.where(truth == 2, 2, 1) * (truth >= 0)   # the plates one instance
-        seg = segment(views['top'][0], background=views['top'][1])
-        side_seg = replace(_relabelled(seg, side, 0.0), thin=np.array([True, False]))
-        result = fuse_views(_relabelled(seg, top, 0.0), side_seg, rig=rig,
-                            depth_top_m=views['top'][3], side_rgb=views['side'][0],
-                            params=FusionParams(**params))
-        ids = result.labels['side']
-        block = np.unique(ids[side == 2])
-        plates = np.unique(ids[side == 1])
-        assert not set(block[block > 0]) & set(plates[plates > 0])   # the block apart
-        return int(np.count_nonzero(plates))
+    def plate_ids(colours, params: FusionParams = known) -> int:
+        ids, truth = _thin_beside_tall(parts, colours, params)
+        return len(_ids_of(ids, (truth == 0) | (truth == 1)))
 
     one_colour = BLUE[:2] + [(200, 120, 40)]
-    assert plate_ids(one_colour, thin_join_pieces=True) == 1
-    assert plate_ids(one_colour) == 2   # off by default: cut in two, as before
-    assert plate_ids([BLUE[0], (40, 160, 60), (200, 120, 40)], thin_join_pieces=True) == 2
+    assert plate_ids(one_colour) == 1
+    assert plate_ids(one_colour, replace(known, thin_join_pieces=False)) == 2   # as before
+    assert plate_ids(one_colour, FusionParams()) == 2   # the parts unknown: nothing joined
+    assert plate_ids([BLUE[0], (40, 160, 60), (200, 120, 40)]) == 2
+
+
+def test_two_thin_parts_of_one_colour_against_a_taller_one_stay_apart() -> None:
+    # A strip 90 x 20 mm (the top view breaks it in two) and a disc 45 mm across (a square
+    # here) lying touching, of one colour, beside a block 40 mm tall; the side segmentation
+    # holds strip and disc as one thin instance. Together they lie longer and wider on the
+    # table than any part, so the disc is not joined to the strip's fragments.
+    parts = [(-0.0675, 0.0, 0, 0.045, 0.02, 0.004), (-0.0225, 0.0, 0, 0.045, 0.02, 0.004),
+             (0.0225, 0.0, 0, 0.045, 0.045, 0.004), (0.065, 0.0, 0, 0.04, 0.04, 0.04)]
+    catalogue = np.array([[0.09, 0.02, 0.004], [0.045, 0.045, 0.004], [0.04, 0.04, 0.04]])
+    colours = BLUE[:3] + [(200, 120, 40)]
+    ids, truth = _thin_beside_tall(parts, colours, FusionParams().with_parts(catalogue))
+    strip = {_most(ids, truth == 0), _most(ids, truth == 1)}
+    assert 0 not in strip and 0 < _most(ids, truth == 2) not in strip
+    # a catalogue with a plate that holds them both: one part
+    plate = np.array([[0.14, 0.05, 0.004], [0.04, 0.04, 0.04]])
+    ids, truth = _thin_beside_tall(parts, colours, FusionParams().with_parts(plate))
+    assert len(_ids_of(ids, (truth >= 0) & (truth <= 2))) == 1

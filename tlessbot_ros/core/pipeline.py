@@ -258,7 +258,8 @@ class PerceptionPipeline:
         else:
             top, side = seg(TOP), seg(SIDE)
         return fuse_views(top, side, rig=self.rig, side_rgb=views[SIDE].rgb,
-                          depth_top_m=views[TOP].depth_m, params=self.fusion,
+                          depth_top_m=views[TOP].depth_m,
+                          params=self.fusion.with_parts(self.part_extents_m),
                           top_rgb=views[TOP].rgb)
 
     # ---------------------------------------------------------------------------- stage 2

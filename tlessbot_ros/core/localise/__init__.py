@@ -41,7 +41,7 @@ _HOME = {
     'lift_top_blobs': 'calibrated_fusion',
     'predict_side_regions': 'calibrated_fusion',
     'single_view': 'two_view',
-    'table_homography': 'two_view',
+    'table_homography': 'part_length',
 }
 __all__ = sorted(_HOME)
 
@@ -81,6 +81,7 @@ if TYPE_CHECKING:
         METHODS,
         SegmentationParams,
     )
+    from tlessbot_ros.core.localise.part_length import table_homography  # noqa: F401
     from tlessbot_ros.core.localise.part_scale import (  # noqa: F401
         longest_part_px,
         part_view_areas,
@@ -97,5 +98,4 @@ if TYPE_CHECKING:
     from tlessbot_ros.core.localise.two_view import (  # noqa: F401
         fuse_views,
         single_view,
-        table_homography,
     )

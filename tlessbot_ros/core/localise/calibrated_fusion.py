@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import cast
 
 import cv2
@@ -21,7 +22,11 @@ from tlessbot_ros.core.localise.fusion_result import (
 from tlessbot_ros.core.localise.gap_colour import apart_by_gap_colour
 from tlessbot_ros.core.localise.instances import LIGHTNESS_GROUPS
 from tlessbot_ros.core.localise.lightness import top_check
-from tlessbot_ros.core.localise.part_length import longer_than_parts
+from tlessbot_ros.core.localise.part_length import (
+    fits_a_part,
+    longer_than_parts,
+    table_homography,
+)
 from tlessbot_ros.core.localise.part_scale import (
     holds_whole_part,
     mask_length_px,
@@ -196,10 +201,10 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
             check = top_check(top_rgb, top_labels, owners, params.lightness_top_ratio)
             pieces = _side_pieces_of_blob(blob, side.labels[window], side, params,
                                           pred[window], owners, check, window) or [blob]
-            if params.thin_join_pieces:
-                owners = join_thin_fragments_of_pieces(pieces, side, window, owners,
-                                                       top_labels, rgb_window, pred[window],
-                                                       floors)
+            if params.thin_join_pieces and params.part_footprints_m:
+                owners = join_thin_fragments_of_pieces(
+                    pieces, side, window, owners, top_labels, rgb_window, pred[window], floors,
+                    _fits_a_part(params, rig, side_name, window))
             ids, next_id, divided = _label_pieces(
                 pieces, owners, pred[window], rgb_window,
                 kernel, next_id, side.whole_part_px(),
@@ -221,6 +226,15 @@ def calibrated_fusion(top: Segmentation, side: Segmentation, rig: Rig,
     return FusionResult(labels=labels, method='calibrated', predicted_side=pred,
                         instances=instances_from_labels(top_labels, side_labels, split_ids),
                         timings_ms=timings)
+
+
+def _fits_a_part(params: FusionParams, rig: Rig, side_name: str,
+                 window: tuple[slice, slice]) -> Callable[[np.ndarray], bool]:
+    """Whether a piece (a bool mask of the side ``window``) could be one part on the table
+    (:func:`~.part_length.fits_a_part`, ``thin_join_fit``)."""
+    return partial(fits_a_part, origin=(window[0].start, window[1].start),
+                   H_table_to_image=table_homography(rig, side_name),
+                   footprints_m=params.part_footprints_m or (), ratio=params.thin_join_fit)
 
 
 def _own_instances(out: np.ndarray, blob: np.ndarray, own: np.ndarray, next_id: int) -> int:

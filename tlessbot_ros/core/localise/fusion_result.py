@@ -2,7 +2,7 @@
 with one id in both views."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -39,7 +39,11 @@ class FusionParams:
         thin_join_colour_floors: top blobs over one thin side instance are fragments of one
             part unless their side colours differ by more than this many colour floors (0: off).
         thin_join_pieces: ... over a piece of a side blob that is one thin side instance too
-            (a plate against a taller part, kept apart from it; off by default).
+            (a plate against a taller part, kept apart from it), where that piece fits a part.
+        thin_join_fit: a piece fits a part where its outline on the table is within this many
+            times the part's two largest extents (>= 1; ``fits_a_part``).
+        part_footprints_m: per part its two largest extents (m), set by the pipeline from the
+            parts' sizes; None: unknown, no piece joined (no ROS parameter).
         keep_apart_by_prediction: two side instances of one blob that the top view's
             predictions give to two of its blobs stay apart.
         whole_pieces_apart: a piece of a side blob that no top blob takes and that could be a
@@ -77,7 +81,9 @@ class FusionParams:
     keep_depth_splits: bool = True
     keep_thin_beside_tall: bool = True
     thin_join_colour_floors: float = 2.0
-    thin_join_pieces: bool = False
+    thin_join_pieces: bool = True
+    thin_join_fit: float = 1.2
+    part_footprints_m: tuple[tuple[float, float], ...] | None = None
     keep_apart_by_prediction: bool = True
     whole_pieces_apart: bool = True
     table_divides: bool = True
@@ -89,6 +95,15 @@ class FusionParams:
     apart_each_whole: float = 1.0
     whole_cut_border: float = 1.5
 
+    def with_parts(self, extents_m: np.ndarray | None) -> FusionParams:
+        """These params with ``part_footprints_m`` from the parts' (N, 3) box extents (m);
+        as they are without the extents or where the footprints are set."""
+        if extents_m is None or self.part_footprints_m is not None:
+            return self
+        largest = -np.sort(-np.abs(np.asarray(extents_m, float).reshape(-1, 3)), axis=1)
+        return replace(self, part_footprints_m=tuple(
+            (float(a), float(b)) for a, b in largest[:, :2]))
+
     def __post_init__(self) -> None:
         if self.method not in FUSION_METHODS:
             raise ValueError(f'method must be one of {FUSION_METHODS}, got {self.method!r}')
@@ -97,6 +112,8 @@ class FusionParams:
         if self.thin_join_colour_floors < 0:
             raise ValueError('thin_join_colour_floors must be >= 0 (0: off), got '
                              f'{self.thin_join_colour_floors}')
+        if self.thin_join_fit < 1:
+            raise ValueError(f'thin_join_fit must be >= 1, got {self.thin_join_fit}')
         if self.gap_table_floors < 0 or self.gap_band_px < 1:
             raise ValueError('gap_table_floors must be >= 0 and gap_band_px >= 1, got '
                              f'{self.gap_table_floors} and {self.gap_band_px}')

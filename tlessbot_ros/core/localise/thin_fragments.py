@@ -7,10 +7,13 @@ among the top's fragments. So the top blobs over one thin side instance are frag
 part and take one id, unless their side pixels differ in colour (a part has one colour, two
 thin parts touching need not): in a side blob that is that one instance
 (:func:`join_thin_fragments`), and in a piece of a side blob that the fusion keeps apart
-from the rest, a plate lying against a taller part (:func:`join_thin_fragments_of_pieces`).
+from the rest, a plate lying against a taller part (:func:`join_thin_fragments_of_pieces`),
+where that piece could be one part: two thin parts of one colour touching make a piece longer
+or wider on the table than any part (:func:`~.part_length.fits_a_part`).
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -49,19 +52,21 @@ def join_thin_fragments(blob: np.ndarray, side: Segmentation, window: tuple[slic
 def join_thin_fragments_of_pieces(pieces: list[np.ndarray], side: Segmentation,
                                   window: tuple[slice, slice], owners: list[int],
                                   top_labels: np.ndarray, rgb: np.ndarray | None,
-                                  pred: np.ndarray, floors: np.ndarray) -> list[int]:
+                                  pred: np.ndarray, floors: np.ndarray,
+                                  fits_a_part: Callable[[np.ndarray], bool]) -> list[int]:
     """The owners of a side blob that the fusion keeps in ``pieces`` (bool masks of the
     window, the blob divided between the side segmentation's instances), less those that are
     fragments of a thin part: the owners given to one piece (each to the piece it overlaps
     most, as the fusion gives them) are joined as in a blob (:func:`join_thin_fragments`)
-    where that piece is one thin side instance. ``pred`` and ``rgb`` are cut to the window."""
+    where that piece is one thin side instance and ``fits_a_part`` (of a piece's mask) holds.
+    ``pred`` and ``rgb`` are cut to the window."""
     if len(pieces) < 2 or len(owners) < 2:
         return owners
     most = {k: int(np.argmax([np.count_nonzero(p & (pred == k)) for p in pieces]))
             for k in owners}
     for j, piece in enumerate(pieces):
         mine = [k for k in owners if most[k] == j]
-        if len(mine) < 2:
+        if len(mine) < 2 or not fits_a_part(piece):
             continue
         overlap = np.bincount(pred[piece].ravel(), minlength=max(mine) + 1)
         kept = join_thin_fragments(piece, side, window, mine, top_labels, overlap, rgb, pred,

@@ -44,6 +44,7 @@ from tlessbot_ros.core.localise.fusion_result import (
     FusionResult,
     instances_from_labels,
 )
+from tlessbot_ros.core.localise.part_length import table_homography
 from tlessbot_ros.core.localise.segmentation import Segmentation
 
 
@@ -102,13 +103,6 @@ def _side_only(top: Segmentation, side: Segmentation) -> FusionResult:
     labels = {'top': np.zeros_like(top.labels), 'side': side.labels.astype(np.uint16)}
     return FusionResult(labels=labels, method='side_only',
                         instances=instances_from_labels(labels['top'], labels['side'], set()))
-
-
-def table_homography(rig: Rig, camera: str) -> np.ndarray:
-    """(3, 3) homography from table-plane (world x, y at z = 0, metres) to ``camera`` pixels."""
-    mount = rig[camera]
-    T = mount.T_camera_world
-    return cast(np.ndarray, mount.intrinsics.K @ np.column_stack([T[:3, 0], T[:3, 1], T[:3, 3]]))
 
 
 def _apply_h(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
