@@ -99,7 +99,8 @@ def _edge_round(block, axis: int, kind: str):
     spread = pose_spread_px(mesh_scene(obj), poses[0], obj.model_points.astype(float), views,
                             align_at_1m_m=check.params.align_at_1m_m,
                             tolerance_m=check.params.depth_tolerance_m)
-    return _edge_winner(check, obj, mesh_scene(obj), poses, views, TurnParams()), spread
+    return _edge_winner(check, obj, mesh_scene(obj), poses, views, TurnParams(),
+                        spread > 0), spread
 
 
 @pytest.mark.parametrize('axis', [1, 2])

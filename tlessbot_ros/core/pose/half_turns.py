@@ -205,7 +205,8 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
     refined round is open too, the poses as they are vote on the image's edges inside the
     outline (:func:`_edge_winner`); where no edge names a turn either, with
     ``box_agreed_turn``, a turn that wins every duel of both rounds, the poses as they are and
-    refined, is taken: the two rounds agree on a direction that neither shows by the margin."""
+    refined, is taken (:func:`_agreed_turn`): the two rounds agree on a direction that neither
+    shows by the margin."""
     from tlessbot_ros.core.pose.flat_align import round_robin
     from tlessbot_ros.core.pose.image_refine import refine_on_image
     from tlessbot_ros.core.pose.lookalike import clear_margin
@@ -246,15 +247,59 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
         return 0, True   # the refined views rule every turn out
     # the poses as they are: a turn refined on the image lays its rims over whatever edges it
     # meets, and would win on them (docs/bench/smoothed-turns.md)
-    edges = _edge_winner(check, obj, mesh, poses, views, params)
+    smoothed = _measures_smoothed(check, obj, mesh, poses[0], views) if \
+        params.box_agreed_turn or (params.box_image_edges and params.box_edges_smoothed_only) \
+        else False
+    edges = _edge_winner(check, obj, mesh, poses, views, params, smoothed)
     if edges is not None:
         return edges
-    # each round short of the margin by the fit's own error, both naming one turn duel by duel;
-    # a smoothed depth shows no holes, and its two rounds agree by chance
-    agreed = params.box_agreed_turn and k > 0 and votes is not None and \
-        len(votes) == len(poses) and _wins_every_duel(votes, k) and \
-        _wins_every_duel(refined, k) and not _measures_smoothed(check, obj, mesh, poses[0], views)
+    agreed = votes is not None and len(votes) == len(poses) and \
+        _agreed_turn(obj, mesh, poses, votes, refined, k, views, params, smoothed)
     return k, agreed
+
+
+def _agreed_turn(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
+                 poses: list[np.ndarray], votes: np.ndarray, refined: np.ndarray, k: int,
+                 views: Sequence[ViewEvidence], params: TurnParams, smoothed: bool) -> bool:
+    """Whether ``box_agreed_turn`` takes turn ``k`` of ``poses`` (the fit first): it wins every
+    duel both as the poses are (``votes``) and refined (``refined``, each (N, N) [i, j]:
+    pixels for i against j), the depth at the fit measures per-pixel (``smoothed`` False) and
+    the turn changes at least ``box_agreed_min_px`` pixels of the fit (:func:`turn_seen_px`).
+
+    Each round falls short of the margin by the fit's own error; two that name one turn duel by
+    duel agree on a direction neither shows clearly. A smoothed depth shows no holes, and its
+    two rounds agree by chance; so do the rounds of a turn the rig hardly sees (a nut's chamfers
+    of half a millimetre), whatever the depth."""
+    if not params.box_agreed_turn or k <= 0 or smoothed or not _wins_every_duel(votes, k) or \
+            not _wins_every_duel(refined, k):
+        return False
+    return turn_seen_px(obj, mesh, poses[0], poses[k], views) >= params.box_agreed_min_px
+
+
+def turn_seen_px(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene, T_a: np.ndarray,
+                 T_b: np.ndarray, views: Sequence[ViewEvidence]) -> int:
+    """The pixels, summed over the ``views`` with a table plane, that tell the part (``mesh``,
+    model frame) at pose ``T_a`` from the part at ``T_b`` (both (4, 4) in the fitted view's
+    optical frame, metres): :func:`~.observability.changed_pixels` of the part alone, rendered
+    noise-free, with :class:`~.observability.ObservabilityParams`' depth noise and edges."""
+    from tlessbot_ros.core.common.table_plane import table_frame_from_plane
+    from tlessbot_ros.core.pose.observability import (
+        ObservabilityParams,
+        ViewOfTable,
+        changed_pixels,
+    )
+
+    points = obj.model_points.astype(np.float64)
+    settings = ObservabilityParams()
+    total = 0
+    for view in views:
+        if view.plane is None:
+            continue
+        T_world_camera = table_frame_from_plane(view.plane)
+        T_world_fit = T_world_camera @ view.T_view_fit
+        total += changed_pixels(mesh, points, T_world_fit @ T_a, T_world_fit @ T_b,
+                                ViewOfTable(view.intrinsics, T_world_camera), settings)[2]
+    return total
 
 
 def _measures_smoothed(check: FlatCheck, obj: ObjectTemplates,
@@ -276,19 +321,19 @@ def _wins_every_duel(votes: np.ndarray, k: int) -> bool:
 
 
 def _edge_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene,
-                 poses: list[np.ndarray], views: Sequence[ViewEvidence], params: TurnParams
-                 ) -> tuple[int, bool] | None:
+                 poses: list[np.ndarray], views: Sequence[ViewEvidence], params: TurnParams,
+                 smoothed: bool) -> tuple[int, bool] | None:
     """(the turn among ``poses`` (the fit first) that wins most duels on the image's edges
     inside the outline and beats the fit there by the aligned votes' margin
     (:func:`~.image_edges.edge_winner`), True), or None: ``box_image_edges`` off, or no turn
-    does. On a smoothed depth the holes' few millimetres leave the height votes open; their
-    rims and the chamfers' creases stay edges of the image."""
+    does (with ``box_edges_smoothed_only``, only where ``smoothed``: :func:`_measures_smoothed`
+    at the fit). On a smoothed depth the holes' few millimetres leave the height votes open;
+    their rims and the chamfers' creases stay edges of the image."""
     from tlessbot_ros.core.pose.image_edges import edge_winner
 
     if not params.box_image_edges:
         return None
-    if params.box_edges_smoothed_only and not _measures_smoothed(check, obj, mesh, poses[0],
-                                                                 views):
+    if params.box_edges_smoothed_only and not smoothed:
         # a per-pixel depth shows the holes' millimetres: where it leaves the round open, an
         # image edge is as likely the part's own shading (docs/bench/edge-votes-polarity.md)
         return None

@@ -80,6 +80,8 @@ class TurnParams:
             (:func:`~.flat_align.pose_spread_px` > 0); on per-pixel depth an open round keeps it.
         box_agreed_turn: a round still open on per-pixel depth takes the turn that wins every
             duel both as the poses are and refined on the image (False: the fit stays).
+        box_agreed_min_px: ... only where that turn changes at least this many pixels of the
+            fit, all views (:func:`~.observability.changed_pixels`; >= 0).
     """
 
     enabled: bool = True
@@ -106,7 +108,8 @@ class TurnParams:
     box_edge_px: int = 1
     box_image_edges: bool = True
     box_edges_smoothed_only: bool = True
-    box_agreed_turn: bool = False
+    box_agreed_turn: bool = True
+    box_agreed_min_px: int = 20
 
     def __post_init__(self) -> None:
         if not 0.0 < self.step_deg <= 90.0:
@@ -131,12 +134,13 @@ class TurnParams:
                              f'{self.half_candidates}')
         if self.box_refine_deg < 0 or self.box_refine_min_deg <= 0 or \
                 self.box_refine_max_deg < 0 or self.box_refine_max_m < 0 or \
-                self.box_edge_px < 0:
-            raise ValueError('box_refine_deg, box_refine_max_deg, box_refine_max_m and '
-                             'box_edge_px must be >= 0 and box_refine_min_deg > 0, got '
+                self.box_edge_px < 0 or self.box_agreed_min_px < 0:
+            raise ValueError('box_refine_deg, box_refine_max_deg, box_refine_max_m, '
+                             'box_edge_px and box_agreed_min_px must be >= 0 and '
+                             'box_refine_min_deg > 0, got '
                              f'{self.box_refine_deg}, {self.box_refine_max_deg}, '
                              f'{self.box_refine_max_m}, {self.box_edge_px}, '
-                             f'{self.box_refine_min_deg}')
+                             f'{self.box_agreed_min_px}, {self.box_refine_min_deg}')
 
 
 def surface_centre(obj: ObjectTemplates) -> np.ndarray:
