@@ -200,3 +200,31 @@ def test_a_second_camera_that_sees_the_feature_decides(truth):
     # a view without points adds nothing
     assert check.resolve(1, BOSS_DOWN, down, more_views=[(np.zeros((0, 3)), T_up_down)]) == \
         (1, 0.0)
+
+
+def _holed_plate(hole_y):
+    """A 60 x 40 x 4 mm plate with a 6 x 6 mm through-hole centred at (15 mm, ``hole_y``)."""
+    lo, hi = hole_y - 0.003, hole_y + 0.003
+    return _union(_box((-0.03, -0.02, -0.002), (0.012, 0.02, 0.002)),
+                  _box((0.018, -0.02, -0.002), (0.03, 0.02, 0.002)),
+                  _box((0.012, -0.02, -0.002), (0.018, lo, 0.002)),
+                  _box((0.012, hi, -0.002), (0.018, 0.02, 0.002)))
+
+
+# mirror twins: the hole on either side of the plate's long axis
+HOLE_LEFT, HOLE_RIGHT = _holed_plate(0.01), _holed_plate(-0.01)
+
+
+def test_each_twin_refined_on_the_depth_names_a_part_fitted_off_its_hole():
+    points, _ = _seen_from_above(HOLE_LEFT, BOSS_UP, noise_m=0.0005)
+    off = BOSS_UP @ make_transform(np.eye(3), [0.006, 0.0, 0.0])   # 6 mm off along the plate
+    twins = {1: HOLE_LEFT, 2: HOLE_RIGHT}, {1: (2,), 2: (1,)}
+    check = LookalikeCheck(*twins, min_z=2.0)
+    # where the fitted pose stands, each twin's hole lies on the plate: the pixels split
+    assert check.resolve(2, off, points) == (2, 0.0)
+    winner, vote = check.resolve(2, off, points, refine=True)
+    assert winner == 1 and vote > 0.01
+    assert check.resolve(1, off, points, refine=True) == (1, 0.0)
+    # the true pose needs no refinement, and refining it changes nothing
+    assert check.resolve(2, BOSS_UP, points)[0] == 1
+    assert check.resolve(2, BOSS_UP, points, refine=True)[0] == 1

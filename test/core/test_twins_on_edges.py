@@ -55,16 +55,17 @@ def twins():
     return {PLAIN: plain, HOLED: holed}, db
 
 
-def _frame(meshes, shown: int, yaw_deg: float = 25.0):
+def _frame(meshes, shown: int, yaw_deg: float = 25.0, depth_kind: str = 'smoothed'):
     """Part ``shown`` on the table seen by the side camera: its shaded colour image and a
-    smoothed depth; the outline's pixels with the hole filled (a localiser's closed mask)
-    label it. Returns (inputs, labels, T_camera_object true, ROI points)."""
+    smoothed (or ``depth_kind``) depth; the outline's pixels with the hole filled (a
+    localiser's closed mask) label it. Returns (inputs, labels, T_camera_object true, ROI
+    points)."""
     T_world_object = make_transform(rotation_about_axis([0, 0, 1], np.radians(yaw_deg)),
                                     [0.005, -0.01, 0.0])
     rgb, clean, _ = side_scene(*meshes[shown], T_world_object, noise_m=0.0, shaded=True)
     _, _, outline = side_scene(*meshes[PLAIN], T_world_object, noise_m=0.0)
     depth_mm = add_depth_noise(clean, float(SIDE.intrinsics.K[0, 0]), np.random.default_rng(3),
-                               DepthNoiseParams(kind='smoothed'))
+                               DepthNoiseParams(kind=depth_kind))
     depth = depth_mm.astype(np.float32) / 1000.0
     inputs = {'side': ViewInput(rgb=rgb, depth_m=depth, intrinsics=SIDE.intrinsics,
                                 T_world_camera=SIDE.T_world_camera)}
@@ -108,6 +109,31 @@ def test_no_rim_on_the_image_leaves_the_plain_plate_to_the_depth(twins):
     for named in (PLAIN, HOLED):
         [found] = PerceptionPipeline(templates=db).estimate_poses(inputs, labels, {1: (named,)})
         assert found.obj_id == PLAIN
+
+
+@pytest.mark.parametrize('depth_kind', ['smoothed', 'per_pixel'])
+def test_the_twins_are_refined_before_the_depth_vote_on_per_pixel_depth_only(
+        twins, monkeypatch, depth_kind):
+    # the refinement aligns the twins' holes on the pixels that see through the part; a
+    # stereo-like depth has filled them (FitParams.lookalike_refine, flat_parts.refine_twins)
+    from tlessbot_ros.core.pose import LookalikeCheck
+
+    meshes, db = twins
+    inputs, labels, _, _ = _frame(meshes, HOLED, depth_kind=depth_kind)
+    asked = []
+    resolve = LookalikeCheck.resolve
+
+    def spy(self, *args, refine=False, **kwargs):
+        asked.append(refine)
+        return resolve(self, *args, refine=refine, **kwargs)
+
+    monkeypatch.setattr(LookalikeCheck, 'resolve', spy)
+    # neither the edges nor the flat check's aligned votes decide first: the depth check runs
+    depth_only = replace(FitParams(), lookalike_edge_min_z=0.0,
+                         flat=replace(FitParams().flat, align_min_z=1e6))
+    PerceptionPipeline(templates=db, fit_params=depth_only).estimate_poses(
+        inputs, labels, {1: (PLAIN,)})
+    assert asked == [depth_kind == 'per_pixel']
 
 
 def _shadow_across_the_twin_s_hole(inputs, T_true, kind: str):

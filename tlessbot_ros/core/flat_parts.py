@@ -39,7 +39,7 @@ def check_fitted_part(pipeline: PerceptionPipeline, job: PartJob,
         return   # a hole's rim or a mirrored crease on the image: the depth may have lost it
     if info is not None and info.get('align_decided'):
         return   # the aligned votes of every view named the part among its twins too
-    pipeline.check_lookalike(job)
+    pipeline.check_lookalike(job, refine=refine_twins(pipeline, job, views, labels))
     check_twins(pipeline, job, views, labels)
 
 
@@ -253,6 +253,27 @@ def twins_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, 
     if k > 0:
         rename(detection, job, ids[k])
     return True
+
+
+def refine_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
+                 labels: dict[str, np.ndarray]) -> bool:
+    """Whether the depth's look-alike check moves each twin to its own pose before the vote
+    (``FitParams.lookalike_refine``): only where the depth at the fit measures per-pixel
+    (:func:`~tlessbot_ros.core.pose.half_turns.measures_smoothed`). The refinement aligns
+    the twins' few-millimetre holes on the pixels that see through the part, which a
+    stereo-like depth fills."""
+    from tlessbot_ros.core.pose.half_turns import measures_smoothed
+
+    detection, check = job.detection, pipeline.lookalike
+    estimator = pipeline.pose_estimator
+    if not pipeline.fit_params.lookalike_refine or check is None or estimator is None or \
+            detection.pose is None or detection.obj_id not in check:
+        return False
+    evidence = colour_views(views, labels, detection.instance_id, detection.view,
+                            table_frames(pipeline, views))
+    return not measures_smoothed(flat_check(pipeline), estimator.database[detection.obj_id],
+                                 check.scene(detection.obj_id),
+                                 detection.pose.T_camera_object, evidence)
 
 
 def rename(detection: Detection, job: PartJob, obj_id: int) -> None:

@@ -117,6 +117,8 @@ class FitParams:
             coin-toss deviations (>= 0; 0: any).
         lookalike_all_views: the part's pixels in the other cameras vote in the look-alike check
             too (needs the rig extrinsics).
+        lookalike_refine: on per-pixel depth, the look-alike check first moves each twin to
+            where its surface explains the most depth pixels, a few degrees and mm from the fit.
         lookalike_edge_min_z: look-alikes are first compared on the colour image's edges at the
             fitted pose; the winner needs a surplus above this many coin-toss deviations (0: off).
         fragment_overlap: a detection centred within this fraction of a larger one's diameter is
@@ -184,6 +186,7 @@ class FitParams:
     lookalike_tolerance_m: float = 0.002
     lookalike_min_z: float = 2.0
     lookalike_all_views: bool = True
+    lookalike_refine: bool = True
     lookalike_edge_min_z: float = 3.0
     fragment_overlap: float = 0.5
     table_plane: str = 'auto'

@@ -191,16 +191,18 @@ def _verify_value(estimator: PoseEstimator, params: FitParams, sample: np.ndarra
                  + params.fit_rank_coverage_weight * best.coverage)
 
 
-def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob) -> None:
+def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob, *,
+                    refine: bool = False) -> None:
     """A fitted part whose class has a look-alike is compared with it at the fitted pose,
     on the depth of its view and of ``job.more_views`` (``lookalike_*``); the look-alike
-    names the part when it explains that depth better by a clear margin."""
+    names the part when it explains that depth better by a clear margin (``refine``: each
+    from its own pose near the fit, :meth:`~tlessbot_ros.core.pose.LookalikeCheck.resolve`)."""
     detection = job.detection
     if lookalike is None or detection.pose is None or detection.obj_id not in lookalike:
         return
     winner, _ = lookalike.resolve(detection.obj_id, detection.pose.T_camera_object,
                                   job.points, more_views=job.more_views,
-                                  T_world_camera=job.T_world_camera)
+                                  T_world_camera=job.T_world_camera, refine=refine)
     if winner != detection.obj_id:
         # the twins share their model frame, so the fitted pose is the twin's too
         detection.obj_id = winner

@@ -247,7 +247,7 @@ def _box_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ray
         return 0, True   # the refined views rule every turn out
     # the poses as they are: a turn refined on the image lays its rims over whatever edges it
     # meets, and would win on them (docs/bench/smoothed-turns.md)
-    smoothed = _measures_smoothed(check, obj, mesh, poses[0], views) if \
+    smoothed = measures_smoothed(check, obj, mesh, poses[0], views) if \
         params.box_agreed_turn or (params.box_image_edges and params.box_edges_smoothed_only) \
         else False
     edges = _edge_winner(check, obj, mesh, poses, views, params, smoothed)
@@ -302,7 +302,7 @@ def turn_seen_px(obj: ObjectTemplates, mesh: o3d.t.geometry.RaycastingScene, T_a
     return total
 
 
-def _measures_smoothed(check: FlatCheck, obj: ObjectTemplates,
+def measures_smoothed(check: FlatCheck, obj: ObjectTemplates,
                        mesh: o3d.t.geometry.RaycastingScene, pose: np.ndarray,
                        views: Sequence[ViewEvidence]) -> bool:
     """Whether the depth at ``pose`` measures smoothed (:func:`~.flat_align.pose_spread_px`
@@ -326,7 +326,7 @@ def _edge_winner(check: FlatCheck, obj: ObjectTemplates, mesh: o3d.t.geometry.Ra
     """(the turn among ``poses`` (the fit first) that wins most duels on the image's edges
     inside the outline and beats the fit there by the aligned votes' margin
     (:func:`~.image_edges.edge_winner`), True), or None: ``box_image_edges`` off, or no turn
-    does (with ``box_edges_smoothed_only``, only where ``smoothed``: :func:`_measures_smoothed`
+    does (with ``box_edges_smoothed_only``, only where ``smoothed``: :func:`measures_smoothed`
     at the fit). On a smoothed depth the holes' few millimetres leave the height votes open;
     their rims and the chamfers' creases stay edges of the image."""
     from tlessbot_ros.core.pose.image_edges import edge_winner
