@@ -271,9 +271,9 @@ class LookalikeCheck:
                 T_world_camera: np.ndarray | None = None, refine: bool = False
                 ) -> tuple[int, float]:
         """(winner, its vote against ``obj_id``): ``obj_id`` itself (vote 0) unless a
-        look-alike at the same pose (with ``refine``, each part at its own pose near it)
-        explains the depth better by a clear margin (``min_z``, :func:`clear_margin`) of the
-        pixels of every view given.
+        look-alike at the same pose explains the depth better by a clear margin (``min_z``,
+        :func:`clear_margin`) of the pixels of every view given; with ``refine``, where that
+        pose leaves the two open, each part votes again from its own pose near it.
 
         Args:
             obj_id: the class the pose was fitted for.
@@ -285,9 +285,9 @@ class LookalikeCheck:
             T_world_camera: (4, 4) the table frame of the cloud's camera (z = 0 on the
                 table), or None: a pixel the mesh misses then expects the table behind
                 (:func:`depth_errors`).
-            refine: each part (``obj_id`` and its look-alikes) first moves to where its own
-                surface explains the most pixels near the fitted pose
-                (:func:`refine_on_depth`), and votes from there.
+            refine: where the fitted pose gives neither part a clear margin, each (``obj_id``
+                and that look-alike) moves to where its own surface explains the most pixels
+                near it (:func:`refine_on_depth`), and they vote again from there.
 
         Returns:
             the winner and its vote: the share of all the pixels that it explains better
@@ -303,18 +303,26 @@ class LookalikeCheck:
         if obj_id not in self.lookalikes or not views:
             return obj_id, 0.0
 
-        def errors(part: int) -> list[np.ndarray]:
+        def errors(part: int, refined: bool = False) -> list[np.ndarray]:
             vertices = np.asarray(self._scenes.meshes[part][0], np.float64)
             centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2
             T = refine_on_depth(self.scene(part), T0, views, self.tolerance_m, centre) \
-                if refine else T0
+                if refined else T0
             return [depth_errors(self.scene(part), T_view @ T, points, plane)
                     for T_view, points, plane in views]
 
-        own = errors(obj_id)
+        own, own_refined = errors(obj_id), None
         best, best_vote = obj_id, 0.0
         for other in self.lookalikes[obj_id]:
-            vote = pooled_vote(errors(other), own, self.tolerance_m, self.min_z)
+            theirs = errors(other)
+            vote = pooled_vote(theirs, own, self.tolerance_m, self.min_z)
+            if refine and vote == 0.0 and \
+                    pooled_vote(own, theirs, self.tolerance_m, self.min_z) == 0.0:
+                # the fitted pose leaves the two open: each votes again from its own pose
+                if own_refined is None:
+                    own_refined = errors(obj_id, refined=True)
+                vote = pooled_vote(errors(other, refined=True), own_refined, self.tolerance_m,
+                                   self.min_z)
             if vote > best_vote:
                 best, best_vote = other, vote
         return best, best_vote
