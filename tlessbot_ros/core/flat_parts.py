@@ -257,7 +257,7 @@ def twins_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, 
 
 def refine_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
                  labels: dict[str, np.ndarray]) -> bool:
-    """Whether the depth's look-alike check moves each twin to its own pose before the vote
+    """Whether the depth's look-alike check may move each twin to its own pose and vote again
     (``FitParams.lookalike_refine``): only where the depth at the fit measures per-pixel
     (:func:`~tlessbot_ros.core.pose.half_turns.measures_smoothed`). The refinement aligns
     the twins' few-millimetre holes on the pixels that see through the part, which a

@@ -117,8 +117,8 @@ class FitParams:
             coin-toss deviations (>= 0; 0: any).
         lookalike_all_views: the part's pixels in the other cameras vote in the look-alike check
             too (needs the rig extrinsics).
-        lookalike_refine: on per-pixel depth, the look-alike check first moves each twin to
-            where its surface explains the most depth pixels, a few degrees and mm from the fit.
+        lookalike_refine: on per-pixel depth, twins left open at the fit vote again, each from
+            the pose near it that explains the most depth pixels.
         lookalike_edge_min_z: look-alikes are first compared on the colour image's edges at the
             fitted pose; the winner needs a surplus above this many coin-toss deviations (0: off).
         fragment_overlap: a detection centred within this fraction of a larger one's diameter is
