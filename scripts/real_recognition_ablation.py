@@ -6,12 +6,15 @@
 Each variant is ``tlessbot train --models <dataset>/models <args>`` followed by
 ``tlessbot evaluate --oracle boxes`` (ground-truth boxes, the classifier alone; the pose stage
 on the frames with depth). Writes ``ablation.md`` (top-1 overall and per part, training time)
-and ``ablation.png`` into --out; models and evaluation folders stay there.
+and ``ablation.png`` into --out; models and evaluation folders stay there. Variants that differ
+only in ``--seed`` are summed up over their seeds in ``seeds.md`` and ``seeds.png`` (the
+classifier's spread over training seeds is as large as most single changes).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import subprocess
 import sys
 import time
@@ -19,27 +22,43 @@ from pathlib import Path
 
 from tlessbot_ros.tools.support.report import cell
 
+# The clutter variants below were measured at 2 crops a view (``--copies 2``), the recipe's
+# default before the crops sweep at the end; they keep it so that a rerun measures the same.
+TWO = ['--copies', '2']
 VARIANTS = (
     ('turntable, paper features (before)', ['--recipe', 'turntable', '--features', 'paper']),
     ('turntable, ours (before: the old default)', ['--recipe', 'turntable']),
     ('+ clutter & box crops, no camera response, paper', [
-        '--features', 'paper', '--no-box-size', '--clutter-param', 'photometric=false']),
-    ('+ random camera response, paper', ['--features', 'paper', '--no-box-size']),
-    ('+ box angular size, paper', ['--features', 'paper']),
-    ('+ depth shape features with dropout (default)', []),
-    ('default without neighbours', ['--clutter-param', 'neighbours=0,0']),
-    ('default + background class (15 %)', ['--clutter-param', 'background_share=0.15']),
-    ('default, seed 1', ['--seed', '1']),
-    ('default, perceptron', ['--classifier', 'perceptron']),
-    ('default, pa1', ['--classifier', 'pa1']),
-    ('default, pa2', ['--classifier', 'pa2']),
-    ('default, seed 2', ['--seed', '2']),
-    ('default + half the views on smoothed depth', ['--smoothed-share', '0.5']),
-    ('default + half the views on smoothed depth, seed 1', ['--smoothed-share', '0.5',
-                                                            '--seed', '1']),
-    ('default + half the views on smoothed depth, seed 2', ['--smoothed-share', '0.5',
-                                                            '--seed', '2']),
-    ('default + every view on smoothed depth', ['--smoothed-share', '1']),
+        '--features', 'paper', '--no-box-size', '--clutter-param', 'photometric=false', *TWO]),
+    ('+ random camera response, paper', ['--features', 'paper', '--no-box-size', *TWO]),
+    ('+ box angular size, paper', ['--features', 'paper', *TWO]),
+    ('+ depth shape features with dropout (clutter)', [*TWO]),
+    ('clutter without neighbours', ['--clutter-param', 'neighbours=0,0', *TWO]),
+    ('clutter + background class (15 %)', ['--clutter-param', 'background_share=0.15', *TWO]),
+    ('clutter, seed 1', ['--seed', '1', *TWO]),
+    ('clutter, perceptron', ['--classifier', 'perceptron', *TWO]),
+    ('clutter, pa1', ['--classifier', 'pa1', *TWO]),
+    ('clutter, pa2', ['--classifier', 'pa2', *TWO]),
+    ('clutter, seed 2', ['--seed', '2', *TWO]),
+    ('clutter + half the views on smoothed depth', ['--smoothed-share', '0.5', *TWO]),
+    ('clutter + half the views on smoothed depth, seed 1', ['--smoothed-share', '0.5',
+                                                            '--seed', '1', *TWO]),
+    ('clutter + half the views on smoothed depth, seed 2', ['--smoothed-share', '0.5',
+                                                            '--seed', '2', *TWO]),
+    ('clutter + every view on smoothed depth', ['--smoothed-share', '1', *TWO]),
+    ('clutter, seed 3', ['--seed', '3', *TWO]),
+    ('clutter, seed 4', ['--seed', '4', *TWO]),
+    ('clutter + half the views on smoothed depth, seed 3', ['--smoothed-share', '0.5',
+                                                            '--seed', '3', *TWO]),
+    ('clutter + half the views on smoothed depth, seed 4', ['--smoothed-share', '0.5',
+                                                            '--seed', '4', *TWO]),
+    *((f'clutter, 6 crops a view, seed {seed}', ['--copies', '6', '--seed', str(seed)])
+      for seed in range(5)),
+    *((f'clutter, averaged SGD, seed {seed}', ['--average', '--seed', str(seed), *TWO])
+      for seed in range(5)),
+    *((f'clutter, {copies} crops a view, seed {seed}', ['--copies', str(copies),
+                                                        '--seed', str(seed)])
+      for copies in (4, 10, 16) for seed in range(5)),
 )
 
 
@@ -83,7 +102,50 @@ def main(argv: list[str] | None = None) -> int:
         results[name] = {'args': extra, **run_variant(index, extra, args.dataset, args.out)}
         results_path.write_text(json.dumps(results, indent=1) + '\n')
     write_table(results, args.out)
+    write_seed_table(results, args.out)
     return 0
+
+
+def recipe_of(name: str) -> str:
+    """A variant's name without its training seed (seed 0 where it names none)."""
+    name = name.replace('+ depth shape features with dropout (clutter)', 'clutter')
+    return re.sub(r',? seed \d+$', '', name)
+
+
+def write_seed_table(results: dict, out: Path) -> None:
+    """``seeds.md`` and ``seeds.png``: per recipe run with two seeds or more, top-1 on the
+    real boxes over its seeds (mean, lowest, highest) and the mean after the pose stage."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    groups: dict[str, list[dict]] = {}
+    for name, _ in VARIANTS:
+        if name in results:
+            groups.setdefault(recipe_of(name), []).append(results[name])
+    groups = {recipe: runs for recipe, runs in groups.items() if len(runs) >= 2}
+    lines = ['| recipe | seeds | top-1 mean | lowest | highest | after pose stage, mean |',
+             '|---|---|---|---|---|---|']
+    for recipe, runs in groups.items():
+        top1 = [run['top1_classifier'] for run in runs]
+        after = [run['top1_after_pose'] for run in runs]
+        lines.append(f'| {recipe} | {len(runs)} | {sum(top1) / len(top1):.3f} | {min(top1):.3f} '
+                     f'| {max(top1):.3f} | {sum(after) / len(after):.3f} |')
+    (out / 'seeds.md').write_text('\n'.join(lines) + '\n', encoding='utf-8')
+    print('\n'.join(lines))
+    if not groups:
+        return
+    fig, ax = plt.subplots(figsize=(9, 0.5 * len(groups) + 1.2))
+    for row, runs in enumerate(groups.values()):
+        top1 = [run['top1_classifier'] for run in runs]
+        ax.plot(top1, [row] * len(top1), 'o', color='tab:blue', alpha=0.6)
+        ax.plot([sum(top1) / len(top1)], [row], '|', color='black', markersize=18)
+    ax.set_yticks(range(len(groups)), list(groups), fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel('top-1 on real ground-truth boxes, one dot a training seed (bar: mean)')
+    fig.tight_layout()
+    fig.savefig(out / 'seeds.png', dpi=110)
+    plt.close(fig)
 
 
 def write_table(results: dict, out: Path) -> None:

@@ -24,6 +24,7 @@ def test_train_from_cad(tless_models_dir, tmp_path, capsys):
 
 def test_train_from_cad_in_clutter_by_default(tless_models_dir, tmp_path):
     from tlessbot_ros.core.recognise import BACKGROUND_ID
+    from tlessbot_ros.tools.support.train_clutter import ClutterRecipe
 
     out = tmp_path / 'clutter.npz'
     argv = ['train', '--models', str(tless_models_dir), '--ids', '5', '19', '21',
@@ -31,10 +32,11 @@ def test_train_from_cad_in_clutter_by_default(tless_models_dir, tmp_path):
             '--clutter-param', 'background_share=0.5', '--out', str(out)]
     assert main(argv) == 0
     model = LinearClassifier.load(out)
-    assert model.info['source'] == 'clutter' and model.info['copies'] == 2
+    copies = ClutterRecipe.copies
+    assert model.info['source'] == 'clutter' and model.info['copies'] == copies
     assert model.class_ids.tolist() == [BACKGROUND_ID, 5, 19, 21]
     assert model.hog_params.crop_mode == 'box' and model.hog_params.box_size
-    assert model.uses_depth and model.info['samples'] == 3 * 4 * 2
+    assert model.uses_depth and model.info['samples'] == 3 * 4 * copies
     again = tmp_path / 'again.npz'
     assert main(argv[:-1] + [str(again)]) == 0
     np.testing.assert_array_equal(LinearClassifier.load(again).weights, model.weights)

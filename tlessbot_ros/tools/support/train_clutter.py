@@ -38,7 +38,7 @@ class ClutterRecipe:
             more top-1 than it saves (docs/bench/real-recognition.md).
     """
 
-    copies: int = 2
+    copies: int = 10
     distance_m: tuple[float, float] = (0.3, 1.2)
     elevation_deg: tuple[float, float] = (40.0, 90.0)
     clutter: ClutterParams = ClutterParams()
