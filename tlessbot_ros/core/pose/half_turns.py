@@ -385,4 +385,5 @@ def _distinct_by_fitness(poses: list[np.ndarray], more: list[np.ndarray], fitnes
     return poses
 
 
-__all__ = ['box_turns', 'choose_half_turn', 'half_turn_axes', 'hull_moved_m', 'self_half_turns']
+__all__ = ['box_turns', 'choose_half_turn', 'half_turn_axes', 'hull_moved_m', 'measures_smoothed',
+           'self_half_turns', 'turn_seen_px']
