@@ -340,7 +340,8 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'resting',   # #41: a fit on the table levelled onto a stable pose of its part
         'table_clearance_noise',   # #41: box mode, the clearance from the table's noise
         'box_cover',   # #41: box mode, each pose weighed by the share of its box it covers
-        'lookalike_edge_min_z'])   # #41: look-alikes told apart on the image's edges
+        'lookalike_edge_min_z',   # #41: look-alikes told apart on the image's edges
+        'lookalike_refine'])   # #41: twins open at the fit each refined on per-pixel depth
 
 
 # ------------------------------------------------------------------ the table plane seen in depth
