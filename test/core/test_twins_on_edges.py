@@ -124,7 +124,7 @@ def test_the_twins_are_refined_before_the_depth_vote_on_per_pixel_depth_only(
     resolve = LookalikeCheck.resolve
 
     def spy(self, *args, refine=False, **kwargs):
-        asked.append(refine)
+        asked.append(refine if isinstance(refine, bool) else refine())
         return resolve(self, *args, refine=refine, **kwargs)
 
     monkeypatch.setattr(LookalikeCheck, 'resolve', spy)

@@ -39,7 +39,9 @@ def check_fitted_part(pipeline: PerceptionPipeline, job: PartJob,
         return   # a hole's rim or a mirrored crease on the image: the depth may have lost it
     if info is not None and info.get('align_decided'):
         return   # the aligned votes of every view named the part among its twins too
-    pipeline.check_lookalike(job, refine=refine_twins(pipeline, job, views, labels))
+    # asked only where the fitted pose leaves the twins open: most parts never need it
+    pipeline.check_lookalike(job, refine=partial(refine_twins, pipeline, job, views, labels)
+                             if pipeline.fit_params.lookalike_refine else False)
     check_twins(pipeline, job, views, labels)
 
 
@@ -257,8 +259,8 @@ def twins_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, 
 
 def refine_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, ViewInput],
                  labels: dict[str, np.ndarray]) -> bool:
-    """Whether the depth's look-alike check may move each twin to its own pose and vote again
-    (``FitParams.lookalike_refine``): only where the depth at the fit measures per-pixel
+    """Whether the depth's look-alike check (with ``FitParams.lookalike_refine``) may move
+    each twin to its own pose and vote again: only where the depth at the fit measures per-pixel
     (:func:`~tlessbot_ros.core.pose.half_turns.measures_smoothed`). The refinement aligns
     the twins' few-millimetre holes on the pixels that see through the part, which a
     stereo-like depth fills."""
@@ -266,8 +268,8 @@ def refine_twins(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, Vi
 
     detection, check = job.detection, pipeline.lookalike
     estimator = pipeline.pose_estimator
-    if not pipeline.fit_params.lookalike_refine or check is None or estimator is None or \
-            detection.pose is None or detection.obj_id not in check:
+    if check is None or estimator is None or detection.pose is None or \
+            detection.obj_id not in check:
         return False
     evidence = colour_views(views, labels, detection.instance_id, detection.view,
                             table_frames(pipeline, views))

@@ -192,7 +192,7 @@ def _verify_value(estimator: PoseEstimator, params: FitParams, sample: np.ndarra
 
 
 def check_lookalike(lookalike: LookalikeCheck | None, job: PartJob, *,
-                    refine: bool = False) -> None:
+                    refine: bool | Callable[[], bool] = False) -> None:
     """A fitted part whose class has a look-alike is compared with it at the fitted pose,
     on the depth of its view and of ``job.more_views`` (``lookalike_*``); the look-alike
     names the part when it explains that depth better by a clear margin (``refine``: each

@@ -460,7 +460,8 @@ class PerceptionPipeline:
         """Fit one part's class candidates, keep the best (:func:`~.part_fit.fit_part`)."""
         fit_part(pose_stage(self.pose_estimator), self.fit_params, job)
 
-    def check_lookalike(self, job: PartJob, *, refine: bool = False) -> None:
+    def check_lookalike(self, job: PartJob, *,
+                        refine: bool | Callable[[], bool] = False) -> None:
         """Compare a fitted part with its look-alike on the depth (part_fit)."""
         check_lookalike(self.lookalike, job, refine=refine)
 

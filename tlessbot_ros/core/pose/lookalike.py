@@ -17,7 +17,7 @@ serves both.
 """
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import cast
 
 import numpy as np
@@ -268,8 +268,8 @@ class LookalikeCheck:
 
     def resolve(self, obj_id: int, T_camera_object: np.ndarray, points_c: np.ndarray, *,
                 more_views: Sequence[tuple[np.ndarray, np.ndarray]] = (),
-                T_world_camera: np.ndarray | None = None, refine: bool = False
-                ) -> tuple[int, float]:
+                T_world_camera: np.ndarray | None = None,
+                refine: bool | Callable[[], bool] = False) -> tuple[int, float]:
         """(winner, its vote against ``obj_id``): ``obj_id`` itself (vote 0) unless a
         look-alike at the same pose explains the depth better by a clear margin (``min_z``,
         :func:`clear_margin`) of the pixels of every view given; with ``refine``, where that
@@ -287,7 +287,8 @@ class LookalikeCheck:
                 (:func:`depth_errors`).
             refine: where the fitted pose gives neither part a clear margin, each (``obj_id``
                 and that look-alike) moves to where its own surface explains the most pixels
-                near it (:func:`refine_on_depth`), and they vote again from there.
+                near it (:func:`refine_on_depth`), and they vote again from there. A callable
+                is asked once, and only where the fitted pose leaves a pair open.
 
         Returns:
             the winner and its vote: the share of all the pixels that it explains better
@@ -312,13 +313,18 @@ class LookalikeCheck:
                     for T_view, points, plane in views]
 
         own, own_refined = errors(obj_id), None
+        may_refine = refine if isinstance(refine, bool) else None   # None: not asked yet
         best, best_vote = obj_id, 0.0
         for other in self.lookalikes[obj_id]:
             theirs = errors(other)
             vote = pooled_vote(theirs, own, self.tolerance_m, self.min_z)
-            if refine and vote == 0.0 and \
+            if may_refine is not False and vote == 0.0 and \
                     pooled_vote(own, theirs, self.tolerance_m, self.min_z) == 0.0:
                 # the fitted pose leaves the two open: each votes again from its own pose
+                if may_refine is None:
+                    may_refine = bool(cast(Callable[[], bool], refine)())
+                if not may_refine:
+                    continue
                 if own_refined is None:
                     own_refined = errors(obj_id, refined=True)
                 vote = pooled_vote(errors(other, refined=True), own_refined, self.tolerance_m,
