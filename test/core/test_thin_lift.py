@@ -171,3 +171,69 @@ def test_only_pixels_the_depth_resolves_below_the_part_keep_the_veto() -> None:
     table = height < 0.0025
     lifted = raised_thin_blobs(candidate, height, table, params, noise_m=0.0009)
     assert table[17:23, 17:23].all() and not (lifted & table)[:, :30].any()
+
+
+def _lab(shape: tuple[int, int], colour: tuple[float, float, float], seed: int = 0
+         ) -> np.ndarray:
+    """(h, w, 3) float32 LAB of one colour with a little sensor noise (about 0.5 per channel)."""
+    rng = np.random.default_rng(seed)
+    return (np.array(colour, np.float32) + rng.normal(0, 0.5, shape + (3,))).astype(np.float32)
+
+
+def test_a_thin_part_in_a_blob_with_a_taller_one_is_lifted_by_its_colour() -> None:
+    height = np.zeros((40, 90), np.float32)
+    lab = _lab(height.shape, (70.0, 0.0, 0.0))              # a grey table
+    candidate = np.zeros(height.shape, bool)
+    candidate[10:18, 5:60] = True                           # a blue strip 3 mm high...
+    height[10:18, 5:60] = 0.003
+    height[10:18:2, 5:60:2] = 0.001                         # ... a quarter of it read as table
+    lab[10:18, 5:60] = (45.0, 10.0, -45.0)
+    candidate[5:30, 60:85] = True                           # a black block 30 mm high against it
+    height[5:30, 60:85] = 0.03
+    lab[5:30, 60:85] = (20.0, 0.0, 0.0)
+    candidate[30:38, 60:85] = True                          # the table's colour at its foot,
+    height[30:38, 60:85] = 0.003                            # raised by the noise
+    height[30:38:2, 60:85:2] = 0.001
+    lab[30:38, 60:85] = (64.0, 1.0, 1.0)
+    table = height < 0.0025
+    params = SegmentationParams()
+    assert not raised_thin_blobs(candidate, height, table, params).any()   # no colour: as a blob
+    lifted = raised_thin_blobs(candidate, height, table, params, lab=lab)
+    assert lifted[11:17, 6:58].all() and not lifted[:, 59:].any()
+    noisy = raised_thin_blobs(candidate, height, table, params, lab=lab, noise_m=0.004)
+    assert not noisy.any()             # a noise of 4 mm raises a region of that size as high
+    off = replace(params, thin_lift_colour_floors=0.0)
+    assert not raised_thin_blobs(candidate, height, table, off, lab=lab).any()
+
+
+def test_a_thin_part_on_a_patterned_table_is_lifted_alone() -> None:
+    rows, cols = np.mgrid[0:60, 0:80]
+    checker = ((rows // 12 + cols // 12) % 2).astype(np.float32)
+    lab = _lab((60, 80), (0.0, 0.0, 0.0))
+    lab[..., 0] += 40.0 + 45.0 * checker                    # light and dark squares
+    candidate = np.ones((60, 80), bool)                     # the colour cues take every square
+    height = np.zeros((60, 80), np.float32)
+    height[20:36, 20:50] = 0.003                            # a pink plate 3 mm high
+    height[20:36:2, 20:50:2] = 0.001
+    lab[20:36, 20:50] = (60.0, 45.0, 0.0)
+    height[48:60, 0:12] = 0.003                             # a square the noise raises
+    height[48:60:2, 0:12:2] = 0.001
+    table = height < 0.0025
+    params = SegmentationParams()
+    assert not raised_thin_blobs(candidate, height, table, params).any()
+    lifted = raised_thin_blobs(candidate, height, table, params, lab=lab)
+    assert lifted[21:35, 21:49].all()
+    lifted[20:36, 20:50] = False
+    assert not lifted.any()                                 # no square of the table
+
+
+def test_two_thin_parts_of_one_colour_the_table_divides_stay_divided() -> None:
+    height = np.zeros((40, 90), np.float32)
+    candidate = np.zeros(height.shape, bool)
+    candidate[10:30, 5:85] = True      # two plates 3 mm high, touching across a gap of table
+    height[10:30, 5:44] = height[10:30, 46:85] = 0.003
+    candidate[5:35, 85:90] = True      # and a taller part against them: the blob is not thin
+    height[5:35, 85:90] = 0.03
+    lab = _lab(height.shape, (50.0, 30.0, 20.0))
+    lifted = raised_thin_blobs(candidate, height, height < 0.0025, SegmentationParams(), lab=lab)
+    assert not lifted.any()

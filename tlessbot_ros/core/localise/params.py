@@ -69,6 +69,10 @@ class SegmentationParams:
             inside (0..1).
         thin_lift_resolved_k: ... but for its pixels this many table-noise deviations below
             its median height: the depth sees them lower than the part (>= 0; 0: off).
+        thin_lift_colour_floors: ... and a blob not lifted whole is tried per colour region (less
+            its tall pixels): neighbours within this many colour floors (>= 0; 0: off).
+        thin_lift_table_floors: ... but not a region within this many colour floors of one of
+            the table's common colours: a piece of the table (>= 0).
         watershed_keep_share: a candidate blob of which the watershed keeps less than this
             share is kept whole (a part with weaker edges than its surroundings; 0..1, 0: off).
         small_blob_candidates_px: a blob smaller than this (px) keeps its candidates' extent,
@@ -147,6 +151,8 @@ class SegmentationParams:
     thin_lift_height_m: float = 0.0015
     thin_lift_min_share: float = 0.1
     thin_lift_resolved_k: float = 2.0
+    thin_lift_colour_floors: float = 1.0
+    thin_lift_table_floors: float = 2.0
     watershed_keep_share: float = 0.0
     small_blob_candidates_px: int = 0
     small_blob_trim_floors: float = 1.0
@@ -167,11 +173,13 @@ class SegmentationParams:
                              f'thin_min_valid in 0..1, got {self.thin_max_height_m}, '
                              f'{self.thin_quantile}, {self.thin_min_valid}')
         if self.thin_lift_height_m < 0 or not 0.0 <= self.thin_lift_min_share <= 1.0 or \
-                self.thin_lift_resolved_k < 0:
+                min(self.thin_lift_resolved_k, self.thin_lift_colour_floors,
+                    self.thin_lift_table_floors) < 0:
             raise ValueError('need thin_lift_height_m >= 0 m (0: off), thin_lift_min_share '
-                             'in 0..1 and thin_lift_resolved_k >= 0 (0: off), got '
-                             f'{self.thin_lift_height_m}, {self.thin_lift_min_share} and '
-                             f'{self.thin_lift_resolved_k}')
+                             'in 0..1, thin_lift_resolved_k, thin_lift_colour_floors and '
+                             f'thin_lift_table_floors >= 0, got {self.thin_lift_height_m}, '
+                             f'{self.thin_lift_min_share}, {self.thin_lift_resolved_k}, '
+                             f'{self.thin_lift_colour_floors}, {self.thin_lift_table_floors}')
         unknown = set(self.methods) - set(METHODS)
         if unknown or not self.methods:
             raise ValueError(f'methods must be a non-empty subset of {METHODS}, '

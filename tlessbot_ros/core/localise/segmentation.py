@@ -307,7 +307,7 @@ def _union_of_cues(small: np.ndarray, lab: np.ndarray, bgm: BackgroundModel | No
     if depth_cue is not None and masks:   # a thin part's pixels at table height stay (thin.py)
         lifted = raised_thin_blobs(np.logical_or.reduce([c for c, _ in masks.values()]),
                                    depth_cue.height_m, depth_cue.table, params,
-                                   noise_m=depth_cue.sigma_m)
+                                   noise_m=depth_cue.sigma_m, lab=lab)
         depth_cue.table &= ~lifted
     veto = shadow
     if depth_cue is not None:

@@ -21,10 +21,18 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
+from tlessbot_ros.core.localise.colour_edge import common_colours
 from tlessbot_ros.core.localise.cues import eroded
 from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.part_scale import could_be_whole
+
+# A colour region holds fewer pixels than its blob, and a patch of the table's noise that size
+# can rise as high as a thin part: a region is lifted only where its median height stands
+# this many of the table's noise deviations above it too.
+REGION_CLEAR_K = 1.0
 
 
 def is_thin(blob: np.ndarray, height_m: np.ndarray | None, origin: tuple[int, int],
@@ -68,7 +76,7 @@ def thin_instances(labels: np.ndarray, height_m: np.ndarray | None,
 
 def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
                       table: np.ndarray, params: SegmentationParams, *,
-                      noise_m: float = 0.0) -> np.ndarray:
+                      noise_m: float = 0.0, lab: np.ndarray | None = None) -> np.ndarray:
     """(h, w) bool: the pixels where the depth's veto is lifted: the 8-connected blobs of
     ``candidate`` that are thin parts raised above the table as a whole, but for their rim
     (one pixel, 4-connected: the table around a small part stays out of its mask). Raised: thin
@@ -96,6 +104,13 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
             ``min_area_px`` and ``cue_scale`` for the pieces.
         noise_m: the table's robust height deviation (m; ``DepthCue.sigma_m``), 0: unknown
             (no pixel is resolved).
+        lab: (h, w, 3) float LAB image at the cue scale, or None: a blob that is not raised
+            as a whole is tested again per colour region (:func:`colour_regions`, steps within
+            ``thin_lift_colour_floors`` x (``grey_floor``, ``lab_floor``, ``lab_floor``)) of
+            its pixels below ``thin_max_height_m``: the thin part alone, without a taller
+            part or a thin one of another colour beside it, or a patterned table around it. A
+            region whose median colour lies within ``thin_lift_table_floors`` floors of one of
+            the table's common colours (:func:`~.colour_edge.common_colours`) is table.
     """
     out = np.zeros(candidate.shape, bool)
     if height_m is None or params.thin_lift_height_m <= 0 or params.thin_max_height_m <= 0:
@@ -103,6 +118,61 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
     count, labels = cv2.connectedComponents(candidate.view(np.uint8), connectivity=8)
     if count <= 1:
         return out
+    raised, medians = _raised(labels, count, height_m, table, params)
+    lifted = _lifted(labels, raised, medians, height_m, table, params, noise_m)
+    if lab is not None and params.thin_lift_colour_floors > 0:
+        rest = (labels > 0) & ~raised[labels] & \
+            ~(np.nan_to_num(height_m, nan=0.0) >= params.thin_max_height_m)
+        floors = params.thin_lift_colour_floors * np.array(
+            [params.grey_floor, params.lab_floor, params.lab_floor], np.float32)
+        units = colour_regions(rest, lab, floors)
+        n_units = int(units.max(initial=0)) + 1
+        if n_units > 1:
+            raised, medians = _raised(units, n_units, height_m, table, params)
+            raised &= medians >= REGION_CLEAR_K * noise_m
+            near = params.thin_lift_table_floors * floors[None] / params.thin_lift_colour_floors
+            table_colours = common_colours(lab, table, floors)
+            for k in np.flatnonzero(raised):   # a piece of the table is of its colours
+                colour = np.median(lab[units == k], axis=0)
+                raised[k] = not np.any(np.all(np.abs(table_colours - colour) <= near, axis=1))
+            lifted |= _lifted(units, raised, medians, height_m, table, params, noise_m)
+    return lifted
+
+
+def colour_regions(mask: np.ndarray, lab: np.ndarray, floors: np.ndarray) -> np.ndarray:
+    """(h, w) int32 labels 1..N (0 outside ``mask``): the regions of ``mask`` whose pixels are
+    linked through 8-neighbours whose every LAB channel differs by at most ``floors`` ((3,)),
+    so that a region grows along a part's smooth shading and stops at its outline.
+
+    Args:
+        mask: (h, w) bool.
+        lab: (h, w, 3) float LAB image of the same scale.
+        floors: (3,) the largest step between neighbours (L, a, b).
+    """
+    h, w = mask.shape
+    index = np.arange(h * w).reshape(h, w)
+    lab = np.asarray(lab, np.float32)
+    starts, ends = [], []
+    for dy, dx in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        a = np.s_[0:h - dy, max(0, -dx):w - max(0, dx)]
+        b = np.s_[dy:h, max(0, dx):w + min(0, dx)]
+        linked = mask[a] & mask[b] & np.all(np.abs(lab[a] - lab[b]) <= floors, axis=2)
+        starts.append(index[a][linked])
+        ends.append(index[b][linked])
+    first, second = np.concatenate(starts), np.concatenate(ends)
+    graph = coo_matrix((np.ones(len(first), np.int8), (first, second)), shape=(h * w, h * w))
+    _, regions = connected_components(graph, directed=False)
+    # renumber the regions that hold a mask pixel 1..N
+    _, dense = np.unique(regions[mask.ravel()], return_inverse=True)
+    labels = np.zeros(h * w, np.int32)
+    labels[mask.ravel()] = dense.ravel() + 1
+    return labels.reshape(h, w)
+
+
+def _raised(labels: np.ndarray, count: int, height_m: np.ndarray, table: np.ndarray,
+            params: SegmentationParams) -> tuple[np.ndarray, np.ndarray]:
+    """((count,) bool: which blobs 1..count-1 of ``labels`` are raised thin parts, the test of
+    :func:`raised_thin_blobs`; (count,) float their lower median valid heights, m)."""
     flat, heights = labels.ravel(), height_m.ravel()
     valid = (flat > 0) & np.isfinite(heights)
     order = np.lexsort((heights[valid], flat[valid]))
@@ -117,7 +187,7 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
         return picked
 
     if not len(sorted_heights):
-        return out
+        return np.zeros(count, bool), np.zeros(count)
     raised = (n_valid > 0) & (n_valid >= params.thin_min_valid * n_pixels) & \
         (quantile(0.5) >= params.thin_lift_height_m) & \
         (quantile(params.thin_quantile) < params.thin_max_height_m)
@@ -128,7 +198,15 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
         raised[k] = np.count_nonzero(table & inside) >= \
             params.thin_lift_min_share * max(int(np.count_nonzero(inside)), 1) and \
             not _divided_into_parts(blob, table, params)
-    resolved = _resolved_below(labels, quantile(0.5), height_m, table, params, noise_m)
+    return raised, quantile(0.5)
+
+
+def _lifted(labels: np.ndarray, raised: np.ndarray, medians: np.ndarray,
+            height_m: np.ndarray, table: np.ndarray, params: SegmentationParams,
+            noise_m: float) -> np.ndarray:
+    """(h, w) bool: the ``raised`` blobs of ``labels`` but for their rim and their pixels the
+    depth resolves below them (:func:`_resolved_below`)."""
+    resolved = _resolved_below(labels, medians, height_m, table, params, noise_m)
     lifted: np.ndarray = eroded(raised[labels], 1) & ~resolved
     return lifted
 
