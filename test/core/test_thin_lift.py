@@ -196,14 +196,14 @@ def test_a_thin_part_in_a_blob_with_a_taller_one_is_lifted_by_its_colour() -> No
     height[30:38:2, 60:85:2] = 0.001
     lab[30:38, 60:85] = (64.0, 1.0, 1.0)
     table = height < 0.0025
-    params = SegmentationParams()
+    params = SegmentationParams(thin_lift_colour_floors=1.0)
     assert not raised_thin_blobs(candidate, height, table, params).any()   # no colour: as a blob
     lifted = raised_thin_blobs(candidate, height, table, params, lab=lab)
     assert lifted[11:17, 6:58].all() and not lifted[:, 59:].any()
     noisy = raised_thin_blobs(candidate, height, table, params, lab=lab, noise_m=0.004)
     assert not noisy.any()             # a noise of 4 mm raises a region of that size as high
-    off = replace(params, thin_lift_colour_floors=0.0)
-    assert not raised_thin_blobs(candidate, height, table, off, lab=lab).any()
+    for off in (SegmentationParams(), replace(params, thin_lift_colour_floors=0.0)):
+        assert not raised_thin_blobs(candidate, height, table, off, lab=lab).any()  # main's
 
 
 def test_a_thin_part_on_a_patterned_table_is_lifted_alone() -> None:
@@ -219,7 +219,7 @@ def test_a_thin_part_on_a_patterned_table_is_lifted_alone() -> None:
     height[48:60, 0:12] = 0.003                             # a square the noise raises
     height[48:60:2, 0:12:2] = 0.001
     table = height < 0.0025
-    params = SegmentationParams()
+    params = SegmentationParams(thin_lift_colour_floors=1.0)
     assert not raised_thin_blobs(candidate, height, table, params).any()
     lifted = raised_thin_blobs(candidate, height, table, params, lab=lab)
     assert lifted[21:35, 21:49].all()
@@ -235,5 +235,6 @@ def test_two_thin_parts_of_one_colour_the_table_divides_stay_divided() -> None:
     candidate[5:35, 85:90] = True      # and a taller part against them: the blob is not thin
     height[5:35, 85:90] = 0.03
     lab = _lab(height.shape, (50.0, 30.0, 20.0))
-    lifted = raised_thin_blobs(candidate, height, height < 0.0025, SegmentationParams(), lab=lab)
+    lifted = raised_thin_blobs(candidate, height, height < 0.0025,
+                               SegmentationParams(thin_lift_colour_floors=1.0), lab=lab)
     assert not lifted.any()

@@ -151,7 +151,7 @@ class SegmentationParams:
     thin_lift_height_m: float = 0.0015
     thin_lift_min_share: float = 0.1
     thin_lift_resolved_k: float = 2.0
-    thin_lift_colour_floors: float = 1.0
+    thin_lift_colour_floors: float = 0.0
     thin_lift_table_floors: float = 2.0
     watershed_keep_share: float = 0.0
     small_blob_candidates_px: int = 0

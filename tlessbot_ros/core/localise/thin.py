@@ -110,7 +110,8 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
             its pixels below ``thin_max_height_m``: the thin part alone, without a taller
             part or a thin one of another colour beside it, or a patterned table around it. A
             region whose median colour lies within ``thin_lift_table_floors`` floors of one of
-            the table's common colours (:func:`~.colour_edge.common_colours`) is table.
+            the table's common colours (:func:`~.colour_edge.common_colours`) is table; one
+            whose median height is under ``REGION_CLEAR_K`` x ``noise_m`` is noise.
     """
     out = np.zeros(candidate.shape, bool)
     if height_m is None or params.thin_lift_height_m <= 0 or params.thin_max_height_m <= 0:
