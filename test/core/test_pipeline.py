@@ -341,6 +341,7 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'table_clearance_noise',   # #41: box mode, the clearance from the table's noise
         'box_cover',   # #41: box mode, each pose weighed by the share of its box it covers
         'lookalike_edge_min_z',   # #41: look-alikes told apart on the image's edges
+        'lookalike_shut_holes',   # #41: a twin's hole that the image shows shut votes against it
         'lookalike_refine'])   # #41: twins open at the fit each refined on per-pixel depth
 
 

@@ -178,3 +178,50 @@ def test_a_negative_hole_contrast_is_refused(contrast):
     with pytest.raises(ValueError, match='edge_hole_contrast'):
         FlatParams(edge_hole_contrast=contrast)
     assert FlatParams(edge_hole_contrast=0.0).edge_hole_contrast == 0.0
+
+
+def _votes_at_the_true_pose(twins, shown: int, *, shut_hole_votes: bool):
+    """(PLAIN over HOLED, HOLED over PLAIN): the edge votes of both twins drawn at the true
+    pose of part ``shown`` on its shaded side view."""
+    from tlessbot_ros.core.common import raycasting_scene
+    from tlessbot_ros.core.pose.flat import FlatParams, ViewEvidence
+    from tlessbot_ros.core.pose.image_edges import candidate_edge_votes, flat_edge_settings
+
+    meshes, db = twins
+    inputs, labels, T_true, _ = _frame(meshes, shown)
+    view = ViewEvidence(inputs['side'].rgb, labels['side'] > 0, SIDE.intrinsics, np.eye(4))
+    candidates = [(raycasting_scene(*meshes[k]), T_true) for k in (PLAIN, HOLED)]
+    points_o = np.concatenate([db[k].model_points for k in (PLAIN, HOLED)]).astype(np.float64)
+    votes = candidate_edge_votes(candidates, points_o, [view], shut_hole_votes=shut_hole_votes,
+                                 **flat_edge_settings(FlatParams()))   # type: ignore[arg-type]
+    return int(votes[0, 1]), int(votes[1, 0])
+
+
+def test_a_twin_s_hole_that_the_image_shows_shut_votes_against_it(twins):
+    # the plain plate: the twin's rims meet no edge (a missing edge votes for neither), but
+    # where the twin has its hole the image shows the face: those pixels vote for the plain one
+    from tlessbot_ros.core.pose.lookalike import clear_margin
+
+    assert _votes_at_the_true_pose(twins, PLAIN, shut_hole_votes=False) == (0, 0)
+    plain, holed = _votes_at_the_true_pose(twins, PLAIN, shut_hole_votes=True)
+    assert holed == 0 and clear_margin(plain, holed, FitParams().lookalike_edge_min_z)
+
+
+def test_a_hole_the_image_shows_open_votes_for_no_twin_by_its_colour(twins):
+    # the holed plate: its hole shows the table, so only its rims vote, as without the rule
+    assert _votes_at_the_true_pose(twins, HOLED, shut_hole_votes=True) == \
+        _votes_at_the_true_pose(twins, HOLED, shut_hole_votes=False)
+
+
+def test_the_plain_plate_named_as_its_holed_twin_is_renamed_on_the_image(twins):
+    # neither the depth's look-alike check nor the aligned votes may decide: the image's shut
+    # hole alone names the plain plate; without the rule the classifier's twin stays
+    meshes, db = twins
+    inputs, labels, _, _ = _frame(meshes, PLAIN)
+    image_only = replace(FitParams(), lookalike_min_z=1e6,
+                         flat=replace(FitParams().flat, align_min_z=1e6))
+    for rule, named in ((True, PLAIN), (False, HOLED)):
+        params = replace(image_only, lookalike_shut_holes=rule)
+        [found] = PerceptionPipeline(templates=db, fit_params=params).estimate_poses(
+            inputs, labels, {1: (HOLED,)})
+        assert found.obj_id == named

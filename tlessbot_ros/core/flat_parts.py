@@ -226,7 +226,8 @@ def twins_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, 
 
     A feature that tells twins apart (a 6 mm hole, a mirrored crease) is a few pixels wide: a
     smoothed, stereo-like depth fills it, and the depth then votes for the twin without it; its
-    rim stays an edge in the image."""
+    rim stays an edge in the image. A twin's hole where the image shows the face votes against
+    that twin (``FitParams.lookalike_shut_holes``)."""
     from tlessbot_ros.core.pose.flat_align import round_robin
     from tlessbot_ros.core.pose.image_edges import candidate_edge_votes, flat_edge_settings
     from tlessbot_ros.core.pose.lookalike import clear_margin
@@ -245,8 +246,9 @@ def twins_on_edges(pipeline: PerceptionPipeline, job: PartJob, views: dict[str, 
     ids = (detection.obj_id, *check.lookalikes[detection.obj_id])
     points_o = np.concatenate([estimator.database[i].model_points for i in ids])
     T = detection.pose.T_camera_object
+    shut_holes = pipeline.fit_params.lookalike_shut_holes
     votes = candidate_edge_votes([(check.scene(i), T) for i in ids], points_o.astype(np.float64),
-                                 evidence,
+                                 evidence, shut_hole_votes=shut_holes,
                                  **flat_edge_settings(pipeline.fit_params.flat))  # type: ignore[arg-type]
     k = round_robin(votes)
     if not all(clear_margin(int(votes[k, j]), int(votes[j, k]), min_z)

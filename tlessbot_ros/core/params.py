@@ -121,6 +121,8 @@ class FitParams:
             the pose near it that explains the most depth pixels.
         lookalike_edge_min_z: look-alikes are first compared on the colour image's edges at the
             fitted pose; the winner needs a surplus above this many coin-toss deviations (0: off).
+        lookalike_shut_holes: there, a twin's through hole that the image shows as its face
+            (``flat.edge_hole_contrast``) votes against that twin.
         fragment_overlap: a detection centred within this fraction of a larger one's diameter is
             its fragment: dropped (0..1; 0: off).
         table_plane: the table frame heights are read in: 'rig' (extrinsics), 'observed' (plane in
@@ -188,6 +190,7 @@ class FitParams:
     lookalike_all_views: bool = True
     lookalike_refine: bool = True
     lookalike_edge_min_z: float = 3.0
+    lookalike_shut_holes: bool = True
     fragment_overlap: float = 0.5
     table_plane: str = 'auto'
     table_plane_max_angle_deg: float = 0.1

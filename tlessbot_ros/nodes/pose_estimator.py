@@ -30,7 +30,7 @@ are verified), ``lookalike_check``, ``lookalike_tolerance_m``, ``lookalike_min_z
 ``lookalike_all_views`` (look-alike parts told apart by their depth in both views at the fitted
 pose, checked in this process; ``lookalike_refine``: on per-pixel depth, twins left open there
 vote again, each from where its surface explains the most depth; ``lookalike_edge_min_z``: first
-by the colour image's edges),
+by the colour image's edges, ``lookalike_shut_holes``: a twin's hole the image shows shut too),
 ``flat.*`` (flat parts: the face that is up, told by the depth
 of both views and, with ``colour_input``, the colour image), ``turns.*`` (parts that are not
 flat: a near-symmetric turn of the fit that the colour image's edges support better, with

@@ -52,10 +52,15 @@ def edge_votes(scene: o3d.t.geometry.RaycastingScene, poses: Sequence[np.ndarray
 def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingScene, np.ndarray]],
                          points_o: np.ndarray, views: Sequence[ViewEvidence], *,
                          align_at_1m_m: float, jump_m: float, crease_deg: float, edge_px: float,
-                         inner_px: int, hole_contrast: float = 0.0) -> np.ndarray:
+                         inner_px: int, hole_contrast: float = 0.0,
+                         shut_hole_votes: bool = False) -> np.ndarray:
     """:func:`edge_votes` for candidates that are each a (mesh, pose): a part's look-alikes
     (one hole more, mirrored) at its fitted pose as well as one mesh's turns; ``points_o``
-    the model samples that bound them all (look-alikes share their model frame)."""
+    the model samples that bound them all (look-alikes share their model frame).
+
+    With ``shut_hole_votes`` (and ``hole_contrast`` > 0), each pixel of candidate i's shut
+    through hole (:func:`_shut_holes`) that candidate j covers also votes for j: the image
+    shows a face where i has a hole, the evidence against i that the one-sided rims lack."""
     from tlessbot_ros.core.pose.flat_align import shift_px, shifted
     from tlessbot_ros.core.pose.silhouette import edge_distance, window
     from tlessbot_ros.core.pose.turns import rendered_edges
@@ -87,9 +92,12 @@ def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingSce
                 for e, _, _ in aligned]
         # a rim is evidence of a hole where the hole looks unlike its face: a shadow's edge on
         # a closed face can lie where a twin's hole would be (docs/bench/edge-votes-polarity.md)
-        shut = [np.zeros((h, w), bool)] * count if hole_contrast <= 0 else _shut_hole_rims(
+        holes = [np.zeros((h, w), bool)] * count if hole_contrast <= 0 else _shut_holes(
             [(filled, hit) for _, filled, hit in aligned],
             np.asarray(view.rgb[y0:y0 + h, x0:x0 + w]), cut, hole_contrast)
+        shut = [cv2.dilate(m.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+                for m in holes]
+        seen = np.ones((h, w), bool) if cut is None else ~cut
         for i in range(count):
             for j in range(i + 1, count):
                 inside = cv2.erode((aligned[i][1] & aligned[j][1]).astype(np.uint8),
@@ -97,6 +105,9 @@ def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingSce
                 inside &= on_image
                 votes[i, j] += np.count_nonzero(aligned[i][0] & inside & ~near[j] & ~shut[i])
                 votes[j, i] += np.count_nonzero(aligned[j][0] & inside & ~near[i] & ~shut[j])
+                if shut_hole_votes:
+                    votes[j, i] += np.count_nonzero(holes[i] & aligned[j][2] & seen)
+                    votes[i, j] += np.count_nonzero(holes[j] & aligned[i][2] & seen)
     return votes
 
 
@@ -144,13 +155,13 @@ def _silhouette(scene: o3d.t.geometry.RaycastingScene, T_camera_object: np.ndarr
 _SHUT_SHARE = 0.9
 
 
-def _shut_hole_rims(silhouettes: Sequence[tuple[np.ndarray, np.ndarray]], rgb: np.ndarray,
-                    others: np.ndarray | None, contrast: float) -> list[np.ndarray]:
+def _shut_holes(silhouettes: Sequence[tuple[np.ndarray, np.ndarray]], rgb: np.ndarray,
+                others: np.ndarray | None, contrast: float) -> list[np.ndarray]:
     """Per pose ((filled, hit) (h, w) bool each, aligned, over the (h, w, 3) ``rgb`` window;
-    ``others`` the pixels of other parts or None): (h, w) bool, the pixels within two of
-    each of its through holes that look like the face around it: ``_SHUT_SHARE`` of its
-    pixels and of those next to it a colour within ``contrast`` of one of the face's (2-4
-    pixels out).
+    ``others`` the pixels of other parts or None): (h, w) bool, the pixels of its through
+    holes that look like the face around it: ``_SHUT_SHARE`` of its pixels and of those next
+    to it a colour within ``contrast`` of one of the face's (2-4 pixels out). A hole's rims
+    (within two pixels) then vote for no pose.
 
     A hole shows what lies beyond it or its dark walls, unlike the face it is cut in; a
     shadow's edge across the face shows the face on both sides, lit or shadowed."""
@@ -176,7 +187,7 @@ def _shut_hole_rims(silhouettes: Sequence[tuple[np.ndarray, np.ndarray]], rgb: n
             gap = np.linalg.norm(inside[:, None, :] - colour[face][None, :, :], axis=2).min(axis=1)
             if np.count_nonzero(gap <= contrast) >= _SHUT_SHARE * len(inside):
                 closed |= hole
-        shut.append(cv2.dilate(closed, inner).astype(bool))
+        shut.append(closed.astype(bool))
     return shut
 
 
