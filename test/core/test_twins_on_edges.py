@@ -213,11 +213,12 @@ def test_a_hole_the_image_shows_open_votes_for_no_twin_by_its_colour(twins):
         _votes_at_the_true_pose(twins, HOLED, shut_hole_votes=False)
 
 
-def test_the_plain_plate_named_as_its_holed_twin_is_renamed_on_the_image(twins):
+@pytest.mark.parametrize('yaw_deg', [0.0, 40.0])
+def test_the_plain_plate_named_as_its_holed_twin_is_renamed_on_the_image(twins, yaw_deg):
     # neither the depth's look-alike check nor the aligned votes may decide: the image's shut
     # hole alone names the plain plate; without the rule the classifier's twin stays
     meshes, db = twins
-    inputs, labels, _, _ = _frame(meshes, PLAIN)
+    inputs, labels, _, _ = _frame(meshes, PLAIN, yaw_deg=yaw_deg)
     image_only = replace(FitParams(), lookalike_min_z=1e6,
                          flat=replace(FitParams().flat, align_min_z=1e6))
     for rule, named in ((True, PLAIN), (False, HOLED)):

@@ -59,8 +59,9 @@ def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingSce
     the model samples that bound them all (look-alikes share their model frame).
 
     With ``shut_hole_votes`` (and ``hole_contrast`` > 0), each pixel of candidate i's shut
-    through hole (:func:`_shut_holes`) that candidate j covers also votes for j: the image
-    shows a face where i has a hole, the evidence against i that the one-sided rims lack."""
+    through hole (:func:`_shut_holes`) with no image edge within two pixels that candidate j
+    covers also votes for j: the image shows a plain face where i has a hole, the evidence
+    against i that the one-sided rims lack."""
     from tlessbot_ros.core.pose.flat_align import shift_px, shifted
     from tlessbot_ros.core.pose.silhouette import edge_distance, window
     from tlessbot_ros.core.pose.turns import rendered_edges
@@ -97,7 +98,10 @@ def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingSce
             np.asarray(view.rgb[y0:y0 + h, x0:x0 + w]), cut, hole_contrast)
         shut = [cv2.dilate(m.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
                 for m in holes]
-        seen = np.ones((h, w), bool) if cut is None else ~cut
+        # a shut hole is evidence against its pose only where the image shows no edge by it
+        # either: the face's colour next to a rim on an edge is a pose a few pixels off
+        quiet = [_without_edges(m, on_image) & (True if cut is None else ~cut)
+                 for m in holes] if shut_hole_votes else holes
         for i in range(count):
             for j in range(i + 1, count):
                 inside = cv2.erode((aligned[i][1] & aligned[j][1]).astype(np.uint8),
@@ -106,8 +110,8 @@ def candidate_edge_votes(candidates: Sequence[tuple[o3d.t.geometry.RaycastingSce
                 votes[i, j] += np.count_nonzero(aligned[i][0] & inside & ~near[j] & ~shut[i])
                 votes[j, i] += np.count_nonzero(aligned[j][0] & inside & ~near[i] & ~shut[j])
                 if shut_hole_votes:
-                    votes[j, i] += np.count_nonzero(holes[i] & aligned[j][2] & seen)
-                    votes[i, j] += np.count_nonzero(holes[j] & aligned[i][2] & seen)
+                    votes[j, i] += np.count_nonzero(quiet[i] & aligned[j][2])
+                    votes[i, j] += np.count_nonzero(quiet[j] & aligned[i][2])
     return votes
 
 
@@ -189,6 +193,19 @@ def _shut_holes(silhouettes: Sequence[tuple[np.ndarray, np.ndarray]], rgb: np.nd
                 closed |= hole
         shut.append(closed.astype(bool))
     return shut
+
+
+def _without_edges(holes: np.ndarray, on_image: np.ndarray) -> np.ndarray:
+    """(h, w) bool: the connected ``holes`` ((h, w) bool) with no pixel of ``on_image`` (the
+    window's image edges, (h, w) bool) within two pixels."""
+    count, labels = cv2.connectedComponents(holes.astype(np.uint8), connectivity=8)
+    near = np.ones((5, 5), np.uint8)
+    out = np.zeros(holes.shape, bool)
+    for c in range(1, count):
+        hole = labels == c
+        if not (cv2.dilate(hole.astype(np.uint8), near).astype(bool) & on_image).any():
+            out |= hole
+    return out
 
 
 def _best_shift(edges: np.ndarray, on_image: np.ndarray, pad: int) -> tuple[int, int]:
