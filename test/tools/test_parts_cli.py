@@ -115,3 +115,24 @@ def test_a_terminated_build_leaves_no_folder_and_no_child(tmp_path):
     _, alive = psutil.wait_procs(children, timeout=30)
     assert not alive, [child.cmdline() for child in alive]
     assert not out.exists()
+
+
+def test_a_parts_folder_classifier_learns_from_cluttered_crops_by_default(monkeypatch, tmp_path):
+    """The default build trains on the cluttered box crops that hold on real images, with
+    simulated scenes and the kernel learner (``train --recipe hybrid``)."""
+    import argparse
+
+    from tlessbot_ros.tools.commands import train
+    from tlessbot_ros.tools.support import parts_build
+
+    asked = []
+    monkeypatch.setattr(parts_build, 'run_tool', lambda *argv: asked.append(argv))
+    monkeypatch.setenv('TLESSBOT_CACHE_DIR', str(tmp_path / 'cache'))
+    (tmp_path / 'out').mkdir()
+    parts_build._train_classifier(tmp_path / 'out', parts_build.BuildOptions(), 'abc')
+    assert asked and asked[0][0] == 'train'
+    parser = argparse.ArgumentParser()
+    train.add_arguments(parser)
+    args = train.apply_recipe(parser.parse_args(list(asked[0][1:])))
+    assert (args.recipe, args.scenes, args.kernel, args.classifier, args.average) == \
+        ('clutter', 800, 4000, 'perceptron', True)

@@ -188,3 +188,18 @@ def test_smoothed_share_defaults_to_the_turntables_and_a_given_one_wins():
     given = train.apply_recipe(parser.parse_args(
         ['--models', 'm', '--out', 'c.npz', '--recipe', 'packaged', '--smoothed-share', '0.5']))
     assert given.smoothed_share == 0.5
+
+
+def test_hybrid_recipe_takes_the_cluttered_crops_with_the_packaged_scenes_and_learner():
+    import argparse
+
+    from tlessbot_ros.tools.commands import train
+    from tlessbot_ros.tools.support.train_clutter import ClutterRecipe
+
+    parser = argparse.ArgumentParser()
+    train.add_arguments(parser)
+    args = train.apply_recipe(parser.parse_args(
+        ['--models', 'm', '--out', 'c.npz', '--recipe', 'hybrid', '--scenes', '200']))
+    assert (args.scenes, args.kernel, args.kernel_axes, args.hog_weight, args.classifier,
+            args.average, args.epochs, args.recipe, args.copies) == \
+        (200, 4000, 256, 0.3, 'perceptron', True, 20, 'clutter', ClutterRecipe.copies)

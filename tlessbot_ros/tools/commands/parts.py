@@ -7,7 +7,7 @@
 
 build reads every STL / PLY / OBJ of --models (millimetres, or --units m; any file names, each
 stem a valid ROS name: it names the part's topic /objects/<stem>/pose) and writes into --out
-the classifier (train --recipe packaged by default), the templates for the rig's side camera,
+the classifier (train --recipe hybrid by default), the templates for the rig's side camera,
 the models with their info (diameters, symmetries) and manifest.json (name, id, size, symmetry,
 look-alikes, the rig); a classifier trained before from the same CAD files and settings is
 reused (--retrain: train anew). It ends with a self-check: simulated scenes of the parts seen

@@ -21,10 +21,12 @@ tlessbot_ros.core.recognise.feature_map) instead of the descriptor itself. The p
     tlessbot train --models DIR --scenes 800 --kernel 4000 --kernel-axes 256 --hog-weight 0.3 \
         --classifier perceptron --average --epochs 20 --out classifier.npz
 
-with the turntable rendering, is the named recipe ``--recipe packaged`` (RECIPES below;
-``tlessbot parts build`` uses it by default). A recipe sets these options; options given beside
-it win. The default, ``--recipe clutter``, pastes each view among other parts on random tables
-and re-photographs it (docs/recognition-real.md): it is the one that transfers to real images.
+with the turntable rendering, is the named recipe ``--recipe packaged`` (RECIPES below). A
+recipe sets these options; options given beside it win. The default, ``--recipe clutter``,
+pastes each view among other parts on random tables and re-photographs it
+(docs/recognition-real.md): it is the one that transfers to real images. ``--recipe hybrid``
+takes the cluttered crops with the packaged model's scenes and learner; ``tlessbot parts
+build`` uses it by default.
 
 Several learners can share one rendering pass: --classifier all (or sgd,pa1) writes
 <out>_<kind>.npz per learner.
@@ -84,6 +86,8 @@ DEFAULT_AUGMENTATIONS = 1
 RECIPES = {
     'packaged': {'recipe': 'turntable', 'scenes': 800, 'kernel': 4000, 'kernel_axes': 256,
                  'hog_weight': 0.3, 'classifier': 'perceptron', 'average': True, 'epochs': 20},
+    'hybrid': {'recipe': 'clutter', 'scenes': 800, 'kernel': 4000, 'kernel_axes': 256,
+               'hog_weight': 0.3, 'classifier': 'perceptron', 'average': True, 'epochs': 20},
 }
 RECIPE_CHOICES = ('clutter', 'turntable', *sorted(RECIPES))   # what --recipe takes
 
@@ -121,10 +125,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f'default {DEFAULT_AUGMENTATIONS})')
     parser.add_argument('--recipe', choices=RECIPE_CHOICES,
                         default='clutter',
-                        help='clutter: views pasted among other parts on random tables, '
-                             're-photographed, cut as loose boxes (default); turntable: the '
-                             "paper's plain views, silhouette crops; packaged: the packaged "
-                             "model's options (turntable + scenes); options given beside win")
+                        help='clutter: views among other parts on random tables, cut as '
+                             "loose boxes (default); turntable: the paper's silhouette crops; "
+                             "packaged: the packaged model's (turntable + scenes); hybrid: "
+                             "clutter + packaged's scenes and learner; options given win")
     parser.add_argument('--copies', type=int, default=ClutterRecipe.copies,
                         help=f'cluttered crops per view (default {ClutterRecipe.copies})')
     parser.add_argument('--clutter-param', action='append', metavar='NAME=VALUE',

@@ -28,7 +28,7 @@ from pathlib import Path
 from tlessbot_ros.errors import ModelFileError, TlessbotError
 from tlessbot_ros.io import parts as parts_io
 
-DEFAULT_RECIPE = 'packaged'
+DEFAULT_RECIPE = 'hybrid'
 CHECK_FRAMES = 12
 # part of a cached classifier's key: raise it when a change of the code makes other models
 CLASSIFIER_CACHE_VERSION = 1
