@@ -156,7 +156,13 @@ def test_kernel_settings_are_checked_before_rendering(tmp_path, capsys):
     assert 'kernel_components' in capsys.readouterr().err
 
 
-def test_packaged_recipe_is_named_and_given_options_win():
+@pytest.mark.parametrize('recipe, given, expected', [
+    # packaged: the turntable's silhouettes; hybrid: the cluttered crops, with the same
+    # scenes and learner
+    ('packaged', ['--epochs', '3'], (800, 4000, 256, 0.3, 'perceptron', True, 3, 'turntable')),
+    ('hybrid', ['--scenes', '200'], (200, 4000, 256, 0.3, 'perceptron', True, 20, 'clutter')),
+])
+def test_named_recipes_set_their_options_and_given_options_win(recipe, given, expected):
     import argparse
 
     from tlessbot_ros.tools.commands import train
@@ -164,10 +170,9 @@ def test_packaged_recipe_is_named_and_given_options_win():
     parser = argparse.ArgumentParser()
     train.add_arguments(parser)
     args = train.apply_recipe(parser.parse_args(
-        ['--models', 'm', '--out', 'c.npz', '--recipe', 'packaged', '--epochs', '3']))
+        ['--models', 'm', '--out', 'c.npz', '--recipe', recipe, *given]))
     assert (args.scenes, args.kernel, args.kernel_axes, args.hog_weight, args.classifier,
-            args.average, args.epochs, args.recipe) == \
-        (800, 4000, 256, 0.3, 'perceptron', True, 3, 'turntable')
+            args.average, args.epochs, args.recipe) == expected
     plain = train.apply_recipe(parser.parse_args(['--models', 'm', '--out', 'c.npz']))
     assert (plain.scenes, plain.classifier, plain.recipe) == \
         (0, parser.get_default('classifier'), 'clutter')
@@ -188,18 +193,3 @@ def test_smoothed_share_defaults_to_the_turntables_and_a_given_one_wins():
     given = train.apply_recipe(parser.parse_args(
         ['--models', 'm', '--out', 'c.npz', '--recipe', 'packaged', '--smoothed-share', '0.5']))
     assert given.smoothed_share == 0.5
-
-
-def test_hybrid_recipe_takes_the_cluttered_crops_with_the_packaged_scenes_and_learner():
-    import argparse
-
-    from tlessbot_ros.tools.commands import train
-    from tlessbot_ros.tools.support.train_clutter import ClutterRecipe
-
-    parser = argparse.ArgumentParser()
-    train.add_arguments(parser)
-    args = train.apply_recipe(parser.parse_args(
-        ['--models', 'm', '--out', 'c.npz', '--recipe', 'hybrid', '--scenes', '200']))
-    assert (args.scenes, args.kernel, args.kernel_axes, args.hog_weight, args.classifier,
-            args.average, args.epochs, args.recipe, args.copies) == \
-        (200, 4000, 256, 0.3, 'perceptron', True, 20, 'clutter', ClutterRecipe.copies)
