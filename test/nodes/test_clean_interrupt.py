@@ -133,6 +133,34 @@ def test_a_half_built_rclpy_task_after_a_signal_prints_no_traceback(capsys, monk
     assert len(reported) == 1 and isinstance(reported[0].exc_value, AttributeError)
 
 
+def test_a_signal_landing_in_an_rclpy_finaliser_prints_no_traceback(monkeypatch):
+    # The handler's KeyboardInterrupt raised inside rclpy's Future.__del__ is printed by Python
+    # as ignored; after a signal it is dropped (the spin loop raises it after the turn), before
+    # one it is reported.
+    import gc
+    import sys
+
+    from rclpy.task import Future
+
+    from tlessbot_ros.nodes import common
+
+    def interrupted(self):
+        raise KeyboardInterrupt
+
+    interrupted.__qualname__, interrupted.__module__ = 'Future.__del__', 'rclpy.task'
+    monkeypatch.setattr(Future, '__del__', interrupted)
+    monkeypatch.setattr(sys, 'unraisablehook', common.quiet_half_built_futures)
+    reported = []
+    monkeypatch.setattr(common, '_DEFAULT_UNRAISABLEHOOK', reported.append)
+    for received in ([2], []):
+        monkeypatch.setattr(common, '_SIGNALS_RECEIVED', received)
+        future = Future()
+        del future
+        gc.collect()
+        assert len(reported) == (0 if received else 1)
+    assert isinstance(reported[0].exc_value, KeyboardInterrupt)
+
+
 def test_an_error_from_a_turn_cut_by_a_signal_is_the_interrupt(monkeypatch):
     """A KeyboardInterrupt that lands inside pybind11 (rclpy converting a message it takes)
     comes out as a RuntimeError; after a signal it is the interrupt, before one it is not."""

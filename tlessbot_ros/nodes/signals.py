@@ -97,15 +97,20 @@ _HALF_BUILT_FINALISERS = ('Future.__del__', 'Task.__del__')
 
 def quiet_half_built_futures(unraisable: Any) -> None:
     """``sys.unraisablehook``: after a signal, drop the error of an rclpy Future or Task whose
-    construction the signal's KeyboardInterrupt interrupted; pass anything else on.
+    construction the signal's KeyboardInterrupt interrupted, and that KeyboardInterrupt
+    itself where it landed inside their finaliser; pass anything else on.
 
     The KeyboardInterrupt of :func:`interrupt_on_signals` can land inside rclpy's
     ``Task.__init__`` before its fields exist; the interrupt itself goes on as usual, but the
     half-built object's finaliser then fails (``AttributeError: 'Task' object has no attribute
     '_exception'``) and Python prints a traceback on a clean exit (seen once in
-    `tlessbot record` under SIGTERM: exit 0, the bag complete)."""
+    `tlessbot record` under SIGTERM: exit 0, the bag complete). It can also land inside
+    ``Future.__del__``: Python prints it as ignored (seen once in `tlessbot echo` under
+    SIGINT, exit 0), and the spin loop's :func:`raise_if_interrupted` raises it after the
+    turn."""
     function = getattr(unraisable.object, '__qualname__', '')
-    if (_SIGNALS_RECEIVED and isinstance(unraisable.exc_value, AttributeError)
+    if (_SIGNALS_RECEIVED
+            and isinstance(unraisable.exc_value, (AttributeError, KeyboardInterrupt))
             and function in _HALF_BUILT_FINALISERS
             and getattr(unraisable.object, '__module__', '').startswith('rclpy')):
         return
