@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -133,9 +134,12 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
             raised &= medians >= REGION_CLEAR_K * noise_m
             near = params.thin_lift_table_floors * floors[None] / params.thin_lift_colour_floors
             table_colours = common_colours(lab, table, floors)
-            for k in np.flatnonzero(raised):   # a piece of the table is of its colours
-                colour = np.median(lab[units == k], axis=0)
-                raised[k] = not np.any(np.all(np.abs(table_colours - colour) <= near, axis=1))
+            candidates = np.flatnonzero(raised)
+            if len(candidates):   # a piece of the table is of its colours
+                colours = np.stack([ndimage.median(lab[..., c], labels=units, index=candidates)
+                                    for c in range(3)], axis=1)
+                raised[candidates] = ~np.any(np.all(
+                    np.abs(table_colours[None] - colours[:, None]) <= near, axis=2), axis=1)
             lifted |= _lifted(units, raised, medians, height_m, table, params, noise_m)
     return lifted
 
