@@ -83,11 +83,12 @@ SCENE_SEED_OFFSET = 1_000_003   # training scenes never reuse a benchmark's simu
 DEFAULT_AUGMENTATIONS = 1
 # Named recipes: option values (argparse destinations) that made a packaged model.
 # 'recipe' is the CAD rendering a named recipe uses.
+# The packaged model's scenes and learner; 'hybrid' takes them with the cluttered crops.
+_PACKAGED_OPTIONS = {'scenes': 800, 'kernel': 4000, 'kernel_axes': 256, 'hog_weight': 0.3,
+                     'classifier': 'perceptron', 'average': True, 'epochs': 20}
 RECIPES = {
-    'packaged': {'recipe': 'turntable', 'scenes': 800, 'kernel': 4000, 'kernel_axes': 256,
-                 'hog_weight': 0.3, 'classifier': 'perceptron', 'average': True, 'epochs': 20},
-    'hybrid': {'recipe': 'clutter', 'scenes': 800, 'kernel': 4000, 'kernel_axes': 256,
-               'hog_weight': 0.3, 'classifier': 'perceptron', 'average': True, 'epochs': 20},
+    'packaged': {'recipe': 'turntable', **_PACKAGED_OPTIONS},
+    'hybrid': {'recipe': 'clutter', **_PACKAGED_OPTIONS},
 }
 RECIPE_CHOICES = ('clutter', 'turntable', *sorted(RECIPES))   # what --recipe takes
 
