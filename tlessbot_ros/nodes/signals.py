@@ -105,9 +105,8 @@ def quiet_half_built_futures(unraisable: Any) -> None:
     half-built object's finaliser then fails (``AttributeError: 'Task' object has no attribute
     '_exception'``) and Python prints a traceback on a clean exit (seen once in
     `tlessbot record` under SIGTERM: exit 0, the bag complete). It can also land inside
-    ``Future.__del__``: Python prints it as ignored (seen once in `tlessbot echo` under
-    SIGINT, exit 0), and the spin loop's :func:`raise_if_interrupted` raises it after the
-    turn."""
+    ``Future.__del__``: Python prints it as ignored, and the spin loop's
+    :func:`raise_if_interrupted` raises it after the turn."""
     function = getattr(unraisable.object, '__qualname__', '')
     if (_SIGNALS_RECEIVED
             and isinstance(unraisable.exc_value, (AttributeError, KeyboardInterrupt))
