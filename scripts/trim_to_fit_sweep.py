@@ -41,7 +41,7 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv[:argv.index('--')])
     settings = [(int(m), float(s)) for m in args.margins.split(',')
                 for s in args.seen.split(',')]
-    import tlessbot_ros.core.pipeline as pipeline_module
+    import tlessbot_ros.core.colour_rim as after_fits_module
     from tlessbot_ros.core.region_trim import trim_to_fits
 
     trimmed: dict[int, tuple[np.ndarray, dict]] = {}   # id(side labels): (them, {setting: ..})
@@ -60,7 +60,7 @@ def main(argv: list[str]) -> int:
             by_setting[(margin, seen)] = copies['side']
         trimmed[id(labels['side'])] = (labels['side'], by_setting)
         return detections
-    pipeline_module.trim_to_fits = spy_trim
+    after_fits_module.trim_to_fits = spy_trim   # the pipeline's trims after the fits
 
     totals: dict[object, Counter] = {}
 

@@ -332,6 +332,7 @@ def test_the_stage_params_are_the_fields_of_the_former_pipeline_params():
         'join_refit_cover', 'join_refit_gap_px',   # #41: one part in two pieces, fitted once
         'join_refit_touching',   # #41: touching pieces whatever their centroids, unknown ones
         'trim_to_fit_px',   # #41: a fitted part's region trimmed to its fitted outline
+        'rim_colour_below',   # #41: a region's ring of blended colour peeled off
         'edge_band_px',   # #41: a band along a fitted part's edge is no part
         'same_part_share',   # #41: two fits of one class in the same space are one part
         'split_thick_parts',   # #41: piles: the division after the fit for thick parts too

@@ -146,6 +146,8 @@ class FitParams:
             and a piece with no pose (unknown) is joined too (off: fitted neighbours only).
         trim_to_fit_px: a fitted part's region keeps only its pixels within this many pixels
             of the fitted outline, where it covers most of that outline (0: off).
+        rim_colour_below: a region's outer pixel whose colour lies less than this share of the
+            way from the colour beside it to the region's own is dropped (0..1; 0: off).
         edge_band_px: a region whose every pixel lies within this many pixels of a larger
             fitted part's region is that part's blurred edge: dropped, px (0: off).
         same_part_share: two fits of one class each this share inside the other are one part:
@@ -207,6 +209,7 @@ class FitParams:
     join_refit_gap_px: int = 3
     join_refit_touching: bool = True
     trim_to_fit_px: int = 3
+    rim_colour_below: float = 0.5
     edge_band_px: int = 6
     same_part_share: float = 0.3
     fit_rank_coverage_weight: float = 0.0
@@ -251,6 +254,8 @@ class FitParams:
                f'0: off), got {self.split_refit_below}')
         _check(self.trim_to_fit_px >= 0, 'trim_to_fit_px must be >= 0 (0: off), got '
                f'{self.trim_to_fit_px}')
+        _check(0 <= self.rim_colour_below <= 1, 'rim_colour_below must be in 0..1 (a share; '
+               f'0: off), got {self.rim_colour_below}')
         _check(self.fit_rank_coverage_weight >= 0, 'fit_rank_coverage_weight must be >= 0 '
                f'(0: off), got {self.fit_rank_coverage_weight}')
         _check(self.lookalike_tolerance_m > 0, 'lookalike_tolerance_m must be > 0 m (e.g. '

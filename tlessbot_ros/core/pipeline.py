@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from tlessbot_ros.core.by_fit import fit_ranked, ranking_depth
+from tlessbot_ros.core.colour_rim import trim_after_fits
 from tlessbot_ros.core.common import (
     CAMERA_NAMES,
     SIDE,
@@ -100,7 +101,6 @@ from tlessbot_ros.core.pose import (
 )
 from tlessbot_ros.core.recognise import UNKNOWN_ID, Classifier
 from tlessbot_ros.core.refit_halves import split_or_refit
-from tlessbot_ros.core.region_trim import trim_to_fits
 from tlessbot_ros.core.resting_check import check_resting_and_turns
 from tlessbot_ros.core.turn_check import warm_up_turns
 
@@ -359,7 +359,7 @@ class PerceptionPipeline:
         Args:
             views: per view, the depth, intrinsics and extrinsics (each part is fitted in its
                 view's table frame, :meth:`table_frame`: without one, by the fallback).
-            labels: label images per view (box mode: boxes, table dropped); trimmed to fits.
+            labels: label images per view (box mode: boxes, table dropped); trimmed after the fits.
             classes: {instance: obj_id} or {instance: (obj_id, ...)} candidates best first
                 (see :class:`ClassGuess`); 0 and ids without templates are skipped, an
                 instance without any is skipped. Several candidates are verified by their
@@ -428,7 +428,7 @@ class PerceptionPipeline:
         else:
             fitter.fit_all(jobs, self.fit_part, fitted)
         kept = join_pieces(arbiter, detections, labels) + pieces   # one_part.py, two_parts.py
-        return trim_to_fits(self, views, labels, kept, box_mode=box_mode)   # region_trim.py
+        return trim_after_fits(self, views, labels, kept, box_mode=box_mode)   # colour_rim.py
 
     def _lookalike_views(self, views: dict[str, ViewInput], labels: dict[str, np.ndarray],
                          counts: dict[str, np.ndarray], boxes: dict[str, np.ndarray],
