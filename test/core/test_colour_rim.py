@@ -41,7 +41,7 @@ def _with_ring(mask: np.ndarray) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
 
 
-def _peeled(rgb: np.ndarray, region: np.ndarray, below: float = FitParams().rim_colour_below,
+def _peeled(rgb: np.ndarray, region: np.ndarray, below: float = 0.5,
             **kw) -> tuple[np.ndarray, Detection]:
     labels = {'side': np.where(region, 3, 0).astype(np.uint16)}
     detection = Detection(obj_id=1, instance_id=3, view='side', box=mask_box(region))
@@ -93,4 +93,4 @@ def test_off_and_box_mode_leave_the_region():
 def test_the_share_is_checked():
     with pytest.raises(ValueError, match='rim_colour_below'):
         FitParams(rim_colour_below=1.5)
-    assert FitParams().rim_colour_below == 0.5
+    assert FitParams().rim_colour_below == 0.0   # off: it costs parts drawn with hard edges

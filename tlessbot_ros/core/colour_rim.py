@@ -15,10 +15,15 @@ it) are read once in CIE-LAB: ``p`` is the mean colour of the region's pixels at
 apart), ``t`` the colour of the pixel outside the region by at least one pixel, within
 :data:`BESIDE_PX`, that explains the pixel best as a blend with ``p`` (a patterned table
 changes colour a few pixels on), and ``a`` the pixel's colour projected on the segment from
-``t`` to ``p``. A pixel whose ``a`` lies below ``FitParams.rim_colour_below`` is
-dropped from its region, where ``p`` and ``t`` differ by :data:`MIN_CONTRAST` at least (else
-``a`` is noise). One ring only: the next one in is the part's own. Every region of every view
-is read, named or not; a fitted part's box follows its region; poses are not changed.
+``t`` to ``p``. A pixel whose ``a`` lies below ``FitParams.rim_colour_below`` (0.5 where
+used: the mask's own rule; off by default) is dropped from its region, where ``p`` and ``t``
+differ by :data:`MIN_CONTRAST` at least (else ``a`` is noise). One ring only: the next one in
+is the part's own. Every region of every view is read, named or not; a fitted part's box
+follows its region; poses are not changed.
+
+The rule reads colour alone: where the image draws a part's outline sharp and its rim lit
+or shaded unlike its middle (a renderer without blur), or where the region holds no ring (a
+tight region from per-pixel depth), it drops the part's own rim (docs/bench/colour-rims.md).
 """
 from __future__ import annotations
 

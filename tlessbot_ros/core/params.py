@@ -209,7 +209,7 @@ class FitParams:
     join_refit_gap_px: int = 3
     join_refit_touching: bool = True
     trim_to_fit_px: int = 3
-    rim_colour_below: float = 0.5
+    rim_colour_below: float = 0.0
     edge_band_px: int = 6
     same_part_share: float = 0.3
     fit_rank_coverage_weight: float = 0.0
