@@ -48,6 +48,36 @@ def test_train_from_cad_in_clutter_by_default(tless_models_dir, tmp_path):
     assert not plain.uses_depth
 
 
+def test_turntable_crops_join_the_cluttered_ones_as_box_crops(tless_models_dir, tmp_path):
+    """--turntable-crops adds the turntable's own views to the cluttered crops, described as
+    the model describes a region at inference (its box, background kept, and the box's size),
+    so one box-crop model learns from both."""
+    from tlessbot_ros.core.recognise import HogParams, describe_regions
+    from tlessbot_ros.sim.turntable import Turntable, TurntableParams
+    from tlessbot_ros.io.models import load_models
+    from tlessbot_ros.tools.commands.train import turntable_features
+
+    hog = HogParams(crop_mode='box', box_size=True)
+    features, labels = turntable_features(tless_models_dir, hog, ids=[5, 19], steps_deg=180,
+                                          positions=1, augmentations=0, seed=4)
+    assert features.shape == (len(labels), hog.feature_dim) and np.isfinite(features).all()
+    table = Turntable(load_models(tless_models_dir, [5, 19]), params=TurntableParams(
+        positions=1, step_deg=180, augmentations=0), seed=4)
+    first = next(iter(table.samples()))
+    expected = describe_regions(first.rgb, masks=[first.mask], params=hog,
+                                focal_px=float(first.K[0, 0]))[0]
+    np.testing.assert_allclose(features[0], expected, rtol=1e-6)
+    assert labels[0] == first.obj_id
+    out = tmp_path / 'both.npz'
+    argv = ['train', '--models', str(tless_models_dir), '--ids', '5', '19', '--steps-deg',
+            '180', '--positions', '1', '--augmentations', '0', '--copies', '1', '--seed', '4',
+            '--out', str(out)]
+    assert main([*argv, '--turntable-crops']) == 0
+    model = LinearClassifier.load(out)
+    assert model.hog_params.crop_mode == 'box' and model.hog_params.box_size
+    assert model.info['turntable_crops'] == 4 and model.info['samples'] == 4 + 4
+
+
 def test_clutter_recipe_reads_shape_from_smoothed_depth_for_its_share(tless_models_dir):
     """--smoothed-share reaches the clutter recipe's turntable: the shape part of the features
     changes for the smoothed views, and a share of 0 gives the per-pixel recipe's features."""
@@ -161,6 +191,7 @@ def test_kernel_settings_are_checked_before_rendering(tmp_path, capsys):
     # scenes and learner
     ('packaged', ['--epochs', '3'], (800, 4000, 256, 0.3, 'perceptron', True, 3, 'turntable')),
     ('hybrid', ['--scenes', '200'], (200, 4000, 256, 0.3, 'perceptron', True, 20, 'clutter')),
+    ('hybrid-turntable', [], (800, 4000, 256, 0.3, 'perceptron', True, 20, 'clutter')),
 ])
 def test_named_recipes_set_their_options_and_given_options_win(recipe, given, expected):
     import argparse

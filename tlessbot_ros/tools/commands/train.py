@@ -26,7 +26,9 @@ recipe sets these options; options given beside it win. The default, ``--recipe 
 pastes each view among other parts on random tables and re-photographs it
 (docs/recognition-real.md): it is the one that transfers to real images. ``--recipe hybrid``
 takes the cluttered crops with the packaged model's scenes and learner; ``tlessbot parts
-build`` uses it by default.
+build`` uses it by default. ``--recipe hybrid-turntable`` adds the packaged recipe's
+turntable views to hybrid's crops (``--turntable-crops``), cut by their boxes as the cluttered
+crops are.
 
 Several learners can share one rendering pass: --classifier all (or sgd,pa1) writes
 <out>_<kind>.npz per learner.
@@ -64,6 +66,7 @@ from tlessbot_ros.core.recognise import (
     ClassifierParams,
     HogParams,
     ShapeParams,
+    describe_regions,
     hog_features,
     normalise_crop,
     region_points_world,
@@ -89,6 +92,7 @@ _PACKAGED_OPTIONS = {'scenes': 800, 'kernel': 4000, 'kernel_axes': 256, 'hog_wei
 RECIPES = {
     'packaged': {'recipe': 'turntable', **_PACKAGED_OPTIONS},
     'hybrid': {'recipe': 'clutter', **_PACKAGED_OPTIONS},
+    'hybrid-turntable': {'recipe': 'clutter', 'turntable_crops': True, **_PACKAGED_OPTIONS},
 }
 RECIPE_CHOICES = ('clutter', 'turntable', *sorted(RECIPES))   # what --recipe takes
 
@@ -129,7 +133,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='clutter: views among other parts on random tables, cut as '
                              "loose boxes (default); turntable: the paper's silhouette crops; "
                              "packaged: the packaged model's (turntable + scenes); hybrid: "
-                             "clutter + packaged's scenes and learner; options given win")
+                             "clutter + packaged's scenes and learner; hybrid-turntable: hybrid "
+                             "+ the turntable views; options given win")
+    parser.add_argument('--turntable-crops', action=argparse.BooleanOptionalAction,
+                        default=False,
+                        help="with --recipe clutter: also the turntable's own views (the "
+                             "packaged recipe's), cut by their boxes as the cluttered crops are")
     parser.add_argument('--copies', type=int, default=ClutterRecipe.copies,
                         help=f'cluttered crops per view (default {ClutterRecipe.copies})')
     parser.add_argument('--clutter-param', action='append', metavar='NAME=VALUE',
@@ -204,9 +213,11 @@ def turntable_features(models_dir: Path, hog: HogParams, *, ids: list[int] | Non
                        smoothed_share: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Render the turntable and describe every crop: ((N, D) float32, (N,) int64 ids).
 
-    D is the HOG length, plus ``shape.feature_dim`` shape values (NaN = no usable depth) when
-    ``shape`` is given. A share ``smoothed_share`` (0-1) of the views has the stereo-like
-    'smoothed' depth (``TurntableParams.smoothed_depth_share``).
+    D is ``hog.feature_dim``, plus ``shape.feature_dim`` shape values (NaN = no usable depth)
+    when ``shape`` is given. With ``hog.crop_mode == 'box'`` each view is cut by its
+    silhouette's box, background kept (as ``describe_regions`` cuts a box at inference). A share
+    ``smoothed_share`` (0-1) of the views has the stereo-like 'smoothed' depth
+    (``TurntableParams.smoothed_depth_share``).
     """
     from tqdm import tqdm
 
@@ -222,6 +233,8 @@ def turntable_features(models_dir: Path, hog: HogParams, *, ids: list[int] | Non
     hog_dim = hog.feature_dim
     features = np.empty((len(table), hog_dim + (shape.feature_dim if shape else 0)),
                         np.float32)
+    if hog.crop_mode == 'box':
+        return _turntable_box_features(table, hog, shape, features)
     labels = np.empty(len(table), np.int64)
     batch = np.empty((256, hog.crop_px, hog.crop_px), np.uint8)
     count = filled = 0
@@ -242,6 +255,25 @@ def turntable_features(models_dir: Path, hog: HogParams, *, ids: list[int] | Non
     labels[count:count + filled] = batch_labels
     count += filled
     return features[:count], labels[:count]
+
+
+def _turntable_box_features(table, hog: HogParams, shape: ShapeParams | None,
+                            features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`turntable_features` of box crops: each view described by ``describe_regions``
+    (its silhouette's box, and the box's angular size with ``hog.box_size``) into
+    ``features`` ((N, D) float32, filled in place); returns it with the (N,) int64 ids."""
+    from tqdm import tqdm
+
+    labels = np.empty(len(table), np.int64)
+    hog_dim = hog.feature_dim
+    for row, sample in enumerate(tqdm(table.samples(), total=len(table), desc='render+HOG',
+                                      unit='crop')):
+        features[row, :hog_dim] = describe_regions(sample.rgb, masks=[sample.mask], params=hog,
+                                                   focal_px=float(sample.K[0, 0]))[0]
+        if shape is not None:
+            features[row, hog_dim:] = sample_shape(sample, shape)
+        labels[row] = sample.obj_id
+    return features[:row + 1], labels[:row + 1]
 
 
 def read_image_crop(path: Path, hog: HogParams) -> np.ndarray:
@@ -408,6 +440,14 @@ def cad_features(args: argparse.Namespace, hog: HogParams, shape: ShapeParams | 
         source = {'source': 'clutter', 'steps_deg': args.steps_deg,
                   'positions': args.positions, 'copies': args.copies,
                   'smoothed_share': args.smoothed_share}
+        if args.turntable_crops:
+            more, more_labels = turntable_features(
+                args.models, hog, ids=args.ids, steps_deg=args.steps_deg,
+                positions=args.positions, augmentations=args.augmentations, seed=args.seed,
+                shape=shape, smoothed_share=args.smoothed_share)
+            features = np.vstack([features, more])
+            labels = np.concatenate([labels, more_labels])
+            source.update(turntable_crops=len(more_labels), augmentations=args.augmentations)
     else:
         features, labels = turntable_features(
             args.models, hog, ids=args.ids, steps_deg=args.steps_deg, positions=args.positions,
