@@ -53,8 +53,8 @@ def test_turntable_crops_join_the_cluttered_ones_as_box_crops(tless_models_dir, 
     the model describes a region at inference (its box, background kept, and the box's size),
     so one box-crop model learns from both."""
     from tlessbot_ros.core.recognise import HogParams, describe_regions
-    from tlessbot_ros.sim.turntable import Turntable, TurntableParams
     from tlessbot_ros.io.models import load_models
+    from tlessbot_ros.sim.turntable import Turntable, TurntableParams
     from tlessbot_ros.tools.commands.train import turntable_features
 
     hog = HogParams(crop_mode='box', box_size=True)
