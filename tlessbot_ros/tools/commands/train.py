@@ -135,17 +135,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "packaged: the packaged model's (turntable + scenes); hybrid: "
                              "clutter + packaged's scenes and learner; hybrid-turntable: hybrid "
                              "+ the turntable views; options given win")
-    parser.add_argument('--turntable-crops', action=argparse.BooleanOptionalAction,
-                        default=False,
-                        help="with --recipe clutter: also the turntable's own views (the "
-                             "packaged recipe's), cut by their boxes as the cluttered crops are")
-    parser.add_argument('--copies', type=int, default=ClutterRecipe.copies,
-                        help=f'cluttered crops per view (default {ClutterRecipe.copies})')
-    parser.add_argument('--clutter-param', action='append', metavar='NAME=VALUE',
-                        help='override a ClutterRecipe / ClutterParams field, e.g. '
-                             'neighbours=0,0 or photometric=false (repeatable)')
-    parser.add_argument('--box-size', action=argparse.BooleanOptionalAction, default=True,
-                        help="with --recipe clutter: also learn the box's angular size")
+    _add_clutter_arguments(parser)
     parser.add_argument('--scenes', type=int, default=0,
                         help='also train on the crops of this many simulated two-view scenes '
                              '(CAD mode, ours features; 0 = turntable only, the paper)')
@@ -182,6 +172,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f'{ClassifierParams.kernel_gamma:g})')
     parser.add_argument('--reject-margin', type=float, default=0.0,
                         help='store this reject threshold in the model (0 = never reject)')
+
+
+def _add_clutter_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of the cluttered crops (``--recipe clutter`` and the recipes built on it)."""
+    parser.add_argument('--turntable-crops', action=argparse.BooleanOptionalAction,
+                        default=False,
+                        help="with --recipe clutter: also the turntable's own views (the "
+                             "packaged recipe's), cut by their boxes as the cluttered crops are")
+    parser.add_argument('--copies', type=int, default=ClutterRecipe.copies,
+                        help=f'cluttered crops per view (default {ClutterRecipe.copies})')
+    parser.add_argument('--clutter-param', action='append', metavar='NAME=VALUE',
+                        help='override a ClutterRecipe / ClutterParams field, e.g. '
+                             'neighbours=0,0 or photometric=false (repeatable)')
+    parser.add_argument('--box-size', action=argparse.BooleanOptionalAction, default=True,
+                        help="with --recipe clutter: also learn the box's angular size")
 
 
 def parse_kinds(text: str) -> list[str]:
