@@ -28,20 +28,20 @@ def lifted_records(pipeline: PerceptionPipeline, views: dict) -> list[tuple]:
     """(candidate, height, table, lifted without the resolved rule, lifted, sigma) of each
     call of the lift while ``pipeline`` localises ``views``, in call order."""
     calls: list[tuple] = []
-    original = segmentation_module.raised_thin_blobs
+    original = segmentation_module.thin_lift
 
     def spy(candidate, height_m, table, params, **kw):
-        lifted = original(candidate, height_m, table, params, **kw)
+        lifted, regions = original(candidate, height_m, table, params, **kw)
         every = original(candidate, height_m, table,
-                         replace(params, thin_lift_resolved_k=0.0), **kw)
+                         replace(params, thin_lift_resolved_k=0.0), **kw)[0]
         sigma = kw.get('noise_m', 0.0)
         calls.append((candidate.copy(), height_m, table.copy(), every, lifted, sigma))
-        return lifted
-    segmentation_module.raised_thin_blobs = spy
+        return lifted, regions
+    segmentation_module.thin_lift = spy
     try:
         segmentations(pipeline, views)
     finally:
-        segmentation_module.raised_thin_blobs = original
+        segmentation_module.thin_lift = original
     return calls
 
 

@@ -33,14 +33,15 @@ def main(argv: list[str]) -> int:
     ap.add_argument('templates')
     ap.add_argument('--pipeline-param', action='append', default=[], metavar='NAME=VALUE')
     args = ap.parse_args(argv)
-    original = segmentation_module.raised_thin_blobs
+    original = segmentation_module.thin_lift
     freed: list[tuple[np.ndarray, np.ndarray]] = []
 
     def spy(candidate, height_m, table, params, **kw):
-        lifted = original(candidate, height_m, table, params, **kw)
-        blob_rule = original(candidate, height_m, table, params, noise_m=kw.get('noise_m', 0.0))
+        lifted, regions = original(candidate, height_m, table, params, **kw)
+        blob_rule = original(candidate, height_m, table, params,
+                             noise_m=kw.get('noise_m', 0.0))[0]
         freed.append((lifted & ~blob_rule & table, candidate))   # table before the lift
-        return lifted
+        return lifted, regions
 
     pipeline = None
     totals: dict[int, int] = {}
@@ -50,11 +51,11 @@ def main(argv: list[str]) -> int:
                                           **stage_overrides(args.pipeline_param))
             pipeline.localise_params = replace(pipeline.localise_params, parallel_views=False)
         freed.clear()
-        segmentation_module.raised_thin_blobs = spy
+        segmentation_module.thin_lift = spy
         try:
             segmentations(pipeline, views)
         finally:
-            segmentation_module.raised_thin_blobs = original
+            segmentation_module.thin_lift = original
         for name, (pixels, candidate) in zip(('top', 'side'), freed):
             if not pixels.any():
                 continue

@@ -238,3 +238,47 @@ def test_two_thin_parts_of_one_colour_the_table_divides_stay_divided() -> None:
     lifted = raised_thin_blobs(candidate, height, height < 0.0025,
                                SegmentationParams(thin_lift_colour_floors=1.0), lab=lab)
     assert not lifted.any()
+
+
+def test_a_lifted_colour_region_is_one_part_beside_a_taller_one() -> None:
+    from tlessbot_ros.core.localise.instances import instances_at_scale
+
+    height = np.full((80, 160), np.nan, np.float32)
+    plate = np.zeros(height.shape, bool)
+    plate[20:60, 10:50] = plate[33:47, 50:70] = plate[20:60, 70:110] = True  # two lobes, a neck
+    height[plate] = 0.003
+    block = np.zeros(height.shape, bool)
+    block[10:70, 110:150] = True                            # a block 30 mm high against it
+    height[block] = 0.03
+    rgb = np.zeros(height.shape + (3,), np.uint8)
+    rgb[plate], rgb[block] = (200, 60, 120), (200, 60, 110)
+    args = (plate | block, rgb, rgb, SegmentationParams())
+    cut = instances_at_scale(*args, height_m=height)[0]     # the blob's cores cut the plate
+    assert len(np.unique(cut[plate])) == 2 and np.unique(cut[block]).tolist() == [1]
+    regions = np.where(plate, 1, 0).astype(np.int32)        # the plate's lifted colour region
+    labels = instances_at_scale(*args, height_m=height, thin_regions=regions)[0]
+    assert np.unique(labels[plate]).tolist() == [1]
+    assert np.count_nonzero(labels[block] == 2) >= 0.99 * block.sum()
+    two = regions.copy()                                    # two thin parts: two regions
+    two[:, 60:] = np.where(plate[:, 60:], 2, 0)
+    labels = instances_at_scale(*args, height_m=height, thin_regions=two)[0]
+    assert len({int(labels[40, 30]), int(labels[40, 90]), int(labels[40, 130])}) == 3
+
+
+
+def test_a_taller_part_s_thin_flange_stays_with_it() -> None:
+    from tlessbot_ros.core.localise.instances import instances_at_scale
+
+    height = np.full((80, 120), np.nan, np.float32)
+    flange = np.zeros(height.shape, bool)
+    flange[10:70, 10:30] = True                   # a bracket's flange 3 mm high, 60 px wide...
+    height[flange] = 0.003
+    upright = np.zeros(height.shape, bool)
+    upright[10:70, 30:70] = True                  # ... along its upright, 25 mm high
+    height[upright] = 0.025
+    rgb = np.zeros(height.shape + (3,), np.uint8)
+    rgb[flange | upright] = (60, 90, 200)
+    regions = np.where(flange, 1, 0).astype(np.int32)
+    labels = instances_at_scale(flange | upright, rgb, rgb, SegmentationParams(),
+                                height_m=height, thin_regions=regions)[0]
+    assert np.unique(labels[flange | upright]).tolist() == [1]

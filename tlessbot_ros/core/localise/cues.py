@@ -213,6 +213,7 @@ class DepthCue:
     sigma_m: float  # robust height noise of the table
     surfaces: Surfaces | None = None  # for the depth split (None: no depth image given)
     height_m: np.ndarray | None = None  # (h, w) height above the table, NaN invalid
+    thin_regions: np.ndarray | None = None  # (h, w) int32 thin parts' lifted colour regions
 
 
 @dataclass

@@ -36,7 +36,7 @@ from tlessbot_ros.core.localise.cues import Surfaces, depth_cue
 from tlessbot_ros.core.localise.lightness import lightness_pieces
 from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.part_scale import join_pieces_no_part_fits, several_parts
-from tlessbot_ros.core.localise.thin import is_thin
+from tlessbot_ros.core.localise.thin import is_thin, region_pieces
 
 
 # --------------------------------------------------------------------------- watershed
@@ -127,12 +127,15 @@ def split_touching(mask: np.ndarray, rgb: np.ndarray | None = None, *,
 
 
 def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationParams,
-               surfaces: Surfaces | None = None, height_m: np.ndarray | None = None
+               surfaces: Surfaces | None = None, height_m: np.ndarray | None = None,
+               thin_regions: np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(labels (H, W) int32, boxes (N, 4) int32, areas (N,) int64, depth groups (N,) int32)
     of :func:`split_touching`; the instances cut from one piece of a depth split share a
     group id > 0 (0: not divided by depth). With ``height_m`` (the mask's scale) a thin
-    blob is kept whole (:func:`~tlessbot_ros.core.localise.thin.is_thin`).
+    blob is kept whole (:func:`~tlessbot_ros.core.localise.thin.is_thin`), and so is a
+    thin part's lifted colour region in a blob (``thin_regions``, the mask's scale,
+    :func:`~tlessbot_ros.core.localise.thin.thin_lift`).
 
     Blobs are labelled by one look-up; only blobs that may hold several parts (deep enough
     for a split) are looked at one by one, in a crop.
@@ -154,23 +157,11 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
             continue
         x0, y0 = max(x - 1, 0), max(y - 1, 0)
         x1, y1 = min(x + w + 1, W), min(y + h + 1, H)
-        blob = comp[y0:y1, x0:x1] == i
-        # a thin part: its holes and lobes are no seams, its depth too noisy; colour still is
-        thin = is_thin(blob, height_m, (y0, x0), params)
-        crop = None if rgb is None else rgb[y0:y1, x0:x1]
-        by_depth, ties = ([blob], [0]) if surfaces is None or thin else \
-            depth_pieces(blob, Surfaces(*(a[y0:y1, x0:x1] for a in (
-                surfaces.solid, surfaces.table, surfaces.depth_m))), crop, params)
-        found = []
-        for depth_piece, tie in zip(by_depth, ties):
-            group = 0
-            if len(set(ties)) > 1:   # pieces told apart by no seam share their group
-                group = n_groups + 1 + tie
-            more, n_groups, n_lightness = _pieces_of_depth_piece(
-                depth_piece, crop, thin, None if surfaces is None else
-                surfaces.depth_m[y0:y1, x0:x1], params, group, (n_groups, n_lightness))
-            found += more
-        n_groups += len(by_depth) if len(set(ties)) > 1 else 0
+        window = np.s_[y0:y1, x0:x1]
+        blob = comp[window] == i
+        found, n_groups, n_lightness = _blob_pieces(
+            blob, window, rgb, params, surfaces, height_m,
+            None if thin_regions is None else thin_regions[window], (n_groups, n_lightness))
         if len(found) > 1:
             pieces[int(i)] = (y0, x0, [(f, g) for f, g in found
                                        if cv2.countNonZero(f.view(np.uint8))
@@ -201,6 +192,44 @@ def _instances(mask: np.ndarray, rgb: np.ndarray | None, params: SegmentationPar
         labels[y0:y0 + f.shape[0], x0:x0 + f.shape[1]][f] = k
     return (labels, np.array(boxes, np.int32).reshape(-1, 4),
             np.array(areas, np.int64), np.array(groups, np.int32))
+
+
+def _blob_pieces(blob: np.ndarray, window: tuple[slice, slice], rgb: np.ndarray | None,
+                 params: SegmentationParams, surfaces: Surfaces | None,
+                 height_m: np.ndarray | None, thin_regions: np.ndarray | None,
+                 used: tuple[int, int]) -> tuple[list[tuple[np.ndarray, int]], int, int]:
+    """One blob (a crop's mask at ``window`` of the image) divided by :func:`split_touching`'s
+    steps: its pieces with their depth groups, and the depth and lightness groups used so far
+    (``used`` before). A thin part's lifted colour region in a blob that is not thin as a
+    whole (``thin_regions``, the crop's labels) is a piece of its own, kept whole as a thin
+    blob is (:func:`~.thin.region_pieces`): the blob's distance cores would cut across it
+    where a taller part touches it. The rest is divided piece by piece."""
+    n_groups, n_lightness = used
+    origin = (window[0].start or 0, window[1].start or 0)
+    crop = None if rgb is None else rgb[window]
+    depth_crop = None if surfaces is None else surfaces.depth_m[window]
+    # a thin part: its holes and lobes are no seams, its depth too noisy; colour still is
+    thin = is_thin(blob, height_m, origin, params)
+    regions, rests = ([], []) if thin or thin_regions is None else \
+        region_pieces(blob, thin_regions, params)
+    found: list[tuple[np.ndarray, int]] = []
+    if regions:
+        found, n_groups = _cores_of_pieces(regions, crop, True, depth_crop, params, 0, n_groups)
+    for rest, rest_thin in [(piece, is_thin(piece, height_m, origin, params))
+                            for piece in rests] if regions else [(blob, thin)]:
+        by_depth, ties = ([rest], [0]) if surfaces is None or rest_thin else \
+            depth_pieces(rest, Surfaces(*(a[window] for a in (
+                surfaces.solid, surfaces.table, surfaces.depth_m))), crop, params)
+        for depth_piece, tie in zip(by_depth, ties):
+            group = 0
+            if len(set(ties)) > 1:   # pieces told apart by no seam share their group
+                group = n_groups + 1 + tie
+            more, n_groups, n_lightness = _pieces_of_depth_piece(
+                depth_piece, crop, rest_thin, depth_crop, params, group,
+                (n_groups, n_lightness))
+            found += more
+        n_groups += len(by_depth) if len(set(ties)) > 1 else 0
+    return found, n_groups, n_lightness
 
 
 def _pieces_of_depth_piece(piece: np.ndarray, crop: np.ndarray | None, thin: bool,
@@ -272,7 +301,8 @@ def _cores_of_pieces(pieces: list[np.ndarray], crop: np.ndarray | None, thin: bo
 
 def instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarray,
                         params: SegmentationParams, surfaces: Surfaces | None = None,
-                        height_m: np.ndarray | None = None
+                        height_m: np.ndarray | None = None,
+                        thin_regions: np.ndarray | None = None
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Instance separation at the cue scale, labels carried back to the full-resolution mask.
 
@@ -286,13 +316,15 @@ def instances_at_scale(foreground: np.ndarray, rgb: np.ndarray, small: np.ndarra
     h, w = small.shape[:2]
     H, W = foreground.shape
     if (h, w) == (H, W):
-        labels, boxes, areas, groups = _instances(foreground, rgb, params, surfaces, height_m)
+        labels, boxes, areas, groups = _instances(foreground, rgb, params, surfaces, height_m,
+                                                  thin_regions)
         return labels.astype(np.uint16), boxes, areas, groups
     s = h / H
     small_params = _scaled_params(params, s)
     fg_small = cv2.resize(foreground.view(np.uint8) * np.uint8(255), (w, h),
                           interpolation=cv2.INTER_AREA) >= 128
-    labels_s, boxes_s, _, groups = _instances(fg_small, small, small_params, surfaces, height_m)
+    labels_s, boxes_s, _, groups = _instances(fg_small, small, small_params, surfaces, height_m,
+                                              thin_regions)
     labels_s = labels_s.astype(np.uint16)
     n = len(boxes_s)
     if n == 0:

@@ -73,6 +73,8 @@ class SegmentationParams:
             its tall pixels): neighbours within this many colour floors (>= 0; 0: off).
         thin_lift_table_floors: ... but not a region within this many colour floors of one of
             the table's common colours: a piece of the table (>= 0).
+        thin_region_cut_border: a lifted region is a part of its own in its blob where it meets
+            the rest along less than this x sqrt(smaller's px) (more: one part's flange; >= 0).
         watershed_keep_share: a candidate blob of which the watershed keeps less than this
             share is kept whole (a part with weaker edges than its surroundings; 0..1, 0: off).
         small_blob_candidates_px: a blob smaller than this (px) keeps its candidates' extent,
@@ -153,6 +155,7 @@ class SegmentationParams:
     thin_lift_resolved_k: float = 2.0
     thin_lift_colour_floors: float = 0.0
     thin_lift_table_floors: float = 2.0
+    thin_region_cut_border: float = 1.5
     watershed_keep_share: float = 0.0
     small_blob_candidates_px: int = 0
     small_blob_trim_floors: float = 1.0
@@ -174,12 +177,13 @@ class SegmentationParams:
                              f'{self.thin_quantile}, {self.thin_min_valid}')
         if self.thin_lift_height_m < 0 or not 0.0 <= self.thin_lift_min_share <= 1.0 or \
                 min(self.thin_lift_resolved_k, self.thin_lift_colour_floors,
-                    self.thin_lift_table_floors) < 0:
+                    self.thin_lift_table_floors, self.thin_region_cut_border) < 0:
             raise ValueError('need thin_lift_height_m >= 0 m (0: off), thin_lift_min_share '
-                             'in 0..1, thin_lift_resolved_k, thin_lift_colour_floors and '
-                             f'thin_lift_table_floors >= 0, got {self.thin_lift_height_m}, '
-                             f'{self.thin_lift_min_share}, {self.thin_lift_resolved_k}, '
-                             f'{self.thin_lift_colour_floors}, {self.thin_lift_table_floors}')
+                             'in 0..1, thin_lift_resolved_k, thin_lift_colour_floors, '
+                             'thin_lift_table_floors and thin_region_cut_border >= 0, got '
+                             f'{self.thin_lift_height_m}, {self.thin_lift_min_share}, '
+                             f'{self.thin_lift_resolved_k}, {self.thin_lift_colour_floors}, '
+                             f'{self.thin_lift_table_floors}, {self.thin_region_cut_border}')
         unknown = set(self.methods) - set(METHODS)
         if unknown or not self.methods:
             raise ValueError(f'methods must be a non-empty subset of {METHODS}, '

@@ -44,7 +44,7 @@ from tlessbot_ros.core.localise.params import SegmentationParams
 from tlessbot_ros.core.localise.part_length import ViewDepth
 from tlessbot_ros.core.localise.part_scale import whole_part_px
 from tlessbot_ros.core.localise.small_parts import small_blobs_from_depth, table_coloured
-from tlessbot_ros.core.localise.thin import raised_thin_blobs, thin_instances
+from tlessbot_ros.core.localise.thin import thin_instances, thin_lift
 
 if TYPE_CHECKING:
     from tlessbot_ros.core.common import CameraIntrinsics
@@ -186,7 +186,8 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
     labels, boxes, areas, groups = instances_at_scale(
         foreground, rgb, small, params,
         surfaces=None if depth_cue is None or not split_by_depth else depth_cue.surfaces,
-        height_m=None if depth_cue is None else depth_cue.height_m)
+        height_m=None if depth_cue is None else depth_cue.height_m,
+        thin_regions=None if depth_cue is None else depth_cue.thin_regions)
     if split_by_depth:   # the nearer view: a part a few pixels across, completed by depth
         boxes, areas = _small_blobs_by_depth(labels, boxes, areas, depth_m, intrinsics,
                                              T_world_camera, depth_cue, params, rgb)
@@ -305,9 +306,9 @@ def _union_of_cues(small: np.ndarray, lab: np.ndarray, bgm: BackgroundModel | No
             masks[name] = cue(small, lab, bgm, params)
             watch.lap(f'cue_{name}')
     if depth_cue is not None and masks:   # a thin part's pixels at table height stay (thin.py)
-        lifted = raised_thin_blobs(np.logical_or.reduce([c for c, _ in masks.values()]),
-                                   depth_cue.height_m, depth_cue.table, params,
-                                   noise_m=depth_cue.sigma_m, lab=lab)
+        lifted, depth_cue.thin_regions = thin_lift(
+            np.logical_or.reduce([c for c, _ in masks.values()]), depth_cue.height_m,
+            depth_cue.table, params, noise_m=depth_cue.sigma_m, lab=lab)
         depth_cue.table &= ~lifted
     veto = shadow
     if depth_cue is not None:

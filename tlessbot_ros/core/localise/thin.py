@@ -26,9 +26,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from tlessbot_ros.core.localise.colour_edge import common_colours
-from tlessbot_ros.core.localise.cues import eroded
+from tlessbot_ros.core.localise.cues import eroded, opened
 from tlessbot_ros.core.localise.params import SegmentationParams
-from tlessbot_ros.core.localise.part_scale import could_be_whole
+from tlessbot_ros.core.localise.part_scale import could_be_whole, shared_border_ratio
 
 # A colour region holds fewer pixels than its blob, and a patch of the table's noise that size
 # can rise as high as a thin part: a region is lifted only where its median height stands
@@ -78,8 +78,18 @@ def thin_instances(labels: np.ndarray, height_m: np.ndarray | None,
 def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
                       table: np.ndarray, params: SegmentationParams, *,
                       noise_m: float = 0.0, lab: np.ndarray | None = None) -> np.ndarray:
-    """(h, w) bool: the pixels where the depth's veto is lifted: the 8-connected blobs of
-    ``candidate`` that are thin parts raised above the table as a whole, but for their rim
+    """(h, w) bool: the pixels where the depth's veto is lifted (:func:`thin_lift`'s first
+    answer)."""
+    return thin_lift(candidate, height_m, table, params, noise_m=noise_m, lab=lab)[0]
+
+
+def thin_lift(candidate: np.ndarray, height_m: np.ndarray | None, table: np.ndarray,
+              params: SegmentationParams, *, noise_m: float = 0.0,
+              lab: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """((h, w) bool, (h, w) int32): the pixels where the depth's veto is lifted, and the
+    colour regions lifted (labels 1..N, 0 elsewhere; see ``lab``), each the outline of one thin
+    part that the instance separation keeps (:func:`region_pieces`). Lifted: the 8-connected
+    blobs of ``candidate`` that are thin parts raised above the table as a whole, but for their rim
     (one pixel, 4-connected: the table around a small part stays out of its mask). Raised: thin
     (:func:`is_thin`'s test) and their median valid height at least ``thin_lift_height_m``,
     where the table pixels take ``thin_lift_min_share`` of its inside (less: the depth
@@ -114,12 +124,13 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
             the table's common colours (:func:`~.colour_edge.common_colours`) is table; one
             whose median height is under ``REGION_CLEAR_K`` x ``noise_m`` is noise.
     """
-    out = np.zeros(candidate.shape, bool)
+    out = np.zeros(candidate.shape, bool), np.zeros(candidate.shape, np.int32)
     if height_m is None or params.thin_lift_height_m <= 0 or params.thin_max_height_m <= 0:
         return out
     count, labels = cv2.connectedComponents(candidate.view(np.uint8), connectivity=8)
     if count <= 1:
         return out
+    regions = out[1]
     raised, medians = _raised(labels, count, height_m, table, params)
     lifted = _lifted(labels, raised, medians, height_m, table, params, noise_m)
     if lab is not None and params.thin_lift_colour_floors > 0:
@@ -141,7 +152,42 @@ def raised_thin_blobs(candidate: np.ndarray, height_m: np.ndarray | None,
                 raised[candidates] = ~np.any(np.all(
                     np.abs(table_colours[None] - colours[:, None]) <= near, axis=2), axis=1)
             lifted |= _lifted(units, raised, medians, height_m, table, params, noise_m)
-    return lifted
+            kept = np.flatnonzero(raised)
+            numbers = np.zeros(n_units, np.int32)
+            numbers[kept] = np.arange(1, len(kept) + 1)
+            regions = numbers[units]
+    return lifted, regions
+
+
+def region_pieces(blob: np.ndarray, regions: np.ndarray, params: SegmentationParams
+                  ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """A blob's lifted colour regions that are parts of their own, and the rest of the blob
+    in pieces ((h, w) bool masks of the blob's crop; both empty where no region is).
+
+    A region (:func:`thin_lift`'s labels ``regions`` cut to the crop) holding at least
+    ``min_area_px`` of the blob is one; the rest, less the regions and opened by one pixel
+    (the colour outline and the foreground's differ by about that), falls into pieces of at
+    least ``min_area_px``. A region that meets one of them along
+    ``thin_region_cut_border`` or more (:func:`~.part_scale.shared_border_ratio`) is no part
+    of its own: the thin flange of a taller part (a bracket lying on its side), which meets
+    the rest across its whole width, where a part beside another meets it along a short
+    stretch.
+    """
+    ids, counts = np.unique(regions[blob], return_counts=True)
+    kept = [blob & (regions == k) for k, n in zip(ids, counts)
+            if k > 0 and n >= params.min_area_px]
+    rests: list[np.ndarray] = []
+    while kept:
+        rest = opened(blob & ~np.logical_or.reduce(kept), 1)
+        count, labels = cv2.connectedComponents(rest.view(np.uint8), connectivity=8)
+        rests = [piece for piece in (labels == k for k in range(1, count))
+                 if np.count_nonzero(piece) >= params.min_area_px]
+        apart = [r for r in kept if all(shared_border_ratio(r, piece) <
+                                        params.thin_region_cut_border for piece in rests)]
+        if len(apart) == len(kept):
+            break
+        kept = apart
+    return kept, rests if kept else []
 
 
 def colour_regions(mask: np.ndarray, lab: np.ndarray, floors: np.ndarray) -> np.ndarray:
