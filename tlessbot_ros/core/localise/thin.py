@@ -124,13 +124,12 @@ def thin_lift(candidate: np.ndarray, height_m: np.ndarray | None, table: np.ndar
             the table's common colours (:func:`~.colour_edge.common_colours`) is table; one
             whose median height is under ``REGION_CLEAR_K`` x ``noise_m`` is noise.
     """
-    out = np.zeros(candidate.shape, bool), np.zeros(candidate.shape, np.int32)
+    regions = np.zeros(candidate.shape, np.int32)
     if height_m is None or params.thin_lift_height_m <= 0 or params.thin_max_height_m <= 0:
-        return out
+        return np.zeros(candidate.shape, bool), regions
     count, labels = cv2.connectedComponents(candidate.view(np.uint8), connectivity=8)
     if count <= 1:
-        return out
-    regions = out[1]
+        return np.zeros(candidate.shape, bool), regions
     raised, medians = _raised(labels, count, height_m, table, params)
     lifted = _lifted(labels, raised, medians, height_m, table, params, noise_m)
     if lab is not None and params.thin_lift_colour_floors > 0:
