@@ -271,14 +271,15 @@ def _turntable_box_features(table, hog: HogParams, shape: ShapeParams | None,
 
     labels = np.empty(len(table), np.int64)
     hog_dim = hog.feature_dim
-    for row, sample in enumerate(tqdm(table.samples(), total=len(table), desc='render+HOG',
-                                      unit='crop')):
-        features[row, :hog_dim] = describe_regions(sample.rgb, masks=[sample.mask], params=hog,
-                                                   focal_px=float(sample.K[0, 0]))[0]
+    count = 0
+    for sample in tqdm(table.samples(), total=len(table), desc='render+HOG', unit='crop'):
+        features[count, :hog_dim] = describe_regions(
+            sample.rgb, masks=[sample.mask], params=hog, focal_px=float(sample.K[0, 0]))[0]
         if shape is not None:
-            features[row, hog_dim:] = sample_shape(sample, shape)
-        labels[row] = sample.obj_id
-    return features[:row + 1], labels[:row + 1]
+            features[count, hog_dim:] = sample_shape(sample, shape)
+        labels[count] = sample.obj_id
+        count += 1
+    return features[:count], labels[:count]
 
 
 def read_image_crop(path: Path, hog: HogParams) -> np.ndarray:
