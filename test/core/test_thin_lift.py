@@ -282,3 +282,47 @@ def test_a_taller_part_s_thin_flange_stays_with_it() -> None:
     labels = instances_at_scale(flange | upright, rgb, rgb, SegmentationParams(),
                                 height_m=height, thin_regions=regions)[0]
     assert np.unique(labels[flange | upright]).tolist() == [1]
+
+
+def test_a_low_band_between_two_parts_is_not_lifted() -> None:
+    height = np.zeros((60, 120), np.float32)
+    lab = _lab(height.shape, (70.0, 0.0, 0.0))              # a grey table
+    candidate = np.zeros(height.shape, bool)
+    for cols in (np.s_[5:45], np.s_[75:115]):               # two black blocks 30 mm high...
+        candidate[10:50, cols] = True
+        height[10:50, cols] = 0.03
+        lab[10:50, cols] = (20.0, 0.0, 0.0)
+    candidate[20:40, 45:75] = True                          # ... a low band of one colour
+    height[20:40, 45:75] = 0.003                            # between them (a pile's gap, a
+    height[20:40:2, 45:75:2] = 0.001                        # part's foot), a quarter table
+    lab[20:40, 45:75] = (45.0, 10.0, -45.0)
+    table = height < 0.0025
+    params = SegmentationParams(thin_lift_colour_floors=1.0)
+    assert not raised_thin_blobs(candidate, height, table, params, lab=lab).any()
+    bridged = raised_thin_blobs(candidate, height, table,
+                                replace(params, thin_region_no_bridge=False), lab=lab)
+    assert bridged[21:39, 46:74].all()
+    one = candidate.copy()                                  # beside one block only: lifted
+    one[10:50, 75:115] = False
+    lifted = raised_thin_blobs(one, height, table, params, lab=lab)
+    assert lifted[21:39, 46:74].all()
+
+
+def test_the_lifted_regions_divide_the_side_view_only(monkeypatch) -> None:
+    from tlessbot_ros.core.localise import segmentation
+
+    rgb, depth, _, cam = _strip_scene()
+    seen: dict[bool, object] = {}
+    separate = segmentation.instances_at_scale
+
+    def spy(*args, **kwargs):
+        seen[kwargs['surfaces'] is not None] = kwargs['thin_regions']
+        return separate(*args, **kwargs)
+
+    monkeypatch.setattr(segmentation, 'instances_at_scale', spy)
+    params = SegmentationParams(thin_lift_colour_floors=1.0)
+    for side in (True, False):
+        segment(rgb, depth_m=depth, intrinsics=cam.intrinsics,
+                T_world_camera=cam.T_world_camera, split_by_depth=side, params=params)
+    assert seen[True] is not None       # the side view: split by depth, its regions apart
+    assert seen[False] is None          # the top view, farther: a thin part reads small

@@ -75,6 +75,8 @@ class SegmentationParams:
             the table's common colours: a piece of the table (>= 0).
         thin_region_cut_border: a lifted region is a part of its own in its blob where it meets
             the rest along less than this x sqrt(smaller's px) (more: one part's flange; >= 0).
+        thin_region_no_bridge: ... nor a region touching two pieces the veto leaves that could
+            each be a whole part: the band between two parts in a pile (bool).
         watershed_keep_share: a candidate blob of which the watershed keeps less than this
             share is kept whole (a part with weaker edges than its surroundings; 0..1, 0: off).
         small_blob_candidates_px: a blob smaller than this (px) keeps its candidates' extent,
@@ -156,6 +158,7 @@ class SegmentationParams:
     thin_lift_colour_floors: float = 0.0
     thin_lift_table_floors: float = 2.0
     thin_region_cut_border: float = 1.5
+    thin_region_no_bridge: bool = True
     watershed_keep_share: float = 0.0
     small_blob_candidates_px: int = 0
     small_blob_trim_floors: float = 1.0

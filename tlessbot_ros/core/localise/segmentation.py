@@ -187,7 +187,8 @@ def segment(rgb: np.ndarray, *, background: np.ndarray | BackgroundModel | None 
         foreground, rgb, small, params,
         surfaces=None if depth_cue is None or not split_by_depth else depth_cue.surfaces,
         height_m=None if depth_cue is None else depth_cue.height_m,
-        thin_regions=None if depth_cue is None else depth_cue.thin_regions)
+        thin_regions=None if depth_cue is None or not split_by_depth
+        else depth_cue.thin_regions)   # from the top a thin part reads small: no region
     if split_by_depth:   # the nearer view: a part a few pixels across, completed by depth
         boxes, areas = _small_blobs_by_depth(labels, boxes, areas, depth_m, intrinsics,
                                              T_world_camera, depth_cue, params, rgb)

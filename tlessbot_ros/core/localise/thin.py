@@ -150,6 +150,8 @@ def thin_lift(candidate: np.ndarray, height_m: np.ndarray | None, table: np.ndar
                                     for c in range(3)], axis=1)
                 raised[candidates] = ~np.any(np.all(
                     np.abs(table_colours[None] - colours[:, None]) <= near, axis=2), axis=1)
+            if params.thin_region_no_bridge:
+                raised &= ~_bridges_parts(units, raised, candidate & ~table, params)
             lifted |= _lifted(units, raised, medians, height_m, table, params, noise_m)
             kept = np.flatnonzero(raised)
             numbers = np.zeros(n_units, np.int32)
@@ -278,17 +280,52 @@ def _resolved_below(labels: np.ndarray, medians: np.ndarray, height_m: np.ndarra
 def _divided_into_parts(blob: np.ndarray, table: np.ndarray, params: SegmentationParams
                         ) -> bool:
     """Whether ``table`` leaves two or more pieces of ``blob`` (cue scale) that could each be
-    a whole part (:func:`~tlessbot_ros.core.localise.part_scale.could_be_whole`, at least
-    ``min_area_px``) at full resolution."""
+    a whole part (:func:`_whole_pieces`)."""
     rows, cols = np.nonzero(blob)
     window = np.s_[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
-    rest = (blob[window] & ~table[window]).view(np.uint8)
-    count, pieces = cv2.connectedComponents(rest, connectivity=8)
+    return int(np.count_nonzero(_whole_pieces(blob[window] & ~table[window], params)[0])) >= 2
+
+
+def _whole_pieces(mask: np.ndarray, params: SegmentationParams
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The 8-connected pieces of ``mask`` ((h, w) bool, cue scale): ((count,) bool, which
+    could each be a whole part at full resolution (:func:`~tlessbot_ros.core.localise.
+    part_scale.could_be_whole`, at least ``min_area_px``); (h, w) int32 their labels)."""
+    count, pieces = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
     up = 1.0 / params.cue_scale
-    parts = 0
-    for k in range(1, count):
-        piece = cv2.resize((pieces == k).view(np.uint8), None, fx=up, fy=up,
+    sizes = np.bincount(pieces.ravel(), minlength=count) * up * up
+    whole = np.zeros(count, bool)
+    for k in np.flatnonzero(sizes >= 0.5 * params.min_area_px):   # (upscaled: about)
+        if k == 0:
+            continue
+        rows, cols = np.nonzero(pieces == k)
+        crop = pieces[rows.min():rows.max() + 1, cols.min():cols.max() + 1] == k
+        piece = cv2.resize(crop.view(np.uint8), None, fx=up, fy=up,
                            interpolation=cv2.INTER_NEAREST) > 0
-        if np.count_nonzero(piece) >= params.min_area_px and could_be_whole(piece, params):
-            parts += 1
-    return parts >= 2
+        whole[k] = np.count_nonzero(piece) >= params.min_area_px and \
+            could_be_whole(piece, params)
+    return whole, pieces
+
+
+def _bridges_parts(units: np.ndarray, raised: np.ndarray, kept: np.ndarray,
+                   params: SegmentationParams) -> np.ndarray:
+    """(count,) bool: which ``raised`` colour regions of ``units`` (labels 1..count-1, cue
+    scale) touch (8-neighbours) two or more pieces of ``kept`` (the candidates the veto leaves,
+    less the raised regions) that could each be a whole part (:func:`_whole_pieces`): lifted,
+    the region would join two parts into one blob, a part's low rim or the gap between two
+    parts in a pile rather than a thin part of its own."""
+    out = np.zeros(raised.shape, bool)
+    if not raised.any():
+        return out
+    whole, pieces = _whole_pieces(kept & ~raised[units], params)
+    if np.count_nonzero(whole) < 2:
+        return out
+    ring = np.ones((3, 3), np.uint8)
+    for k in np.flatnonzero(raised):
+        rows, cols = np.nonzero(units == k)
+        window = np.s_[max(rows.min() - 1, 0):rows.max() + 2,
+                       max(cols.min() - 1, 0):cols.max() + 2]
+        near = cv2.dilate((units[window] == k).view(np.uint8), ring).view(bool)
+        touched = np.unique(pieces[window][near])
+        out[k] = np.count_nonzero(whole[touched]) >= 2
+    return out
