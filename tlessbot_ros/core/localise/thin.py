@@ -122,7 +122,9 @@ def thin_lift(candidate: np.ndarray, height_m: np.ndarray | None, table: np.ndar
             part or a thin one of another colour beside it, or a patterned table around it. A
             region whose median colour lies within ``thin_lift_table_floors`` floors of one of
             the table's common colours (:func:`~.colour_edge.common_colours`) is table; one
-            whose median height is under ``REGION_CLEAR_K`` x ``noise_m`` is noise.
+            whose median height is under ``REGION_CLEAR_K`` x ``noise_m`` is noise; one that
+            would join two parts is not lifted (``thin_region_no_bridge``,
+            :func:`_bridges_parts`).
     """
     regions = np.zeros(candidate.shape, np.int32)
     if height_m is None or params.thin_lift_height_m <= 0 or params.thin_max_height_m <= 0:
